@@ -1,0 +1,97 @@
+"""The `planner` command: one subcommand per job, each taking a robot file (or a name in robots/).
+
+Exit codes: 0 success; 1 the solve or the validation failed (diagnostics still written); 2 bad input.
+A user error prints one line on stderr, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from .errors import InputError, PlannerError
+
+EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line and exit code 2."""
+
+    def error(self, message):
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True) -> None:
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
+    if task:
+        p.add_argument("--task", type=Path, help="task file (default: the .toml beside the robot file)")
+    if out:
+        p.add_argument("--out", type=Path, help="directory that receives the results")
+    verbosity = p.add_mutually_exclusive_group()
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="planner", description=__doc__.splitlines()[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("check-model", help="compare the CasADi dynamics with Pinocchio and MuJoCo",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  planner check-model robots/capler.xml --samples 50 --json")
+    p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
+    p.add_argument("--samples", type=int, default=20, help="random states to compare (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    _add_common(p, task=False, out=False)
+    p.set_defaults(run=_cmd_check_model)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except InputError as exc:
+        print(f"planner {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except PlannerError as exc:
+        print(f"planner {args.command}: failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def _emit(args, summary: dict, text: str) -> None:
+    if args.json:
+        print(json.dumps(summary))
+    elif not args.quiet:
+        print(text)
+
+
+def _cmd_check_model(args) -> int:
+    from .check import check_model
+    from .model import load_robot
+
+    if args.samples < 1:
+        raise InputError(f"--samples must be >= 1, got {args.samples}")
+    result = check_model(load_robot(args.robot), samples=args.samples, seed=args.seed)
+    _emit(args, result.to_json(), result.report())
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def prepare_out_dir(path: Path) -> Path:
+    """Create the output directory, or say in one line why it cannot be used."""
+    if path.exists() and not path.is_dir():
+        raise InputError(f"--out {path} is a file, not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create output directory {path}: {exc.strerror}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise InputError(f"output directory {path} is not writable")
+    return path
+
+
+if __name__ == "__main__":
+    sys.exit(main())

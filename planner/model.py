@@ -1,0 +1,216 @@
+"""Robot files (MJCF or URDF) parsed by Pinocchio, plus what Pinocchio does not read from them.
+
+Pinocchio gives the kinematic tree, inertias, frames and joint limits. MJCF motors are read from
+MuJoCo's compiled model of the same file (Pinocchio's MJCF parser ignores actuators); URDF actuators
+are the joints with a positive effort limit.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import RobotFileError, UnknownNameError
+
+ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
+
+
+class RobotFormat(Enum):
+    MJCF = "mjcf"
+    URDF = "urdf"
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """A motor acting on one degree of freedom: generalized force = gear * u."""
+
+    name: str
+    dof: int  # velocity index, 0 <= dof < nv
+    gear: float
+    lower: float  # control bounds [N m] or [N], before the gear
+    upper: float
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A parsed robot file. `model` is the Pinocchio model; the rest is what the planner adds."""
+
+    path: Path
+    format: RobotFormat
+    model: pin.Model = field(repr=False)
+    actuators: tuple[Actuator, ...]
+    points: tuple[str, ...]  # named points: MJCF sites, URDF links and frames
+    dof_names: tuple[str, ...]  # one joint name per velocity index (nv,)
+    sha256: str
+
+    @property
+    def name(self) -> str:
+        return self.model.name or self.path.stem
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    @property
+    def nv(self) -> int:
+        return self.model.nv
+
+    @property
+    def nu(self) -> int:
+        return len(self.actuators)
+
+    @property
+    def q_lower(self) -> np.ndarray:
+        """Joint position lower limits (nq,); -inf where the file gives none."""
+        return np.array(self.model.lowerPositionLimit, dtype=float)
+
+    @property
+    def q_upper(self) -> np.ndarray:
+        """Joint position upper limits (nq,); +inf where the file gives none."""
+        return np.array(self.model.upperPositionLimit, dtype=float)
+
+    @property
+    def u_lower(self) -> np.ndarray:
+        """Control lower bounds (nu,)."""
+        return np.array([a.lower for a in self.actuators], dtype=float)
+
+    @property
+    def u_upper(self) -> np.ndarray:
+        """Control upper bounds (nu,)."""
+        return np.array([a.upper for a in self.actuators], dtype=float)
+
+    @property
+    def actuation_matrix(self) -> np.ndarray:
+        """B (nv, nu): generalized forces = B @ u."""
+        B = np.zeros((self.nv, self.nu))
+        for j, a in enumerate(self.actuators):
+            B[a.dof, j] = a.gear
+        return B
+
+    def frame_id(self, point: str) -> int:
+        """Pinocchio frame index of a named point; UnknownNameError lists the valid names."""
+        if point not in self.points:
+            raise UnknownNameError("point", point, self.points)
+        return _point_frames(self.model)[point]
+
+    def dof_index(self, joint: str) -> int:
+        """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names."""
+        if joint not in self.dof_names:
+            raise UnknownNameError("joint", joint, self.dof_names)
+        return self.dof_names.index(joint)
+
+
+def resolve_robot_path(spec: str | os.PathLike) -> Path:
+    """A path to a robot file, or the bare name of one in `robots/` (e.g. `capler`)."""
+    path = Path(spec)
+    if path.is_file():
+        return path
+    if not path.suffix and path.parent == Path("."):
+        for ext in (".xml", ".urdf"):
+            candidate = ROBOTS_DIR / f"{path.name}{ext}"
+            if candidate.is_file():
+                return candidate
+        known = sorted(p.stem for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf"))
+        raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}")
+    raise RobotFileError(f"robot file not found: {path}")
+
+
+def detect_format(path: Path) -> RobotFormat:
+    """MJCF or URDF from the XML root element (<mujoco> or <robot>)."""
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise RobotFileError(f"malformed XML in {path}: {exc}") from None
+    except OSError as exc:
+        raise RobotFileError(f"cannot read robot file {path}: {exc.strerror}") from None
+    formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
+    if root.tag not in formats:
+        raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
+    return formats[root.tag]
+
+
+def load_robot(spec: str | os.PathLike) -> Robot:
+    """Parse a robot file with Pinocchio and collect its actuators and named points."""
+    path = resolve_robot_path(spec)
+    fmt = detect_format(path)
+    try:
+        with _quiet():
+            model = pin.buildModelFromMJCF(str(path)) if fmt is RobotFormat.MJCF else pin.buildModelFromUrdf(str(path))
+    except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RobotFileError(f"Pinocchio cannot parse {path}: {first}") from None
+    actuators, dof_names = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
+    return Robot(
+        path=path,
+        format=fmt,
+        model=model,
+        actuators=actuators,
+        points=tuple(_point_frames(model)),
+        dof_names=dof_names,
+        sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+    )
+
+
+def _point_frames(model: pin.Model) -> dict[str, int]:
+    """Named points: operational frames (MJCF sites) and bodies (URDF links), the universe excluded."""
+    kinds = (pin.FrameType.OP_FRAME, pin.FrameType.BODY)
+    points: dict[str, int] = {}
+    for fid, frame in enumerate(model.frames):
+        if frame.type in kinds and frame.name not in ("universe", "world") and frame.name not in points:
+            points[frame.name] = fid
+    return points
+
+
+def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...]]:
+    """URDF: every 1-DoF joint with a positive, finite effort limit is a motor with gear 1."""
+    actuators, dof_names = [], []
+    for jid in range(1, model.njoints):
+        joint, jname = model.joints[jid], model.names[jid]
+        dof_names += [jname] if joint.nv == 1 else [f"{jname}_{i}" for i in range(joint.nv)]
+        if joint.nv != 1:
+            continue
+        effort = float(model.effortLimit[joint.idx_v])
+        if 0.0 < effort < np.inf:
+            actuators.append(Actuator(jname, joint.idx_v, 1.0, -effort, effort))
+    return tuple(actuators), tuple(dof_names)
+
+
+def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...]]:
+    """MJCF: joint motors and joint names read from MuJoCo's compiled model of the same file.
+
+    MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
+    dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
+    """
+    import mujoco
+
+    try:
+        mj = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        raise RobotFileError(f"MuJoCo cannot compile {path}: {str(exc).strip().splitlines()[0]}") from None
+    if mj.nv != model.nv:
+        raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv}")
+    dof_names = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, int(mj.dof_jntid[i])) or f"dof_{i}" for i in range(mj.nv))
+    actuators = []
+    for i in range(mj.nu):
+        if mj.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:
+            raise RobotFileError(f"{path}: actuator {i} does not act on a joint; only joint motors are supported")
+        jnt = mj.actuator_trnid[i, 0]
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
+        lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
+        actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), float(mj.actuator_gear[i, 0]), float(lo), float(hi)))
+    return tuple(actuators), dof_names
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Pinocchio's parsers print warnings to stdout; keep the CLI's stdout clean for --json."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        yield
