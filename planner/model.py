@@ -10,6 +10,7 @@ import contextlib
 import hashlib
 import io
 import os
+import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from enum import Enum
@@ -118,7 +119,7 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
             candidate = ROBOTS_DIR / f"{path.name}{ext}"
             if candidate.is_file():
                 return candidate
-        known = sorted(p.stem for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf"))
+        known = sorted({p.stem for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")})
         raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}")
     raise RobotFileError(f"robot file not found: {path}")
 
@@ -137,16 +138,23 @@ def detect_format(path: Path) -> RobotFormat:
     return formats[root.tag]
 
 
-def load_robot(spec: str | os.PathLike) -> Robot:
-    """Parse a robot file with Pinocchio and collect its actuators and named points."""
+def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
+    """Parse a robot file with Pinocchio and collect its actuators and named points.
+
+    floating: give a URDF robot a free-flyer root joint (an MJCF file declares its own <freejoint/>).
+    """
     path = resolve_robot_path(spec)
     fmt = detect_format(path)
+    if floating and fmt is RobotFormat.MJCF:
+        raise RobotFileError(f"{path}: floating applies to URDF only; an MJCF file declares its own <freejoint/>")
     try:
         with _quiet():
-            model = pin.buildModelFromMJCF(str(path)) if fmt is RobotFormat.MJCF else pin.buildModelFromUrdf(str(path))
+            if fmt is RobotFormat.MJCF:
+                model = pin.buildModelFromMJCF(str(path))
+            else:
+                model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RobotFileError(f"Pinocchio cannot parse {path}: {first}") from None
+        raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}") from None
     actuators, dof_names = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
     return Robot(
         path=path,
@@ -197,6 +205,8 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         raise RobotFileError(f"MuJoCo cannot compile {path}: {str(exc).strip().splitlines()[0]}") from None
     if mj.nv != model.nv:
         raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv}")
+    # Pinocchio's MJCF parser ignores <option gravity>; the file's value is MuJoCo's.
+    model.gravity = pin.Motion(np.array(mj.opt.gravity, dtype=float), np.zeros(3))
     dof_names = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, int(mj.dof_jntid[i])) or f"dof_{i}" for i in range(mj.nv))
     actuators = []
     for i in range(mj.nu):
@@ -209,8 +219,26 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     return tuple(actuators), dof_names
 
 
+def _parser_message(exc: Exception) -> str:
+    """The useful line of a Pinocchio parser error (its first line is often just the source file)."""
+    text = str(exc).strip()
+    if "message:" in text:
+        text = text.split("message:", 1)[1].strip()
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("From file")]
+    return lines[0] if lines else type(exc).__name__
+
+
 @contextlib.contextmanager
 def _quiet():
-    """Pinocchio's parsers print warnings to stdout; keep the CLI's stdout clean for --json."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        yield
+    """Pinocchio's parsers print warnings on stdout and, from C++, on the stderr file descriptor;
+    keep the CLI's output clean (--json on stdout, one error line on stderr)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(io.StringIO()):
+            os.dup2(devnull.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)

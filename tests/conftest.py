@@ -1,0 +1,48 @@
+"""Shared fixtures: the example-robot-data robots folder and a loader for its robots."""
+from __future__ import annotations
+
+import functools
+import importlib.metadata
+from pathlib import Path
+
+import pytest
+
+from planner.model import Robot, load_robot
+
+
+@functools.cache
+def erd_robots_dir() -> Path:
+    """example-robot-data's `robots/` folder inside the installed distribution (it has no Python loader)."""
+    dist = importlib.metadata.distribution("example-robot-data")
+    return Path(dist.locate_file("cmeel.prefix/share/example-robot-data/robots"))
+
+
+# name -> (file under robots/, floating base): URDFs have no free joint, Pinocchio adds the free flyer
+ERD_ROBOTS = {
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", False),
+    "panda": ("panda_description/urdf/panda.urdf", False),
+    "solo12": ("solo_description/robots/solo12.urdf", True),
+    "bolt": ("bolt_description/robots/bolt.urdf", True),
+    "talos": ("talos_data/robots/talos_reduced.urdf", True),
+}
+
+
+@functools.cache
+def _load_erd(name: str) -> Robot:
+    path, floating = ERD_ROBOTS[name]
+    file = erd_robots_dir() / path
+    if not file.is_file():
+        pytest.skip(f"example-robot-data has no {path}")
+    return load_robot(file, floating=floating)
+
+
+@pytest.fixture(scope="session")
+def robots_dir() -> Path:
+    """example-robot-data's `robots/` folder."""
+    return erd_robots_dir()
+
+
+@pytest.fixture(scope="session")
+def erd_robot():
+    """erd_robot(name) -> Robot: an example-robot-data robot by short name (see ERD_ROBOTS), loaded once."""
+    return _load_erd

@@ -1,0 +1,154 @@
+"""planner.check (check-model) and the robot-file errors it reports."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from planner.check import TOLERANCE, ModelCheck, check_model, random_state
+from planner.errors import InputError, RobotFileError, UnknownNameError
+from planner.model import ROBOTS_DIR, load_robot
+
+SAMPLES = 5  # random states per check here; the CLI default is 20
+# The CasADi functions reproduce Pinocchio and MuJoCo to rounding (observed <= 3e-13); a tenth of
+# check-model's own threshold leaves a margin that still catches any modelling error.
+TOL_CHECK = TOLERANCE / 10
+
+JSON_KEYS = {
+    "robot", "format", "nq", "nv", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
+    "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
+}
+TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacobian_us", "evaluations"}
+
+
+@pytest.mark.parametrize("name", ["capler.xml", "capler.urdf", "biped.xml", "point_mass.xml"])
+def test_project_robots_pass(name):
+    """check-model passes on every robot in robots/, with MuJoCo compared for MJCF and skipped for URDF."""
+    result = check_model(load_robot(ROBOTS_DIR / name), samples=SAMPLES)
+    assert result.passed and result.backend in ("symbolic", "pinocchio.casadi")
+    assert all(err <= TOL_CHECK for err in result.max_errors.values()), result.max_errors
+    if name.endswith(".xml"):
+        assert result.mujoco is not None and result.mujoco_skipped is None
+    else:
+        assert result.mujoco is None and result.mujoco_skipped is None
+
+
+def test_solo12_passes_and_is_timed(erd_robot):
+    """A free-flyer quadruped passes; the Jacobian timed is the first foot's."""
+    result = check_model(erd_robot("solo12"), samples=SAMPLES)
+    assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is None
+    assert result.timing.point == "FL_FOOT"
+
+
+def test_json_contract():
+    """to_json() is JSON-serializable and has exactly the contract's keys; mujoco is an object for
+    MJCF and null for URDF; numbers are plain floats."""
+    for name, has_mujoco in (("capler.xml", True), ("capler.urdf", False)):
+        out = check_model(load_robot(ROBOTS_DIR / name), samples=2).to_json()
+        assert json.loads(json.dumps(out)) == out
+        assert set(out) == JSON_KEYS and set(out["timing"]) == TIMING_KEYS
+        assert (out["robot"], out["format"], out["nq"], out["nv"]) == ("capler", name.split(".")[1].replace("xml", "mjcf"), 4, 4)
+        assert out["passed"] is True and out["tolerance"] == TOLERANCE
+        if has_mujoco:
+            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites"}
+        else:
+            assert out["mujoco"] is None
+        assert all(type(out[k]) is float for k in JSON_KEYS if k.startswith("max_err"))
+        assert out["timing"]["build_s"] > 0 and out["timing"]["mass_us"] > 0 and out["timing"]["point"] == "foot"
+
+
+def test_detects_a_wrong_model():
+    """check-model fails when Pinocchio's model and the file disagree: a thigh mass changed after
+    parsing leaves CasADi = Pinocchio but MuJoCo's M and h differ."""
+    robot = load_robot("capler")  # a fresh model: it is mutated below
+    thigh = robot.model.getJointId("hip")
+    inertia = robot.model.inertias[thigh]
+    robot.model.inertias[thigh] = pin.Inertia(inertia.mass + 0.1, inertia.lever, inertia.inertia)
+    result = check_model(robot, samples=2)
+    assert not result.passed and result.to_json()["passed"] is False
+    assert result.max_err_mass <= TOL_CHECK and result.mujoco.max_err_mass > 0.01 and result.mujoco.max_err_bias > 0.1
+
+
+def test_seeded():
+    """The same seed gives the same states and errors; random_state keeps q within finite limits,
+    draws unbounded coordinates in [-1, 1] and normalizes quaternions."""
+    robot = load_robot("capler")
+    a, b = (check_model(robot, samples=3, seed=7) for _ in range(2))
+    keys = [k for k in JSON_KEYS if k.startswith("max_err")]
+    assert [getattr(a, k) for k in keys] == [getattr(b, k) for k in keys]
+    rng = np.random.default_rng(0)
+    qs = np.array([random_state(robot.model, rng)[0] for _ in range(200)])
+    assert np.all(np.abs(qs[:, :2]) <= 1.0)  # base x, z: no range in capler.xml
+    assert np.all(qs[:, 2:] >= robot.q_lower[2:]) and np.all(qs[:, 2:] <= robot.q_upper[2:])
+    assert qs[:, 3].min() < -1.2 and qs[:, 3].max() > 1.2  # the knee's +-pi/2 range is used, not [-1, 1]
+
+
+def test_random_state_normalizes_quaternions(erd_robot):
+    """Free-flyer quaternions of random states have unit norm."""
+    robot = erd_robot("solo12")
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q, v = random_state(robot.model, rng)
+        assert np.linalg.norm(q[3:7]) == pytest.approx(1.0, abs=1e-15) and np.all(np.abs(v) <= 1.0)
+
+
+def test_bad_arguments():
+    """samples < 1 and an unknown timing point are input errors; the unknown point's message lists the valid ones."""
+    robot = load_robot("capler")
+    with pytest.raises(InputError, match="samples"):
+        check_model(robot, samples=0)
+    with pytest.raises(UnknownNameError, match="unknown point 'toe'; valid points: base, foot, knee, shank, thigh"):
+        check_model(robot, point="toe")
+
+
+URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolute"><parent link="a"/><child link="missing"/></joint></robot>'
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (None, "robot file not found"),
+        ('<sdf version="1.6"><model name="m"/></sdf>', "neither MJCF (<mujoco>) nor URDF (<robot>): root element <sdf>"),
+        ("<mujoco><worldbody>", "malformed XML"),
+        (URDF_BROKEN, "Pinocchio cannot parse"),
+        ('<mujoco><worldbody><body><joint type="hinge"/><geom type="sphere" size="-1"/></body></worldbody></mujoco>', "Pinocchio cannot parse"),
+    ],
+    ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf"],
+)
+def test_bad_robot_files(tmp_path, text, message):
+    """A missing, foreign, malformed or unparsable robot file raises RobotFileError (an InputError) with a
+    one-line message naming the problem."""
+    path = tmp_path / "robot.xml"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(RobotFileError) as err:
+        load_robot(path)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_floating_is_urdf_only():
+    """floating=True adds a free flyer to a URDF and is refused for MJCF, which declares its own."""
+    assert load_robot(ROBOTS_DIR / "capler.urdf", floating=True).nq == 4 + 7
+    with pytest.raises(RobotFileError, match="floating applies to URDF only"):
+        load_robot("capler", floating=True)
+
+
+def test_report_text():
+    """report() states the verdict, the max errors against Pinocchio and MuJoCo, and the timing."""
+    text = check_model(load_robot("capler"), samples=2).report()
+    lines = text.splitlines()
+    assert lines[0].startswith("check-model capler (mjcf, nq=4, nv=4") and "PASSED" in lines[0]
+    assert "vs Pinocchio: mass" in text and "vs MuJoCo:    mass" in text and "J(foot)" in text
+    assert "not compared (URDF)" in check_model(load_robot(ROBOTS_DIR / "capler.urdf"), samples=1).report()
+
+
+def test_result_is_frozen():
+    """ModelCheck is immutable."""
+    result = check_model(load_robot("point_mass"), samples=1)
+    assert isinstance(result, ModelCheck)
+    with pytest.raises(AttributeError):
+        result.passed = False
+    with pytest.raises(AttributeError):
+        result.max_err_mass = 1.0

@@ -1,0 +1,85 @@
+"""Task files: every default task loads, and every kind of bad key or value is named in the error."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from planner.errors import TaskError, UnknownNameError
+from planner.model import load_robot
+from planner.task import load_task, parse_task
+
+ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+MINIMAL = {"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10}}
+
+
+@pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
+def test_default_tasks_match_their_robots(toml):
+    """Every task in robots/ parses and fits the robot file beside it."""
+    robot_file = next(p for p in (toml.with_suffix(".xml"), toml.with_suffix(".urdf")) if p.exists())
+    load_task(toml).check_against(load_robot(robot_file))
+
+
+def test_capler_task_holds_the_paper_numbers():
+    """robots/capler.toml carries Sec. 7's scene: h = 0.02, mu = 0.8, a_n = 200, a_t = 600, 3 holes."""
+    task = load_task(ROBOTS / "capler.toml")
+    assert task.horizon.h == pytest.approx(0.02)
+    (c,) = task.contacts
+    assert (c.mu, c.a_n, c.a_t) == (0.8, 200.0, 600.0)
+    assert [e.x for e in task.plan.holes] == [0.5, 1.5, 2.5]
+    assert task.plan.homotopy.n_nlp == 5
+
+
+def _with(path: str, value):
+    data = {k: (dict(v) if isinstance(v, dict) else list(v)) for k, v in MINIMAL.items()}
+    *parents, key = path.split(".")
+    node = data
+    for p in parents:
+        node = node.setdefault(p, {})
+    node[key] = value
+    return data
+
+
+@pytest.mark.parametrize(
+    "path, value, message",
+    [
+        ("bogus", 1, r"unknown key 'bogus'; valid keys: contacts, initial"),
+        ("horizon.N", 0, r"horizon.N = 0 .* >= 1"),
+        ("horizon.tau_f", -1.0, r"horizon.tau_f = -1.0 .* > 0"),
+        ("horizon.N", 2.5, r"horizon.N must be an integer, got float"),
+        ("initial.q", "up", r"initial.q must be an array, got str"),
+        ("ground_height", True, r"ground_height must be a number, got bool"),
+        ("contacts", [{"point": "foot", "restitution": 1.5}], r"restitution = 1.5 .* in \[0, 1\]"),
+        ("contacts", [{"point": "foot", "friction": 1}], r"unknown key 'contacts\[0\].friction'; valid keys: point, mu"),
+    ],
+)
+def test_bad_values_are_named(path, value, message):
+    """Unknown keys, wrong types and out-of-range values raise TaskError naming the key and the rule."""
+    with pytest.raises(TaskError, match=message):
+        parse_task(_with(path, value))
+
+
+def test_robot_dependent_errors():
+    """Names and lengths are checked against the robot; targets must lie inside the joint bounds."""
+    capler = load_robot("capler")
+    with pytest.raises(UnknownNameError, match="valid contact points: base, foot, knee"):
+        parse_task(_with("contacts", [{"point": "toe"}])).check_against(capler)
+    with pytest.raises(TaskError, match="initial.q has 2 entries; the robot needs 4"):
+        parse_task(_with("initial.q", [0.0, 1.0])).check_against(capler)
+    outside = _with("plan", {"target_q": [3.0, 0.4, 2.0, 0.0]})
+    with pytest.raises(TaskError, match=r"target_q\[2\] = 2.0 \(hip\) is outside the joint limits"):
+        parse_task(outside).check_against(capler)
+    inverted = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.0}]})
+    with pytest.raises(TaskError, match="lower = 1.0 .* <= upper"):
+        parse_task(inverted)
+
+
+def test_plan_needs_actuators(tmp_path):
+    """A task with a [plan] on a robot without motors is refused with a clear message."""
+    xml = tmp_path / "passive.xml"
+    xml.write_text('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1"/>'
+                   '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="p"/></body></worldbody></mujoco>')
+    task = parse_task({"contacts": [{"point": "p"}], "initial": {"q": [1.0]}, "horizon": {"tau_f": 1.0, "N": 5},
+                       "plan": {"target_q": [1.0]}})
+    with pytest.raises(TaskError, match="no actuators"):
+        task.check_against(load_robot(xml))
