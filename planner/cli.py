@@ -47,6 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_check_model)
+
+    p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, PD tracking, open loop)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  planner validate results/capler --json")
+    p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
+    _add_common(p, task=False, out=False)
+    p.set_defaults(run=_cmd_validate)
     return parser
 
 
@@ -76,6 +83,17 @@ def _cmd_check_model(args) -> int:
     if args.samples < 1:
         raise InputError(f"--samples must be >= 1, got {args.samples}")
     result = check_model(load_robot(args.robot), samples=args.samples, seed=args.seed)
+    _emit(args, result.to_json(), result.report())
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _cmd_validate(args) -> int:
+    from .replay import validate, write_validation
+
+    if not args.dir.is_dir():
+        raise InputError(f"result directory not found: {args.dir}")
+    result = validate(args.dir)
+    write_validation(args.dir, result)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
 

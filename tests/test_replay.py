@@ -1,0 +1,434 @@
+"""MuJoCo validation (planner/replay.py): contact settings against analytic impacts, ground-truth
+replays that must pass, corrupted plans that must fail, and clear errors for bad input.
+
+Every tolerance is a named constant with the reason for its size; the measured values are in
+docs/validation.md.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner import replay
+from planner.errors import InputError, UnknownNameError
+from planner.model import ROBOTS_DIR, load_robot
+from planner.task import load_task, parse_task
+
+G = 9.81  # the robot files' gravity [m/s^2]
+SETTINGS = replay.ContactSettings()
+DT = SETTINGS.timestep
+
+# MuJoCo notices the contact at the first state below the ground; with semi-implicit Euler that
+# state is at most one step after the analytic impact (and up to half a step before it).
+IMPACT_TIME_TOL_S = DT
+# After an inelastic impact the normal velocity is zero up to the push-out of the one-step
+# penetration v*dt, which starts at stiffness_ratio * impact speed (0.044 m/s) and decays with
+# time constant dt / stiffness_ratio = 25 ms; 10 ms after impact it is 0.012 m/s (measured).
+POST_IMPACT_NORMAL_VEL_TOL = 0.02  # [m/s], 0.45 % of the 4.43 m/s impact speed
+SETTLE_S = 0.01  # the post-impact velocity is read this long after the analytic impact
+# Frictionless sliding and sticking involve no soft-contact transient in the tangential direction:
+# the dead-beat friction reference removes the tangential velocity in one step.
+TANGENTIAL_VEL_TOL = 1e-6  # [m/s]
+# Partial slip (impulse outside the cone) and sustained sliding: the friction force follows the
+# normal force, whose soft transient lasts a few ms; 2 % of the 1 m/s scale.
+SLIDING_VEL_TOL = 0.02  # [m/s]
+STICK_CREEP_TOL_M = 1e-5  # creep of a stuck point in 1 s at 95 % of the friction limit (measured 0.7 um)
+# Elastic contacts: a linear spring-damper whose force vanishes before the spring is relaxed;
+# the exit/entry ratio comes out 0.52 for a requested 0.5 (measured).
+RESTITUTION_TOL = 0.05
+# A trajectory recorded from MuJoCo with the validation's own settings, sampled every step,
+# is replayed bit for bit: the PD term is exactly zero.
+GROUND_TRUTH_TOL_M = 1e-9
+# Sampled every 8 steps (2 ms zero-order hold), the reference is linear between samples; the
+# PD corrects the interpolation error (measured 0.08 mm).
+DECIMATED_TOL_M = 5e-4
+# The analytic point-mass plan is tracked by PD on both (actuated) coordinates; the soft contact
+# and the one-step impact lag leave sub-millimetre errors.
+ANALYTIC_PLAN_TOL_M = 1e-3
+
+
+def _task(point: str, mu: float = 0.0, restitution: float = 0.0, ground_height: float = 0.0, q0=(0.0, 1.0)):
+    return parse_task({"contacts": [{"point": point, "mu": mu, "restitution": restitution}],
+                       "ground_height": ground_height, "initial": {"q": list(q0)},
+                       "horizon": {"tau_f": 1.0, "N": 10}})
+
+
+@pytest.fixture(scope="module")
+def point_mass():
+    return load_robot(ROBOTS_DIR / "point_mass.xml")
+
+
+@pytest.fixture(scope="module")
+def capler():
+    return load_robot(ROBOTS_DIR / "capler.xml"), load_task(ROBOTS_DIR / "capler.toml")
+
+
+def _drop(robot, mu, restitution=0.0, v0=(1.0, 0.0), duration=0.8):
+    scene = replay.build_scene(robot, _task("point", mu, restitution))
+    return replay.mujoco_rollout(scene, [0.0, 1.0], v0, duration)
+
+
+def _at(traj, time):
+    k = int(np.searchsorted(traj["t"], time))
+    return traj["q"][k], traj["v"][k]
+
+
+# ------------------------------------------------------------------------------------------------
+# contact settings against the analytic inelastic impact
+# ------------------------------------------------------------------------------------------------
+
+def test_frictionless_drop_matches_analytic_impact(point_mass):
+    """Point mass from (0, 1) with v = (1, 0), mu = 0: impact at sqrt(2/g), then it slides at v_x = 1
+    with v_z = 0 (rigid, inelastic, frictionless)."""
+    traj = _drop(point_mass, mu=0.0)
+    t_impact = math.sqrt(2 / G)
+    assert traj["impact_times"].size == 1
+    assert abs(traj["impact_times"][0] - t_impact) <= IMPACT_TIME_TOL_S
+    _, v = _at(traj, t_impact + SETTLE_S)
+    assert abs(v[0] - 1.0) <= TANGENTIAL_VEL_TOL
+    assert abs(v[1]) <= POST_IMPACT_NORMAL_VEL_TOL
+    assert abs(traj["q"][-1, 0] - traj["t"][-1]) <= TANGENTIAL_VEL_TOL  # x = t: no friction at all
+    assert -traj["q"][:, 1].min() <= math.sqrt(2 * G) * DT * 1.05  # penetration: one step at impact speed
+
+
+def test_frictional_drop_sticks_at_impact(point_mass):
+    """With mu = 0.8 the tangential impulse (1 N s) is inside the cone (0.8 * 4.43 N s): both velocity
+    components vanish at the impact and the point stays where it landed."""
+    traj = _drop(point_mass, mu=0.8)
+    t_impact = math.sqrt(2 / G)
+    assert abs(traj["impact_times"][0] - t_impact) <= IMPACT_TIME_TOL_S
+    _, v = _at(traj, t_impact + SETTLE_S)
+    assert abs(v[0]) <= TANGENTIAL_VEL_TOL
+    assert abs(v[1]) <= POST_IMPACT_NORMAL_VEL_TOL
+    assert abs(traj["q"][-1, 0] - t_impact) <= 1.0 * DT  # landed within one step of travel at 1 m/s
+
+
+def test_partial_slip_impact_then_coulomb_deceleration(point_mass):
+    """With mu = 0.1 the impulse leaves the cone: v_x jumps to 1 - mu sqrt(2 g), then decreases at mu g."""
+    traj = _drop(point_mass, mu=0.1)
+    t_impact = math.sqrt(2 / G)
+    v_after = 1.0 - 0.1 * math.sqrt(2 * G)
+    for delay in (0.005, 0.3):
+        _, v = _at(traj, t_impact + delay)
+        assert abs(v[0] - (v_after - 0.1 * G * delay)) <= SLIDING_VEL_TOL
+
+
+def test_coulomb_cone_sticks_inside_and_slides_outside(point_mass):
+    """A point resting on the ground, pushed sideways: below mu m g it does not move; above it, with
+    mu = 0.1, it accelerates at (F - mu m g) / m (sustained sliding at larger mu hops: see the note)."""
+    stick = replay.build_scene(point_mass, _task("point", mu=0.8, q0=(0.0, 0.0)))
+    traj = replay.mujoco_rollout(stick, [0.0, 0.0], [0.0, 0.0], 1.0, lambda t, q, v: [0.95 * 0.8 * G, 0.0])
+    assert abs(traj["q"][-1, 0]) <= STICK_CREEP_TOL_M
+    slide = replay.build_scene(point_mass, _task("point", mu=0.1, q0=(0.0, 0.0)))
+    traj = replay.mujoco_rollout(slide, [0.0, 0.0], [0.0, 0.0], 1.0, lambda t, q, v: [0.1 * G + 2.0, 0.0])
+    assert abs(traj["v"][-1, 0] - 2.0) <= SLIDING_VEL_TOL * 2.0
+
+
+def test_elastic_drop_exit_velocity(point_mass):
+    """restitution 0.5 leaves the ground at about half the impact speed."""
+    traj = _drop(point_mass, mu=0.0, restitution=0.5, duration=0.6)
+    t_impact = math.sqrt(2 / G)
+    after = np.nonzero((traj["t"] > t_impact) & (traj["q"][:, 1] >= 0.0))[0][0]
+    assert abs(traj["v"][after, 1] / math.sqrt(2 * G) - 0.5) <= RESTITUTION_TOL
+
+
+def test_scene_keeps_dynamics_and_moves_ground(point_mass, capler):
+    """The collision spheres are massless (mass matrix and bias forces equal the file's, random states,
+    seeded) and the ground is moved to the task's ground_height: MuJoCo's contact distance is the
+    site's height above it."""
+    import mujoco
+
+    robot, task = capler
+    scene = replay.build_scene(robot, task)
+    plain = mujoco.MjModel.from_xml_path(str(robot.path))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q, v = rng.uniform(-1, 1, robot.nq), rng.uniform(-1, 1, robot.nv)
+        mats = []
+        for model in (scene.model, plain):
+            data = mujoco.MjData(model)
+            data.qpos[:], data.qvel[:] = q, v
+            mujoco.mj_forward(model, data)
+            M = np.zeros((model.nv, model.nv))
+            mujoco.mj_fullM(model, data, M)
+            mats.append((M, data.qfrc_bias.copy()))
+        assert np.allclose(mats[0][0], mats[1][0], atol=1e-12) and np.allclose(mats[0][1], mats[1][1], atol=1e-12)
+
+    raised = replay.build_scene(point_mass, _task("point", ground_height=0.1))
+    data = mujoco.MjData(raised.model)
+    data.qpos[:] = [0.0, 0.1005]
+    mujoco.mj_forward(raised.model, data)
+    dist, active = raised.contact_state(data)
+    assert dist[0] == pytest.approx(0.0005, abs=1e-12) and not active[0]
+
+
+def test_impact_detection_ignores_chatter():
+    """Contact onsets count as impacts only after min_flight_s without contact (or from a free start)."""
+    times = np.arange(0, 0.1, 0.001)
+    active = np.zeros((times.size, 1), dtype=bool)
+    active[20:40] = True  # impact at 0.020
+    active[42:50] = True  # 2 ms gap: chatter
+    active[70:] = True  # 20 ms flight: impact at 0.070
+    impacts = replay.detect_impacts(times, active, ["foot"], min_flight_s=0.01)
+    assert [p for p, _ in impacts] == ["foot", "foot"]
+    assert np.allclose([x for _, x in impacts], [0.020, 0.070])
+
+
+# ------------------------------------------------------------------------------------------------
+# ground truth passes, corrupted copies fail
+# ------------------------------------------------------------------------------------------------
+
+HOLD = np.array([0.3, -0.6])  # hip, knee [rad]: the foot right below the hip
+DROP_Z = 2 * 0.2 * math.cos(0.3) + 0.05  # foot 5 cm above the ground [m]
+
+
+def _capler_drop(robot, task, sample_every):
+    """Capler dropped from 5 cm while a digital joint PD (held over each sample) keeps its posture."""
+    scene = replay.build_scene(robot, task)
+    # gains stable for a 2 ms zero-order hold: kd * T / I_knee ~ 0.2
+    return replay.mujoco_rollout(scene, [0.0, DROP_Z, *HOLD], np.zeros(4), 0.6,
+                                 lambda t, q, v: 50.0 * (HOLD - q[2:]) - 1.0 * v[2:], sample_every=sample_every)
+
+
+def _write_result(out: Path, traj: dict, robot_path: Path, task_path: Path, points) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    np.savez(out / "trajectory.npz", **{k: traj[k] for k in ("tau", "y", "t", "q", "v", "u", "impact_times")})
+    summary = {"command": "simulate", "robot": str(robot_path), "task": str(task_path), "converged": True,
+               "impacts": [{"time": float(x), "contact": p, "impulse": 0.0} for x, p in zip(traj["impact_times"], points)]}
+    (out / "summary.json").write_text(json.dumps(summary))
+    return out
+
+
+@pytest.fixture(scope="module")
+def ground_truth(capler, tmp_path_factory):
+    robot, task = capler
+    traj = _capler_drop(robot, task, sample_every=1)
+    out = _write_result(tmp_path_factory.mktemp("truth"), traj, robot.path, ROBOTS_DIR / "capler.toml",
+                        list(traj["impact_points"]))
+    return traj, out
+
+
+def test_mujoco_rollout_validates_with_zero_error(ground_truth):
+    """A Capler drop recorded from MuJoCo itself, written in the contract format and read back by
+    `validate(DIR)`, replays with zero tracking error and zero impact time difference."""
+    traj, out = ground_truth
+    result = replay.validate(out)
+    assert result.passed, result.failures
+    assert result.max_tracking_error_m <= GROUND_TRUTH_TOL_M
+    assert all(e <= GROUND_TRUTH_TOL_M for e in result.tracking.max_foot_error_m.values())
+    assert result.open_loop.time_within_band_s == pytest.approx(result.open_loop.duration_s)
+    assert len(result.tracking.impacts) == 1 and result.tracking.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
+    assert result.kinematic.contacts_agree and result.kinematic.max_site_disagreement_m < 1e-12
+    assert result.tracking.saturation_fraction == 0.0
+
+    summary = json.loads(replay.write_validation(out, result).read_text())
+    block = summary["validation"]
+    for key in ("passed", "mode", "max_tracking_error_m", "final_tracking_error_m", "max_penetration_m", "thresholds"):
+        assert key in block
+    assert block["thresholds"]["max_tracking_error_m"] == replay.MAX_TRACKING_ERROR_M == 0.01
+    assert block["thresholds"]["max_penetration_m"] == replay.MAX_PENETRATION_M == 0.002
+    json.dumps(block, allow_nan=False)  # strict JSON
+
+
+def test_decimated_rollout_validates(capler):
+    """The same drop sampled every 2 ms (controls held over each sample, as a plan's are) still
+    validates: the PD corrects the linear interpolation between samples."""
+    robot, task = capler
+    traj = _capler_drop(robot, task, sample_every=8)
+    result = replay.validate_trajectory(robot, task, traj)
+    assert result.passed, result.failures
+    assert result.max_tracking_error_m <= DECIMATED_TOL_M
+
+
+def test_shifted_base_fails(ground_truth, capler):
+    """The ground truth with the base 5 cm higher throughout: a robot hovering above its feet is not
+    physical, MuJoCo lets it fall, and the tracking error exceeds the threshold."""
+    robot, task = capler
+    traj, _ = ground_truth
+    bad = {**traj, "q": traj["q"] + np.array([0.0, 0.05, 0.0, 0.0])}
+    result = replay.validate_trajectory(robot, task, bad)
+    assert not result.passed
+    assert result.max_tracking_error_m > replay.MAX_TRACKING_ERROR_M
+    assert any("tracking" in f for f in result.failures)
+
+
+def test_foot_under_ground_fails(ground_truth, capler):
+    """The ground truth lowered by 1 cm: the foot is 1 cm under the ground once it has landed, so the
+    kinematic penetration fails the 2 mm threshold."""
+    robot, task = capler
+    traj, _ = ground_truth
+    bad = {**traj, "q": traj["q"] - np.array([0.0, 0.01, 0.0, 0.0])}
+    result = replay.validate_trajectory(robot, task, bad)
+    assert not result.passed
+    assert result.max_penetration_m == pytest.approx(0.01, abs=1e-3)
+    assert result.kinematic.worst_point == "foot"
+    assert any("penetration" in f for f in result.failures)
+
+
+def test_analytic_point_mass_plan_with_impact_samples(point_mass):
+    """A plan in the contract format with a repeated-time impact sample (pre- and post-impact
+    velocity): the frictionless drop is tracked within a millimetre, MuJoCo's impact is within one
+    step of the planned one, and the open-loop replay (u = 0 is the true control) stays in the band."""
+    task = load_task(ROBOTS_DIR / "point_mass.toml")
+    t_impact = math.sqrt(2 / G)
+    grid = np.linspace(0.0, 0.8, 41)
+    before, after = grid[grid < t_impact], grid[grid > t_impact]
+    t = np.concatenate([before, [t_impact, t_impact], after])
+    post = np.r_[np.zeros(before.size + 1, dtype=bool), np.ones(after.size + 1, dtype=bool)]
+    z = np.where(post, 0.0, 1.0 - 0.5 * G * t**2)
+    vz = np.where(post, 0.0, -G * t)
+    traj = {"t": t, "q": np.c_[t, z], "v": np.c_[np.ones_like(t), vz], "u": np.zeros((t.size, 2)),
+            "impact_times": np.array([t_impact])}
+    result = replay.validate_trajectory(point_mass, task, traj)
+    assert result.passed, result.failures
+    assert result.max_tracking_error_m <= ANALYTIC_PLAN_TOL_M
+    assert abs(result.tracking.impacts[0].difference_s) <= IMPACT_TIME_TOL_S
+    assert result.open_loop.time_within_band_s == pytest.approx(result.open_loop.duration_s)
+    assert result.max_penetration_m == 0.0
+
+
+# ------------------------------------------------------------------------------------------------
+# bad input
+# ------------------------------------------------------------------------------------------------
+
+def _zeros(robot, P=3):
+    return {"t": np.linspace(0, 0.1, P), "q": np.zeros((P, robot.nq)), "v": np.zeros((P, robot.nv)),
+            "u": np.zeros((P, robot.nu)), "impact_times": np.zeros(0)}
+
+
+def test_urdf_robot_is_unsupported(capler):
+    """A URDF robot cannot be replayed in MuJoCo: InputError naming the format."""
+    _, task = capler
+    robot = load_robot(ROBOTS_DIR / "capler.urdf")
+    with pytest.raises(InputError, match="MJCF"):
+        replay.validate_trajectory(robot, task, _zeros(robot))
+
+
+def test_contact_point_that_is_not_a_site(capler):
+    """A contact point Pinocchio knows (a body) but MuJoCo has no site for: UnknownNameError listing sites."""
+    robot, _ = capler
+    task = _task("shank", q0=(0.0, 0.4, 0.0, 0.0))
+    with pytest.raises(UnknownNameError, match="foot"):
+        replay.validate_trajectory(robot, task, _zeros(robot))
+
+
+def test_missing_and_garbled_files(ground_truth, tmp_path):
+    """Every broken result directory is an InputError that names the problem."""
+    traj, good = ground_truth
+    with pytest.raises(InputError, match="not found"):
+        replay.validate(tmp_path / "nowhere")
+    with pytest.raises(InputError, match="summary.json"):
+        replay.validate(tmp_path)
+
+    def copy(name):
+        d = tmp_path / name
+        d.mkdir()
+        for f in ("summary.json", "trajectory.npz"):
+            (d / f).write_bytes((good / f).read_bytes())
+        return d
+
+    d = copy("garbled_summary")
+    (d / "summary.json").write_text("{not json")
+    with pytest.raises(InputError, match="JSON"):
+        replay.validate(d)
+    d = copy("no_robot")
+    (d / "summary.json").write_text(json.dumps({"task": "robots/capler.toml"}))
+    with pytest.raises(InputError, match="robot"):
+        replay.validate(d)
+    d = copy("missing_robot_file")
+    (d / "summary.json").write_text(json.dumps({"robot": "gone.xml", "task": str(ROBOTS_DIR / "capler.toml")}))
+    with pytest.raises(InputError, match="gone.xml"):
+        replay.validate(d)
+    d = copy("garbled_npz")
+    (d / "trajectory.npz").write_bytes(b"this is not a zip file")
+    with pytest.raises(InputError, match="npz"):
+        replay.validate(d)
+    d = copy("missing_array")
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "impact_times")})
+    with pytest.raises(InputError, match="'u'|u"):
+        replay.validate(d)
+    d = copy("wrong_shape")
+    np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "v", "u", "impact_times")}, "q": traj["q"][:, :3]})
+    with pytest.raises(InputError, match="shape"):
+        replay.validate(d)
+    d = copy("nan")
+    np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "q", "u", "impact_times")}, "v": traj["v"] * np.nan})
+    with pytest.raises(InputError, match="NaN"):
+        replay.validate(d)
+
+
+# ------------------------------------------------------------------------------------------------
+# cross-check: the time-freezing simulation (planner.simulate) against MuJoCo rollouts
+# ------------------------------------------------------------------------------------------------
+# Same robot file, same initial state, same controls. Tolerances of issue 5, tightened where the
+# numbers allow (measured values in docs/validation.md):
+XCHECK_N = 250  # implicit Euler steps over 1 s (h = 4 ms): its O(h) free-fall position error is
+#   2.06 h per second of fall (measured 1.04 cm at h = 5 ms, 0.82 cm at h = 4 ms), so 1 cm needs h < 4.8 ms
+XCHECK_POSITION_TOL_M = 0.01  # over the whole second (issue 5)
+XCHECK_VELOCITY_REL_TOL = 0.01  # post-impact velocity, relative to the impact speed (issue: 5 %; measured 0.3 %)
+
+
+def _xcheck(robot, contact: dict, q0, v0, schedule=(), N=XCHECK_N):
+    simulate = pytest.importorskip("planner.simulate")
+    data = {"contacts": [contact], "initial": {"q": list(q0), "v": list(v0)}, "horizon": {"tau_f": 1.0, "N": N}}
+    if schedule:
+        data["simulate"] = {"schedule": [{"t": t, "u": list(u)} for t, u in schedule]}
+    task = parse_task(data)
+    result = simulate.simulate(robot, task)
+    assert result.stats.converged
+    traj = result.trajectory
+    scene = replay.build_scene(robot, task)
+    mj = replay.mujoco_rollout(scene, q0, v0, float(traj.t[-1]), lambda t, q, v: task.simulate.controls_at(t, robot.nu))
+    q_mj = np.stack([np.interp(traj.t, mj["t"], mj["q"][:, i]) for i in range(robot.nq)], axis=1)
+    return task, traj, mj, float(np.abs(q_mj - traj.q).max())
+
+
+def _check_impact(task, traj, mj):
+    assert len(traj.impacts) == 1 and mj["impact_times"].size == 1
+    impact = traj.impacts[0]
+    assert abs(impact.time - mj["impact_times"][0]) <= task.horizon.h  # within one time-freezing step
+    _, v_mj = _at(mj, mj["impact_times"][0] + SETTLE_S)
+    speed = float(np.linalg.norm(impact.v_pre))
+    assert np.abs(impact.v_post - v_mj).max() <= XCHECK_VELOCITY_REL_TOL * speed
+
+
+@pytest.mark.slow
+def test_xcheck_point_mass_drop_and_slide(point_mass):
+    """Frictionless drop from (0, 1) with v = (1, 0): the same impact, then sliding, in both simulators."""
+    task, traj, mj, err = _xcheck(point_mass, {"point": "point", "mu": 0.0, "a_n": 100.0}, (0.0, 1.0), (1.0, 0.0))
+    _check_impact(task, traj, mj)
+    assert err <= XCHECK_POSITION_TOL_M
+
+
+@pytest.mark.slow
+def test_xcheck_point_mass_no_slip_drop(point_mass):
+    """Drop with mu = 0.8: both stop dead at the impact (normal and tangential jump)."""
+    task, traj, mj, err = _xcheck(point_mass, {"point": "point", "mu": 0.8, "a_n": 100.0}, (0.0, 1.0), (1.0, 0.0))
+    _check_impact(task, traj, mj)
+    assert err <= XCHECK_POSITION_TOL_M
+
+
+@pytest.mark.slow
+def test_xcheck_point_mass_pull_off(point_mass):
+    """Resting on the ground, pulled up with 15 N (> m g) from t = 0.3 s: no impact in either, the same lift-off."""
+    task, traj, mj, err = _xcheck(point_mass, {"point": "point", "mu": 0.8, "a_n": 100.0}, (0.0, 0.0), (0.0, 0.0),
+                                  schedule=[(0.3, (0.0, 15.0))])
+    assert len(traj.impacts) == 0 and mj["impact_times"].size == 0
+    assert err <= XCHECK_POSITION_TOL_M
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="restitution 0.5, h = 10 ms: planner.simulate's impact is 11.5 ms (> h) "
+                   "before MuJoCo's and leaves at 0.42 of the impact speed, MuJoCo at 0.52 -- see docs/validation.md")
+def test_xcheck_point_mass_elastic_bounce(point_mass):
+    """restitution 0.5: the same impact time and exit velocity (within the issue's 5 %)."""
+    task, traj, mj, _ = _xcheck(point_mass, {"point": "point", "mu": 0.0, "a_n": 100.0, "restitution": 0.5},
+                                (0.0, 1.0), (1.0, 0.0), N=100)
+    impact = traj.impacts[0]
+    assert abs(impact.time - mj["impact_times"][0]) <= task.horizon.h
+    after = np.nonzero((mj["t"] > mj["impact_times"][0]) & (mj["q"][:, 1] >= 0.0))[0][0]
+    assert abs(impact.v_post[1] - mj["v"][after, 1]) <= 0.05 * abs(impact.v_pre[1])
