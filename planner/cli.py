@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 from .errors import InputError, PlannerError
@@ -54,6 +55,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_validate)
+
+    p = sub.add_parser("view", help="meshcat replay of a result: live, or a self-contained HTML page",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  planner view results/capler                 # live; prints the URL\n"
+                              "  planner view results/capler --html hop.html --slow-motion")
+    p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("--html", type=Path, help="write a static page that works offline instead of serving")
+    p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
+    _add_common(p, task=False, out=False)
+    p.set_defaults(run=_cmd_view)
     return parser
 
 
@@ -96,6 +107,23 @@ def _cmd_validate(args) -> int:
     write_validation(args.dir, result)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _cmd_view(args) -> int:
+    from . import view
+
+    if args.html is not None:
+        page = view.render_html(args.dir, args.html, slow_motion=args.slow_motion)
+        _emit(args, {"command": "view", "html": str(page)}, f"wrote {page}")
+        return EXIT_OK
+    url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
+    _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
+    sys.stdout.flush()
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        return EXIT_OK
 
 
 def prepare_out_dir(path: Path) -> Path:

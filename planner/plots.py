@@ -1,0 +1,276 @@
+"""Result plots (PNG): states and torques against physical time, contact forces, the clock t(tau), and
+the contact points' path in the x-z plane with the ground and the task's holes.
+
+Drawn with matplotlib's object API on Agg canvases (`matplotlib.figure.Figure`, no pyplot), so no
+display is needed and the caller's matplotlib backend and global state are left alone.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import InputError
+from .view import Result, load_result
+
+MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
+DPI = 110
+IMPACT_STYLE = dict(color="tab:red", linestyle="--", linewidth=0.9, alpha=0.8)
+
+
+def plot_results(out_dir) -> list[Path]:
+    """Write the result plots of `out_dir` into it and return their paths.
+
+    Files: `states.png` (q and v against t), `torques.png` (u against t, when the robot has
+    actuators), `contact_forces.png` (when `trajectory.npz` holds lambda_n), `clock.png` (t against
+    tau), `foot_path.png` (contact points in x-z, when the task names contact points). Impacts are
+    dashed red lines (or crosses on the path). Raises InputError for an unusable result directory.
+    """
+    res = load_result(out_dir)
+    writers = [_states, _torques, _contact_forces, _clock, _foot_path]
+    paths = []
+    for write in writers:
+        fig_and_name = write(res)
+        if fig_and_name is not None:
+            paths.append(_save(*fig_and_name, res.directory))
+    return paths
+
+
+def _save(fig, name: str, directory: Path) -> Path:
+    """Save atomically: an earlier plot of the same name stays intact until the new one is complete."""
+    path = directory / name
+    tmp = directory / f".{name}.tmp"
+    try:
+        fig.savefig(tmp, format="png", dpi=DPI)  # [dots per inch]
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"cannot write {path}: {exc.strerror}") from None
+    return path
+
+
+def _new_figure(width: float, height: float):
+    """A figure on its own Agg canvas [inches]: no pyplot, no display, no global backend switch."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _figure(rows: int, cols: int, width: float, row_height: float, **kwargs):
+    """A figure with a rows x cols grid of axes; row_height and width in inches."""
+    fig = _new_figure(width, max(2.2, row_height * rows + 0.8))
+    return fig, fig.subplots(rows, cols, squeeze=False, **kwargs)
+
+
+def _mark_impacts(ax, res: Result, legend: bool) -> None:
+    """Dashed vertical lines at the impact times; `legend`: name them in this panel's legend."""
+    for k, ti in enumerate(res.impact_times):
+        ax.axvline(ti, label="impact" if legend and k == 0 else None, **IMPACT_STYLE)
+
+
+def _groups(n: int) -> list[list[int]]:
+    """Split n coordinates into at most MAX_PANELS_PER_COLUMN panels of consecutive indices."""
+    if n == 0:
+        return []
+    count = min(n, MAX_PANELS_PER_COLUMN)
+    return [list(g) for g in np.array_split(np.arange(n), count)]
+
+
+def _states(res: Result):
+    """q (left) and v (right) against physical time, one panel per coordinate (or group)."""
+    robot = res.robot
+    q_units, v_units = _units(robot.model)
+    q_names = list(robot.dof_names) if robot.nq == robot.nv else [f"q[{i}]" for i in range(robot.nq)]
+    v_units = [f"{u}/s" if u else "" for u in v_units]
+    columns = [("position", res.q, q_names, q_units), ("velocity", res.v, list(robot.dof_names), v_units)]
+    groups = [_groups(values.shape[1]) for _, values, _, _ in columns]
+    rows = max(len(g) for g in groups)
+    fig, axes = _figure(rows, 2, 11.0, 1.7, sharex=True)
+    for c, ((kind, values, names, units), col_groups) in enumerate(zip(columns, groups)):
+        for r in range(rows):
+            ax = axes[r, c]
+            if r >= len(col_groups):
+                ax.set_visible(False)
+                continue
+            for i in col_groups[r]:
+                ax.plot(res.t, values[:, i], linewidth=1.3, label=names[i])
+            _mark_impacts(ax, res, legend=(r, c) == (0, 0))
+            unit = {units[i] for i in col_groups[r]}
+            unit_text = f" [{unit.pop()}]" if len(unit) == 1 and "" not in unit else ""
+            if len(col_groups[r]) == 1:
+                ax.set_ylabel(f"{names[col_groups[r][0]]}{unit_text}")
+            else:
+                ax.set_ylabel(f"{kind}{unit_text}")
+                ax.legend(fontsize="x-small", ncols=2, loc="best")
+            ax.grid(alpha=0.3)
+        bottom = axes[len(col_groups) - 1, c]
+        bottom.set_xlabel("physical time t [s]")
+        bottom.tick_params(labelbottom=True)  # shared x hides it when this column is shorter
+        axes[0, c].set_title("positions q" if kind == "position" else "velocities v (they jump at impacts)")
+    if len(res.impact_times):
+        axes[0, 0].legend(fontsize="x-small", loc="best")
+    fig.suptitle(f"{robot.name}: states")
+    return fig, "states.png"
+
+
+def _torques(res: Result):
+    """Controls u against physical time."""
+    robot = res.robot
+    if res.u.shape[1] == 0:
+        return None
+    names = [a.name for a in robot.actuators] if len(robot.actuators) == res.u.shape[1] else \
+        [f"u[{j}]" for j in range(res.u.shape[1])]
+    _, v_units = _units(robot.model)
+    force_units = {"m": "N", "rad": "N m"}
+    units = {force_units.get(v_units[a.dof], "") for a in robot.actuators} if len(robot.actuators) == res.u.shape[1] else {""}
+    groups = _groups(res.u.shape[1])
+    fig, axes = _figure(len(groups), 1, 9.0, 2.2, sharex=True)
+    for r, group in enumerate(groups):
+        ax = axes[r, 0]
+        for j in group:
+            ax.plot(res.t, res.u[:, j], linewidth=1.3, label=names[j])
+        _mark_impacts(ax, res, legend=r == 0)
+        ax.set_ylabel("u" + (f" [{next(iter(units))}]" if len(units) == 1 and "" not in units else ""))
+        ax.legend(fontsize="small", loc="best")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("physical time t [s]")
+    fig.suptitle(f"{robot.name}: controls (motor torques or forces)")
+    return fig, "torques.png"
+
+
+def _contact_forces(res: Result):
+    """Normal and tangential contact forces against physical time, with the friction cone bound."""
+    if res.lambda_n is None:
+        return None
+    n_contacts = res.lambda_n.shape[1]
+    names = list(res.contact_points) if len(res.contact_points) == n_contacts else [f"contact {i}" for i in range(n_contacts)]
+    mus = [c.mu for c in res.task.contacts] if res.task is not None and len(res.task.contacts) == n_contacts else None
+    rows = 2 if res.lambda_t is not None else 1
+    fig, axes = _figure(rows, 1, 9.0, 2.4, sharex=True)
+    for i in range(n_contacts):
+        line, = axes[0, 0].plot(res.t, res.lambda_n[:, i], linewidth=1.3, label=names[i])
+        if rows == 2:
+            axes[1, 0].plot(res.t, res.lambda_t[:, i], linewidth=1.3, color=line.get_color(), label=names[i])
+            if mus is not None and mus[i] > 0:
+                for sign in (1, -1):
+                    axes[1, 0].plot(res.t, sign * mus[i] * res.lambda_n[:, i], color=line.get_color(), linewidth=0.8,
+                                    linestyle=":", label=f"±μ λn ({names[i]})" if sign == 1 else None)
+    axes[0, 0].set_ylabel("normal λn [N]")
+    if rows == 2:
+        axes[1, 0].set_ylabel("tangential λt [N]")
+    for r, ax in enumerate(axes[:, 0]):
+        _mark_impacts(ax, res, legend=r == 0)
+        ax.legend(fontsize="small", loc="best")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("physical time t [s]")
+    fig.suptitle(f"{res.robot.name}: contact forces (impacts are impulses, not shown as forces)")
+    return fig, "contact_forces.png"
+
+
+def _clock(res: Result):
+    """The clock state t against numerical time tau; frozen intervals (impacts) shaded."""
+    clock = res.y[:, -1]
+    fig, axes = _figure(1, 1, 7.0, 3.6)
+    ax = axes[0, 0]
+    ax.plot(res.tau, res.tau - res.tau[0] + clock[0], color="0.6", linewidth=0.9, linestyle="--",
+            label="t = τ (clock at speed 1)")
+    ax.plot(res.tau, clock, linewidth=1.6, label="t(τ)")
+    for k, (tau_start, tau_end, _) in enumerate(res.frozen_intervals()):
+        ax.axvspan(tau_start, tau_end, color="tab:red", alpha=0.18, linewidth=0,
+                   label="frozen (impact)" if k == 0 else None)
+    ax.set_xlabel("numerical time τ [s]")
+    ax.set_ylabel("physical time t [s]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc="upper left")
+    fig.suptitle(f"{res.robot.name}: clock")
+    return fig, "clock.png"
+
+
+def _foot_path(res: Result):
+    """Each contact point's path in the x-z plane, the ground, the holes, and the impact points."""
+    from matplotlib.patches import Ellipse, Rectangle
+
+    points = res.contact_points
+    if not points:
+        return None
+    robot, model = res.robot, res.robot.model
+    data = model.createData()
+    paths = {p: np.empty((len(res.t), 3)) for p in points}
+    for k, q in enumerate(res.q):
+        pin.framesForwardKinematics(model, data, q)
+        for p in points:
+            paths[p][k] = data.oMf[robot.frame_id(p)].translation
+    z0, holes = res.ground_height, res.holes
+
+    xs = np.concatenate([paths[p][:, 0] for p in points] + [np.array([h.x - h.a, h.x + h.a]) for h in holes])
+    zs = np.concatenate([paths[p][:, 2] for p in points] + [np.array([h.z - h.b, h.z + h.b]) for h in holes] + [[z0]])
+    pad = 0.08 * max(np.ptp(xs), np.ptp(zs), 0.1)
+    x_lo, x_hi, z_lo, z_hi = xs.min() - pad, xs.max() + pad, min(zs.min(), z0) - pad, zs.max() + pad
+    aspect = (z_hi - z_lo) / (x_hi - x_lo)
+    fig = _new_figure(10.0, float(np.clip(10.0 * aspect, 2.5, 8.0)) + 0.9)  # equal axes: height follows
+    ax = fig.subplots()
+    ax.add_patch(Rectangle((x_lo, z_lo), x_hi - x_lo, z0 - z_lo, facecolor="#d8cfc0", edgecolor="none",
+                           hatch="//", zorder=0, label="ground"))
+    ax.axhline(z0, color="#6b5b45", linewidth=1.2, zorder=1)
+    for i, h in enumerate(holes):
+        # the hole cuts the ground (white), and its ellipse above the ground is a keep-out zone too
+        ax.add_patch(Ellipse((h.x, h.z), 2 * h.a, 2 * h.b, facecolor="white", edgecolor="0.15", linewidth=1.0,
+                             linestyle="--", zorder=1, label="hole (keep-out ellipse)" if i == 0 else None))
+    for p in points:
+        line, = ax.plot(paths[p][:, 0], paths[p][:, 2], linewidth=1.6, zorder=3, label=f"{p} path")
+        ax.plot(*paths[p][0, [0, 2]], "o", color=line.get_color(), markersize=5, zorder=4)
+        ax.plot(*paths[p][-1, [0, 2]], "s", color=line.get_color(), markersize=5, zorder=4)
+    labelled = False
+    for t_imp, hit in res.impacts():
+        k = int(np.clip(np.searchsorted(res.t, t_imp), 0, len(res.t) - 1))
+        for p in hit:
+            ax.plot(paths[p][k, 0], paths[p][k, 2], "x", color="tab:red", markersize=9, markeredgewidth=2,
+                    zorder=5, label=None if labelled else "impact")
+            labelled = True
+    ax.set_xlim(x_lo, x_hi)
+    ax.set_ylim(z_lo, z_hi)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("z [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc="upper right", ncols=2)
+    ax.set_title(f"{robot.name}: contact point path (o start, □ end)")
+    return fig, "foot_path.png"
+
+
+def _units(model: pin.Model) -> tuple[list[str], list[str]]:
+    """Units of each configuration and velocity coordinate: 'm', 'rad' or '' (quaternion, cos/sin)."""
+    q_units, v_units = [], []
+
+    def visit(joint):
+        kind = joint.shortname().replace("JointModel", "")
+        if kind == "Composite":
+            for sub in joint.extract().joints:
+                visit(sub)
+        elif kind.startswith("P"):  # PX, PY, PZ, PrismaticUnaligned, Planar handled below
+            if kind == "Planar":
+                q_units.extend(["m", "m", "", ""])
+                v_units.extend(["m", "m", "rad"])
+            else:
+                q_units.append("m")
+                v_units.append("m")
+        elif kind == "FreeFlyer":
+            q_units.extend(["m"] * 3 + [""] * 4)
+            v_units.extend(["m"] * 3 + ["rad"] * 3)
+        elif kind == "Translation":
+            q_units.extend(["m"] * 3)
+            v_units.extend(["m"] * 3)
+        else:  # revolute family, spherical, helical, universal, ...
+            q_units.extend(["rad" if joint.nq == joint.nv else ""] * joint.nq)
+            v_units.extend(["rad"] * joint.nv)
+
+    for j in range(1, model.njoints):
+        visit(model.joints[j])
+    if len(q_units) != model.nq or len(v_units) != model.nv:  # a joint kind not listed above
+        return [""] * model.nq, [""] * model.nv
+    return q_units, v_units

@@ -1,0 +1,99 @@
+"""The result plots (planner.plots): written, not blank, and drawing the right things.
+
+Uses the synthetic Capler result of tests/test_view.py (a hop over the first hole, one impact).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from planner import plots, view
+from planner.model import load_robot
+from test_view import ROBOTS, T_IMPACT, make_result_dir
+
+MIN_PIXEL_STD = 1.0  # a plot with a smaller pixel standard deviation is blank [0-255 levels]
+MIN_SIZE = (400, 200)  # every plot is at least this many pixels (width, height)
+POS_TOL = 1e-9  # contact point positions from forward kinematics [m]
+
+ALL_PLOTS = {"states.png", "torques.png", "contact_forces.png", "clock.png", "foot_path.png"}
+
+
+@pytest.fixture
+def result_dir(tmp_path):
+    return make_result_dir(tmp_path)
+
+
+def test_every_plot_is_written_and_not_blank(result_dir):
+    """plot_results writes the five PNGs into the result directory; each is large enough and not blank."""
+    paths = plots.plot_results(result_dir)
+    assert {p.name for p in paths} == ALL_PLOTS
+    for p in paths:
+        assert p.parent == result_dir and p.stat().st_size > 0
+        img = np.asarray(Image.open(p).convert("RGB")).astype(float)
+        assert img.shape[1] >= MIN_SIZE[0] and img.shape[0] >= MIN_SIZE[1]
+        assert img.std() > MIN_PIXEL_STD, f"{p.name} is blank"
+    assert not list(result_dir.glob(".*.tmp"))  # atomic writes leave no temporary files
+
+
+def test_contact_forces_plot_is_skipped_without_forces(result_dir):
+    """lambda_n and lambda_t are optional in the contract: without them there is no force plot."""
+    with np.load(result_dir / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files if not k.startswith("lambda")}
+    np.savez(result_dir / "trajectory.npz", **arrays)
+    assert {p.name for p in plots.plot_results(result_dir)} == ALL_PLOTS - {"contact_forces.png"}
+
+
+def test_impacts_are_marked_on_every_time_panel(result_dir):
+    """Each state panel carries a vertical line at the impact time."""
+    fig, _ = plots._states(view.load_result(result_dir))
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(panels) == 8  # q and v of Capler's 4 coordinates
+    for ax in panels:
+        verticals = [ln for ln in ax.get_lines() if np.ptp(ln.get_xdata()) == 0]
+        assert any(np.isclose(ln.get_xdata()[0], T_IMPACT) for ln in verticals)
+
+
+def test_foot_path_plot_draws_the_foot_the_holes_and_the_impact(result_dir):
+    """The foot path is the foot's forward kinematics (start at x = 0, landing at x = 1 on the ground),
+    the three holes are a x b ellipses at their centres, and the impact is marked where the foot lands."""
+    from matplotlib.patches import Ellipse
+
+    res = view.load_result(result_dir)
+    fig, _ = plots._foot_path(res)
+    ax = fig.axes[0]
+    (path,) = [ln for ln in ax.get_lines() if ln.get_label() == "foot path"]
+    x, z = np.asarray(path.get_xdata()), np.asarray(path.get_ydata())
+    assert len(x) == len(res.t)
+    assert abs(x[0]) < POS_TOL and abs(z[0]) < POS_TOL
+    assert abs(x[-1] - 1.0) < POS_TOL and abs(z[-1]) < POS_TOL
+    ellipses = sorted((p for p in ax.patches if isinstance(p, Ellipse)), key=lambda e: e.center[0])
+    assert [(e.center, e.width, e.height) for e in ellipses] == [((h.x, h.z), 2 * h.a, 2 * h.b) for h in res.holes]
+    (impact,) = [ln for ln in ax.get_lines() if ln.get_label() == "impact"]
+    assert np.allclose([impact.get_xdata()[0], impact.get_ydata()[0]], [1.0, 0.0], atol=POS_TOL)
+
+
+def test_clock_plot_shades_the_frozen_interval(result_dir):
+    """The clock plot shades exactly the tau intervals where the clock stops (the impact)."""
+    fig, _ = plots._clock(view.load_result(result_dir))
+    spans = fig.axes[0].patches  # the shaded intervals are the only patches
+    xs = np.array([[p.get_x(), p.get_x() + p.get_width()] for p in spans])
+    assert np.isclose(xs.min(), T_IMPACT) and np.isclose(xs.max(), T_IMPACT + 0.1)
+
+
+@pytest.mark.parametrize("robot_file, q_units, v_units", [
+    ("capler.xml", ["m", "m", "rad", "rad"], ["m", "m", "rad", "rad"]),  # composite slide-x/slide-z base
+    ("capler.urdf", ["m", "m", "rad", "rad"], ["m", "m", "rad", "rad"]),
+])
+def test_axis_units_follow_the_joint_types(robot_file, q_units, v_units):
+    """Slide joints are in m, hinges in rad, whichever way the file declares the planar base."""
+    assert plots._units(load_robot(ROBOTS / robot_file).model) == (q_units, v_units)
+
+
+def test_without_a_task_there_is_no_foot_path(result_dir):
+    """summary.json may name no task: the plots that need none are still written."""
+    import json
+
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "task": None}))
+    assert {p.name for p in plots.plot_results(result_dir)} == ALL_PLOTS - {"foot_path.png"}

@@ -1,0 +1,364 @@
+"""The meshcat replay (planner.view): the result reader, the scene, the animation timeline, the static
+HTML page (self-contained, checked in a real headless chromium), and the live server.
+
+`make_result_dir` writes a small synthetic Capler result in the contract format (design.md, "The
+contract"); tests/test_plots.py uses it too. It is deterministic: no random numbers.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import math
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.errors import InputError
+from planner.model import load_robot
+from planner import view
+
+ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+GRAVITY = 9.81  # [m/s^2]
+CAPLER_MASS = 3.975 + 1.782 + 0.548  # [kg]
+
+# the synthetic motion: stance until T_LIFT, flight until T_IMPACT (inelastic impact, the foot sticks),
+# stance until T_END; in numerical time the clock stops for FROZEN_TAU at the impact
+T_LIFT, T_IMPACT, T_END, FROZEN_TAU = 0.1, 0.6, 0.8, 0.1  # [s]
+
+Q_TOL = 1e-12  # interpolation at a sample time returns the sample [m, rad]
+BLANK_STD = 5.0  # a screenshot whose pixel standard deviation is below this is blank [0-255 levels]
+MIN_ROBOT_PIXELS = 100  # Capler's legs cover ~500 px at 800x600; fewer means the robot is missing
+MIN_MARKER_PIXELS = 30  # the impact marker (a red sphere, half in the ground) covers ~300 px
+MIN_MOVED_PIXELS = 100  # pixels that change between two replay times when the robot moves
+XML_NAMESPACES = {"http://www.w3.org/1999/xhtml", "http://www.w3.org/2000/svg"}  # identifiers, never fetched
+
+
+def _capler_q(t: float) -> np.ndarray:
+    """q = (x_B, z_B, phi_hip, phi_knee) [m, m, rad, rad] of the synthetic hop at physical time t [s]."""
+    if t <= T_LIFT:  # stance on a straight leg, the foot fixed at the origin
+        x = 0.1 * t / T_LIFT
+        hip = math.asin(x / 0.4)
+        return np.array([x, 0.4 * math.cos(hip), hip, 0.0])
+    if t <= T_IMPACT:  # ballistic flight to x = 1 (over the first hole), legs swinging forward
+        s, d = t - T_LIFT, T_IMPACT - T_LIFT
+        hip0 = math.asin(0.25)
+        z0 = 0.4 * math.cos(hip0)
+        vz = (0.4 - z0 + GRAVITY * d * d / 2) / d
+        return np.array([0.1 + 0.9 * s / d, z0 + vz * s - GRAVITY * s * s / 2,
+                         hip0 * (1 - s / d) - 0.4 * math.sin(math.pi * s / d), -0.8 * math.sin(math.pi * s / d)])
+    return np.array([1.0, 0.4, 0.0, 0.0])  # landed: standing still on the foot at x = 1
+
+
+def _capler_v(t: float) -> np.ndarray:
+    """dq/dt of `_capler_q` [m/s, rad/s] by a one-sided difference (the left limit at phase ends)."""
+    h = 1e-7
+    return (_capler_q(t) - _capler_q(t - h)) / h if t > 0 else (_capler_q(h) - _capler_q(0.0)) / h
+
+
+def make_result_dir(tmp_path: Path, robot: str = "capler.xml") -> Path:
+    """Write `tmp_path/result` in the contract format: a Capler hop with one inelastic impact at T_IMPACT.
+
+    trajectory.npz: tau (K,), y (K, 9) = (q, v, t), t (P,) with the impact time twice (pre- and
+    post-impact velocity), q (P, 4), v (P, 4), u (P, 2), impact_times (1,), lambda_n and lambda_t (P, 1).
+    """
+    t = np.concatenate([np.linspace(0.0, T_LIFT, 11), np.linspace(T_LIFT, T_IMPACT, 51)[1:],
+                        np.linspace(T_IMPACT, T_END, 11)])
+    i_post = 11 + 50  # index of the post-impact sample; t[i_post - 1] == t[i_post] == T_IMPACT
+    q = np.array([_capler_q(ti) for ti in t])
+    v = np.array([_capler_v(ti) for ti in t])
+    v[i_post:] = 0.0
+    u = np.column_stack([30 * np.sin(2 * np.pi * t / T_END), -20 * np.cos(2 * np.pi * t / T_END)])
+    stance = (t <= T_LIFT) | (np.arange(len(t)) >= i_post)
+    lambda_n = np.where(stance, CAPLER_MASS * GRAVITY, 0.0)[:, None]
+    lambda_t = 0.1 * lambda_n
+
+    tau = np.linspace(0.0, T_END + FROZEN_TAU, 91)
+    clock = np.minimum(tau, T_IMPACT) + np.maximum(tau - T_IMPACT - FROZEN_TAU, 0.0)
+    yq = np.array([_capler_q(c) for c in clock])
+    # while frozen, q stays and v goes linearly from the pre-impact velocity to zero (the state jump)
+    w = np.clip((tau - T_IMPACT) / FROZEN_TAU, 0.0, 1.0)[:, None]
+    yv = np.where((tau <= T_IMPACT)[:, None], np.array([_capler_v(c) for c in clock]), (1 - w) * v[i_post - 1])
+    yv[tau >= T_IMPACT + FROZEN_TAU] = 0.0
+    y = np.column_stack([yq, yv, clock])
+
+    out = Path(tmp_path) / "result"
+    out.mkdir()
+    np.savez(out / "trajectory.npz", tau=tau, y=y, t=t, q=q, v=v, u=u, impact_times=np.array([T_IMPACT]),
+             lambda_n=lambda_n, lambda_t=lambda_t)
+    summary = {"command": "plan", "robot": str(ROBOTS / robot), "task": str(ROBOTS / "capler.toml"),
+               "converged": True, "impacts": [{"time": T_IMPACT, "contact": "foot", "impulse": 12.3}]}
+    (out / "summary.json").write_text(json.dumps(summary))
+    return out
+
+
+@pytest.fixture
+def result_dir(tmp_path):
+    return make_result_dir(tmp_path)
+
+
+# --- reading the result directory ------------------------------------------------------------------
+
+def test_load_result_reads_the_contract(result_dir):
+    """Every array of the contract comes back with its shape, and robot and task are loaded."""
+    res = view.load_result(result_dir)
+    assert res.tau.shape == (91,) and res.y.shape == (91, 9)
+    assert res.q.shape == (72, 4) and res.v.shape == (72, 4) and res.u.shape == (72, 2) and res.t.shape == (72,)
+    assert res.lambda_n.shape == (72, 1) and res.lambda_t.shape == (72, 1)
+    assert res.robot.name == "capler" and res.contact_points == ("foot",)
+    assert len(res.holes) == 3 and res.ground_height == 0.0
+    assert res.impacts() == [(T_IMPACT, ("foot",))]
+
+
+def test_frozen_intervals_from_the_clock_or_from_the_summary(result_dir):
+    """Without tau_start/tau_end in summary.json, the frozen interval is where the clock stops; with
+    them (as planner.result writes), they are used. Extra arrays (string names) are ignored."""
+    res = view.load_result(result_dir)
+    ((start, end, hit),) = res.frozen_intervals()
+    assert np.isclose(start, T_IMPACT) and np.isclose(end, T_IMPACT + FROZEN_TAU) and hit == ("foot",)
+
+    with np.load(result_dir / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    np.savez(result_dir / "trajectory.npz", **arrays, state_names=np.array(["x_B", "z_B"]))
+    summary = json.loads((result_dir / "summary.json").read_text())
+    summary["impacts"][0].update(tau_start=0.59, tau_end=0.71)
+    (result_dir / "summary.json").write_text(json.dumps(summary))
+    assert view.load_result(result_dir).frozen_intervals() == [(0.59, 0.71, ("foot",))]
+
+
+def _drop_key(d: Path, key: str) -> None:
+    with np.load(d / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files if k != key}
+    np.savez(d / "trajectory.npz", **arrays)
+
+
+def _bad_q(d: Path) -> None:
+    with np.load(d / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["q"] = arrays["q"][:, :3]
+    np.savez(d / "trajectory.npz", **arrays)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda d: shutil.rmtree(d), "result directory not found"),
+    (lambda d: (d / "trajectory.npz").unlink(), "trajectory.npz is missing"),
+    (lambda d: _drop_key(d, "tau"), "lacks tau"),
+    (_bad_q, "q must be (P, nq)"),
+    (lambda d: (d / "summary.json").write_text(json.dumps({"robot": "/nowhere/r.xml"})), "was not found"),
+])
+def test_load_result_rejects_a_bad_directory_in_one_line(result_dir, damage, message):
+    """A broken result directory is an InputError (exit 2 in the CLI) whose one line says what is wrong."""
+    damage(result_dir)
+    with pytest.raises(InputError) as err:
+        view.load_result(result_dir)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+# --- the scene ----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("robot_file, expected", [
+    ("capler.xml", {"base_geom", "thigh_geom", "shank_geom"}),  # MJCF geoms; the ground plane is skipped
+    ("capler.urdf", {"base_0", "thigh_0", "shank_0"}),  # URDF visuals
+])
+def test_robot_geometry_comes_from_the_robot_file(robot_file, expected):
+    """The replay draws the file's own geometry through Pinocchio, each piece on a moving joint."""
+    parts, note = view.robot_parts(load_robot(ROBOTS / robot_file))
+    assert note is None
+    assert {p.name for p in parts} == expected
+    assert all(p.joint > 0 and p.pieces for p in parts)
+
+
+def test_kinematic_tree_fallback_for_a_robot_without_visuals(tmp_path):
+    """Without visual geometry, the replay draws rods between joint origins and to named points."""
+    inertia = '<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>'
+    urdf = tmp_path / "bare.urdf"
+    urdf.write_text(f"""<robot name="bare"><link name="world"/><link name="a">{inertia}</link>
+      <link name="b">{inertia}</link><link name="tip"/>
+      <joint name="j1" type="revolute"><parent link="world"/><child link="a"/><axis xyz="0 1 0"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="j2" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0 0 -0.5"/>
+        <axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="jt" type="fixed"><parent link="b"/><child link="tip"/><origin xyz="0 0 -0.3"/></joint>
+    </robot>""")
+    parts, note = view.robot_parts(load_robot(urdf))
+    assert note is not None and "no visual geometry" in note
+    rods = {p.name: p for p in parts if p.name.startswith("rod_")}
+    assert set(rods) >= {"rod_j1_j2", "rod_j2_tip"}
+    # a rod's centre is half-way to its end: 0.5 m below j1, 0.3 m below j2
+    assert np.allclose(rods["rod_j1_j2"].placement[:3, 3], [0, 0, -0.25])
+    assert np.allclose(rods["rod_j2_tip"].placement[:3, 3], [0, 0, -0.15])
+
+
+# --- the animation timeline ----------------------------------------------------------------------------
+
+def test_physical_timeline_samples_the_motion_at_fps(result_dir):
+    """Frames are 1/FPS apart in physical time, hit the samples exactly, and flash the impact briefly."""
+    res = view.load_result(result_dir)
+    tl = view._timeline(res, slow_motion=False)
+    assert len(tl.t) == int(round(T_END * view.FPS)) + 1
+    assert np.allclose(np.diff(tl.t), 1.0 / view.FPS)
+    for k in (0, 6, 36, len(tl.t) - 1):  # t = 0, 0.1, 0.6, 0.8 are samples of the fixture
+        i = int(np.argmin(np.abs(res.t - tl.t[k])))
+        assert np.max(np.abs(tl.q[k] - res.q[i])) < Q_TOL
+    lit = tl.t[tl.highlight["foot"]]
+    assert lit.min() >= T_IMPACT - 1.0 / view.FPS and lit.max() <= T_IMPACT + view.IMPACT_FLASH_S
+    assert lit.size >= 2
+
+
+def test_slow_motion_timeline_freezes_at_the_impact(result_dir):
+    """In numerical time the clock stops for FROZEN_TAU at the impact: q holds and the foot is lit."""
+    res = view.load_result(result_dir)
+    tl = view._timeline(res, slow_motion=True)
+    assert np.isclose(tl.tau[-1], T_END + FROZEN_TAU)
+    frozen = (tl.tau >= T_IMPACT + 1e-9) & (tl.tau < T_IMPACT + FROZEN_TAU - 1e-9)
+    assert np.array_equal(tl.highlight["foot"][frozen], np.ones(frozen.sum(), dtype=bool))
+    assert not tl.highlight["foot"][~frozen & ((tl.tau < T_IMPACT - 0.02) | (tl.tau > T_IMPACT + FROZEN_TAU + 0.02))].any()
+    assert np.allclose(tl.t[frozen], T_IMPACT)
+    assert np.max(np.abs(tl.q[frozen] - _capler_q(T_IMPACT))) < 1e-9
+
+
+# --- the static page -----------------------------------------------------------------------------------
+
+def _page_commands(html: str) -> list[dict]:
+    """The meshcat commands embedded in a page, decoded."""
+    import umsgpack
+
+    blobs = re.search(r'(\[(?:"[A-Za-z0-9+/=]+",?\s*)+\])\.forEach', html)
+    assert blobs, "no embedded scene commands"
+    return [umsgpack.unpackb(base64.b64decode(b)) for b in json.loads(blobs.group(1))]
+
+
+def test_static_page_is_self_contained_and_animated(result_dir, tmp_path):
+    """The page fetches nothing (every http(s) string is an XML namespace identifier, no src/href/
+    import), and embeds the scene (robot parts, ground, 3 holes, contact) and an animation of them."""
+    html = view.render_html(result_dir, tmp_path / "replay.html").read_text()
+    urls = set(re.findall(r"https?://[^\s\"'<>)\\]+", html))
+    assert urls <= XML_NAMESPACES, urls - XML_NAMESPACES
+    assert not re.search(r"<(script|img|link|iframe)[^>]*\s(src|href)\s*=", html, re.IGNORECASE)
+    assert not re.search(r"@import|url\(\s*['\"]?(https?:)?//", html, re.IGNORECASE)
+    assert "MeshCat.Viewer" in html and len(html) > 500_000  # the viewer bundle is inlined
+
+    commands = _page_commands(html)
+    objects = {c["path"] for c in commands if c["type"] == "set_object"}
+    assert {f"{view.ROOT}/robot/{n}/0" for n in ("base_geom", "thigh_geom", "shank_geom")} <= objects
+    assert f"{view.ROOT}/ground" in objects and f"{view.ROOT}/contacts/foot/point" in objects
+    assert {f"{view.ROOT}/holes/{i}/cut" for i in range(3)} <= objects
+    (anim,) = [c for c in commands if c["type"] == "set_animation"]
+    clips = {a["path"]: a["clip"] for a in anim["animations"]}
+    assert {f"{view.ROOT}/robot/thigh_geom", f"{view.ROOT}/contacts/foot", f"{view.ROOT}/contacts/foot/impact"} <= set(clips)
+    keys = clips[f"{view.ROOT}/contacts/foot"]["tracks"][0]["keys"]
+    assert len(keys) == int(round(T_END * view.FPS)) + 1 and clips[f"{view.ROOT}/contacts/foot"]["fps"] == view.FPS
+
+
+def test_render_html_refuses_a_directory_as_the_output(result_dir, tmp_path):
+    """--html pointing at a directory is bad input, and nothing is written."""
+    with pytest.raises(InputError, match="is a directory"):
+        view.render_html(result_dir, tmp_path)
+
+
+# --- in a real browser ---------------------------------------------------------------------------------
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium: apt-get install -y chromium")
+CHROMIUM_FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--use-angle=swiftshader", "--enable-unsafe-swiftshader",  # WebGL on the CPU (no GPU in CI)
+    "--host-resolver-rules=MAP * ~NOTFOUND",  # offline: no host name resolves
+    "--window-size=800,600", "--virtual-time-budget=1500", "--hide-scrollbars",
+]
+
+
+def _screenshot(url: str, tmp_path: Path, name: str, local_server: bool = False) -> np.ndarray:
+    """An 800x600 RGB screenshot of `url` in headless chromium, as ints in [0, 255].
+
+    Offline: no host name resolves, not even 127.0.0.1 unless `local_server` (the live viewer's).
+    """
+    from PIL import Image
+
+    png = tmp_path / f"{name}.png"
+    profile = tmp_path / f"profile-{name}"
+    flags = [f + ", EXCLUDE 127.0.0.1" if local_server and f.startswith("--host-resolver-rules") else f
+             for f in CHROMIUM_FLAGS]
+    run = subprocess.run([CHROMIUM, *flags, f"--user-data-dir={profile}", f"--screenshot={png}", url],
+                         timeout=120, capture_output=True, text=True)
+    # chromium exits 0 even when the page failed to load; then it writes no screenshot
+    assert run.returncode == 0 and png.is_file(), f"chromium made no screenshot of {url}:\n{run.stderr[-2000:]}"
+    return np.asarray(Image.open(png).convert("RGB")).astype(int)
+
+
+def _robot_pixels(img: np.ndarray) -> np.ndarray:
+    """Pixels of Capler's legs' blue (0.35, 0.55, 0.85), whatever the shading; nothing else is this blue."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (b > r + 60) & (b > g + 20)
+
+
+def _marker_pixels(img: np.ndarray) -> np.ndarray:
+    """Pixels of the translucent red impact marker: red, with green and blue alike (orange has g >> b)."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > g + 60) & (np.abs(g - b) < 30)
+
+
+@needs_chromium
+def test_static_page_shows_the_moving_robot_in_headless_chromium(result_dir, tmp_path):
+    """Offline, from file://, the page renders a non-blank scene with the robot in it, and the robot
+    is somewhere else at another replay time (the animation drives it)."""
+    page = view.render_html(result_dir, tmp_path / "replay.html")
+    start = _screenshot(f"{page.as_uri()}#time=0", tmp_path, "start")
+    flight = _screenshot(f"{page.as_uri()}#time=0.35", tmp_path, "flight")
+    for img in (start, flight):
+        assert img.std() > BLANK_STD
+        assert _robot_pixels(img).sum() > MIN_ROBOT_PIXELS
+    moved = _robot_pixels(start) ^ _robot_pixels(flight)
+    assert moved.sum() > MIN_MOVED_PIXELS
+
+
+@needs_chromium
+def test_slow_motion_page_lights_the_impact_while_the_clock_is_frozen(result_dir, tmp_path):
+    """In the slow-motion page the impact marker shows inside the frozen interval and not in flight."""
+    page = view.render_html(result_dir, tmp_path / "slow.html", slow_motion=True)
+    frozen = _screenshot(f"{page.as_uri()}#time={T_IMPACT + FROZEN_TAU / 2}", tmp_path, "frozen")
+    flight = _screenshot(f"{page.as_uri()}#time=0.35", tmp_path, "flight")
+    assert _marker_pixels(frozen).sum() > MIN_MARKER_PIXELS
+    assert _marker_pixels(flight).sum() < MIN_MARKER_PIXELS / 3
+    assert _robot_pixels(frozen).sum() > MIN_ROBOT_PIXELS
+
+
+@needs_chromium
+def test_live_view_serves_the_scene_to_a_browser(result_dir, tmp_path, capsys):
+    """`serve` draws into a running meshcat server, prints its URL, and a browser there sees the robot."""
+    from meshcat.servers.zmqserver import start_zmq_server_as_subprocess
+
+    proc, zmq_url, web_url = start_zmq_server_as_subprocess()
+    try:
+        url = view.serve(result_dir, zmq_url=zmq_url)
+        assert url == web_url
+        assert capsys.readouterr().out.strip() == f"meshcat replay: {url}"
+        img = _screenshot(url, tmp_path, "live", local_server=True)
+        assert img.std() > BLANK_STD
+        assert _robot_pixels(img).sum() > MIN_ROBOT_PIXELS
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+def test_serve_fails_in_one_line_when_no_server_answers(result_dir, monkeypatch):
+    """A zmq_url with no meshcat server behind it is a PlannerError, not a hang."""
+    from planner.errors import PlannerError
+
+    monkeypatch.setattr(view, "SERVER_TIMEOUT_S", 0.2)
+    with pytest.raises(PlannerError, match="no meshcat server answers"):
+        view.serve(result_dir, zmq_url="tcp://127.0.0.1:5")  # a privileged port nothing listens on
+
+
+def test_without_a_task_the_page_has_no_ground(result_dir, tmp_path):
+    """summary.json may name no task (null): the robot is replayed without ground, holes or contacts."""
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "task": None}))
+    objects = {c["path"] for c in _page_commands(view.render_html(result_dir, tmp_path / "r.html").read_text())
+               if c["type"] == "set_object"}
+    assert f"{view.ROOT}/robot/thigh_geom/0" in objects
+    assert not any(p.startswith((f"{view.ROOT}/ground", f"{view.ROOT}/holes", f"{view.ROOT}/contacts")) for p in objects)
