@@ -49,6 +49,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_check_model)
 
+    p = sub.add_parser("simulate", help="forward time-freezing simulation of the task's initial state",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  planner simulate point_mass --out results/drop\n"
+                              "  planner simulate robots/point_mass.xml --task my_drop.toml --json")
+    p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
+    _add_common(p)
+    p.set_defaults(run=_cmd_simulate)
+
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, PD tracking, open loop)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  planner validate results/capler --json")
@@ -96,6 +104,44 @@ def _cmd_check_model(args) -> int:
     result = check_model(load_robot(args.robot), samples=args.samples, seed=args.seed)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _load_inputs(args):
+    """Robot, task (the .toml beside the robot unless --task) and the output directory."""
+    from .model import load_robot
+    from .task import default_task_path, load_task
+
+    robot = load_robot(args.robot)
+    task_path = args.task or default_task_path(robot.path)
+    if args.task is None and not task_path.is_file():
+        raise InputError(f"no task file beside {robot.path} (expected {task_path}); give one with --task")
+    task = load_task(task_path)
+    task.check_against(robot)
+    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-{args.command}")
+    return robot, task, out
+
+
+def _write(args, result, out: Path) -> Path:
+    """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
+    good earlier result in `out` is never overwritten."""
+    from .plots import plot_results
+    from .result import write_results
+
+    target = out if result.stats.converged else prepare_out_dir(out / "failed")
+    write_results(result, target)
+    plot_results(target)
+    return target
+
+
+def _cmd_simulate(args) -> int:
+    from .simulate import SimulateOptions, simulate
+
+    robot, task, out = _load_inputs(args)
+    result = simulate(robot, task, SimulateOptions(verbose=args.verbose))
+    target = _write(args, result, out)
+    verdict = "converged" if result.stats.converged else "FAILED"
+    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}")
+    return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
 def _cmd_validate(args) -> int:

@@ -123,10 +123,37 @@ class Plan:
 
 
 @dataclass(frozen=True)
+class ControlChange:
+    """From physical time t [s] on, the simulation applies controls u (nu,) [N m or N]."""
+
+    t: float
+    u: tuple[float, ...]
+
+    def __post_init__(self):
+        _require(self.t >= 0, "simulate.schedule.t", self.t, ">= 0")
+
+
+@dataclass(frozen=True)
 class Simulate:
-    """Forward simulation: constant controls u (nu,) [N m or N], zero when omitted."""
+    """Forward simulation: controls u (nu,) [N m or N] (zero when omitted), changed by `schedule`
+    at given physical times, and the weight rho_f of the regularized implicit Euler scheme."""
 
     u: tuple[float, ...] | None = None
+    schedule: tuple[ControlChange, ...] = ()  # sorted by t; each entry replaces u from its time on
+    rho_f: float = 1.0  # weight of ||sigma - sigma*||^2; 0 gives the plain implicit Euler MPCC (Fig. 5)
+
+    def __post_init__(self):
+        _require(self.rho_f >= 0, "simulate.rho_f", self.rho_f, ">= 0")
+        times = [c.t for c in self.schedule]
+        _require(times == sorted(times), "simulate.schedule", times, "sorted by increasing t")
+
+    def controls_at(self, t: float, nu: int) -> np.ndarray:
+        """Controls (nu,) in force at physical time t [s]."""
+        u = np.zeros(nu) if self.u is None else np.array(self.u, dtype=float)
+        for change in self.schedule:
+            if t >= change.t:
+                u = np.array(change.u, dtype=float)
+        return u
 
 
 @dataclass(frozen=True)
@@ -151,6 +178,8 @@ class Task:
             _length("initial.v", self.initial.v, robot.nv)
         if self.simulate.u is not None:
             _length("simulate.u", self.simulate.u, robot.nu)
+        for i, change in enumerate(self.simulate.schedule):
+            _length(f"simulate.schedule[{i}].u", change.u, robot.nu)
         if self.plan is None:
             return
         if robot.nu == 0:

@@ -1,0 +1,162 @@
+"""The regularized implicit Euler step (paper eq. 24) as reusable NLP pieces.
+
+One step from y_k to y_{k+1} with control u_k, speed of time s_k and step h [s of numerical time]:
+
+    y_{k+1} = y_k + h s_k F(y_{k+1}, Theta_{k+1}, u_k)           (24b, lifted)
+    h_i(y_{k+1}, u_k) = lambda1_i - lambda0_i                    (24c: KKT of min -h_i w, 0 <= w <= 1)
+    0 <= lambda0_i  _|_  sigma_i >= 0,  0 <= lambda1_i  _|_  1 - sigma_i >= 0      (24d, 24e)
+    objective rho_f ||sigma_{k+1} - sigma*||^2                  (24a)
+
+Lifting (Sec. 5.1): F = sum_j P_j(sigma) f_j with multi-affine P_j. Every monomial of degree >= 2
+(e.g. alpha beta gamma) becomes an algebraic variable theta_m with the bilinear constraint
+theta_m = theta_{m without its last factor} * sigma_{last factor}, so that F = Fmat(y, u) C z is linear
+in z = (1, sigma, theta) with a constant matrix C.
+
+`ImplicitEulerStep(system, rho_f).build(y_k, y_next, u_k, s_k, h)` returns a `Step` with the
+algebraic variables (bounds, initial guess, names), the equality constraints, the complementarity
+pairs and the objective term, each as named blocks; an OCP concatenates N of them and adds its own
+complementarity penalty or relaxation; `planner.simulate` does the same for one step or a horizon.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .timefreezing import TimeFreezingSystem
+
+# The algebraic variables of a step, in this order.
+W_BLOCKS = ("sigma", "theta", "lambda0", "lambda1")
+# The equality constraints of a step, in this order.
+G_BLOCKS = ("dynamics", "stationarity", "lifting")
+
+
+@dataclass(frozen=True, eq=False)
+class Step:
+    """NLP pieces of one regularized implicit-Euler step (symbolic, SX or MX like the inputs).
+
+    w (nw,) algebraic variables, blocks `w_blocks[name]` (slices) for sigma (n_sigma,), theta
+    (lifted products), lambda0, lambda1 (n_sigma,); w_names (nw,); lbw, ubw (nw,) bounds; w0 (nw,)
+    default initial guess (sigma = sigma*, consistent products, zero multipliers; see
+    ImplicitEulerStep.guess for a guess consistent with a state).
+    g (ng,) equality constraints g = 0, blocks `g_blocks`: dynamics (ny,), stationarity (n_sigma,),
+    lifting (n_theta,).
+    complementarity: pairs (a, b) of scalar expressions with a, b >= 0 by the bounds; a * b = 0 wanted.
+    objective: rho_f ||sigma - sigma*||^2.
+    """
+
+    w: object
+    w_names: tuple[str, ...]
+    w_blocks: dict[str, slice]
+    lbw: np.ndarray
+    ubw: np.ndarray
+    w0: np.ndarray
+    g: object
+    g_blocks: dict[str, slice]
+    complementarity: tuple[tuple[object, object], ...]
+    objective: object
+
+    def block(self, name: str):
+        """The variables of block `name` (sigma, theta, lambda0, lambda1)."""
+        return self.w[self.w_blocks[name]]
+
+    @property
+    def sigma(self):
+        return self.block("sigma")
+
+    def comp_products(self):
+        """vertcat of a * b over the complementarity pairs."""
+        return ca.vertcat(*[a * b for a, b in self.complementarity])
+
+
+class ImplicitEulerStep:
+    """Builder of regularized implicit-Euler steps for a time-freezing system.
+
+    rho_f >= 0 weights ||sigma - sigma*||^2 (paper: 1; 0 gives the plain implicit Euler MPCC).
+    switch_scale (n_sigma,) > 0 optionally divides the switching functions in the stationarity
+    condition (theta(h / a) = theta(h) for a > 0; it rescales the multipliers, not the solution).
+    """
+
+    def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None):
+        if rho_f < 0:
+            raise ValueError(f"rho_f must be >= 0, got {rho_f}")
+        self.system, self.rho_f = system, float(rho_f)
+        n = system.n_sigma
+        self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
+        if np.any(self.switch_scale <= 0):
+            raise ValueError("switch_scale must be > 0")
+        # monomials: constant, the selectors, then lifted products with all their prefixes
+        lifted: set[tuple[int, ...]] = set()
+        for poly in system.coefficients.values():
+            for m in poly.terms:
+                for k in range(2, len(m) + 1):
+                    lifted.add(m[:k])
+        self.lifted = tuple(sorted(lifted, key=lambda m: (len(m), m)))
+        self.monomials = ((),) + tuple((i,) for i in range(n)) + self.lifted
+        index = {m: j for j, m in enumerate(self.monomials)}
+        # C (n_fields, n_monomials): P_j(sigma) = sum_m C[j, m] z_m
+        C = np.zeros((system.n_fields, len(self.monomials)))
+        for j, f in enumerate(system.fields):
+            for m, c in system.coefficients[f.name].terms.items():
+                C[j, index[m]] = c
+        self.C = C
+        self.n_theta = len(self.lifted)
+        self.nw = 3 * n + self.n_theta
+        names = [s.name for s in system.switches]
+        self.theta_names = tuple("*".join(names[i] for i in m) for m in self.lifted)
+        sizes = {"sigma": n, "theta": self.n_theta, "lambda0": n, "lambda1": n}
+        self.w_blocks, start = {}, 0
+        for b in W_BLOCKS:
+            self.w_blocks[b] = slice(start, start + sizes[b])
+            start += sizes[b]
+        self.w_names = tuple(list(names) + list(self.theta_names) + [f"lambda0[{s}]" for s in names] + [f"lambda1[{s}]" for s in names])
+        self.lbw = np.concatenate([np.zeros(n), np.zeros(self.n_theta), np.zeros(2 * n)])
+        self.ubw = np.concatenate([np.ones(n), np.ones(self.n_theta), np.full(2 * n, np.inf)])
+        self.w0 = self.w_from(system.wanted, np.zeros(n), np.zeros(n))
+
+    def w_from(self, sigma, lam0, lam1) -> np.ndarray:
+        """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = products."""
+        theta = [np.prod([sigma[i] for i in m]) for m in self.lifted]
+        return np.concatenate([sigma, theta, lam0, lam1]).astype(float)
+
+    def guess(self, y, u) -> np.ndarray:
+        """Initial guess (nw,) consistent with the switching functions at a numeric state y (ny,), u (nu,):
+        sigma = 1 where h > 0, 0 where h < 0, sigma* where h = 0; lambda1 = max(h, 0), lambda0 = max(-h, 0)."""
+        hval = np.asarray(self.system.switching_fn(y, u), dtype=float).ravel() / self.switch_scale
+        sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, self.system.wanted))
+        return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0))
+
+    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "") -> Step:
+        """Create the step's algebraic variables and its constraints (see module docstring).
+
+        y_k, y_next (ny,), u_k (nu,), s_k (scalar) are CasADi expressions (SX or MX) or numbers;
+        h [s] the numerical-time step. The new variables are SX symbols unless y_next is MX.
+        `tag` is appended to the variable names (e.g. the step index).
+        """
+        sys_ = self.system
+        sym = ca.MX.sym if isinstance(y_next, ca.MX) else ca.SX.sym
+        w = sym(f"w{tag}", self.nw)
+        sigma, theta = w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]
+        lam0, lam1 = w[self.w_blocks["lambda0"]], w[self.w_blocks["lambda1"]]
+        z = ca.vertcat(1, sigma, theta)  # the monomials, in self.monomials order
+        F = ca.mtimes(sys_.fields_fn(y_next, u_k), ca.mtimes(ca.DM(self.C), z))
+        dynamics = y_next - y_k - h * s_k * F
+        stationarity = sys_.switching_fn(y_next, u_k) / ca.DM(self.switch_scale) - lam1 + lam0
+        index = {m: j for j, m in enumerate(self.monomials)}
+        lifting = [z[index[m]] - z[index[m[:-1]]] * sigma[m[-1]] for m in self.lifted]
+        g = ca.vertcat(dynamics, stationarity, *lifting)
+        ny, n = sys_.ny, sys_.n_sigma
+        g_blocks = {"dynamics": slice(0, ny), "stationarity": slice(ny, ny + n), "lifting": slice(ny + n, ny + n + self.n_theta)}
+        comp = tuple((lam0[i], sigma[i]) for i in range(n)) + tuple((lam1[i], 1 - sigma[i]) for i in range(n))
+        dev = sigma - ca.DM(sys_.wanted)
+        objective = self.rho_f * ca.dot(dev, dev)
+        names = tuple(f"{nm}{tag}" for nm in self.w_names)
+        return Step(w=w, w_names=names, w_blocks=dict(self.w_blocks), lbw=self.lbw.copy(), ubw=self.ubw.copy(), w0=self.w0.copy(),
+                    g=g, g_blocks=g_blocks, complementarity=comp, objective=objective)
+
+    def coefficients(self, w) -> np.ndarray:
+        """Numeric field coefficients P_j (n_fields,) of a solved step from its algebraic variables w (nw,)."""
+        w = np.asarray(w, dtype=float).ravel()
+        z = np.concatenate([[1.0], w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]])
+        return self.C @ z

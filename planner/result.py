@@ -1,0 +1,218 @@
+"""Typed results, the physical-time recovery of Thm. 10, and the atomic result writers.
+
+Recovery (paper Thm. 10, eq. 22) from a discretized time-freezing trajectory: a step is *frozen*
+(partly or wholly) when its clock advanced less than h s. Samples of running steps are physical
+samples at their clock time. A maximal run of frozen steps is one impact at one physical time
+(the clock value inside the run): it contributes a pre-impact and a post-impact sample at that
+time. The post-impact velocity is the pre-impact one plus the sum of the auxiliary fields'
+velocity increments over the run; the pre-impact velocity is the state after the run's first
+step minus that step's auxiliary increment (the step may also hold some free flight). The
+impulse is the integral of the auxiliary force over the run, sum h s P_j a_j (eq. 22).
+
+File contract (shared/design.md): DIR/trajectory.npz with tau, y, t, q, v, u, impact_times (and
+more), DIR/summary.json with command, robot, task, converged, solve_time_s, n_nlp,
+ipopt_iterations, complementarity_residual, terminal_error, physical_duration_s, impacts.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Impact:
+    """One recovered impact (one frozen interval)."""
+
+    time: float  # physical time [s]
+    contact: str  # contact point name
+    impulse: float  # normal impulse int a_n dtau [N s] (eq. 22)
+    impulse_tangential: float  # tangential impulse int (1 - 2 zeta) a_t dtau [N s] (0 if frictionless)
+    q: np.ndarray  # configuration at the impact (nq,)
+    v_pre: np.ndarray  # pre-impact velocity (nv,)
+    v_post: np.ndarray  # post-impact velocity (nv,)
+    tau_start: float  # numerical time where the frozen interval starts [s]
+    tau_end: float  # numerical time where it ends [s]
+
+    def to_json(self) -> dict:
+        return {"time": self.time, "contact": self.contact, "impulse": self.impulse, "impulse_tangential": self.impulse_tangential,
+                "tau_start": self.tau_start, "tau_end": self.tau_end, "v_pre": self.v_pre.tolist(), "v_post": self.v_post.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """A time-freezing trajectory in numerical time and its recovery in physical time.
+
+    tau (K,) numerical time grid [s]; y (K, ny) states, clock last; state_names (ny,);
+    sigma (K-1, n_sigma) selectors of each step (at its end point), selector_names;
+    t (P,) physical times [s]; q (P, nq), v (P, nv), u (P, nu) physical-time samples; an impact is
+    two samples with the same time (pre- and post-impact velocity); impacts (Impact, ...).
+    """
+
+    tau: np.ndarray
+    y: np.ndarray
+    state_names: tuple[str, ...]
+    sigma: np.ndarray
+    selector_names: tuple[str, ...]
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    impacts: tuple[Impact, ...] = ()
+
+    @property
+    def impact_times(self) -> np.ndarray:
+        return np.array([imp.time for imp in self.impacts], dtype=float)
+
+    @property
+    def physical_duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+
+@dataclass(frozen=True)
+class SolveStats:
+    """How the numerics went: totals over every NLP solved."""
+
+    converged: bool
+    solve_time_s: float
+    n_nlp: int
+    ipopt_iterations: int
+    complementarity_residual: float  # max over all pairs of a * b at the solution
+    message: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """What `planner.simulate.simulate` returns."""
+
+    robot: str  # robot file path (the viewer loads it back)
+    task: str  # task file path ("" for a task built in code)
+    trajectory: Trajectory
+    stats: SolveStats
+    strategy: str
+    h: float
+    rho_f: float
+    command: str = "simulate"
+    extra: dict = field(default_factory=dict)
+
+    def report(self) -> str:
+        """A few human-readable lines for the terminal."""
+        tr, st = self.trajectory, self.stats
+        lines = [f"simulate {Path(self.robot).name}: {'converged' if st.converged else 'NOT converged'} in {st.solve_time_s:.2f} s "
+                 f"({len(tr.tau) - 1} steps of h = {self.h:g} s, {self.strategy}, {st.n_nlp} NLPs, {st.ipopt_iterations} IPOPT iterations, "
+                 f"complementarity {st.complementarity_residual:.1e})",
+                 f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s)"]
+        lines += [f"  impact at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s" for imp in tr.impacts]
+        return "\n".join(lines)
+
+    def summary(self) -> dict:
+        """The summary.json object (contract keys first)."""
+        tr, st = self.trajectory, self.stats
+        return {
+            "command": self.command,
+            "robot": self.robot,
+            "task": self.task,
+            "converged": st.converged,
+            "solve_time_s": st.solve_time_s,
+            "n_nlp": st.n_nlp,
+            "ipopt_iterations": st.ipopt_iterations,
+            "complementarity_residual": st.complementarity_residual,
+            "terminal_error": None,
+            "physical_duration_s": tr.physical_duration,
+            "impacts": [imp.to_json() for imp in tr.impacts],
+            "strategy": self.strategy,
+            "h": self.h,
+            "rho_f": self.rho_f,
+            "n_steps": len(tr.tau) - 1,
+            "message": st.message,
+            **self.extra,
+        }
+
+
+def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
+            frozen_tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
+    """Physical-time samples and impacts from a solved discretization (Thm. 10).
+
+    tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
+    u_steps (K-1, nu) control, dt_steps (K-1,) numerical-time length h s [s], dv_aux (K-1, nv)
+    velocity increment of the auxiliary fields, impulses (K-1, n_contacts, 2) normal and tangential
+    impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s.
+    Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
+    """
+    y, u_steps = np.asarray(y, float), np.asarray(u_steps, float)
+    n_steps = len(y) - 1
+    clock = y[:, -1]
+    advance = np.diff(clock)
+    frozen = advance < (1.0 - frozen_tol) * np.asarray(dt_steps, float)
+    nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
+    u0 = u_steps[0] if n_steps else np.zeros(nu)
+    ts, qs, vs, us = [clock[0]], [y[0, :nq]], [y[0, nq : nq + nv]], [u0]
+    impacts = []
+    k = 0
+    while k < n_steps:
+        if not frozen[k]:
+            ts.append(clock[k + 1]); qs.append(y[k + 1, :nq]); vs.append(y[k + 1, nq : nq + nv]); us.append(u_steps[k])
+            k += 1
+            continue
+        a = b = k
+        while b + 1 < n_steps and frozen[b + 1]:
+            b += 1
+        t_imp, q_imp = clock[a + 1], y[a + 1, :nq]
+        v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
+        v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
+        imp = np.sum(np.asarray(impulses)[a : b + 1], axis=0)  # (n_contacts, 2)
+        c = int(np.argmax(np.abs(imp[:, 0]))) if len(contacts) else 0
+        impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
+                              impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
+                              v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
+        for vel in (v_pre, v_post):
+            ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
+        if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock
+            ts.append(clock[b + 1]); qs.append(y[b + 1, :nq]); vs.append(y[b + 1, nq : nq + nv]); us.append(u_steps[b])
+        k = b + 1
+    return np.array(ts), np.array(qs), np.array(vs), np.array(us).reshape(len(ts), nu), tuple(impacts)
+
+
+def write_results(result: SimulationResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
+    """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tr = result.trajectory
+    arrays = {
+        "tau": tr.tau, "y": tr.y, "t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u,
+        "impact_times": tr.impact_times,
+        "impact_impulses": np.array([imp.impulse for imp in tr.impacts], dtype=float),
+        "sigma": tr.sigma,
+        "state_names": np.array(tr.state_names, dtype=str),
+        "selector_names": np.array(tr.selector_names, dtype=str),
+    }
+    npz = out / "trajectory.npz"
+    _atomic(npz, lambda f: np.savez(f, **arrays))
+    summary = out / "summary.json"
+    text = json.dumps(result.summary(), indent=2, default=_json_default) + "\n"
+    _atomic(summary, lambda f: f.write(text.encode()))
+    return npz, summary
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
+def _atomic(path: Path, write) -> None:
+    """Write through a temp file in the same directory, then os.replace: readers never see half a file."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,266 @@
+"""Forward simulation of the time-freezing system with the regularized implicit Euler scheme.
+
+Every step is the MPCC of eq. 24 (see planner.discretization). It is solved by an l_inf penalty
+homotopy (Sec. 5.2): one slack s_c >= a * b for every complementarity pair, objective
+rho_f ||sigma - sigma*||^2 + rho s_c, rho = rho0 kappa^i, each NLP warm-started from the last,
+stopping as soon as the complementarity residual max(a * b) is below `comp_tol`.
+
+Two strategies (SimulateOptions.strategy):
+* STEPWISE: one OSNP at a time, a small NLP built once with (y_k, u_k, rho) as parameters;
+  controls follow the task's schedule at the current clock value.
+* HORIZON: all N steps as one NLP from y_0 at every node. A control schedule (given in physical
+  time) is evaluated at the clock of the previous pass, repeated until the controls stop changing.
+STEPWISE is the default: it was measured faster and it never fails on a whole horizon at once
+(numbers in docs/formulation.md, "Simulation strategy").
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from enum import Enum
+
+import casadi as ca
+import numpy as np
+
+from .discretization import ImplicitEulerStep
+from .dynamics import Dynamics
+from .errors import InputError
+from .model import Robot
+from .result import SimulationResult, SolveStats, Trajectory, recover
+from .task import Task
+from .timefreezing import TimeFreezingSystem
+
+# An initial gap below -GAP_TOL [m] is "below the ground": the time-freezing system must start in c >= 0.
+GAP_TOL = 1e-9
+
+
+class Strategy(Enum):
+    STEPWISE = "stepwise"
+    HORIZON = "horizon"
+
+
+@dataclass(frozen=True)
+class SimulateOptions:
+    """Numerical settings of `simulate`.
+
+    strategy: STEPWISE (one OSNP at a time) or HORIZON (one NLP); rho_f: weight of ||sigma - sigma*||^2,
+    None takes the task's simulate.rho_f; rho0, kappa, max_nlp: penalty homotopy rho = rho0 kappa^i,
+    at most max_nlp NLPs per step (per horizon); comp_tol: complementarity residual max(a b) that ends
+    the homotopy; ipopt_tol: IPOPT's tol; max_iter: IPOPT iterations per NLP; frozen_tol: relative
+    clock deficit of a step that counts as frozen in the recovery; max_passes: HORIZON passes to make
+    a control schedule consistent with the clock; verbose: IPOPT output.
+    """
+
+    strategy: Strategy = Strategy.STEPWISE
+    rho_f: float | None = None
+    rho0: float = 100.0
+    kappa: float = 10.0
+    max_nlp: int = 8
+    comp_tol: float = 1e-9
+    ipopt_tol: float = 1e-10
+    max_iter: int = 3000
+    frozen_tol: float = 1e-4
+    max_passes: int = 5
+    verbose: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.strategy, Strategy):
+            raise InputError(f"strategy = {self.strategy!r} is not allowed; it must be one of {[s.value for s in Strategy]}")
+        checks = [
+            (self.rho_f is None or self.rho_f >= 0, "rho_f", self.rho_f, ">= 0 or None"),
+            (self.rho0 > 0, "rho0", self.rho0, "> 0"),
+            (self.kappa > 1, "kappa", self.kappa, "> 1"),
+            (self.max_nlp >= 1, "max_nlp", self.max_nlp, ">= 1"),
+            (self.comp_tol > 0, "comp_tol", self.comp_tol, "> 0"),
+            (self.ipopt_tol > 0, "ipopt_tol", self.ipopt_tol, "> 0"),
+            (self.max_iter >= 1, "max_iter", self.max_iter, ">= 1"),
+            (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
+            (self.max_passes >= 1, "max_passes", self.max_passes, ">= 1"),
+        ]
+        for ok, key, value, allowed in checks:
+            if not ok:
+                raise InputError(f"SimulateOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOptions(), dynamics: Dynamics | None = None) -> SimulationResult:
+    """Simulate the task's initial state over its horizon (tau_f, N) with speed of time s = 1.
+
+    Returns a SimulationResult (numerical- and physical-time trajectory, impacts, solver stats).
+    Raises InputError for a bad task (checked against the robot, initial state below the ground).
+    A step (STEPWISE) or the horizon (HORIZON) that does not reach the complementarity tolerance
+    gives a result with stats.converged = False and stats.message saying where: STEPWISE keeps the
+    steps solved before it, HORIZON the last iterate (diagnostics to write, exit code 1).
+    """
+    task.check_against(robot)
+    dyn = dynamics or Dynamics(robot)
+    system = TimeFreezingSystem(dyn, task.contacts, task.ground_height)
+    v0 = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v, float)
+    y0 = system.initial_state(np.array(task.initial.q, float), v0)
+    gaps = np.asarray(system.gap_fn(y0, np.zeros(robot.nu)), float).ravel()
+    for c, gap in zip(task.contacts, gaps):
+        if gap < -GAP_TOL:
+            raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground (z = {task.ground_height}); "
+                             "the initial state must have every contact at or above the ground")
+    rho_f = task.simulate.rho_f if options.rho_f is None else options.rho_f
+    builder = ImplicitEulerStep(system, rho_f)
+    h, N = task.horizon.h, task.horizon.N
+    start = time.perf_counter()
+    run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
+    Y, W, U, stats = run(system, builder, y0, task, h, N, options)
+    stats = dict(stats, solve_time_s=time.perf_counter() - start)
+    trajectory = _trajectory(system, builder, Y, W, U, h, options.frozen_tol)
+    converged = stats["comp"] <= options.comp_tol and stats["ok"]
+    solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
+                       ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
+    return SimulationResult(robot=str(robot.path), task=task.source, trajectory=trajectory, stats=solve,
+                            strategy=options.strategy.value, h=h, rho_f=rho_f)
+
+
+def _ipopt_options(options: SimulateOptions) -> dict:
+    return {
+        "print_time": False,
+        "ipopt": {"tol": options.ipopt_tol, "max_iter": options.max_iter, "print_level": 5 if options.verbose else 0,
+                  "sb": "yes", "warm_start_init_point": "yes", "mu_strategy": "adaptive"},
+    }
+
+
+def _penalized_nlp(x_vars, steps, params):
+    """NLP of the steps plus one l_inf slack s_c >= a * b for every pair, objective + rho s_c.
+    Returns (nlp dict, comp_fn (x, p) -> products, number of equalities, number of pairs)."""
+    s_c = ca.SX.sym("s_c")
+    rho = ca.SX.sym("rho")
+    prods = ca.vertcat(*[st.comp_products() for st in steps])
+    f = sum(st.objective for st in steps) + rho * s_c
+    g = ca.vertcat(*[st.g for st in steps], s_c - prods)
+    x = ca.vertcat(x_vars, s_c)
+    p = ca.vertcat(params, rho)
+    n_eq = sum(st.g.shape[0] for st in steps)
+    comp_fn = ca.Function("comp", [x, p], [prods])
+    return {"x": x, "p": p, "f": f, "g": g}, comp_fn, n_eq, prods.shape[0]
+
+
+def _solve_homotopy(solver, comp_fn, x0, p_base, lbx, ubx, lbg, ubg, options, lam=None):
+    """Run the penalty homotopy from x0; returns (x, lam, comp, n_nlp, iterations, ok, message)."""
+    x, lam_x, lam_g = x0, None, None
+    if lam is not None:
+        lam_x, lam_g = lam
+    n_nlp = iterations = 0
+    comp, ok, message = np.inf, False, ""
+    for i in range(options.max_nlp):
+        rho = options.rho0 * options.kappa**i
+        p = np.concatenate([p_base, [rho]])
+        args = {"x0": x, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+        if lam_x is not None:
+            args.update(lam_x0=lam_x, lam_g0=lam_g)
+        sol = solver(**args)
+        st = solver.stats()
+        n_nlp += 1
+        iterations += int(st.get("iter_count", 0))
+        x, lam_x, lam_g = np.asarray(sol["x"]).ravel(), sol["lam_x"], sol["lam_g"]
+        comp = float(np.max(np.asarray(comp_fn(x, p)), initial=0.0))
+        ok, message = bool(st.get("success", False)), str(st.get("return_status", ""))
+        if ok and comp <= options.comp_tol:
+            break
+    return x, (lam_x, lam_g), comp, n_nlp, iterations, ok, message
+
+
+def _stepwise(system, builder, y0, task, h, N, options):
+    """One OSNP per step; the NLP is built once with (y_k, u_k, rho) as parameters."""
+    ny, nu, nw = system.ny, system.nu, builder.nw
+    y_k, u_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("u_k", nu), ca.SX.sym("y_next", ny)
+    step = builder.build(y_k, y_next, u_k, 1.0, h)
+    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(ca.vertcat(y_next, step.w), [step], ca.vertcat(y_k, u_k))
+    solver = ca.nlpsol("osnp", "ipopt", nlp, _ipopt_options(options))
+    lbx = np.concatenate([np.full(ny, -np.inf), step.lbw, [0.0]])
+    ubx = np.concatenate([np.full(ny, np.inf), step.ubw, [np.inf]])
+    lbg = np.concatenate([np.zeros(n_eq), np.zeros(n_comp)])
+    ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
+    Y, W, U = np.zeros((N + 1, ny)), np.zeros((N, nw)), np.zeros((N, nu))
+    Y[0] = y0
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
+    w_prev = None
+    for k in range(N):
+        u = task.simulate.controls_at(Y[k, -1] + 0.5 * h, nu)  # midpoint: a change at t1 acts from the step nearest t1
+        w_guess = builder.guess(Y[k], u) if w_prev is None else w_prev
+        x0 = np.concatenate([Y[k], w_guess, [0.0]])
+        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([Y[k], u]), lbx, ubx, lbg, ubg, options)
+        total["n_nlp"] += n_nlp
+        total["iterations"] += iters
+        total["comp"] = max(total["comp"], comp)
+        if not (ok and comp <= options.comp_tol):  # stop here; the steps so far are the diagnostics
+            total["ok"] = False
+            total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {Y[k, -1]:.4g} s) did not converge: IPOPT {msg}, "
+                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs")
+            return Y[: k + 1], W[:k], U[:k], total
+        Y[k + 1], W[k], U[k] = x[:ny], x[ny : ny + nw], u
+        w_prev = W[k]
+    return Y, W, U, total
+
+
+def _horizon(system, builder, y0, task, h, N, options):
+    """All N steps as one NLP, y_0 fixed, every node initialized at y_0."""
+    ny, nu, nw = system.ny, system.nu, builder.nw
+    Ys = ca.SX.sym("Y", ny, N)
+    Us = ca.SX.sym("U", nu, N)
+    y_init = ca.SX.sym("y0", ny)
+    steps, w_vars = [], []
+    for k in range(N):
+        prev = y_init if k == 0 else Ys[:, k - 1]
+        st = builder.build(prev, Ys[:, k], Us[:, k], 1.0, h, tag=f"_{k}")
+        steps.append(st)
+        w_vars.append(st.w)
+    x_vars = ca.vertcat(ca.vec(Ys), *w_vars)
+    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(x_vars, steps, ca.vertcat(y_init, ca.vec(Us)))
+    solver = ca.nlpsol("horizon", "ipopt", nlp, _ipopt_options(options))
+    lbx = np.concatenate([np.full(N * ny, -np.inf), np.tile(builder.lbw, N), [0.0]])
+    ubx = np.concatenate([np.full(N * ny, np.inf), np.tile(builder.ubw, N), [np.inf]])
+    lbg = np.zeros(n_eq + n_comp)
+    ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
+    x0 = np.concatenate([np.tile(y0, N), np.tile(builder.guess(y0, task.simulate.controls_at(0.0, nu)), N), [0.0]])
+    clock = np.zeros(N)  # clock at the start of each step, first pass: 0 everywhere
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
+    U = x = None
+    for _ in range(options.max_passes):
+        U_new = np.array([task.simulate.controls_at(t + 0.5 * h, nu) for t in clock])
+        if U is not None and np.array_equal(U, U_new):
+            break
+        U = U_new
+        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([y0, U.ravel()]), lbx, ubx, lbg, ubg, options)
+        total["n_nlp"] += n_nlp
+        total["iterations"] += iters
+        total["comp"], total["ok"], total["message"] = comp, ok, msg
+        Y = np.vstack([y0, x[: N * ny].reshape(N, ny)])
+        if not (ok and comp <= options.comp_tol):  # the last iterate is the diagnostics
+            total["message"] = f"the horizon NLP did not converge: IPOPT {msg}, complementarity residual {comp:.3g} > {options.comp_tol:g}"
+            break
+        clock = Y[:-1, -1]
+        x0 = x
+    else:
+        if not np.array_equal(U, [task.simulate.controls_at(t + 0.5 * h, nu) for t in clock]):
+            total["ok"] = False
+            total["message"] = f"the control schedule did not settle on the clock in {options.max_passes} passes"
+    W = x[N * ny : N * ny + N * nw].reshape(N, nw)
+    return Y, W, U, total
+
+
+def _trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, frozen_tol) -> Trajectory:
+    """Per-step auxiliary increments and impulses, then the Thm. 10 recovery."""
+    N = len(W)
+    nq, nv = system.nq, system.nv
+    aux = system.auxiliary_mask
+    dv_aux = np.zeros((N, nv))
+    n_c = len(system.contacts)
+    impulses = np.zeros((N, n_c, 2))
+    sigma = np.zeros((N, system.n_sigma))
+    for k in range(N):
+        coef = builder.coefficients(W[k])
+        fmat = np.asarray(system.fields_fn(Y[k + 1], U[k]))
+        dv_aux[k] = h * fmat[nq : nq + nv, aux] @ coef[aux]
+        if n_c:
+            impulses[k] = (h * np.asarray(system.impulse_fn(Y[k + 1], U[k])) @ coef).reshape(n_c, 2)
+        sigma[k] = W[k][builder.w_blocks["sigma"]]
+    tau = h * np.arange(N + 1)
+    t, q, v, u, impacts = recover(tau, Y, U, np.full(N, h), dv_aux, impulses, nq, nv,
+                                  tuple(c.point for c in system.contacts), frozen_tol)
+    return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
+                      t=t, q=q, v=v, u=u, impacts=impacts)

@@ -1,0 +1,347 @@
+"""The time-freezing system (paper Secs. 4-6): vector fields, switching functions, wanted selectors.
+
+State y = (q (nq,), v (nv,), p (one per elastic contact), t) in R^ny, the clock t last. The
+system is a piecewise smooth ODE written with set-valued step functions sigma_i in theta(h_i(y, u)):
+
+    y' = s * F(y, sigma, u),    F = sum_j P_j(sigma) f_j(y, u)
+
+where the f_j are smooth vector fields (f_ODE, f_DAE, f_A,n, ...) and the P_j are multi-affine
+polynomials in the selectors (eqs. 17, 20, 27). Keeping F in this "polynomial times field" form lets
+the discretization lift every product of selectors into one algebraic variable (Sec. 5.1) and lets
+the recovery know which part of a step was an auxiliary (clock-frozen) motion.
+
+Contact models (one per contact point, chosen from the task's mu and restitution):
+
+* FRICTIONLESS (mu = 0, eps = 0): selectors (alpha, beta, gamma) of (n^T v, c, phi);
+  F = beta f_ODE + (1-beta)((1-alpha) f_A,n + alpha f_DF),
+  f_DF = (1-gamma)(2 f_DAE - f_A,n) + 2 gamma f_ODE                      (eqs. 17, 20)
+* NO_SLIP (mu > 0, eps = 0): adds zeta of t^T v and the tangential jump, Sec. 6 simplified
+  (a_t >> a_n, xi* = alpha*): f_jmp = (1-alpha) f_A,n + (1-2 zeta) f_A,t,
+  f_DF,f = ((1-gamma) f_DAE,f + gamma f_ODE)/alpha* - (1-gamma) f_A,n,
+  F = beta f_ODE + (1-beta)(f_jmp + alpha f_DF,f)                          (eq. 27)
+* ELASTIC (mu = 0, eps > 0): the auxiliary oscillator of Sec. 4.5 with q frozen on c = 0, in the
+  well-posed form derived in docs/formulation.md (selectors alpha, beta, eta of n^T v, c, p):
+  F = beta [eta f_ODE + (1-eta) f_push] + (1-beta)[eta((1-alpha) f_osc + alpha f_ODE) + (1-eta) f_osc]
+
+Several contact points need a composition rule that is not written yet: more than one contact is
+an InputError for now. A robot without contacts gives F = f_ODE (no selectors).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import casadi as ca
+import numpy as np
+
+from .contact import ContactTerms, contact_terms
+from .dynamics import Dynamics
+from .errors import InputError
+from .task import Contact
+
+# Wanted selectors on the sliding manifolds (Prop. 9, Sec. 6); xi* = alpha* in the simplified
+# frictional form. eta* = 1: in flight p rests at 0 and eta only multiplies identical fields.
+ALPHA_STAR, BETA_STAR, GAMMA_STAR, ZETA_STAR, ETA_STAR = 0.5, 0.0, 0.0, 0.5, 1.0
+
+# Speed [m/s] at which the elastic model's push field moves p back to 0 (and q onto c = 0) when a
+# trajectory touches the nonphysical region c > 0, p < 0. It must exceed the normal speed at which
+# a contact leaves the ground; 10 m/s is the speed after a 5 m fall.
+PUSH_SPEED = 10.0
+
+
+class ContactModel(Enum):
+    """Which time-freezing construction a contact point gets."""
+
+    FRICTIONLESS = "frictionless"  # inelastic, no tangential jump (eqs. 17, 20)
+    NO_SLIP = "no_slip"  # inelastic with tangential jump to zero slip (Sec. 6, simplified)
+    ELASTIC = "elastic"  # frictionless, restitution eps > 0 (Sec. 4.5)
+
+
+def contact_model(contact: Contact) -> ContactModel:
+    """The model of a task contact: eps > 0 elastic, else mu > 0 no-slip, else frictionless."""
+    if contact.restitution > 0:
+        if contact.mu > 0:
+            raise InputError(f"contact {contact.point!r}: restitution = {contact.restitution} with mu = {contact.mu} is not "
+                             "supported; elastic impacts are frictionless (set mu = 0) and frictional impacts inelastic "
+                             "(set restitution = 0)")
+        return ContactModel.ELASTIC
+    return ContactModel.NO_SLIP if contact.mu > 0 else ContactModel.FRICTIONLESS
+
+
+def oscillator_gains(restitution: float, stiffness: float) -> tuple[float, float]:
+    """Stiffness k [1/s^2] and damping c [1/s] of the elastic auxiliary oscillator p'' = -k p - c p'.
+
+    Started at p = 0 with p' = w_s < 0, the underdamped oscillator (damping ratio zeta < 1,
+    omega0 = sqrt(k), omega_d = omega0 sqrt(1 - zeta^2)) is p(tau) = (w_s/omega_d) exp(-zeta omega0 tau)
+    sin(omega_d tau). It is back at p = 0 after tau_jump = pi/omega_d with
+    p' = -w_s exp(-pi zeta / sqrt(1 - zeta^2)). Setting that ratio to eps gives
+    zeta = -ln(eps) / sqrt(pi^2 + ln(eps)^2), hence c = 2 zeta sqrt(k). eps = 1 gives c = 0.
+    """
+    if not 0.0 < restitution <= 1.0:
+        raise InputError(f"restitution = {restitution} is not allowed for the elastic oscillator; it must be in (0, 1]")
+    if stiffness <= 0:
+        raise InputError(f"oscillator stiffness = {stiffness} must be > 0")
+    log_eps = math.log(restitution)
+    zeta = -log_eps / math.sqrt(math.pi**2 + log_eps**2)
+    return stiffness, 2.0 * zeta * math.sqrt(stiffness)
+
+
+class Poly:
+    """A multi-affine polynomial in the selectors: {monomial: coefficient}.
+
+    A monomial is a sorted tuple of selector indices, () the constant. Selector products never
+    repeat a factor, which `__mul__` checks.
+    """
+
+    def __init__(self, terms: dict[tuple[int, ...], float] | None = None):
+        self.terms = {m: float(c) for m, c in (terms or {}).items() if c != 0.0}
+
+    @staticmethod
+    def var(i: int) -> Poly:
+        return Poly({(i,): 1.0})
+
+    def __add__(self, other) -> Poly:
+        other = _poly(other)
+        out = dict(self.terms)
+        for m, c in other.terms.items():
+            out[m] = out.get(m, 0.0) + c
+        return Poly(out)
+
+    __radd__ = __add__
+
+    def __neg__(self) -> Poly:
+        return Poly({m: -c for m, c in self.terms.items()})
+
+    def __sub__(self, other) -> Poly:
+        return self + (-_poly(other))
+
+    def __rsub__(self, other) -> Poly:
+        return _poly(other) + (-self)
+
+    def __mul__(self, other):
+        if isinstance(other, Mix):
+            return NotImplemented
+        other = _poly(other)
+        out: dict[tuple[int, ...], float] = {}
+        for m1, c1 in self.terms.items():
+            for m2, c2 in other.terms.items():
+                if set(m1) & set(m2):
+                    raise ValueError("selector products must be multi-affine")
+                m = tuple(sorted(m1 + m2))
+                out[m] = out.get(m, 0.0) + c1 * c2
+        return Poly(out)
+
+    __rmul__ = __mul__
+
+    def __call__(self, sigma):
+        """Value at selectors sigma (numbers or CasADi expressions, indexable)."""
+        total = 0.0
+        for m, c in self.terms.items():
+            term = c
+            for i in m:
+                term = term * sigma[i]
+            total = total + term
+        return total
+
+
+def _poly(x) -> Poly:
+    return x if isinstance(x, Poly) else Poly({(): float(x)})
+
+
+class Mix:
+    """A combination sum_j P_j f_j of named vector fields with polynomial coefficients."""
+
+    def __init__(self, parts: dict[str, Poly]):
+        self.parts = {k: p for k, p in parts.items() if p.terms}
+
+    @staticmethod
+    def field(name: str) -> Mix:
+        return Mix({name: Poly({(): 1.0})})
+
+    def __add__(self, other: Mix) -> Mix:
+        out = dict(self.parts)
+        for k, p in other.parts.items():
+            out[k] = out.get(k, Poly()) + p
+        return Mix(out)
+
+    def __sub__(self, other: Mix) -> Mix:
+        return self + (-1.0) * other
+
+    def __rmul__(self, scale) -> Mix:
+        return Mix({k: _poly(scale) * p for k, p in self.parts.items()})
+
+    __mul__ = __rmul__
+
+
+@dataclass(frozen=True)
+class Switch:
+    """One switching function h_i(y, u) and its step function sigma_i in theta(h_i)."""
+
+    name: str  # selector name, e.g. "alpha[point]"
+    contact: str
+    function: str  # what h_i is, e.g. "n^T v"
+    wanted: float  # sigma_i* used by rho_f ||sigma - sigma*||^2
+
+
+@dataclass(frozen=True)
+class Field:
+    """One smooth vector field f_j(y, u) in R^ny."""
+
+    name: str  # e.g. "ode", "a_n[point]"
+    contact: str | None  # the contact it belongs to, None for f_ODE
+    auxiliary: bool  # True when it freezes the clock and its v-part is an impulse (state jump in slow motion)
+
+
+class TimeFreezingSystem:
+    """The time-freezing PSS of a robot with contact points (single contact for now).
+
+    Attributes:
+      dyn, contacts (task Contacts), models (ContactModel per contact), terms (ContactTerms per contact)
+      nq, nv, nu, ny; y (SX ny), u (SX nu) the symbols every expression below is written in
+      state_names (ny,), switches (Switch, ...), fields (Field, ...)
+      coefficients: dict field name -> Poly (F = sum_j P_j(sigma) f_j)
+      field_matrix: SX (ny, n_fields), column j = f_j(y, u)
+      switching: SX (n_sigma,), the h_i(y, u)
+      impulse_rates: SX (2 * n_contacts, n_fields): normal and tangential impulse per unit numerical
+        time [N] of each field (a_n for f_A,n, a_t for f_A,t, the oscillator force for f_osc, 0 else)
+      Functions of (y, u): fields_fn -> field_matrix, switching_fn -> switching,
+        impulse_fn -> impulse_rates, gap_fn -> (n_contacts,) gaps c [m]
+    """
+
+    def __init__(self, dyn: Dynamics, contacts: tuple[Contact, ...] | list[Contact], ground_height: float = 0.0):
+        contacts = tuple(contacts)
+        if len(contacts) > 1:
+            raise InputError(f"{len(contacts)} contact points given ({', '.join(c.point for c in contacts)}); only one "
+                             "contact point per task is supported so far (the multiple-contact rule is not implemented)")
+        self.dyn, self.contacts = dyn, contacts
+        self.models = tuple(contact_model(c) for c in contacts)
+        self.nq, self.nv, self.nu = dyn.nq, dyn.nv, dyn.nu
+        n_p = sum(m is ContactModel.ELASTIC for m in self.models)
+        self.ny = self.nq + self.nv + n_p + 1
+        self.y, self.u = ca.SX.sym("y", self.ny), ca.SX.sym("u", self.nu)
+        q, v = self.y[: self.nq], self.y[self.nq : self.nq + self.nv]  # no field depends on the clock
+        dofs = dyn.robot.dof_names
+        self.state_names = tuple([f"q[{d}]" for d in dofs] + [f"v[{d}]" for d in dofs]
+                                 + [f"p[{c.point}]" for c, m in zip(contacts, self.models) if m is ContactModel.ELASTIC] + ["t"])
+
+        M = dyn.mass(q)
+        fv = dyn.forward(q, v, self.u)
+        zq, zv, zp = ca.SX.zeros(self.nq), ca.SX.zeros(self.nv), ca.SX.zeros(n_p)
+        values: dict[str, ca.SX] = {"ode": ca.vertcat(v, fv, zp, 1)}
+        self.fields = [Field("ode", None, False)]
+        impulses: dict[str, tuple] = {"ode": (0, 0)}
+        self.switches: list[Switch] = []
+        h: list[ca.SX] = []
+        mix = Mix.field("ode")
+        self.terms: list[ContactTerms] = []
+        ip = self.nq + self.nv  # index of the next elastic p state
+        for contact, model in zip(contacts, self.models):
+            ct = contact_terms(dyn, contact.point, ground_height, q, v, self.u, M=M, fv=fv)
+            self.terms.append(ct)
+            pt = contact.point
+
+            def switch(name, expr, what, wanted):
+                h.append(expr)
+                self.switches.append(Switch(f"{name}[{pt}]", pt, what, wanted))
+                return Poly.var(len(self.switches) - 1)
+
+            def field(name, value, auxiliary, impulse=(0, 0)):
+                key = f"{name}[{pt}]"
+                values[key] = value
+                impulses[key] = impulse
+                self.fields.append(Field(key, pt, auxiliary))
+                return Mix.field(key)
+
+            ode = Mix.field("ode")
+            if model is ContactModel.ELASTIC:
+                k, c_damp = oscillator_gains(contact.restitution, contact.a_n)
+                p = self.y[ip]
+                e_p = ca.DM.zeros(n_p)
+                e_p[ip - self.nq - self.nv] = 1
+                w = ct.normal_velocity
+                a_osc = (-k * p - c_damp * w) / ct.delassus  # normal force of the oscillator, w' = -k p - c w
+                osc = field("osc", ca.vertcat(zq, ct.minv_normal * a_osc, e_p * w, 0), True, (a_osc, 0))
+                push = field("push", ca.vertcat(-PUSH_SPEED * ct.normal / ca.dot(ct.normal, ct.normal), zv, e_p * PUSH_SPEED, 0), True)
+                al = switch("alpha", w, "n^T v", ALPHA_STAR)
+                be = switch("beta", ct.gap, "c(q)", BETA_STAR)
+                et = switch("eta", p, "p", ETA_STAR)
+                ip += 1
+                mix = be * (et * ode + (1 - et) * push) + (1 - be) * (et * ((1 - al) * osc + al * ode) + (1 - et) * osc)
+                continue
+            no_slip = model is ContactModel.NO_SLIP
+            a_n = field("a_n", ca.vertcat(zq, contact.a_n * ct.minv_normal, zp, 0), True, (contact.a_n, 0))
+            dae_v = ct.dae_no_slip_v if no_slip else ct.dae_v
+            dae = field("dae_f" if no_slip else "dae", ca.vertcat(v, dae_v, zp, 1), False)
+            al = switch("alpha", ct.normal_velocity, "n^T v", ALPHA_STAR)
+            be = switch("beta", ct.gap, "c(q)", BETA_STAR)
+            ga = switch("gamma", ct.phi, "phi", GAMMA_STAR)
+            if no_slip:
+                a_t = field("a_t", ca.vertcat(zq, contact.a_t * ct.minv_tangent, zp, 0), True, (0, contact.a_t))
+                ze = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+                jmp = (1 - al) * a_n + (1 - 2 * ze) * a_t
+                df = (1 / ALPHA_STAR) * ((1 - ga) * dae + ga * ode) - (1 - ga) * a_n
+                mix = be * ode + (1 - be) * (jmp + al * df)
+            else:
+                df = (1 - ga) * (2.0 * dae - a_n) + 2.0 * ga * ode
+                mix = be * ode + (1 - be) * ((1 - al) * a_n + al * df)
+
+        self.fields, self.switches = tuple(self.fields), tuple(self.switches)
+        names = [f.name for f in self.fields]
+        self.coefficients = {name: mix.parts.get(name, Poly()) for name in names}
+        self.field_matrix = ca.horzcat(*[values[name] for name in names])
+        self.switching = ca.vertcat(*h) if h else ca.SX(0, 1)
+        rows = []
+        for _ in contacts:  # single contact: every impulse belongs to it
+            rows += [ca.horzcat(*[impulses[name][0] for name in names]), ca.horzcat(*[impulses[name][1] for name in names])]
+        self.impulse_rates = ca.vertcat(*rows) if rows else ca.SX(0, len(names))
+        args, arg_names = [self.y, self.u], ["y", "u"]
+        self.fields_fn = ca.Function("tf_fields", args, [self.field_matrix], arg_names, ["f"])
+        self.switching_fn = ca.Function("tf_switching", args, [self.switching], arg_names, ["h"])
+        self.impulse_fn = ca.Function("tf_impulse", args, [self.impulse_rates], arg_names, ["impulse_rate"])
+        gaps = ca.vertcat(*[ct.gap for ct in self.terms]) if self.terms else ca.SX(0, 1)
+        self.gap_fn = ca.Function("tf_gap", args, [gaps], arg_names, ["c"])
+
+    @property
+    def n_sigma(self) -> int:
+        return len(self.switches)
+
+    @property
+    def n_fields(self) -> int:
+        return len(self.fields)
+
+    @property
+    def wanted(self) -> np.ndarray:
+        """sigma* (n_sigma,)."""
+        return np.array([s.wanted for s in self.switches], dtype=float)
+
+    @property
+    def auxiliary_mask(self) -> np.ndarray:
+        """(n_fields,) bool: which fields are auxiliary (clock-frozen) motions."""
+        return np.array([f.auxiliary for f in self.fields])
+
+    def coefficient_vector(self, sigma):
+        """(n_fields,) values P_j(sigma) for numbers or CasADi expressions sigma (n_sigma,)."""
+        vals = [self.coefficients[f.name](sigma) for f in self.fields]
+        if isinstance(sigma, (ca.SX, ca.MX)):
+            return ca.vertcat(*vals)
+        return np.array([float(v) for v in vals])
+
+    def vector_field(self, sigma, y=None, u=None):
+        """F(y, sigma, u) (ny,), the unlifted multi-affine field (eq. 17 / 27); y, u default to the symbols."""
+        fmat = self.field_matrix if y is None and u is None else self.fields_fn(self.y if y is None else y, self.u if u is None else u)
+        coef = self.coefficient_vector(sigma)
+        return ca.mtimes(fmat, ca.DM(coef) if isinstance(coef, np.ndarray) else coef)
+
+    def field(self, name: str) -> ca.SX:
+        """The symbolic field f_j(y, u) named `name` (ny,)."""
+        names = [f.name for f in self.fields]
+        if name not in names:
+            raise KeyError(f"no field {name!r}; fields: {', '.join(names)}")
+        return self.field_matrix[:, names.index(name)]
+
+    def initial_state(self, q0, v0) -> np.ndarray:
+        """y0 = (q0, v0, p = 0, t = 0) (ny,)."""
+        y0 = np.zeros(self.ny)
+        y0[: self.nq], y0[self.nq : self.nq + self.nv] = q0, v0
+        return y0

@@ -1,0 +1,106 @@
+"""Per-contact quantities (planner.contact) against closed forms and finite differences."""
+from __future__ import annotations
+
+import functools
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from planner.contact import contact_functions, contact_terms
+from planner.dynamics import Dynamics
+from planner.errors import InputError
+from planner.model import load_robot
+
+G = 9.81
+EXACT_TOL = 1e-12  # closed-form quantities of the point mass: only rounding
+IDENTITY_TOL = 1e-9  # algebraic identities through a symbolic QR solve of a 4x4 mass matrix
+FD_STEP = 1e-6  # central differences: truncation ~ step^2, rounding ~ eps/step
+FD_TOL = 1e-6
+
+
+@functools.cache
+def dyn(name: str) -> Dynamics:
+    return Dynamics(load_robot(name))
+
+
+@functools.cache
+def funcs(name: str, point: str, ground: float = 0.0) -> dict:
+    return contact_functions(dyn(name), point, ground)
+
+
+def ev(f, *args) -> np.ndarray:
+    return np.asarray(f(*args), dtype=float).ravel()
+
+
+def capler_states(n: int, seed: int = 0):
+    """Random Capler states (q, v, u), seeded."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        q = np.array([rng.uniform(-1, 1), rng.uniform(0.2, 0.6), rng.uniform(-1, 1), rng.uniform(-1.2, 1.2)])
+        yield q, rng.normal(size=4), rng.normal(scale=10.0, size=2)
+
+
+def test_point_mass_closed_form():
+    """Point mass (1 kg, q = (x, z)): c = z - ground, n = (0, 1), t = (1, 0), D = 1, phi = u_z - g,
+    lambda_n = g - u_z, no-slip lambda = (g - u_z, -u_x) and both DAE fields as in Example 1."""
+    f = funcs("point_mass", "point", 0.25)
+    q, v, u = np.array([0.3, 0.7]), np.array([1.5, -2.0]), np.array([3.0, 4.0])
+    expected = {
+        "gap": [0.7 - 0.25], "normal": [0, 1], "tangent": [1, 0], "delassus": [1.0], "normal_velocity": [-2.0],
+        "tangential_velocity": [1.5], "phi": [4.0 - G], "lambda_n": [G - 4.0], "dae_v": [3.0, 0.0],
+        "lambda_no_slip": [G - 4.0, -3.0], "dae_no_slip_v": [0.0, 0.0],
+    }
+    for name, value in expected.items():
+        np.testing.assert_allclose(ev(f[name], q, v, u), value, atol=EXACT_TOL, err_msg=name)
+
+
+def test_capler_normal_tangent_are_gradients():
+    """Capler foot: n = grad c and t = grad p_x (central differences of the gap and of p_x)."""
+    f = funcs("capler", "foot")
+    px = dyn("capler").point_position("foot")
+    for q, v, u in capler_states(5):
+        fd_n, fd_t = np.zeros(4), np.zeros(4)
+        for i in range(4):
+            dq = np.zeros(4)
+            dq[i] = FD_STEP
+            fd_n[i] = (ev(f["gap"], q + dq, v, u)[0] - ev(f["gap"], q - dq, v, u)[0]) / (2 * FD_STEP)
+            fd_t[i] = (ev(px, q + dq)[0] - ev(px, q - dq)[0]) / (2 * FD_STEP)
+        np.testing.assert_allclose(ev(f["normal"], q, v, u), fd_n, atol=FD_TOL)
+        np.testing.assert_allclose(ev(f["tangent"], q, v, u), fd_t, atol=FD_TOL)
+
+
+def test_capler_phi_is_second_derivative_of_gap():
+    """phi = n^T f_v + v^T grad^2 c v, with the curvature term from central differences of n along v."""
+    f, d = funcs("capler", "foot"), dyn("capler")
+    for q, v, u in capler_states(5, seed=1):
+        fv = ev(d.forward, q, v, u)
+        dn = (ev(f["normal"], q + FD_STEP * v, v, u) - ev(f["normal"], q - FD_STEP * v, v, u)) / (2 * FD_STEP)
+        expected = ev(f["normal"], q, v, u) @ fv + dn @ v
+        np.testing.assert_allclose(ev(f["phi"], q, v, u), expected, atol=FD_TOL * 100)
+
+
+def test_capler_index_reduction_keeps_contact():
+    """Index reduction: with f_DAE,v the normal acceleration n^T v' + dJ_z v vanishes (eq. 16); with
+    f_DAE,f,v both normal and tangential accelerations vanish; D = n^T M^-1 n > 0; lambda_n = -phi / D."""
+    f, d = funcs("capler", "foot"), dyn("capler")
+    drift = d.point_drift("foot")
+    for q, v, u in capler_states(5, seed=2):
+        n, t, dj = ev(f["normal"], q, v, u), ev(f["tangent"], q, v, u), ev(drift, q, v)
+        M = np.asarray(d.mass(q), dtype=float)
+        D = n @ np.linalg.solve(M, n)
+        assert D > 0
+        np.testing.assert_allclose(ev(f["delassus"], q, v, u), D, rtol=IDENTITY_TOL)
+        np.testing.assert_allclose(ev(f["lambda_n"], q, v, u), -ev(f["phi"], q, v, u) / D, rtol=IDENTITY_TOL)
+        a = ev(f["dae_v"], q, v, u)
+        assert abs(n @ a + dj[2]) < IDENTITY_TOL * (1 + np.abs(a).max())
+        a = ev(f["dae_no_slip_v"], q, v, u)
+        assert abs(n @ a + dj[2]) < IDENTITY_TOL * (1 + np.abs(a).max())
+        assert abs(t @ a + dj[0]) < IDENTITY_TOL * (1 + np.abs(a).max())
+
+
+def test_nq_different_from_nv_is_an_input_error():
+    """A robot whose nq != nv (free flyer) is refused with a message naming the cause."""
+    fake = SimpleNamespace(nq=7, nv=6, robot=SimpleNamespace(name="floating"))
+    with pytest.raises(InputError, match="nq == nv"):
+        contact_terms(fake, "foot", 0.0, None, None, None)

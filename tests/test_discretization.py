@@ -1,0 +1,113 @@
+"""The regularized implicit Euler step builder (eq. 24) with lifted selector products (Sec. 5.1)."""
+from __future__ import annotations
+
+import functools
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from planner.discretization import G_BLOCKS, W_BLOCKS, ImplicitEulerStep
+from planner.dynamics import Dynamics
+from planner.model import load_robot
+from planner.task import Contact
+from planner.timefreezing import TimeFreezingSystem
+
+EVAL_TOL = 1e-12  # identical expressions evaluated two ways: rounding only
+
+
+@functools.cache
+def system(robot: str = "point_mass", mu: float = 0.0, restitution: float = 0.0) -> TimeFreezingSystem:
+    point = {"point_mass": "point", "capler": "foot"}[robot]
+    return TimeFreezingSystem(Dynamics(load_robot(robot)), [Contact(point, mu=mu, restitution=restitution)])
+
+
+def symbols(s: TimeFreezingSystem):
+    return ca.SX.sym("yk", s.ny), ca.SX.sym("yn", s.ny), ca.SX.sym("u", s.nu), ca.SX.sym("s")
+
+
+def test_blocks_names_and_bounds():
+    """Frictionless step: sigma (3), lifted products alpha*beta, alpha*gamma, alpha*beta*gamma (3),
+    lambda0, lambda1 (3 each); constraints dynamics (ny), stationarity (3), lifting (3); 6 pairs."""
+    s = system()
+    b = ImplicitEulerStep(s, rho_f=1.0)
+    assert b.lifted == ((0, 1), (0, 2), (0, 1, 2))
+    yk, yn, u, sp = symbols(s)
+    st = b.build(yk, yn, u, sp, 0.01, tag="_3")
+    assert tuple(st.w_blocks) == W_BLOCKS and tuple(st.g_blocks) == G_BLOCKS
+    assert st.w.shape[0] == 12 and st.g.shape[0] == s.ny + 3 + 3 and len(st.complementarity) == 6
+    assert st.w_names[:4] == ("alpha[point]_3", "beta[point]_3", "gamma[point]_3", "alpha[point]*beta[point]_3")
+    np.testing.assert_array_equal(st.lbw, 0.0)
+    np.testing.assert_array_equal(st.ubw, [1] * 6 + [np.inf] * 6)
+    np.testing.assert_allclose(st.w0[:6], [0.5, 0, 0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("robot,mu,eps", [("point_mass", 0.0, 0.0), ("capler", 0.8, 0.0), ("point_mass", 0.0, 0.5)])
+def test_lifted_step_equals_unlifted_field(robot, mu, eps):
+    """With theta = products of sigma (lifting constraints satisfied) the dynamics residual equals
+    y_{k+1} - y_k - h s F(y_{k+1}, sigma, u) with the multi-affine F (random seeded point)."""
+    s = system(robot, mu, eps)
+    b = ImplicitEulerStep(s)
+    yk, yn, u, sp = symbols(s)
+    st = b.build(yk, yn, u, sp, 0.02)
+    rng = np.random.default_rng(0)
+    sigma = rng.uniform(size=s.n_sigma)
+    w = b.w_from(sigma, rng.uniform(size=s.n_sigma), rng.uniform(size=s.n_sigma))
+    g = ca.Function("g", [yk, yn, u, sp, st.w], [st.g])
+    y0, y1 = rng.normal(size=s.ny), rng.normal(size=s.ny)
+    y1[1] = abs(y1[1]) + 0.5  # keep the Capler base above the foot for a sane configuration
+    uu = rng.normal(size=s.nu)
+    gv = np.asarray(g(y0, y1, uu, 1.3, w), dtype=float).ravel()
+    F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(sigma)])(y1, uu), dtype=float).ravel()
+    np.testing.assert_allclose(gv[st.g_blocks["dynamics"]], y1 - y0 - 0.02 * 1.3 * F, atol=EVAL_TOL * 1e3)
+    np.testing.assert_allclose(gv[st.g_blocks["lifting"]], 0.0, atol=EVAL_TOL)
+
+
+def test_guess_solves_the_step_lp_kkt():
+    """The state-based guess satisfies the LP's KKT conditions (24c-e) at that state: h = lambda1 - lambda0,
+    sigma = theta(h) and every complementarity product zero."""
+    s = system()
+    b = ImplicitEulerStep(s)
+    yk, yn, u, sp = symbols(s)
+    st = b.build(yk, yn, u, sp, 0.01)
+    g = ca.Function("g", [yk, yn, u, sp, st.w], [st.g, st.comp_products()])
+    y = np.array([0.0, 0.3, 1.0, -2.0, 0.0])  # in flight, falling: alpha = 0, beta = 1, gamma = 0 (phi = -g)
+    w = b.guess(y, np.zeros(2))
+    np.testing.assert_allclose(w[st.w_blocks["sigma"]], [0, 1, 0])
+    gv, comp = (np.asarray(x, dtype=float).ravel() for x in g(y, y, np.zeros(2), 1.0, w))
+    np.testing.assert_allclose(gv[st.g_blocks["stationarity"]], 0.0, atol=EVAL_TOL)
+    np.testing.assert_allclose(gv[st.g_blocks["lifting"]], 0.0, atol=EVAL_TOL)
+    np.testing.assert_allclose(comp, 0.0, atol=EVAL_TOL)
+
+
+def test_objective_is_regularization():
+    """Objective = rho_f ||sigma - sigma*||^2 (rho_f = 2.5 at a random sigma)."""
+    s = system()
+    b = ImplicitEulerStep(s, rho_f=2.5)
+    yk, yn, u, sp = symbols(s)
+    st = b.build(yk, yn, u, sp, 0.01)
+    sigma = np.array([0.2, 0.9, 0.4])
+    val = float(ca.Function("J", [st.w], [st.objective])(b.w_from(sigma, np.zeros(3), np.zeros(3))))
+    assert val == pytest.approx(2.5 * np.sum((sigma - [0.5, 0, 0]) ** 2))
+
+
+def test_steps_concatenate_and_accept_mx():
+    """N steps chain into one NLP with distinct variable names; MX inputs give MX variables."""
+    s = system()
+    b = ImplicitEulerStep(s)
+    Y = ca.MX.sym("Y", s.ny, 3)
+    y0 = ca.MX.sym("y0", s.ny)
+    steps = [b.build(y0 if k == 0 else Y[:, k - 1], Y[:, k], ca.MX.zeros(s.nu), 1.0, 0.01, tag=f"_{k}") for k in range(3)]
+    assert all(isinstance(st.w, ca.MX) for st in steps)
+    names = [n for st in steps for n in st.w_names]
+    assert len(names) == len(set(names)) == 3 * b.nw
+    g = ca.vertcat(*[st.g for st in steps])
+    assert g.shape[0] == 3 * (s.ny + 6)
+
+
+def test_bad_weights_are_refused():
+    """rho_f < 0 or a non-positive switch scale is a ValueError (a programming error, not user input)."""
+    with pytest.raises(ValueError):
+        ImplicitEulerStep(system(), rho_f=-1.0)
+    with pytest.raises(ValueError):
+        ImplicitEulerStep(system(), switch_scale=[1.0, 0.0, 1.0])

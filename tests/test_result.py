@@ -1,0 +1,108 @@
+"""Thm. 10 recovery on a hand-made trajectory, and the result files of the contract."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from planner.model import load_robot
+from planner.result import SimulationResult, SolveStats, Trajectory, recover, write_results
+from planner.simulate import simulate
+from planner.task import parse_task
+
+EXACT = 1e-12  # hand-made data: sums of a few floats
+
+# Contract keys (shared/design.md, "The contract").
+NPZ_KEYS = {"tau", "y", "t", "q", "v", "u", "impact_times"}
+SUMMARY_KEYS = {"command", "robot", "task", "converged", "solve_time_s", "n_nlp", "ipopt_iterations",
+                "complementarity_residual", "terminal_error", "physical_duration_s", "impacts"}
+
+
+def handmade():
+    """A 1-DoF 'drop' in 6 steps of h = 0.1: two flight steps, a partly frozen entry step (clock +0.04),
+    two fully frozen steps, then two running steps. y = (q, v, t)."""
+    h = 0.1
+    clock = [0.0, 0.1, 0.2, 0.24, 0.24, 0.24, 0.34, 0.44]
+    v = [-1.0, -2.0, -3.0, -1.5, -0.5, 0.0, 0.0, 0.0]
+    q = [1.0, 0.8, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0]
+    y = np.column_stack([q, v, clock])
+    dv_aux = np.array([[0.0], [0.0], [2.0], [1.0], [0.5], [0.0], [0.0]])  # the entry step: -3.4 - ... see v_pre
+    impulses = dv_aux.reshape(7, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    u = np.arange(7.0).reshape(7, 1)
+    tau = h * np.arange(8)
+    return tau, y, u, np.full(7, h), dv_aux, impulses
+
+
+def test_recover_one_impact():
+    """A run of frozen steps is one impact at the clock value inside it, with two samples at that
+    time: pre = state after the first frozen step minus its auxiliary increment, post = pre + all
+    auxiliary increments; impulse = sum of the auxiliary impulses (eq. 22); running samples kept."""
+    tau, y, u, dt, dv, imp = handmade()
+    t, q, v, uu, impacts = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))
+    assert len(impacts) == 1
+    im = impacts[0]
+    assert im.time == pytest.approx(0.24, abs=EXACT) and im.contact == "foot"
+    assert im.v_pre[0] == pytest.approx(-1.5 - 2.0, abs=EXACT)
+    assert im.v_post[0] == pytest.approx(-3.5 + 3.5, abs=EXACT)
+    assert im.impulse == pytest.approx(3.5, abs=EXACT) and im.impulse_tangential == 0.0
+    assert (im.tau_start, im.tau_end) == pytest.approx((0.2, 0.5))
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.2, 0.24, 0.24, 0.34, 0.44], atol=EXACT)
+    np.testing.assert_allclose(v[:, 0], [-1.0, -2.0, -3.0, -3.5, 0.0, 0.0, 0.0], atol=EXACT)
+    np.testing.assert_allclose(uu[:, 0], [0, 0, 1, 2, 2, 5, 6])
+    assert q.shape == (7, 1)
+
+
+def test_recover_without_impacts_keeps_every_sample():
+    """A trajectory whose clock always runs maps one to one onto physical time."""
+    tau = 0.1 * np.arange(4)
+    y = np.column_stack([np.zeros(4), np.ones(4), tau])
+    t, q, v, u, impacts = recover(tau, y, np.zeros((3, 2)), np.full(3, 0.1), np.zeros((3, 1)), np.zeros((3, 1, 2)), 1, 1, ("p",))
+    assert impacts == () and len(t) == 4
+    np.testing.assert_allclose(t, tau)
+
+
+def small_result() -> SimulationResult:
+    robot = load_robot("point_mass")
+    task = parse_task({"contacts": [{"point": "point", "a_n": 100.0}], "initial": {"q": [0.0, 0.3], "v": [1.0, 0.0]},
+                       "horizon": {"tau_f": 0.5, "N": 25}})
+    return simulate(robot, task)
+
+
+def test_write_results_follows_the_contract(tmp_path):
+    """trajectory.npz and summary.json carry the contract's keys with consistent shapes, the impacts
+    as objects with time, contact, impulse; no temporary file is left behind."""
+    result = small_result()
+    out = tmp_path / "out"
+    write_results(result, out)
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json", "trajectory.npz"]
+    with np.load(out / "trajectory.npz") as z:
+        assert NPZ_KEYS <= set(z.files)
+        K, ny = z["y"].shape
+        P = len(z["t"])
+        assert z["tau"].shape == (K,) and ny == 5
+        assert z["q"].shape == (P, 2) and z["v"].shape == (P, 2) and z["u"].shape == (P, 2)
+        np.testing.assert_allclose(z["y"][:, -1], result.trajectory.y[:, -1])
+        assert len(z["impact_times"]) == 1
+        # an impact is two samples at the same time
+        assert np.sum(z["t"] == z["impact_times"][0]) == 2
+    summary = json.loads((out / "summary.json").read_text())
+    assert SUMMARY_KEYS <= set(summary)
+    assert summary["command"] == "simulate" and summary["converged"] is True and summary["robot"].endswith("point_mass.xml")
+    assert summary["terminal_error"] is None
+    assert set(summary["impacts"][0]) >= {"time", "contact", "impulse"}
+    assert summary["impacts"][0]["contact"] == "point"
+    assert summary["physical_duration_s"] == pytest.approx(result.trajectory.physical_duration)
+    assert "impact" in result.report()
+
+
+def test_write_results_replaces_atomically(tmp_path):
+    """Writing twice replaces the files in place (os.replace), leaving only the two result files."""
+    tr = Trajectory(tau=np.zeros(1), y=np.zeros((1, 3)), state_names=("q", "v", "t"), sigma=np.zeros((0, 0)),
+                    selector_names=(), t=np.zeros(1), q=np.zeros((1, 1)), v=np.zeros((1, 1)), u=np.zeros((1, 0)))
+    result = SimulationResult(robot="r", task="t.toml", trajectory=tr, stats=SolveStats(True, 0.0, 0, 0, 0.0), strategy="stepwise",
+                              h=0.1, rho_f=1.0)
+    write_results(result, tmp_path)
+    write_results(result, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+    assert json.loads((tmp_path / "summary.json").read_text())["impacts"] == []
