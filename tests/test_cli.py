@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -51,3 +52,72 @@ def test_malformed_xml_from_a_subprocess(tmp_path):
     proc = run("check-model", str(bad), "--json")
     assert proc.returncode == 2 and proc.stdout == ""
     assert len(proc.stderr.strip().splitlines()) == 1 and "malformed XML" in proc.stderr
+
+
+POINT_MASS_TASK = """
+[[contacts]]
+point = "{point}"
+[initial]
+q = [0.0, {z0}]
+[horizon]
+tau_f = {tau_f}
+N = {N}
+"""
+
+
+def _task(tmp_path, point="point", z0=0.2, tau_f=0.1, N=5) -> str:
+    path = tmp_path / "task.toml"
+    path.write_text(POINT_MASS_TASK.format(point=point, z0=z0, tau_f=tau_f, N=N))
+    return str(path)
+
+
+def _one_line_exit_2(capsys, argv, fragment):
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert fragment in err and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+def test_simulate_writes_the_contract(tmp_path, capsys):
+    """`simulate --json` exits 0, prints the summary and writes trajectory.npz, summary.json and plots."""
+    out = tmp_path / "out"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["command"] == "simulate" and summary["converged"]
+    assert {"trajectory.npz", "summary.json", "clock.png"} <= {p.name for p in out.iterdir()}
+
+
+@pytest.mark.parametrize(
+    "task_kwargs, fragment",
+    [
+        ({"point": "toe"}, "unknown contact point 'toe'; valid contact points: mass, point"),
+        ({"N": 0}, "horizon.N = 0 is not allowed"),
+        ({"tau_f": -1.0}, "horizon.tau_f = -1.0 is not allowed"),
+        ({"z0": -0.1}, "initial.q"),
+    ],
+)
+def test_simulate_bad_task(tmp_path, capsys, task_kwargs, fragment):
+    """Bad task values reach the user as one line and exit 2."""
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path, **task_kwargs),
+                              "--out", str(tmp_path / "o")], fragment)
+
+
+def test_output_path_that_is_a_file(tmp_path, capsys):
+    """--out naming an existing file is refused before any work is done."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(blocker)],
+                     "is a file, not a directory")
+
+
+def test_unwritable_output_directory(tmp_path, capsys):
+    """An output directory that cannot be created (even by root: /proc refuses) is exit 2, one line."""
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", "/proc/planner-out"],
+                     "cannot create output directory")
+
+
+def test_missing_default_task(tmp_path, capsys):
+    """A robot with no task beside it and no --task says where the task was expected."""
+    robot = tmp_path / "lonely.xml"
+    robot.write_text((Path(__file__).resolve().parent.parent / "robots" / "point_mass.xml").read_text())
+    _one_line_exit_2(capsys, ["simulate", str(robot)], "no task file beside")
