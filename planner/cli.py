@@ -46,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--samples", type=int, default=20, help="random states to compare (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--floating", action="store_true", help="give a URDF robot a free-flyer root joint (legged robots)")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_check_model)
 
@@ -56,6 +57,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     _add_common(p)
     p.set_defaults(run=_cmd_simulate)
+
+    p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
+                              "  planner plan point_mass --task hop.toml --no-validate --json")
+    p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
+    p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
+    _add_common(p)
+    p.set_defaults(run=_cmd_plan)
+
+    p = sub.add_parser("gait", help="periodic biped gait by paper 001's embedding, relaxation, Newton and PRONTO",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  planner gait robots/biped.xml --task robots/biped_gait1.toml --out results/gait1")
+    p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
+    p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo walking replay")
+    _add_common(p)
+    p.set_defaults(run=_cmd_gait)
 
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, PD tracking, open loop)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -86,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     except PlannerError as exc:
         print(f"planner {args.command}: failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
 
 
 def _emit(args, summary: dict, text: str) -> None:
@@ -101,7 +122,7 @@ def _cmd_check_model(args) -> int:
 
     if args.samples < 1:
         raise InputError(f"--samples must be >= 1, got {args.samples}")
-    result = check_model(load_robot(args.robot), samples=args.samples, seed=args.seed)
+    result = check_model(load_robot(args.robot, floating=args.floating), samples=args.samples, seed=args.seed)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -142,6 +163,51 @@ def _cmd_simulate(args) -> int:
     verdict = "converged" if result.stats.converged else "FAILED"
     _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}")
     return EXIT_OK if result.stats.converged else EXIT_FAILED
+
+
+def _cmd_plan(args) -> int:
+    from .homotopy import SolveOptions, solve
+    from .problem import build_problem
+
+    robot, task, out = _load_inputs(args)
+    if task.plan is None:
+        raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
+
+    def progress(rec):
+        if not args.quiet and not args.json:
+            print(f"  {rec.label:<11} rho {rec.rho:8.3g}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  "
+                  f"complementarity {rec.complementarity_residual:.1e}  {rec.status}", flush=True)
+
+    problem = build_problem(robot, task)
+    result = solve(problem, SolveOptions(print_level=5 if args.verbose else 0), progress=progress)
+    target = _write(args, result, out)
+    summary, ok = result.summary(), result.stats.converged
+    text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
+    if not args.no_validate and result.trajectory.t.size > 1:
+        from .replay import validate, write_validation
+
+        validation = validate(target)
+        write_validation(target, validation)
+        summary["validation"] = validation.to_json()
+        ok = ok and validation.passed
+        text += f"\n{validation.report()}"
+    _emit(args, summary, text)
+    return EXIT_OK if ok else EXIT_FAILED
+
+
+def _cmd_gait(args) -> int:
+    from .gait import run_gait
+    from .model import load_robot
+
+    if args.task is None:
+        raise InputError("planner gait needs --task (e.g. robots/biped_gait1.toml)")
+    robot = load_robot(args.robot)
+    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait")
+    progress = None if args.quiet or args.json else (lambda loop: print(loop.line(), file=sys.stderr, flush=True))
+    result = run_gait(robot, args.task, out, progress=progress, validate=not args.no_validate)
+    converged = bool(result.summary["converged"])
+    _emit(args, result.summary, f"{result.report()}\n{'converged' if converged else 'FAILED'}: results in {out}")
+    return EXIT_OK if converged else EXIT_FAILED
 
 
 def _cmd_validate(args) -> int:

@@ -20,15 +20,29 @@ complementarity penalty or relaxation; `planner.simulate` does the same for one 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import casadi as ca
 import numpy as np
 
-from .timefreezing import TimeFreezingSystem
+from .timefreezing import ContactModel, TimeFreezingSystem
 
-# The algebraic variables of a step, in this order.
+# The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
 W_BLOCKS = ("sigma", "theta", "lambda0", "lambda1")
-# The equality constraints of a step, in this order.
+
+
+class StepForm(Enum):
+    """How the step writes the velocity rows of y' = F.
+
+    EXPLICIT: v_{k+1} - v_k = h s F_v with the fields' M(q)^-1 inside (symbolic inverse).
+    MASS_MATRIX: M(q_{k+1}) (v_{k+1} - v_k) = h s sum_j P_j g_j with generalized forces g_j, and the
+    free acceleration, the contact forces and M^-1 J^T lambda as algebraic variables of the step
+    (TimeFreezingSystem.mass_matrix_form); same solutions, much cheaper derivatives.
+    """
+
+    EXPLICIT = "explicit"
+    MASS_MATRIX = "mass_matrix"
+# The equality constraints of a step, in this order (StepForm.MASS_MATRIX appends "contact_forces").
 G_BLOCKS = ("dynamics", "stationarity", "lifting")
 
 
@@ -76,12 +90,16 @@ class ImplicitEulerStep:
     rho_f >= 0 weights ||sigma - sigma*||^2 (paper: 1; 0 gives the plain implicit Euler MPCC).
     switch_scale (n_sigma,) > 0 optionally divides the switching functions in the stationarity
     condition (theta(h / a) = theta(h) for a > 0; it rescales the multipliers, not the solution).
+    form: StepForm (EXPLICIT by default; MASS_MATRIX adds the block "forces" to w and the
+    equality block "contact_forces").
     """
 
-    def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None):
+    def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT):
         if rho_f < 0:
             raise ValueError(f"rho_f must be >= 0, got {rho_f}")
-        self.system, self.rho_f = system, float(rho_f)
+        self.system, self.rho_f, self.form = system, float(rho_f), form
+        self.mm = system.mass_matrix_form() if form is StepForm.MASS_MATRIX else None
+        nz = self.mm.nz if self.mm is not None else 0
         n = system.n_sigma
         self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
         if np.any(self.switch_scale <= 0):
@@ -102,30 +120,52 @@ class ImplicitEulerStep:
                 C[j, index[m]] = c
         self.C = C
         self.n_theta = len(self.lifted)
-        self.nw = 3 * n + self.n_theta
+        self.nw = 3 * n + self.n_theta + nz
         names = [s.name for s in system.switches]
         self.theta_names = tuple("*".join(names[i] for i in m) for m in self.lifted)
-        sizes = {"sigma": n, "theta": self.n_theta, "lambda0": n, "lambda1": n}
+        sizes = {"sigma": n, "theta": self.n_theta, "lambda0": n, "lambda1": n, "forces": nz}
         self.w_blocks, start = {}, 0
-        for b in W_BLOCKS:
+        for b in W_BLOCKS + (("forces",) if nz else ()):
             self.w_blocks[b] = slice(start, start + sizes[b])
             start += sizes[b]
-        self.w_names = tuple(list(names) + list(self.theta_names) + [f"lambda0[{s}]" for s in names] + [f"lambda1[{s}]" for s in names])
-        self.lbw = np.concatenate([np.zeros(n), np.zeros(self.n_theta), np.zeros(2 * n)])
-        self.ubw = np.concatenate([np.ones(n), np.ones(self.n_theta), np.full(2 * n, np.inf)])
+        self.w_names = tuple(list(names) + list(self.theta_names) + [f"lambda0[{s}]" for s in names] + [f"lambda1[{s}]" for s in names]
+                             + (list(self.mm.z_names) if nz else []))
+        self.lbw = np.concatenate([np.zeros(n), np.zeros(self.n_theta), np.zeros(2 * n), np.full(nz, -np.inf)])
+        self.ubw = np.concatenate([np.ones(n), np.ones(self.n_theta), np.full(2 * n, np.inf), np.full(nz, np.inf)])
         self.w0 = self.w_from(system.wanted, np.zeros(n), np.zeros(n))
 
-    def w_from(self, sigma, lam0, lam1) -> np.ndarray:
-        """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = products."""
+    def w_from(self, sigma, lam0, lam1, forces=None) -> np.ndarray:
+        """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = products;
+        forces (MASS_MATRIX only, nz,) default zeros."""
         theta = [np.prod([sigma[i] for i in m]) for m in self.lifted]
-        return np.concatenate([sigma, theta, lam0, lam1]).astype(float)
+        nz = self.mm.nz if self.mm is not None else 0
+        forces = np.zeros(nz) if forces is None else np.asarray(forces, float).ravel()
+        return np.concatenate([sigma, theta, lam0, lam1, forces]).astype(float)
+
+    def forces_at(self, y, u) -> np.ndarray:
+        """MASS_MATRIX: the algebraic force variables (nz,) that solve `defining` at numeric y, u."""
+        sys_, nq, nv = self.system, self.system.nq, self.system.nv
+        q, v = np.asarray(y, float)[:nq], np.asarray(y, float)[nq : nq + nv]
+        M = np.asarray(sys_.dyn.mass(q), float)
+        acc = np.asarray(sys_.dyn.forward(q, v, u), float).ravel()
+        lam, ds = [], []
+        for model, terms in zip(sys_.models, sys_.terms):
+            no_slip = model is ContactModel.NO_SLIP
+            fn = ca.Function("forces", [sys_.y, sys_.u], [terms.lambda_no_slip if no_slip else terms.lambda_n, terms.normal, terms.tangent])
+            lam_c, n_c, t_c = (np.asarray(a, float).ravel() for a in fn(y, u))
+            J = np.vstack([n_c, t_c]) if no_slip else n_c[None, :]
+            lam.append(lam_c)
+            ds.append(np.linalg.solve(M, J.T @ lam_c))
+        return np.concatenate([acc, *lam, *ds])
 
     def guess(self, y, u) -> np.ndarray:
         """Initial guess (nw,) consistent with the switching functions at a numeric state y (ny,), u (nu,):
-        sigma = 1 where h > 0, 0 where h < 0, sigma* where h = 0; lambda1 = max(h, 0), lambda0 = max(-h, 0)."""
+        sigma = 1 where h > 0, 0 where h < 0, sigma* where h = 0; lambda1 = max(h, 0), lambda0 = max(-h, 0);
+        MASS_MATRIX: the force variables that solve their equations at (y, u)."""
         hval = np.asarray(self.system.switching_fn(y, u), dtype=float).ravel() / self.switch_scale
         sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, self.system.wanted))
-        return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0))
+        forces = self.forces_at(y, u) if self.mm is not None else None
+        return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
 
     def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "") -> Step:
         """Create the step's algebraic variables and its constraints (see module docstring).
@@ -140,14 +180,29 @@ class ImplicitEulerStep:
         sigma, theta = w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]
         lam0, lam1 = w[self.w_blocks["lambda0"]], w[self.w_blocks["lambda1"]]
         z = ca.vertcat(1, sigma, theta)  # the monomials, in self.monomials order
-        F = ca.mtimes(sys_.fields_fn(y_next, u_k), ca.mtimes(ca.DM(self.C), z))
-        dynamics = y_next - y_k - h * s_k * F
-        stationarity = sys_.switching_fn(y_next, u_k) / ca.DM(self.switch_scale) - lam1 + lam0
+        coef = ca.mtimes(ca.DM(self.C), z)
+        extra = []
+        if self.mm is None:
+            F = ca.mtimes(sys_.fields_fn(y_next, u_k), coef)
+            dynamics = y_next - y_k - h * s_k * F
+            hval = sys_.switching_fn(y_next, u_k)
+        else:
+            nq, nv = sys_.nq, sys_.nv
+            fmat, hval, defining, M = self.mm.fn(y_next, u_k, w[self.w_blocks["forces"]])
+            F = ca.mtimes(fmat, coef)
+            dy = y_next - y_k
+            dv = ca.mtimes(M, dy[nq : nq + nv])  # velocity rows times M(q_{k+1}): no inverse
+            dynamics = ca.vertcat(dy[:nq], dv, dy[nq + nv :]) - h * s_k * F
+            extra = [defining]
+        stationarity = hval / ca.DM(self.switch_scale) - lam1 + lam0
         index = {m: j for j, m in enumerate(self.monomials)}
         lifting = [z[index[m]] - z[index[m[:-1]]] * sigma[m[-1]] for m in self.lifted]
-        g = ca.vertcat(dynamics, stationarity, *lifting)
+        g = ca.vertcat(dynamics, stationarity, *lifting, *extra)
         ny, n = sys_.ny, sys_.n_sigma
         g_blocks = {"dynamics": slice(0, ny), "stationarity": slice(ny, ny + n), "lifting": slice(ny + n, ny + n + self.n_theta)}
+        if extra:
+            start = ny + n + self.n_theta
+            g_blocks["contact_forces"] = slice(start, start + extra[0].shape[0])
         comp = tuple((lam0[i], sigma[i]) for i in range(n)) + tuple((lam1[i], 1 - sigma[i]) for i in range(n))
         dev = sigma - ca.DM(sys_.wanted)
         objective = self.rho_f * ca.dot(dev, dev)

@@ -133,6 +133,121 @@ class SimulationResult:
         }
 
 
+@dataclass(frozen=True)
+class NlpRecord:
+    """One NLP of the plan's homotopy (or its polishing NLP)."""
+
+    label: str  # "homotopy 1" .. "homotopy n", "polish"
+    rho: float  # complementarity penalty
+    hole_scale: float  # scale r of the holes (0: relaxed, 1: the task's)
+    objective: float  # NLP objective at its solution
+    complementarity_residual: float  # max over all pairs of a * b (unscaled)
+    iterations: int  # IPOPT iterations
+    time_s: float  # wall time of the IPOPT call [s]
+    status: str  # IPOPT return status
+    success: bool
+    terminal_error: float  # max |terminal residual| [m, rad (, m/s, rad/s)]
+
+    def to_json(self) -> dict:
+        return dict(vars(self))
+
+
+@dataclass(frozen=True)
+class Hop:
+    """One flight phase of a contact point: from the step that leaves the ground to the impact."""
+
+    takeoff_time: float  # physical time of the last ground step [s]
+    landing_time: float  # physical time of the touchdown (the impact time) [s]
+    distance: float  # horizontal distance of the point from takeoff to landing [m]
+    apex: float  # highest point height above its takeoff height [m]
+
+    def to_json(self) -> dict:
+        return dict(vars(self))
+
+
+def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
+    """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
+    contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks."""
+    clock = traj.y[:, -1]
+    air = np.asarray(flight, float).ravel() > 0.5
+    hops, k, N = [], 0, len(air)
+    while k < N:
+        if not air[k]:
+            k += 1
+            continue
+        a = k
+        while k < N and air[k]:
+            k += 1
+        # steps a..k-1 end in flight: nodes a..k; node a is the last on the ground
+        seg = point_xyz[a : k + 1]
+        hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(clock[min(k + 1, N)]),
+                        distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
+    return hops
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops."""
+
+    robot: str
+    task: str
+    trajectory: Trajectory
+    stats: SolveStats
+    h: float
+    rho_f: float
+    terminal_error: float
+    nlps: tuple[NlpRecord, ...]
+    hops: tuple[Hop, ...] = ()
+    polished: bool = False
+    constraint_violation: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    options: dict = field(default_factory=dict)
+    command: str = "plan"
+    extra: dict = field(default_factory=dict)
+
+    def report(self) -> str:
+        tr, st = self.trajectory, self.stats
+        lines = [f"plan {Path(self.robot).name}: {'converged' if st.converged else 'NOT converged'} in {st.solve_time_s:.2f} s "
+                 f"({len(tr.tau) - 1} steps of h = {self.h:g} s, {st.n_nlp} NLPs, {st.ipopt_iterations} IPOPT iterations, "
+                 f"complementarity {st.complementarity_residual:.1e}, terminal error {self.terminal_error:.1e})"]
+        lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
+                  f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
+        lines.append(f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; "
+                     f"{len(tr.impacts)} impact(s), {len(self.hops)} hop(s)")
+        lines += [f"  impact at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
+                  f"{imp.impulse_tangential:.4g} N s tangential" for imp in tr.impacts]
+        if not st.converged:
+            lines.append(f"  {st.message}")
+        return "\n".join(lines)
+
+    def summary(self) -> dict:
+        tr, st = self.trajectory, self.stats
+        return {
+            "command": self.command,
+            "robot": self.robot,
+            "task": self.task,
+            "converged": st.converged,
+            "solve_time_s": st.solve_time_s,
+            "n_nlp": st.n_nlp,
+            "ipopt_iterations": st.ipopt_iterations,
+            "complementarity_residual": st.complementarity_residual,
+            "terminal_error": self.terminal_error,
+            "physical_duration_s": tr.physical_duration,
+            "impacts": [imp.to_json() for imp in tr.impacts],
+            "hops": [hp.to_json() for hp in self.hops],
+            "nlps": [r.to_json() for r in self.nlps],
+            "polished": self.polished,
+            "constraint_violation": self.constraint_violation,
+            "timings": self.timings,
+            "h": self.h,
+            "rho_f": self.rho_f,
+            "n_steps": len(tr.tau) - 1,
+            "message": st.message,
+            "options": self.options,
+            **{k: v for k, v in self.extra.items() if not k.startswith("_")},
+        }
+
+
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
             frozen_tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
@@ -177,7 +292,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     return np.array(ts), np.array(qs), np.array(vs), np.array(us).reshape(len(ts), nu), tuple(impacts)
 
 
-def write_results(result: SimulationResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
+def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,11 +12,15 @@ Two strategies (SimulateOptions.strategy):
   time) is evaluated at the clock of the previous pass, repeated until the controls stop changing.
 STEPWISE is the default: it was measured faster and it never fails on a whole horizon at once
 (numbers in docs/formulation.md, "Simulation strategy").
+
+Joint PD (task key simulate.pd): u_k = u_ff + P (q_ref - q_{k+1}) - D v_{k+1}, with the feed-forward
+u_ff from the schedule and the feedback at the END of the step -- an implicit controller, part of
+the step's equations. It is not saturated; the result reports the steps beyond the actuator bounds.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 import casadi as ca
@@ -49,6 +53,10 @@ class SimulateOptions:
     the homotopy; ipopt_tol: IPOPT's tol; max_iter: IPOPT iterations per NLP; frozen_tol: relative
     clock deficit of a step that counts as frozen in the recovery; max_passes: HORIZON passes to make
     a control schedule consistent with the clock; verbose: IPOPT output.
+    restarts (STEPWISE): when a step's homotopy ends above comp_tol, start it again from predictors,
+    the implicit Euler step with the selectors held at free flight (sigma = 1) and at the previous
+    step's values (solved by Newton), each with rho0 = restart_rho0 and then with rho0
+    (docs/formulation.md, "Steps that do not converge").
     """
 
     strategy: Strategy = Strategy.STEPWISE
@@ -59,9 +67,14 @@ class SimulateOptions:
     comp_tol: float = 1e-9
     ipopt_tol: float = 1e-10
     max_iter: int = 3000
-    frozen_tol: float = 1e-4
+    # A persistent contact corrects the discrete drift of its contact velocity with small auxiliary
+    # motions: clock deficits up to 3.4e-3 of a step were measured (Capler under joint PD, h = 2..10 ms),
+    # while impacts freeze the clock for most of a step (entry steps measured down to 1.4e-2).
+    frozen_tol: float = 1e-2
     max_passes: int = 5
     verbose: bool = False
+    restarts: bool = True
+    restart_rho0: float = 1e4  # holds an exact solution whose switching functions are >= 2 rho_f / 1e4 away from 0
 
     def __post_init__(self):
         if not isinstance(self.strategy, Strategy):
@@ -75,11 +88,46 @@ class SimulateOptions:
             (self.ipopt_tol > 0, "ipopt_tol", self.ipopt_tol, "> 0"),
             (self.max_iter >= 1, "max_iter", self.max_iter, ">= 1"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
+            (self.restart_rho0 > 0, "restart_rho0", self.restart_rho0, "> 0"),
             (self.max_passes >= 1, "max_passes", self.max_passes, ">= 1"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
                 raise InputError(f"SimulateOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+@dataclass(frozen=True, eq=False)
+class PDLaw:
+    """The task's joint PD mapped onto the actuators: u = u_ff + P (q_ref - q) - D v.
+
+    P (nu, nq), D (nu, nv) [control units per rad or m, per rad/s or m/s], q_ref (nq,) (entries of
+    joints without PD are irrelevant: their P columns are zero). Calling it works on numbers
+    (numpy, for the MuJoCo side of a cross-check) and on CasADi expressions (the simulation).
+    """
+
+    P: np.ndarray
+    D: np.ndarray
+    q_ref: np.ndarray
+
+    def __call__(self, u_ff, q, v):
+        """Controls (nu,) from the feed-forward u_ff (nu,) and the state q (nq,), v (nv,)."""
+        if isinstance(q, (ca.SX, ca.MX)) or isinstance(v, (ca.SX, ca.MX)):
+            return u_ff + ca.mtimes(ca.DM(self.P), ca.DM(self.q_ref) - q) - ca.mtimes(ca.DM(self.D), v)
+        return np.asarray(u_ff, float) + self.P @ (self.q_ref - np.asarray(q, float)) - self.D @ np.asarray(v, float)
+
+
+def pd_law(robot: Robot, task: Task) -> PDLaw | None:
+    """The PDLaw of task.simulate.pd (None without one); q_ref defaults to the joints' initial.q.
+    Raises the task's errors for unknown or unactuated joints (Task.pd_actuators)."""
+    pd = task.simulate.pd
+    if pd is None:
+        return None
+    P, D, q_ref = np.zeros((robot.nu, robot.nq)), np.zeros((robot.nu, robot.nv)), np.zeros(robot.nq)
+    for j, (iq, iv, a) in enumerate(task.pd_actuators(robot)):
+        gear = robot.actuators[a].gear
+        P[a, iq], D[a, iv] = pd.kp[j] / gear, pd.kd[j] / gear
+        q_ref[iq] = task.initial.q[iq] if pd.q_ref is None else pd.q_ref[j]
+    return PDLaw(P, D, q_ref)
 
 
 def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOptions(), dynamics: Dynamics | None = None) -> SimulationResult:
@@ -102,18 +150,33 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
             raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground (z = {task.ground_height}); "
                              "the initial state must have every contact at or above the ground")
     rho_f = task.simulate.rho_f if options.rho_f is None else options.rho_f
+    law = pd_law(robot, task)
     builder = ImplicitEulerStep(system, rho_f)
     h, N = task.horizon.h, task.horizon.N
     start = time.perf_counter()
     run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
-    Y, W, U, stats = run(system, builder, y0, task, h, N, options)
+    Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
     stats = dict(stats, solve_time_s=time.perf_counter() - start)
-    trajectory = _trajectory(system, builder, Y, W, U, h, options.frozen_tol)
+    trajectory = step_trajectory(system, builder, Y, W, U, h, options.frozen_tol)
     converged = stats["comp"] <= options.comp_tol and stats["ok"]
     solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
+    extra = {} if law is None else {"pd": _pd_summary(robot, task, law, U)}
+    if "restarted_steps" in stats:
+        extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     return SimulationResult(robot=str(robot.path), task=task.source, trajectory=trajectory, stats=solve,
-                            strategy=options.strategy.value, h=h, rho_f=rho_f)
+                            strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
+
+
+def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
+    """What summary.json says about the joint PD: gains, reference, and how often the (unsaturated)
+    controls U (steps, nu) left the actuator bounds."""
+    pd = task.simulate.pd
+    beyond = np.any((U < robot.u_lower) | (U > robot.u_upper), axis=1) if len(U) else np.zeros(0, bool)
+    return {"joints": list(pd.joints), "kp": list(pd.kp), "kd": list(pd.kd),
+            "q_ref": [float(law.q_ref[iq]) for iq, _, _ in task.pd_actuators(robot)],
+            "max_abs_u": np.abs(U).max(axis=0).tolist() if len(U) else [0.0] * robot.nu,
+            "steps_beyond_actuator_bounds": int(beyond.sum())}
 
 
 def _ipopt_options(options: SimulateOptions) -> dict:
@@ -164,41 +227,94 @@ def _solve_homotopy(solver, comp_fn, x0, p_base, lbx, ubx, lbg, ubg, options, la
     return x, (lam_x, lam_g), comp, n_nlp, iterations, ok, message
 
 
-def _stepwise(system, builder, y0, task, h, N, options):
-    """One OSNP per step; the NLP is built once with (y_k, u_k, rho) as parameters."""
+def _applied(law: PDLaw | None, system, u_ff, y):
+    """The controls acting in a step ending at y: u_ff, plus the PD at y when there is one."""
+    if law is None:
+        return u_ff
+    nq, nv = system.nq, system.nv
+    return law(u_ff, y[:nq], y[nq : nq + nv])
+
+
+def _stepwise(system, builder, y0, task, h, N, options, law=None):
+    """One OSNP per step; the NLP is built once with (y_k, u_ff, rho) as parameters (u_ff the
+    feed-forward; with a PD law the step's control is an expression of y_{k+1})."""
     ny, nu, nw = system.ny, system.nu, builder.nw
     y_k, u_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("u_k", nu), ca.SX.sym("y_next", ny)
-    step = builder.build(y_k, y_next, u_k, 1.0, h)
+    step = builder.build(y_k, y_next, _applied(law, system, u_k, y_next), 1.0, h)
     nlp, comp_fn, n_eq, n_comp = _penalized_nlp(ca.vertcat(y_next, step.w), [step], ca.vertcat(y_k, u_k))
     solver = ca.nlpsol("osnp", "ipopt", nlp, _ipopt_options(options))
     lbx = np.concatenate([np.full(ny, -np.inf), step.lbw, [0.0]])
     ubx = np.concatenate([np.full(ny, np.inf), step.ubw, [np.inf]])
     lbg = np.concatenate([np.zeros(n_eq), np.zeros(n_comp)])
     ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
+    predict = _predictor(system, builder, law, h) if options.restarts and system.n_sigma else None
     Y, W, U = np.zeros((N + 1, ny)), np.zeros((N, nw)), np.zeros((N, nu))
     Y[0] = y0
-    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0}
     w_prev = None
     for k in range(N):
         u = task.simulate.controls_at(Y[k, -1] + 0.5 * h, nu)  # midpoint: a change at t1 acts from the step nearest t1
-        w_guess = builder.guess(Y[k], u) if w_prev is None else w_prev
-        x0 = np.concatenate([Y[k], w_guess, [0.0]])
-        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([Y[k], u]), lbx, ubx, lbg, ubg, options)
-        total["n_nlp"] += n_nlp
-        total["iterations"] += iters
+        w_guess = builder.guess(Y[k], _applied(law, system, u, Y[k])) if w_prev is None else w_prev
+        starts = _starts(np.concatenate([Y[k], w_guess, [0.0]]), predict, system, builder, law, Y[k], u, w_prev, options)
+        for attempt, (x0, opts) in enumerate(starts):
+            x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([Y[k], u]), lbx, ubx, lbg, ubg, opts)
+            total["n_nlp"] += n_nlp
+            total["iterations"] += iters
+            if ok and comp <= options.comp_tol:
+                break
         total["comp"] = max(total["comp"], comp)
+        total["restarted_steps"] += attempt > 0
         if not (ok and comp <= options.comp_tol):  # stop here; the steps so far are the diagnostics
             total["ok"] = False
             total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {Y[k, -1]:.4g} s) did not converge: IPOPT {msg}, "
-                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs")
+                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs"
+                                f" ({attempt} restarts)")
             return Y[: k + 1], W[:k], U[:k], total
-        Y[k + 1], W[k], U[k] = x[:ny], x[ny : ny + nw], u
+        Y[k + 1], W[k] = x[:ny], x[ny : ny + nw]
+        U[k] = _applied(law, system, u, Y[k + 1])
         w_prev = W[k]
     return Y, W, U, total
 
 
-def _horizon(system, builder, y0, task, h, N, options):
-    """All N steps as one NLP, y_0 fixed, every node initialized at y_0."""
+def _predictor(system, builder, law, h):
+    """predict(y_k (ny,), u_ff (nu,), sigma (n_sigma,)) -> y_{k+1} (ny,) of the implicit Euler step with
+    the selectors held at sigma (a smooth equation, solved by Newton from y_k), None if Newton fails."""
+    ny, nu = system.ny, system.nu
+    y_next, y_k, u_ff = ca.SX.sym("y_next", ny), ca.SX.sym("y_k", ny), ca.SX.sym("u_ff", nu)
+    coef = ca.SX.sym("coef", system.n_fields)  # P_j(sigma), fixed
+    F = ca.mtimes(system.fields_fn(y_next, _applied(law, system, u_ff, y_next)), coef)
+    residual = ca.Function("residual", [y_next, ca.vertcat(y_k, u_ff, coef)], [y_next - y_k - h * F])
+    newton = ca.rootfinder("predictor", "newton", residual, {"error_on_fail": False})
+
+    def predict(y, u, sigma):
+        y_pred = np.asarray(newton(y, np.concatenate([y, u, system.coefficient_vector(sigma)])), float).ravel()
+        ok = newton.stats()["success"] and np.all(np.isfinite(y_pred))
+        return y_pred if ok else None
+    return predict
+
+
+def _starts(x0, predict, system, builder, law, y_k, u, w_prev, options):
+    """Starting points (x0, options) of one step's homotopy: the warm start x0, then (consumed only
+    while the step fails) the predictors with sigma = 1 (free flight) and sigma = the previous step's
+    selectors, each with rho0 = restart_rho0, then with rho0."""
+    yield x0, options
+    if predict is None:
+        return
+    sigmas = [np.ones(system.n_sigma)]
+    if w_prev is not None:
+        sigmas.append(w_prev[builder.w_blocks["sigma"]])
+    for sigma in sigmas:
+        y_pred = predict(y_k, u, sigma)
+        if y_pred is None:
+            continue
+        start = np.concatenate([y_pred, builder.guess(y_pred, _applied(law, system, u, y_pred)), [0.0]])
+        for rho0 in (options.restart_rho0, options.rho0):
+            yield start, replace(options, rho0=rho0)
+
+
+def _horizon(system, builder, y0, task, h, N, options, law=None):
+    """All N steps as one NLP, y_0 fixed, every node initialized at y_0 (feed-forward U as parameters,
+    a PD law evaluated at each step's end node)."""
     ny, nu, nw = system.ny, system.nu, builder.nw
     Ys = ca.SX.sym("Y", ny, N)
     Us = ca.SX.sym("U", nu, N)
@@ -206,7 +322,7 @@ def _horizon(system, builder, y0, task, h, N, options):
     steps, w_vars = [], []
     for k in range(N):
         prev = y_init if k == 0 else Ys[:, k - 1]
-        st = builder.build(prev, Ys[:, k], Us[:, k], 1.0, h, tag=f"_{k}")
+        st = builder.build(prev, Ys[:, k], _applied(law, system, Us[:, k], Ys[:, k]), 1.0, h, tag=f"_{k}")
         steps.append(st)
         w_vars.append(st.w)
     x_vars = ca.vertcat(ca.vec(Ys), *w_vars)
@@ -216,7 +332,7 @@ def _horizon(system, builder, y0, task, h, N, options):
     ubx = np.concatenate([np.full(N * ny, np.inf), np.tile(builder.ubw, N), [np.inf]])
     lbg = np.zeros(n_eq + n_comp)
     ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
-    x0 = np.concatenate([np.tile(y0, N), np.tile(builder.guess(y0, task.simulate.controls_at(0.0, nu)), N), [0.0]])
+    x0 = np.concatenate([np.tile(y0, N), np.tile(builder.guess(y0, _applied(law, system, task.simulate.controls_at(0.0, nu), y0)), N), [0.0]])
     clock = np.zeros(N)  # clock at the start of each step, first pass: 0 everywhere
     total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
     U = x = None
@@ -240,12 +356,17 @@ def _horizon(system, builder, y0, task, h, N, options):
             total["ok"] = False
             total["message"] = f"the control schedule did not settle on the clock in {options.max_passes} passes"
     W = x[N * ny : N * ny + N * nw].reshape(N, nw)
+    U = np.array([_applied(law, system, U[k], Y[k + 1]) for k in range(N)]).reshape(N, nu)
     return Y, W, U, total
 
 
-def _trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, frozen_tol) -> Trajectory:
-    """Per-step auxiliary increments and impulses, then the Thm. 10 recovery."""
+def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, frozen_tol, S=None) -> Trajectory:
+    """Per-step auxiliary increments and impulses, then the Thm. 10 recovery.
+
+    Y (N+1, ny), W (N, nw), U (N, nu) of N solved steps of length h [s]; S (N,) speeds of time
+    (default 1): step k advances numerical time h and integrates h S[k] F."""
     N = len(W)
+    S = np.ones(N) if S is None else np.asarray(S, float).ravel()
     nq, nv = system.nq, system.nv
     aux = system.auxiliary_mask
     dv_aux = np.zeros((N, nv))
@@ -255,12 +376,12 @@ def _trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U,
     for k in range(N):
         coef = builder.coefficients(W[k])
         fmat = np.asarray(system.fields_fn(Y[k + 1], U[k]))
-        dv_aux[k] = h * fmat[nq : nq + nv, aux] @ coef[aux]
+        dv_aux[k] = h * S[k] * fmat[nq : nq + nv, aux] @ coef[aux]
         if n_c:
-            impulses[k] = (h * np.asarray(system.impulse_fn(Y[k + 1], U[k])) @ coef).reshape(n_c, 2)
+            impulses[k] = (h * S[k] * np.asarray(system.impulse_fn(Y[k + 1], U[k])) @ coef).reshape(n_c, 2)
         sigma[k] = W[k][builder.w_blocks["sigma"]]
     tau = h * np.arange(N + 1)
-    t, q, v, u, impacts = recover(tau, Y, U, np.full(N, h), dv_aux, impulses, nq, nv,
+    t, q, v, u, impacts = recover(tau, Y, U, h * S, dv_aux, impulses, nq, nv,
                                   tuple(c.point for c in system.contacts), frozen_tol)
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
                       t=t, q=q, v=v, u=u, impacts=impacts)

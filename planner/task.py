@@ -134,13 +134,42 @@ class ControlChange:
 
 
 @dataclass(frozen=True)
+class JointPD:
+    """Joint PD feedback of the simulation, added to the scheduled controls.
+
+    For each named joint j (driven by one actuator of gear g): u += (kp_j (q_ref_j - q_j) - kd_j v_j) / g,
+    evaluated at the end of each implicit Euler step (an implicit controller). kp (len(joints),)
+    [N m/rad or N/m], kd (len(joints),) [N m s/rad or N s/m], q_ref (len(joints),) [rad or m],
+    default: the joints' values in initial.q. Not saturated (docs/tasks.md).
+    """
+
+    joints: tuple[str, ...]
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    q_ref: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        n = len(self.joints)
+        _require(n >= 1, "simulate.pd.joints", list(self.joints), "at least one joint name")
+        _require(len(set(self.joints)) == n, "simulate.pd.joints", list(self.joints), "without repeated names")
+        for key in ("kp", "kd") + (("q_ref",) if self.q_ref is not None else ()):
+            values = getattr(self, key)
+            _require(len(values) == n, f"simulate.pd.{key}", list(values), f"{n} numbers, one per joint in simulate.pd.joints")
+            _require(all(math.isfinite(x) for x in values), f"simulate.pd.{key}", list(values), "finite")
+        _require(all(x >= 0 for x in self.kp), "simulate.pd.kp", list(self.kp), ">= 0")
+        _require(all(x >= 0 for x in self.kd), "simulate.pd.kd", list(self.kd), ">= 0")
+
+
+@dataclass(frozen=True)
 class Simulate:
     """Forward simulation: controls u (nu,) [N m or N] (zero when omitted), changed by `schedule`
-    at given physical times, and the weight rho_f of the regularized implicit Euler scheme."""
+    at given physical times, plus an optional joint PD (`pd`), and the weight rho_f of the
+    regularized implicit Euler scheme."""
 
     u: tuple[float, ...] | None = None
     schedule: tuple[ControlChange, ...] = ()  # sorted by t; each entry replaces u from its time on
     rho_f: float = 1.0  # weight of ||sigma - sigma*||^2; 0 gives the plain implicit Euler MPCC (Fig. 5)
+    pd: JointPD | None = None  # joint PD feedback added to u (none when omitted)
 
     def __post_init__(self):
         _require(self.rho_f >= 0, "simulate.rho_f", self.rho_f, ">= 0")
@@ -156,6 +185,84 @@ class Simulate:
         return u
 
 
+GAIT_DESIRED_INPUTS = ("inverse_dynamics", "zero")
+
+
+@dataclass(frozen=True)
+class GaitContinuation:
+    """Steps 2 and 3 of paper 001's Sec. 3: penalty continuation and Newton on the target x_T.
+
+    rho_emb, rho_f: initial penalty weights; each is multiplied by `factor` per outer loop while
+    its goal is not met: max |u_emb| < emb_tolerance [N m] (step 2), then ||x(T) - x_f|| <=
+    newton_radius (step 3), after which Newton on x_T drives ||x(T) - x_f|| < final_tolerance.
+    """
+
+    rho_emb: float = 1.0
+    rho_f: float = 10.0
+    factor: float = 2.0
+    emb_tolerance: float = 1e-3  # [N m]
+    newton_radius: float = 0.1  # 2-norm over (rad, rad/s)
+    final_tolerance: float = 1e-8  # 2-norm over (rad, rad/s)
+    max_outer: int = 60  # outer loops (PRONTO solves) over both steps
+
+    def __post_init__(self):
+        _require(self.rho_emb > 0, "gait.continuation.rho_emb", self.rho_emb, "> 0")
+        _require(self.rho_f > 0, "gait.continuation.rho_f", self.rho_f, "> 0")
+        _require(self.factor > 1, "gait.continuation.factor", self.factor, "> 1")
+        _require(self.emb_tolerance > 0, "gait.continuation.emb_tolerance", self.emb_tolerance, "> 0")
+        _require(self.newton_radius > 0, "gait.continuation.newton_radius", self.newton_radius, "> 0")
+        _require(self.final_tolerance > 0, "gait.continuation.final_tolerance", self.final_tolerance, "> 0")
+        _require(self.max_outer >= 1, "gait.continuation.max_outer", self.max_outer, ">= 1")
+
+
+@dataclass(frozen=True)
+class GaitPronto:
+    """The inner PRONTO solver: iteration limit, stopping tolerance on the predicted decrease
+    (-Dg.zeta, absolute), and the continuous-time LQR weights of its projection feedback
+    (state (6,) [1/rad^2, s^2/rad^2 per s], input (2,) [1/(N m)^2 per s]; the fictitious torso input
+    of step 2 uses the last input weight)."""
+
+    max_iterations: int = 50
+    tolerance: float = 1e-12
+    feedback_q: tuple[float, ...] = (100.0, 100.0, 100.0, 1.0, 1.0, 1.0)
+    feedback_r: tuple[float, ...] = (0.01, 0.01)
+
+    def __post_init__(self):
+        _require(self.max_iterations >= 1, "gait.pronto.max_iterations", self.max_iterations, ">= 1")
+        _require(self.tolerance > 0, "gait.pronto.tolerance", self.tolerance, "> 0")
+        _require(len(self.feedback_q) == 6 and min(self.feedback_q) >= 0, "gait.pronto.feedback_q", list(self.feedback_q), "6 numbers >= 0")
+        _require(len(self.feedback_r) == 2 and min(self.feedback_r) > 0, "gait.pronto.feedback_r", list(self.feedback_r), "2 numbers > 0")
+
+
+@dataclass(frozen=True)
+class Gait:
+    """A periodic walking gait of a floating planar biped (paper 001): one step of period
+    horizon.tau_f [s] on horizon.N steps, from x0 = (theta1, theta2, theta3 [rad], their rates
+    [rad/s]) of the pinned stance model, ending on Delta^-1(x0) in the jump set theta1 = jump_angle.
+    Cost 1/2 int ||x - x_d||_Q^2 + ||u - u_d||_R^2 with diagonal Q (6,) and R (2,); x_d is the cubic
+    Hermite curve between x0 and Delta^-1(x0), u_d its inverse-dynamics input or zero."""
+
+    x0: tuple[float, ...]
+    jump_angle: float  # [rad]
+    q_weights: tuple[float, ...]
+    r_weights: tuple[float, ...]
+    desired_input: str = "inverse_dynamics"  # one of GAIT_DESIRED_INPUTS
+    stance: str = "foot_1"  # stance foot of the first step (a point of the robot)
+    swing: str = "foot_2"
+    steps: int = 4  # steps of the periodic walk written to trajectory.npz and replayed in MuJoCo
+    continuation: GaitContinuation = field(default_factory=GaitContinuation)
+    pronto: GaitPronto = field(default_factory=GaitPronto)
+
+    def __post_init__(self):
+        _require(len(self.x0) == 6, "gait.x0", list(self.x0), "6 numbers (theta1, theta2, theta3, and their rates)")
+        _require(len(self.q_weights) == 6 and min(self.q_weights) >= 0, "gait.q_weights", list(self.q_weights), "6 numbers >= 0")
+        _require(len(self.r_weights) == 2 and min(self.r_weights) > 0, "gait.r_weights", list(self.r_weights), "2 numbers > 0")
+        _require(self.desired_input in GAIT_DESIRED_INPUTS, "gait.desired_input", self.desired_input,
+                 " or ".join(repr(x) for x in GAIT_DESIRED_INPUTS))
+        _require(self.stance != self.swing, "gait.swing", self.swing, f"a point other than gait.stance ({self.stance!r})")
+        _require(self.steps >= 1, "gait.steps", self.steps, ">= 1")
+
+
 @dataclass(frozen=True)
 class Task:
     """A whole task file."""
@@ -166,6 +273,7 @@ class Task:
     ground_height: float = 0.0  # [m]
     plan: Plan | None = None
     simulate: Simulate = field(default_factory=Simulate)
+    gait: Gait | None = None  # a periodic gait for `planner gait` (docs/tasks.md)
     source: str = ""  # path of the file it came from, for messages; not a TOML key
 
     def check_against(self, robot) -> None:
@@ -180,6 +288,8 @@ class Task:
             _length("simulate.u", self.simulate.u, robot.nu)
         for i, change in enumerate(self.simulate.schedule):
             _length(f"simulate.schedule[{i}].u", change.u, robot.nu)
+        if self.simulate.pd is not None:
+            self.pd_actuators(robot)
         if self.plan is None:
             return
         if robot.nu == 0:
@@ -194,6 +304,26 @@ class Task:
         for i, (qi, lo, hi) in enumerate(zip(self.plan.target_q, lower, upper)):
             if not lo <= qi <= hi:
                 raise TaskError(f"plan.target_q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
+
+    def pd_actuators(self, robot) -> tuple[tuple[int, int, int], ...]:
+        """(q index, v index, actuator index) of each simulate.pd joint, in its order.
+
+        Raises UnknownNameError for an unknown joint and TaskError for a joint without exactly one
+        actuator or a robot whose q and v coordinates differ (nq != nv).
+        """
+        pd = self.simulate.pd
+        if robot.nq != robot.nv:
+            raise TaskError(f"simulate.pd needs a robot with nq == nv (one coordinate per joint); {robot.name!r} has "
+                            f"nq = {robot.nq}, nv = {robot.nv}")
+        out = []
+        for joint in pd.joints:
+            dof = robot.dof_index(joint)
+            drives = [i for i, a in enumerate(robot.actuators) if a.dof == dof]
+            if len(drives) != 1:
+                raise TaskError(f"simulate.pd.joints: joint {joint!r} is driven by {len(drives)} actuators; PD needs exactly one "
+                                f"(actuated joints: {', '.join(robot.dof_names[a.dof] for a in robot.actuators) or 'none'})")
+            out.append((dof, dof, drives[0]))
+        return tuple(out)
 
     def q_bounds(self, robot) -> tuple[np.ndarray, np.ndarray]:
         """Joint position bounds (nq,): the robot file's limits, replaced by plan.joint_bounds."""

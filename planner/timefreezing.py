@@ -227,6 +227,7 @@ class TimeFreezingSystem:
 
         M = dyn.mass(q)
         fv = dyn.forward(q, v, self.u)
+        self._mass, self._mm_form = M, None
         zq, zv, zp = ca.SX.zeros(self.nq), ca.SX.zeros(self.nv), ca.SX.zeros(n_p)
         values: dict[str, ca.SX] = {"ode": ca.vertcat(v, fv, zp, 1)}
         self.fields = [Field("ode", None, False)]
@@ -302,6 +303,13 @@ class TimeFreezingSystem:
         gaps = ca.vertcat(*[ct.gap for ct in self.terms]) if self.terms else ca.SX(0, 1)
         self.gap_fn = ca.Function("tf_gap", args, [gaps], arg_names, ["c"])
 
+    def mass_matrix_form(self) -> MassMatrixForm:
+        """The fields with M^-1 taken out (see MassMatrixForm); built on first use.
+        Raises InputError for elastic contacts (their oscillator force is not written in this form)."""
+        if self._mm_form is None:
+            self._mm_form = _mass_matrix_form(self)
+        return self._mm_form
+
     @property
     def n_sigma(self) -> int:
         return len(self.switches)
@@ -345,3 +353,91 @@ class TimeFreezingSystem:
         y0 = np.zeros(self.ny)
         y0[: self.nq], y0[self.nq : self.nq + self.nv] = q0, v0
         return y0
+
+
+@dataclass(frozen=True, eq=False)
+class MassMatrixForm:
+    """The time-freezing fields without M(q)^-1: every field's velocity part is M^-1 g_j with a
+    generalized force g_j (ode: B u - h; a_n: a_n n; a_t: a_t t; DAE: B u - h + J^T lambda), and the
+    quantities that need M^-1 become algebraic variables z = (acc, lam, d) defined by equations:
+
+        M acc = B u - h                   (acc = f_v, the free acceleration; phi = n^T acc + drift_z)
+        M d = J^T lam                     (one d (nv,) per contact)
+        J (acc + d) + dJ/dt v = 0         (the no-slip / normal index-1 condition; J = [n t]^T, or n^T
+                                           for a frictionless contact) -> lam = the index-reduced force
+
+    A discretization multiplies the velocity rows of y' = F by M(q) and adds `defining` = 0: the
+    same solutions, with only M(q), its products and polynomial kinematics in the derivatives (no
+    symbolic inverse whose Hessian is expensive).
+
+    Symbols: y (ny,), u (nu,) of the system, z (nz,) = vertcat(acc, lam, d); z_names (nz,).
+    force_matrix (ny, n_fields): column j is f_j with its velocity rows replaced by g_j.
+    switching (n_sigma,): h(y, u) with phi written with acc. defining (nz,): the equations above.
+    mass (nv, nv): M(q). lam_index: contact point -> slice of lam inside z (n, t order).
+    fn: Function (y, u, z) -> (force_matrix, switching, defining, mass).
+    """
+
+    z: ca.SX
+    z_names: tuple[str, ...]
+    force_matrix: ca.SX
+    switching: ca.SX
+    defining: ca.SX
+    mass: ca.SX
+    lam_index: dict
+    fn: ca.Function
+
+    @property
+    def nz(self) -> int:
+        return self.z.shape[0]
+
+
+def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
+    if any(m is ContactModel.ELASTIC for m in system.models):
+        raise InputError("the mass-matrix form is not available for elastic contacts (restitution > 0)")
+    dyn, nq, nv = system.dyn, system.nq, system.nv
+    y, u = system.y, system.u
+    q, v = y[:nq], y[nq : nq + nv]
+    M = system._mass
+    tau = ca.mtimes(ca.DM(dyn.actuation), u) - dyn.bias(q, v)
+    acc = ca.SX.sym("acc", nv)
+    lams, ds, defining, lam_index = [], [], [ca.mtimes(M, acc) - tau], {}
+    lam_names, d_names = [], []
+    forces = {"ode": tau}
+    phi = {}
+    n_lam = 0
+    for contact, model, ct in zip(system.contacts, system.models, system.terms):
+        pt = contact.point
+        drift = dyn.point_drift(pt)(q, v)
+        no_slip = model is ContactModel.NO_SLIP
+        J = ca.horzcat(ct.normal, ct.tangent).T if no_slip else ct.normal.T
+        jdv = ca.vertcat(drift[2], drift[0]) if no_slip else drift[2]
+        m = J.shape[0]
+        lam = ca.SX.sym(f"lam_{len(lams)}", m)
+        d = ca.SX.sym(f"d_{len(ds)}", nv)
+        lam_index[pt] = slice(n_lam, n_lam + m)
+        n_lam += m
+        lams.append(lam)
+        ds.append(d)
+        lam_names += [f"lambda_{'nt'[j]}[{pt}]" for j in range(m)]
+        d_names += [f"d[{pt}][{j}]" for j in range(nv)]
+        defining += [ca.mtimes(M, d) - ca.mtimes(J.T, lam), ca.mtimes(J, acc + d) + jdv]
+        forces[f"a_n[{pt}]"] = contact.a_n * ct.normal
+        if no_slip:
+            forces[f"a_t[{pt}]"] = contact.a_t * ct.tangent
+            forces[f"dae_f[{pt}]"] = tau + ca.mtimes(J.T, lam)
+        else:
+            forces[f"dae[{pt}]"] = tau + ca.mtimes(J.T, lam)
+        phi[pt] = ca.dot(ct.normal, acc) + drift[2]
+    names = [f"acc[{i}]" for i in range(nv)] + lam_names + d_names
+    cols = []
+    for j, f in enumerate(system.fields):
+        col = system.field_matrix[:, j]
+        cols.append(ca.vertcat(col[:nq], forces[f.name], col[nq + nv :]))
+    sw = [phi[s.contact] if s.function == "phi" else system.switching[i] for i, s in enumerate(system.switches)]
+    # lam before d so that lam_index slices are offsets from nv
+    z = ca.vertcat(acc, *lams, *ds)
+    lam_index = {pt: slice(nv + sl.start, nv + sl.stop) for pt, sl in lam_index.items()}
+    fmat, switching, defn = ca.horzcat(*cols), ca.vertcat(*sw), ca.vertcat(*defining)
+    fn = ca.Function("tf_mass_matrix_form", [y, u, z], [fmat, switching, defn, M], ["y", "u", "z"], ["g", "h", "defining", "M"])
+    return MassMatrixForm(z=z, z_names=tuple(names), force_matrix=fmat, switching=switching, defining=defn, mass=M,
+                          lam_index=lam_index, fn=fn)

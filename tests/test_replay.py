@@ -421,14 +421,23 @@ def test_xcheck_point_mass_pull_off(point_mass):
     assert err <= XCHECK_POSITION_TOL_M
 
 
+# Elastic impacts: implicit Euler damps the auxiliary oscillator, lowering the restitution by about
+# (pi/2) h sqrt(k) (docs/tasks.md); k = a_n = 100 with h = 1 ms keeps that at 1.6 % (at h = 10 ms it was
+# 16 %: exit ratio 0.42, and the impact 11.5 ms early -- the old xfail). The elastic entry step does not
+# split the clock, so the impact time is found within one step h.
+XCHECK_ELASTIC_N = 1000
+# MuJoCo's spring-damper leaves at 0.520 of the impact speed for eps = 0.5 (RESTITUTION_TOL above allows
+# 0.05), the time-freezing simulation at 0.493: the issue's 5 % of the impact speed covers both (measured 2.8 %).
+XCHECK_ELASTIC_VELOCITY_REL_TOL = 0.05
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="restitution 0.5, h = 10 ms: planner.simulate's impact is 11.5 ms (> h) "
-                   "before MuJoCo's and leaves at 0.42 of the impact speed, MuJoCo at 0.52 -- see docs/validation.md")
 def test_xcheck_point_mass_elastic_bounce(point_mass):
-    """restitution 0.5: the same impact time and exit velocity (within the issue's 5 %)."""
+    """restitution 0.5 with h sqrt(k) = 0.01: the same impact time (within one step h) and exit velocity
+    (within 5 % of the impact speed)."""
     task, traj, mj, _ = _xcheck(point_mass, {"point": "point", "mu": 0.0, "a_n": 100.0, "restitution": 0.5},
-                                (0.0, 1.0), (1.0, 0.0), N=100)
+                                (0.0, 1.0), (1.0, 0.0), N=XCHECK_ELASTIC_N)
     impact = traj.impacts[0]
     assert abs(impact.time - mj["impact_times"][0]) <= task.horizon.h
     after = np.nonzero((mj["t"] > mj["impact_times"][0]) & (mj["q"][:, 1] >= 0.0))[0][0]
-    assert abs(impact.v_post[1] - mj["v"][after, 1]) <= 0.05 * abs(impact.v_pre[1])
+    assert abs(impact.v_post[1] - mj["v"][after, 1]) <= XCHECK_ELASTIC_VELOCITY_REL_TOL * abs(impact.v_pre[1])

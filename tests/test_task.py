@@ -15,8 +15,9 @@ MINIMAL = {"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0
 
 @pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
 def test_default_tasks_match_their_robots(toml):
-    """Every task in robots/ parses and fits the robot file beside it."""
-    robot_file = next(p for p in (toml.with_suffix(".xml"), toml.with_suffix(".urdf")) if p.exists())
+    """Every task in robots/ parses and fits the robot file beside it (NAME_variant.toml: NAME.xml)."""
+    stems = (toml.stem, toml.stem.split("_")[0])  # robots/biped_gait1.toml is a task of robots/biped.xml
+    robot_file = next(p for s in stems for p in (toml.with_name(s + ".xml"), toml.with_name(s + ".urdf")) if p.exists())
     load_task(toml).check_against(load_robot(robot_file))
 
 

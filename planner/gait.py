@@ -1,0 +1,780 @@
+"""Periodic gaits of the three-link biped with torso (paper 001, Spedicato & Notarstefano 2017).
+
+Everything is derived from the robot file through `Dynamics` (no biped equations are written here):
+
+- **Pinned stance model** (`PinnedBiped`): the floating planar robot (slides x, z; hinge `torso` =
+  theta3; leg hinges with absolute leg angle theta_i = theta3 + hinge_i) with the stance foot fixed at
+  the origin. The coordinates theta = (theta1 stance leg, theta2 swing leg, theta3 torso) [rad]
+  parameterize the constrained configurations through q(theta) (the hip is placed so that the
+  stance foot is at the origin), and the reduced dynamics is the exact Lagrangian reduction
+  M_r = Jq' M Jq, h_r = Jq' (M dJq/dt theta' + h), B_r = Jq' B, with Jq = dq/dtheta (5, 3).
+- **Impact map** Delta: inelastic, no-slip impact of the swing foot on the floating model (impulse
+  through the swing foot's Jacobian, the stance foot lifts off), then the legs are relabelled
+  (theta+ = R theta-, R swaps theta1 and theta2): theta'+ = A(theta-) theta'-.
+
+Input convention: u = (u_stance, u_swing) are the robot's motor commands on the stance and swing
+hip hinges [N m] (positive = increases hinge_i = theta_i - theta3). The paper's inputs (B.4) act
+with the opposite sign: u_paper = -u. Reports in docs/biped.md give both where it matters.
+
+The periodic-orbit OCP x(T) = Delta^-1(x0) is solved with the three steps of the paper's Sec. 3
+(`solve_gait`): dynamics embedding with a fictitious torso torque, penalty relaxation with doubling
+continuation on rho_emb and rho_f, and Newton root finding on the target x_T; the inner solver is
+PRONTO (`planner.pronto`). `solve_gait_ipopt` solves the same discretized OCP directly.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from .dynamics import Dynamics
+from .errors import InputError, SolveError, TaskError, UnknownNameError
+from .model import Robot
+from .pronto import DiscreteOCP, Pronto, ProntoOptions
+from .result import _atomic, _json_default
+from .task import GaitContinuation, GaitPronto, Task
+
+# The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
+RELABEL = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class BipedLayout:
+    """Where the seed's angles live in the robot file (velocity indices and point names)."""
+
+    x: int  # slide along the walking direction
+    z: int  # vertical slide
+    torso: int  # hinge of the base: theta3
+    stance_hinge: int  # hinge of the stance leg: theta1 = theta3 + q[stance_hinge]
+    swing_hinge: int
+    stance_foot: str
+    swing_foot: str
+    stance_motor: int  # actuator index driving stance_hinge
+    swing_motor: int
+
+
+def find_layout(robot: Robot, stance_foot: str = "foot_1", swing_foot: str = "foot_2") -> BipedLayout:
+    """Read the floating planar biped layout (design.md, "The biped") from a robot file.
+
+    The root joints must be two slides along x and z and a hinge about y; each foot's parent joint
+    is its leg hinge, driven by exactly one motor. Raises InputError when the file is not laid out so.
+    """
+    model = robot.model
+    for foot in (stance_foot, swing_foot):
+        if foot not in robot.points:
+            raise UnknownNameError("point", foot, robot.points)
+    if robot.nq != robot.nv or robot.nq != 5:
+        raise InputError(f"{robot.path}: the gait needs the floating planar biped (slide x, slide z, torso hinge, two leg "
+                         f"hinges: nq = nv = 5); this robot has nq = {robot.nq}, nv = {robot.nv}")
+    names = robot.dof_names
+
+    def leg_hinge(foot: str) -> int:
+        joint = model.frames[robot.frame_id(foot)].parentJoint
+        return int(model.joints[joint].idx_v)
+
+    stance, swing = leg_hinge(stance_foot), leg_hinge(swing_foot)
+    root = [i for i in range(5) if i not in (stance, swing)]
+    if len(root) != 3 or stance == swing:
+        raise InputError(f"{robot.path}: feet {stance_foot!r} and {swing_foot!r} must hang from two different leg hinges")
+    motors = {a.dof: j for j, a in enumerate(robot.actuators)}
+    for dof in (stance, swing):
+        if dof not in motors:
+            raise InputError(f"{robot.path}: leg hinge {names[dof]!r} has no motor; the gait needs one per hip")
+    return BipedLayout(x=root[0], z=root[1], torso=root[2], stance_hinge=stance, swing_hinge=swing,
+                       stance_foot=stance_foot, swing_foot=swing_foot,
+                       stance_motor=motors[stance], swing_motor=motors[swing])
+
+
+class PinnedBiped:
+    """The stance-phase (pinned) model and the impact map of a floating planar biped robot file.
+
+    State x = (theta (3,), theta' (3,)) [rad, rad/s]; inputs u = (u_stance, u_swing) [N m] (motor
+    convention, see the module docstring) and the fictitious torso torque u_emb [N m] acting on
+    theta3 (paper eq. 14's third column). CasADi functions (SX):
+
+      q_of      (theta) -> q (nq,): floating configuration with the stance foot at the origin
+      v_of      (theta, theta') -> v (nv,)
+      mass      (theta) -> M_r (3, 3) [kg m^2]
+      bias      (theta, theta') -> h_r (3,) = C + G [N m]
+      actuation (theta) -> B_r (3, 2): generalized forces B_r u
+      xdot      (x, ue) -> dx/dt (6,), ue = (u_stance, u_swing, u_emb)
+      impact    (theta-) -> A (3, 3): theta'+ = A theta'- (relabelled)
+      impulse   (x-) -> Lambda (2,) [N s]: swing-foot impulse (x, z) of the impact
+      swing_height (theta) -> z of the swing foot [m] (stance foot at z = 0)
+    """
+
+    def __init__(self, robot: Robot, dynamics: Dynamics | None = None, layout: BipedLayout | None = None):
+        self.robot = robot
+        self.dyn = dynamics or Dynamics(robot)
+        self.layout = lay = layout or find_layout(robot)
+        th, thd = ca.SX.sym("theta", 3), ca.SX.sym("dtheta", 3)
+        # angles of the floating model: torso = theta3, hinge_i = theta_i - theta3
+        L = np.zeros((5, 3))
+        L[lay.torso, 2] = 1.0
+        L[lay.stance_hinge, :] = [1.0, 0.0, -1.0]
+        L[lay.swing_hinge, :] = [0.0, 1.0, -1.0]
+        angles = ca.mtimes(ca.DM(L), th)
+        foot = self.dyn.point_position(lay.stance_foot)(angles)  # stance foot seen from the hip (x = z = 0)
+        q = angles + ca.DM(np.eye(5)[:, lay.x]) * (-foot[0]) + ca.DM(np.eye(5)[:, lay.z]) * (-foot[2])
+        Jq = ca.jacobian(q, th)  # (5, 3)
+        v = ca.mtimes(Jq, thd)
+        Jdot_thd = ca.mtimes(ca.jacobian(v, th), thd)  # d/dt(Jq) theta'
+        M, h = self.dyn.mass(q), self.dyn.bias(q, v)
+        Mr = ca.mtimes([Jq.T, M, Jq])
+        hr = ca.mtimes(Jq.T, ca.mtimes(M, Jdot_thd) + h)
+        B = np.zeros((5, 2))
+        B[:, 0] = self.dyn.actuation[:, lay.stance_motor]
+        B[:, 1] = self.dyn.actuation[:, lay.swing_motor]
+        Br = ca.mtimes(Jq.T, ca.DM(B))
+        self.q_of = ca.Function("q_of", [th], [q])
+        self.v_of = ca.Function("v_of", [th, thd], [v])
+        self.mass = ca.Function("mass_pinned", [th], [Mr])
+        self.bias = ca.Function("bias_pinned", [th, thd], [hr])
+        self.actuation = ca.Function("actuation_pinned", [th], [Br])
+        self.embedding = np.array([0.0, 0.0, 1.0])  # u_emb is a generalized torque on theta3
+        ue = ca.SX.sym("ue", 3)
+        Y = ca.horzcat(Br, ca.DM(self.embedding))
+        self.xdot = ca.Function("xdot_pinned", [ca.vertcat(th, thd), ue],
+                                [ca.vertcat(thd, ca.solve(Mr, ca.mtimes(Y, ue) - hr))])
+        dd = ca.SX.sym("dd", 3)
+        self.inverse = ca.Function("inverse_pinned", [th, thd, dd], [ca.solve(Y, ca.mtimes(Mr, dd) + hr)])
+
+        # impact: M (v+ - v-) = Js' Lambda, Js v+ = 0 on the floating model (swing foot x and z rows)
+        Js = self.dyn.point_jacobian(lay.swing_foot)(q)[[0, 2], :]
+        Minv_Jt = ca.solve(M, Js.T)
+        Lam_per_v = -ca.solve(ca.mtimes(Js, Minv_Jt), Js)  # Lambda = Lam_per_v v-
+        v_plus_per_thd = ca.mtimes(ca.DM.eye(5) + ca.mtimes(Minv_Jt, Lam_per_v), Jq)
+        # back to leg angles (theta' = L^+ v on the angle rows), then swap the legs
+        Lpinv = np.linalg.pinv(L)
+        A = ca.mtimes([ca.DM(RELABEL), ca.DM(Lpinv), v_plus_per_thd])
+        self.impact = ca.Function("impact_matrix", [th], [A])
+        self.impulse = ca.Function("impact_impulse", [ca.vertcat(th, thd)], [ca.mtimes([Lam_per_v, Jq, thd])])
+        self.swing_height = ca.Function("swing_height", [th], [self.dyn.point_position(lay.swing_foot)(q)[2]])
+        # ground reaction on the stance foot (x, z) [N]: J' lambda = M dv/dt + h - B u on the floating model
+        u2 = ca.SX.sym("u", 2)
+        thdd = ca.solve(Mr, ca.mtimes(Br, u2) - hr)
+        vdot = ca.mtimes(Jq, thdd) + Jdot_thd
+        Jst = self.dyn.point_jacobian(lay.stance_foot)(q)[[0, 2], :]
+        rhs = ca.mtimes(M, vdot) + h - ca.mtimes(ca.DM(B), u2)
+        self.stance_force = ca.Function("stance_force", [ca.vertcat(th, thd), u2],
+                                        [ca.solve(ca.mtimes(Jst, Jst.T), ca.mtimes(Jst, rhs))])
+        self._L = L
+
+    def delta(self, x) -> np.ndarray:
+        """Impact map Delta(x-) (6,): post-impact, relabelled state."""
+        x = np.asarray(x, float)
+        return np.concatenate([RELABEL @ x[:3], np.array(self.impact(x[:3])) @ x[3:]])
+
+    def delta_inverse(self, x_plus) -> np.ndarray:
+        """Delta^-1(x+) (6,): the pre-impact state that jumps to x+ (R is its own inverse)."""
+        x_plus = np.asarray(x_plus, float)
+        theta = RELABEL @ x_plus[:3]
+        return np.concatenate([theta, np.linalg.solve(np.array(self.impact(theta)), x_plus[3:])])
+
+    def floating(self, theta, dtheta, foot_x: float = 0.0, swapped: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Floating-robot state (q (nq,), v (nv,)) of a pinned state with the stance foot at x = foot_x.
+
+        swapped: the stance leg is the file's swing leg (odd steps of a walk): the hinges swap.
+        """
+        q = np.array(self.q_of(theta)).ravel()
+        v = np.array(self.v_of(theta, dtheta)).ravel()
+        lay = self.layout
+        q[lay.x] += foot_x
+        if swapped:
+            for a in (q, v):
+                a[[lay.stance_hinge, lay.swing_hinge]] = a[[lay.swing_hinge, lay.stance_hinge]]
+        return q, v
+
+
+# ==================================================================================================
+# the periodic-orbit OCP (paper 001, Secs. 2-3)
+# ==================================================================================================
+
+class DesiredInput(Enum):
+    """u_d of the cost: the desired curve's inverse-dynamics input (gait 1) or zero (gait 2)."""
+
+    INVERSE_DYNAMICS = "inverse_dynamics"
+    ZERO = "zero"
+
+
+@dataclass(frozen=True)
+class GaitSpec:
+    """The numbers of one gait OCP (from a task's [gait] table and horizon).
+
+    T [s] period, N grid steps (RK4, zero-order-hold inputs), x0 (6,) initial pinned state,
+    Q (6,), R (2,) diagonal weights, desired input mode, and the task's continuation and PRONTO
+    settings (planner.task.GaitContinuation, GaitPronto).
+    """
+
+    T: float
+    N: int
+    x0: np.ndarray
+    jump_angle: float
+    Q: np.ndarray
+    R: np.ndarray
+    desired_input: DesiredInput
+    continuation: GaitContinuation
+    pronto: GaitPronto
+
+    @classmethod
+    def from_task(cls, task: Task, N: int | None = None) -> GaitSpec:
+        """From a task with a [gait] table; N overrides horizon.N (e.g. a coarser grid in CI)."""
+        g = task.gait
+        if g is None:
+            raise TaskError(f"{task.source or 'the task'} has no [gait] table; `planner gait` needs one (docs/tasks.md)")
+        return cls(T=task.horizon.tau_f, N=N or task.horizon.N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
+                   Q=np.array(g.q_weights, float), R=np.array(g.r_weights, float),
+                   desired_input=DesiredInput(g.desired_input), continuation=g.continuation, pronto=g.pronto)
+
+
+@dataclass(frozen=True)
+class OuterLoop:
+    """One outer loop of the strategy (one PRONTO solve): the progress record.
+
+    stage: "embedding" (step 2) or "final_state" (step 3); action: what the loop does next
+    ("rho_emb x factor", "rho_f x factor", "newton x_T", "done"); emb_max max |u_emb| [N m];
+    final_error ||x(T) - Delta^-1(x0)|| (2-norm over rad, rad/s).
+    """
+
+    index: int
+    stage: str
+    rho_emb: float | None
+    rho_f: float
+    cost: float
+    pronto_iterations: int
+    pronto_converged: bool
+    emb_max: float | None
+    final_error: float
+    action: str
+    time_s: float
+
+    def line(self) -> str:
+        emb = f" max|u_emb| {self.emb_max:.2e} N m," if self.emb_max is not None else ""
+        rho = f"rho_emb {self.rho_emb:.4g}, " if self.rho_emb is not None else ""
+        return (f"[{self.index:2d}] {self.stage:11s} {rho}rho_f {self.rho_f:.4g}: cost {self.cost:.6g},{emb} "
+                f"||x(T) - x_f|| {self.final_error:.2e}, {self.pronto_iterations} PRONTO it. -> {self.action}")
+
+
+@dataclass(frozen=True, eq=False)
+class GaitSolution:
+    """A gait: t (N+1,) [s], x (N+1, 6), u (N, 2) [N m, motor convention]; the desired curve
+    xd (N+1, 6), ud (N, 2); the step-2 (embedding) trajectory x_emb (N+1, 6), u_emb (N, 3);
+    xf = Delta^-1(x0) (6,); the outer loops and totals."""
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    xd: np.ndarray
+    ud: np.ndarray
+    x_emb: np.ndarray
+    u_emb: np.ndarray
+    xf: np.ndarray
+    x_target: np.ndarray
+    K: np.ndarray  # (N, 2, 6) LQR gains of the final projection: u = u_k + K_k (x_k - x) stabilizes the step
+    cost: float  # the OCP (5) objective: 1/2 sum dt (||x - xd||_Q^2 + ||u - ud||_R^2), no penalty
+    final_error: float
+    converged: bool
+    loops: tuple[OuterLoop, ...]
+    pronto_iterations: int
+    solve_time_s: float
+    message: str = ""
+
+
+def desired_curve(model: PinnedBiped, x0: np.ndarray, xf: np.ndarray, T: float, N: int):
+    """The paper's desired curve: per angle, the cubic Hermite spline with the values and slopes
+    of x0 at t = 0 and xf at t = T, differentiated exactly; its embedded input by inverse dynamics.
+
+    Returns t (N+1,), xd (N+1, 6), ude (N+1, 3) = (u_stance, u_swing, u_emb) [N m].
+    """
+    t = np.linspace(0.0, T, N + 1)
+    s = t / T
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    d00, d10, d01, d11 = (6 * s**2 - 6 * s) / T, 3 * s**2 - 4 * s + 1, (-6 * s**2 + 6 * s) / T, 3 * s**2 - 2 * s
+    e00, e10, e01, e11 = (12 * s - 6) / T**2, (6 * s - 4) / T, (-12 * s + 6) / T**2, (6 * s - 2) / T
+    p0, v0, p1, v1 = x0[:3], x0[3:], xf[:3], xf[3:]
+    th = np.outer(h00, p0) + T * np.outer(h10, v0) + np.outer(h01, p1) + T * np.outer(h11, v1)
+    thd = np.outer(d00, p0) + T * np.outer(d10, v0) + np.outer(d01, p1) + T * np.outer(d11, v1)
+    thdd = np.outer(e00, p0) + T * np.outer(e10, v0) + np.outer(e01, p1) + T * np.outer(e11, v1)
+    ude = np.array(model.inverse.map(N + 1)(th.T, thd.T, thdd.T)).T
+    return t, np.hstack([th, thd]), ude
+
+
+def _rk4(xdot: ca.Function, dt: float) -> ca.Function:
+    """One RK4 step of dx/dt = xdot(x, u) with u held over the step [dt s]."""
+    x, u = ca.SX.sym("x", xdot.size1_in(0)), ca.SX.sym("u", xdot.size1_in(1))
+    k1 = xdot(x, u)
+    k2 = xdot(x + dt / 2 * k1, u)
+    k3 = xdot(x + dt / 2 * k2, u)
+    k4 = xdot(x + dt * k3, u)
+    return ca.Function("rk4", [x, u], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+
+
+class GaitOCP:
+    """The discretized OCPs of the strategy on one grid, with their compiled PRONTO solvers.
+
+    embedded (step 2): x (6,), u = (u_stance, u_swing, u_emb); stage parameters p = (xd, ud) (8,);
+    theta = (rho_emb, rho_f, x_T (6,)); cost 1/2 dt (||x - xd||_Q^2 + ||u - ud||_R^2 + rho_emb^2
+    u_emb^2) per step + 1/2 rho_f^2 ||x_N - x_T||^2 (paper eq. 8).
+    underactuated (step 3): u = (u_stance, u_swing), theta = (rho_f, x_T) (paper eq. 9).
+    """
+
+    def __init__(self, model: PinnedBiped, spec: GaitSpec):
+        self.model, self.spec = model, spec
+        N, dt = spec.N, spec.T / spec.N
+        self.dt = dt
+        step_e = _rk4(model.xdot, dt)
+        x, ue, u = ca.SX.sym("x", 6), ca.SX.sym("ue", 3), ca.SX.sym("u", 2)
+        p, th_e, th = ca.SX.sym("p", 8), ca.SX.sym("theta", 8), ca.SX.sym("theta", 7)
+        Q, R = ca.DM(spec.Q), ca.DM(spec.R)
+        track = ca.dot(Q, (x - p[:6]) ** 2)
+        stage_e = 0.5 * dt * (track + ca.dot(R, (ue[:2] - p[6:]) ** 2) + th_e[0] ** 2 * ue[2] ** 2)
+        stage = 0.5 * dt * (track + ca.dot(R, (u - p[6:]) ** 2))
+        self.embedded = DiscreteOCP(
+            step=step_e, stage=ca.Function("stage_e", [x, ue, p, th_e], [stage_e]),
+            terminal=ca.Function("terminal_e", [x, th_e], [0.5 * th_e[1] ** 2 * ca.sumsqr(x - th_e[2:])]), N=N)
+        self.underactuated = DiscreteOCP(
+            step=ca.Function("step_u", [x, u], [step_e(x, ca.vertcat(u, 0))]),
+            stage=ca.Function("stage_u", [x, u, p, th], [stage]),
+            terminal=ca.Function("terminal_u", [x, th], [0.5 * th[0] ** 2 * ca.sumsqr(x - th[1:])]), N=N)
+        self.objective = ca.Function("objective", [x, u, p], [stage]).map(N)  # OCP (5) without penalties
+        po = spec.pronto
+        fq, fr = np.array(po.feedback_q) * dt, np.array(po.feedback_r) * dt  # continuous-time weights per step
+        self.pronto_e = Pronto(self.embedded, ProntoOptions(feedback_q=tuple(fq), feedback_r=tuple(fr) + (fr[-1],),
+                                                            max_iterations=po.max_iterations, tolerance=po.tolerance))
+        self.pronto_u = Pronto(self.underactuated, ProntoOptions(feedback_q=tuple(fq), feedback_r=tuple(fr),
+                                                                 max_iterations=po.max_iterations, tolerance=po.tolerance))
+
+    def cost(self, x: np.ndarray, u: np.ndarray, xd: np.ndarray, ud: np.ndarray) -> float:
+        """The OCP (5) objective of x (N+1, 6), u (N, 2) against xd (N+1, 6), ud (N, 2)."""
+        return float(ca.sum2(self.objective(x[:-1].T, u.T, np.hstack([xd[:-1], ud]).T)))
+
+
+def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop], None] | None = None,
+               ocp: GaitOCP | None = None) -> GaitSolution:
+    """Paper 001's strategy for x(T) = Delta^-1(x0) (Sec. 3, Algorithms 1 and 2) with PRONTO.
+
+    Step 1: embedding (fictitious torso torque). Step 2: PRONTO on the embedded OCP (8) from the
+    projected desired curve, rho_emb <- factor rho_emb until max |u_emb| < emb_tolerance. Step 3:
+    drop u_emb, project, PRONTO on (9); rho_f <- factor rho_f while ||x(T) - x_f|| > newton_radius,
+    else Newton on the target: x_T <- x_T + Dbeta^-1 (x_f - x(T)), Dbeta from the LQ sensitivity.
+    progress(OuterLoop) is called after every outer loop. Raises TaskError when x0 does not jump
+    from the jump set, SolveError when a projection diverges.
+    """
+    start = time.perf_counter()
+    cont = spec.continuation
+    x0 = spec.x0
+    xf = model.delta_inverse(x0)
+    if abs(xf[0] - spec.jump_angle) > 1e-9:
+        raise TaskError(f"gait.x0 does not come from the jump set: Delta^-1(x0) has theta1 = {xf[0]:.9g} rad, but "
+                        f"gait.jump_angle = {spec.jump_angle:.9g} rad (theta2 of x0 must equal jump_angle)")
+    ocp = ocp or GaitOCP(model, spec)
+    N = spec.N
+    t, xd, ude = desired_curve(model, x0, xf, spec.T, N)
+    ud = ude[:N, :2] if spec.desired_input is DesiredInput.INVERSE_DYNAMICS else np.zeros((N, 2))
+    params = np.hstack([xd[:N], ud])
+    loops: list[OuterLoop] = []
+    total_it = 0
+
+    def record(**kw) -> None:
+        loop = OuterLoop(index=len(loops), time_s=time.perf_counter() - start, **kw)
+        loops.append(loop)
+        if progress is not None:
+            progress(loop)
+
+    # step 2: embedded system, continuation on rho_emb
+    pe = ocp.pronto_e
+    rho_emb, rho_f, x_target = cont.rho_emb, cont.rho_f, xf.copy()
+    x, u = xd, ude[:N]
+    while True:
+        pe.set_parameters(params, np.concatenate([[rho_emb, rho_f], x_target]))
+        res = pe.solve(x0, x, u)
+        x, u = res.x, res.u
+        total_it += res.iterations
+        emb = float(np.max(np.abs(u[:, 2])))
+        done = emb < cont.emb_tolerance
+        out_of_loops = len(loops) + 1 >= cont.max_outer
+        record(stage="embedding", rho_emb=rho_emb, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
+               pronto_converged=res.converged, emb_max=emb, final_error=float(np.linalg.norm(x[-1] - xf)),
+               action="drop u_emb" if done or out_of_loops else f"rho_emb x{cont.factor:g}")
+        if done or out_of_loops:
+            break
+        rho_emb *= cont.factor
+    x_emb, u_emb = x, u
+
+    # step 3: underactuated system; rho_f continuation, then Newton on the target
+    pu = ocp.pronto_u
+    x, u = x_emb, u_emb[:, :2]
+    converged, message = False, "outer-loop limit (gait.continuation.max_outer) reached"
+    while len(loops) < cont.max_outer:
+        pu.set_parameters(params, np.concatenate([[rho_f], x_target]))
+        res = pu.solve(x0, x, u)
+        x, u = res.x, res.u
+        total_it += res.iterations
+        err = float(np.linalg.norm(x[-1] - xf))
+        if err < cont.final_tolerance and res.converged:
+            action = "done"
+        elif err > cont.newton_radius:
+            action = f"rho_f x{cont.factor:g}"
+        else:
+            action = "newton x_T"
+        record(stage="final_state", rho_emb=None, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
+               pronto_converged=res.converged, emb_max=None, final_error=err, action=action)
+        if action == "done":
+            converged, message = True, "final-state constraint met"
+            break
+        if action == "newton x_T":
+            D = pu.terminal_response(x, u, res.K, -rho_f**2 * np.eye(6))  # d x_N / d x_T
+            x_target = x_target + np.linalg.solve(D, xf - x[-1])
+        else:
+            rho_f *= cont.factor
+    return GaitSolution(t=t, x=x, u=u, xd=xd, ud=ud, x_emb=x_emb, u_emb=u_emb, xf=xf, x_target=x_target, K=res.K,
+                        cost=ocp.cost(x, u, xd, ud), final_error=float(np.linalg.norm(x[-1] - xf)), converged=converged,
+                        loops=tuple(loops), pronto_iterations=total_it, solve_time_s=time.perf_counter() - start,
+                        message=message)
+
+
+@dataclass(frozen=True, eq=False)
+class IpoptGait:
+    """The same discretized OCP (5) solved directly by IPOPT (multiple shooting on the same RK4 grid,
+    hard constraint x_N = Delta^-1(x0)), initialized with the desired curve and its input.
+    x (N+1, 6), u (N, 2); cost as GaitSolution.cost; final_error ||x_N - x_f||."""
+
+    x: np.ndarray
+    u: np.ndarray
+    cost: float
+    final_error: float
+    iterations: int
+    solve_time_s: float
+    success: bool
+    status: str
+
+
+def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = None, tol: float = 1e-10,
+                     max_iter: int = 3000) -> IpoptGait:
+    """Solve OCP (5) on the strategy's grid with IPOPT (MUMPS, exact Hessian) for comparison."""
+    ocp = ocp or GaitOCP(model, spec)
+    N = spec.N
+    xf = model.delta_inverse(spec.x0)
+    _, xd, ude = desired_curve(model, spec.x0, xf, spec.T, N)
+    ud = ude[:N, :2] if spec.desired_input is DesiredInput.INVERSE_DYNAMICS else np.zeros((N, 2))
+    X, U = ca.MX.sym("X", 6, N + 1), ca.MX.sym("U", 2, N)
+    P = ca.DM(np.hstack([xd[:N], ud]).T)
+    step = ocp.underactuated.step.map(N)
+    J = ca.sum2(ocp.objective(X[:, :N], U, P))
+    g = ca.vec(X[:, 1:] - step(X[:, :N], U))
+    w = ca.vertcat(ca.vec(X), ca.vec(U))
+    lbw, ubw = np.full(w.shape[0], -np.inf), np.full(w.shape[0], np.inf)
+    lbw[:6] = ubw[:6] = spec.x0  # vec(X) is column-major: x_0 first, x_N last
+    lbw[6 * N:6 * N + 6] = ubw[6 * N:6 * N + 6] = xf
+    solver = ca.nlpsol("gait_ipopt", "ipopt", {"x": w, "f": J, "g": g},
+                       {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": tol,
+                        "ipopt.max_iter": max_iter})
+    w0 = np.concatenate([xd.ravel(), ude[:N, :2].ravel()])  # time-major rows = CasADi columns
+    start = time.perf_counter()
+    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    elapsed = time.perf_counter() - start
+    stats = solver.stats()
+    wopt = np.array(sol["x"]).ravel()
+    x = wopt[:6 * (N + 1)].reshape(N + 1, 6)
+    u = wopt[6 * (N + 1):].reshape(N, 2)
+    return IpoptGait(x=x, u=u, cost=ocp.cost(x, u, xd, ud), final_error=float(np.linalg.norm(x[-1] - xf)),
+                     iterations=int(stats["iter_count"]), solve_time_s=elapsed, success=bool(stats["success"]),
+                     status=str(stats["return_status"]))
+
+
+# ==================================================================================================
+# the periodic walk on the floating robot, its MuJoCo replay, and the results contract
+# ==================================================================================================
+
+@dataclass(frozen=True, eq=False)
+class Walk:
+    """`steps` periods of a gait on the floating robot, in the results contract's arrays.
+
+    t (P,) [s], q (P, nq), v (P, nv), u (P, nu) [robot motor order]; each impact is two samples at
+    the same time (pre- and post-impact velocity). impacts: (time [s], swing foot name, normal
+    impulse [N s], tangential impulse [N s]) per step; step_length [m].
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    impacts: tuple[tuple[float, str, float, float], ...]
+    step_length: float
+
+
+def periodic_walk(model: PinnedBiped, sol: GaitSolution, steps: int) -> Walk:
+    """Repeat the gait `steps` times: step j has the stance foot at x = j * step_length and, for odd
+    j, the legs swapped (the relabelling of the impact map)."""
+    lay, N = model.layout, len(sol.u)
+    T = float(sol.t[-1])
+    q_end, _ = model.floating(sol.x[-1, :3], sol.x[-1, 3:])
+    swing_end = np.array(model.dyn.point_position(lay.swing_foot)(q_end)).ravel()
+    step_length = float(swing_end[0])
+    qs = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T
+    vs = np.array(model.v_of.map(N + 1)(sol.x[:, :3].T, sol.x[:, 3:].T)).T
+    u_hold = np.vstack([sol.u, sol.u[-1:]])  # the last sample (pre-impact) keeps the last input
+    impulse = np.array(model.impulse(sol.x[-1])).ravel()
+    ts, q, v, u, impacts = [], [], [], [], []
+    for j in range(steps):
+        qj, vj = qs.copy(), vs.copy()
+        qj[:, lay.x] += j * step_length
+        uj = np.zeros((N + 1, model.robot.nu))
+        stance_motor, swing_motor = lay.stance_motor, lay.swing_motor
+        if j % 2:
+            for a in (qj, vj):
+                a[:, [lay.stance_hinge, lay.swing_hinge]] = a[:, [lay.swing_hinge, lay.stance_hinge]]
+            stance_motor, swing_motor = swing_motor, stance_motor
+        uj[:, stance_motor], uj[:, swing_motor] = u_hold[:, 0], u_hold[:, 1]
+        ts.append(j * T + sol.t); q.append(qj); v.append(vj); u.append(uj)
+        swing = lay.swing_foot if j % 2 == 0 else lay.stance_foot
+        impacts.append(((j + 1) * T, swing, float(impulse[1]), float(impulse[0])))
+    # the last step ends with its post-impact sample too
+    q_last, v_last = q[-1][-1], model.floating(*np.split(model.delta(sol.x[-1]), 2), foot_x=steps * step_length,
+                                               swapped=steps % 2 == 1)[1]
+    ts.append(np.array([steps * T])); q.append(q_last[None]); v.append(v_last[None]); u.append(u[-1][-1:])
+    return Walk(t=np.concatenate(ts), q=np.vstack(q), v=np.vstack(v), u=np.vstack(u), impacts=tuple(impacts),
+                step_length=step_length)
+
+
+class WalkControl(Enum):
+    """Feedback of the MuJoCo replay, added to the gait's feed-forward torques.
+
+    LQR: the projection's own time-varying gains on the whole pinned state (theta, theta'),
+    read from MuJoCo's floating state: u = u_k + K_k (x_k - x). It also acts on the unactuated
+    stance-leg angle through the coupling. HINGE_PD: PD on the two hinge angles only.
+    """
+
+    LQR = "lqr"
+    HINGE_PD = "hinge_pd"
+
+
+@dataclass(frozen=True)
+class WalkGains:
+    """Feedback of the MuJoCo replay (WalkControl); for HINGE_PD:
+    u = u_ff + kp (hinge_ref - hinge) + kd (hinge_rate_ref - hinge_rate) [N m/rad, N m s/rad]."""
+
+    control: WalkControl = WalkControl.LQR
+    kp: float = 400.0
+    kd: float = 40.0
+    ground_gap: float = 1e-3  # [m] the swing foot's contact switches on once the plan keeps it above -ground_gap
+    sample_every: int = 4  # MuJoCo steps per control update (ZOH)
+
+    def __post_init__(self):
+        if self.kp < 0 or self.kd < 0 or self.ground_gap < 0 or self.sample_every < 1:
+            raise InputError("walk gains: kp, kd, ground_gap >= 0, sample_every >= 1")
+
+
+@dataclass(frozen=True)
+class WalkReport:
+    """How the floating robot in MuJoCo walked the gait.
+
+    steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
+    `steps_asked`); fell: the hip dropped below 0.6 m or the torso passed +-90 deg; impact_times
+    [s] (MuJoCo) against the plan's (j+1) T; max_hinge_error [rad], max_torso_error [rad],
+    max_hip_height_error [m]: over the steps walked, against the gait's reference re-started at
+    each MuJoCo impact; max_torque [N m].
+    """
+
+    steps_asked: int
+    steps_walked: int
+    fell: bool
+    impact_times: tuple[float, ...]
+    planned_impact_times: tuple[float, ...]
+    max_hinge_error: float
+    max_torso_error: float
+    max_hip_height_error: float
+    max_torque: float
+    swing_contact_from: float  # [s] into each step: when the swing foot's contact switches on
+    gains: WalkGains
+
+    def to_json(self) -> dict:
+        return {"steps_asked": self.steps_asked, "steps_walked": self.steps_walked, "fell": self.fell,
+                "impact_times": list(self.impact_times), "planned_impact_times": list(self.planned_impact_times),
+                "max_hinge_error_rad": self.max_hinge_error, "max_torso_error_rad": self.max_torso_error,
+                "max_hip_height_error_m": self.max_hip_height_error, "max_torque_Nm": self.max_torque,
+                "swing_contact_from_s": self.swing_contact_from, "control": self.gains.control.value,
+                "kp": self.gains.kp, "kd": self.gains.kd}
+
+
+def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, gains: WalkGains | None = None,
+                trace: list | None = None, settings=None) -> WalkReport:
+    """Walk the gait `steps` times on the robot file in MuJoCo (replay.build_scene's contact model).
+
+    Control: the gait's feed-forward motor torques plus feedback (WalkGains.control: the
+    projection's LQR gains on the pinned state, or hinge PD), with the reference of step j
+    re-started when MuJoCo's swing foot lands, so timing errors do not accumulate. The three-link biped has no knees: its swing foot touches the ground
+    where the legs cross and, unless they cross exactly upright, stays below it until it lands
+    (paper 001 ignores this scuffing). So the swing foot's contact pair is switched off (margin
+    -1 m) until the plan keeps the swing foot above -ground_gap for the rest of the step -- the
+    usual stand-in for foot clearance. settings: replay.ContactSettings (default: replay's).
+    trace (optional list) receives (t, step, s, measured pinned x (6,), reference x (6,)) per
+    control update in LQR mode, for diagnostics.
+    """
+    from .replay import build_scene, mujoco_rollout  # MuJoCo only when replaying
+
+    gains = gains or WalkGains()
+    scene = build_scene(model.robot, task, settings)
+    lay, N = model.layout, len(sol.u)
+    T, dt = float(sol.t[-1]), float(sol.t[1] - sol.t[0])
+    pair_of = {p: i for i, p in enumerate(scene.points)}
+    for foot in (lay.stance_foot, lay.swing_foot):
+        if foot not in pair_of:
+            raise TaskError(f"the gait replay needs both feet as [[contacts]]; {foot!r} is missing")
+    hinge_ref = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T[:, [lay.stance_hinge, lay.swing_hinge]]
+    hinge_rate_ref = np.array(model.v_of.map(N + 1)(sol.x[:, :3].T, sol.x[:, 3:].T)).T[:, [lay.stance_hinge, lay.swing_hinge]]
+    hip_ref = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T[:, lay.z]
+    foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
+    state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False}
+    height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
+    below = np.nonzero(height[:-1] < -gains.ground_gap)[0]
+    gate = float(sol.t[below[-1] + 1]) if len(below) else 0.0
+    gate = min(gate, T - dt)  # at least the last step: the landing needs the contact
+    margins = scene.model.pair_margin
+
+    def feet(j):  # (stance, swing) foot names of step j
+        return (lay.stance_foot, lay.swing_foot) if j % 2 == 0 else (lay.swing_foot, lay.stance_foot)
+
+    def control(t, q, v):
+        j = state["j"]
+        stance, swing = feet(j)
+        s = t - state["t0"]
+        if s >= gate and float(foot_pos[swing](q)[2]) < 1e-3 and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
+            state["impacts"].append(t)
+            state["j"], state["t0"], s = j + 1, t, 0.0
+            j, (stance, swing) = j + 1, feet(j + 1)
+        if (q[lay.z] < 0.6 or abs(q[lay.torso]) > np.pi / 2) and j < steps and not state["down"]:
+            state["down"], state["fall_t"] = True, t
+        # the swing foot's contact: off until the plan keeps that foot above ground (no knees, no clearance)
+        margins[pair_of[swing]] = 0.0 if s >= gate else -1.0
+        margins[pair_of[stance]] = 0.0
+        k = min(int(s / dt), N - 1)
+        a = min(s / dt, N) - min(int(s / dt), N)  # linear interpolation weight of the reference
+        kk = min(int(s / dt), N)
+        k2 = min(kk + 1, N)
+        href = (1 - a) * hinge_ref[kk] + a * hinge_ref[k2]
+        hdref = (1 - a) * hinge_rate_ref[kk] + a * hinge_rate_ref[k2]
+        hinges = [lay.stance_hinge, lay.swing_hinge] if j % 2 == 0 else [lay.swing_hinge, lay.stance_hinge]
+        motors = [lay.stance_motor, lay.swing_motor] if j % 2 == 0 else [lay.swing_motor, lay.stance_motor]
+        u = np.zeros(model.robot.nu)
+        if gains.control is WalkControl.LQR:
+            x_ref = (1 - a) * sol.x[kk] + a * sol.x[k2]
+            th = q[lay.torso] + np.array([q[hinges[0]], q[hinges[1]], 0.0])
+            thd = v[lay.torso] + np.array([v[hinges[0]], v[hinges[1]], 0.0])
+            u[motors] = sol.u[k] + sol.K[k] @ (x_ref - np.concatenate([th, thd]))
+            if trace is not None:  # (t [s], step, time into the step [s], measured pinned state (6,), reference (6,))
+                trace.append((t, j, s, np.concatenate([th, thd]), x_ref))
+        else:
+            u[motors] = sol.u[k] + gains.kp * (href - q[hinges]) + gains.kd * (hdref - v[hinges])
+        if not state["down"] and j < steps:
+            err = state["err"]
+            err[0] = max(err[0], float(np.max(np.abs(href - q[hinges]))))
+            torso_ref = (1 - a) * sol.x[kk, 2] + a * sol.x[k2, 2]
+            err[1] = max(err[1], abs(torso_ref - q[lay.torso]))
+            err[2] = max(err[2], abs((1 - a) * hip_ref[kk] + a * hip_ref[k2] - q[lay.z]))
+        return u
+
+    q0, v0 = model.floating(sol.x[0, :3], sol.x[0, 3:])
+    run = mujoco_rollout(scene, q0, v0, (steps + 0.5) * T, control, sample_every=gains.sample_every)
+    walked = sum(1 for t in state["impacts"] if t < state.get("fall_t", np.inf))  # landings before any fall
+    return WalkReport(steps_asked=steps, steps_walked=min(walked, steps), fell=state["down"],
+                      impact_times=tuple(float(x) for x in state["impacts"]),
+                      planned_impact_times=tuple((j + 1) * T for j in range(steps)),
+                      max_hinge_error=state["err"][0], max_torso_error=state["err"][1],
+                      max_hip_height_error=state["err"][2], max_torque=float(np.max(np.abs(run["u"]))),
+                      swing_contact_from=gate, gains=gains)
+
+
+@dataclass(frozen=True, eq=False)
+class GaitRunResult:
+    """What `run_gait` returns (and wrote): the solution, its walk, the MuJoCo report, the summary."""
+
+    robot: str
+    task: str
+    solution: GaitSolution
+    walk: Walk
+    walking: WalkReport | None
+    summary: dict
+
+    def report(self) -> str:
+        """A few human-readable lines for the terminal."""
+        s = self.solution
+        lines = [f"gait {Path(self.robot).name} ({Path(self.task).name}): {'converged' if s.converged else 'NOT converged'} "
+                 f"in {s.solve_time_s:.2f} s, {len(s.loops)} outer loops, {s.pronto_iterations} PRONTO iterations; "
+                 f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
+        if self.walking is not None:
+            w = self.walking
+            lines.append(f"MuJoCo: walked {w.steps_walked} of {w.steps_asked} steps{' then fell' if w.fell else ''}")
+        return "\n".join(lines)
+
+
+def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, out_dir: str | os.PathLike | None,
+             progress: Callable[[OuterLoop], None] | None = None, validate: bool = True) -> GaitRunResult:
+    """Solve a task's [gait] with paper 001's strategy and write the results contract to out_dir.
+
+    robot: a Robot or a robot file path; task: a Task or a task file path. progress(OuterLoop) is
+    called once per outer loop (OuterLoop.line() is a terminal line). validate: replay the walk in
+    MuJoCo (`replay_gait`) and put its report under "walking" in the summary.
+    out_dir (None: write nothing) receives trajectory.npz (tau, y, t, q, v, u, impact_times and the
+    pinned gait: gait_t, gait_x, gait_u, gait_xd, gait_ud) and summary.json (command "gait").
+    Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
+    """
+    from .model import load_robot
+    from .task import load_task
+
+    robot = robot if isinstance(robot, Robot) else load_robot(robot)
+    task = task if isinstance(task, Task) else load_task(task)
+    task.check_against(robot)
+    spec = GaitSpec.from_task(task)
+    g = task.gait
+    model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
+    q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
+    v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
+    if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:
+        raise TaskError(f"initial.q/initial.v must be the floating state of gait.x0 with {g.stance!r} at the origin: "
+                        f"q = {np.round(q0, 9).tolist()}, v = {np.round(v0, 9).tolist()}")
+    sol = solve_gait(model, spec, progress)
+    walk = periodic_walk(model, sol, g.steps)
+    walking = replay_gait(model, sol, task, g.steps) if validate else None
+    force = np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T
+    height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
+    u_paper = -sol.u
+    near_T = sol.t[:-1] >= sol.t[-1] - 0.1
+    summary = {
+        "command": "gait", "robot": str(robot.path), "task": task.source,
+        "converged": sol.converged, "solve_time_s": sol.solve_time_s,
+        "n_nlp": len(sol.loops), "ipopt_iterations": sol.pronto_iterations, "iterations_solver": "pronto",
+        "complementarity_residual": None,  # no complementarity: the contact sequence is fixed
+        "terminal_error": sol.final_error, "physical_duration_s": float(walk.t[-1] - walk.t[0]),
+        "impacts": [{"time": t, "contact": c, "impulse": imp, "impulse_tangential": imp_t} for t, c, imp, imp_t in walk.impacts],
+        "message": sol.message, "cost": sol.cost, "period_s": spec.T, "N": spec.N, "step_length_m": walk.step_length,
+        "x0": spec.x0.tolist(), "x_final": sol.x[-1].tolist(), "x_target": sol.x_target.tolist(), "xf": sol.xf.tolist(),
+        "max_abs_u_Nm": np.max(np.abs(sol.u), axis=0).tolist(),
+        "integral_u_squared": (np.sum(sol.u**2, axis=0) * spec.T / spec.N).tolist(),
+        "u_paper_last_100ms_Nm": {"min": np.min(u_paper[near_T], axis=0).tolist(), "max": np.max(u_paper[near_T], axis=0).tolist()},
+        "min_normal_force_N": float(np.min(force[:, 1])),
+        "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]))),
+        "min_swing_foot_height_m": float(np.min(height[1:-1])),
+        "outer_loops": [vars(loop) for loop in sol.loops],
+        "walking": walking.to_json() if walking else None,
+    }
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        arrays = {"tau": walk.t, "y": np.hstack([walk.q, walk.v, walk.t[:, None]]), "t": walk.t, "q": walk.q, "v": walk.v,
+                  "u": walk.u, "impact_times": np.array([i[0] for i in walk.impacts]),
+                  "impact_impulses": np.array([i[2] for i in walk.impacts]),
+                  "gait_t": sol.t, "gait_x": sol.x, "gait_u": sol.u, "gait_xd": sol.xd, "gait_ud": sol.ud,
+                  "gait_x_embedded": sol.x_emb, "gait_u_embedded": sol.u_emb,
+                  "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str)}
+        _atomic(out / "trajectory.npz", lambda f: np.savez(f, **arrays))
+        text = json.dumps(summary, indent=2, default=_json_default) + "\n"
+        _atomic(out / "summary.json", lambda f: f.write(text.encode()))
+    return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)

@@ -1,0 +1,390 @@
+"""The time-freezing optimal control problem (paper Sec. 7, eq. 29) as one inspectable NLP.
+
+Direct transcription with N regularized implicit-Euler steps (planner.discretization). Stage k
+(k = 0 .. N-1) owns, in this order, the variables
+
+    u_k (nu,)      control, constant over the step [N m or N]
+    s_k (1,)       speed of time (only when the task sets horizon.physical_time)
+    y_{k+1} (ny,)  state at the end of the step, clock last
+    w_k (nw,)      the step's algebraic variables: sigma, theta (lifted products), lambda0, lambda1
+                   and, with StepForm.MASS_MATRIX, "forces" (free acceleration, contact forces, M^-1 J^T lam)
+
+and after the N stages the one l_inf slack s_c (Penalty.LINF only). y_0 is the task's initial state,
+a constant. The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
+homotopy builds IPOPT once and only changes rho, and the scale r of the holes
+(((x - xc)/a)^2 + ((z - zc)/b)^2 >= r^2; r = 1 is the task's scene, r = 0 drops the holes), so the
+solver can run a continuation in the scene without rebuilding.
+
+Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
+
+    dynamics, stationarity, lifting   the implicit Euler step (eq. 24b, c; lifting of Sec. 5.1)
+    above_ground                      z of each task.plan.above_ground point >= ground_height
+    holes                             each contact point outside each ellipse (scaled by r)
+    friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
+    contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
+    terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
+    physical_time (1, 1)              t_N = T (only with horizon.physical_time)
+    penalty (N, 2 n_sigma)            s_c - a b >= 0 for every complementarity pair (Penalty.LINF)
+
+The friction cone |lambda_t| <= mu lambda_n holds on the index-reduced no-slip forces (contact.py)
+and only where the contact is persistent. The weight that says "persistent" is the coefficient of
+the DAE field in F, P_DAE(sigma) = (1 - beta) alpha (1 - gamma) / alpha*: a linear function of the
+lifted variables (no new product), equal to 1 on the sliding manifold with the wanted selectors and
+0 in flight (beta = 1), in a frozen impact (alpha = 0) and at contact breaking (gamma = 1), where
+the explicit forces are meaningless. Multiplying by it keeps the constraint smooth; it is exact at
+a complementarity-feasible point because P_DAE is then 0 or 1 wherever the DAE force acts at all.
+
+Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds),
+selectors and lifted products in [0, 1], multipliers >= 0, s_k >= 1, s_c >= 0.
+
+Objective pieces (`Problem.objective_parts`): control = sum_k h u_k^T u_k (int u^2 dtau),
+selectors = rho_f sum_k ||sigma_k - sigma*||^2 (eq. 24a), penalty = rho s_c (LINF) or
+rho sum of all products (L1).
+
+Initial guess x0 (the paper's hint-free start): y_0 at every node, u = 0, s = 1, selectors and
+multipliers consistent with the switching functions at y_0 (ImplicitEulerStep.guess), s_c = the
+largest product of that guess (0).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+
+import casadi as ca
+import numpy as np
+
+from .discretization import ImplicitEulerStep, StepForm
+from .dynamics import Dynamics
+from .errors import InputError
+from .model import Robot
+from .task import Task
+from .timefreezing import ContactModel, TimeFreezingSystem
+
+
+class Penalty(Enum):
+    """How the complementarity products enter the objective (paper Sec. 5.2)."""
+
+    LINF = "linf"  # one slack s_c >= every product, + rho s_c (the paper's choice)
+    L1 = "l1"  # + rho * sum of the products (no slack, no extra inequalities)
+
+
+@dataclass(frozen=True)
+class ProblemOptions:
+    """Formulation choices of the OCP (numbers in docs/formulation.md, "OCP and solve").
+
+    penalty: L1 (default) or LINF. The paper's LINF lets every product below the slack float to the
+      barrier's centre (both multipliers of a selector positive at once), which measured stuck on
+      a cheat in every case tried; L1 prices each pair (docs/formulation.md, "OCP and solve").
+    switch_scale: (function, scale) pairs dividing a switching function in the stationarity
+      condition, keyed by Switch.function ("n^T v", "c(q)", "phi", "t^T v"); theta(h / a) = theta(h),
+      so the solution is the same and only the multipliers lambda0, lambda1 shrink by a. phi is
+      ~100x n^T v on Capler. Complementarity residuals are always reported in the unscaled units.
+    friction_cone: impose |lambda_t| <= mu lambda_n weighted by P_DAE (only for NO_SLIP contacts).
+    terminal_velocity: also impose v_N = target_v (zeros when the task omits it); the paper imposes
+      q only.
+    clock_guess_running: initial clock guess t = tau (running) instead of y_0's t = 0.
+    step_form: StepForm of the implicit Euler steps; MASS_MATRIX (default) keeps M(q)^-1 out of the
+      derivatives (the friction cone then uses the step's force variables lambda_n, lambda_t).
+    """
+
+    penalty: Penalty = Penalty.L1
+    step_form: StepForm = StepForm.MASS_MATRIX
+    switch_scale: tuple[tuple[str, float], ...] = ()
+    friction_cone: bool = True
+    terminal_velocity: bool = True
+    clock_guess_running: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.step_form, StepForm):
+            raise InputError(f"ProblemOptions.step_form = {self.step_form!r} is not allowed; it must be one of {[p.value for p in StepForm]}")
+        if not isinstance(self.penalty, Penalty):
+            raise InputError(f"ProblemOptions.penalty = {self.penalty!r} is not allowed; it must be one of {[p.value for p in Penalty]}")
+        for name, scale in self.switch_scale:
+            if not isinstance(name, str) or not scale > 0:
+                raise InputError(f"ProblemOptions.switch_scale entry ({name!r}, {scale!r}) is not allowed; it must be (function name, scale > 0)")
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One complementarity pair a * b = 0 with a = x[a] and b = x[b] (b_upper: b = 1 - x[b])."""
+
+    a: int
+    b: int
+    b_upper: bool
+    name: str
+
+
+@dataclass(eq=False)
+class Problem:
+    """The transcribed OCP. Everything needed to solve, inspect and post-process it.
+
+    x (nx,) SX decision variables, p (2,) SX parameters (rho, hole_scale), f objective, g (ng,)
+    constraints with lbg <= g <= ubg; lbx, ubx, x0 (nx,) bounds and the hint-free initial guess.
+    var_names (nx,); var_blocks: name -> int index array into x: "u" (N, nu), "s" (N, 1) if
+    present, "y" (N, ny) (states y_1 .. y_N), "w" (N, nw) and its parts "sigma", "theta",
+    "lambda0", "lambda1", "s_c" (1,) if present. g_blocks: name -> int index array into g (see the
+    module docstring). pairs: the complementarity pairs over the whole horizon (Pair, in x
+    indices); pair_scale (n_pairs,) multiplies a product to give it in unscaled units.
+    objective_parts: name -> ca.Function(x, p) -> scalar. Functions: products(x) -> (n_pairs,)
+    unscaled products; trajectory parts via `split(x)`.
+    """
+
+    robot: Robot
+    task: Task
+    options: ProblemOptions
+    system: TimeFreezingSystem
+    builder: ImplicitEulerStep
+    N: int
+    h: float
+    y0: np.ndarray
+    x: ca.SX
+    p: ca.SX
+    f: ca.SX
+    g: ca.SX
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    x0: np.ndarray
+    var_names: tuple[str, ...]
+    var_blocks: dict[str, np.ndarray]
+    g_blocks: dict[str, np.ndarray]
+    pairs: tuple[Pair, ...]
+    pair_scale: np.ndarray
+    objective_parts: dict[str, ca.Function]
+    products: ca.Function
+    build_time_s: float = 0.0
+    notes: dict = field(default_factory=dict)
+
+    @property
+    def nx(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def ng(self) -> int:
+        return self.g.shape[0]
+
+    def params(self, rho: float, hole_scale: float = 1.0) -> np.ndarray:
+        """The parameter vector p (2,) for penalty rho and hole scale r."""
+        return np.array([rho, hole_scale], dtype=float)
+
+    def complementarity_residual(self, x) -> float:
+        """max over all pairs of a * b at x, in unscaled units (the switching functions' own)."""
+        return float(np.max(np.abs(np.asarray(self.products(x), dtype=float)), initial=0.0))
+
+    def split(self, x) -> dict[str, np.ndarray]:
+        """Numeric blocks of x: Y (N+1, ny) with y_0 first, U (N, nu), W (N, nw), S (N,) speeds."""
+        x = np.asarray(x, dtype=float).ravel()
+        Y = np.vstack([self.y0, x[self.var_blocks["y"]]])
+        S = x[self.var_blocks["s"]].ravel() if "s" in self.var_blocks else np.ones(self.N)
+        return {"Y": Y, "U": x[self.var_blocks["u"]], "W": x[self.var_blocks["w"]], "S": S}
+
+
+def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOptions(), dynamics: Dynamics | None = None) -> Problem:
+    """Transcribe the task's OCP (task.plan) for the robot. Raises InputError for a task without a
+    plan, without contacts, with an elastic contact, or with an initial state below the ground."""
+    start = time.perf_counter()
+    if task.plan is None:
+        raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
+    if not task.contacts:
+        raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
+    task.check_against(robot)
+    plan, hz = task.plan, task.horizon
+    dyn = dynamics or Dynamics(robot)
+    system = TimeFreezingSystem(dyn, task.contacts, task.ground_height)
+    if any(m is ContactModel.ELASTIC for m in system.models):
+        raise InputError("planning with elastic contacts (restitution > 0) is not supported yet; set restitution = 0")
+    known = {s.function for s in system.switches}
+    scale_of = dict(options.switch_scale)
+    for name in scale_of:
+        if name not in known:
+            raise InputError(f"ProblemOptions.switch_scale names {name!r}; the switching functions are {sorted(known)}")
+    switch_scale = np.array([scale_of.get(s.function, 1.0) for s in system.switches])
+    builder = ImplicitEulerStep(system, plan.rho_f, switch_scale, form=options.step_form)
+    nq, nv, nu, ny, nw, n_sig = system.nq, system.nv, system.nu, system.ny, builder.nw, system.n_sigma
+    N, h = hz.N, hz.h
+    timed = hz.physical_time is not None
+
+    v0 = np.zeros(nv) if task.initial.v is None else np.array(task.initial.v, float)
+    y0 = system.initial_state(np.array(task.initial.q, float), v0)
+    gap0 = np.asarray(system.gap_fn(y0, np.zeros(nu)), float).ravel()
+    for c, gap in zip(task.contacts, gap0):
+        if gap < -1e-9:
+            raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground")
+
+    # --- variables, stage by stage ---------------------------------------------------------------
+    sizes = [("u", nu)] + ([("s", 1)] if timed else []) + [("y", ny), ("w", nw)]
+    stage_n = sum(n for _, n in sizes)
+    linf = options.penalty is Penalty.LINF
+    nx = N * stage_n + (1 if linf else 0)
+    blocks: dict[str, list] = {name: [] for name, _ in sizes}
+    off = 0
+    for k in range(N):
+        for name, n in sizes:
+            blocks[name].append(np.arange(off, off + n))
+            off += n
+    var_blocks = {name: np.array(rows, dtype=int) for name, rows in blocks.items()}
+    for part in builder.w_blocks:
+        var_blocks[part] = var_blocks["w"][:, builder.w_blocks[part]]
+    if linf:
+        var_blocks["s_c"] = np.array([nx - 1])
+
+    rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
+    P = ca.vertcat(rho, hole_scale)
+
+    u_lo, u_hi = (robot.u_lower, robot.u_upper) if plan.u_bound is None else (np.full(nu, -plan.u_bound), np.full(nu, plan.u_bound))
+    q_lo, q_hi = task.q_bounds(robot)
+    lbx, ubx = np.full(nx, -np.inf), np.full(nx, np.inf)
+    lbx[var_blocks["u"]], ubx[var_blocks["u"]] = u_lo, u_hi
+    yb = var_blocks["y"]
+    lbx[yb[:, :nq]], ubx[yb[:, :nq]] = q_lo, q_hi
+    lbx[var_blocks["w"]], ubx[var_blocks["w"]] = builder.lbw, builder.ubw
+    if timed:
+        lbx[var_blocks["s"]] = 1.0
+    if linf:
+        lbx[nx - 1] = 0.0
+
+    # --- path-constraint functions of (y, u, w) ----------------------------------------------------
+    ys, us, ws = system.y, system.u, ca.SX.sym("w", nw)
+    q_sym = ys[:nq]
+    ground = task.ground_height
+    above = [dyn.point_position(pt)(q_sym)[2] - ground for pt in plan.above_ground]
+    hole_exprs = []
+    for ct in task.contacts:
+        pos = dyn.point_position(ct.point)(q_sym)
+        for e in plan.holes:
+            hole_exprs.append(((pos[0] - e.x) / e.a) ** 2 + ((pos[2] - e.z) / e.b) ** 2 - hole_scale**2)
+    z = ca.vertcat(1, ws[builder.w_blocks["sigma"]], ws[builder.w_blocks["theta"]])
+    coef = ca.mtimes(ca.DM(builder.C), z)  # P_j(sigma) per field, linear in the lifted variables
+    field_names = [f.name for f in system.fields]
+    cone = []
+    if options.friction_cone:
+        for ct, model, terms in zip(task.contacts, system.models, system.terms):
+            if model is not ContactModel.NO_SLIP:
+                continue
+            weight = coef[field_names.index(f"dae_f[{ct.point}]")]
+            if builder.mm is None:
+                lam_n, lam_t = terms.lambda_no_slip[0], terms.lambda_no_slip[1]
+            else:  # the step's own force variables: no M^-1 here either
+                lam = ws[builder.w_blocks["forces"]][builder.mm.lam_index[ct.point]]
+                lam_n, lam_t = lam[0], lam[1]
+            cone += [weight * (ct.mu * lam_n - lam_t), weight * (ct.mu * lam_n + lam_t)]
+    path_fn = {
+        "above_ground": ca.Function("above_ground", [ys], [ca.vertcat(*above)]) if above else None,
+        "holes": ca.Function("holes", [ys, hole_scale], [ca.vertcat(*hole_exprs)]) if hole_exprs else None,
+        "friction_cone": ca.Function("friction_cone", [ys, us, ws], [ca.vertcat(*cone)]) if cone else None,
+    }
+
+    # --- stages ------------------------------------------------------------------------------------
+    step_blocks = ("dynamics", "stationarity", "lifting") + (("contact_forces",) if builder.mm is not None else ())
+    g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "friction_cone")}
+    control_cost, selector_cost = 0, 0
+    pairs: list[Pair] = []
+    prods = []
+    y_prev = ca.DM(y0)
+    x_parts = []
+    for k in range(N):
+        uk = ca.SX.sym(f"u_{k}", nu)
+        sk = ca.SX.sym(f"s_{k}") if timed else 1.0
+        yk = ca.SX.sym(f"y_{k + 1}", ny)
+        step = builder.build(y_prev, yk, uk, sk, h, tag=f"_{k}")
+        wk = step.w
+        x_parts += [uk] + ([sk] if timed else []) + [yk, wk]
+        for name in step_blocks:
+            g_parts[name].append(step.g[step.g_blocks[name]])
+        selector_cost += step.objective
+        control_cost += h * ca.dot(uk, uk)
+        if path_fn["above_ground"] is not None:
+            g_parts["above_ground"].append(path_fn["above_ground"](yk))
+        if path_fn["holes"] is not None:
+            g_parts["holes"].append(path_fn["holes"](yk, hole_scale))
+        if path_fn["friction_cone"] is not None:
+            g_parts["friction_cone"].append(path_fn["friction_cone"](yk, uk, wk))
+        sig_idx, l0_idx, l1_idx = var_blocks["sigma"][k], var_blocks["lambda0"][k], var_blocks["lambda1"][k]
+        for i, sw in enumerate(system.switches):
+            pairs.append(Pair(int(l0_idx[i]), int(sig_idx[i]), False, f"lambda0*sigma[{sw.name}]_{k}"))
+        for i, sw in enumerate(system.switches):
+            pairs.append(Pair(int(l1_idx[i]), int(sig_idx[i]), True, f"lambda1*(1-sigma)[{sw.name}]_{k}"))
+        y_prev = yk
+    if linf:
+        x_parts.append(ca.SX.sym("s_c"))
+    X = ca.vertcat(*x_parts)
+    assert X.shape[0] == nx
+    for pr in pairs:
+        b = 1 - X[pr.b] if pr.b_upper else X[pr.b]
+        prods.append(X[pr.a] * b)
+    prods = ca.vertcat(*prods)
+    n_pairs = prods.shape[0]
+    pair_scale = np.tile(np.concatenate([switch_scale, switch_scale]), N)
+
+    g_list, lbg, ubg, g_blocks = [], [], [], {}
+    row = 0
+
+    def add(name, rows: list, lo, hi):
+        nonlocal row
+        if not rows:
+            return
+        G = ca.vertcat(*rows)
+        m = G.shape[0]
+        per = m // len(rows)
+        g_list.append(G)
+        lbg.append(np.broadcast_to(lo, (m,)).astype(float))
+        ubg.append(np.broadcast_to(hi, (m,)).astype(float))
+        g_blocks[name] = np.arange(row, row + m).reshape(len(rows), per)
+        row += m
+
+    for name in step_blocks:
+        add(name, g_parts[name], 0.0, 0.0)
+    add("above_ground", g_parts["above_ground"], 0.0, np.inf)
+    add("holes", g_parts["holes"], 0.0, np.inf)
+    add("friction_cone", g_parts["friction_cone"], 0.0, np.inf)
+    y_N = X[var_blocks["y"][-1]]
+    target_q = np.array(plan.target_q, float)
+    if options.terminal_velocity:
+        target_v = np.zeros(nv) if plan.target_v is None else np.array(plan.target_v, float)
+        add("terminal", [y_N[: nq + nv]], np.concatenate([target_q, target_v]), np.concatenate([target_q, target_v]))
+    else:
+        add("terminal", [y_N[:nq]], target_q, target_q)
+    if timed:
+        add("physical_time", [y_N[ny - 1]], hz.physical_time, hz.physical_time)
+    if linf:
+        add("penalty", [X[nx - 1] - prods[k * 2 * n_sig : (k + 1) * 2 * n_sig] for k in range(N)], 0.0, np.inf)
+        penalty = rho * X[nx - 1]
+    else:
+        penalty = rho * ca.sum1(prods)
+
+    f = control_cost + selector_cost + penalty
+    names = []
+    for k in range(N):
+        names += [f"u[{i}]_{k}" for i in range(nu)]
+        if timed:
+            names.append(f"s_{k}")
+        names += [f"{nm}_{k + 1}" for nm in system.state_names]
+        names += [f"{nm}_{k}" for nm in builder.w_names]
+    if linf:
+        names.append("s_c")
+
+    # --- the hint-free initial guess --------------------------------------------------------------
+    x0 = np.zeros(nx)
+    w_guess = builder.guess(y0, np.zeros(nu))
+    for k in range(N):
+        yk = y0.copy()
+        if options.clock_guess_running:
+            yk[-1] = y0[-1] + (k + 1) * h
+        x0[var_blocks["y"][k]] = yk
+        x0[var_blocks["w"][k]] = w_guess
+        if timed:
+            x0[var_blocks["s"][k]] = 1.0
+    products = ca.Function("products", [X], [prods * ca.DM(pair_scale)], ["x"], ["ab"])
+    parts = {
+        "control": ca.Function("control_cost", [X, P], [control_cost]),
+        "selectors": ca.Function("selector_cost", [X, P], [selector_cost]),
+        "penalty": ca.Function("penalty_cost", [X, P], [penalty]),
+    }
+    if linf:
+        x0[nx - 1] = float(np.max(np.asarray(ca.Function("p0", [X], [prods])(x0)), initial=0.0))
+    return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
+                   x=X, p=P, f=f, g=ca.vertcat(*g_list), lbx=lbx, ubx=ubx, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg),
+                   x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=g_blocks, pairs=tuple(pairs),
+                   pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start)

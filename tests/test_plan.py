@@ -1,0 +1,72 @@
+"""`planner plan`: results, summary contract keys, exit codes; the full Capler task (slow, experimental)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from planner.cli import main
+
+HOP_TASK = """
+[[contacts]]
+point = "point"
+mu = 0.5
+
+[initial]
+q = [0.0, 0.0]
+
+[horizon]
+tau_f = 1.0
+N = 40
+
+[plan]
+target_q = [0.5, 0.0]
+u_bound = 30.0
+"""
+
+CONTRACT = ("command", "robot", "task", "converged", "solve_time_s", "n_nlp", "ipopt_iterations", "complementarity_residual",
+            "terminal_error", "physical_duration_s", "impacts", "hops", "nlps")
+
+
+def test_plan_command_writes_results(tmp_path, capsys):
+    """plan --json writes trajectory.npz and summary.json with the contract keys and exits 0."""
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    out = tmp_path / "out"
+    code = main(["plan", "robots/point_mass.xml", "--task", str(task), "--out", str(out), "--json", "--no-validate"])
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 0, summary["message"]
+    for key in CONTRACT:
+        assert key in summary, key
+    assert summary["command"] == "plan" and summary["converged"]
+    assert summary["complementarity_residual"] <= 1e-6 and summary["terminal_error"] <= 1e-6
+    assert all({"rho", "objective", "complementarity_residual", "iterations", "time_s", "status"} <= set(r) for r in summary["nlps"])
+    data = np.load(out / "trajectory.npz")
+    for key in ("tau", "y", "t", "q", "v", "u", "impact_times"):
+        assert key in data.files
+    assert json.loads((out / "summary.json").read_text())["converged"]
+
+
+def test_plan_without_plan_table_is_bad_input(tmp_path, capsys):
+    """A task with no [plan] exits 2 with one line on stderr."""
+    code = main(["plan", "robots/point_mass.xml", "--out", str(tmp_path / "o")])
+    assert code == 2
+    assert "plan" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="experimental: the full Capler task does not converge yet from the hint-free start "
+                          "(docs/formulation.md, 'OCP and solve')", strict=False)
+def test_capler_default_task(tmp_path):
+    """The paper's hopper over three holes: every NLP converges, complementarity and terminal error
+    <= 1e-6, several hops."""
+    from planner.homotopy import SolveOptions, solve
+    from planner.model import load_robot
+    from planner.problem import build_problem
+    from planner.task import load_task
+
+    robot, task = load_robot("robots/capler.xml"), load_task("robots/capler.toml")
+    res = solve(build_problem(robot, task), SolveOptions(max_iter=500))
+    assert res.stats.converged, res.stats.message
+    assert len(res.hops) >= 3

@@ -1,0 +1,105 @@
+"""The transcribed OCP is inspectable: named variable and constraint blocks, bounds, the hint-free guess."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from planner.discretization import StepForm
+from planner.errors import InputError
+from planner.model import load_robot
+from planner.problem import Penalty, ProblemOptions, build_problem
+from planner.task import Horizon, load_task, parse_task
+
+ROBOTS = "robots"
+
+
+def hop_task(N: int = 40, holes=()):
+    """Point mass resting on the ground with friction, asked to be at x = 0.5 m (no-slip: it must hop)."""
+    return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": N},
+                       "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": list(holes)}})
+
+
+@pytest.fixture(scope="module")
+def capler_small():
+    robot = load_robot(f"{ROBOTS}/capler.xml")
+    task = load_task(f"{ROBOTS}/capler.toml")
+    task = dataclasses.replace(task, horizon=Horizon(tau_f=0.5, N=10))
+    return robot, task, build_problem(robot, task)
+
+
+def test_blocks_sizes_and_bounds(capler_small):
+    """Every stage has u (nu), y (ny), w (nw) blocks; bounds come from the task (torques, joint bounds,
+    selectors in [0, 1]); constraint blocks are named and sized per stage."""
+    robot, task, prob = capler_small
+    N, nu, ny, nw = 10, robot.nu, prob.system.ny, prob.builder.nw
+    assert prob.var_blocks["u"].shape == (N, nu)
+    assert prob.var_blocks["y"].shape == (N, ny)
+    assert prob.var_blocks["w"].shape == (N, nw)
+    assert "s" not in prob.var_blocks and "s_c" not in prob.var_blocks  # no physical horizon, L1 penalty
+    assert prob.nx == N * (nu + ny + nw) == len(prob.var_names) == len(prob.lbx) == len(prob.x0)
+    u = prob.var_blocks["u"]
+    assert np.all(prob.lbx[u] == -60) and np.all(prob.ubx[u] == 60)
+    hip = robot.dof_index("hip")
+    assert np.allclose(prob.ubx[prob.var_blocks["y"][:, hip]], 3 * np.pi / 8)
+    sig = prob.var_blocks["sigma"]
+    assert np.all(prob.lbx[sig] == 0) and np.all(prob.ubx[sig] == 1)
+    for name in ("dynamics", "stationarity", "lifting", "contact_forces", "above_ground", "holes", "friction_cone"):
+        assert prob.g_blocks[name].shape[0] == N, name
+    assert prob.g_blocks["holes"].shape[1] == 3 and prob.g_blocks["above_ground"].shape[1] == 2
+    assert prob.g_blocks["friction_cone"].shape[1] == 2
+    assert prob.g_blocks["terminal"].shape == (1, 2 * robot.nq)  # q and v (target_v defaults to zeros)
+    assert len(prob.pairs) == N * 2 * prob.system.n_sigma
+    assert set(prob.objective_parts) == {"control", "selectors", "penalty"}
+    eq = np.concatenate([prob.g_blocks[n].ravel() for n in ("dynamics", "stationarity", "lifting", "contact_forces", "terminal")])
+    assert np.all(prob.lbg[eq] == 0) | np.all(prob.lbg[eq] == prob.ubg[eq])
+    assert np.all(prob.ubg[prob.g_blocks["holes"].ravel()] == np.inf)
+
+
+def test_initial_guess_is_hint_free(capler_small):
+    """x0: y0 at every node, zero controls, the same algebraic guess at every stage (paper Sec. 7)."""
+    _, task, prob = capler_small
+    Y = prob.x0[prob.var_blocks["y"]]
+    assert np.allclose(Y, prob.y0[None, :])
+    assert np.all(prob.x0[prob.var_blocks["u"]] == 0)
+    W = prob.x0[prob.var_blocks["w"]]
+    assert np.allclose(W, W[0][None, :])
+    # the guess is consistent with the switching functions at y0: every product is zero
+    assert prob.complementarity_residual(prob.x0) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_mass_matrix_and_explicit_forms_agree_at_a_point():
+    """The MASS_MATRIX transcription has the same dynamics residual as EXPLICIT once its velocity rows
+    are divided by M: checked through the objective (same) and the terminal rows (same)."""
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    a = build_problem(robot, hop_task(N=5), ProblemOptions(step_form=StepForm.EXPLICIT))
+    b = build_problem(robot, hop_task(N=5), ProblemOptions(step_form=StepForm.MASS_MATRIX))
+    assert b.builder.nw > a.builder.nw and "contact_forces" in b.g_blocks and "contact_forces" not in a.g_blocks
+
+
+def test_physical_time_adds_speed_and_constraint():
+    """horizon.physical_time adds s_k >= 1 per stage and t_N = T."""
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = hop_task(N=5)
+    task = dataclasses.replace(task, horizon=Horizon(tau_f=1.0, N=5, physical_time=0.8))
+    prob = build_problem(robot, task, ProblemOptions(penalty=Penalty.LINF))
+    assert prob.var_blocks["s"].shape == (5, 1) and np.all(prob.lbx[prob.var_blocks["s"]] == 1)
+    rows = prob.g_blocks["physical_time"].ravel()
+    assert np.all(prob.lbg[rows] == 0.8) and np.all(prob.ubg[rows] == 0.8)
+    assert prob.var_blocks["s_c"].shape == (1,) and prob.g_blocks["penalty"].shape == (5, 2 * prob.system.n_sigma)
+
+
+def test_bad_inputs():
+    """A task without [plan], an unknown switch-scale name, a wrong enum are InputErrors."""
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    no_plan = load_task(f"{ROBOTS}/point_mass.toml")
+    with pytest.raises(InputError, match="no \\[plan\\]"):
+        build_problem(robot, no_plan)
+    with pytest.raises(InputError, match="switch_scale"):
+        build_problem(robot, hop_task(N=3), ProblemOptions(switch_scale=(("psi", 2.0),)))
+    with pytest.raises(InputError, match="switch_scale"):
+        ProblemOptions(switch_scale=(("phi", -1.0),))
+    with pytest.raises(InputError, match="penalty"):
+        ProblemOptions(penalty="l1")
