@@ -35,7 +35,7 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics
-from .errors import InputError, SolveError, TaskError, UnknownNameError
+from .errors import InputError, TaskError, UnknownNameError
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import _atomic, _json_default

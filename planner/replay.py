@@ -35,7 +35,8 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError
-from .model import Robot, RobotFormat, load_robot, resolve_robot_path
+from .model import Robot, RobotFormat, load_robot
+from .result import locate_input, read_summary, read_trajectory
 from .task import Task, load_task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -459,8 +460,8 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
     if not out_dir.is_dir():
         raise InputError(f"result directory not found: {out_dir}")
     summary = read_summary(out_dir)
-    robot = load_robot(_locate_robot(summary["robot"], out_dir))
-    task = load_task(_locate(summary["task"], out_dir, "task"))
+    robot = load_robot(locate_input(summary["robot"], out_dir, "robot"))
+    task = load_task(locate_input(summary["task"], out_dir, "task"))
     traj = read_trajectory(out_dir)
     contacts = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
     return validate_trajectory(robot, task, traj, options, impact_points=contacts)
@@ -532,37 +533,6 @@ def write_validation(out_dir: str | Path, validation: Validation) -> Path:
 REQUIRED_ARRAYS = ("t", "q", "v", "u", "impact_times")
 
 
-def read_summary(out_dir: Path) -> dict:
-    """summary.json as a dict with at least `robot` and `task` (InputError otherwise)."""
-    path = out_dir / "summary.json"
-    try:
-        summary = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read {path}: {exc}") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path} is not valid JSON: {exc}") from None
-    if not isinstance(summary, dict):
-        raise InputError(f"{path} must hold a JSON object, got {type(summary).__name__}")
-    for key in ("robot", "task"):
-        if not isinstance(summary.get(key), str) or not summary[key]:
-            raise InputError(f"{path} has no {key!r} path (a string); it is needed to rebuild the scene")
-    return summary
-
-
-def read_trajectory(out_dir: Path) -> dict[str, np.ndarray]:
-    """The arrays of out_dir/trajectory.npz (InputError when missing or unreadable)."""
-    path = out_dir / "trajectory.npz"
-    if not path.is_file():
-        raise InputError(f"{path} not found")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            return {k: np.asarray(npz[k]) for k in npz.files}
-    except Exception as exc:  # zipfile.BadZipFile, ValueError (pickled object arrays), OSError, EOFError
-        raise InputError(f"{path} is not a readable .npz file: {type(exc).__name__}: {exc}") from None
-
-
 def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Float copies of the contract arrays after checking names, shapes, finiteness and time order."""
     missing = [k for k in REQUIRED_ARRAYS if k not in traj]
@@ -594,26 +564,6 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
     if t[-1] <= t[0]:
         raise InputError(f"trajectory spans no physical time (t from {t[0]} to {t[-1]})")
     return out
-
-
-def _locate_robot(name: str, out_dir: Path) -> Path:
-    """A robot path from the summary; a bare name (e.g. `capler`) is one of robots/."""
-    path = Path(name)
-    if not path.suffix and path.parent == Path("."):
-        try:
-            return resolve_robot_path(name)
-        except RobotFileError:
-            pass
-    return _locate(name, out_dir, "robot")
-
-
-def _locate(name: str, out_dir: Path, what: str) -> Path:
-    path = Path(name)
-    for candidate in (path, out_dir / path):
-        if candidate.is_file():
-            return candidate
-    raise InputError(f"the {what} file {name!r} named in {out_dir / 'summary.json'} was not found "
-                     f"(tried from the working directory and from {out_dir})")
 
 
 def _impact_points(summary: dict, task: Task, n_impacts: int) -> list[str | None] | None:

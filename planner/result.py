@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import InputError
+
 
 @dataclass(frozen=True, eq=False)
 class Impact:
@@ -104,33 +106,45 @@ class SimulationResult:
         tr, st = self.trajectory, self.stats
         lines = [f"simulate {Path(self.robot).name}: {'converged' if st.converged else 'NOT converged'} in {st.solve_time_s:.2f} s "
                  f"({len(tr.tau) - 1} steps of h = {self.h:g} s, {self.strategy}, {st.n_nlp} NLPs, {st.ipopt_iterations} IPOPT iterations, "
-                 f"complementarity {st.complementarity_residual:.1e})",
-                 f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s)"]
-        lines += [f"  impact at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s" for imp in tr.impacts]
-        return "\n".join(lines)
+                 f"complementarity {st.complementarity_residual:.1e})"]
+        return "\n".join(lines + _trajectory_lines(tr))
 
     def summary(self) -> dict:
         """The summary.json object (contract keys first)."""
-        tr, st = self.trajectory, self.stats
         return {
-            "command": self.command,
-            "robot": self.robot,
-            "task": self.task,
-            "converged": st.converged,
-            "solve_time_s": st.solve_time_s,
-            "n_nlp": st.n_nlp,
-            "ipopt_iterations": st.ipopt_iterations,
-            "complementarity_residual": st.complementarity_residual,
-            "terminal_error": None,
-            "physical_duration_s": tr.physical_duration,
-            "impacts": [imp.to_json() for imp in tr.impacts],
+            **_contract_keys(self, terminal_error=None),
             "strategy": self.strategy,
             "h": self.h,
             "rho_f": self.rho_f,
-            "n_steps": len(tr.tau) - 1,
-            "message": st.message,
+            "n_steps": len(self.trajectory.tau) - 1,
+            "message": self.stats.message,
             **self.extra,
         }
+
+
+def _contract_keys(result, terminal_error: float | None) -> dict:
+    """The keys every summary.json holds (design.md, "The contract"), in the contract's order."""
+    tr, st = result.trajectory, result.stats
+    return {
+        "command": result.command,
+        "robot": result.robot,
+        "task": result.task,
+        "converged": st.converged,
+        "solve_time_s": st.solve_time_s,
+        "n_nlp": st.n_nlp,
+        "ipopt_iterations": st.ipopt_iterations,
+        "complementarity_residual": st.complementarity_residual,
+        "terminal_error": terminal_error,
+        "physical_duration_s": tr.physical_duration,
+        "impacts": [imp.to_json() for imp in tr.impacts],
+    }
+
+
+def _trajectory_lines(tr: Trajectory, extra: str = "") -> list[str]:
+    """Terminal lines for the physical duration and each impact."""
+    lines = [f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s){extra}"]
+    return lines + [f"  impact at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
+                    f"{imp.impulse_tangential:.4g} N s tangential" for imp in tr.impacts]
 
 
 @dataclass(frozen=True)
@@ -212,28 +226,15 @@ class PlanResult:
                  f"complementarity {st.complementarity_residual:.1e}, terminal error {self.terminal_error:.1e})"]
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
-        lines.append(f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; "
-                     f"{len(tr.impacts)} impact(s), {len(self.hops)} hop(s)")
-        lines += [f"  impact at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
-                  f"{imp.impulse_tangential:.4g} N s tangential" for imp in tr.impacts]
+        lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)")
         if not st.converged:
             lines.append(f"  {st.message}")
         return "\n".join(lines)
 
     def summary(self) -> dict:
-        tr, st = self.trajectory, self.stats
+        st = self.stats
         return {
-            "command": self.command,
-            "robot": self.robot,
-            "task": self.task,
-            "converged": st.converged,
-            "solve_time_s": st.solve_time_s,
-            "n_nlp": st.n_nlp,
-            "ipopt_iterations": st.ipopt_iterations,
-            "complementarity_residual": st.complementarity_residual,
-            "terminal_error": self.terminal_error,
-            "physical_duration_s": tr.physical_duration,
-            "impacts": [imp.to_json() for imp in tr.impacts],
+            **_contract_keys(self, terminal_error=self.terminal_error),
             "hops": [hp.to_json() for hp in self.hops],
             "nlps": [r.to_json() for r in self.nlps],
             "polished": self.polished,
@@ -241,7 +242,7 @@ class PlanResult:
             "timings": self.timings,
             "h": self.h,
             "rho_f": self.rho_f,
-            "n_steps": len(tr.tau) - 1,
+            "n_steps": len(self.trajectory.tau) - 1,
             "message": st.message,
             "options": self.options,
             **{k: v for k, v in self.extra.items() if not k.startswith("_")},
@@ -331,3 +332,55 @@ def _atomic(path: Path, write) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+# --- reading a result directory back (replay and view use these) -------------------------------------
+
+def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) -> dict:
+    """summary.json as a dict holding a path for each key of `require` (InputError otherwise)."""
+    path = Path(out_dir) / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read {path}: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(summary, dict):
+        raise InputError(f"{path} must hold a JSON object, got {type(summary).__name__}")
+    for key in require:
+        if not isinstance(summary.get(key), str) or not summary[key]:
+            raise InputError(f"{path} has no {key!r} path (a string); it is needed to rebuild the scene")
+    return summary
+
+
+def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The arrays of out_dir/trajectory.npz; InputError when missing, unreadable or lacking `required`."""
+    path = Path(out_dir) / "trajectory.npz"
+    if not path.is_file():
+        raise InputError(f"{path} not found")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {k: np.asarray(npz[k]) for k in npz.files}
+    except Exception as exc:  # zipfile.BadZipFile, ValueError (pickled object arrays), OSError, EOFError
+        raise InputError(f"{path} is not a readable .npz file: {type(exc).__name__}: {exc}") from None
+    missing = [k for k in required if k not in arrays]
+    if missing:
+        raise InputError(f"{path} lacks {', '.join(missing)}")
+    return arrays
+
+
+def locate_input(name: str, out_dir: Path, what: str) -> Path:
+    """A robot or task path named in summary.json: as written (from the working directory), else
+    relative to the result directory; a bare robot name (e.g. `capler`) is a file of robots/."""
+    from .model import resolve_robot_path
+
+    for candidate in (Path(name), Path(out_dir) / name):
+        if candidate.is_file():
+            return candidate
+    if what == "robot" and not Path(name).suffix and Path(name).parent == Path("."):
+        return resolve_robot_path(name)
+    raise InputError(f"the {what} file {name!r} named in {Path(out_dir) / 'summary.json'} was not found "
+                     f"(tried from the working directory and from {out_dir})")
+

@@ -29,7 +29,8 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, PlannerError
-from .model import Robot, RobotFormat, load_robot, resolve_robot_path
+from .model import Robot, RobotFormat, load_robot
+from .result import locate_input, read_summary, read_trajectory
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -144,30 +145,14 @@ def load_result(out_dir) -> Result:
     for p in (npz_path, summary_path):
         if not p.is_file():
             raise InputError(f"{directory} is not a result directory: {p.name} is missing")
-    try:
-        summary = json.loads(summary_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{summary_path}: not valid JSON: {exc}") from None
-    if not isinstance(summary, dict):
-        raise InputError(f"{summary_path} must hold one JSON object")
+    summary = read_summary(directory, require=("robot",))  # without a task: no ground, holes or contacts
     required, optional = ("tau", "y", "t", "q", "v", "u", "impact_times"), ("lambda_n", "lambda_t")
-    try:
-        with np.load(npz_path) as npz:  # only the numeric arrays used here: writers may add others
-            missing = [k for k in required if k not in npz.files]
-            if missing:
-                raise InputError(f"{npz_path} lacks {', '.join(missing)}")
-            arrays = {k: np.asarray(npz[k], dtype=float) for k in required + optional if k in npz.files}
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{npz_path}: cannot read: {exc}") from None
-
-    if not isinstance(summary.get("robot"), str):
-        raise InputError(f"{summary_path} names no robot file")
-    robot = load_robot(_find_file(summary["robot"], directory, "robot"))
-    task = None
+    raw = read_trajectory(directory, required)  # writers may add non-numeric arrays: keep the numeric ones
+    arrays = {k: np.asarray(raw[k], dtype=float) for k in required + optional if k in raw}
+    robot = load_robot(locate_input(summary["robot"], directory, "robot"))
     if summary.get("task") is not None and not isinstance(summary["task"], str):
         raise InputError(f"{summary_path}: task must be a file path, got {summary['task']!r}")
-    if summary.get("task"):
-        task = load_task(_find_file(summary["task"], directory, "task"))
+    task = load_task(locate_input(summary["task"], directory, "task")) if summary.get("task") else None
 
     impacts = summary.get("impacts") or []
     if not isinstance(impacts, list) or not all(
@@ -196,17 +181,6 @@ def load_result(out_dir) -> Result:
     return Result(directory=directory, tau=a["tau"], y=a["y"], t=a["t"], q=a["q"], v=a["v"], u=a["u"],
                   impact_times=a["impact_times"].reshape(-1), lambda_n=a.get("lambda_n"),
                   lambda_t=a.get("lambda_t"), summary=summary, robot=robot, task=task)
-
-
-def _find_file(spec: str, directory: Path, what: str) -> Path:
-    """A robot/task path from summary.json: as written (relative to the working directory), else
-    relative to the result directory; a bare robot name means a file in robots/."""
-    for candidate in (Path(spec), directory / spec):
-        if candidate.is_file():
-            return candidate
-    if what == "robot" and not Path(spec).suffix and Path(spec).parent == Path("."):
-        return resolve_robot_path(spec)  # a bare name of a file in robots/
-    raise InputError(f"the {what} file {spec!r} named in {directory / 'summary.json'} was not found")
 
 
 # --- what to draw --------------------------------------------------------------------------------------
