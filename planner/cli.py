@@ -109,6 +109,12 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_OK
 
 
+def _progress(args, line: str) -> None:
+    """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it."""
+    if not args.quiet:
+        print(line, file=sys.stderr, flush=True)
+
+
 def _emit(args, summary: dict, text: str) -> None:
     if args.json:
         print(json.dumps(summary))
@@ -174,9 +180,8 @@ def _cmd_plan(args) -> int:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
 
     def progress(rec):
-        if not args.quiet and not args.json:
-            print(f"  {rec.label:<11} rho {rec.rho:8.3g}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  "
-                  f"complementarity {rec.complementarity_residual:.1e}  {rec.status}", flush=True)
+        _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "
+                        f"{rec.complementarity_residual:.1e}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  {rec.status}")
 
     problem = build_problem(robot, task)
     result = solve(problem, SolveOptions(print_level=5 if args.verbose else 0), progress=progress)
@@ -203,8 +208,7 @@ def _cmd_gait(args) -> int:
         raise InputError("planner gait needs --task (e.g. robots/biped_gait1.toml)")
     robot = load_robot(args.robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait")
-    progress = None if args.quiet or args.json else (lambda loop: print(loop.line(), file=sys.stderr, flush=True))
-    result = run_gait(robot, args.task, out, progress=progress, validate=not args.no_validate)
+    result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()), validate=not args.no_validate)
     converged = bool(result.summary["converged"])
     _emit(args, result.summary, f"{result.report()}\n{'converged' if converged else 'FAILED'}: results in {out}")
     return EXIT_OK if converged else EXIT_FAILED
