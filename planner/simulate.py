@@ -11,7 +11,8 @@ Two strategies (SimulateOptions.strategy):
 * HORIZON: all N steps as one NLP from y_0 at every node. A control schedule (given in physical
   time) is evaluated at the clock of the previous pass, repeated until the controls stop changing.
 STEPWISE is the default: it was measured faster and it never fails on a whole horizon at once
-(numbers in docs/formulation.md, "Simulation strategy").
+(numbers in docs/formulation.md, "Simulation strategy"). A STEPWISE step whose homotopy stalls on a
+spurious minimizer of the penalized NLP is restarted from predictors (SimulateOptions.restarts).
 
 Joint PD (task key simulate.pd): u_k = u_ff + P (q_ref - q_{k+1}) - D v_{k+1}, with the feed-forward
 u_ff from the schedule and the feedback at the END of the step -- an implicit controller, part of

@@ -311,3 +311,88 @@ def test_failed_step_returns_diagnostics():
     r = simulate(robot(), t, SimulateOptions(max_iter=1, max_nlp=1), dynamics=dynamics())
     assert not r.stats.converged and "step 0" in r.stats.message
     assert len(r.trajectory.tau) == 1 and r.summary()["converged"] is False
+
+
+# --- joint PD (simulate.pd) and predictor restarts ------------------------------------------------
+
+PD_KP, PD_KD = 40.0, 3.0  # [N/m, N s/m] on the 1 kg mass: underdamped, so the recursion shows in x(t)
+
+
+def test_pd_is_an_implicit_controller():
+    """PD on x of the mass resting on the frictionless table: x follows the implicit Euler recursion
+    of m x'' = kp (x_ref - x) - kd x' with the force evaluated at the END of each step,
+    (m + h kd + h^2 kp) v_{k+1} = m v_k + h kp (x_ref - x_k), x_{k+1} = x_k + h v_{k+1}, and the
+    recorded controls are the PD at the recorded states; the explicit recursion is far away. The
+    HORIZON strategy (all steps in one NLP) gives the same trajectory."""
+    N, tau_f, x0, x_ref = 50, 0.5, 0.1, 0.0
+    t = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [x0, 0.0]}, "horizon": {"tau_f": tau_f, "N": N},
+                    "simulate": {"pd": {"joints": ["x"], "kp": [PD_KP], "kd": [PD_KD], "q_ref": [x_ref]}}})
+    r = simulate(robot(), t, dynamics=dynamics())
+    assert r.stats.converged and r.trajectory.impacts == ()
+    h, tr = r.h, r.trajectory
+    implicit, explicit = np.zeros((N + 1, 2)), np.zeros((N + 1, 2))
+    implicit[0] = explicit[0] = [x0, 0.0]
+    for k in range(N):
+        x, v = implicit[k]
+        v1 = (v + h * PD_KP * (x_ref - x)) / (1.0 + h * PD_KD + h**2 * PD_KP)
+        implicit[k + 1] = [x + h * v1, v1]
+        x, v = explicit[k]
+        v1 = v + h * (PD_KP * (x_ref - x) - PD_KD * v)
+        explicit[k + 1] = [x + h * v1, v1]
+    np.testing.assert_allclose(tr.q[:, 0], implicit[:, 0], atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.v[:, 0], implicit[:, 1], atol=SOLVER_TOL)
+    assert np.abs(explicit[:, 0] - implicit[:, 0]).max() > 100 * SOLVER_TOL
+    np.testing.assert_allclose(tr.u[1:, 0], PD_KP * (x_ref - tr.q[1:, 0]) - PD_KD * tr.v[1:, 0], atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.u[:, 1], 0.0)  # z has no PD and no feed-forward
+    assert r.summary()["pd"]["steps_beyond_actuator_bounds"] == 0
+    whole = simulate(robot(), t, SimulateOptions(strategy=Strategy.HORIZON), dynamics=dynamics())  # the PD in one NLP
+    np.testing.assert_allclose(whole.trajectory.y, tr.y, atol=SOLVER_TOL)
+
+
+def test_simulate_pd_keys_are_validated():
+    """[simulate.pd]: one kp, kd (>= 0) and q_ref per joint, no repeated joints; against the robot:
+    known joints with exactly one actuator. Every error names the key."""
+    from planner.errors import TaskError, UnknownNameError
+
+    base = {"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10}}
+
+    def pd(**keys):
+        return parse_task({**base, "simulate": {"pd": {"joints": ["hip", "knee"], "kp": [1.0, 1.0], "kd": [0.1, 0.1], **keys}}})
+
+    with pytest.raises(TaskError, match=r"simulate.pd.kp .* 2 numbers"):
+        pd(kp=[1.0])
+    with pytest.raises(TaskError, match=r"simulate.pd.kd .* >= 0"):
+        pd(kd=[0.1, -0.1])
+    with pytest.raises(TaskError, match=r"simulate.pd.q_ref .* 2 numbers"):
+        pd(q_ref=[0.0])
+    with pytest.raises(TaskError, match=r"simulate.pd.joints .* repeated"):
+        pd(joints=["hip", "hip"])
+    with pytest.raises(TaskError, match=r"unknown key 'simulate.pd.gain'"):
+        pd(gain=1.0)
+    capler = load_robot("capler")
+    with pytest.raises(UnknownNameError, match="valid joints: base_x"):
+        pd(joints=["hip", "ankle"]).check_against(capler)
+    with pytest.raises(TaskError, match="'base_z' is driven by 0 actuators"):
+        pd(joints=["hip", "base_z"]).check_against(capler)
+    pd().check_against(capler)
+
+
+# A flight step of the unactuated Capler collapsing after a no-slip landing (its state 30 of a drop
+# from 5 cm, h = 4 ms): the foot 0.3 mm above the ground, the implicit flight step ends 0.9 mm above it.
+HARD_STEP_Q = [-0.00064, 0.37318, -0.18126, 0.67462]
+HARD_STEP_V = [-0.02782, -0.95944, -8.46535, 17.46552]
+
+
+def test_stalled_step_restarts_from_the_flight_predictor():
+    """From the warm start with rho0 = 100, rho_f ||sigma - sigma*||^2 pulls the selectors off the exact
+    solution (free flight, sigma = 1) into a spurious minimizer of the penalized NLP, complementarity
+    2e-5 whatever rho; restarting from the implicit flight step with rho0 = 1e4 finds the exact solution."""
+    t = parse_task({"contacts": [{"point": "foot", "mu": 0.8}], "initial": {"q": HARD_STEP_Q, "v": HARD_STEP_V},
+                    "horizon": {"tau_f": 0.004, "N": 1}})
+    capler = load_robot("capler")
+    stalled = simulate(capler, t, SimulateOptions(restarts=False))
+    assert not stalled.stats.converged and stalled.stats.complementarity_residual > 1e-5
+    r = simulate(capler, t)
+    assert r.stats.converged and r.summary()["restarted_steps"] == 1
+    np.testing.assert_allclose(r.trajectory.sigma[0], 1.0, atol=SELECTOR_TOL)
+    assert r.trajectory.impacts == ()
