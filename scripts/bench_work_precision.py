@@ -1,0 +1,493 @@
+"""Work-precision benchmark of the time-freezing simulation (issue 9): wall time against error.
+
+Cases (suite "simulate"; an "ocp" suite is meant to be added to SUITES once the Capler OCP converges):
+
+* point mass (robots/point_mass.xml) against its exact solution (class Drop): the inelastic
+  frictionless drop from (0, 1) m with v = (1, 0) m/s (Example 1 of the paper) under several
+  discretization options (rho_f, a_n, strategy), the same drop with no-slip friction, and the elastic
+  drop (restitution 0.5) from rest. Errors: state error max |q - q_exact|_inf over the physical-time
+  samples in [0, t_window] [m], first impact time error vs sqrt(2 z0 / g) [s], post-impact velocity
+  error |v_post - v_post_exact|_inf [m/s], penetration -min gap over the nodes [m].
+* Capler (robots/capler.xml) dropped from 5 cm while joint PD holds its posture: against a fine-grid
+  run (h_ref = smallest h / 8) and against a MuJoCo rollout with the same PD law (planner.replay).
+  Errors: base position error max |p_base - p_base_ref|_2 on a common 1 ms grid [m], impact time
+  difference [s] (also vs the exact ballistic impact time: the held posture falls rigidly), penetration.
+  A MuJoCo line (timestep varied, error against the fine-grid run) puts the soft-contact simulator on
+  the same plot.
+
+Writes OUT/results.json (one record per run, the convergence orders, the machine) and
+OUT/work_precision.png (log-log error against wall time). Runs one simulation at a time in this
+process (no worker processes), so a 2-core machine shared with other jobs still gives comparable
+numbers; the runs are deterministic (no random numbers).
+
+    python -m scripts.bench_work_precision [--quick] [--out DIR] [--json]   (from the repository root)
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi
+import matplotlib
+import mujoco
+import numpy as np
+import pinocchio
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from planner import replay
+from planner.dynamics import Dynamics
+from planner.model import load_robot
+from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
+from planner.task import parse_task
+
+G = 9.81  # gravity of the robot files [m/s^2]
+DEFAULT_OUT = Path("results/bench/work_precision")
+COMMON_GRID_S = 1e-3  # spacing of the grid on which two discrete trajectories are compared [s]
+REFERENCE_REFINEMENT = 8  # Capler reference step = smallest h of the grid / 8
+# IPOPT tol 1e-10 and complementarity <= 1e-9 leave errors up to ~1e-6 (the interior point keeps
+# selectors ~3e-6 off their bounds; tests/test_simulate.py uses SOLVER_TOL = 1e-5): errors below it
+# say nothing about the grid and are left out of the convergence orders
+ERROR_FLOOR = 1e-5
+
+
+# ==================================================================================================
+# exact point-mass solutions
+# ==================================================================================================
+
+@dataclass(frozen=True)
+class Drop:
+    """Exact motion of a point mass dropped from (x0, z0) [m] with horizontal speed vx [m/s] onto z = 0.
+
+    Free flight, first impact at sqrt(2 z0 / g), then: restitution 0 -> it stays on the table (sliding
+    at vx when frictionless, stopped by no-slip friction); restitution eps > 0 -> bounces with
+    eps^k of the first impact speed (frictionless only, vx kept).
+    """
+
+    z0: float
+    x0: float = 0.0
+    vx: float = 0.0
+    restitution: float = 0.0
+    no_slip: bool = False
+
+    def __post_init__(self):
+        if self.no_slip and self.restitution > 0:
+            raise ValueError("Drop: no-slip with restitution > 0 is not an exact solution written here")
+
+    @property
+    def impact_time(self) -> float:
+        """First impact [s]."""
+        return math.sqrt(2.0 * self.z0 / G)
+
+    @property
+    def v_post(self) -> np.ndarray:
+        """Velocity (2,) right after the first impact [m/s]."""
+        return np.array([0.0 if self.no_slip else self.vx, self.restitution * G * self.impact_time])
+
+    def q(self, t: np.ndarray) -> np.ndarray:
+        """Positions (P, 2) [m] at times t (P,) [s]."""
+        t = np.asarray(t, float)
+        t1 = self.impact_time
+        x = self.x0 + self.vx * (np.minimum(t, t1) if self.no_slip else t)
+        z = np.where(t < t1, self.z0 - G * t**2 / 2, 0.0)
+        start, speed = t1, self.restitution * G * t1
+        while speed > 1e-9 and start <= t.max():  # each bounce: a parabola of launch speed eps^k v1
+            flight = 2.0 * speed / G
+            inside = (t >= start) & (t < start + flight)
+            s = t[inside] - start
+            z[inside] = speed * s - G * s**2 / 2
+            start, speed = start + flight, speed * self.restitution
+        return np.column_stack([x, z])
+
+
+# ==================================================================================================
+# runs and their records
+# ==================================================================================================
+
+@dataclass(frozen=True)
+class Variant:
+    """Discretization options of one line of the plot: contact keys (a_n, ...) replacing the case's,
+    and SimulateOptions fields (strategy, rho_f, ...)."""
+
+    label: str
+    contact: dict = field(default_factory=dict)
+    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PointMassCase:
+    """A point-mass task with an exact solution: contact keys, initial state, numerical horizon tau_f [s],
+    comparison window [0, t_window] of physical time [s], the grid of steps h [s], the variants."""
+
+    name: str
+    contact: dict
+    exact: Drop
+    tau_f: float
+    t_window: float
+    hs: tuple[float, ...]
+    variants: tuple[Variant, ...] = (Variant("default"),)
+
+
+def _timed(fn, repeat: int):
+    """(last result, median wall time [s]) of `repeat` calls of fn()."""
+    times, out = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return out, statistics.median(times)
+
+
+def _options(variant: Variant) -> SimulateOptions:
+    opts = dict(variant.options)
+    if "strategy" in opts:
+        opts["strategy"] = Strategy(opts["strategy"])
+    return SimulateOptions(**opts)
+
+
+def _run_record(case: str, variant: Variant, task, result, wall: float, contact: dict) -> dict:
+    """The fields every simulation record has; errors are added by the caller."""
+    st = result.stats
+    return {"suite": "simulate", "simulator": "time-freezing", "case": case, "variant": variant.label, "h": result.h, "N": task.horizon.N,
+            "tau_f": task.horizon.tau_f, "options": {"strategy": result.strategy, "rho_f": result.rho_f, **contact,
+                                                     **{k: v for k, v in variant.options.items() if k not in ("strategy", "rho_f")}},
+            "converged": st.converged, "wall_time_s": wall, "solve_time_s": st.solve_time_s, "n_nlp": st.n_nlp,
+            "ipopt_iterations": st.ipopt_iterations, "complementarity_residual": st.complementarity_residual,
+            "physical_duration_s": result.trajectory.physical_duration, "n_impacts": len(result.trajectory.impacts)}
+
+
+def penetration(dyn: Dynamics, task, y: np.ndarray) -> float:
+    """-min over the nodes y (K, ny) and the task's contact points of the gap [m] (> 0: below the ground)."""
+    q = np.asarray(y, float)[:, : dyn.nq].T  # (nq, K): one mapped call for all nodes
+    gaps = [np.asarray(dyn.point_position(c.point).map(q.shape[1])(q))[2] - task.ground_height for c in task.contacts]
+    return float(-np.min(gaps))
+
+
+def point_mass_records(case: PointMassCase, robot, dyn: Dynamics, repeat: int, log) -> list[dict]:
+    """One record per (variant, h) of a point-mass case, errors against case.exact."""
+    ex = case.exact
+    records = []
+    for variant in case.variants:
+        contact = {"point": "point", **case.contact, **variant.contact}
+        for h in case.hs:
+            task = parse_task({"contacts": [contact], "initial": {"q": [ex.x0, ex.z0], "v": [ex.vx, 0.0]},
+                               "horizon": {"tau_f": case.tau_f, "N": round(case.tau_f / h)}})
+            result, wall = _timed(lambda: simulate(robot, task, _options(variant), dynamics=dyn), repeat)
+            rec = _run_record(case.name, variant, task, result, wall, {k: v for k, v in contact.items() if k != "point"})
+            tr = result.trajectory
+            window = tr.t <= case.t_window
+            covered = bool(tr.t[-1] >= case.t_window)  # a shorter window would understate the state error
+            first = tr.impacts[0] if tr.impacts else None
+            complete = first is not None and first.tau_end < tr.tau[-1]  # v_post is only known once the frozen interval ends
+            errors = {"state_error_m": float(np.max(np.abs(tr.q[window] - ex.q(tr.t[window])))) if covered else None,
+                      "impact_time_error_s": abs(first.time - ex.impact_time) if first else None,
+                      "v_post_error_mps": float(np.max(np.abs(first.v_post - ex.v_post))) if complete else None,
+                      "penetration_m": penetration(dyn, task, tr.y)}
+            rec.update(errors=errors, window_covered=covered, first_impact_complete=complete)
+            records.append(rec)
+            log(rec)
+    return records
+
+
+# ==================================================================================================
+# Capler under joint PD
+# ==================================================================================================
+
+@dataclass(frozen=True)
+class CaplerDrop:
+    """Capler dropped with its foot `drop` [m] above the ground while joint PD (kp [N m/rad], kd
+    [N m s/rad] on hip and knee) holds the posture (hip, knee) [rad]; no-slip friction mu."""
+
+    hs: tuple[float, ...]
+    tau_f: float
+    hold: tuple[float, float] = (0.0, 0.3)  # hip straight, knee bent: the foot 6 cm behind the hip
+    drop: float = 0.05
+    kp: float = 100.0
+    kd: float = 2.0  # the law then stays inside the 60 N m motors on both simulators (tests/test_crosscheck.py)
+    mu: float = 0.8
+    mujoco_timesteps: tuple[float, ...] = (1e-3, 5e-4, 2.5e-4, 1.25e-4)
+
+    def task(self, h: float):
+        hip, knee = self.hold
+        z_base = 0.2 * math.cos(hip) + 0.2 * math.cos(hip + knee) + self.drop  # thigh and shank are 0.2 m
+        return parse_task({"contacts": [{"point": "foot", "mu": self.mu}], "initial": {"q": [0.0, z_base, hip, knee]},
+                           "horizon": {"tau_f": self.tau_f, "N": round(self.tau_f / h)},
+                           "simulate": {"pd": {"joints": ["hip", "knee"], "kp": [self.kp] * 2, "kd": [self.kd] * 2}}})
+
+
+def _base_positions(scene, t_grid: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Base origin (P, 3) [m] at t_grid (P,) of a trajectory sampled at t (K,) with postures q (K, nq):
+    q is interpolated linearly (impacts are repeated samples with the same q, so q is continuous)."""
+    q_grid = np.column_stack([np.interp(t_grid, t, q[:, i]) for i in range(q.shape[1])])
+    return replay._planned_positions(scene, q_grid)[0]
+
+
+def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict]:
+    """Records of the Capler drop over case.hs (errors vs the fine-grid run and vs MuJoCo), plus the
+    MuJoCo timestep records, and a dict describing both references."""
+    robot = load_robot("capler")
+    dyn = Dynamics(robot)
+    h_ref = min(case.hs) / REFERENCE_REFINEMENT
+    ref_task = case.task(h_ref)
+    ref, ref_wall = _timed(lambda: simulate(robot, ref_task, dynamics=dyn), 1)
+    if not ref.stats.converged:
+        raise RuntimeError(f"the Capler reference run (h = {h_ref:g} s) did not converge: {ref.stats.message}")
+    law = pd_law(robot, ref_task)
+
+    def control(t, q, v):  # the simulation's law, evaluated at MuJoCo's state (explicit in MuJoCo)
+        return law(ref_task.simulate.controls_at(t, robot.nu), q, v)
+
+    def rollout(timestep: float):
+        scene = replay.build_scene(robot, ref_task, replay.ContactSettings(timestep=timestep))
+        return scene, replay.mujoco_rollout(scene, ref_task.initial.q, np.zeros(robot.nv), ref.trajectory.t[-1], control)
+
+    (scene, mj), mj_wall = _timed(lambda: rollout(replay.ContactSettings().timestep), repeat)
+    t_end = min(ref.trajectory.t[-1], mj["t"][-1])
+    exact_impact = math.sqrt(2.0 * case.drop / G)  # the held posture falls rigidly: the foot is ballistic
+    refs = {"capler_reference": {"h": h_ref, "N": ref_task.horizon.N, "wall_time_s": ref_wall,
+                                 "impact_time_s": ref.trajectory.impacts[0].time if ref.trajectory.impacts else None,
+                                 "n_nlp": ref.stats.n_nlp},
+            "capler_mujoco": {"timestep": replay.ContactSettings().timestep, "wall_time_s": mj_wall,
+                              "impact_time_s": float(mj["impact_times"][0]) if mj["impact_times"].size else None},
+            "capler_exact_impact_time_s": exact_impact}
+
+    def compare(t, q, impacts, t_stop, against=("ref", "mujoco")):
+        """Base error [m] on [0, t_stop] and first impact time difference [s] against the fine-grid run
+        ("ref") and the default MuJoCo rollout ("mujoco"); impact time difference to the exact one."""
+        grid = np.arange(0.0, t_stop, COMMON_GRID_S)
+        base = _base_positions(scene, grid, t, q)
+        others = {"ref": (ref.trajectory.t, ref.trajectory.q, refs["capler_reference"]["impact_time_s"]),
+                  "mujoco": (mj["t"], mj["q"], refs["capler_mujoco"]["impact_time_s"])}
+        first = impacts[0] if len(impacts) else None
+        err = {}
+        for key in against:
+            t_o, q_o, impact_o = others[key]
+            err[f"base_error_{key}_m"] = float(np.linalg.norm(base - _base_positions(scene, grid, t_o, q_o), axis=1).max())
+            err[f"impact_time_diff_{key}_s"] = abs(first - impact_o) if first is not None and impact_o is not None else None
+        err["impact_time_diff_exact_s"] = abs(first - exact_impact) if first is not None else None
+        return err
+
+    records, default = [], Variant("default", options={})
+    for h in case.hs:
+        task = case.task(h)
+        result, wall = _timed(lambda: simulate(robot, task, dynamics=dyn), repeat)
+        rec = _run_record("capler_pd_drop", default, task, result, wall, {"mu": case.mu, "a_n": task.contacts[0].a_n, "a_t": task.contacts[0].a_t})
+        tr = result.trajectory
+        errors = compare(tr.t, tr.q, tr.impact_times, min(t_end, tr.t[-1]))
+        errors["penetration_m"] = penetration(dyn, task, tr.y)
+        rec.update(errors=errors, steps_beyond_actuator_bounds=result.extra["pd"]["steps_beyond_actuator_bounds"])
+        records.append(rec)
+        log(rec)
+    for timestep in case.mujoco_timesteps:  # MuJoCo's own work-precision line, judged by the fine-grid run
+        (_, run), wall = _timed(lambda: rollout(timestep), repeat)
+        errors = compare(run["t"], run["q"], run["impact_times"], min(t_end, run["t"][-1]), against=("ref",))
+        rec = {"suite": "simulate", "simulator": "mujoco", "case": "capler_pd_drop_mujoco", "variant": "default", "h": timestep,
+               "N": len(run["t"]) - 1, "tau_f": float(run["t"][-1]), "options": {"simulator": f"mujoco {mujoco.__version__}"},
+               "converged": True, "wall_time_s": wall, "errors": errors}
+        records.append(rec)
+        log(rec)
+    return records, refs
+
+
+# ==================================================================================================
+# the suites
+# ==================================================================================================
+
+def simulate_cases(quick: bool) -> tuple[list[PointMassCase], CaplerDrop]:
+    """The point-mass cases and the Capler drop; quick: 2 grid points, short horizons (CI smoke run)."""
+    hs = (0.04, 0.02) if quick else (0.04, 0.02, 0.01, 0.005, 0.0025)
+    # tau_f leaves room for the frozen interval (longest with a_n = 25) after the impact at 0.45 s
+    drop_tau, drop_window = (0.8, 0.5) if quick else (1.2, 0.8)
+    frictionless = {"mu": 0.0, "a_n": 100.0}
+    drop = Drop(z0=1.0, vx=1.0)
+    variants = (Variant("default"), Variant("rho_f=0.1", options={"rho_f": 0.1}), Variant("rho_f=10", options={"rho_f": 10.0}),
+                Variant("a_n=25", contact={"a_n": 25.0}), Variant("a_n=400", contact={"a_n": 400.0}),
+                Variant("horizon", options={"strategy": "horizon"}))
+    # k = a_n = 16: each elastic frozen interval lasts ~0.8 s of numerical time; the window ends before
+    # the exact second impact (0.90 s), after the first apex (0.68 s); at h = 0.04 the restitution comes
+    # out low (0.2), the bounces are shorter and 3.6 s of numerical time are needed to reach t = 0.85 s
+    elastic_tau = 1.6 if quick else 3.6
+    cases = [PointMassCase("pm_drop_frictionless", frictionless, drop, drop_tau, drop_window, hs, variants),
+             PointMassCase("pm_drop_noslip", {"mu": 0.5, "a_n": 100.0, "a_t": 300.0}, Drop(z0=1.0, vx=1.0, no_slip=True),
+                           drop_tau, drop_window, hs),
+             PointMassCase("pm_drop_elastic_0.5", {"restitution": 0.5, "a_n": 16.0}, Drop(z0=1.0, restitution=0.5),
+                           elastic_tau, 0.5 if quick else 0.85, hs)]
+    capler = CaplerDrop(hs=(0.02, 0.01) if quick else (0.02, 0.01, 0.005, 0.0025), tau_f=0.2 if quick else 0.5,
+                        mujoco_timesteps=(5e-4, 2.5e-4) if quick else CaplerDrop.mujoco_timesteps)
+    return cases, capler
+
+
+def run_simulate_suite(quick: bool, repeat: int, log, cases: set[str] | None = None) -> tuple[list[dict], dict]:
+    """All simulation records and the references; `cases` restricts to case names (None: all)."""
+    pm_cases, capler = simulate_cases(quick)
+    robot = load_robot("point_mass")
+    dyn = Dynamics(robot)  # built once: its cost belongs to the robot, not to a run
+    records, refs = [], {}
+    for case in pm_cases:
+        if cases is None or case.name in cases:
+            records += point_mass_records(case, robot, dyn, repeat, log)
+    if cases is None or "capler_pd_drop" in cases:
+        capler_recs, refs = capler_records(capler, repeat, log)
+        records += capler_recs
+    return records, refs
+
+
+SUITES = {"simulate": run_simulate_suite}  # "ocp": the Capler OCP against nosnoc, later (issue 9)
+CASE_NAMES = ("pm_drop_frictionless", "pm_drop_noslip", "pm_drop_elastic_0.5", "capler_pd_drop")
+
+
+# ==================================================================================================
+# orders, machine, outputs
+# ==================================================================================================
+
+def convergence_orders(records: list[dict]) -> list[dict]:
+    """Slope of log(error) against log(h) per (case, variant, error) of the time-freezing runs, over the
+    converged runs with an error above ERROR_FLOOR (below it the error is the solver's, not the grid's)."""
+    out = []
+    tf = [r for r in records if r["simulator"] == "time-freezing" and r["converged"]]
+    for case, variant in sorted({(r["case"], r["variant"]) for r in tf}):
+        runs = [r for r in tf if (r["case"], r["variant"]) == (case, variant)]
+        for key in sorted({k for r in runs for k in r["errors"]}):
+            pts = [(r["h"], r["errors"][key]) for r in runs if r["errors"].get(key) is not None and r["errors"][key] > ERROR_FLOOR]
+            if len({h for h, _ in pts}) >= 2:
+                hs, errs = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+                out.append({"case": case, "variant": variant, "error": key, "order": float(np.polyfit(hs, errs, 1)[0]),
+                            "h": [p[0] for p in pts]})
+    return out
+
+
+def machine_info() -> dict:
+    """Platform, CPU model, core count, memory [GiB], load averages, library versions, date (UTC)."""
+    def proc_field(path: str, key: str) -> str | None:
+        try:
+            for line in Path(path).read_text().splitlines():
+                if line.startswith(key):
+                    return line.split(":", 1)[1].strip()
+        except OSError:
+            pass
+        return None
+
+    mem = proc_field("/proc/meminfo", "MemTotal")
+    return {"platform": platform.platform(), "machine": platform.machine(), "cpu_model": proc_field("/proc/cpuinfo", "model name"),
+            "cpu_count": os.cpu_count(), "memory_gib": round(int(mem.split()[0]) / 2**20, 1) if mem else None,
+            "python": platform.python_version(), "casadi": casadi.__version__, "pinocchio": pinocchio.__version__,
+            "mujoco": mujoco.__version__, "numpy": np.__version__, "matplotlib": matplotlib.__version__,
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+
+# Which error each panel of the plot shows, by case: (panel title, error key per case prefix)
+PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs fine grid", {"pm_": "state_error_m", "capler_": "base_error_ref_m"}),
+          ("impact time error [s]\npoint mass: vs sqrt(2 z0/g); Capler: vs fine grid", {"pm_": "impact_time_error_s", "capler_": "impact_time_diff_ref_s"}))
+MARKERS = "osD^vPX*hp<>"
+
+
+def plot(records: list[dict], path: Path) -> None:
+    """Log-log error against wall time: one line per (case, variant), one marker per h."""
+    fig = Figure(figsize=(12, 5))
+    FigureCanvasAgg(fig)
+    hs = sorted({r["h"] for r in records}, reverse=True)
+    marker = {h: MARKERS[i % len(MARKERS)] for i, h in enumerate(hs)}
+    lines = sorted({(r["case"], r["variant"]) for r in records}, key=lambda cv: (cv[0], cv[1] != "default", cv[1]))
+    axes = fig.subplots(1, 2)
+    for ax, (title, keys) in zip(axes, PANELS):
+        for i, (case, variant) in enumerate(lines):
+            key = next(k for prefix, k in keys.items() if case.startswith(prefix))
+            runs = sorted((r for r in records if (r["case"], r["variant"]) == (case, variant) and r["converged"]
+                           and (r["errors"].get(key) or 0) > 0), key=lambda r: -r["h"])  # refinement order
+            if not runs:
+                continue
+            color = matplotlib.colormaps["tab10"](i % 10)
+            ax.plot([r["wall_time_s"] for r in runs], [r["errors"][key] for r in runs], "-", color=color,
+                    label=case if variant == "default" else f"{case} {variant}")
+            for r in runs:
+                ax.plot(r["wall_time_s"], r["errors"][key], marker[r["h"]], color=color, markersize=6)
+        ax.set(xscale="log", yscale="log", xlabel="wall time [s]", ylabel=title.split("\n")[0])
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    h_handles = [axes[1].plot([], [], MARKERS[i % len(MARKERS)], color="gray")[0] for i, _ in enumerate(hs)]
+    fig.legend(handles + h_handles, labels + [f"h = {h:g} s" for h in hs], loc="center left", bbox_to_anchor=(0.775, 0.5), fontsize=7)
+    fig.subplots_adjust(left=0.06, right=0.77, wspace=0.22)
+    fig.savefig(path, dpi=80)
+
+
+def table(records: list[dict]) -> str:
+    """A Markdown table of the records (errors in their own units, times in s)."""
+    keys = ["state_error_m", "base_error_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
+            "impact_time_diff_mujoco_s", "impact_time_diff_exact_s", "v_post_error_mps", "penetration_m"]
+    keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
+    lines = ["| case | variant | h [s] | N | wall [s] | NLPs | " + " | ".join(keys) + " |", "|---" * (6 + len(keys)) + "|"]
+    for r in records:
+        cells = [r["case"], r["variant"], f"{r['h']:g}", str(r["N"]), f"{r['wall_time_s']:.2f}" + ("" if r["converged"] else " (failed)"),
+                 str(r.get("n_nlp", "")), *(("" if r["errors"].get(k) is None else f"{r['errors'][k]:.2e}") for k in keys)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _strict(obj):
+    """obj with numpy scalars as Python numbers and non-finite floats as None (strict JSON)."""
+    if isinstance(obj, dict):
+        return {k: _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons")
+    parser.add_argument("--json", action="store_true", help="print the summary (orders, machine, files) as JSON")
+    parser.add_argument("--suite", choices=sorted(SUITES), default="simulate")
+    parser.add_argument("--cases", nargs="+", choices=CASE_NAMES, help="run only these cases (default: all)")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per point; the wall time is their median")
+    args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error("--repeat must be >= 1")
+
+    def log(rec):  # progress on stderr: stdout keeps the table or the JSON
+        errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["errors"].items() if v is not None)
+        print(f"{rec['case']:<22} {rec['variant']:<10} h {rec['h']:<8g} {rec['wall_time_s']:7.2f} s "
+              f"{'' if rec['converged'] else 'NOT CONVERGED '}{errs}", file=sys.stderr, flush=True)
+
+    load_before = os.getloadavg()
+    start = time.perf_counter()
+    records, refs = SUITES[args.suite](args.quick, args.repeat, log, set(args.cases) if args.cases else None)
+    machine = {**machine_info(), "load_average_before": load_before, "load_average_after": os.getloadavg()}
+    orders = convergence_orders(records)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = {"command": "python -m scripts.bench_work_precision " + " ".join(argv if argv is not None else sys.argv[1:]),
+               "suite": args.suite, "quick": args.quick, "repeat": args.repeat, "total_wall_time_s": time.perf_counter() - start,
+               "machine": machine, "references": refs, "orders": orders, "records": records}
+    (args.out / "results.json").write_text(json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
+    plot(records, args.out / "work_precision.png")
+    summary = {"results": str(args.out / "results.json"), "plot": str(args.out / "work_precision.png"),
+               "n_records": len(records), "n_failed": sum(not r["converged"] for r in records),
+               "total_wall_time_s": results["total_wall_time_s"], "machine": machine, "orders": orders}
+    if args.json:
+        print(json.dumps(_strict(summary), indent=1))
+    else:
+        print(table(records))
+        print("\nconvergence orders (slope of log error vs log h):")
+        for o in orders:
+            print(f"  {o['case']:<22} {o['variant']:<10} {o['error']:<26} {o['order']:5.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
