@@ -566,6 +566,9 @@ class WalkGains:
     kd: float = 40.0
     ground_gap: float = 1e-3  # [m] the swing foot's contact switches on once the plan keeps it above -ground_gap
     sample_every: int = 4  # MuJoCo steps per control update (ZOH)
+    stance_margin: float = 1e-4  # [m] the feet's contacts act from this height above the ground (MuJoCo pair
+    #   margin): the stance foot rests ~0.1 um deep, so with margin 0 its contact drops out for single steps;
+    #   near T such a drop lets it lift off (see replay_gait). 0.1 mm keeps it engaged.
 
     def __post_init__(self):
         if self.kp < 0 or self.kd < 0 or self.ground_gap < 0 or self.sample_every < 1:
@@ -614,13 +617,19 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
     where the legs cross and, unless they cross exactly upright, stays below it until it lands
     (paper 001 ignores this scuffing). So the swing foot's contact pair is switched off (margin
     -1 m) until the plan keeps the swing foot above -ground_gap for the rest of the step -- the
-    usual stand-in for foot clearance. settings: replay.ContactSettings (default: replay's).
+    usual stand-in for foot clearance. If the plan's foot reaches the ground from below (gait 1 and 2:
+    at +1.19 m/s), its contact instead stays off until the foot reaches the ground, armed after its
+    lowest point; that is the landing. settings: replay.ContactSettings (default: no push-out
+    stiffness, see the comment below).
     trace (optional list) receives (t, step, s, measured pinned x (6,), reference x (6,)) per
     control update in LQR mode, for diagnostics.
     """
-    from .replay import build_scene, mujoco_rollout  # MuJoCo only when replaying
+    from .replay import ContactSettings, build_scene, mujoco_rollout  # MuJoCo only when replaying
 
     gains = gains or WalkGains()
+    # no push-out stiffness: with the positive stance margin, k > 0 would lift the resting foot to the
+    # margin's edge, where its contact drops out again; dead-beat damping alone holds it (0.1 um drift per step)
+    settings = settings or ContactSettings(stiffness_ratio=0.0)
     scene = build_scene(model.robot, task, settings)
     lay, N = model.layout, len(sol.u)
     T, dt = float(sol.t[-1]), float(sol.t[1] - sol.t[0])
@@ -637,6 +646,12 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
     below = np.nonzero(height[:-1] < -gains.ground_gap)[0]
     gate = float(sol.t[below[-1] + 1]) if len(below) else 0.0
     gate = min(gate, T - dt)  # at least the last step: the landing needs the contact
+    # knee-less landing from below: the plan's swing foot reaches the ground moving up (gait 1: +1.19 m/s);
+    # its contact then switches on when it reaches the ground, armed after its lowest point
+    from_below = height[N - 1] < 0.0
+    if from_below:
+        gate = float(sol.t[int(np.argmin(height))])
+    sample_s = gains.sample_every * scene.settings.timestep  # [s] one control sample
     margins = scene.model.pair_margin
 
     def feet(j):  # (stance, swing) foot names of step j
@@ -646,15 +661,21 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
         j = state["j"]
         stance, swing = feet(j)
         s = t - state["t0"]
-        if s >= gate and float(foot_pos[swing](q)[2]) < 1e-3 and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
+        swing_z = float(foot_pos[swing](q)[2])
+        if from_below:  # lands when it reaches the ground within the next control sample
+            swing_zdot = float(foot_pos[swing](q + 1e-6 * v)[2] - swing_z) / 1e-6  # [m/s]
+            lands = swing_z + sample_s * max(swing_zdot, 0.0) >= 0.0
+        else:
+            lands = swing_z < gains.ground_gap
+        if s >= gate and lands and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
             state["impacts"].append(t)
             state["j"], state["t0"], s = j + 1, t, 0.0
             j, (stance, swing) = j + 1, feet(j + 1)
         if (q[lay.z] < 0.6 or abs(q[lay.torso]) > np.pi / 2) and j < steps and not state["down"]:
             state["down"], state["fall_t"] = True, t
         # the swing foot's contact: off until the plan keeps that foot above ground (no knees, no clearance)
-        margins[pair_of[swing]] = 0.0 if s >= gate else -1.0
-        margins[pair_of[stance]] = 0.0
+        margins[pair_of[swing]] = gains.stance_margin if s >= gate and not from_below else -1.0
+        margins[pair_of[stance]] = gains.stance_margin
         k = min(int(s / dt), N - 1)
         a = min(s / dt, N) - min(int(s / dt), N)  # linear interpolation weight of the reference
         kk = min(int(s / dt), N)
