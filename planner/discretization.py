@@ -167,12 +167,14 @@ class ImplicitEulerStep:
         forces = self.forces_at(y, u) if self.mm is not None else None
         return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
 
-    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "") -> Step:
+    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "", field_scale=None) -> Step:
         """Create the step's algebraic variables and its constraints (see module docstring).
 
         y_k, y_next (ny,), u_k (nu,), s_k (scalar) are CasADi expressions (SX or MX) or numbers;
         h [s] the numerical-time step. The new variables are SX symbols unless y_next is MX.
-        `tag` is appended to the variable names (e.g. the step index).
+        `tag` is appended to the variable names (e.g. the step index). field_scale (n_fields,)
+        optionally multiplies each field's coefficient P_j (an OCP uses it to continue the auxiliary
+        gains a_n, a_t from weak to the task's values; 1 everywhere is the task's system).
         """
         sys_ = self.system
         sym = ca.MX.sym if isinstance(y_next, ca.MX) else ca.SX.sym
@@ -181,6 +183,8 @@ class ImplicitEulerStep:
         lam0, lam1 = w[self.w_blocks["lambda0"]], w[self.w_blocks["lambda1"]]
         z = ca.vertcat(1, sigma, theta)  # the monomials, in self.monomials order
         coef = ca.mtimes(ca.DM(self.C), z)
+        if field_scale is not None:
+            coef = coef * field_scale
         extra = []
         if self.mm is None:
             F = ca.mtimes(sys_.fields_fn(y_next, u_k), coef)

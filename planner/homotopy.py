@@ -1,8 +1,12 @@
 """Solve the time-freezing OCP: an l_inf (or l1) penalty homotopy of smooth NLPs (paper Sec. 5.2).
 
 `solve(problem, options)` creates IPOPT once for the Problem's NLP (rho and the hole scale are NLP
-parameters) and solves the task's homotopy rho_i = rho0 kappa^i, i = 0 .. n_nlp-1, each NLP
-warm-started from the previous one (primal x and multipliers lam_x, lam_g). Then, optionally:
+parameters) and solves the task's homotopy rho_i = rho0 kappa^i, i = 0 .. n_nlp-1 (by default
+without the values below SolveOptions.rho_min = 100 and continued up to rho_max = 1e7: weak
+penalties are exploited by cheats, and the last bit of complementarity needs rho >> 1e4), each NLP
+warm-started from the previous one (primal x and multipliers lam_x, lam_g). NLP 1 has a soft
+terminal penalty instead of the hard terminal constraint (soft_terminal_nlps). With gating, the
+selectors that the gates switch off are reset afterwards (ungate). Then, optionally:
 
 * Polish.ACTIVE_SET: one more smooth NLP in which every complementarity pair has its smaller side
   fixed to zero by bounds (for a selector: sigma = 0 with lambda1 = 0, sigma = 1 with lambda0 = 0,
@@ -48,6 +52,7 @@ class HoleSchedule(Enum):
 class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
+    HYBRID = "hybrid"  # fix only the clearly separated pairs, penalize the rest (rho = hybrid_rho), then ACTIVE_SET
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,23 @@ class SolveOptions:
     also polish when an NLP of the homotopy failed (the verdict still reports the failure); comp_tol,
     terminal_tol [m, rad], constraint_tol: the convergence verdict's thresholds; frozen_tol: the
     recovery's relative clock deficit of a frozen step.
+    rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
+    rho_min, rho_max: applied to the task's schedule (not to rho_schedule): drop the NLPs with
+    rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
+    rho_i = rho0 kappa^i past n_nlp until rho_max is reached.
+    an_schedule, at_schedule: per-NLP scale of the auxiliary gains a_n, a_t (the last value repeats;
+    needs ProblemOptions.aux_continuation; None: 1). soft_terminal_nlps: how many first NLPs replace
+    the hard terminal constraint by soft_terminal_weight ||residual||^2 in the objective.
+    hybrid_ratio, hybrid_rho: Polish.HYBRID fixes a pair only when one side exceeds the other by
+    hybrid_ratio (in the problem's units) and penalizes the others with weight hybrid_rho (l1 per
+    pair; with Penalty.LINF the slack, now free for the unfixed pairs, gets it).
+    intermediate_tol: IPOPT tol for every homotopy NLP but the last (None: tol); a loose value
+    saves the iterations IPOPT spends converging tightly at a point the next rho moves away from.
+    polish_projection: the polishing NLP minimizes ||x - x_h||^2 (x_h the point it starts from)
+    instead of the task's cost: a projection onto the fixed active set (well conditioned, and it
+    stays next to the homotopy's plan); the task's cost is not re-optimized.
+    l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
+    the last value repeats).
     """
 
     tol: float = 1e-8
@@ -84,6 +106,18 @@ class SolveOptions:
     terminal_tol: float = 1e-6
     constraint_tol: float = 1e-6
     frozen_tol: float = 1e-4
+    rho_schedule: tuple[float, ...] | None = None
+    rho_min: float | None = 100.0
+    rho_max: float | None = 1e7
+    an_schedule: tuple[float, ...] | None = None
+    at_schedule: tuple[float, ...] | None = None
+    soft_terminal_nlps: int = 1
+    soft_terminal_weight: float = 100.0
+    hybrid_ratio: float = 100.0
+    hybrid_rho: float = 1e4
+    l1_schedule: tuple[float, ...] | None = None
+    polish_projection: bool = False
+    intermediate_tol: float | None = None
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish)):
@@ -110,10 +144,12 @@ class SolveOptions:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
 
 
-def ipopt_options(options: SolveOptions, warm: bool) -> dict:
-    """CasADi nlpsol options for IPOPT (a cold solver for NLP 1, a warm one for the rest)."""
+def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dict:
+    """CasADi nlpsol options for IPOPT (a cold solver for NLP 1, a warm one for the rest; loose:
+    an intermediate homotopy NLP solved to options.intermediate_tol)."""
+    tol = options.intermediate_tol if (loose and options.intermediate_tol is not None) else options.tol
     ip = {
-        "tol": options.tol, "acceptable_tol": options.acceptable_tol, "max_iter": options.max_iter,
+        "tol": tol, "acceptable_tol": max(options.acceptable_tol, tol), "max_iter": options.max_iter,
         "print_level": options.print_level, "sb": "yes", "linear_solver": options.linear_solver,
         "mu_strategy": options.mu_strategy.value, "mu_init": options.mu_init,
         "bound_push": options.bound_push, "bound_frac": options.bound_frac,
@@ -137,13 +173,30 @@ class _Solvers:
     def __init__(self, problem: Problem, options: SolveOptions):
         self.nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
         self.options, self.cache, self.setup_time_s = options, {}, 0.0
+        self.problem = problem
 
-    def get(self, warm: bool):
+    def projection(self):
+        """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
+        if "projection" not in self.cache:
+            t0 = time.perf_counter()
+            pb = self.problem
+            xref = ca.SX.sym("x_ref", pb.nx)
+            d = pb.x - xref
+            nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
+            opts = ipopt_options(self.options, False)
+            opts["ipopt"].update(mu_init=1e-4, bound_push=1e-6, bound_frac=1e-6)  # start next to x_ref
+            self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
+            self.setup_time_s += time.perf_counter() - t0
+        return self.cache["projection"]
+
+    def get(self, warm: bool, loose: bool = False):
         need_two = self.options.warm_mu_init is not None
-        key = warm and need_two
+        loose = loose and self.options.intermediate_tol is not None
+        key = (warm and need_two) if not loose else ("loose_warm" if warm and need_two else "loose")
         if key not in self.cache:
             t0 = time.perf_counter()
-            self.cache[key] = ca.nlpsol("tf_ocp_warm" if key else "tf_ocp", "ipopt", self.nlp, ipopt_options(self.options, warm))
+            name = key if isinstance(key, str) else "warm" if key else "cold"
+            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.nlp, ipopt_options(self.options, warm, loose))
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]
 
@@ -161,18 +214,47 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     x, lam_x, lam_g = problem.x0.copy(), None, None
     records: list[NlpRecord] = []
     timings = {"build_s": problem.build_time_s}
-    for i in range(hom.n_nlp):
-        rho = hom.rho0 * hom.kappa**i
-        scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and hom.n_nlp > 1) else 1.0
-        x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, rho, scale, problem.lbx, problem.ubx, f"homotopy {i + 1}")
+    rhos = list(options.rho_schedule) if options.rho_schedule else task_rho_schedule(hom, options.rho_min, options.rho_max)
+    n_nlp = len(rhos)
+
+    def sched(values, i):
+        return 1.0 if not values else float(values[min(i, len(values) - 1)])
+
+    term_rows = problem.g_blocks["terminal"].ravel()
+    for i, rho in enumerate(rhos):
+        scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
+        soft = i < options.soft_terminal_nlps
+        lbg, ubg = problem.lbg, problem.ubg
+        if soft:
+            lbg, ubg = lbg.copy(), ubg.copy()
+            lbg[term_rows], ubg[term_rows] = -np.inf, np.inf
+        p = problem.params(rho, scale, sched(options.an_schedule, i), sched(options.at_schedule, i),
+                           options.soft_terminal_weight if soft else 0.0,
+                           float(options.l1_schedule[min(i, len(options.l1_schedule) - 1)]) if options.l1_schedule else 0.0)
+        x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, p, problem.lbx, problem.ubx, f"homotopy {i + 1}", lbg, ubg,
+                                    loose=i < n_nlp - 1)
         records.append(rec)
         if progress:
             progress(rec)
     homotopy_ok = all(r.success for r in records)
     polished = False
-    if options.polish is Polish.ACTIVE_SET and (homotopy_ok or options.polish_after_failure):
+    if "gates" in problem.notes:
+        x = ungate(problem, x)
+    if options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
+        if options.polish is Polish.HYBRID:
+            lbx, ubx, x_fixed = active_set_bounds(problem, x, options.hybrid_ratio)
+            xh, lxh, lgh, rec = _run(problem, solvers, x_fixed, lam_x, lam_g, problem.params(options.hybrid_rho, 1.0, rho_l1=0.0 if "s_c" in problem.var_blocks else options.hybrid_rho),
+                                        lbx, ubx, "hybrid")
+            records.append(rec)
+            if progress:
+                progress(rec)
+            if rec.success:
+                x, lam_x, lam_g = xh, lxh, lgh
+                if "gates" in problem.notes:
+                    x = ungate(problem, x)
         lbx, ubx, x_fixed = active_set_bounds(problem, x)
-        xp, lxp, lgp, rec = _run(problem, solvers, x_fixed, lam_x, lam_g, 0.0, 1.0, lbx, ubx, "polish")
+        xp, lxp, lgp, rec = _run(problem, solvers, x_fixed, lam_x, lam_g, problem.params(0.0, 1.0), lbx, ubx, "polish",
+                                 projection=options.polish_projection)
         records.append(rec)
         if progress:
             progress(rec)
@@ -187,10 +269,28 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     return result
 
 
-def _run(problem, solvers, x0, lam_x, lam_g, rho, hole_scale, lbx, ubx, label):
+def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None = None) -> list[float]:
+    """rho0 kappa^i for i < n_nlp, continued while <= rho_max, without the values below rho_min
+    (at least the last one is kept)."""
+    rhos = [hom.rho0 * hom.kappa**i for i in range(hom.n_nlp)]
+    if rho_max is not None and hom.kappa > 1:
+        while rhos[-1] * hom.kappa <= rho_max * (1 + 1e-12):
+            rhos.append(rhos[-1] * hom.kappa)
+    if rho_min is not None:
+        rhos = [r for r in rhos if r >= rho_min * (1 - 1e-12)] or rhos[-1:]
+    return rhos
+
+
+def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
-    solver = solvers.get(warm)
-    args = {"x0": x0, "p": problem.params(rho, hole_scale), "lbx": lbx, "ubx": ubx, "lbg": problem.lbg, "ubg": problem.ubg}
+    solver = solvers.projection() if projection else solvers.get(warm, loose)
+    if projection:
+        lam_x, lam_g, warm = None, None, False
+        p = np.concatenate([np.asarray(x0, float), p])
+    rho, hole_scale = float(p[-6]), float(p[-5])
+    lbg = problem.lbg if lbg is None else lbg
+    ubg = problem.ubg if ubg is None else ubg
+    args = {"x0": x0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
     if warm:
         args.update(lam_x0=lam_x, lam_g0=lam_g)
     t0 = time.perf_counter()
@@ -198,8 +298,10 @@ def _run(problem, solvers, x0, lam_x, lam_g, rho, hole_scale, lbx, ubx, label):
     wall = time.perf_counter() - t0
     st = solver.stats()
     x = np.asarray(sol["x"], float).ravel()
+    gp = problem.notes.get("gated_products")
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
-                    complementarity_residual=problem.complementarity_residual(x), iterations=int(st.get("iter_count", 0)),
+                    complementarity_residual=(float(np.max(np.abs(np.asarray(gp(x), float)), initial=0.0)) if gp is not None
+                                              else problem.complementarity_residual(x)), iterations=int(st.get("iter_count", 0)),
                     time_s=wall, status=str(st.get("return_status", "")), success=bool(st.get("success", False)),
                     terminal_error=terminal_error(problem, x))
     return x, np.asarray(sol["lam_x"], float).ravel(), np.asarray(sol["lam_g"], float).ravel(), rec
@@ -211,18 +313,53 @@ def _ipopt_timing(solvers) -> dict:
     for key, s in solvers.cache.items():
         st = s.stats()
         evals = {k[len("t_wall_"):]: float(v) for k, v in st.items() if k.startswith("t_wall_") and k != "t_wall_total"}
-        out["ipopt_last_call_" + ("warm" if key else "cold")] = {"total_s": float(st.get("t_wall_total", 0.0)), **evals}
+        out["ipopt_last_call_" + (key if isinstance(key, str) else "warm" if key else "cold")] = {"total_s": float(st.get("t_wall_total", 0.0)), **evals}
     return out
 
 
-def active_set_bounds(problem: Problem, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ungate(problem: Problem, x, tol: float = 1e-6) -> np.ndarray:
+    """ProblemOptions.gating: at every step whose gate of a selector is <= tol (the selector does not
+    act on F there), reset that selector and its multipliers to theta(h) of the step's own switching
+    value h = lambda1 - lambda0 (stationarity) and recompute the lifted products. The state trajectory
+    and every equality constraint stay as they are; only irrelevant algebraic variables change."""
+    x = np.array(x, float).ravel()
+    gates = np.asarray(problem.notes["gates"](x), float).ravel()
+    b = problem.builder
+    n = problem.system.n_sigma
+    for k in range(problem.N):
+        wk = problem.var_blocks["w"][k]
+        w = x[wk]
+        sig, l0, l1 = w[b.w_blocks["sigma"]].copy(), w[b.w_blocks["lambda0"]].copy(), w[b.w_blocks["lambda1"]].copy()
+        g = gates[k * 2 * n : k * 2 * n + n]
+        changed = False
+        for i in range(n):
+            if g[i] <= tol:
+                hv = l1[i] - l0[i]
+                sig[i] = 1.0 if hv > 0 else 0.0 if hv < 0 else np.clip(sig[i], 0.0, 1.0)
+                l1[i], l0[i] = max(hv, 0.0), max(-hv, 0.0)
+                changed = True
+        if changed:
+            forces = w[b.w_blocks["forces"]] if "forces" in b.w_blocks else None
+            x[wk] = b.w_from(sig, l0, l1, forces)
+    return x
+
+
+def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bounds that fix the smaller side of every complementarity pair to zero (module docstring),
-    the l_inf slack to 0, and x clipped into them. Returns (lbx, ubx, x)."""
+    the l_inf slack to 0, and x clipped into them. Returns (lbx, ubx, x). With `ratio`, a selector's
+    pairs are fixed only when clearly separated (the kept side >= ratio x the fixed side, or both
+    multipliers below 1e-8 for an interior selector); the others stay free (Polish.HYBRID)."""
     x = np.asarray(x, float).ravel()
     lbx, ubx = problem.lbx.copy(), problem.ubx.copy()
     sig, l0, l1 = (problem.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
     for js, j0, j1 in zip(sig.ravel(), l0.ravel(), l1.ravel()):
         s = x[js]  # the sides are compared in the problem's own (scaled) units: the products the penalty saw
+        if ratio is not None:
+            lo_ok = x[j0] >= ratio * s and x[j1] <= 1e-8 and s <= 0.5
+            hi_ok = x[j1] >= ratio * (1.0 - s) and x[j0] <= 1e-8 and s > 0.5
+            mid_ok = x[j0] <= 1e-8 and x[j1] <= 1e-8 and 1e-3 < s < 1 - 1e-3
+            if not (lo_ok or hi_ok or mid_ok):
+                continue
         if x[j0] >= s and s <= 0.5:
             lbx[js] = ubx[js] = 0.0
             lbx[j1] = ubx[j1] = 0.0
@@ -231,7 +368,7 @@ def active_set_bounds(problem: Problem, x) -> tuple[np.ndarray, np.ndarray, np.n
             lbx[j0] = ubx[j0] = 0.0
         else:
             lbx[j0] = ubx[j0] = lbx[j1] = ubx[j1] = 0.0
-    if "s_c" in problem.var_blocks:
+    if "s_c" in problem.var_blocks and ratio is None:  # the hybrid stage keeps the l_inf slack for its free pairs
         j = problem.var_blocks["s_c"][0]
         lbx[j] = ubx[j] = 0.0
     return lbx, ubx, np.clip(x, lbx, ubx)
@@ -273,7 +410,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
-    homotopy = [r for r in records if r.label != "polish"]
+    homotopy = [r for r in records if r.label not in ("polish", "hybrid")]  # polishing stages are accepted only on success
     failed = [r.label for r in homotopy if not r.success]
     reasons = []
     if failed:
@@ -303,5 +440,5 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
 def _plain(opts) -> dict:
     out = {}
     for k, v in vars(opts).items():
-        out[k] = v.value if isinstance(v, Enum) else [list(e) for e in v] if isinstance(v, tuple) else v
+        out[k] = v.value if isinstance(v, Enum) else [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v
     return out

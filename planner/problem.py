@@ -73,9 +73,10 @@ class Penalty(Enum):
 class ProblemOptions:
     """Formulation choices of the OCP (numbers in docs/formulation.md, "OCP and solve").
 
-    penalty: L1 (default) or LINF. The paper's LINF lets every product below the slack float to the
-      barrier's centre (both multipliers of a selector positive at once), which measured stuck on
-      a cheat in every case tried; L1 prices each pair (docs/formulation.md, "OCP and solve").
+    penalty: LINF (default, the paper's) or L1. Ungated, LINF let every product below the slack float
+      to the barrier's centre and measured stuck on a contact-mode "flight"; with gating (default)
+      that degeneracy is gone and LINF + gating is the only combination measured to converge on
+      Capler (docs/formulation.md, "OCP and solve"); L1 prices each pair.
     switch_scale: (function, scale) pairs dividing a switching function in the stationarity
       condition, keyed by Switch.function ("n^T v", "c(q)", "phi", "t^T v"); theta(h / a) = theta(h),
       so the solution is the same and only the multipliers lambda0, lambda1 shrink by a. phi is
@@ -84,16 +85,26 @@ class ProblemOptions:
     terminal_velocity: also impose v_N = target_v (zeros when the task omits it); the paper imposes
       q only.
     clock_guess_running: initial clock guess t = tau (running) instead of y_0's t = 0.
+    gating: multiply the penalty's products of the alpha and zeta pairs by (1 - beta) and of the
+      gamma pair by (1 - beta) alpha (the lifted product): F depends on alpha, zeta only through
+      (1 - beta) and on gamma only through (1 - beta) alpha, so the gated problem has the same state
+      trajectories (the irrelevant selectors are reset by homotopy.ungate afterwards). Removes the
+      flight-phase degeneracy. The reported complementarity residual is always the ungated one.
+    aux_continuation: multiply the auxiliary fields a_n, a_t by the NLP parameters an_scale,
+      at_scale (Problem.params), so the solver can start with weak auxiliary gains (a wrong zeta
+      or alpha then buys little free propulsion) and continue to the task's gains (scale 1).
     step_form: StepForm of the implicit Euler steps; MASS_MATRIX (default) keeps M(q)^-1 out of the
       derivatives (the friction cone then uses the step's force variables lambda_n, lambda_t).
     """
 
-    penalty: Penalty = Penalty.L1
+    penalty: Penalty = Penalty.LINF
     step_form: StepForm = StepForm.MASS_MATRIX
     switch_scale: tuple[tuple[str, float], ...] = ()
     friction_cone: bool = True
     terminal_velocity: bool = True
     clock_guess_running: bool = False
+    gating: bool = True
+    aux_continuation: bool = False
 
     def __post_init__(self):
         if not isinstance(self.step_form, StepForm):
@@ -165,9 +176,13 @@ class Problem:
     def ng(self) -> int:
         return self.g.shape[0]
 
-    def params(self, rho: float, hole_scale: float = 1.0) -> np.ndarray:
-        """The parameter vector p (2,) for penalty rho and hole scale r."""
-        return np.array([rho, hole_scale], dtype=float)
+    def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
+               terminal_weight: float = 0.0, rho_l1: float = 0.0) -> np.ndarray:
+        """The parameter vector p (5,): penalty rho, hole scale r, auxiliary gain scales (only with
+        ProblemOptions.aux_continuation), soft-terminal weight (objective + w ||terminal residual||^2;
+        the solver relaxes the hard terminal rows when it uses w > 0), and with Penalty.LINF an extra
+        l1 weight rho_l1 on the sum of the (gated) products (0: the pure l_inf penalty)."""
+        return np.array([rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1], dtype=float)
 
     def complementarity_residual(self, x) -> float:
         """max over all pairs of a * b at x, in unscaled units (the switching functions' own)."""
@@ -231,7 +246,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         var_blocks["s_c"] = np.array([nx - 1])
 
     rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
-    P = ca.vertcat(rho, hole_scale)
+    an_scale, at_scale, term_w = ca.SX.sym("an_scale"), ca.SX.sym("at_scale"), ca.SX.sym("terminal_weight")
+    rho_l1 = ca.SX.sym("rho_l1")
+    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1)
+    field_scale = None
+    if options.aux_continuation:
+        field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
+                                   for f in system.fields])
 
     u_lo, u_hi = (robot.u_lower, robot.u_upper) if plan.u_bound is None else (np.full(nu, -plan.u_bound), np.full(nu, plan.u_bound))
     q_lo, q_hi = task.q_bounds(robot)
@@ -288,7 +309,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         uk = ca.SX.sym(f"u_{k}", nu)
         sk = ca.SX.sym(f"s_{k}") if timed else 1.0
         yk = ca.SX.sym(f"y_{k + 1}", ny)
-        step = builder.build(y_prev, yk, uk, sk, h, tag=f"_{k}")
+        step = builder.build(y_prev, yk, uk, sk, h, tag=f"_{k}", field_scale=field_scale)
         wk = step.w
         x_parts += [uk] + ([sk] if timed else []) + [yk, wk]
         for name in step_blocks:
@@ -315,7 +336,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         b = 1 - X[pr.b] if pr.b_upper else X[pr.b]
         prods.append(X[pr.a] * b)
     prods = ca.vertcat(*prods)
-    n_pairs = prods.shape[0]
+    gates = _gates(system, builder, var_blocks, X, N) if options.gating else None
+    pen_prods = prods * gates if gates is not None else prods
     pair_scale = np.tile(np.concatenate([switch_scale, switch_scale]), N)
 
     g_list, lbg, ubg, g_blocks = [], [], [], {}
@@ -344,17 +366,19 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if options.terminal_velocity:
         target_v = np.zeros(nv) if plan.target_v is None else np.array(plan.target_v, float)
         add("terminal", [y_N[: nq + nv]], np.concatenate([target_q, target_v]), np.concatenate([target_q, target_v]))
+        term_res = y_N[: nq + nv] - np.concatenate([target_q, target_v])
     else:
         add("terminal", [y_N[:nq]], target_q, target_q)
+        term_res = y_N[:nq] - target_q
     if timed:
         add("physical_time", [y_N[ny - 1]], hz.physical_time, hz.physical_time)
     if linf:
-        add("penalty", [X[nx - 1] - prods[k * 2 * n_sig : (k + 1) * 2 * n_sig] for k in range(N)], 0.0, np.inf)
-        penalty = rho * X[nx - 1]
+        add("penalty", [X[nx - 1] - pen_prods[k * 2 * n_sig : (k + 1) * 2 * n_sig] for k in range(N)], 0.0, np.inf)
+        penalty = rho * X[nx - 1] + rho_l1 * ca.sum1(pen_prods)
     else:
-        penalty = rho * ca.sum1(prods)
+        penalty = rho * ca.sum1(pen_prods)
 
-    f = control_cost + selector_cost + penalty
+    f = control_cost + selector_cost + penalty + term_w * ca.dot(term_res, term_res)
     names = []
     for k in range(N):
         names += [f"u[{i}]_{k}" for i in range(nu)]
@@ -377,6 +401,10 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         if timed:
             x0[var_blocks["s"][k]] = 1.0
     products = ca.Function("products", [X], [prods * ca.DM(pair_scale)], ["x"], ["ab"])
+    notes = {}
+    if gates is not None:
+        notes["gated_products"] = ca.Function("gated_products", [X], [pen_prods * ca.DM(pair_scale)], ["x"], ["ab"])
+        notes["gates"] = ca.Function("gates", [X], [gates], ["x"], ["gate"])
     parts = {
         "control": ca.Function("control_cost", [X, P], [control_cost]),
         "selectors": ca.Function("selector_cost", [X, P], [selector_cost]),
@@ -387,4 +415,33 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
                    x=X, p=P, f=f, g=ca.vertcat(*g_list), lbx=lbx, ubx=ubx, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg),
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=g_blocks, pairs=tuple(pairs),
-                   pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start)
+                   pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
+                   notes=notes)
+
+
+def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X, N) -> ca.SX:
+    """(n_pairs,) gate of every pair in Problem.pairs order (ProblemOptions.gating): 1 - beta for the
+    alpha and zeta pairs, (1 - beta) alpha for the gamma pair (via the lifted alpha*beta when it
+    exists), 1 for beta and for the selectors of elastic contacts."""
+    names = [s.name for s in system.switches]
+    mono = {m: j for j, m in enumerate(builder.lifted)}
+    out = []
+    for k in range(N):
+        sig, th = var_blocks["sigma"][k], var_blocks["theta"][k]
+        stage = []
+        for i, sw in enumerate(system.switches):
+            model = system.models[[c.point for c in system.contacts].index(sw.contact)]
+            kind = sw.name.split("[")[0]
+            if model is ContactModel.ELASTIC or kind not in ("alpha", "gamma", "zeta"):
+                stage.append(1)
+                continue
+            ib, ia = names.index(f"beta[{sw.contact}]"), names.index(f"alpha[{sw.contact}]")
+            one_minus_beta = 1 - X[sig[ib]]
+            if kind == "gamma":
+                key = tuple(sorted((ia, ib)))
+                ab = X[th[mono[key]]] if key in mono else X[sig[ia]] * X[sig[ib]]
+                stage.append(X[sig[ia]] - ab)
+            else:
+                stage.append(one_minus_beta)
+        out += stage + stage  # lambda0 pairs, then lambda1 pairs, same gates
+    return ca.vertcat(*out)

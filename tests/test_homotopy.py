@@ -34,8 +34,9 @@ def test_point_mass_hop_converges(hop):
     assert res.polished
     assert res.stats.complementarity_residual <= COMP_TOL
     assert res.terminal_error <= TERMINAL_TOL
-    assert len(records) == len(res.nlps) == prob.task.plan.homotopy.n_nlp + 1
-    assert [r.rho for r in records[:-1]] == [1.0, 10.0, 100.0, 1000.0, 10000.0]
+    assert len(records) == len(res.nlps) == len(H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e7)) + 1
+    # the task's rho0 kappa^i without the rho < rho_min = 100 and continued to rho_max = 1e7 (SolveOptions)
+    assert [r.rho for r in records[:-1]] == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
 
 
 def test_point_mass_hop_phases(hop):
@@ -77,3 +78,58 @@ def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
+
+
+def test_gating_and_ungate_keep_the_trajectory():
+    """ProblemOptions.gating: the penalty's products of alpha/zeta are weighted by 1 - beta and of
+    gamma by (1 - beta) alpha; ungate resets the selectors a gate switches off to theta(h) without
+    changing any constraint value (the state trajectory stays)."""
+    from planner.problem import ProblemOptions
+    robot = load_robot("robots/point_mass.xml")
+    prob = build_problem(robot, hop_task(N=3), ProblemOptions(gating=True))
+    x = prob.x0.copy()
+    names = [s.name.split("[")[0] for s in prob.system.switches]
+    sig = prob.var_blocks["sigma"][0]
+    b = prob.builder
+    w = x[prob.var_blocks["w"][0]]
+    sigma = w[b.w_blocks["sigma"]].copy()
+    sigma[names.index("beta")] = 1.0  # flight at step 0: alpha, gamma, zeta do not act
+    sigma[names.index("alpha")] = 0.3
+    x[prob.var_blocks["w"][0]] = b.w_from(sigma, w[b.w_blocks["lambda0"]], w[b.w_blocks["lambda1"]], w[b.w_blocks["forces"]])
+    gates = np.asarray(prob.notes["gates"](x), float).ravel()
+    n = prob.system.n_sigma
+    assert gates[names.index("alpha")] == 0 and gates[names.index("zeta")] == 0 and gates[names.index("beta")] == 1
+    g_before = np.asarray(H._g_fn(prob)(x, prob.params(0.0)), float).ravel()
+    xu = H.ungate(prob, x)
+    rows = np.concatenate([prob.g_blocks[b].ravel() for b in ("dynamics", "stationarity")])
+    g_after = np.asarray(H._g_fn(prob)(xu, prob.params(0.0)), float).ravel()
+    assert np.allclose(g_after[rows], g_before[rows], atol=1e-12)
+    assert np.allclose(g_after[prob.g_blocks["lifting"].ravel()], 0.0, atol=1e-12)  # lifted products recomputed
+    prods = np.asarray(prob.products(xu), float).ravel()[: 2 * n]
+    ia, iz = names.index("alpha"), names.index("zeta")
+    assert np.all(np.abs(prods[[ia, iz, n + ia, n + iz]]) <= 1e-12)
+    assert len(gates) == 2 * n * prob.N
+
+
+def test_aux_continuation_scale_one_is_the_task():
+    """ProblemOptions.aux_continuation with an_scale = at_scale = 1 gives the task's constraints."""
+    from planner.problem import ProblemOptions
+    robot = load_robot("robots/point_mass.xml")
+    a = build_problem(robot, hop_task(N=3))
+    b = build_problem(robot, hop_task(N=3), ProblemOptions(aux_continuation=True))
+    rng = np.random.default_rng(0)
+    x = a.x0 + 0.1 * rng.standard_normal(a.nx)
+    ga = np.asarray(H._g_fn(a)(x, a.params(1.0)), float).ravel()
+    gb = np.asarray(H._g_fn(b)(x, b.params(1.0)), float).ravel()
+    assert np.allclose(ga, gb)
+    gh = np.asarray(H._g_fn(b)(x, b.params(1.0, 1.0, 0.5, 0.5)), float).ravel()
+    assert not np.allclose(ga, gh)
+
+
+def test_task_rho_schedule():
+    """rho_min drops the weak penalties, rho_max continues the task's geometric schedule."""
+    from types import SimpleNamespace
+    hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
+    assert H.task_rho_schedule(hom) == [1.0, 10.0, 100.0, 1000.0, 10000.0]
+    assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
+    assert H.task_rho_schedule(hom, 1e9) == [1e4]

@@ -56,8 +56,9 @@ def test_plan_without_plan_table_is_bad_input(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="experimental: the full Capler task does not converge yet from the hint-free start "
-                          "(docs/formulation.md, 'OCP and solve')", strict=False)
+@pytest.mark.xfail(reason="experimental: with the default recipe (l_inf + gating, rho 1e2..1e7) Capler N = 50 converges, "
+                          "the full task's NLPs 1-5 converge, the complete run (> 4 min) is not measured yet "
+                          "(docs/formulation.md, 'OCP and solve', round 2)", strict=False)
 def test_capler_default_task(tmp_path):
     """The paper's hopper over three holes: every NLP converges, complementarity and terminal error
     <= 1e-6, several hops."""
@@ -67,6 +68,32 @@ def test_capler_default_task(tmp_path):
     from planner.task import load_task
 
     robot, task = load_robot("robots/capler.xml"), load_task("robots/capler.toml")
-    res = solve(build_problem(robot, task), SolveOptions(max_iter=500))
+    res = solve(build_problem(robot, task), SolveOptions())
     assert res.stats.converged, res.stats.message
+    assert all(r.success for r in res.nlps if r.label.startswith("homotopy"))
+    assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
+    assert res.constraint_violation["holes"] <= 1e-6
+    assert len(res.hops) >= 3
+
+
+@pytest.mark.slow
+def test_capler_coarse_no_holes_converges():
+    """The default recipe on a coarser Capler task (N = 50, h = 0.05, no holes) from the hint-free
+    start: every homotopy NLP converges, the active-set polish gives exact complementarity, the
+    terminal error is <= 1e-6, several hops (measured 80 s, docs/formulation.md round 2)."""
+    import dataclasses
+
+    from planner.homotopy import SolveOptions, solve
+    from planner.model import load_robot
+    from planner.problem import build_problem
+    from planner.task import load_task
+
+    robot, task = load_robot("robots/capler.xml"), load_task("robots/capler.toml")
+    task = dataclasses.replace(task, plan=dataclasses.replace(task.plan, holes=()),
+                               horizon=dataclasses.replace(task.horizon, N=50))
+    res = solve(build_problem(robot, task), SolveOptions())
+    assert res.stats.converged, res.stats.message
+    assert all(r.success for r in res.nlps if r.label.startswith("homotopy"))
+    assert res.polished
+    assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
     assert len(res.hops) >= 3

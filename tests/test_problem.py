@@ -38,8 +38,8 @@ def test_blocks_sizes_and_bounds(capler_small):
     assert prob.var_blocks["u"].shape == (N, nu)
     assert prob.var_blocks["y"].shape == (N, ny)
     assert prob.var_blocks["w"].shape == (N, nw)
-    assert "s" not in prob.var_blocks and "s_c" not in prob.var_blocks  # no physical horizon, L1 penalty
-    assert prob.nx == N * (nu + ny + nw) == len(prob.var_names) == len(prob.lbx) == len(prob.x0)
+    assert "s" not in prob.var_blocks and "s_c" in prob.var_blocks  # no physical horizon, l_inf slack (default)
+    assert prob.nx == N * (nu + ny + nw) + 1 == len(prob.var_names) == len(prob.lbx) == len(prob.x0)
     u = prob.var_blocks["u"]
     assert np.all(prob.lbx[u] == -60) and np.all(prob.ubx[u] == 60)
     hip = robot.dof_index("hip")
