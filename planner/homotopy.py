@@ -72,7 +72,10 @@ class SolveOptions:
     rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
     rho_min, rho_max: applied to the task's schedule (not to rho_schedule): drop the NLPs with
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
-    rho_i = rho0 kappa^i past n_nlp until rho_max is reached.
+    rho_i = rho0 kappa^i past n_nlp until rho_max is reached. rho_refine: extra penalties sorted into
+    the task's schedule: the honest hopping motion appears between rho = 1e3 and 1e4, where a step
+    of kappa = 10 left NLP 3 at its iteration cap on the full Capler task while 3e3 in between let
+    every NLP converge (docs/formulation.md, "OCP and solve", round 3).
     an_schedule, at_schedule: per-NLP scale of the auxiliary gains a_n, a_t (the last value repeats;
     needs ProblemOptions.aux_continuation; None: 1). soft_terminal_nlps: how many first NLPs replace
     the hard terminal constraint by soft_terminal_weight ||residual||^2 in the objective.
@@ -109,6 +112,7 @@ class SolveOptions:
     rho_schedule: tuple[float, ...] | None = None
     rho_min: float | None = 100.0
     rho_max: float | None = 1e7
+    rho_refine: tuple[float, ...] = (3e3,)
     an_schedule: tuple[float, ...] | None = None
     at_schedule: tuple[float, ...] | None = None
     soft_terminal_nlps: int = 1
@@ -214,7 +218,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     x, lam_x, lam_g = problem.x0.copy(), None, None
     records: list[NlpRecord] = []
     timings = {"build_s": problem.build_time_s}
-    rhos = list(options.rho_schedule) if options.rho_schedule else task_rho_schedule(hom, options.rho_min, options.rho_max)
+    rhos = list(options.rho_schedule) if options.rho_schedule else task_rho_schedule(hom, options.rho_min, options.rho_max, options.rho_refine)
     n_nlp = len(rhos)
 
     def sched(values, i):
@@ -269,16 +273,18 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     return result
 
 
-def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None = None) -> list[float]:
+def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None = None,
+                      refine: tuple[float, ...] = ()) -> list[float]:
     """rho0 kappa^i for i < n_nlp, continued while <= rho_max, without the values below rho_min
-    (at least the last one is kept)."""
+    (at least the last one is kept); each value of `refine` inside that range is sorted in."""
     rhos = [hom.rho0 * hom.kappa**i for i in range(hom.n_nlp)]
     if rho_max is not None and hom.kappa > 1:
         while rhos[-1] * hom.kappa <= rho_max * (1 + 1e-12):
             rhos.append(rhos[-1] * hom.kappa)
     if rho_min is not None:
         rhos = [r for r in rhos if r >= rho_min * (1 - 1e-12)] or rhos[-1:]
-    return rhos
+    inside = [r for r in refine if rhos[0] < r < rhos[-1] and all(abs(r - x) > 1e-9 * x for x in rhos)]
+    return sorted(rhos + inside)
 
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):

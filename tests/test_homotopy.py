@@ -34,9 +34,9 @@ def test_point_mass_hop_converges(hop):
     assert res.polished
     assert res.stats.complementarity_residual <= COMP_TOL
     assert res.terminal_error <= TERMINAL_TOL
-    assert len(records) == len(res.nlps) == len(H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e7)) + 1
+    assert len(records) == len(res.nlps) == len(H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e7, (3e3,))) + 1
     # the task's rho0 kappa^i without the rho < rho_min = 100 and continued to rho_max = 1e7 (SolveOptions)
-    assert [r.rho for r in records[:-1]] == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
+    assert [r.rho for r in records[:-1]] == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
 
 
 def test_point_mass_hop_phases(hop):
@@ -127,9 +127,11 @@ def test_aux_continuation_scale_one_is_the_task():
 
 
 def test_task_rho_schedule():
-    """rho_min drops the weak penalties, rho_max continues the task's geometric schedule."""
+    """rho_min drops the weak penalties, rho_max continues the task's geometric schedule, refine
+    sorts extra values in (only inside the schedule's range)."""
     from types import SimpleNamespace
     hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
     assert H.task_rho_schedule(hom) == [1.0, 10.0, 100.0, 1000.0, 10000.0]
     assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     assert H.task_rho_schedule(hom, 1e9) == [1e4]
+    assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
