@@ -156,7 +156,13 @@ def _write(args, result, out: Path) -> Path:
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
-    plot_results(target)
+    try:
+        plot_results(target)
+    except InputError as exc:
+        if result.stats.converged:
+            raise
+        # a failed solve's iterate need not be a physical trajectory (e.g. its clock may run back)
+        _progress(args, f"plots skipped for the failed run: {exc}")
     return target
 
 

@@ -121,3 +121,22 @@ def test_missing_default_task(tmp_path, capsys):
     robot = tmp_path / "lonely.xml"
     robot.write_text((Path(__file__).resolve().parent.parent / "robots" / "point_mass.xml").read_text())
     _one_line_exit_2(capsys, ["simulate", str(robot)], "no task file beside")
+
+
+def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
+    """An infeasible plan (target 50 m away with |u| <= 1 N in 0.2 s) exits 1, writes its diagnostics
+    under DIR/failed, and leaves the results already in DIR byte for byte intact."""
+    task = tmp_path / "far.toml"
+    task.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                    '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = {"summary.json": b'{"converged": true}', "trajectory.npz": b"earlier result"}
+    for name, data in earlier.items():
+        (out / name).write_bytes(data)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(out), "--no-validate", "--json"]) == 1
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["converged"] is False
+    for name, data in earlier.items():
+        assert (out / name).read_bytes() == data
+    assert json.loads((out / "failed" / "summary.json").read_text())["converged"] is False
