@@ -57,8 +57,8 @@ def test_plan_without_plan_table_is_bad_input(tmp_path, capsys):
 
 @pytest.mark.slow
 @pytest.mark.xfail(reason="experimental: with the default recipe (l_inf + gating, rho 1e2..1e7) Capler N = 50 converges, "
-                          "the full task's NLPs 1-5 converge, the complete run (> 4 min) is not measured yet "
-                          "(docs/formulation.md, 'OCP and solve', round 2)", strict=False)
+                          "every NLP of the full task converges but the final complementarity is 9e-3 and the "
+                          "polish stops at its iteration cap (docs/formulation.md, 'OCP and solve', round 3)", strict=False)
 def test_capler_default_task(tmp_path):
     """The paper's hopper over three holes: every NLP converges, complementarity and terminal error
     <= 1e-6, several hops."""
@@ -79,8 +79,9 @@ def test_capler_default_task(tmp_path):
 @pytest.mark.slow
 def test_capler_coarse_no_holes_converges():
     """The default recipe on a coarser Capler task (N = 50, h = 0.05, no holes) from the hint-free
-    start: every homotopy NLP converges, the active-set polish gives exact complementarity, the
-    terminal error is <= 1e-6, several hops (measured 80 s, docs/formulation.md round 2)."""
+    start: every homotopy NLP converges, complementarity and terminal error are <= 1e-6 (reached by
+    the homotopy itself since rho = 3e3 is in the schedule, else by the active-set polish), several
+    hops (measured 80-90 s, docs/formulation.md rounds 2 and 3)."""
     import dataclasses
 
     from planner.homotopy import SolveOptions, solve
@@ -94,6 +95,5 @@ def test_capler_coarse_no_holes_converges():
     res = solve(build_problem(robot, task), SolveOptions())
     assert res.stats.converged, res.stats.message
     assert all(r.success for r in res.nlps if r.label.startswith("homotopy"))
-    assert res.polished
     assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
     assert len(res.hops) >= 3
