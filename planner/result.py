@@ -103,11 +103,7 @@ class SimulationResult:
 
     def report(self) -> str:
         """A few human-readable lines for the terminal."""
-        tr, st = self.trajectory, self.stats
-        lines = [f"simulate {Path(self.robot).name}: {'converged' if st.converged else 'NOT converged'} in {st.solve_time_s:.2f} s "
-                 f"({len(tr.tau) - 1} steps of h = {self.h:g} s, {self.strategy}, {st.n_nlp} NLPs, {st.ipopt_iterations} IPOPT iterations, "
-                 f"complementarity {st.complementarity_residual:.1e})"]
-        return "\n".join(lines + _trajectory_lines(tr))
+        return "\n".join([_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory))
 
     def summary(self) -> dict:
         """The summary.json object (contract keys first)."""
@@ -138,6 +134,14 @@ def _contract_keys(result, terminal_error: float | None) -> dict:
         "physical_duration_s": tr.physical_duration,
         "impacts": [imp.to_json() for imp in tr.impacts],
     }
+
+
+def _headline(result, details: str) -> str:
+    """`COMMAND ROBOT: verdict in T s (steps, DETAILS NLPs, iterations, complementarity` (unclosed)."""
+    tr, st = result.trajectory, result.stats
+    return (f"{result.command} {Path(result.robot).name}: {'converged' if st.converged else 'NOT converged'} in "
+            f"{st.solve_time_s:.2f} s ({len(tr.tau) - 1} steps of h = {result.h:g} s, {details}{st.n_nlp} NLPs, "
+            f"{st.ipopt_iterations} IPOPT iterations, complementarity {st.complementarity_residual:.1e}")
 
 
 def _trajectory_lines(tr: Trajectory, extra: str = "") -> list[str]:
@@ -221,9 +225,7 @@ class PlanResult:
 
     def report(self) -> str:
         tr, st = self.trajectory, self.stats
-        lines = [f"plan {Path(self.robot).name}: {'converged' if st.converged else 'NOT converged'} in {st.solve_time_s:.2f} s "
-                 f"({len(tr.tau) - 1} steps of h = {self.h:g} s, {st.n_nlp} NLPs, {st.ipopt_iterations} IPOPT iterations, "
-                 f"complementarity {st.complementarity_residual:.1e}, terminal error {self.terminal_error:.1e})"]
+        lines = [_headline(self, "") + f", terminal error {self.terminal_error:.1e})"]
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)")
