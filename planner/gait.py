@@ -23,7 +23,6 @@ PRONTO (`planner.pronto`). `solve_gait_ipopt` solves the same discretized OCP di
 """
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
@@ -38,7 +37,7 @@ from .dynamics import Dynamics
 from .errors import InputError, TaskError, UnknownNameError
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import _atomic, _json_default
+from .result import write_files
 from .task import GaitContinuation, GaitPronto, Task
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -787,15 +786,11 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "walking": walking.to_json() if walking else None,
     }
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         arrays = {"tau": walk.t, "y": np.hstack([walk.q, walk.v, walk.t[:, None]]), "t": walk.t, "q": walk.q, "v": walk.v,
                   "u": walk.u, "impact_times": np.array([i[0] for i in walk.impacts]),
                   "impact_impulses": np.array([i[2] for i in walk.impacts]),
                   "gait_t": sol.t, "gait_x": sol.x, "gait_u": sol.u, "gait_xd": sol.xd, "gait_ud": sol.ud,
                   "gait_x_embedded": sol.x_emb, "gait_u_embedded": sol.u_emb,
                   "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str)}
-        _atomic(out / "trajectory.npz", lambda f: np.savez(f, **arrays))
-        text = json.dumps(summary, indent=2, default=_json_default) + "\n"
-        _atomic(out / "summary.json", lambda f: f.write(text.encode()))
+        write_files(out_dir, arrays, summary)
     return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)

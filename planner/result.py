@@ -297,8 +297,6 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
 
 def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     tr = result.trajectory
     arrays = {
         "tau": tr.tau, "y": tr.y, "t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u,
@@ -308,12 +306,19 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
         "state_names": np.array(tr.state_names, dtype=str),
         "selector_names": np.array(tr.selector_names, dtype=str),
     }
+    return write_files(out_dir, arrays, result.summary())
+
+
+def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tuple[Path, Path]:
+    """Write DIR/trajectory.npz (arrays) and DIR/summary.json, each atomically (temp file + os.replace)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     npz = out / "trajectory.npz"
     _atomic(npz, lambda f: np.savez(f, **arrays))
-    summary = out / "summary.json"
-    text = json.dumps(result.summary(), indent=2, default=_json_default) + "\n"
-    _atomic(summary, lambda f: f.write(text.encode()))
-    return npz, summary
+    path = out / "summary.json"
+    text = json.dumps(summary, indent=2, default=_json_default) + "\n"
+    _atomic(path, lambda f: f.write(text.encode()))
+    return npz, path
 
 
 def _json_default(obj):
