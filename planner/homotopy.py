@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import InputError
 from .problem import Problem
-from .result import NlpRecord, PlanResult, SolveStats, hops_of
+from .result import FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import step_trajectory
 
 
@@ -108,7 +108,7 @@ class SolveOptions:
     comp_tol: float = 1e-6
     terminal_tol: float = 1e-6
     constraint_tol: float = 1e-6
-    frozen_tol: float = 1e-4
+    frozen_tol: float = FROZEN_TOL
     rho_schedule: tuple[float, ...] | None = None
     rho_min: float | None = 100.0
     rho_max: float | None = 1e7

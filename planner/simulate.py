@@ -31,7 +31,7 @@ from .discretization import ImplicitEulerStep
 from .dynamics import Dynamics
 from .errors import InputError
 from .model import Robot
-from .result import SimulationResult, SolveStats, Trajectory, recover
+from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
 from .task import Task
 from .timefreezing import TimeFreezingSystem
 
@@ -71,7 +71,7 @@ class SimulateOptions:
     # A persistent contact corrects the discrete drift of its contact velocity with small auxiliary
     # motions: clock deficits up to 3.4e-3 of a step were measured (Capler under joint PD, h = 2..10 ms),
     # while impacts freeze the clock for most of a step (entry steps measured down to 1.4e-2).
-    frozen_tol: float = 1e-2
+    frozen_tol: float = FROZEN_TOL
     max_passes: int = 5
     verbose: bool = False
     restarts: bool = True
