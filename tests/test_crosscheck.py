@@ -53,6 +53,18 @@ def _capler_task():
                        "simulate": {"pd": {"joints": ["hip", "knee"], "kp": [CAPLER_KP] * 2, "kd": [CAPLER_KD] * 2}}})
 
 
+def _differences(scene, robot, tr, impact, v_mj: np.ndarray, mj: dict, sites: tuple[str, ...]):
+    """Post-impact velocity difference relative to the pre-impact velocity, both in the kinetic-energy
+    norm of M(q_impact), and the distances (P, 1 + len(sites)) [m] of the base and the named sites
+    from MuJoCo's at the simulation's physical times."""
+    M = _mass_matrix(scene, impact.q)
+    dv = impact.v_post - v_mj
+    v_err = math.sqrt(dv @ M @ dv) / math.sqrt(impact.v_pre @ M @ impact.v_pre)
+    q_mj = np.stack([np.interp(tr.t, mj["t"], mj["q"][:, i]) for i in range(robot.nq)], axis=1)
+    gap = np.linalg.norm(_positions(scene, tr.q, sites) - _positions(scene, q_mj, sites), axis=2)
+    return v_err, gap
+
+
 def _positions(scene, q: np.ndarray, sites: tuple[str, ...]) -> np.ndarray:
     """Base origin and the named sites (n, 1 + len(sites), 3) [m] of the postures q (n, nq), by MuJoCo."""
     model, data = scene.model, mujoco.MjData(scene.model)
@@ -107,12 +119,7 @@ def test_capler_drop_with_pd_posture_hold(capsys):
     impact, t_mj = tr.impacts[0], float(mj["impact_times"][0])
     k_mj = int(np.searchsorted(mj["t"], t_mj))
     v_mj = mj["v"][k_mj + 1]  # one MuJoCo step after the contact onset
-    M = _mass_matrix(scene, impact.q)
-    dv = impact.v_post - v_mj
-    v_err = math.sqrt(dv @ M @ dv) / math.sqrt(impact.v_pre @ M @ impact.v_pre)
-
-    q_mj = np.stack([np.interp(tr.t, mj["t"], mj["q"][:, i]) for i in range(robot.nq)], axis=1)
-    gap = np.linalg.norm(_positions(scene, tr.q, ("knee", "foot")) - _positions(scene, q_mj, ("knee", "foot")), axis=2)
+    v_err, gap = _differences(scene, robot, tr, impact, v_mj, mj, ("knee", "foot"))
     with capsys.disabled():
         print(f"\ncapler PD drop (h = {h * 1e3:g} ms): simulate {result.stats.solve_time_s:.1f} s, impact t {impact.time:.5f} "
               f"vs MuJoCo {t_mj:.5f} s; v_post {np.round(impact.v_post, 4).tolist()} vs {np.round(v_mj, 4).tolist()} "
@@ -152,11 +159,7 @@ def test_biped_drop_onto_both_feet(capsys):
     impact, t_mj = tr.impacts[0], float(mj["impact_times"].min())
     k_mj = int(np.searchsorted(mj["t"], float(mj["impact_times"].max())))
     v_mj = mj["v"][k_mj + 1]  # one MuJoCo step after the second onset
-    M = _mass_matrix(scene, impact.q)
-    dv = impact.v_post - v_mj
-    v_err = math.sqrt(dv @ M @ dv) / math.sqrt(impact.v_pre @ M @ impact.v_pre)
-    q_mj = np.stack([np.interp(tr.t, mj["t"], mj["q"][:, i]) for i in range(robot.nq)], axis=1)
-    gap = np.linalg.norm(_positions(scene, tr.q, ("foot_1", "foot_2")) - _positions(scene, q_mj, ("foot_1", "foot_2")), axis=2)
+    v_err, gap = _differences(scene, robot, tr, impact, v_mj, mj, ("foot_1", "foot_2"))
     with capsys.disabled():
         print(f"\nbiped drop (h = {h * 1e3:g} ms): impact t {impact.time:.5f} vs MuJoCo {np.round(mj['impact_times'], 5).tolist()} s; "
               f"M-norm velocity difference {v_err:.2%}; max position difference hip/feet {np.round(gap.max(axis=0) * 1e3, 2).tolist()} mm")
