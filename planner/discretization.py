@@ -42,6 +42,30 @@ class StepForm(Enum):
 
     EXPLICIT = "explicit"
     MASS_MATRIX = "mass_matrix"
+
+
+class SwitchVelocity(Enum):
+    """Which contact-point velocity the switching functions n^T v and t^T v of a step use.
+
+    POINT: n(q_{k+1})^T v_{k+1}, the paper's eq. 24c. In persistent contact the step keeps
+    n^T v_{k+1} = 0 but the gap still moves by the curvature term, c_{k+1} - c_k ~ -1/2 dq^T grad^2 c dq
+    per step (dq = q_{k+1} - q_k): the foot sinks into the ground step after step (2 cm over a Capler
+    stance at h = 0.02), and an exactly complementary plan cannot end standing at c = 0 after moving.
+    SECANT: nbar^T v_{k+1} with nbar = the gradient of the point's height (t: of its x) averaged over
+    the segment q_k -> q_{k+1} by 3-point Gauss-Legendre quadrature, so that c_{k+1} - c_k = nbar^T dq
+    up to O(|dq|^7): a step in persistent contact keeps the gap (and, no slip, the foot's x) where it
+    was. When q does not move (a frozen impact) nbar = n(q): the same as POINT. Same switching
+    surfaces in continuous time (the average tends to n(q) as h -> 0).
+    """
+
+    POINT = "point"
+    SECANT = "secant"
+
+
+# 3-point Gauss-Legendre rule on [0, 1]: exact for polynomials of degree 5
+_GAUSS_S = (0.5 - 0.1 * 15**0.5, 0.5, 0.5 + 0.1 * 15**0.5)
+_GAUSS_W = (5.0 / 18.0, 4.0 / 9.0, 5.0 / 18.0)
+
 # The equality constraints of a step, in this order (StepForm.MASS_MATRIX appends "contact_forces").
 G_BLOCKS = ("dynamics", "stationarity", "lifting")
 
@@ -91,13 +115,17 @@ class ImplicitEulerStep:
     switch_scale (n_sigma,) > 0 optionally divides the switching functions in the stationarity
     condition (theta(h / a) = theta(h) for a > 0; it rescales the multipliers, not the solution).
     form: StepForm (EXPLICIT by default; MASS_MATRIX adds the block "forces" to w and the
-    equality block "contact_forces").
+    equality block "contact_forces"). velocity_switch: SwitchVelocity (POINT by default, the paper's).
     """
 
-    def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT):
+    def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT,
+                 velocity_switch: SwitchVelocity = SwitchVelocity.POINT):
         if rho_f < 0:
             raise ValueError(f"rho_f must be >= 0, got {rho_f}")
-        self.system, self.rho_f, self.form = system, float(rho_f), form
+        if not isinstance(velocity_switch, SwitchVelocity):
+            raise ValueError(f"velocity_switch must be one of {[m.value for m in SwitchVelocity]}, got {velocity_switch!r}")
+        self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
+        self._secant = _secant_rows(system) if velocity_switch is SwitchVelocity.SECANT else None
         self.mm = system.mass_matrix_form() if form is StepForm.MASS_MATRIX else None
         nz = self.mm.nz if self.mm is not None else 0
         n = system.n_sigma
@@ -198,6 +226,10 @@ class ImplicitEulerStep:
             dv = ca.mtimes(M, dy[nq : nq + nv])  # velocity rows times M(q_{k+1}): no inverse
             dynamics = ca.vertcat(dy[:nq], dv, dy[nq + nv :]) - h * s_k * F
             extra = [defining]
+        if self._secant is not None:
+            nq, nv = sys_.nq, sys_.nv
+            rows, mask = self._secant
+            hval = hval * ca.DM(1.0 - mask) + ca.mtimes(rows(y_k[:nq], y_next[:nq]), y_next[nq : nq + nv])
         stationarity = hval / ca.DM(self.switch_scale) - lam1 + lam0
         index = {m: j for j, m in enumerate(self.monomials)}
         lifting = [z[index[m]] - z[index[m[:-1]]] * sigma[m[-1]] for m in self.lifted]
@@ -219,3 +251,21 @@ class ImplicitEulerStep:
         w = np.asarray(w, dtype=float).ravel()
         z = np.concatenate([[1.0], w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]])
         return self.C @ z
+
+
+def _secant_rows(system: TimeFreezingSystem) -> tuple[ca.Function, np.ndarray]:
+    """SwitchVelocity.SECANT: Function (q_a, q_b) -> (n_sigma, nv) whose row i is the Gauss-averaged
+    gradient of switch i's coordinate (height for n^T v, x for t^T v) over the segment q_a -> q_b (zero
+    rows for the other switches), and the (n_sigma,) mask of the rows it replaces."""
+    nq, nv = system.nq, system.nv
+    qa, qb = ca.SX.sym("q_a", nq), ca.SX.sym("q_b", nq)
+    coord = {"n^T v": 2, "t^T v": 0}
+    rows, mask = [], np.zeros(system.n_sigma)
+    for i, sw in enumerate(system.switches):
+        if sw.function not in coord or sw.contact is None:
+            rows.append(ca.SX.zeros(1, nv))
+            continue
+        jac = system.dyn.point_jacobian(sw.contact)
+        rows.append(sum(w * jac(qa + s * (qb - qa))[coord[sw.function], :] for s, w in zip(_GAUSS_S, _GAUSS_W)))
+        mask[i] = 1.0
+    return ca.Function("secant_rows", [qa, qb], [ca.vertcat(*rows)], ["q_a", "q_b"], ["rows"]), mask

@@ -54,7 +54,7 @@ from enum import Enum
 import casadi as ca
 import numpy as np
 
-from .discretization import ImplicitEulerStep, StepForm
+from .discretization import ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics
 from .errors import InputError
 from .model import Robot
@@ -95,6 +95,7 @@ class ProblemOptions:
       or alpha then buys little free propulsion) and continue to the task's gains (scale 1).
     step_form: StepForm of the implicit Euler steps; MASS_MATRIX (default) keeps M(q)^-1 out of the
       derivatives (the friction cone then uses the step's force variables lambda_n, lambda_t).
+    velocity_switch: SwitchVelocity of the steps' n^T v and t^T v (discretization.py).
     """
 
     penalty: Penalty = Penalty.LINF
@@ -105,8 +106,11 @@ class ProblemOptions:
     clock_guess_running: bool = False
     gating: bool = True
     aux_continuation: bool = False
+    velocity_switch: SwitchVelocity = SwitchVelocity.POINT
 
     def __post_init__(self):
+        if not isinstance(self.velocity_switch, SwitchVelocity):
+            raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in SwitchVelocity]}")
         if not isinstance(self.step_form, StepForm):
             raise InputError(f"ProblemOptions.step_form = {self.step_form!r} is not allowed; it must be one of {[p.value for p in StepForm]}")
         if not isinstance(self.penalty, Penalty):
@@ -216,7 +220,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         if name not in known:
             raise InputError(f"ProblemOptions.switch_scale names {name!r}; the switching functions are {sorted(known)}")
     switch_scale = np.array([scale_of.get(s.function, 1.0) for s in system.switches])
-    builder = ImplicitEulerStep(system, plan.rho_f, switch_scale, form=options.step_form)
+    builder = ImplicitEulerStep(system, plan.rho_f, switch_scale, form=options.step_form, velocity_switch=options.velocity_switch)
     nq, nv, nu, ny, nw, n_sig = system.nq, system.nv, system.nu, system.ny, builder.nw, system.n_sigma
     N, h = hz.N, hz.h
     timed = hz.physical_time is not None
