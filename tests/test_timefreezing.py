@@ -142,14 +142,15 @@ def test_elastic_frozen_field_is_the_oscillator():
 
 
 def test_contact_models_and_unsupported_combinations():
-    """eps > 0 is elastic, mu > 0 no-slip, else frictionless; eps > 0 with mu > 0 and several contacts are input errors."""
+    """eps > 0 is elastic, mu > 0 no-slip, else frictionless; eps > 0 with mu > 0, and an elastic point
+    among several contact points, are input errors."""
     assert contact_model(Contact("p")) is ContactModel.FRICTIONLESS
     assert contact_model(Contact("p", mu=0.3)) is ContactModel.NO_SLIP
     assert contact_model(Contact("p", restitution=0.4)) is ContactModel.ELASTIC
     with pytest.raises(InputError, match="restitution"):
         contact_model(Contact("p", mu=0.3, restitution=0.4))
-    with pytest.raises(InputError, match="only one contact point"):
-        TimeFreezingSystem(dyn("capler"), [Contact("foot"), Contact("knee")])
+    with pytest.raises(InputError, match="must all be inelastic"):
+        TimeFreezingSystem(dyn("capler"), [Contact("foot", restitution=0.5), Contact("knee")])
 
 
 def test_no_contacts_is_free_flight():
