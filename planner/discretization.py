@@ -127,55 +127,85 @@ class ImplicitEulerStep:
         self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
         self._secant = _secant_rows(system) if velocity_switch is SwitchVelocity.SECANT else None
         self.mm = system.mass_matrix_form() if form is StepForm.MASS_MATRIX else None
-        nz = self.mm.nz if self.mm is not None else 0
+        # forces: MASS_MATRIX the form's z; EXPLICIT with several contacts the contact forces lambda
+        nz = self.mm.nz if self.mm is not None else system.n_lambda
         n = system.n_sigma
         self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
         if np.any(self.switch_scale <= 0):
             raise ValueError("switch_scale must be > 0")
-        # monomials: constant, the selectors, then lifted products with all their prefixes
+        # variables of the polynomials: the selectors, then the factors (several contacts only)
+        factors = system.factors
+        n_var = n + len(factors)
+        # monomials: constant, the variables, then lifted products with all their prefixes
+        polys = list(system.coefficients.values()) + [f.definition for f in factors] + list(system.constraint_switches)
         lifted: set[tuple[int, ...]] = set()
-        for poly in system.coefficients.values():
+        for poly in polys:
             for m in poly.terms:
                 for k in range(2, len(m) + 1):
                     lifted.add(m[:k])
         self.lifted = tuple(sorted(lifted, key=lambda m: (len(m), m)))
-        self.monomials = ((),) + tuple((i,) for i in range(n)) + self.lifted
+        self.monomials = ((),) + tuple((i,) for i in range(n_var)) + self.lifted
         index = {m: j for j, m in enumerate(self.monomials)}
+        self._index = index
+
+        def matrix(ps):  # rows: the polynomials as linear maps of the monomial vector z
+            A = np.zeros((len(ps), len(self.monomials)))
+            for j, poly in enumerate(ps):
+                for m, c in poly.terms.items():
+                    A[j, index[m]] = c
+            return A
+
         # C (n_fields, n_monomials): P_j(sigma) = sum_m C[j, m] z_m
-        C = np.zeros((system.n_fields, len(self.monomials)))
-        for j, f in enumerate(system.fields):
-            for m, c in system.coefficients[f.name].terms.items():
-                C[j, index[m]] = c
-        self.C = C
-        self.n_theta = len(self.lifted)
+        self.C = matrix([system.coefficients[f.name] for f in system.fields])
+        self.factor_matrix = matrix([f.definition for f in factors])  # factor_d = row d . z
+        self.switch_matrix = matrix(system.constraint_switches)  # s (n_lambda,) = S z
+        # theta: the factors, then the lifted products (z = (1, sigma, theta) in monomial order)
+        self.n_theta = len(factors) + len(self.lifted)
         self.nw = 3 * n + self.n_theta + nz
-        names = [s.name for s in system.switches]
-        self.theta_names = tuple("*".join(names[i] for i in m) for m in self.lifted)
+        names = [s.name for s in system.switches] + [f.name for f in factors]
+        self.theta_names = tuple(names[n:] + ["*".join(names[i] for i in m) for m in self.lifted])
+        upper = [1.0] * n + [f.upper for f in factors]
+        theta_upper = [f.upper for f in factors] + [float(np.prod([upper[i] for i in m])) for m in self.lifted]
+        names = names[:n]
         sizes = {"sigma": n, "theta": self.n_theta, "lambda0": n, "lambda1": n, "forces": nz}
         self.w_blocks, start = {}, 0
         for b in W_BLOCKS + (("forces",) if nz else ()):
             self.w_blocks[b] = slice(start, start + sizes[b])
             start += sizes[b]
+        force_names = list(self.mm.z_names) if self.mm is not None else list(system.lam_names)
         self.w_names = tuple(list(names) + list(self.theta_names) + [f"lambda0[{s}]" for s in names] + [f"lambda1[{s}]" for s in names]
-                             + (list(self.mm.z_names) if nz else []))
+                             + (force_names if nz else []))
         self.lbw = np.concatenate([np.zeros(n), np.zeros(self.n_theta), np.zeros(2 * n), np.full(nz, -np.inf)])
-        self.ubw = np.concatenate([np.ones(n), np.ones(self.n_theta), np.full(2 * n, np.inf), np.full(nz, np.inf)])
+        self.ubw = np.concatenate([np.ones(n), np.array(theta_upper, dtype=float), np.full(2 * n, np.inf), np.full(nz, np.inf)])
+        # where lambda sits inside the forces block (several contacts)
+        self.lam_slice = None
+        if system.n_lambda:
+            self.lam_slice = self.mm.lam_slice if self.mm is not None else slice(0, system.n_lambda)
         self.w0 = self.w_from(system.wanted, np.zeros(n), np.zeros(n))
 
     def w_from(self, sigma, lam0, lam1, forces=None) -> np.ndarray:
-        """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = products;
-        forces (MASS_MATRIX only, nz,) default zeros."""
-        theta = [np.prod([sigma[i] for i in m]) for m in self.lifted]
-        nz = self.mm.nz if self.mm is not None else 0
+        """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = the
+        factors and the products; forces (nz,) default zeros."""
+        x = self.system.variables(np.asarray(sigma, float)) if self.system.factors else np.asarray(sigma, float)
+        theta = list(x[self.system.n_sigma :]) + [np.prod([x[i] for i in m]) for m in self.lifted]
+        nz = self.w_blocks["forces"].stop - self.w_blocks["forces"].start if "forces" in self.w_blocks else 0
         forces = np.zeros(nz) if forces is None else np.asarray(forces, float).ravel()
         return np.concatenate([sigma, theta, lam0, lam1, forces]).astype(float)
 
-    def forces_at(self, y, u) -> np.ndarray:
-        """MASS_MATRIX: the algebraic force variables (nz,) that solve `defining` at numeric y, u."""
+    def forces_at(self, y, u, sigma=None) -> np.ndarray:
+        """The algebraic force variables (nz,) that solve their equations at numeric y, u: MASS_MATRIX
+        (acc, lambda, d); several contacts the forces of the points switched on by the selectors
+        sigma (n_sigma,) (default sigma*), in EXPLICIT form lambda only."""
         sys_, nq, nv = self.system, self.system.nq, self.system.nv
         q, v = np.asarray(y, float)[:nq], np.asarray(y, float)[nq : nq + nv]
         M = np.asarray(sys_.dyn.mass(q), float)
         acc = np.asarray(sys_.dyn.forward(q, v, u), float).ravel()
+        if sys_.n_lambda:
+            lam = self.contact_forces(y, u, sys_.wanted if sigma is None else sigma)
+            if self.mm is None:
+                return lam
+            Jt = self._stacked_jacobian(y)
+            return np.concatenate([acc, lam, np.linalg.solve(M, Jt.T @ lam)])
         lam, ds = [], []
         for model, terms in zip(sys_.models, sys_.terms):
             no_slip = model is ContactModel.NO_SLIP
@@ -186,12 +216,45 @@ class ImplicitEulerStep:
             ds.append(np.linalg.solve(M, J.T @ lam_c))
         return np.concatenate([acc, *lam, *ds])
 
+    def _stacked_jacobian(self, y) -> np.ndarray:
+        """Several contacts: J (n_lambda, nv), the rows n_i^T (, t_i^T) of every point at numeric y."""
+        sys_ = self.system
+        if not hasattr(self, "_jac_fn"):
+            rows = []
+            for model, ct in zip(sys_.models, sys_.terms):
+                rows += [ct.normal.T] + ([ct.tangent.T] if model is ContactModel.NO_SLIP else [])
+            self._jac_fn = ca.Function("stacked_jacobian", [sys_.y], [ca.vertcat(*rows)])
+        return np.asarray(self._jac_fn(y), float)
+
+    def contact_forces(self, y, u, sigma) -> np.ndarray:
+        """Several contacts: lambda (n_lambda,) [N] solving the switched rows at numeric y, u and the
+        selectors sigma (n_sigma,): the index-reduced forces of the points with s_i = 1, 0 for s_i = 0."""
+        sys_ = self.system
+        x = sys_.variables(np.asarray(sigma, float))
+        z = np.concatenate([[1.0], x, [np.prod([x[i] for i in m]) for m in self.lifted]])
+        s = self.switch_matrix @ z
+        zero = np.zeros(sys_.n_lambda)
+        b = np.asarray(sys_.constraint_fn(y, u, zero), float).ravel()  # J f_v + dJ/dt v
+        G = np.column_stack([np.asarray(sys_.constraint_fn(y, u, e), float).ravel() - b for e in np.eye(sys_.n_lambda)])
+        A = s[:, None] * G + np.diag((1 - s) * sys_.force_scale)
+        return np.linalg.solve(A, -s * b)
+
     def guess(self, y, u) -> np.ndarray:
         """Initial guess (nw,) consistent with the switching functions at a numeric state y (ny,), u (nu,):
         sigma = 1 where h > 0, 0 where h < 0, sigma* where h = 0; lambda1 = max(h, 0), lambda0 = max(-h, 0);
-        MASS_MATRIX: the force variables that solve their equations at (y, u)."""
-        hval = np.asarray(self.system.switching_fn(y, u), dtype=float).ravel() / self.switch_scale
-        sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, self.system.wanted))
+        MASS_MATRIX: the force variables that solve their equations at (y, u). Several contacts: the
+        forces of the points on the ground (beta = 0), then gamma from their sign."""
+        sys_ = self.system
+        if sys_.n_lambda:
+            sigma = sys_.wanted.copy()
+            for _ in range(2):  # forces with the selectors so far, then the selectors from the forces
+                lam = self.contact_forces(y, u, sigma)
+                hval = np.asarray(sys_.switching_fn(y, u, lam), dtype=float).ravel() / self.switch_scale
+                sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, sys_.wanted))
+            forces = self.forces_at(y, u, sigma) if "forces" in self.w_blocks else None
+            return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
+        hval = np.asarray(sys_.switching_fn(y, u), dtype=float).ravel() / self.switch_scale
+        sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, sys_.wanted))
         forces = self.forces_at(y, u) if self.mm is not None else None
         return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
 
@@ -211,34 +274,48 @@ class ImplicitEulerStep:
         lam0, lam1 = w[self.w_blocks["lambda0"]], w[self.w_blocks["lambda1"]]
         z = ca.vertcat(1, sigma, theta)  # the monomials, in self.monomials order
         coef = ca.mtimes(ca.DM(self.C), z)
+        lam = None
+        if sys_.n_lambda:  # several contacts: the unit-force fields get R lambda (R = the f_ODE coefficient)
+            lam = w[self.w_blocks["forces"]][self.lam_slice]
+            coef = coef + ca.mtimes(ca.DM(self._force_map()), coef[0] * lam)
         if field_scale is not None:
             coef = coef * field_scale
         extra = []
         if self.mm is None:
             F = ca.mtimes(sys_.fields_fn(y_next, u_k), coef)
             dynamics = y_next - y_k - h * s_k * F
-            hval = sys_.switching_fn(y_next, u_k)
+            if lam is None:
+                hval = sys_.switching_fn(y_next, u_k)
+            else:
+                hval = sys_.switching_fn(y_next, u_k, lam)
+                extra = [sys_.constraint_rows(y_next, u_k, lam, ca.mtimes(ca.DM(self.switch_matrix), z))]
         else:
             nq, nv = sys_.nq, sys_.nv
-            fmat, hval, defining, M = self.mm.fn(y_next, u_k, w[self.w_blocks["forces"]])
+            forces = w[self.w_blocks["forces"]]
+            fmat, hval, defining, M = self.mm.fn(y_next, u_k, forces)
             F = ca.mtimes(fmat, coef)
             dy = y_next - y_k
             dv = ca.mtimes(M, dy[nq : nq + nv])  # velocity rows times M(q_{k+1}): no inverse
             dynamics = ca.vertcat(dy[:nq], dv, dy[nq + nv :]) - h * s_k * F
             extra = [defining]
+            if lam is not None:
+                s = ca.mtimes(ca.DM(self.switch_matrix), z)
+                extra.append(s * self.mm.constraint_fn(y_next, u_k, forces) + (1 - s) * sys_.force_scale * lam)
         if self._secant is not None:
             nq, nv = sys_.nq, sys_.nv
             rows, mask = self._secant
             hval = hval * ca.DM(1.0 - mask) + ca.mtimes(rows(y_k[:nq], y_next[:nq]), y_next[nq : nq + nv])
         stationarity = hval / ca.DM(self.switch_scale) - lam1 + lam0
         index = {m: j for j, m in enumerate(self.monomials)}
-        lifting = [z[index[m]] - z[index[m[:-1]]] * sigma[m[-1]] for m in self.lifted]
+        n = sys_.n_sigma
+        factors = [theta[d] - ca.mtimes(ca.DM(self.factor_matrix[d : d + 1]), z) for d in range(len(sys_.factors))]
+        lifting = factors + [z[index[m]] - z[index[m[:-1]]] * (sigma[m[-1]] if m[-1] < n else z[index[(m[-1],)]]) for m in self.lifted]
         g = ca.vertcat(dynamics, stationarity, *lifting, *extra)
-        ny, n = sys_.ny, sys_.n_sigma
+        ny = sys_.ny
         g_blocks = {"dynamics": slice(0, ny), "stationarity": slice(ny, ny + n), "lifting": slice(ny + n, ny + n + self.n_theta)}
         if extra:
             start = ny + n + self.n_theta
-            g_blocks["contact_forces"] = slice(start, start + extra[0].shape[0])
+            g_blocks["contact_forces"] = slice(start, start + sum(e.shape[0] for e in extra))
         comp = tuple((lam0[i], sigma[i]) for i in range(n)) + tuple((lam1[i], 1 - sigma[i]) for i in range(n))
         dev = sigma - ca.DM(sys_.wanted)
         objective = self.rho_f * ca.dot(dev, dev)
@@ -250,22 +327,35 @@ class ImplicitEulerStep:
         """Numeric field coefficients P_j (n_fields,) of a solved step from its algebraic variables w (nw,)."""
         w = np.asarray(w, dtype=float).ravel()
         z = np.concatenate([[1.0], w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]])
-        return self.C @ z
+        coef = self.C @ z
+        if self.system.n_lambda:
+            coef = coef + self._force_map() @ (coef[0] * w[self.w_blocks["forces"]][self.lam_slice])
+        return coef
+
+    def _force_map(self) -> np.ndarray:
+        """E (n_fields, n_lambda): E[j, k] = 1 when field j is the unit-force field of lambda_k."""
+        E = np.zeros((self.system.n_fields, self.system.n_lambda))
+        for k, j in enumerate(self.system.force_columns):
+            E[j, k] = 1.0
+        return E
 
 
 def _secant_rows(system: TimeFreezingSystem) -> tuple[ca.Function, np.ndarray]:
     """SwitchVelocity.SECANT: Function (q_a, q_b) -> (n_sigma, nv) whose row i is the Gauss-averaged
-    gradient of switch i's coordinate (height for n^T v, x for t^T v) over the segment q_a -> q_b (zero
-    rows for the other switches), and the (n_sigma,) mask of the rows it replaces."""
+    gradient of switch i's coordinate (along the contact plane's normal for n^T v, along its tangent
+    for t^T v) over the segment q_a -> q_b (zero rows for the other switches), and the (n_sigma,) mask
+    of the rows it replaces."""
     nq, nv = system.nq, system.nv
     qa, qb = ca.SX.sym("q_a", nq), ca.SX.sym("q_b", nq)
-    coord = {"n^T v": 2, "t^T v": 0}
     rows, mask = [], np.zeros(system.n_sigma)
     for i, sw in enumerate(system.switches):
-        if sw.function not in coord or sw.contact is None:
+        if sw.function not in ("n^T v", "t^T v") or sw.contact is None:
             rows.append(ca.SX.zeros(1, nv))
             continue
-        jac = system.dyn.point_jacobian(sw.contact)
-        rows.append(sum(w * jac(qa + s * (qb - qa))[coord[sw.function], :] for s, w in zip(_GAUSS_S, _GAUSS_W)))
+        contact = system.contacts[system.labels.index(sw.contact)]
+        sx, _, sz = contact.normal
+        direction = ca.DM([sx, 0.0, sz] if sw.function == "n^T v" else [sz, 0.0, -sx])
+        jac = system.dyn.point_jacobian(contact.point)
+        rows.append(sum(w * ca.mtimes(direction.T, jac(qa + s * (qb - qa))[:3, :]) for s, w in zip(_GAUSS_S, _GAUSS_W)))
         mask[i] = 1.0
     return ca.Function("secant_rows", [qa, qb], [ca.vertcat(*rows)], ["q_a", "q_b"], ["rows"]), mask

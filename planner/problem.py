@@ -208,6 +208,9 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
+    if len(task.contacts) > 1:
+        raise InputError(f"{len(task.contacts)} contact points given; planning supports one contact point so far "
+                         "(`planner simulate` takes several)")
     task.check_against(robot)
     plan, hz = task.plan, task.horizon
     dyn = dynamics or Dynamics(robot)

@@ -234,6 +234,10 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     if original.njnt == 0:
         raise InputError(f"{robot.path} has no joints: nothing moves, nothing to validate")
 
+    tilted = [c.point for c in task.contacts if c.normal != (0.0, 0.0, 1.0)]
+    if tilted:
+        raise InputError(f"contact point(s) {', '.join(tilted)} touch a tilted plane (contacts.normal); the MuJoCo "
+                         "validation models the ground plane only")
     site_names = [original.site(i).name for i in range(original.nsite)]
     site_ids = []
     for contact in task.contacts:

@@ -53,6 +53,8 @@ class Trajectory:
     sigma (K-1, n_sigma) selectors of each step (at its end point), selector_names;
     t (P,) physical times [s]; q (P, nq), v (P, nv), u (P, nu) physical-time samples; an impact is
     two samples with the same time (pre- and post-impact velocity); impacts (Impact, ...).
+    forces (K-1, n_lambda), force_names: the index-reduced contact forces [N] of each step (at its end
+    point) when the system has several contact points (zero for points off the ground), else None.
     """
 
     tau: np.ndarray
@@ -65,6 +67,8 @@ class Trajectory:
     v: np.ndarray
     u: np.ndarray
     impacts: tuple[Impact, ...] = ()
+    forces: np.ndarray | None = None  # several contacts: (K-1, n_lambda) contact forces of each step [N]
+    force_names: tuple[str, ...] = ()  # lambda_n[point], lambda_t[point], ...
 
     @property
     def impact_times(self) -> np.ndarray:
@@ -256,6 +260,10 @@ class PlanResult:
 # step; real impact entries froze at least 1.4e-2 (point mass and Capler drops): 1e-4 reported
 # false impacts of 3e-4 to 2e-3 N s next to a 2 N s landing.
 FROZEN_TOL = 1e-2
+# Several contacts: a contact takes part in an impact (gets its own Impact record, same time and
+# velocities) when its normal impulse over the frozen interval is at least this share of the
+# largest one; smaller shares are the implicit step's drift corrections of contacts at rest.
+IMPULSE_SHARE = 1e-2
 
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
@@ -266,6 +274,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     u_steps (K-1, nu) control, dt_steps (K-1,) numerical-time length h s [s], dv_aux (K-1, nv)
     velocity increment of the auxiliary fields, impulses (K-1, n_contacts, 2) normal and tangential
     impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s.
+    A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
+    the largest (the largest first; one contact: always one Impact), all with the interval's time,
+    posture and pre-/post-impact velocities, and one pair of samples.
     Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
     """
     y, u_steps = np.asarray(y, float), np.asarray(u_steps, float)
@@ -290,10 +301,15 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
         v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
         imp = np.sum(np.asarray(impulses)[a : b + 1], axis=0)  # (n_contacts, 2)
-        c = int(np.argmax(np.abs(imp[:, 0]))) if len(contacts) else 0
-        impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
-                              impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
-                              v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
+        order = np.argsort(-np.abs(imp[:, 0]), kind="stable") if len(contacts) else np.zeros(1, int)
+        # one Impact per contact that took a normal impulse in this frozen interval, the largest first;
+        # with one contact (or none) exactly one Impact, as before
+        hit = [c for c in order if len(contacts) <= 1 or c == order[0]
+               or abs(imp[c, 0]) >= IMPULSE_SHARE * abs(imp[order[0], 0])]
+        for c in hit:
+            impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
+                                  impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
+                                  v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
         for vel in (v_pre, v_post):
             ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
         if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock
@@ -313,6 +329,8 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
         "state_names": np.array(tr.state_names, dtype=str),
         "selector_names": np.array(tr.selector_names, dtype=str),
     }
+    if tr.forces is not None:
+        arrays.update(forces=tr.forces, force_names=np.array(tr.force_names, dtype=str))
     return write_files(out_dir, arrays, result.summary())
 
 

@@ -282,6 +282,8 @@ def _predictor(system, builder, law, h):
     the selectors held at sigma (a smooth equation, solved by Newton from y_k), None if Newton fails."""
     ny, nu = system.ny, system.nu
     y_next, y_k, u_ff = ca.SX.sym("y_next", ny), ca.SX.sym("y_k", ny), ca.SX.sym("u_ff", nu)
+    if system.n_lambda:
+        return _predictor_with_forces(system, law, h)
     coef = ca.SX.sym("coef", system.n_fields)  # P_j(sigma), fixed
     F = ca.mtimes(system.fields_fn(y_next, _applied(law, system, u_ff, y_next)), coef)
     residual = ca.Function("residual", [y_next, ca.vertcat(y_k, u_ff, coef)], [y_next - y_k - h * F])
@@ -291,6 +293,27 @@ def _predictor(system, builder, law, h):
         y_pred = np.asarray(newton(y, np.concatenate([y, u, system.coefficient_vector(sigma)])), float).ravel()
         ok = newton.stats()["success"] and np.all(np.isfinite(y_pred))
         return y_pred if ok else None
+    return predict
+
+
+def _predictor_with_forces(system, law, h):
+    """_predictor for several contacts: Newton on (y_{k+1}, lambda) with the step's force rows."""
+    ny, nu, nl = system.ny, system.nu, system.n_lambda
+    y_next, y_k, u_ff = ca.SX.sym("y_next", ny), ca.SX.sym("y_k", ny), ca.SX.sym("u_ff", nu)
+    lam, sigma = ca.SX.sym("lam", nl), ca.SX.sym("sigma", system.n_sigma)
+    u = _applied(law, system, u_ff, y_next)
+    F = ca.mtimes(system.fields_fn(y_next, u), system.coefficient_vector(sigma, lam))
+    x = system.variables(sigma)
+    s = ca.vertcat(*[p(x) for p in system.constraint_switches])
+    unknown = ca.vertcat(y_next, lam)
+    residual = ca.Function("residual", [unknown, ca.vertcat(y_k, u_ff, sigma)],
+                           [ca.vertcat(y_next - y_k - h * F, system.constraint_rows(y_next, u, lam, s))])
+    newton = ca.rootfinder("predictor", "newton", residual, {"error_on_fail": False})
+
+    def predict(y, u, sigma):
+        sol = np.asarray(newton(np.concatenate([y, np.zeros(nl)]), np.concatenate([y, u, sigma])), float).ravel()
+        ok = newton.stats()["success"] and np.all(np.isfinite(sol))
+        return sol[:ny] if ok else None
     return predict
 
 
@@ -383,6 +406,10 @@ def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W
         sigma[k] = W[k][builder.w_blocks["sigma"]]
     tau = h * np.arange(N + 1)
     t, q, v, u, impacts = recover(tau, Y, U, h * S, dv_aux, impulses, nq, nv,
-                                  tuple(c.point for c in system.contacts), frozen_tol)
+                                  system.labels, frozen_tol)
+    forces = None
+    if system.n_lambda:
+        forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
+                      forces=forces, force_names=system.lam_names,
                       t=t, q=q, v=v, u=u, impacts=impacts)

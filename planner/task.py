@@ -21,15 +21,26 @@ from .errors import TaskError, UnknownNameError
 
 @dataclass(frozen=True)
 class Contact:
-    """A named point of the robot that may touch the ground plane z = ground_height."""
+    """A named point of the robot that may touch a plane: by default the ground z = ground_height.
+
+    normal (3,): the plane's normal (x, 0, z) in the world [unitless, normalized here]; the plane
+    passes through (0, 0, ground_height), so the default (0, 0, 1) is the ground. A tilted normal
+    makes a wall or a slope (planar robots: the normal must lie in the x-z plane).
+    """
 
     point: str
     mu: float = 0.0  # Coulomb friction coefficient; 0 drops the tangential machinery
     restitution: float = 0.0  # epsilon in [0, 1]: 0 inelastic, > 0 elastic auxiliary ODE (Sec. 4.5)
     a_n: float = 200.0  # normal auxiliary-ODE gain [1/s^2 scaled]; larger = shorter frozen intervals
     a_t: float = 600.0  # tangential auxiliary-ODE gain, a_t >> a_n (Sec. 6)
+    normal: tuple[float, ...] = (0.0, 0.0, 1.0)
 
     def __post_init__(self):
+        _require(len(self.normal) == 3, "contacts.normal", list(self.normal), "3 numbers (x, y, z)")
+        norm = math.sqrt(sum(x * x for x in self.normal))
+        _require(norm > 0 and self.normal[1] == 0.0, "contacts.normal", list(self.normal),
+                 "a nonzero vector in the x-z plane (y = 0)")
+        object.__setattr__(self, "normal", tuple(float(x) / norm for x in self.normal))
         _require(self.mu >= 0, "contacts.mu", self.mu, ">= 0")
         _require(0.0 <= self.restitution <= 1.0, "contacts.restitution", self.restitution, "in [0, 1]")
         _require(self.a_n > 0, "contacts.a_n", self.a_n, "> 0")

@@ -23,8 +23,18 @@ Contact models (one per contact point, chosen from the task's mu and restitution
   well-posed form derived in docs/formulation.md (selectors alpha, beta, eta of n^T v, c, p):
   F = beta [eta f_ODE + (1-eta) f_push] + (1-beta)[eta((1-alpha) f_osc + alpha f_ODE) + (1-eta) f_osc]
 
-Several contact points need a composition rule that is not written yet: more than one contact is
-an InputError for now. A robot without contacts gives F = f_ODE (no selectors).
+Several contact points (all inelastic; docs/formulation.md, "Several contacts"): per point i the
+selectors alpha_i, beta_i, gamma_i (, zeta_i) of n_i^T v, c_i, -lambda_n,i (, t_i^T v), its
+auxiliary fields a_n[i] (, a_t[i]) and unit-force fields lam_n[i] (, lam_t[i]) = (0, M^-1 n_i, 0);
+the contact forces lambda (n_lambda,) are algebraic variables of the step, defined jointly by
+    s_i (J_i a + dJ_i/dt v) + (1 - s_i) kappa lambda_i = 0,   a = f_v + M^-1 sum_k J_k^T lambda_k,
+    s_i = (1 - beta_i)(1 - gamma_i),
+so that the points with s_i = 1 get the index-reduced forces of their stacked Jacobian. With the
+per-point clock factors r_i = beta_i + (1 - beta_i) alpha_i / alpha* and R = prod_i r_i,
+R_-i = prod_{k != i} r_k (lifted as chains of factor variables, see Factor):
+    F = R (f_ODE + sum_i lam fields * lambda_i) + sum_i [(1 - beta_i)(1 - alpha_i) f_A,n,i
+        + (1 - beta_i)(1 - 2 zeta_i) f_A,t,i - R_-i (1 - beta_i) alpha_i (1 - gamma_i) f_A,n,i].
+A robot without contacts gives F = f_ODE (no selectors); one contact keeps the forms above.
 """
 from __future__ import annotations
 
@@ -193,8 +203,34 @@ class Field:
     auxiliary: bool  # True when it freezes the clock and its v-part is an impulse (state jump in slow motion)
 
 
+@dataclass(frozen=True)
+class Factor:
+    """A derived algebraic variable x = definition(selectors, earlier factors) of the multi-contact
+    rule (a clock factor r_i, a gate g_i or a chain product of clock factors). Factors are variables
+    n_sigma, n_sigma + 1, ... of the coefficient polynomials, so a product across contacts is one
+    monomial of factors and the discretization lifts it with a few bilinear constraints instead of
+    expanding it into 3^m monomials of selectors. 0 <= x <= upper."""
+
+    name: str
+    definition: Poly
+    upper: float
+
+
+def contact_labels(contacts) -> tuple[str, ...]:
+    """One label per contact: its point name, or `point#k` (k = 1, 2, ...) for a point listed
+    several times (e.g. one point against two walls)."""
+    points = [c.point for c in contacts]
+    seen: dict[str, int] = {}
+    labels = []
+    for p in points:
+        seen[p] = seen.get(p, 0) + 1
+        labels.append(p if points.count(p) == 1 else f"{p}#{seen[p]}")
+    return tuple(labels)
+
+
 class TimeFreezingSystem:
-    """The time-freezing PSS of a robot with contact points (single contact for now).
+    """The time-freezing PSS of a robot with contact points (one contact: eqs. 17-27; several: the
+    composition rule of the module docstring).
 
     Attributes:
       dyn, contacts (task Contacts), models (ContactModel per contact), terms (ContactTerms per contact)
@@ -207,15 +243,30 @@ class TimeFreezingSystem:
         time [N] of each field (a_n for f_A,n, a_t for f_A,t, the oscillator force for f_osc, 0 else)
       Functions of (y, u): fields_fn -> field_matrix, switching_fn -> switching,
         impulse_fn -> impulse_rates, gap_fn -> (n_contacts,) gaps c [m]
+      labels (n_contacts,): contact names used in field and selector names (contact_labels)
+    Several contacts (empty otherwise): factors (Factor, ...), the polynomial variables after the
+      selectors; lam SX (n_lambda,) contact forces [N], lam_names, lam_index (label -> slice);
+      force_columns (n_lambda,) the unit-force field of each lambda entry (coefficient R lambda_k);
+      constraint SX (n_lambda,) = J a + dJ/dt v with a = M^-1 (B u - h + J^T lam), constraint_fn
+      (y, u, lam); constraint_switches (n_lambda,) Polys s_i; force_scale kappa [1/kg];
+      switching_fn takes (y, u, lam) (gamma_i switches on -lambda_n,i).
     """
 
     def __init__(self, dyn: Dynamics, contacts: tuple[Contact, ...] | list[Contact], ground_height: float = 0.0):
         contacts = tuple(contacts)
-        if len(contacts) > 1:
-            raise InputError(f"{len(contacts)} contact points given ({', '.join(c.point for c in contacts)}); only one "
-                             "contact point per task is supported so far (the multiple-contact rule is not implemented)")
         self.dyn, self.contacts = dyn, contacts
         self.models = tuple(contact_model(c) for c in contacts)
+        self.labels = contact_labels(contacts)
+        if len(contacts) > 1 and ContactModel.ELASTIC in self.models:
+            raise InputError(f"{len(contacts)} contact points given ({', '.join(self.labels)}) with an elastic one "
+                             "(restitution > 0); several contact points must all be inelastic (restitution = 0)")
+        # multi-contact additions (empty for one contact): factor variables, contact forces
+        self.factors: tuple[Factor, ...] = ()
+        self.lam = ca.SX(0, 1)
+        self.lam_names: tuple[str, ...] = ()
+        self.lam_index: dict[str, slice] = {}
+        self.force_columns: tuple[int, ...] = ()
+        self.constraint_switches: tuple[Poly, ...] = ()
         self.nq, self.nv, self.nu = dyn.nq, dyn.nv, dyn.nu
         n_p = sum(m is ContactModel.ELASTIC for m in self.models)
         self.ny = self.nq + self.nv + n_p + 1
@@ -236,9 +287,12 @@ class TimeFreezingSystem:
         h: list[ca.SX] = []
         mix = Mix.field("ode")
         self.terms: list[ContactTerms] = []
+        if len(contacts) > 1:
+            self._compose(ground_height, q, v, M, fv, values, impulses, h)
+            return
         ip = self.nq + self.nv  # index of the next elastic p state
         for contact, model in zip(contacts, self.models):
-            ct = contact_terms(dyn, contact.point, ground_height, q, v, self.u, M=M, fv=fv)
+            ct = contact_terms(dyn, contact.point, ground_height, q, v, self.u, M=M, fv=fv, surface=contact.normal)
             self.terms.append(ct)
             pt = contact.point
 
@@ -287,21 +341,116 @@ class TimeFreezingSystem:
                 df = (1 - ga) * (2.0 * dae - a_n) + 2.0 * ga * ode
                 mix = be * ode + (1 - be) * ((1 - al) * a_n + al * df)
 
+        self._finish(mix, values, impulses, h)
+
+    def _finish(self, mix: Mix, values: dict, impulses: dict, h: list) -> None:
+        """Freeze fields and switches and build the numeric Functions (shared by both constructions)."""
         self.fields, self.switches = tuple(self.fields), tuple(self.switches)
         names = [f.name for f in self.fields]
         self.coefficients = {name: mix.parts.get(name, Poly()) for name in names}
         self.field_matrix = ca.horzcat(*[values[name] for name in names])
         self.switching = ca.vertcat(*h) if h else ca.SX(0, 1)
         rows = []
-        for _ in contacts:  # single contact: every impulse belongs to it
-            rows += [ca.horzcat(*[impulses[name][0] for name in names]), ca.horzcat(*[impulses[name][1] for name in names])]
+        for label in self.labels:  # normal and tangential impulse rates of each contact
+            for k in (0, 1):
+                rows.append(ca.horzcat(*[impulses[f.name][k] if f.contact in (None, label) else 0 for f in self.fields]))
         self.impulse_rates = ca.vertcat(*rows) if rows else ca.SX(0, len(names))
         args, arg_names = [self.y, self.u], ["y", "u"]
         self.fields_fn = ca.Function("tf_fields", args, [self.field_matrix], arg_names, ["f"])
-        self.switching_fn = ca.Function("tf_switching", args, [self.switching], arg_names, ["h"])
+        sw_args = args + ([self.lam] if self.n_lambda else [])  # several contacts: gamma_i switches on -lambda_n,i
+        self.switching_fn = ca.Function("tf_switching", sw_args, [self.switching], arg_names + (["lam"] if self.n_lambda else []), ["h"])
         self.impulse_fn = ca.Function("tf_impulse", args, [self.impulse_rates], arg_names, ["impulse_rate"])
         gaps = ca.vertcat(*[ct.gap for ct in self.terms]) if self.terms else ca.SX(0, 1)
         self.gap_fn = ca.Function("tf_gap", args, [gaps], arg_names, ["c"])
+
+    def _compose(self, ground_height: float, q, v, M, fv, values: dict, impulses: dict, h: list) -> None:
+        """The multi-contact rule (module docstring; docs/formulation.md, "Several contacts")."""
+        dyn, zq = self.dyn, ca.SX.zeros(self.nq)
+        self.terms = [contact_terms(dyn, c.point, ground_height, q, v, self.u, M=M, fv=fv, surface=c.normal) for c in self.contacts]
+        # contact forces: (lambda_n, lambda_t) per no-slip point, lambda_n per frictionless point [N]
+        sizes = [2 if m is ContactModel.NO_SLIP else 1 for m in self.models]
+        self.lam = ca.SX.sym("lam", sum(sizes))
+        start, names, rows_J, rows_jdv, minv_JT = 0, [], [], [], []
+        for label, size, ct in zip(self.labels, sizes, self.terms):
+            self.lam_index[label] = slice(start, start + size)
+            names += [f"lambda_{'nt'[j]}[{label}]" for j in range(size)]
+            rows_J += [ct.normal.T, ct.tangent.T][:size]
+            rows_jdv += [ct.normal_drift, ct.tangent_drift][:size]
+            minv_JT += [ct.minv_normal, ct.minv_tangent][:size]
+            start += size
+        self.lam_names = tuple(names)
+        J, jdv = ca.vertcat(*rows_J), ca.vertcat(*rows_jdv)
+        acc = fv + ca.mtimes(ca.horzcat(*minv_JT), self.lam)  # a = M^-1 (B u - h + J^T lambda)
+        self.constraint = ca.mtimes(J, acc) + jdv  # J a + dJ/dt v (n_lambda,) [m/s^2]
+        # kappa [1/kg] turns a force into an acceleration in the rows of points that are switched off
+        self.force_scale = 1.0 / max(sum(float(i.mass) for i in dyn.robot.model.inertias), 1e-9)
+        zp = ca.SX.zeros(0)
+        selectors = []
+        for contact, model, ct, label in zip(self.contacts, self.models, self.terms, self.labels):
+            def switch(name, expr, what, wanted):
+                h.append(expr)
+                self.switches.append(Switch(f"{name}[{label}]", label, what, wanted))
+                return Poly.var(len(self.switches) - 1)
+
+            lam_n = self.lam[self.lam_index[label].start]
+            sel = {"alpha": switch("alpha", ct.normal_velocity, "n^T v", ALPHA_STAR),
+                   "beta": switch("beta", ct.gap, "c(q)", BETA_STAR),
+                   "gamma": switch("gamma", -lam_n, "-lambda_n", GAMMA_STAR)}
+            if model is ContactModel.NO_SLIP:
+                sel["zeta"] = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+            selectors.append(sel)
+        # fields: per point the auxiliary a_n (, a_t) and the unit-force fields of its lambda entries
+        force_fields = []
+        for contact, model, ct, label in zip(self.contacts, self.models, self.terms, self.labels):
+            def field(name, value, auxiliary, impulse=(0, 0)):
+                key = f"{name}[{label}]"
+                values[key], impulses[key] = value, impulse
+                self.fields.append(Field(key, label, auxiliary))
+
+            field("a_n", ca.vertcat(zq, contact.a_n * ct.minv_normal, zp, 0), True, (contact.a_n, 0))
+            if model is ContactModel.NO_SLIP:
+                field("a_t", ca.vertcat(zq, contact.a_t * ct.minv_tangent, zp, 0), True, (0, contact.a_t))
+            field("lam_n", ca.vertcat(zq, ct.minv_normal, zp, 0), False)
+            force_fields.append(f"lam_n[{label}]")
+            if model is ContactModel.NO_SLIP:
+                field("lam_t", ca.vertcat(zq, ct.minv_tangent, zp, 0), False)
+                force_fields.append(f"lam_t[{label}]")
+        names = [f.name for f in self.fields]
+        self.force_columns = tuple(names.index(n) for n in force_fields)
+        # factors: clock factor r_i and DAE-forming gate g_i per point, then prefix/suffix chains of the r_i
+        n_sigma, factors = len(self.switches), []
+
+        def factor(name, definition, upper):
+            factors.append(Factor(name, definition, upper))
+            return Poly.var(n_sigma + len(factors) - 1), upper
+
+        r, g = [], []
+        for sel, label in zip(selectors, self.labels):
+            al, be, ga = sel["alpha"], sel["beta"], sel["gamma"]
+            r.append(factor(f"r[{label}]", be + (1 / ALPHA_STAR) * (1 - be) * al, 1 / ALPHA_STAR))
+            g.append(factor(f"g[{label}]", (1 - be) * al * (1 - ga), 1.0))
+        m = len(r)
+        pre, suf = [(Poly({(): 1.0}), 1.0)] * (m + 1), [(Poly({(): 1.0}), 1.0)] * (m + 2)
+        pre[1], suf[m] = r[0], r[m - 1]
+        for k in range(2, m):  # pre[k] = r_1 ... r_k, suf[k] = r_k ... r_m as factors (k < m, k > 1)
+            pre[k] = factor(f"r[1..{k}]", pre[k - 1][0] * r[k - 1][0], pre[k - 1][1] * r[k - 1][1])
+        for k in range(m - 1, 1, -1):
+            suf[k] = factor(f"r[{k}..{m}]", r[k - 1][0] * suf[k + 1][0], r[k - 1][1] * suf[k + 1][1])
+        self.factors = tuple(factors)
+        clock = pre[m - 1][0] * r[m - 1][0]  # R = prod_i r_i
+        mix = clock * Mix.field("ode")
+        for i, (sel, label, model) in enumerate(zip(selectors, self.labels, self.models)):
+            al, be = sel["alpha"], sel["beta"]
+            others = pre[i][0] * suf[i + 2][0]  # R_-i
+            mix = mix + ((1 - be) * (1 - al) - others * g[i][0]) * Mix.field(f"a_n[{label}]")
+            if model is ContactModel.NO_SLIP:
+                mix = mix + ((1 - be) * (1 - 2 * sel["zeta"])) * Mix.field(f"a_t[{label}]")
+        switches = []
+        for sel, size in zip(selectors, sizes):
+            switches += [(1 - sel["beta"]) * (1 - sel["gamma"])] * size
+        self.constraint_switches = tuple(switches)
+        self._finish(mix, values, impulses, h)
+        self.constraint_fn = ca.Function("tf_constraint", [self.y, self.u, self.lam], [self.constraint], ["y", "u", "lam"], ["Ja"])
 
     def mass_matrix_form(self) -> MassMatrixForm:
         """The fields with M^-1 taken out (see MassMatrixForm); built on first use.
@@ -313,6 +462,21 @@ class TimeFreezingSystem:
     @property
     def n_sigma(self) -> int:
         return len(self.switches)
+
+    @property
+    def n_lambda(self) -> int:
+        """Number of algebraic contact forces (0 for one contact)."""
+        return self.lam.shape[0]
+
+    def variables(self, sigma):
+        """The polynomial variables (n_sigma + n_factors,): the selectors sigma, then the factors
+        evaluated in order (numbers or CasADi expressions)."""
+        vals = [sigma[i] for i in range(self.n_sigma)]
+        for f in self.factors:
+            vals.append(f.definition(vals))
+        if isinstance(sigma, (ca.SX, ca.MX)):
+            return ca.vertcat(*vals) if vals else sigma
+        return np.array([float(x) for x in vals])
 
     @property
     def n_fields(self) -> int:
@@ -328,18 +492,33 @@ class TimeFreezingSystem:
         """(n_fields,) bool: which fields are auxiliary (clock-frozen) motions."""
         return np.array([f.auxiliary for f in self.fields])
 
-    def coefficient_vector(self, sigma):
-        """(n_fields,) values P_j(sigma) for numbers or CasADi expressions sigma (n_sigma,)."""
-        vals = [self.coefficients[f.name](sigma) for f in self.fields]
-        if isinstance(sigma, (ca.SX, ca.MX)):
+    def coefficient_vector(self, sigma, lam=None):
+        """(n_fields,) values P_j(sigma) for numbers or CasADi expressions sigma (n_sigma,). Several
+        contacts: the unit-force fields get R lambda_k (lam (n_lambda,) [N], default the symbols),
+        R the coefficient of f_ODE."""
+        symbolic = isinstance(sigma, (ca.SX, ca.MX))
+        x = self.variables(sigma) if self.factors else sigma
+        vals = [self.coefficients[f.name](x) for f in self.fields]
+        if self.n_lambda:
+            lam = self.lam if lam is None else lam
+            clock = vals[0]  # the coefficient of "ode"
+            for k, j in enumerate(self.force_columns):
+                vals[j] = vals[j] + clock * lam[k]
+        if symbolic or any(isinstance(v, (ca.SX, ca.MX)) for v in vals):
             return ca.vertcat(*vals)
         return np.array([float(v) for v in vals])
 
-    def vector_field(self, sigma, y=None, u=None):
-        """F(y, sigma, u) (ny,), the unlifted multi-affine field (eq. 17 / 27); y, u default to the symbols."""
+    def vector_field(self, sigma, y=None, u=None, lam=None):
+        """F(y, sigma, u) (ny,), the unlifted multi-affine field (eq. 17 / 27); y, u default to the symbols
+        (several contacts: lam (n_lambda,) the contact forces, default the symbols)."""
         fmat = self.field_matrix if y is None and u is None else self.fields_fn(self.y if y is None else y, self.u if u is None else u)
-        coef = self.coefficient_vector(sigma)
+        coef = self.coefficient_vector(sigma, lam)
         return ca.mtimes(fmat, ca.DM(coef) if isinstance(coef, np.ndarray) else coef)
+
+    def constraint_rows(self, y, u, lam, s):
+        """The switched force rows s_i (J_i a + dJ_i/dt v) + (1 - s_i) kappa lambda_i (n_lambda,) at
+        y (ny,), u (nu,), lam (n_lambda,) and the per-row switches s (n_lambda,) (several contacts)."""
+        return s * self.constraint_fn(y, u, lam) + (1 - s) * self.force_scale * lam
 
     def field(self, name: str) -> ca.SX:
         """The symbolic field f_j(y, u) named `name` (ny,)."""
@@ -385,6 +564,11 @@ class MassMatrixForm:
     mass: ca.SX
     lam_index: dict
     fn: ca.Function
+    # several contacts: z = (acc, lam, d) with ONE d = M^-1 J^T lam (nv,) for all points; `defining`
+    # holds M acc = B u - h and M d = J^T lam, `constraint` (n_lambda,) = J (acc + d) + dJ/dt v, which
+    # the step switches per point (TimeFreezingSystem.constraint_rows); constraint_fn (y, u, z).
+    lam_slice: slice | None = None
+    constraint_fn: ca.Function | None = None
 
     @property
     def nz(self) -> int:
@@ -394,6 +578,8 @@ class MassMatrixForm:
 def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
     if any(m is ContactModel.ELASTIC for m in system.models):
         raise InputError("the mass-matrix form is not available for elastic contacts (restitution > 0)")
+    if system.n_lambda:
+        return _mass_matrix_form_several(system)
     dyn, nq, nv = system.dyn, system.nq, system.nv
     y, u = system.y, system.u
     q, v = y[:nq], y[nq : nq + nv]
@@ -407,10 +593,9 @@ def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
     n_lam = 0
     for contact, model, ct in zip(system.contacts, system.models, system.terms):
         pt = contact.point
-        drift = dyn.point_drift(pt)(q, v)
         no_slip = model is ContactModel.NO_SLIP
         J = ca.horzcat(ct.normal, ct.tangent).T if no_slip else ct.normal.T
-        jdv = ca.vertcat(drift[2], drift[0]) if no_slip else drift[2]
+        jdv = ca.vertcat(ct.normal_drift, ct.tangent_drift) if no_slip else ct.normal_drift
         m = J.shape[0]
         lam = ca.SX.sym(f"lam_{len(lams)}", m)
         d = ca.SX.sym(f"d_{len(ds)}", nv)
@@ -427,7 +612,7 @@ def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
             forces[f"dae_f[{pt}]"] = tau + ca.mtimes(J.T, lam)
         else:
             forces[f"dae[{pt}]"] = tau + ca.mtimes(J.T, lam)
-        phi[pt] = ca.dot(ct.normal, acc) + drift[2]
+        phi[pt] = ca.dot(ct.normal, acc) + ct.normal_drift
     names = [f"acc[{i}]" for i in range(nv)] + lam_names + d_names
     cols = []
     for j, f in enumerate(system.fields):
@@ -441,3 +626,40 @@ def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
     fn = ca.Function("tf_mass_matrix_form", [y, u, z], [fmat, switching, defn, M], ["y", "u", "z"], ["g", "h", "defining", "M"])
     return MassMatrixForm(z=z, z_names=tuple(names), force_matrix=fmat, switching=switching, defining=defn, mass=M,
                           lam_index=lam_index, fn=fn)
+
+
+def _mass_matrix_form_several(system: TimeFreezingSystem) -> MassMatrixForm:
+    """Several contacts: z = (acc, lam, d); see MassMatrixForm."""
+    dyn, nq, nv = system.dyn, system.nq, system.nv
+    y, u = system.y, system.u
+    q, v = y[:nq], y[nq : nq + nv]
+    M = system._mass
+    tau = ca.mtimes(ca.DM(dyn.actuation), u) - dyn.bias(q, v)
+    acc, d = ca.SX.sym("acc", nv), ca.SX.sym("d", nv)
+    lam = ca.SX.sym("lam", system.n_lambda)
+    rows_J, rows_jdv, forces = [], [], {"ode": tau}
+    for contact, model, ct, label in zip(system.contacts, system.models, system.terms, system.labels):
+        no_slip = model is ContactModel.NO_SLIP
+        rows_J += [ct.normal.T] + ([ct.tangent.T] if no_slip else [])
+        rows_jdv += [ct.normal_drift] + ([ct.tangent_drift] if no_slip else [])
+        forces[f"a_n[{label}]"] = contact.a_n * ct.normal
+        forces[f"lam_n[{label}]"] = ct.normal
+        if no_slip:
+            forces[f"a_t[{label}]"] = contact.a_t * ct.tangent
+            forces[f"lam_t[{label}]"] = ct.tangent
+    J = ca.vertcat(*rows_J)
+    defining = ca.vertcat(ca.mtimes(M, acc) - tau, ca.mtimes(M, d) - ca.mtimes(J.T, lam))
+    constraint = ca.mtimes(J, acc + d) + ca.vertcat(*rows_jdv)
+    cols = []
+    for j, f in enumerate(system.fields):
+        col = system.field_matrix[:, j]
+        cols.append(ca.vertcat(col[:nq], forces[f.name], col[nq + nv :]))
+    switching = ca.substitute(system.switching, system.lam, lam)  # gamma_i: -lambda_n,i, the z entry
+    z = ca.vertcat(acc, lam, d)
+    names = [f"acc[{i}]" for i in range(nv)] + list(system.lam_names) + [f"d[{i}]" for i in range(nv)]
+    lam_index = {label: slice(nv + sl.start, nv + sl.stop) for label, sl in system.lam_index.items()}
+    fmat = ca.horzcat(*cols)
+    fn = ca.Function("tf_mass_matrix_form", [y, u, z], [fmat, switching, defining, M], ["y", "u", "z"], ["g", "h", "defining", "M"])
+    cfn = ca.Function("tf_mass_matrix_constraint", [y, u, z], [constraint], ["y", "u", "z"], ["Ja"])
+    return MassMatrixForm(z=z, z_names=tuple(names), force_matrix=fmat, switching=switching, defining=defining, mass=M,
+                          lam_index=lam_index, fn=fn, lam_slice=slice(nv, nv + system.n_lambda), constraint_fn=cfn)

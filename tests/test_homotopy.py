@@ -89,7 +89,6 @@ def test_gating_and_ungate_keep_the_trajectory():
     prob = build_problem(robot, hop_task(N=3), ProblemOptions(gating=True))
     x = prob.x0.copy()
     names = [s.name.split("[")[0] for s in prob.system.switches]
-    sig = prob.var_blocks["sigma"][0]
     b = prob.builder
     w = x[prob.var_blocks["w"][0]]
     sigma = w[b.w_blocks["sigma"]].copy()

@@ -396,3 +396,130 @@ def test_stalled_step_restarts_from_the_flight_predictor():
     assert r.stats.converged and r.summary()["restarted_steps"] == 1
     np.testing.assert_allclose(r.trajectory.sigma[0], 1.0, atol=SELECTOR_TOL)
     assert r.trajectory.impacts == ()
+
+
+# --- several contact points ----------------------------------------------------------------------
+
+BIPED_MASS = 35.0  # [kg] hip 15 + torso 10 + legs 2 x 5 (robots/biped.xml)
+# Sum of normal forces vs m g: the interior point leaves beta ~3e-6 off its bound (see SOLVER_TOL),
+# which mixes ~1e-6 of f_ODE and f_A,n into the step; measured 1.5e-6 relative.
+FORCE_BALANCE_RTOL = 1e-5
+# The clock rate R = r_1 r_2 of two feet at rest: each r_i = beta_i + 2 alpha_i (1 - beta_i) carries the
+# barrier offset of beta_i (~3e-6, see SELECTOR_TOL); measured 1 - R = 2.3e-6.
+CLOCK_RATE_TOL_TWO = 1e-5
+FOOT_DRIFT_M = 1e-6  # a foot in persistent no-slip contact: the implicit step's O(h^2) gap drift, measured 5e-7 m
+
+
+@functools.cache
+def biped():
+    return load_robot("biped")
+
+
+def biped_task(q0, tau_f: float, N: int, **simulate_keys):
+    return parse_task({"contacts": [{"point": "foot_1", "mu": 0.8}, {"point": "foot_2", "mu": 0.8}],
+                       "initial": {"q": list(q0)}, "horizon": {"tau_f": tau_f, "N": N}, "simulate": simulate_keys})
+
+
+def foot_positions(result, foot: str) -> np.ndarray:
+    dyn = Dynamics(biped())
+    return np.array([np.asarray(dyn.point_position(foot)(q), float).ravel() for q in result.trajectory.q])
+
+
+def test_biped_stands_on_both_feet(capsys):
+    """The biped standing on both feet (legs +-0.2 rad, joint PD holding them) stays still for 0.2 s:
+    no impact, no motion, the clock runs at rate 1, and the two normal contact forces add up to its
+    weight m g (the horizontal forces cancel)."""
+    spread = 0.2
+    t = biped_task([0.0, math.cos(spread), 0.0, spread, -spread], 0.2, 20,
+                   pd={"joints": ["hinge_1", "hinge_2"], "kp": [2000.0] * 2, "kd": [50.0] * 2})
+    r = simulate(biped(), t)
+    tr = r.trajectory
+    assert r.stats.converged and tr.impacts == ()
+    np.testing.assert_allclose(tr.q, np.tile(t.initial.q, (len(tr.q), 1)), atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.v, 0.0, atol=SOLVER_TOL)
+    np.testing.assert_allclose(np.diff(tr.y[:, -1]) / r.h, 1.0, atol=CLOCK_RATE_TOL_TWO)
+    assert tr.force_names == ("lambda_n[foot_1]", "lambda_t[foot_1]", "lambda_n[foot_2]", "lambda_t[foot_2]")
+    normal = tr.forces[:, 0] + tr.forces[:, 2]
+    err = np.abs(normal / (BIPED_MASS * G) - 1.0).max()
+    with capsys.disabled():
+        print(f"\nbiped on both feet: normal forces {tr.forces[-1, [0, 2]].round(4).tolist()} N, sum vs m g relative error {err:.1e}")
+    assert err < FORCE_BALANCE_RTOL
+    np.testing.assert_allclose(tr.forces[:, 1] + tr.forces[:, 3], 0.0, atol=FORCE_BALANCE_RTOL * BIPED_MASS * G)
+
+
+def test_biped_single_support_swings_the_other_leg():
+    """On foot_1 (leg vertical, PD on its hinge) with foot_2 17 cm up, a -20 N m torque on hinge_2
+    swings leg 2 up for 0.2 s: foot_1 stays where it is (no slip, on the ground) with a positive
+    normal force, foot_2 moves 7 cm forward and 5 cm up with zero force, and there is no impact."""
+    t = biped_task([0.0, 1.0, 0.0, 0.0, -0.6], 0.2, 50, u=[0.0, -20.0], pd={"joints": ["hinge_1"], "kp": [2000.0], "kd": [50.0]})
+    r = simulate(biped(), t)
+    tr = r.trajectory
+    assert r.stats.converged and tr.impacts == ()
+    f1, f2 = foot_positions(r, "foot_1"), foot_positions(r, "foot_2")
+    np.testing.assert_allclose(f1, np.tile(f1[0], (len(f1), 1)), atol=FOOT_DRIFT_M)
+    assert f2[-1, 0] - f2[0, 0] > 0.05 and f2[-1, 2] - f2[0, 2] > 0.03 and f2[:, 2].min() > 0.17
+    assert tr.forces[:, 0].min() > 0.5 * BIPED_MASS * G
+    np.testing.assert_allclose(tr.forces[:, 2:], 0.0, atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.sigma[:, 5], 1.0, atol=SELECTOR_TOL)  # beta[foot_2]: in flight
+
+
+def wall_normals(slope_deg: float):
+    """Unit normals (x, 0, z) of the two planes of a V-shaped corner at the origin, slopes +-slope_deg:
+    the left wall rises to the left, the right wall to the right; the wedge between them (the free
+    space) has the angle 180 - 2 slope_deg."""
+    a = math.radians(slope_deg)
+    return [math.sin(a), 0.0, math.cos(a)], [-math.sin(a), 0.0, math.cos(a)]
+
+
+def corner_task(slope_deg: float, x0: float, tau_f: float, N: int):
+    n1, n2 = wall_normals(slope_deg)
+    a = math.radians(slope_deg)
+    return parse_task({"contacts": [{"point": "point", "normal": n1}, {"point": "point", "normal": n2}],
+                       "initial": {"q": [x0, abs(x0) * math.tan(a)]}, "horizon": {"tau_f": tau_f, "N": N}})
+
+
+def test_point_mass_rests_in_an_obtuse_corner():
+    """A 1 kg mass at the bottom of two frictionless walls meeting at 140 deg (slopes +-20 deg) stays
+    there with the wall forces m g / (2 cos 20 deg) each: the two contacts share the weight."""
+    r = simulate(robot(), corner_task(20.0, 0.0, 0.2, 20), dynamics=dynamics())
+    tr = r.trajectory
+    assert r.stats.converged and tr.impacts == ()
+    np.testing.assert_allclose(tr.q, 0.0, atol=SOLVER_TOL)
+    assert tr.force_names == ("lambda_n[point#1]", "lambda_n[point#2]")
+    np.testing.assert_allclose(tr.forces, G / (2 * math.cos(math.radians(20.0))), rtol=FORCE_BALANCE_RTOL)
+
+
+def test_point_mass_slides_into_an_acute_corner_and_stops():
+    """Released on the left wall of a 60 deg wedge (slopes +-60 deg, frictionless), the mass slides
+    down, hits the right wall and stops in the corner: the inelastic impact of two walls whose normals
+    are 120 deg apart takes the whole velocity (both walls push, v+ = 0), then it rests in the corner."""
+    r = simulate(robot(), corner_task(60.0, -0.1, 0.5, 100), dynamics=dynamics())
+    tr = r.trajectory
+    assert r.stats.converged
+    first = [imp for imp in tr.impacts if imp.time == tr.impacts[0].time]
+    assert {imp.contact for imp in first} == {"point#1", "point#2"} and all(imp.impulse > 0 for imp in first)
+    np.testing.assert_allclose(first[0].v_post, 0.0, atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.q[-1], 0.0, atol=GAP_TOL)
+
+
+def test_point_mass_slides_through_an_obtuse_corner():
+    """Released on the left wall of a 140 deg corner (slopes +-20 deg, frictionless), the mass slides
+    down and meets the right wall: it then moves up the right wall (v+ tangent to it, leaving the
+    left one), never below either wall. The rigid impact (LCP) keeps the tangential speed, v+ = v- -
+    (n2 . v-) n2; the time-freezing step also pulls on the left wall while the clock restarts (a
+    negative impulse, docs/formulation.md "Several contacts"): v+ is the LCP direction at 79 % of
+    its speed (measured), and never faster."""
+    n1, n2 = (np.array([n[0], n[2]]) for n in wall_normals(20.0))
+    r = simulate(robot(), corner_task(20.0, -0.3, 0.6, 120), dynamics=dynamics())
+    tr = r.trajectory
+    assert r.stats.converged
+    imp = tr.impacts[0]
+    assert imp.contact == "point#2" and imp.impulse > 0
+    lcp = imp.v_pre - (n2 @ imp.v_pre) * n2
+    assert n2 @ imp.v_post == pytest.approx(0.0, abs=SOLVER_TOL) and n1 @ imp.v_post > 0
+    assert imp.v_post[0] * lcp[1] - imp.v_post[1] * lcp[0] == pytest.approx(0.0, abs=SOLVER_TOL)  # same direction
+    assert 0.7 < np.linalg.norm(imp.v_post) / np.linalg.norm(lcp) <= 1.0
+    gaps = np.column_stack([tr.q @ n1, tr.q @ n2])
+    assert gaps.min() > -GAP_TOL
+    after = tr.t > imp.time + 0.05
+    assert np.all(tr.q[after, 0] > 0) and np.all(gaps[after, 0] > GAP_TOL)  # up the right wall, off the left one

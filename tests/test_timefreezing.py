@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from planner.contact import contact_functions
+from planner.discretization import ImplicitEulerStep, StepForm
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import load_robot
@@ -25,7 +27,7 @@ def dyn(name: str) -> Dynamics:
 
 
 def system(name: str, **contact) -> TimeFreezingSystem:
-    point = {"point_mass": "point", "capler": "foot"}[name]
+    point = {"point_mass": "point", "capler": "foot", "biped": "foot_1"}[name]
     return TimeFreezingSystem(dyn(name), [Contact(point, **contact)])
 
 
@@ -142,14 +144,15 @@ def test_elastic_frozen_field_is_the_oscillator():
 
 
 def test_contact_models_and_unsupported_combinations():
-    """eps > 0 is elastic, mu > 0 no-slip, else frictionless; eps > 0 with mu > 0 and several contacts are input errors."""
+    """eps > 0 is elastic, mu > 0 no-slip, else frictionless; eps > 0 with mu > 0, and an elastic point
+    among several contact points, are input errors."""
     assert contact_model(Contact("p")) is ContactModel.FRICTIONLESS
     assert contact_model(Contact("p", mu=0.3)) is ContactModel.NO_SLIP
     assert contact_model(Contact("p", restitution=0.4)) is ContactModel.ELASTIC
     with pytest.raises(InputError, match="restitution"):
         contact_model(Contact("p", mu=0.3, restitution=0.4))
-    with pytest.raises(InputError, match="only one contact point"):
-        TimeFreezingSystem(dyn("capler"), [Contact("foot"), Contact("knee")])
+    with pytest.raises(InputError, match="must all be inelastic"):
+        TimeFreezingSystem(dyn("capler"), [Contact("foot", restitution=0.5), Contact("knee")])
 
 
 def test_no_contacts_is_free_flight():
@@ -167,3 +170,132 @@ def test_poly_is_multi_affine():
     assert p([0.25, 0.5]) == pytest.approx(0.375)
     with pytest.raises(ValueError):
         _ = a * a
+
+
+# --- several contact points (docs/formulation.md, "Several contacts") ----------------------------
+
+FORCE_TOL = 1e-9  # index-reduced forces from two dense solves of the same linear system [N]
+
+
+def biped_two_feet(mu: float = 0.8) -> TimeFreezingSystem:
+    return TimeFreezingSystem(dyn("biped"), [Contact("foot_1", mu=mu), Contact("foot_2", mu=mu)])
+
+
+def biped_standing(seed: int):
+    """A random biped state with both feet on the ground and both feet at rest (n^T v = t^T v = 0)."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.1, 0.4)
+    q = np.array([rng.uniform(-1, 1), math.cos(a), rng.uniform(-0.3, 0.3), 0.0, 0.0])
+    q[3], q[4] = a - q[2], -a - q[2]  # absolute leg angles +-a: both feet at z = 0
+    J = np.vstack([np.asarray(dyn("biped").point_jacobian(f)(q), float)[[2, 0]] for f in ("foot_1", "foot_2")])
+    v = rng.normal(size=5)
+    v -= J.T @ np.linalg.solve(J @ J.T, J @ v)
+    return q, v, J, rng.normal(scale=50.0, size=2)
+
+
+def test_several_contacts_wanted_selectors_give_joint_dae():
+    """Both biped feet on the ground with the wanted selectors: F = f_ODE + sum_i M^-1 J_i^T lambda_i
+    exactly (the coefficients are those of f_ODE and the unit-force fields), and the force rows switched
+    on for both feet give the index-reduced forces of the STACKED Jacobian, -(J M^-1 J^T)^-1 (J f_v +
+    dJ/dt v), which keep both feet at rest; the sum of the two single-foot DAE forces is different
+    (the feet are coupled through M) and would not."""
+    s = biped_two_feet()
+    coef = s.coefficient_vector(s.wanted, np.zeros(s.n_lambda))
+    np.testing.assert_array_equal(coef, [1.0] + [0.0] * (s.n_fields - 1))
+    b = ImplicitEulerStep(s)
+    for seed in range(3):
+        q, v, J, u = biped_standing(seed)
+        y = s.initial_state(q, v)
+        lam = b.contact_forces(y, u, s.wanted)
+        M = np.asarray(dyn("biped").mass(q), float)
+        fv = np.asarray(dyn("biped").forward(q, v, u), float).ravel()
+        drift = np.concatenate([np.asarray(dyn("biped").point_drift(f)(q, v), float).ravel()[[2, 0]] for f in ("foot_1", "foot_2")])
+        stacked = -np.linalg.solve(J @ np.linalg.solve(M, J.T), J @ fv + drift)
+        np.testing.assert_allclose(lam, stacked, atol=FORCE_TOL * np.abs(stacked).max())
+        F = np.asarray(s.vector_field(s.wanted, y, u, lam), float).ravel()
+        np.testing.assert_allclose(J @ F[5:10] + drift, 0.0, atol=ON_SIGMA_TOL * 1e3)  # feet stay at rest
+        single = np.concatenate([np.asarray(contact_functions(dyn("biped"), f, 0.0)["lambda_no_slip"](q, v, u), float).ravel()
+                                 for f in ("foot_1", "foot_2")])
+        assert np.abs(single - stacked).max() > 1.0  # [N]: the coupling is not small
+
+
+def test_several_contacts_tangency_forces_wanted_selectors():
+    """On Sigma of both feet (beta = gamma = 0, forces of both feet on), the tangency of the four
+    h = (n_i^T v, t_i^T v) is linear in e = (e_n,i, e_t,i), the net auxiliary coefficients
+    e_n,i = 1 - alpha_i - R_-i alpha_i and e_t,i = 1 - 2 zeta_i, with the joint Delassus matrix: e = 0 is
+    its only solution, and e = 0 with R_-i = 2 alpha_k gives alpha = 1/2 (so R = 1: the clock runs)."""
+    s = biped_two_feet()
+    names = [f.name for f in s.fields]
+    q, v, J, u = biped_standing(7)
+    y = s.initial_state(q, v)
+    Fm = np.asarray(s.fields_fn(y, u), float)
+    lam = ImplicitEulerStep(s).contact_forces(y, u, s.wanted)
+    Gr = np.asarray(ca.Function("g", [s.y, s.u, s.lam], [ca.jacobian(s.switching, s.y)])(y, u, lam), float)[[0, 3, 4, 7]]
+    dae = Fm[:, 0] + sum(lam[k] * Fm[:, j] for k, j in enumerate(s.force_columns))
+    np.testing.assert_allclose(Gr @ dae, 0.0, atol=ON_SIGMA_TOL * 1e3)
+    A = np.column_stack([Gr @ Fm[:, names.index(f"{k}[{f}]")] for f in ("foot_1", "foot_2") for k in ("a_n", "a_t")])
+    assert np.linalg.matrix_rank(A) == 4
+    alpha = np.linspace(0.05, 1.0, 96)  # e_n = 0 on the symmetric branch: alpha (1 + 2 alpha) = 1
+    roots = alpha[np.abs(alpha * (1 + 2 * alpha) - 1) < 1e-2]
+    np.testing.assert_allclose(roots, 0.5, atol=0.01)
+
+
+def test_frozen_impact_stops_the_clock_and_other_pulls():
+    """While one foot is in its impact region (alpha = beta = 0) the clock and q are frozen whatever
+    the other foot's selectors (R = 0), and the other foot's normal auxiliary coefficient is
+    (1 - beta)(1 - alpha) >= 0: it can push but never pull (no adhesive impulse from the DAE-forming
+    term while another point is frozen); two simultaneous impacts push both feet with the clock frozen."""
+    s = biped_two_feet()
+    names = [f.name for f in s.fields]
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        sigma = rng.uniform(size=s.n_sigma)
+        sigma[4] = sigma[5] = 0.0  # foot_2 in its impact region
+        c = s.coefficient_vector(sigma, rng.normal(size=s.n_lambda))
+        assert c[names.index("ode")] == 0.0 and all(c[j] == 0.0 for j in s.force_columns)
+        a1, b1 = sigma[0], sigma[1]
+        assert c[names.index("a_n[foot_1]")] == pytest.approx((1 - b1) * (1 - a1)) and c[names.index("a_n[foot_2]")] == 1.0
+    both = np.array([0.0, 0.0, 0.0, 0.5] * 2)
+    c = s.coefficient_vector(both, np.zeros(s.n_lambda))
+    assert c[names.index("ode")] == 0.0 and c[names.index("a_n[foot_1]")] == c[names.index("a_n[foot_2]")] == 1.0
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.5])
+def test_several_contacts_scale_linearly(mu):
+    """m contacts (one point against m planes): fields, selectors, factor variables and the lifted
+    products of a step grow linearly in m (no 2^m or 3^m modes), and products stay of degree <= 3."""
+    counts = []
+    for m in range(2, 7):
+        cs = [Contact("point", mu=mu, normal=(math.sin(0.1 * k), 0.0, math.cos(0.1 * k))) for k in range(m)]
+        s = TimeFreezingSystem(dyn("point_mass"), cs)
+        b = ImplicitEulerStep(s)
+        assert max(len(mono) for mono in b.lifted) <= 3
+        counts.append((s.n_fields, s.n_sigma, len(s.factors), len(b.lifted), b.nw))
+    steps = np.diff(np.array(counts), axis=0)
+    assert np.all(steps == steps[-1]), counts  # constant increments: linear
+
+
+def test_several_contacts_step_forms_agree():
+    """The mass-matrix step (forces acc, lambda, d with M acc = B u - h, M d = J^T lambda) and the
+    explicit step have the same residual at a random point once the extra variables solve their rows."""
+    s = biped_two_feet()
+    q, v, _, u = biped_standing(3)
+    y = s.initial_state(q, v)
+    rng = np.random.default_rng(2)
+    sigma = rng.uniform(size=s.n_sigma)
+    for form in (StepForm.EXPLICIT, StepForm.MASS_MATRIX):
+        b = ImplicitEulerStep(s, form=form)
+        w = b.w_from(sigma, np.zeros(s.n_sigma), np.zeros(s.n_sigma), b.forces_at(y, u, sigma))
+        yk, yn, uu = ca.SX.sym("yk", s.ny), ca.SX.sym("yn", s.ny), ca.SX.sym("u", s.nu)
+        st = b.build(yk, yn, uu, 1.0, 0.01)
+        g = np.asarray(ca.Function("g", [yk, yn, uu, st.w], [st.g])(y, y, u, w), float).ravel()
+        np.testing.assert_allclose(g[st.g_blocks["lifting"]], 0.0, atol=1e-12)
+        np.testing.assert_allclose(g[st.g_blocks["contact_forces"]], 0.0, atol=1e-8)
+        dyn_rows = g[st.g_blocks["dynamics"]]
+        if form is StepForm.MASS_MATRIX:
+            dyn_rows = dyn_rows.copy()
+            dyn_rows[5:10] = np.linalg.solve(np.asarray(dyn("biped").mass(q), float), dyn_rows[5:10])
+        if form is StepForm.EXPLICIT:
+            ref = dyn_rows
+        else:
+            np.testing.assert_allclose(dyn_rows, ref, atol=1e-10)
