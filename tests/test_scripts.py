@@ -80,3 +80,164 @@ def test_drop_exact_solution(bench):
     assert z[(t > t1) & (t < t2)].max() == pytest.approx(0.25, abs=1e-6)
     assert z[t > t2].max() == pytest.approx(0.0625, abs=1e-6)
     assert z.min() >= 0.0
+
+
+# --- scripts/stress.py ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def stress():
+    return _load("stress")
+
+
+def test_stress_generator_is_seeded(stress):
+    """A seed gives the same task list every time, a family's tasks do not depend on the other families
+    run, another seed gives other tasks, and every generated task is a valid task for its robot."""
+    from planner.model import load_robot
+    from planner.task import parse_task
+
+    a = stress.generate(3, per_family=2, robot="point_mass", N=20)
+    assert a == stress.generate(3, per_family=2, robot="point_mass", N=20)
+    assert [s["id"] for s in a] == [f"{f}-{k:02d}" for f in stress.FAMILIES for k in range(2)]
+    assert [s for s in a if s["family"] == "torque"] == stress.generate(3, ["torque"], 2, "point_mass", 20)
+    assert a != stress.generate(4, per_family=2, robot="point_mass", N=20)
+    json.dumps(a)  # plain data: results.json keeps each task
+    for robot in ("point_mass", "capler"):
+        r = load_robot(f"robots/{robot}.xml")
+        for spec in stress.generate(0, per_family=3, robot=robot):
+            parse_task(spec["task"]).check_against(r)
+    with pytest.raises(stress.InputError, match="unknown family"):
+        stress.generate(0, ["nope"])
+
+
+def test_stress_initial_state_families(stress):
+    """Standing and at-contact start with the foot at gap 0, grazing within (0, 1e-4] m, penetrating
+    within [-1e-9, 0) m, airborne well above."""
+    b = stress.base_task("capler")
+    for spec in stress.generate(1, [f for f in stress.FAMILIES if f.startswith("init_")], 3, "capler"):
+        gap = b.foot_height(spec["task"]["initial"]["q"])
+        fam = spec["family"]
+        if fam in ("init_standing", "init_contact"):
+            assert abs(gap) <= 1e-12, spec["id"]
+        elif fam == "init_grazing":
+            assert 0 < gap <= 1.0001e-4, spec["id"]
+        elif fam == "init_penetrating":
+            assert -1e-9 <= gap < 0, spec["id"]
+        else:
+            assert gap >= 0.02 - 1e-12, spec["id"]
+
+
+def test_stress_reduced_run(stress, tmp_path, capsys):
+    """Every family on the point mass (1 task each, N = 20, <= 300 IPOPT iterations per NLP) in two local
+    processes: no crash, each outcome one of the four classes, the out-of-reach target diagnosed, the
+    files written."""
+    code = stress.main(["--robot", "point_mass", "--per-family", "1", "--N", "20", "--max-iter", "300", "--workers", "2",
+                        "--seed", "0", "--out", str(tmp_path), "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    results = json.loads((tmp_path / "results.json").read_text())
+    records = results["records"]
+    assert code == 0 and summary["n_tasks"] == len(records) == len(stress.FAMILIES)
+    for r in records:
+        assert r["outcome"] in stress.OUTCOMES, r["id"]
+        assert r["outcome"] != stress.CRASHED, (r["id"], r["stage"], r["message"], r.get("traceback"))
+        assert r["nonfinite"] == [], r["id"]
+        if r["outcome"] == stress.DIAGNOSED:
+            assert r["message"], r["id"]
+        if r["outcome"] != stress.DIAGNOSED:
+            assert "validation" in r and r["validation"]["passed"] == (r["outcome"] == stress.CONVERGED_VALID)
+    infeasible = next(r for r in records if r["family"] == "infeasible")
+    assert infeasible["outcome"] == stress.DIAGNOSED and not infeasible["unexpected"]
+    assert summary["total"]["tasks"] == len(records) and summary["total"][stress.CRASHED] == 0
+    assert sum(summary["total"][o] for o in stress.OUTCOMES) == len(records)
+    assert len((tmp_path / "records.jsonl").read_text().splitlines()) == len(records)
+    md = (tmp_path / "summary.md").read_text()
+    assert "| **all** | 14 |" in md and "init_grazing" in md
+
+
+def _one(stress):
+    """A task that converges in ~2 s: the frictionless point-mass hop (friction-00), N = 20."""
+    spec = stress.generate(0, ["friction"], 1, "point_mass", N=20, solve_options={"max_iter": 300})[0]
+    assert spec["params"]["mu"] == 0.0
+    return spec
+
+
+def test_stress_nan_in_build_is_a_crash_at_build(stress, monkeypatch):
+    """A NaN in the built problem's initial guess is caught before the solve: crashed at stage build."""
+    import planner.problem
+
+    real = planner.problem.build_problem
+
+    def nan_x0(*args, **kwargs):
+        problem = real(*args, **kwargs)
+        problem.x0[3] = np.nan
+        return problem
+
+    monkeypatch.setattr(planner.problem, "build_problem", nan_x0)
+    spec = _one(stress)
+    rec = stress.finish(spec, stress.run_batch(stress.run_task, [spec], workers=0)[0])
+    assert rec["outcome"] == stress.CRASHED and rec["stage"] == "build"
+    assert "x0: 1 NaN" in rec["message"] and rec["nonfinite"][0]["stage"] == "build"
+
+
+def test_stress_nan_in_recovery_is_never_silent(stress, monkeypatch):
+    """A NaN injected into the recovered trajectory of a converged solve: crashed at stage recovery."""
+    import planner.homotopy
+
+    real = planner.homotopy.step_trajectory
+
+    def nan_q(*args, **kwargs):
+        traj = real(*args, **kwargs)
+        traj.q[2, 0] = np.nan
+        return traj
+
+    monkeypatch.setattr(planner.homotopy, "step_trajectory", nan_q)
+    spec = _one(stress)
+    rec = stress.finish(spec, stress.run_batch(stress.run_task, [spec], workers=0)[0])
+    assert rec["outcome"] == stress.CRASHED and rec["stage"] == "recovery", rec["message"]
+    assert "q: 1 NaN" in rec["message"]
+
+
+def test_stress_nan_in_an_nlp_is_reported_with_its_stage(stress, monkeypatch):
+    """A NaN objective reported by one NLP of the homotopy is listed with that NLP's label, whatever
+    the outcome."""
+    import dataclasses
+
+    import planner.homotopy
+
+    real = planner.homotopy._run
+
+    def nan_objective(*args, **kwargs):
+        x, lam_x, lam_g, rec = real(*args, **kwargs)
+        if rec.label == "homotopy 2":
+            rec = dataclasses.replace(rec, objective=float("nan"))
+        return x, lam_x, lam_g, rec
+
+    monkeypatch.setattr(planner.homotopy, "_run", nan_objective)
+    spec = _one(stress)
+    rec = stress.finish(spec, stress.run_batch(stress.run_task, [spec], workers=0)[0])
+    assert rec["outcome"] in stress.OUTCOMES
+    assert {"stage": "homotopy 2", "what": "objective: 1 NaN, 0 Inf of 1", "status": "Solve_Succeeded"} in rec["nonfinite"]
+
+
+def test_stress_exception_is_a_crash_with_its_stage(stress, monkeypatch):
+    """An exception inside the MuJoCo validation: crashed at stage validation, with the traceback."""
+    import planner.replay
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("MuJoCo exploded")
+
+    monkeypatch.setattr(planner.replay, "validate_trajectory", boom)
+    spec = _one(stress)
+    rec = stress.finish(spec, stress.run_batch(stress.run_task, [spec], workers=0)[0])
+    assert rec["outcome"] == stress.CRASHED and rec["stage"] == "validation"
+    assert rec["message"] == "RuntimeError: MuJoCo exploded" and "boom" in rec["traceback"]
+
+
+@pytest.mark.slow
+def test_stress_capler_reduced_run(stress, tmp_path, capsys):
+    """One Capler task per family at N = 20 (a few minutes): no crash, the out-of-reach target diagnosed."""
+    stress.main(["--robot", "capler", "--per-family", "1", "--N", "20", "--max-iter", "500", "--workers", "2",
+                 "--out", str(tmp_path), "--json"])
+    records = json.loads((tmp_path / "results.json").read_text())["records"]
+    assert all(r["outcome"] in stress.OUTCOMES for r in records)
+    assert [r["id"] for r in records if r["outcome"] == stress.CRASHED] == []
+    assert next(r for r in records if r["family"] == "infeasible")["outcome"] == stress.DIAGNOSED

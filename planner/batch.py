@@ -1,0 +1,206 @@
+"""Batch execution of independent jobs (sweeps, stress runs): local processes or a Dask cluster.
+
+    from planner.batch import run_batch, stage
+    results = run_batch(fn, items)                            # local processes (spawn), item order
+    results = run_batch(fn, items, workers=0)                 # in this process, one after the other
+    results = run_batch(fn, items, scheduler="tcp://host:8786")   # a Dask distributed scheduler
+
+`fn(item)` must be a top-level function (it is sent to the workers by module and name; a function of a
+script loaded by path, e.g. scripts/stress.py, is found again from its file) and items and results
+must pickle. Every item gives exactly one result, in item order: fn's return value, or a `Crashed`
+record when fn raised (or its worker process died, or its result did not come back). A crash never
+stops the sweep. `with stage("solve"): ...` inside fn names the stage a crash came from.
+
+Dask (`pip install "dask[distributed]"`, the `batch` extra) is imported only when a scheduler is given.
+"""
+from __future__ import annotations
+
+import contextlib
+import importlib
+import importlib.util
+import multiprocessing
+import os
+import sys
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+from .errors import InputError
+
+CRASHED = "crashed"
+DEFAULT_STAGE = "task"  # the stage of a crash outside any `with stage(...)` block
+
+
+@dataclass(frozen=True)
+class Crashed:
+    """One item whose job raised instead of returning: the stage, the error line and the traceback."""
+
+    stage: str  # the innermost `with stage(...)` active when it raised, "worker" (process died), "transfer"
+    error: str  # "ExceptionType: message"
+    traceback: str  # the formatted traceback text
+    outcome: str = CRASHED
+
+    def to_json(self) -> dict:
+        return {"outcome": self.outcome, "stage": self.stage, "error": self.error, "traceback": self.traceback}
+
+
+_STAGE_ATTR = "_planner_batch_stage"
+
+
+@contextlib.contextmanager
+def stage(name: str) -> Iterator[None]:
+    """Label the exceptions raised inside the block with stage `name` (the innermost label wins)."""
+    try:
+        yield
+    except BaseException as exc:
+        if getattr(exc, _STAGE_ATTR, None) is None:
+            try:
+                setattr(exc, _STAGE_ATTR, name)
+            except AttributeError:  # an exception type with __slots__: the stage is lost, not the error
+                pass
+        raise
+
+
+def stage_of(exc: BaseException, default: str = DEFAULT_STAGE) -> str:
+    """The stage an exception was labelled with by `stage`, else `default`."""
+    return getattr(exc, _STAGE_ATTR, None) or default
+
+
+def crashed_record(exc: BaseException, default_stage: str = DEFAULT_STAGE) -> Crashed:
+    """The Crashed record of a caught exception (its stage, one error line, the traceback text)."""
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    return Crashed(stage=stage_of(exc, default_stage), error=f"{type(exc).__name__}: {exc}", traceback=text)
+
+
+@dataclass(frozen=True)
+class _FnRef:
+    """A top-level function by module, qualified name and source file: what the workers import."""
+
+    module: str
+    qualname: str
+    file: str | None
+
+    @classmethod
+    def of(cls, fn: Callable) -> _FnRef | Callable:
+        module, qualname = getattr(fn, "__module__", None), getattr(fn, "__qualname__", "")
+        if module is None or "<" in qualname:
+            raise InputError(f"run_batch needs a top-level function (workers import it by name), got {fn!r}")
+        if module == "__main__":  # spawn re-runs the main script in the workers; pickle handles it by name
+            return fn
+        return cls(module, qualname, getattr(sys.modules.get(module), "__file__", None))
+
+    def resolve(self) -> Callable:
+        try:
+            mod = importlib.import_module(self.module)
+        except ModuleNotFoundError:
+            mod = sys.modules.get(self.module)
+            if mod is None:
+                if not self.file:
+                    raise
+                spec = importlib.util.spec_from_file_location(self.module, self.file)
+                mod = importlib.util.module_from_spec(spec)
+                sys.modules[self.module] = mod  # dataclasses look their module up while a class is built
+                spec.loader.exec_module(mod)
+        obj = mod
+        for part in self.qualname.split("."):
+            obj = getattr(obj, part)
+        return obj
+
+
+def _call(fn, item):
+    """Run one job in a worker: fn(item), or the Crashed record of whatever it raised."""
+    try:
+        if isinstance(fn, _FnRef):
+            with stage("import"):
+                fn = fn.resolve()
+        return fn(item)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # noqa: BLE001 -- every failure of one job (even sys.exit) becomes its record
+        return crashed_record(exc)
+
+
+def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = None, workers: int | None = None,
+              progress: Callable[[int, Any], None] | None = None) -> list[Any]:
+    """fn(item) for every item, results in item order; a job that raised gives a `Crashed` record.
+
+    scheduler: None runs local processes (concurrent.futures, spawn start method, `workers` of them,
+    default min(cpu count, number of items)); workers=0 runs the jobs in this process, one after the
+    other (debugging, monkeypatched tests). A string is the address of a Dask distributed scheduler
+    ("tcp://host:8786"), a dask.distributed.Client is used as it is; `workers` is then ignored.
+    progress(index, result) is called as each job finishes (in completion order).
+    """
+    items = list(items)
+    if not items:
+        return []
+    if scheduler is not None:
+        return _run_dask(fn, items, scheduler, progress)
+    if workers is not None and workers < 0:
+        raise InputError(f"workers must be >= 0, got {workers}")
+    if workers == 0:
+        out = []
+        for i, item in enumerate(items):
+            out.append(_call(fn, item))
+            if progress:
+                progress(i, out[-1])
+        return out
+    ref = _FnRef.of(fn)
+    n = min(workers or os.cpu_count() or 1, len(items))
+    ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (IPOPT, MuJoCo, BLAS)
+    results: list[Any] = [None] * len(items)
+    lost: list[int] = []
+    with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+        futures = {pool.submit(_call, ref, item): i for i, item in enumerate(items)}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            try:
+                results[i] = fut.result()
+            except BrokenProcessPool:  # some worker died: rerun the affected jobs one by one below
+                lost.append(i)
+                continue
+            except Exception as exc:  # noqa: BLE001 -- e.g. a result that does not pickle
+                results[i] = crashed_record(exc, "transfer")
+            if progress:
+                progress(i, results[i])
+    for i in sorted(lost):  # each in its own process, so the one that kills its worker is the one reported
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+            try:
+                results[i] = pool.submit(_call, ref, items[i]).result()
+            except BrokenProcessPool as exc:
+                results[i] = Crashed(stage="worker", error=f"the worker process died ({type(exc).__name__}: {exc})",
+                                     traceback="".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+            except Exception as exc:  # noqa: BLE001
+                results[i] = crashed_record(exc, "transfer")
+        if progress:
+            progress(i, results[i])
+    return results
+
+
+def _run_dask(fn, items: Sequence[Any], scheduler: Any, progress) -> list[Any]:
+    try:
+        from dask.distributed import Client, as_completed as dask_as_completed
+    except ImportError:
+        raise InputError("a Dask scheduler was given but dask.distributed is not installed; "
+                         "install it with: pip install 'dask[distributed]' (or the planner's `batch` extra)") from None
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler) if own else scheduler
+    try:
+        ref = _FnRef.of(fn)
+        futures = client.map(_call, [ref] * len(items), items, pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list[Any] = [None] * len(items)
+        for fut in dask_as_completed(futures):
+            i = index[fut.key]
+            try:
+                results[i] = fut.result()
+            except Exception as exc:  # noqa: BLE001 -- KilledWorker, a lost connection, an unpicklable result
+                results[i] = crashed_record(exc, "worker")
+            if progress:
+                progress(i, results[i])
+        return results
+    finally:
+        if own:
+            client.close()

@@ -1,0 +1,98 @@
+"""planner.batch: local processes and Dask give the serial loop's results in item order; a raising
+job becomes a Crashed record (stage, error, traceback) without stopping the others."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from planner.batch import CRASHED, Crashed, crashed_record, run_batch, stage
+from planner.errors import InputError
+
+
+def square_or_raise(x):
+    """A small deterministic job: raises for negative items, inside a named stage."""
+    with stage("outer"):
+        if x < 0:
+            with stage("check"):
+                raise ValueError(f"negative item {x}")
+        return {"x": x, "square": x * x, "root": math.sqrt(x)}
+
+
+def exits(x):
+    if x == 1:
+        raise SystemExit(3)
+    return x
+
+
+ITEMS = [3, 0, -2, 5, 1.5]
+
+
+def _serial(items):
+    out = []
+    for x in items:
+        try:
+            out.append(square_or_raise(x))
+        except ValueError as exc:
+            out.append(crashed_record(exc))
+    return out
+
+
+def _check(results):
+    expected = _serial(ITEMS)
+    assert len(results) == len(ITEMS)
+    for got, want, x in zip(results, expected, ITEMS):
+        if x < 0:
+            assert isinstance(got, Crashed) and got.outcome == CRASHED
+            assert got.stage == "check" and got.error == "ValueError: negative item -2"
+            assert "Traceback" in got.traceback and "square_or_raise" in got.traceback
+            assert got.to_json()["outcome"] == "crashed"
+        else:
+            assert got == want
+
+
+def test_in_process_matches_serial():
+    _check(run_batch(square_or_raise, ITEMS, workers=0))
+
+
+def test_local_processes_match_serial():
+    seen = []
+    _check(run_batch(square_or_raise, ITEMS, workers=2, progress=lambda i, r: seen.append(i)))
+    assert sorted(seen) == list(range(len(ITEMS)))
+
+
+def test_system_exit_is_a_crash_not_the_end_of_the_sweep():
+    out = run_batch(exits, [0, 1, 2], workers=1)
+    assert out[0] == 0 and out[2] == 2
+    assert isinstance(out[1], Crashed) and out[1].error.startswith("SystemExit")
+
+
+def test_rejects_lambda_and_negative_workers():
+    assert run_batch(square_or_raise, []) == []
+    with pytest.raises(InputError, match="top-level"):
+        run_batch(lambda x: x, [1], workers=1)
+    with pytest.raises(InputError, match="workers"):
+        run_batch(square_or_raise, [1], workers=-1)
+
+
+def test_dask_local_cluster_matches_serial():
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        _check(run_batch(square_or_raise, ITEMS, scheduler=cluster.scheduler_address))
+        with distributed.Client(cluster) as client:
+            _check(run_batch(square_or_raise, ITEMS, scheduler=client))
+
+
+def test_missing_dask_says_what_to_install(monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_dask(name, *args, **kwargs):
+        if name.startswith("dask"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    with pytest.raises(InputError, match=r"pip install 'dask\[distributed\]'"):
+        run_batch(square_or_raise, [1], scheduler="tcp://127.0.0.1:1")
