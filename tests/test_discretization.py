@@ -111,3 +111,44 @@ def test_bad_weights_are_refused():
         ImplicitEulerStep(system(), rho_f=-1.0)
     with pytest.raises(ValueError):
         ImplicitEulerStep(system(), switch_scale=[1.0, 0.0, 1.0])
+
+
+SECANT_TOL = 1e-7  # 3-point Gauss on a step of |dq| <= 0.3 rad: the quadrature error is O(|dq|^7) (measured 5e-9)
+POINT_ERR_MIN = 1e-3  # the end-point gradient misses the same gap change by the curvature term (measured 4e-2)
+
+
+def test_secant_switch_velocity_keeps_the_gap_of_a_step():
+    """SwitchVelocity.SECANT: the row that replaces n^T v (t^T v) times q_b - q_a equals the change of
+    the foot's height (x) over the step, so n-bar^T v = 0 in persistent contact keeps the gap; the
+    end-point gradient n(q_b) of the paper's scheme misses it by the curvature term. Capler, random
+    steps of 0.3 rad, seeded."""
+    from planner.discretization import SwitchVelocity, _secant_rows
+
+    s = system("capler", mu=0.8)
+    rows, mask = _secant_rows(s)
+    names = [sw.function for sw in s.switches]
+    assert mask.tolist() == [1.0 if f in ("n^T v", "t^T v") else 0.0 for f in names]
+    pos, jac = s.dyn.point_position("foot"), s.dyn.point_jacobian("foot")
+    rng = np.random.default_rng(3)
+    point_errs = []
+    for _ in range(5):
+        qa = rng.normal(size=s.nq) * 0.5
+        qb = qa + rng.normal(size=s.nq) * 0.3
+        R = np.asarray(rows(qa, qb), float)
+        d_pos = np.asarray(pos(qb) - pos(qa), float).ravel()
+        assert abs(R[names.index("n^T v")] @ (qb - qa) - d_pos[2]) <= SECANT_TOL
+        assert abs(R[names.index("t^T v")] @ (qb - qa) - d_pos[0]) <= SECANT_TOL
+        point_errs.append(abs(np.asarray(jac(qb), float)[2] @ (qb - qa) - d_pos[2]))
+    assert max(point_errs) >= POINT_ERR_MIN
+    # the step's stationarity rows use it, the other switches are untouched
+    yk, yn, u, sk = symbols(s)
+    point = ImplicitEulerStep(s).build(yk, yn, u, sk, 0.02)
+    secant = ImplicitEulerStep(s, velocity_switch=SwitchVelocity.SECANT).build(yk, yn, u, sk, 0.02)
+    y_a = np.concatenate([rng.normal(size=s.nq) * 0.5, rng.normal(size=s.nv), [0.1]])
+    y_b = y_a + np.concatenate([rng.normal(size=s.nq) * 0.1, rng.normal(size=s.nv), [0.02]])
+    w = rng.uniform(size=point.w.shape[0])
+    ev = [ca.Function("st", [yk, yn, u, sk, st.w], [st.g[st.g_blocks["stationarity"]]])(y_a, y_b, np.zeros(s.nu), 1.0, w) for st in (point, secant)]
+    diff = np.abs(np.asarray(ev[0] - ev[1], float).ravel())
+    assert np.all(diff[mask == 0] <= EVAL_TOL) and np.all(diff[mask == 1] > 0)
+    with pytest.raises(ValueError):
+        ImplicitEulerStep(s, velocity_switch="secant")
