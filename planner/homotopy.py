@@ -2,7 +2,7 @@
 
 `solve(problem, options)` creates IPOPT once for the Problem's NLP (rho and the hole scale are NLP
 parameters) and solves the task's homotopy rho_i = rho0 kappa^i, i = 0 .. n_nlp-1 (by default
-without the values below SolveOptions.rho_min = 100 and continued up to rho_max = 1e7: weak
+without the values below SolveOptions.rho_min = 100 and continued up to rho_max = 1e6: weak
 penalties are exploited by cheats, and the last bit of complementarity needs rho >> 1e4), each NLP
 warm-started from the previous one (primal x and multipliers lam_x, lam_g). NLP 1 has a soft
 terminal penalty instead of the hard terminal constraint (soft_terminal_nlps). With gating, the
@@ -17,9 +17,12 @@ selectors that the gates switch off are reset afterwards (ungate). Then, optiona
 * HoleSchedule.RELAXED_FIRST: the first NLP drops the holes (hole scale 0) and the later ones
   enforce them: a continuation in the scene the solver runs itself; the user gives no hint.
 
-The result's convergence verdict: every NLP solved (IPOPT success), complementarity residual
-<= options.comp_tol, terminal error <= options.terminal_tol, holes and path constraints kept to
-options.constraint_tol.
+The result's convergence verdict is about the plan it returns: the NLP that produced it converged
+(IPOPT success: the polish, or the last homotopy NLP when the polish was not accepted),
+complementarity residual <= options.comp_tol, terminal error <= options.terminal_tol, holes and
+path constraints kept to options.constraint_tol. An earlier homotopy NLP that stopped at its
+iteration cap is only a stepping stone; the message names it (SolveStats.message) and its record
+says so (PlanResult.nlps).
 """
 from __future__ import annotations
 
@@ -59,14 +62,15 @@ class Polish(Enum):
 class SolveOptions:
     """Numerical settings of the homotopy (the homotopy's rho0, kappa, n_nlp come from the task).
 
-    tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP;
+    tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP (NLP 2 of
+    the default Capler task, where the cheat turns into hopping, needs 3579; docs/formulation.md round 4);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
     "mumps"); mu_strategy: IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
     warm_mu_init: barrier parameter the warm-started NLPs start from (None: same as mu_init; a
     small value keeps a warm start near its point); bound_push, bound_frac: how far IPOPT moves
     the initial point inside the bounds (the warm start uses the same); nlp_scaling_method:
     IPOPT's ("gradient-based" or "none"); holes: HoleSchedule; polish: Polish; polish_after_failure:
-    also polish when an NLP of the homotopy failed (the verdict still reports the failure); comp_tol,
+    also polish when an NLP of the homotopy stopped early (default: the polish decides; see the verdict below); comp_tol,
     terminal_tol [m, rad], constraint_tol: the convergence verdict's thresholds; frozen_tol: the
     recovery's relative clock deficit of a frozen step.
     rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
@@ -93,7 +97,7 @@ class SolveOptions:
 
     tol: float = 1e-8
     acceptable_tol: float = 1e-6
-    max_iter: int = 3000
+    max_iter: int = 5000
     print_level: int = 0
     linear_solver: str = "mumps"
     mu_strategy: MuStrategy = MuStrategy.ADAPTIVE
@@ -104,14 +108,14 @@ class SolveOptions:
     nlp_scaling_method: str = "gradient-based"
     holes: HoleSchedule = HoleSchedule.RELAXED_FIRST
     polish: Polish = Polish.ACTIVE_SET
-    polish_after_failure: bool = False
+    polish_after_failure: bool = True
     comp_tol: float = 1e-6
     terminal_tol: float = 1e-6
     constraint_tol: float = 1e-6
     frozen_tol: float = FROZEN_TOL
     rho_schedule: tuple[float, ...] | None = None
     rho_min: float | None = 100.0
-    rho_max: float | None = 1e7
+    rho_max: float | None = 1e6
     rho_refine: tuple[float, ...] = (3e3,)
     an_schedule: tuple[float, ...] | None = None
     at_schedule: tuple[float, ...] | None = None
@@ -417,10 +421,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
     homotopy = [r for r in records if r.label not in ("polish", "hybrid")]  # polishing stages are accepted only on success
-    failed = [r.label for r in homotopy if not r.success]
+    last = next(r for r in records if r.label == "polish") if polished else homotopy[-1]
     reasons = []
-    if failed:
-        reasons.append(f"IPOPT did not converge in {', '.join(failed)} ({', '.join(r.status for r in homotopy if not r.success)})")
+    if not last.success:
+        reasons.append(f"IPOPT did not converge in {last.label} ({last.status})")
     if comp > options.comp_tol:
         reasons.append(f"complementarity residual {comp:.3g} > {options.comp_tol:g}")
     if term > options.terminal_tol:
@@ -428,8 +432,11 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     worst = max(viol, key=viol.get)
     if viol[worst] > options.constraint_tol:
         reasons.append(f"constraint {worst} violated by {viol[worst]:.3g}")
+    capped = [r.label for r in homotopy if not r.success and r is not last]
     converged = not reasons
     message = "ok" + (" (active-set polished)" if polished else "") if converged else "; ".join(reasons)
+    if capped:
+        message += f"; on the way, IPOPT stopped early in {', '.join(capped)}"
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]

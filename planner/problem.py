@@ -95,7 +95,10 @@ class ProblemOptions:
       or alpha then buys little free propulsion) and continue to the task's gains (scale 1).
     step_form: StepForm of the implicit Euler steps; MASS_MATRIX (default) keeps M(q)^-1 out of the
       derivatives (the friction cone then uses the step's force variables lambda_n, lambda_t).
-    velocity_switch: SwitchVelocity of the steps' n^T v and t^T v (discretization.py).
+    velocity_switch: SwitchVelocity of the steps' n^T v and t^T v (discretization.py). SECANT (default)
+      keeps the gap in persistent contact; with the paper's POINT the stances sink (2.6 cm on Capler
+      N = 50), an exactly complementary plan cannot end standing at the target after moving, and the
+      full Capler task did not converge (docs/formulation.md, "OCP and solve", round 4).
     """
 
     penalty: Penalty = Penalty.LINF
@@ -106,7 +109,7 @@ class ProblemOptions:
     clock_guess_running: bool = False
     gating: bool = True
     aux_continuation: bool = False
-    velocity_switch: SwitchVelocity = SwitchVelocity.POINT
+    velocity_switch: SwitchVelocity = SwitchVelocity.SECANT
 
     def __post_init__(self):
         if not isinstance(self.velocity_switch, SwitchVelocity):
