@@ -328,7 +328,7 @@ def run_nosnoc(ns, ca, task: CaplerTask, variant: str, **build_kw) -> dict:
     except Exception as exc:  # noqa: BLE001 -- a crash inside nosnoc is a result too
         res, error = None, f"{type(exc).__name__}: {exc}"
     solve_s = time.perf_counter() - t0
-    rec = {"solver": "nosnoc", "variant": variant, "needs_hint": variant == "hint", "N": task.N, "h": task.h,
+    rec = {"solver": "nosnoc", "variant": variant, "used_hint": variant == "hint", "N": task.N, "h": task.h,
            "holes": len(task.holes), "build_time_s": build_s, "solve_time_s": solve_s, "wall_time_s": build_s + solve_s,
            "nlp_statuses": log.statuses, "options": setup.details}
     if res is None:
@@ -391,24 +391,25 @@ def run_planner(quick: bool) -> dict:
     wall = time.perf_counter() - t0
     st = res.stats
     tr = res.trajectory
-    rec = {"solver": "planner", "variant": "hint-free", "needs_hint": False, "N": task.horizon.N, "h": task.horizon.h,
+    rec = {"solver": "planner", "variant": "hint-free", "used_hint": False, "N": task.horizon.N, "h": task.horizon.h,
            "holes": len(task.plan.holes), "wall_time_s": wall, "solve_time_s": float(st.solve_time_s),
            "converged": bool(st.converged), "infeasible": "nfeasib" in (st.message or ""),
            "ipopt_iterations": int(st.ipopt_iterations), "n_nlp": int(st.n_nlp),
            "complementarity_ours": float(st.complementarity_residual), "complementarity_nosnoc": None,
            "terminal_error": float(res.terminal_error), "constraint_violation": res.constraint_violation,
            "message": st.message, "nlp_statuses": [r.status for r in res.nlps]}
-    try:  # penetration and holes from the trajectory (numerical-time nodes)
-        pts = tr.points if hasattr(tr, "points") else None
-        if pts:
-            foot = np.asarray(next(iter(pts.values())))
-            rec["penetration_m"] = float(-np.min(foot[:, -1]))
-            if task.plan.holes:
-                rec["holes_metric"] = float(min(np.min(((foot[:, 0] - hl.x) / hl.a) ** 2 + ((foot[:, -1] - hl.z) / hl.b) ** 2)
-                                                for hl in task.plan.holes))
-                rec["holes_respected"] = rec["holes_metric"] >= 1.0 - HOLE_TOL
-    except Exception:  # noqa: BLE001 -- the violation dict above says it too
-        pass
+    # penetration and holes at the numerical-time nodes, with this script's kinematics (the same as
+    # robots/capler.xml: tests compare them with Pinocchio)
+    import casadi as ca
+
+    cap = capler_model(ca)
+    foot_fn = ca.Function("foot", [cap["q"]], [cap["foot"]])
+    foot = np.asarray(foot_fn(np.asarray(tr.y, float)[:, :4].T))  # (2, K)
+    rec["penetration_m"] = float(-np.min(foot[1]))
+    if task.plan.holes:
+        rec["holes_metric"] = float(min(np.min(((foot[0] - hl.x) / hl.a) ** 2 + ((foot[1] - hl.z) / hl.b) ** 2)
+                                        for hl in task.plan.holes))
+        rec["holes_respected"] = rec["holes_metric"] >= 1.0 - HOLE_TOL
     return rec
 
 
@@ -447,14 +448,14 @@ def _fmt(x, spec):
 
 def table(records: list[dict]) -> str:
     head = ("solver", "variant", "N", "holes", "wall s", "IPOPT it", "compl. ours", "compl. nosnoc",
-            "term. err", "penetr. m", "holes metric", "converged", "infeasible", "hint")
+            "term. err", "penetr. m", "holes metric", "converged", "infeasible", "hint used")
     rows = [head]
     for r in records:
         rows.append((r["solver"], r["variant"], str(r["N"]), str(r["holes"]), _fmt(r.get("wall_time_s"), ".1f"),
                      _fmt(r.get("ipopt_iterations"), "d"), _fmt(r.get("complementarity_ours"), ".1e"),
                      _fmt(r.get("complementarity_nosnoc"), ".1e"), _fmt(r.get("terminal_error"), ".1e"),
                      _fmt(r.get("penetration_m"), ".1e"), _fmt(r.get("holes_metric"), ".3f"),
-                     _fmt(r.get("converged"), ""), _fmt(r.get("infeasible"), ""), _fmt(r.get("needs_hint"), "")))
+                     _fmt(r.get("converged"), ""), _fmt(r.get("infeasible"), ""), _fmt(r.get("used_hint"), "")))
     widths = [max(len(row[i]) for row in rows) for i in range(len(head))]
     lines = ["| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |" for row in rows]
     lines.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
@@ -519,9 +520,13 @@ def main(argv: list[str] | None = None) -> int:
     ref = next((r for r in records if r["solver"] == "nosnoc" and r["variant"] == "hint-free"), None)
     if ours and ref:
         ratio = ref["wall_time_s"] / ours["wall_time_s"]
+    needs_hint = None  # nosnoc needed the hint: the hint-free run failed and the hinted one converged
+    hinted = next((r for r in records if r["solver"] == "nosnoc" and r["variant"] == "hint"), None)
+    if ref is not None and hinted is not None:
+        needs_hint = (not ref["converged"]) and bool(hinted["converged"])
     results = {"benchmark": "bench_nosnoc", "command": "python -m scripts.bench_nosnoc " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "task": dataclasses.asdict(task), "machine": machine_info(_nosnoc_version(nosnoc)),
-               "records": records, "wall_time_ratio_nosnoc_over_planner": ratio}
+               "records": records, "nosnoc_needs_hint": needs_hint, "wall_time_ratio_nosnoc_over_planner": ratio}
     args.out.mkdir(parents=True, exist_ok=True)
     arrays = {}
     for rec in records:  # the nosnoc solutions, for plots and checks: OUT/trajectories.npz
@@ -533,9 +538,12 @@ def main(argv: list[str] | None = None) -> int:
     text = table(records)
     if ratio is not None:
         text += f"\nwall time nosnoc (hint-free) / planner = {ratio:.2f}"
+    if needs_hint is not None:
+        text += f"\nnosnoc needed the hint: {'yes' if needs_hint else 'no'}"
     if args.json:
         print(json.dumps({"results": str(args.out / "results.json"), "machine": results["machine"],
-                          "records": records, "wall_time_ratio_nosnoc_over_planner": ratio}, default=str))
+                          "records": records, "nosnoc_needs_hint": needs_hint,
+                          "wall_time_ratio_nosnoc_over_planner": ratio}, default=str))
     else:
         print(text)
     return 0

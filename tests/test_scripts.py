@@ -128,6 +128,28 @@ def test_bench_nosnoc_model_and_hint(bench_nosnoc):
     assert -bias[1, 0] == pytest.approx(-61.852, abs=1e-3)  # gravity force on z_B
     assert np.allclose(foot.ravel(), [0.0, 0.0], atol=1e-12)  # q0 stands on the ground
 
+    # the same robot as robots/capler.xml: mass matrix, bias forces and foot against Pinocchio
+    import pinocchio as pin
+
+    from planner.model import load_robot
+
+    robot = load_robot(b.ROBOT_FILE)
+    assert robot.dof_names == ("base_x", "base_z", "hip", "knee")
+    model, data = robot.model, robot.model.createData()
+    fn = ca.Function("fn", [cap["q"], cap["v"]], [cap["M"], cap["bias"], cap["foot"], cap["knee"]])
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, v = rng.uniform(-1.5, 1.5, 4), rng.uniform(-3, 3, 4)
+        M, bias, foot, knee = (np.asarray(a) for a in fn(q, v))
+        M_pin = pin.crba(model, data, q)
+        M_pin = np.triu(M_pin) + np.triu(M_pin, 1).T
+        assert np.allclose(M, M_pin, atol=1e-12)
+        assert np.allclose(bias.ravel(), pin.rnea(model, data, q, v, np.zeros(4)), atol=1e-10)
+        pin.framesForwardKinematics(model, data, q)
+        for name, pos in (("foot", foot), ("knee", knee)):
+            xyz = data.oMf[model.getFrameId(name, pin.FrameType.OP_FRAME)].translation  # the site
+            assert np.allclose(pos.ravel(), xyz[[0, 2]], atol=1e-12), name
+
     task = b.load_capler_task()
     hint = b.hop_hint(task, task.N)
     assert hint.shape == (task.N, 9)
@@ -138,7 +160,7 @@ def test_bench_nosnoc_model_and_hint(bench_nosnoc):
     line = b.table([{"solver": "nosnoc", "variant": "hint-free", "N": 25, "holes": 0, "wall_time_s": 1.5,
                      "ipopt_iterations": 10, "complementarity_ours": 1e-4, "complementarity_nosnoc": None,
                      "terminal_error": 0.0, "penetration_m": 0.1, "holes_metric": None, "converged": True,
-                     "infeasible": False, "needs_hint": False}])
+                     "infeasible": False, "used_hint": False}])
     assert "hint-free" in line and "1.0e-04" in line and len(line.splitlines()) == 3
 
 
