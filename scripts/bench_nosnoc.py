@@ -28,6 +28,7 @@ no holes) for both. nosnoc is an optional dependency (pip install nosnoc); it is
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import datetime
 import json
@@ -491,6 +492,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--n-s", type=int, default=1, help="nosnoc Radau IIA stages (default 1: implicit Euler)")
     parser.add_argument("--a-t", type=float, default=None,
                         help="tangential gain of nosnoc's impact fields (default mu * a_n, the example's; the task says 600)")
+    parser.add_argument("--append", action="store_true",
+                        help="keep the records of OUT/results.json that this run does not redo (run the variants one at a time)")
     parser.add_argument("--max-iter", type=int, default=4000, help="IPOPT max_iter per NLP (the example's 4000)")
     args = parser.parse_args(argv)
     if args.n_fe < 1 or args.n_s < 1 or args.max_iter < 1:
@@ -509,12 +512,24 @@ def main(argv: list[str] | None = None) -> int:
     records = []
     for variant in args.variants:
         print(f"nosnoc {variant}: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
-        rec = run_nosnoc(nosnoc, ca, task, variant, n_fe=args.n_fe, n_s=args.n_s, a_t=args.a_t, max_iter=args.max_iter)
+        with contextlib.redirect_stdout(sys.stderr):  # nosnoc's iteration table: stdout is the table or the JSON
+            rec = run_nosnoc(nosnoc, ca, task, variant, n_fe=args.n_fe, n_s=args.n_s, a_t=args.a_t, max_iter=args.max_iter)
         records.append(rec)
         print(table([rec]), file=sys.stderr, flush=True)
     if args.planner:
         print(f"planner: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
-        records.append(run_planner(args.quick))
+        with contextlib.redirect_stdout(sys.stderr):
+            records.append(run_planner(args.quick))
+    for rec in records:
+        rec["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        rec["load_average_after"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+    previous_machines = []
+    if args.append and (args.out / "results.json").is_file():
+        old = json.loads((args.out / "results.json").read_text())
+        redone = {(r["solver"], r["variant"]) for r in records}
+        kept = [r for r in old.get("records", []) if (r["solver"], r["variant"]) not in redone and r["N"] == task.N]
+        records = kept + records
+        previous_machines = old.get("previous_machines", []) + [{**(old.get("machine") or {}), "command": old.get("command")}]
     ratio = None
     ours = next((r for r in records if r["solver"] == "planner"), None)
     ref = next((r for r in records if r["solver"] == "nosnoc" and r["variant"] == "hint-free"), None)
@@ -526,9 +541,13 @@ def main(argv: list[str] | None = None) -> int:
         needs_hint = (not ref["converged"]) and bool(hinted["converged"])
     results = {"benchmark": "bench_nosnoc", "command": "python -m scripts.bench_nosnoc " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "task": dataclasses.asdict(task), "machine": machine_info(_nosnoc_version(nosnoc)),
+               "previous_machines": previous_machines,
                "records": records, "nosnoc_needs_hint": needs_hint, "wall_time_ratio_nosnoc_over_planner": ratio}
     args.out.mkdir(parents=True, exist_ok=True)
     arrays = {}
+    if args.append and (args.out / "trajectories.npz").is_file():
+        with np.load(args.out / "trajectories.npz") as old_arrays:
+            arrays.update({k: old_arrays[k] for k in old_arrays.files})
     for rec in records:  # the nosnoc solutions, for plots and checks: OUT/trajectories.npz
         for key, value in (rec.pop("_trajectory", None) or {}).items():
             arrays[f"{rec['solver']}_{rec['variant']}_{key}"] = value
