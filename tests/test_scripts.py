@@ -244,3 +244,110 @@ def test_stress_capler_reduced_run(stress, tmp_path, capsys):
     assert [r["id"] for r in records if r["outcome"] == stress.CRASHED] == []
     assert all(r["nonfinite"] == [] for r in records)
     assert next(r for r in records if r["family"] == "infeasible")["outcome"] == stress.DIAGNOSED
+
+# --------------------------------------------------------------------------------------------------
+# scripts/bench_nosnoc.py: nosnoc is an optional dependency (pip install nosnoc); the parts that do
+# not need it run always, the solve only where it is installed
+# --------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def bench_nosnoc():
+    return _load("bench_nosnoc")
+
+
+def test_bench_nosnoc_task_and_arguments(bench_nosnoc):
+    """The nosnoc side reads the numbers of robots/capler.toml; --quick is N = 25 without holes; the
+    defaults are the task's grid (one implicit-Euler finite element per step) and both variants."""
+    b = bench_nosnoc
+    task = b.load_capler_task()
+    assert (task.N, task.tau_f, task.h) == (125, 2.5, 0.02)
+    assert task.q0 == (0.0, 0.4, 0.0, 0.0) and task.q_target == (3.0, 0.4, 0.0, 0.0)
+    assert (task.mu, task.a_n, task.a_t, task.u_max) == (0.8, 200.0, 600.0, 60.0)
+    assert [(h.x, h.a, h.b) for h in task.holes] == [(0.5, 0.25, 0.1), (1.5, 0.25, 0.1), (2.5, 0.25, 0.1)]
+    assert math.isclose(task.hip_bounds[1], 3 * math.pi / 8) and math.isclose(task.knee_bounds[0], -math.pi / 2)
+    assert (task.sigma0, task.kappa, task.n_nlp) == (1.0, 10.0, 5)
+    quick = b.quick_task(task)
+    assert quick.N == 25 and quick.holes == () and quick.q_target == task.q_target
+
+    args = b.parse_args([])
+    assert (args.quick, args.planner, args.json, args.n_fe, args.n_s, args.a_t) == (False, False, False, 1, 1, None)
+    assert args.variants == ["hint-free", "hint"] and args.out == b.DEFAULT_OUT
+    args = b.parse_args(["--quick", "--planner", "--variants", "hint", "--out", "x"])
+    assert args.quick and args.planner and args.variants == ["hint"] and str(args.out) == "x"
+    with pytest.raises(SystemExit):
+        b.parse_args(["--n-fe", "0"])
+
+
+def test_bench_nosnoc_model_and_hint(bench_nosnoc):
+    """The benchmark's own Capler model (CasADi only) has design.md's check values, and the example's
+    hop-per-metre spline hint starts at q0, ends at the target and clears the holes at the apexes."""
+    import casadi as ca
+
+    b = bench_nosnoc
+    cap = b.capler_model(ca)
+    f = ca.Function("f", [cap["q"], cap["v"]], [cap["M"], cap["bias"], cap["foot"]])
+    M, bias, foot = (np.asarray(a) for a in f([0.0, 0.4, 0.0, 0.0], np.zeros(4)))
+    assert M[0, 0] == pytest.approx(6.305) and M[1, 1] == pytest.approx(6.305)
+    assert -bias[1, 0] == pytest.approx(-61.852, abs=1e-3)  # gravity force on z_B
+    assert np.allclose(foot.ravel(), [0.0, 0.0], atol=1e-12)  # q0 stands on the ground
+
+    # the same robot as robots/capler.xml: mass matrix, bias forces and foot against Pinocchio
+    import pinocchio as pin
+
+    from planner.model import load_robot
+
+    robot = load_robot(b.ROBOT_FILE)
+    assert robot.dof_names == ("base_x", "base_z", "hip", "knee")
+    model, data = robot.model, robot.model.createData()
+    fn = ca.Function("fn", [cap["q"], cap["v"]], [cap["M"], cap["bias"], cap["foot"], cap["knee"]])
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, v = rng.uniform(-1.5, 1.5, 4), rng.uniform(-3, 3, 4)
+        M, bias, foot, knee = (np.asarray(a) for a in fn(q, v))
+        M_pin = pin.crba(model, data, q)
+        M_pin = np.triu(M_pin) + np.triu(M_pin, 1).T
+        assert np.allclose(M, M_pin, atol=1e-12)
+        assert np.allclose(bias.ravel(), pin.rnea(model, data, q, v, np.zeros(4)), atol=1e-10)
+        pin.framesForwardKinematics(model, data, q)
+        for name, pos in (("foot", foot), ("knee", knee)):
+            xyz = data.oMf[model.getFrameId(name, pin.FrameType.OP_FRAME)].translation  # the site
+            assert np.allclose(pos.ravel(), xyz[[0, 2]], atol=1e-12), name
+
+    task = b.load_capler_task()
+    hint = b.hop_hint(task, task.N)
+    assert hint.shape == (task.N, 9)
+    assert np.allclose(hint[-1, :4], task.q_target) and hint[-1, 8] == pytest.approx(task.tau_f)
+    apex = np.argmin(np.abs(hint[:, 0] - 0.5))
+    assert hint[apex, 1] > task.q0[1] + 0.1  # the base is up over the first hole
+
+    line = b.table([{"solver": "nosnoc", "variant": "hint-free", "N": 25, "holes": 0, "wall_time_s": 1.5,
+                     "ipopt_iterations": 10, "complementarity_ours": 1e-4, "complementarity_nosnoc": None,
+                     "terminal_error": 0.0, "penetration_m": 0.1, "holes_metric": None, "converged": True,
+                     "infeasible": False, "used_hint": False}])
+    assert "hint-free" in line and "1.0e-04" in line and len(line.splitlines()) == 3
+
+
+def test_bench_nosnoc_says_how_to_install(bench_nosnoc, monkeypatch, tmp_path):
+    """Without nosnoc, main() stops with a message naming `pip install nosnoc`, before any work."""
+    monkeypatch.setitem(sys.modules, "nosnoc", None)  # import nosnoc -> ImportError
+    with pytest.raises(SystemExit, match="pip install nosnoc"):
+        bench_nosnoc.main(["--quick", "--out", str(tmp_path)])
+    assert not (tmp_path / "results.json").exists()
+
+
+def test_bench_nosnoc_quick_run(bench_nosnoc, tmp_path, capsys):
+    """--quick --json with nosnoc installed: results.json holds the machine and one record with the
+    measures (wall time, iterations, both complementarity residuals, terminal error, penetration)."""
+    pytest.importorskip("nosnoc")
+    assert bench_nosnoc.main(["--quick", "--json", "--variants", "hint-free", "--out", str(tmp_path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    results = json.loads((tmp_path / "results.json").read_text())
+    for key in ("platform", "cpu_count", "python", "casadi", "nosnoc", "date"):
+        assert results["machine"][key] is not None, key
+    (rec,) = results["records"]
+    assert summary["records"][0]["variant"] == rec["variant"] == "hint-free" and rec["N"] == 25
+    for key in ("wall_time_s", "ipopt_iterations", "complementarity_ours", "complementarity_nosnoc",
+                "terminal_error", "penetration_m", "converged", "infeasible", "nlp_statuses"):
+        assert rec[key] is not None, key
+    assert rec["wall_time_s"] > 0 and rec["ipopt_iterations"] > 0
+    assert (tmp_path / "trajectories.npz").is_file()
