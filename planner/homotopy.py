@@ -63,7 +63,8 @@ class SolveOptions:
     """Numerical settings of the homotopy (the homotopy's rho0, kappa, n_nlp come from the task).
 
     tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP (NLP 2 of
-    the default Capler task, where the cheat turns into hopping, needs 3579; docs/formulation.md round 4);
+    the default Capler task stops at 3000 on its way to hopping; allowed to converge, at 3958, the
+    path led NLP 4 astray: docs/formulation.md round 4);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
     "mumps"); mu_strategy: IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
     warm_mu_init: barrier parameter the warm-started NLPs start from (None: same as mu_init; a
@@ -97,7 +98,7 @@ class SolveOptions:
 
     tol: float = 1e-8
     acceptable_tol: float = 1e-6
-    max_iter: int = 5000
+    max_iter: int = 3000
     print_level: int = 0
     linear_solver: str = "mumps"
     mu_strategy: MuStrategy = MuStrategy.ADAPTIVE

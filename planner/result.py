@@ -297,7 +297,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         a = b = k
         while b + 1 < n_steps and frozen[b + 1]:
             b += 1
-        t_imp, q_imp = clock[a + 1], y[a + 1, :nq]
+        # the first frozen step may run the clock for part of the step (a landing), never backwards: a
+        # solver's bound relaxation can leave it 1e-10 s behind the previous sample
+        t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
         v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
         v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
         imp = np.sum(np.asarray(impulses)[a : b + 1], axis=0)  # (n_contacts, 2)

@@ -53,6 +53,19 @@ def test_recover_one_impact():
     assert q.shape == (7, 1)
 
 
+def test_recover_never_goes_back_in_time():
+    """An impact that starts with a clock 2e-10 s behind the previous sample (an NLP solver's bound
+    relaxation: the clock rate of a frozen step at -1e-8) is placed at the previous sample's time:
+    physical time never decreases (the contract's t is non-decreasing)."""
+    tau, y, u, dt, dv, imp = handmade()
+    y = y.copy()
+    y[3:6, 2] = 0.2 - 2e-10  # no partial flight: the frozen steps start at the flight's last sample, slightly behind
+    y[6:, 2] = [0.3, 0.4]
+    t, *_, impacts = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))
+    assert np.all(np.diff(t) >= 0)
+    assert impacts[0].time == pytest.approx(0.2, abs=EXACT)
+
+
 def test_recover_without_impacts_keeps_every_sample():
     """A trajectory whose clock always runs maps one to one onto physical time."""
     tau = 0.1 * np.arange(4)

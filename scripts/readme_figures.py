@@ -1,0 +1,56 @@
+"""The README's pictures of a result, made by the project's own code: a meshcat frame of the replay
+(planner.view's self-contained page, photographed by headless chromium) and the result's plots.
+
+    python -m scripts.readme_figures RESULT_DIR [--out docs/img] [--at 1.5]
+
+Writes OUT/replay.png (800 x 600, the page after AT seconds of its physical-time animation) and copies
+RESULT_DIR's foot_path.png and states.png to OUT. Needs Debian's chromium (apt-get install chromium).
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+CHROMIUM_FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+    "--use-angle=swiftshader", "--enable-unsafe-swiftshader",  # WebGL on the CPU (no GPU needed)
+    "--host-resolver-rules=MAP * ~NOTFOUND",  # the page is self-contained: nothing to fetch
+    "--window-size=800,600", "--hide-scrollbars",
+]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("result", type=Path, help="a result directory of planner plan / simulate")
+    ap.add_argument("--out", type=Path, default=Path("docs/img"), help="where the pictures go [docs/img]")
+    ap.add_argument("--at", type=float, default=1.5, help="seconds of animation before the screenshot [1.5]")
+    args = ap.parse_args(argv)
+    from planner.view import render_html
+
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        print("readme_figures: needs chromium on PATH (Debian: apt-get install chromium)", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        page = render_html(args.result, Path(tmp) / "replay.html")
+        png = args.out / "replay.png"
+        run = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--virtual-time-budget={int(args.at * 1000)}",
+                              f"--user-data-dir={Path(tmp) / 'profile'}", f"--screenshot={png}", page.as_uri()],
+                             capture_output=True, text=True, timeout=300)
+        if run.returncode != 0 or not png.is_file():
+            print(f"readme_figures: chromium made no screenshot:\n{run.stderr[-2000:]}", file=sys.stderr)
+            return 1
+    for name in ("foot_path.png", "states.png"):
+        if (args.result / name).is_file():
+            shutil.copyfile(args.result / name, args.out / name)
+    print(f"wrote {png} and the plots to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
