@@ -56,23 +56,26 @@ def test_plan_without_plan_table_is_bad_input(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="experimental: with the default recipe (l_inf + gating, rho 1e2..1e7) Capler N = 50 converges, "
-                          "every NLP of the full task converges but the final complementarity is 9e-3 and the "
-                          "polish stops at its iteration cap (docs/formulation.md, 'OCP and solve', round 3)", strict=False)
-def test_capler_default_task(tmp_path):
-    """The paper's hopper over three holes: every NLP converges, complementarity and terminal error
-    <= 1e-6, several hops."""
+def test_capler_default_task():
+    """The paper's hopper over three holes from the hint-free start (robots/capler.toml, N = 125): the
+    plan is exactly complementary (active-set polished), meets the terminal pose to 1e-6, keeps every
+    constraint to 1e-6 with the foot outside the holes and never below the ground, and hops at least
+    three times. NLP 2 (rho = 1e3) stops at its iteration cap on the way (docs/formulation.md round 4);
+    every other NLP converges. Measured 3.6 min of IPOPT on a shared 2-core machine."""
     from planner.homotopy import SolveOptions, solve
     from planner.model import load_robot
     from planner.problem import build_problem
     from planner.task import load_task
 
     robot, task = load_robot("robots/capler.xml"), load_task("robots/capler.toml")
-    res = solve(build_problem(robot, task), SolveOptions())
-    assert res.stats.converged, res.stats.message
-    assert all(r.success for r in res.nlps if r.label.startswith("homotopy"))
+    prob = build_problem(robot, task)
+    res = solve(prob, SolveOptions())
+    assert res.stats.converged and res.polished, res.stats.message
+    assert [r.label for r in res.nlps if not r.success] in ([], ["homotopy 2"])
     assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
-    assert res.constraint_violation["holes"] <= 1e-6
+    assert max(res.constraint_violation.values()) <= 1e-6
+    gaps = [float(np.asarray(prob.system.gap_fn(y, np.zeros(prob.system.nu))).ravel()[0]) for y in res.trajectory.y]
+    assert min(gaps) >= -1e-6  # the secant switching velocity: stances do not sink
     assert len(res.hops) >= 3
 
 
