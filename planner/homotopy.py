@@ -72,7 +72,11 @@ class SolveOptions:
     IPOPT's ("gradient-based" or "none"); holes: HoleSchedule; polish: Polish; polish_after_failure:
     also polish when an NLP of the homotopy stopped early (default: the polish decides; see the verdict below); comp_tol,
     terminal_tol [m, rad], constraint_tol: the convergence verdict's thresholds; frozen_tol: the
-    recovery's relative clock deficit of a frozen step.
+    recovery's relative clock deficit of a frozen step; frozen_tol_several: the same for problems
+    with several contact points, where a step is frozen only when its clock advanced less than
+    (1 - frozen_tol_several) h (default: 1 % of h): a stance step may run partly frozen (clock rate
+    in (0, 1), the a_n field carrying part of the weight) and is a physical step, not an impact
+    (docs/formulation.md, "Periodic walking").
     rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
     rho_min, rho_max: applied to the task's schedule (not to rho_schedule): drop the NLPs with
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
@@ -91,6 +95,11 @@ class SolveOptions:
     polish_projection: the polishing NLP minimizes ||x - x_h||^2 (x_h the point it starts from)
     instead of the task's cost: a projection onto the fixed active set (well conditioned, and it
     stays next to the homotopy's plan); the task's cost is not re-optimized.
+    polish_retry: when the polishing NLP (with the task's cost) fails, run the projection polish
+      (polish_projection) from the same point; None: only for problems with several contact points
+      (the one-contact solve is unchanged). On the periodic biped walk (robots/biped.toml) the cost
+      polish stops with IPOPT's "infeasible problem" after 1286 iterations while the projection
+      converges in 60 (docs/formulation.md, "Periodic walking").
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     """
@@ -113,6 +122,7 @@ class SolveOptions:
     terminal_tol: float = 1e-6
     constraint_tol: float = 1e-6
     frozen_tol: float = FROZEN_TOL
+    frozen_tol_several: float = 1.0 - FROZEN_TOL
     rho_schedule: tuple[float, ...] | None = None
     rho_min: float | None = 100.0
     rho_max: float | None = 1e6
@@ -125,6 +135,7 @@ class SolveOptions:
     hybrid_rho: float = 1e4
     l1_schedule: tuple[float, ...] | None = None
     polish_projection: bool = False
+    polish_retry: bool | None = None
     intermediate_tol: float | None = None
 
     def __post_init__(self):
@@ -146,6 +157,7 @@ class SolveOptions:
             (self.terminal_tol > 0, "terminal_tol", self.terminal_tol, "> 0"),
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
+            (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -228,7 +240,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     def sched(values, i):
         return 1.0 if not values else float(values[min(i, len(values) - 1)])
 
-    term_rows = problem.g_blocks["terminal"].ravel()
+    term_rows = _terminal_rows(problem)
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
@@ -266,7 +278,16 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         records.append(rec)
         if progress:
             progress(rec)
-        if rec.success and _feasible(problem, xp, options) and rec.terminal_error <= options.terminal_tol:
+        ok = rec.success and _feasible(problem, xp, options) and rec.terminal_error <= options.terminal_tol
+        retry = options.polish_retry if options.polish_retry is not None else len(problem.task.contacts) > 1
+        if not ok and retry and not options.polish_projection:
+            xp, lxp, lgp, rec = _run(problem, solvers, x_fixed, lam_x, lam_g, problem.params(0.0, 1.0), lbx, ubx, "polish",
+                                     projection=True)
+            records.append(rec)
+            if progress:
+                progress(rec)
+            ok = rec.success and _feasible(problem, xp, options) and rec.terminal_error <= options.terminal_tol
+        if ok:
             x, lam_x, lam_g, polished = xp, lxp, lgp, True
     timings["solver_setup_s"] = solvers.setup_time_s
     timings["ipopt_s"] = sum(r.time_s for r in records)
@@ -388,8 +409,14 @@ def terminal_error(problem: Problem, x) -> float:
     """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s]."""
     g_fn = _g_fn(problem)
     g = np.asarray(g_fn(x, problem.params(0.0, 1.0)), float).ravel()
-    rows = problem.g_blocks["terminal"].ravel()
+    rows = _terminal_rows(problem)
     return float(np.max(np.abs(g[rows] - problem.lbg[rows])))
+
+
+def _terminal_rows(problem: Problem) -> np.ndarray:
+    """The rows of g the soft terminal relaxes and the terminal error measures: "terminal", or for a
+    periodic task (plan.periodic) the "periodic" rows (q_N - S q_0 - shift, v_N - S v_0)."""
+    return (problem.g_blocks["terminal"] if "terminal" in problem.g_blocks else problem.g_blocks["periodic"]).ravel()
 
 
 def _g_fn(problem: Problem):
@@ -416,12 +443,17 @@ def _feasible(problem, x, options) -> bool:
 
 def _result(problem: Problem, options: SolveOptions, x, records, polished, wall, timings) -> PlanResult:
     parts = problem.split(x)
-    traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, options.frozen_tol, parts["S"])
+    frozen_tol = options.frozen_tol
+    if len(problem.task.contacts) > 1:
+        frozen_tol = options.frozen_tol_several
+        # the clock of a frozen step can step back by IPOPT's bound relaxation (R ~ -1e-11): keep it monotone
+        parts["Y"][:, -1] = np.maximum.accumulate(parts["Y"][:, -1])
+    traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
     homotopy = [r for r in records if r.label not in ("polish", "hybrid")]  # polishing stages are accepted only on success
-    last = next(r for r in records if r.label == "polish") if polished else homotopy[-1]
+    last = next(r for r in reversed(records) if r.label == "polish") if polished else homotopy[-1]
     reasons = []
     if not last.success:
         reasons.append(f"IPOPT did not converge in {last.label} ({last.status})")
@@ -443,7 +475,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     beta = parts["W"][:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
     contact = problem.task.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in parts["Y"]])
-    hops = hops_of(traj, beta.max(axis=1) if beta.size else np.zeros(problem.N), foot)
+    # the robot flies when every contact point does (one contact: its beta)
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(problem.N), foot)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
