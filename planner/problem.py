@@ -10,7 +10,8 @@ Direct transcription with N regularized implicit-Euler steps (planner.discretiza
                    and, with StepForm.MASS_MATRIX, "forces" (free acceleration, contact forces, M^-1 J^T lam)
 
 and after the N stages the one l_inf slack s_c (Penalty.LINF only). y_0 is the task's initial state,
-a constant. The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
+a constant, except for a periodic task (plan.periodic), where it is the block "y0" (ny,) ahead of
+the stages (q in the joint bounds, the fixed coordinates and the clock pinned). The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
 homotopy builds IPOPT once and only changes rho, and the scale r of the holes
 (((x - xc)/a)^2 + ((z - zc)/b)^2 >= r^2; r = 1 is the task's scene, r = 0 drops the holes), so the
 solver can run a continuation in the scene without rebuilding.
@@ -23,6 +24,7 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
+    periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
     physical_time (1, 1)              t_N = T (only with horizon.physical_time)
     penalty (N, 2 n_sigma)            s_c - a b >= 0 for every complementarity pair (Penalty.LINF)
 
@@ -33,6 +35,9 @@ lifted variables (no new product), equal to 1 on the sliding manifold with the w
 0 in flight (beta = 1), in a frozen impact (alpha = 0) and at contact breaking (gamma = 1), where
 the explicit forces are meaningless. Multiplying by it keeps the constraint smooth; it is exact at
 a complementarity-feasible point because P_DAE is then 0 or 1 wherever the DAE force acts at all.
+With several contact points the cone is written on each point's joint force variables and weighted
+by the clock rate R (the ODE field's coefficient), through which those forces act (docs/formulation.md,
+"Periodic walking").
 
 Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds),
 selectors and lifted products in [0, 1], multipliers >= 0, s_k >= 1, s_c >= 0.
