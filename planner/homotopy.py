@@ -75,7 +75,11 @@ class SolveOptions:
     polish_starts: polish from the last homotopy point, and if that polish is not accepted from the one
     before, ... (this many points: insurance; with the projection polish the first was enough in every run measured); comp_tol,
     terminal_tol [m, rad], constraint_tol: the convergence verdict's thresholds; frozen_tol: the
-    recovery's relative clock deficit of a frozen step.
+    recovery's relative clock deficit of a frozen step; frozen_tol_several: the same for problems
+    with several contact points, where a step is frozen only when its clock advanced less than
+    (1 - frozen_tol_several) h (default: 1 % of h): a stance step may run partly frozen (clock rate
+    in (0, 1), the a_n field carrying part of the weight) and is a physical step, not an impact
+    (docs/formulation.md, "Periodic walking").
     rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
     rho_min, rho_max: applied to the task's schedule (not to rho_schedule): drop the NLPs with
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
@@ -121,6 +125,7 @@ class SolveOptions:
     terminal_tol: float = 1e-6
     constraint_tol: float = 1e-6
     frozen_tol: float = FROZEN_TOL
+    frozen_tol_several: float = 1.0 - FROZEN_TOL
     rho_schedule: tuple[float, ...] | None = None
     rho_min: float | None = 100.0
     rho_max: float | None = 1e6
@@ -155,6 +160,7 @@ class SolveOptions:
             (self.terminal_tol > 0, "terminal_tol", self.terminal_tol, "> 0"),
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
+            (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -238,7 +244,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     def sched(values, i):
         return 1.0 if not values else float(values[min(i, len(values) - 1)])
 
-    term_rows = problem.g_blocks["terminal"].ravel()
+    term_rows = _terminal_rows(problem)
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
@@ -413,8 +419,14 @@ def terminal_error(problem: Problem, x) -> float:
     """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s]."""
     g_fn = _g_fn(problem)
     g = np.asarray(g_fn(x, problem.params(0.0, 1.0)), float).ravel()
-    rows = problem.g_blocks["terminal"].ravel()
+    rows = _terminal_rows(problem)
     return float(np.max(np.abs(g[rows] - problem.lbg[rows])))
+
+
+def _terminal_rows(problem: Problem) -> np.ndarray:
+    """The rows of g the soft terminal relaxes and the terminal error measures: "terminal", or for a
+    periodic task (plan.periodic) the "periodic" rows (q_N - S q_0 - shift, v_N - S v_0)."""
+    return (problem.g_blocks["terminal"] if "terminal" in problem.g_blocks else problem.g_blocks["periodic"]).ravel()
 
 
 def _g_fn(problem: Problem):
@@ -441,7 +453,10 @@ def _feasible(problem, x, options) -> bool:
 
 def _result(problem: Problem, options: SolveOptions, x, records, polished, wall, timings) -> PlanResult:
     parts = problem.split(x)
-    traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, options.frozen_tol, parts["S"])
+    frozen_tol = options.frozen_tol
+    if len(problem.task.contacts) > 1:
+        frozen_tol = options.frozen_tol_several
+    traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
@@ -468,7 +483,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     beta = parts["W"][:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
     contact = problem.task.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in parts["Y"]])
-    hops = hops_of(traj, beta.max(axis=1) if beta.size else np.zeros(problem.N), foot)
+    # the robot flies when every contact point does (one contact: its beta)
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(problem.N), foot)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,

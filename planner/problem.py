@@ -10,7 +10,8 @@ Direct transcription with N regularized implicit-Euler steps (planner.discretiza
                    and, with StepForm.MASS_MATRIX, "forces" (free acceleration, contact forces, M^-1 J^T lam)
 
 and after the N stages the one l_inf slack s_c (Penalty.LINF only). y_0 is the task's initial state,
-a constant. The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
+a constant, except for a periodic task (plan.periodic), where it is the block "y0" (ny,) ahead of
+the stages (q in the joint bounds, the fixed coordinates and the clock pinned). The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
 homotopy builds IPOPT once and only changes rho, and the scale r of the holes
 (((x - xc)/a)^2 + ((z - zc)/b)^2 >= r^2; r = 1 is the task's scene, r = 0 drops the holes), so the
 solver can run a continuation in the scene without rebuilding.
@@ -23,6 +24,7 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
+    periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
     physical_time (1, 1)              t_N = T (only with horizon.physical_time)
     penalty (N, 2 n_sigma)            s_c - a b >= 0 for every complementarity pair (Penalty.LINF)
 
@@ -33,6 +35,9 @@ lifted variables (no new product), equal to 1 on the sliding manifold with the w
 0 in flight (beta = 1), in a frozen impact (alpha = 0) and at contact breaking (gamma = 1), where
 the explicit forces are meaningless. Multiplying by it keeps the constraint smooth; it is exact at
 a complementarity-feasible point because P_DAE is then 0 or 1 wherever the DAE force acts at all.
+With several contact points the cone is written on each point's joint force variables and weighted
+by the clock rate R (the ODE field's coefficient), through which those forces act (docs/formulation.md,
+"Periodic walking").
 
 Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds),
 selectors and lifted products in [0, 1], multipliers >= 0, s_k >= 1, s_c >= 0.
@@ -99,6 +104,11 @@ class ProblemOptions:
       keeps the gap in persistent contact; with the paper's POINT the stances sink (2.6 cm on Capler
       N = 50), an exactly complementary plan cannot end standing at the target after moving, and the
       full Capler task did not converge (docs/formulation.md, "OCP and solve", round 4).
+    clock_weight: objective + clock_weight sum_k (R_k (1 - R_k))^2 with R_k the step's clock rate (the
+      coefficient of the ODE field, linear in the lifted variables; objective part "clock"): zero
+      in running steps (R = 1) and in frozen impacts (R = 0), positive for a partly frozen step.
+      Default 0 (off): on the periodic biped walk, where the stance runs partly frozen without it,
+      10 and 100 both kept the homotopy from converging (docs/formulation.md, "Periodic walking").
     """
 
     penalty: Penalty = Penalty.LINF
@@ -110,12 +120,15 @@ class ProblemOptions:
     gating: bool = True
     aux_continuation: bool = False
     velocity_switch: SwitchVelocity = SwitchVelocity.SECANT
+    clock_weight: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.velocity_switch, SwitchVelocity):
             raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in SwitchVelocity]}")
         if not isinstance(self.step_form, StepForm):
             raise InputError(f"ProblemOptions.step_form = {self.step_form!r} is not allowed; it must be one of {[p.value for p in StepForm]}")
+        if not self.clock_weight >= 0:
+            raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed; it must be >= 0")
         if not isinstance(self.penalty, Penalty):
             raise InputError(f"ProblemOptions.penalty = {self.penalty!r} is not allowed; it must be one of {[p.value for p in Penalty]}")
         for name, scale in self.switch_scale:
@@ -198,7 +211,8 @@ class Problem:
     def split(self, x) -> dict[str, np.ndarray]:
         """Numeric blocks of x: Y (N+1, ny) with y_0 first, U (N, nu), W (N, nw), S (N,) speeds."""
         x = np.asarray(x, dtype=float).ravel()
-        Y = np.vstack([self.y0, x[self.var_blocks["y"]]])
+        y0 = x[self.var_blocks["y0"]] if "y0" in self.var_blocks else self.y0
+        Y = np.vstack([y0, x[self.var_blocks["y"]]])
         S = x[self.var_blocks["s"]].ravel() if "s" in self.var_blocks else np.ones(self.N)
         return {"Y": Y, "U": x[self.var_blocks["u"]], "W": x[self.var_blocks["w"]], "S": S}
 
@@ -211,9 +225,6 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
-    if len(task.contacts) > 1:
-        raise InputError(f"{len(task.contacts)} contact points given; planning supports one contact point so far "
-                         "(`planner simulate` takes several)")
     task.check_against(robot)
     plan, hz = task.plan, task.horizon
     dyn = dynamics or Dynamics(robot)
@@ -230,6 +241,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     nq, nv, nu, ny, nw, n_sig = system.nq, system.nv, system.nu, system.ny, builder.nw, system.n_sigma
     N, h = hz.N, hz.h
     timed = hz.physical_time is not None
+    periodic = plan.periodic is not None
 
     v0 = np.zeros(nv) if task.initial.v is None else np.array(task.initial.v, float)
     y0 = system.initial_state(np.array(task.initial.q, float), v0)
@@ -242,9 +254,10 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     sizes = [("u", nu)] + ([("s", 1)] if timed else []) + [("y", ny), ("w", nw)]
     stage_n = sum(n for _, n in sizes)
     linf = options.penalty is Penalty.LINF
-    nx = N * stage_n + (1 if linf else 0)
+    n_y0 = ny if periodic else 0  # plan.periodic: y_0 is a decision variable, ahead of the stages
+    nx = n_y0 + N * stage_n + (1 if linf else 0)
     blocks: dict[str, list] = {name: [] for name, _ in sizes}
-    off = 0
+    off = n_y0
     for k in range(N):
         for name, n in sizes:
             blocks[name].append(np.arange(off, off + n))
@@ -254,6 +267,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         var_blocks[part] = var_blocks["w"][:, builder.w_blocks[part]]
     if linf:
         var_blocks["s_c"] = np.array([nx - 1])
+    if periodic:
+        var_blocks["y0"] = np.arange(ny)
 
     rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
     an_scale, at_scale, term_w = ca.SX.sym("an_scale"), ca.SX.sym("at_scale"), ca.SX.sym("terminal_weight")
@@ -275,6 +290,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         lbx[var_blocks["s"]] = 1.0
     if linf:
         lbx[nx - 1] = 0.0
+    if periodic:  # y_0: q within the joint bounds, the fixed coordinates and the clock t_0 = 0 pinned
+        perm, along, fixed = task.periodic_map(robot)
+        lbx[:nq], ubx[:nq] = q_lo, q_hi
+        lbx[fixed], ubx[fixed] = y0[fixed], y0[fixed]
+        if plan.periodic.v_bound is not None:
+            lbx[nq : nq + nv], ubx[nq : nq + nv] = -plan.periodic.v_bound, plan.periodic.v_bound
+        lbx[ny - 1] = ubx[ny - 1] = y0[ny - 1]
 
     # --- path-constraint functions of (y, u, w) ----------------------------------------------------
     ys, us, ws = system.y, system.u, ca.SX.sym("w", nw)
@@ -290,7 +312,20 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     coef = ca.mtimes(ca.DM(builder.C), z)  # P_j(sigma) per field, linear in the lifted variables
     field_names = [f.name for f in system.fields]
     cone = []
-    if options.friction_cone:
+    if options.friction_cone and len(task.contacts) > 1:
+        # several contacts: the joint forces lambda_i are step variables (switched off, = 0, where the
+        # point's force row is off) and act through the clock R = prod_i r_i (the coefficient of the
+        # ODE field): R = 1 on every sliding manifold, 0 in any frozen impact (docs/formulation.md)
+        weight = coef[field_names.index("ode")]
+        for label, model in zip(system.labels, system.models):
+            if model is not ContactModel.NO_SLIP:
+                continue
+            mu = task.contacts[system.labels.index(label)].mu
+            lam_all = ws[builder.w_blocks["forces"]]
+            sl = builder.mm.lam_index[label] if builder.mm is not None else system.lam_index[label]
+            lam = lam_all[sl]
+            cone += [weight * (mu * lam[0] - lam[1]), weight * (mu * lam[0] + lam[1])]
+    elif options.friction_cone:
         for ct, model, terms in zip(task.contacts, system.models, system.terms):
             if model is not ContactModel.NO_SLIP:
                 continue
@@ -313,8 +348,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     control_cost, selector_cost = 0, 0
     pairs: list[Pair] = []
     prods = []
-    y_prev = ca.DM(y0)
-    x_parts = []
+    y_prev = ca.SX.sym("y_0", ny) if periodic else ca.DM(y0)
+    x_parts = [y_prev] if periodic else []
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
         sk = ca.SX.sym(f"s_{k}") if timed else 1.0
@@ -372,12 +407,19 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     add("holes", g_parts["holes"], 0.0, np.inf)
     add("friction_cone", g_parts["friction_cone"], 0.0, np.inf)
     y_N = X[var_blocks["y"][-1]]
-    target_q = np.array(plan.target_q, float)
-    if options.terminal_velocity:
+    if periodic:  # q_N = S q_0 + step e_along, v_N = S v_0 (the soft-terminal residual too)
+        shift = np.zeros(nq)
+        shift[along] = plan.periodic.step
+        y_0 = X[var_blocks["y0"]]
+        term_res = ca.vertcat(y_N[:nq] - y_0[:nq][perm.tolist()] - shift, y_N[nq : nq + nv] - y_0[nq : nq + nv][perm.tolist()])
+        add("periodic", [term_res], 0.0, 0.0)
+    elif options.terminal_velocity:
         target_v = np.zeros(nv) if plan.target_v is None else np.array(plan.target_v, float)
+        target_q = np.array(plan.target_q, float)
         add("terminal", [y_N[: nq + nv]], np.concatenate([target_q, target_v]), np.concatenate([target_q, target_v]))
         term_res = y_N[: nq + nv] - np.concatenate([target_q, target_v])
     else:
+        target_q = np.array(plan.target_q, float)
         add("terminal", [y_N[:nq]], target_q, target_q)
         term_res = y_N[:nq] - target_q
     if timed:
@@ -389,7 +431,16 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         penalty = rho * ca.sum1(pen_prods)
 
     f = control_cost + selector_cost + penalty + term_w * ca.dot(term_res, term_res)
-    names = []
+    clock_w = options.clock_weight
+    clock_cost = 0
+    if clock_w > 0:
+        rate = ca.Function("clock_rate", [ws], [coef[field_names.index("ode")]])
+        for k in range(N):
+            Rk = rate(X[var_blocks["w"][k]])
+            clock_cost += (Rk * (1 - Rk)) ** 2
+        clock_cost = clock_w * clock_cost
+        f = f + clock_cost
+    names = [f"{nm}_0" for nm in system.state_names] if periodic else []
     for k in range(N):
         names += [f"u[{i}]_{k}" for i in range(nu)]
         if timed:
@@ -401,6 +452,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     # --- the hint-free initial guess --------------------------------------------------------------
     x0 = np.zeros(nx)
+    if periodic:
+        x0[var_blocks["y0"]] = y0
     w_guess = builder.guess(y0, np.zeros(nu))
     for k in range(N):
         yk = y0.copy()
@@ -420,6 +473,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         "selectors": ca.Function("selector_cost", [X, P], [selector_cost]),
         "penalty": ca.Function("penalty_cost", [X, P], [penalty]),
     }
+    if clock_w > 0:
+        parts["clock"] = ca.Function("clock_cost", [X, P], [clock_cost])
     if linf:
         x0[nx - 1] = float(np.max(np.asarray(ca.Function("p0", [X], [prods])(x0)), initial=0.0))
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
@@ -432,9 +487,12 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X, N) -> ca.SX:
     """(n_pairs,) gate of every pair in Problem.pairs order (ProblemOptions.gating): 1 - beta for the
     alpha and zeta pairs, (1 - beta) alpha for the gamma pair (via the lifted alpha*beta when it
-    exists), 1 for beta and for the selectors of elastic contacts."""
+    exists), 1 for beta and for the selectors of elastic contacts. Several contacts: each point's
+    selectors are gated by its own beta_i, and the gamma_i pair by 1 - beta_i only (gamma_i switches
+    the force row s_i = (1 - beta_i)(1 - gamma_i); docs/formulation.md, "Periodic walking")."""
     names = [s.name for s in system.switches]
-    mono = {m: j for j, m in enumerate(builder.lifted)}
+    n_fac = len(system.factors)  # theta = (factors, lifted products); no factors with one contact
+    mono = {m: n_fac + j for j, m in enumerate(builder.lifted)}
     out = []
     for k in range(N):
         sig, th = var_blocks["sigma"][k], var_blocks["theta"][k]
@@ -447,7 +505,11 @@ def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X
                 continue
             ib, ia = names.index(f"beta[{sw.contact}]"), names.index(f"alpha[{sw.contact}]")
             one_minus_beta = 1 - X[sig[ib]]
-            if kind == "gamma":
+            if kind == "gamma" and system.factors:
+                # several contacts: gamma_i also switches point i's force row, s_i = (1 - beta_i)(1 - gamma_i),
+                # whose force acts through R even where alpha_i = 0 if beta_i is fractional: gate by 1 - beta_i only
+                stage.append(one_minus_beta)
+            elif kind == "gamma":
                 key = tuple(sorted((ia, ib)))
                 ab = X[th[mono[key]]] if key in mono else X[sig[ia]] * X[sig[ib]]
                 stage.append(X[sig[ia]] - ab)

@@ -115,10 +115,37 @@ class JointBound:
 
 
 @dataclass(frozen=True)
-class Plan:
-    """The optimal control problem: reach target_q at tau_f minimizing the integral of u^2."""
+class Periodic:
+    """One step of a periodic gait (`plan.periodic`): q(tau_f) = S q(0) + step e_along and
+    v(tau_f) = S v(0), S the relabelling that swaps each pair of coordinates in `swap`; the
+    initial state becomes a decision variable except the coordinates in `fixed`, which keep their
+    values from initial.q (initial.q and initial.v are the initial guess of y_0)."""
 
-    target_q: tuple[float, ...]
+    step: float  # shift of coordinate `along` over one period [m or rad]
+    along: str = "x"  # the coordinate that advances by `step`
+    swap: tuple[tuple[str, ...], ...] = ()  # pairs of coordinates (joint names) exchanged by S
+    fixed: tuple[str, ...] = ("x",)  # coordinates of q(0) fixed to initial.q
+    v_bound: float | None = None  # |v_i(0)| <= v_bound on the free initial velocity; none: free
+
+    def __post_init__(self):
+        _require(math.isfinite(self.step), "plan.periodic.step", self.step, "a finite number")
+        seen = []
+        for i, pair in enumerate(self.swap):
+            _require(len(pair) == 2 and pair[0] != pair[1], f"plan.periodic.swap[{i}]", list(pair),
+                     "two different coordinate names, e.g. [\"hinge_1\", \"hinge_2\"]")
+            _require(not set(pair) & set(seen), f"plan.periodic.swap[{i}]", list(pair), "names not already in another pair")
+            seen += list(pair)
+        _require(len(set(self.fixed)) == len(self.fixed), "plan.periodic.fixed", list(self.fixed), "without repeated names")
+        if self.v_bound is not None:
+            _require(self.v_bound > 0, "plan.periodic.v_bound", self.v_bound, "> 0")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The optimal control problem: reach target_q at tau_f minimizing the integral of u^2, or,
+    with `periodic`, one step of a periodic gait (target_q then must be omitted)."""
+
+    target_q: tuple[float, ...] | None = None  # required unless periodic
     target_v: tuple[float, ...] | None = None  # zeros when omitted
     rho_f: float = 1.0  # weight of ||sigma - sigma*||^2 (regularized implicit Euler)
     homotopy: Homotopy = field(default_factory=Homotopy)
@@ -126,8 +153,15 @@ class Plan:
     above_ground: tuple[str, ...] = ()  # named points kept at z >= ground_height (knee, base, ...)
     joint_bounds: tuple[JointBound, ...] = ()
     u_bound: float | None = None  # |u_i| <= u_bound; default: the actuators' ctrlrange
+    periodic: Periodic | None = None  # one step of a periodic gait instead of a target
 
     def __post_init__(self):
+        if self.periodic is None and self.target_q is None:
+            raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
+        if self.periodic is not None:
+            for key in ("target_q", "target_v"):
+                _require(getattr(self, key) is None, f"plan.{key}", list(getattr(self, key) or ()),
+                         "omitted with plan.periodic (the end state is the relabelled, shifted initial state)")
         _require(self.rho_f >= 0, "plan.rho_f", self.rho_f, ">= 0")
         if self.u_bound is not None:
             _require(self.u_bound > 0, "plan.u_bound", self.u_bound, "> 0")
@@ -308,6 +342,9 @@ class Task:
         for p in self.plan.above_ground:
             if p not in robot.points:
                 raise UnknownNameError("point", p, robot.points)
+        if self.plan.periodic is not None:
+            self.periodic_map(robot)
+            return
         _length("plan.target_q", self.plan.target_q, robot.nq)
         if self.plan.target_v is not None:
             _length("plan.target_v", self.plan.target_v, robot.nv)
@@ -315,6 +352,27 @@ class Task:
         for i, (qi, lo, hi) in enumerate(zip(self.plan.target_q, lower, upper)):
             if not lo <= qi <= hi:
                 raise TaskError(f"plan.target_q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
+
+    def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
+        """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with
+        (S q)[i] = q[perm[i]]. Raises UnknownNameError for an unknown coordinate and TaskError for a
+        robot whose q and v coordinates differ (nq != nv) or for initial.q outside the joint bounds."""
+        per = self.plan.periodic
+        if robot.nq != robot.nv:
+            raise TaskError(f"plan.periodic needs a robot with nq == nv (one coordinate per joint); {robot.name!r} has "
+                            f"nq = {robot.nq}, nv = {robot.nv}")
+        perm = np.arange(robot.nq)
+        for pair in per.swap:
+            i, j = (robot.dof_index(name) for name in pair)
+            perm[i], perm[j] = j, i
+        along = robot.dof_index(per.along)
+        fixed = np.array([robot.dof_index(name) for name in per.fixed], dtype=int)
+        lower, upper = self.q_bounds(robot)
+        for i, (qi, lo, hi) in enumerate(zip(self.initial.q, lower, upper)):
+            if not lo <= qi <= hi:
+                raise TaskError(f"initial.q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint bounds [{lo}, {hi}]; "
+                                "with plan.periodic it is the initial guess of q(0)")
+        return perm, along, fixed
 
     def pd_actuators(self, robot) -> tuple[tuple[int, int, int], ...]:
         """(q index, v index, actuator index) of each simulate.pd joint, in its order.

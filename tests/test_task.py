@@ -84,3 +84,63 @@ def test_plan_needs_actuators(tmp_path):
                        "plan": {"target_q": [1.0]}})
     with pytest.raises(TaskError, match="no actuators"):
         task.check_against(load_robot(xml))
+
+
+BIPED_PERIODIC = {"contacts": [{"point": "foot_1", "mu": 1.0}, {"point": "foot_2", "mu": 1.0}],
+                  "initial": {"q": [0.0, 0.99, 0.0, -0.1, 0.1]}, "horizon": {"tau_f": 0.6, "N": 10},
+                  "plan": {"periodic": {"step": 0.25, "swap": [["hinge_1", "hinge_2"]]}}}
+
+
+def _periodic(**changes):
+    plan = {**BIPED_PERIODIC["plan"], "periodic": {**BIPED_PERIODIC["plan"]["periodic"]}}
+    for key, value in changes.items():
+        if key.startswith("periodic."):
+            plan["periodic"][key.split(".", 1)[1]] = value
+        else:
+            plan[key] = value
+    return {**BIPED_PERIODIC, "plan": plan}
+
+
+def test_periodic_plan_keys():
+    """plan.periodic: defaults (along x, x(0) fixed), target_q no longer required, indices from names."""
+    task = parse_task(_periodic())
+    per = task.plan.periodic
+    assert (per.step, per.along, per.swap, per.fixed, per.v_bound) == (0.25, "x", (("hinge_1", "hinge_2"),), ("x",), None)
+    assert task.plan.target_q is None
+    perm, along, fixed = task.periodic_map(load_robot(ROBOTS / "biped.xml"))
+    assert perm.tolist() == [0, 1, 2, 4, 3] and along == 0 and fixed.tolist() == [0]
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"periodic.bogus": 1}, r"unknown key 'plan.periodic.bogus'; valid keys: step, along, swap, fixed, v_bound"),
+        ({"periodic.step": "far"}, r"plan.periodic.step must be a number, got str"),
+        ({"periodic.swap": [["hinge_1"]]}, r"plan.periodic.swap\[0\] = \['hinge_1'\] is not allowed; it must be two different"),
+        ({"periodic.swap": [["hinge_1", "hinge_2"], ["hinge_2", "torso"]]}, r"plan.periodic.swap\[1\] .* another pair"),
+        ({"periodic.swap": "hinge_1"}, r"plan.periodic.swap must be an array, got str"),
+        ({"periodic.fixed": ["x", "x"]}, r"plan.periodic.fixed .* without repeated names"),
+        ({"periodic.v_bound": 0.0}, r"plan.periodic.v_bound = 0.0 .* > 0"),
+        ({"target_q": [0.25, 0.99, 0.0, 0.1, -0.1]}, r"plan.target_q .* omitted with plan.periodic"),
+    ],
+)
+def test_bad_periodic_values_are_named(changes, message):
+    with pytest.raises(TaskError, match=message):
+        parse_task(_periodic(**changes))
+
+
+def test_plan_without_target_or_periodic():
+    with pytest.raises(TaskError, match=r"missing key 'plan.target_q' \(required unless plan.periodic"):
+        parse_task({**BIPED_PERIODIC, "plan": {"rho_f": 1.0}})
+
+
+def test_periodic_robot_dependent_errors():
+    """Unknown coordinate names list the valid ones; initial.q (the guess of q(0)) must lie in the bounds."""
+    robot = load_robot(ROBOTS / "biped.xml")
+    with pytest.raises(UnknownNameError, match="hinge_3"):
+        parse_task(_periodic(**{"periodic.swap": [["hinge_1", "hinge_3"]]})).check_against(robot)
+    with pytest.raises(UnknownNameError, match="y"):
+        parse_task(_periodic(**{"periodic.along": "y"})).check_against(robot)
+    bounds = [{"joint": "torso", "lower": 0.1, "upper": 0.2}]
+    with pytest.raises(TaskError, match=r"initial.q\[2\] = 0.0 \(torso\) is outside the joint bounds"):
+        parse_task(_periodic(joint_bounds=bounds)).check_against(robot)

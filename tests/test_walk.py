@@ -1,0 +1,148 @@
+"""Planning with several contact points and the periodic walk of the biped (issue 7B).
+
+The one-contact problems are pinned to a fingerprint of main's code at the branch point
+(tests/data/one_contact_fingerprint.json, written by `fingerprint` below before any change): same
+variables, names, bounds, constraint expressions, Jacobian sparsity and g(x0)."""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from planner.model import load_robot
+from planner.problem import build_problem
+from planner.task import Horizon, load_task, parse_task
+
+ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+FINGERPRINT = Path(__file__).resolve().parent / "data" / "one_contact_fingerprint.json"
+
+
+def fingerprint(prob) -> dict:
+    P = prob.params(1e3, 1.0)
+    g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g])(prob.x0, P), float).ravel()
+    f = float(ca.Function("f", [prob.x, prob.p], [prob.f])(prob.x0, P))
+    J = ca.jacobian(prob.g, prob.x).sparsity()
+
+    def h(a):
+        return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
+
+    return {"nx": prob.nx, "ng": prob.ng, "f_x0": f, "g_x0_sha": h(g), "g_x0_norm": float(np.linalg.norm(g)),
+            "var_names_sha": hashlib.sha256("|".join(prob.var_names).encode()).hexdigest(),
+            "g_blocks": {k: list(v.shape) for k, v in prob.g_blocks.items()},
+            "bounds_sha": h(np.concatenate([prob.lbx, prob.ubx, prob.lbg, prob.ubg, prob.x0])),
+            "jac_nnz": J.nnz(), "jac_sha": hashlib.sha256(np.array(J.get_triplet()).tobytes()).hexdigest(),
+            "g_str_sha": hashlib.sha256(str(prob.g).encode()).hexdigest(), "g_x0": g.tolist() if prob.ng < 500 else None}
+
+
+def _one_contact_problems():
+    capler = load_robot(ROBOTS / "capler.xml")
+    task = load_task(ROBOTS / "capler.toml")
+    hop = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 12},
+                      "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    return {"capler_N10": (capler, dataclasses.replace(task, horizon=Horizon(tau_f=0.5, N=10))),
+            "capler_default": (capler, task),
+            "point_mass_hop": (load_robot(ROBOTS / "point_mass.xml"), hop)}
+
+
+@pytest.mark.parametrize("name", ["capler_N10", "capler_default", "point_mass_hop"])
+def test_one_contact_problems_are_unchanged(name):
+    """Same nx, ng, names, bounds, guess, symbolic g, Jacobian sparsity and g(x0) as main's code."""
+    robot, task = _one_contact_problems()[name]
+    ref = json.loads(FINGERPRINT.read_text())[name]
+    got = fingerprint(build_problem(robot, task))
+    assert (got["nx"], got["ng"]) == (ref["nx"], ref["ng"])
+    if ref["g_x0"] is not None:
+        np.testing.assert_array_equal(got["g_x0"], ref["g_x0"])
+    for key in ref:
+        assert got[key] == ref[key], key
+
+
+def _biped(N: int = 6):
+    task = load_task(ROBOTS / "biped.toml")
+    if N is not None:
+        task = dataclasses.replace(task, horizon=Horizon(tau_f=task.horizon.tau_f * N / task.horizon.N, N=N))
+    return load_robot(ROBOTS / "biped.xml"), task
+
+
+def test_periodic_problem_has_free_initial_state_and_periodic_rows():
+    """y_0 is a variable block ahead of the stages (x(0) and t(0) pinned, q(0) in the joint bounds);
+    the "periodic" rows are q_N - S q_0 - step e_x and v_N - S v_0 (legs swapped)."""
+    robot, task = _biped()
+    pb = build_problem(robot, task)
+    ny, nq, nv = pb.system.ny, pb.system.nq, pb.system.nv
+    assert pb.var_blocks["y0"].tolist() == list(range(ny)) and pb.var_blocks["u"][0, 0] == ny
+    assert pb.var_names[0] == "q[x]_0" and pb.var_names[ny - 1] == "t_0"
+    assert pb.lbx[0] == pb.ubx[0] == 0.0 and pb.lbx[ny - 1] == pb.ubx[ny - 1] == 0.0
+    assert (pb.lbx[2], pb.ubx[2]) == (-0.2, 0.2)  # torso
+    assert np.all(np.isinf(pb.lbx[nq : nq + nv]))
+    assert "terminal" not in pb.g_blocks and pb.g_blocks["periodic"].shape == (1, nq + nv)
+    # a state pair that is exactly periodic
+    rng = np.random.default_rng(0)
+    x = pb.x0.copy()
+    y0 = rng.normal(size=ny)
+    yN = y0.copy()
+    yN[[3, 4]], yN[[nq + 3, nq + 4]] = y0[[4, 3]], y0[[nq + 4, nq + 3]]
+    yN[0] += 0.25
+    x[pb.var_blocks["y0"]], x[pb.var_blocks["y"][-1]] = y0, yN
+    g = np.asarray(ca.Function("g", [pb.x, pb.p], [pb.g])(x, pb.params(1.0)), float).ravel()
+    np.testing.assert_allclose(g[pb.g_blocks["periodic"].ravel()], 0.0, atol=1e-12)
+    yN[3] += 1e-3
+    x[pb.var_blocks["y"][-1]] = yN
+    g = np.asarray(ca.Function("g", [pb.x, pb.p], [pb.g])(x, pb.params(1.0)), float).ravel()
+    assert g[pb.g_blocks["periodic"][0, 3]] == pytest.approx(1e-3)
+    np.testing.assert_array_equal(pb.split(x)["Y"][0], y0)
+
+
+def test_several_contacts_cone_and_gates():
+    """Per point: two cone rows on its joint force (lambda_n, lambda_t), weighted by the clock R; gates
+    1 - beta_i for alpha_i, zeta_i and gamma_i of the same point (1 at the hint-free guess, which stands)."""
+    robot, task = _biped(N=3)
+    pb = build_problem(robot, task)
+    assert pb.g_blocks["friction_cone"].shape == (3, 4)
+    names = [s.name for s in pb.system.switches]
+    gates = np.asarray(pb.notes["gates"](pb.x0), float).ravel()
+    n = len(names)
+    assert gates.shape == (3 * 2 * n,)
+    # standing guess: beta = 0 for both feet, so every gate is 1
+    np.testing.assert_allclose(gates, 1.0)
+    # foot_2 in flight at stage 0: its alpha, gamma, zeta gates drop to 0, foot_1's stay
+    x = pb.x0.copy()
+    x[pb.var_blocks["sigma"][0][names.index("beta[foot_2]")]] = 1.0
+    gates = np.asarray(pb.notes["gates"](x), float).ravel()[:n]
+    for i, nm in enumerate(names):
+        expect = 0.0 if nm in ("alpha[foot_2]", "gamma[foot_2]", "zeta[foot_2]") else 1.0
+        assert gates[i] == expect, nm
+
+
+@pytest.mark.slow
+def test_biped_walks_periodically_from_a_hint_free_start():
+    """robots/biped.toml from the standing guess: periodic to 1e-6, exact complementarity, single
+    support, exactly one impact per step (the swing foot: normal and tangential impulse)."""
+    from planner.homotopy import solve
+
+    robot, task = _biped(N=None)
+    pb = build_problem(robot, task)
+    res = solve(pb)
+    assert res.stats.converged, res.stats.message
+    x = res.extra["_x"]
+    g = np.asarray(ca.Function("g", [pb.x, pb.p], [pb.g])(x, pb.params(0.0)), float).ravel()
+    assert np.max(np.abs(g[pb.g_blocks["periodic"].ravel()])) <= 1e-6
+    assert res.stats.complementarity_residual <= 1e-6
+    names = [s.name for s in pb.system.switches]
+    sig = x[pb.var_blocks["sigma"]]
+    b1, b2 = sig[:, names.index("beta[foot_1]")] > 0.5, sig[:, names.index("beta[foot_2]")] > 0.5
+    assert np.sum(b1 ^ b2) >= pb.N // 2  # single support most of the step
+    f1, f2 = sig[:, names.index("beta[foot_1]")] > 0.99, sig[:, names.index("beta[foot_2]")] > 0.99
+    assert not np.any(f1 & f2)  # never both feet in the air (walking, not running; the landing step mixes, beta in (0, 1))
+    impacts = res.trajectory.impacts
+    assert len(impacts) == 1, impacts
+    (imp,) = impacts
+    assert imp.impulse > 1.0 and abs(imp.impulse_tangential) > 0.1
+    # the foot that lands is the one that swings: in flight during the step and on the ground at the ends
+    swing = np.asarray(b1 if imp.contact == "foot_2" else b2)
+    assert swing.sum() >= pb.N // 2
