@@ -55,6 +55,9 @@ class Trajectory:
     two samples with the same time (pre- and post-impact velocity); impacts (Impact, ...).
     forces (K-1, n_lambda), force_names: the index-reduced contact forces [N] of each step (at its end
     point) when the system has several contact points (zero for points off the ground), else None.
+    contact_force (K-1, n_contacts, 2): the persistent-contact force (normal, tangential) [N] each
+    step applies (0 in flight and in frozen impacts), or None; `contact_force_samples` maps it onto
+    the physical-time samples.
     """
 
     tau: np.ndarray
@@ -69,6 +72,19 @@ class Trajectory:
     impacts: tuple[Impact, ...] = ()
     forces: np.ndarray | None = None  # several contacts: (K-1, n_lambda) contact forces of each step [N]
     force_names: tuple[str, ...] = ()  # lambda_n[point], lambda_t[point], ...
+    contact_force: np.ndarray | None = None  # (K-1, n_contacts, 2) persistent-contact force of each step [N]
+
+    def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
+        physical time between the ends of the steps whose clock ran (an impact's two samples get the
+        force just before and after it). None without contact_force."""
+        if self.contact_force is None or len(self.contact_force) == 0:
+            return None
+        clock = self.y[1:, -1]
+        running = np.concatenate([[True], np.diff(clock) > 0])  # a step that ran the clock ends at a new time
+        ts, f = clock[running], self.contact_force[running]
+        out = [np.column_stack([np.interp(self.t, ts, f[:, c, j]) for c in range(f.shape[1])]) for j in (0, 1)]
+        return out[0], out[1]
 
     @property
     def impact_times(self) -> np.ndarray:
@@ -333,6 +349,9 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
     }
     if tr.forces is not None:
         arrays.update(forces=tr.forces, force_names=np.array(tr.force_names, dtype=str))
+    sampled = tr.contact_force_samples()
+    if sampled is not None:
+        arrays.update(lambda_n=sampled[0], lambda_t=sampled[1])
     return write_files(out_dir, arrays, result.summary())
 
 

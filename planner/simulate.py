@@ -33,7 +33,7 @@ from .errors import InputError
 from .model import Robot
 from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
 from .task import Task
-from .timefreezing import TimeFreezingSystem
+from .timefreezing import ContactModel, TimeFreezingSystem
 
 # An initial gap below -GAP_TOL [m] is "below the ground": the time-freezing system must start in c >= 0.
 GAP_TOL = 1e-9
@@ -411,5 +411,30 @@ def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
-                      forces=forces, force_names=system.lam_names,
+                      forces=forces, force_names=system.lam_names, contact_force=_contact_force(system, builder, Y, W, U, forces),
                       t=t, q=q, v=v, u=u, impacts=impacts)
+
+
+def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, forces) -> np.ndarray | None:
+    """(N, n_contacts, 2) persistent-contact force (normal, tangential) [N] of each step. Several
+    contacts: the step's joint forces (zero for points off the ground). One contact: the index-reduced
+    force at the step's end point times the coefficient of the DAE field in F (1 in persistent
+    contact with the wanted selectors, 0 in flight and in a frozen impact). None for elastic contacts."""
+    n_c = len(system.contacts)
+    if forces is not None:
+        out = np.zeros((len(W), n_c, 2))
+        for c, label in enumerate(system.labels):
+            for j, kind in enumerate(("n", "t")):
+                name = f"lambda_{kind}[{label}]"
+                if name in system.lam_names:
+                    out[:, c, j] = forces[:, system.lam_names.index(name)]
+        return out
+    if n_c != 1 or system.models[0] is ContactModel.ELASTIC:
+        return None
+    terms, label = system.terms[0], system.labels[0]
+    no_slip = system.models[0] is ContactModel.NO_SLIP
+    lam = terms.lambda_no_slip if no_slip else ca.vertcat(terms.lambda_n, 0)
+    lam_fn = ca.Function("contact_force", [system.y, system.u], [lam])
+    j = [f.name for f in system.fields].index(f"{'dae_f' if no_slip else 'dae'}[{label}]")
+    return np.array([builder.coefficients(W[k])[j] * np.asarray(lam_fn(Y[k + 1], U[k]), float).ravel()
+                     for k in range(len(W))]).reshape(len(W), 1, 2)

@@ -102,6 +102,24 @@ def test_inelastic_no_slip_drop():
     np.testing.assert_allclose(tr.q[after, 0], imp.q[0], atol=SOLVER_TOL)
 
 
+def test_contact_force_balances_gravity_after_the_drop():
+    """The recorded persistent-contact force (Trajectory.contact_force, written as lambda_n, lambda_t
+    for the force plot): 0 in flight, and once the no-slip mass (1 kg) rests on the table the normal
+    force is m g and the tangential one 0; the physical-time samples carry the same values."""
+    r = drop(mu=0.5)
+    tr = r.trajectory
+    imp = tr.impacts[0]
+    clock = tr.y[1:, -1]
+    flight, resting = clock < imp.time - r.h, clock > imp.time + 2 * r.h
+    np.testing.assert_allclose(tr.contact_force[flight], 0.0, atol=SOLVER_TOL)
+    np.testing.assert_allclose(tr.contact_force[resting, 0, 0], G, rtol=SELECTOR_TOL)
+    np.testing.assert_allclose(tr.contact_force[resting, 0, 1], 0.0, atol=SOLVER_TOL)
+    lam_n, lam_t = tr.contact_force_samples()
+    assert lam_n.shape == lam_t.shape == (len(tr.t), 1)
+    np.testing.assert_allclose(lam_n[tr.t > imp.time + 2 * r.h, 0], G, rtol=SELECTOR_TOL)
+    np.testing.assert_allclose(lam_n[tr.t < imp.time - r.h, 0], 0.0, atol=SOLVER_TOL)
+
+
 def test_fig5_regularization_keeps_wanted_selectors():
     """Fig. 5: q0 = (0, 0), v0 = (5, 0), frictionless, t in [0, 2]. With rho_f = 1 the selectors stay
     at sigma* = (0.5, 0, 0), t' = 1 at every step, no impact is recovered and x = 5 t, z = 0."""
