@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -351,3 +352,22 @@ def test_bench_nosnoc_quick_run(bench_nosnoc, tmp_path, capsys):
         assert rec[key] is not None, key
     assert rec["wall_time_s"] > 0 and rec["ipopt_iterations"] > 0
     assert (tmp_path / "trajectories.npz").is_file()
+
+
+# --- scripts/readme_figures.py -------------------------------------------------------------------------
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium: apt-get install -y chromium")
+def test_readme_figures_photograph_the_replay(tmp_path):
+    """The README's pictures come from the project's code: a result directory gives replay.png (an
+    800 x 600 screenshot of the meshcat page that is not blank) and copies of its plots."""
+    from PIL import Image
+
+    from planner.cli import main as cli
+
+    result = tmp_path / "drop"
+    assert cli(["simulate", "point_mass", "--out", str(result), "-q"]) == 0
+    figures = _load("readme_figures")
+    assert figures.main([str(result), "--out", str(tmp_path / "img"), "--at", "0.5"]) == 0
+    img = np.asarray(Image.open(tmp_path / "img" / "replay.png").convert("RGB")).astype(float)
+    assert img.shape[:2] == (600, 800) and img.std() > 5.0  # 5 levels: the blank-page bound of tests/test_view.py
+    assert (tmp_path / "img" / "foot_path.png").is_file() and (tmp_path / "img" / "states.png").is_file()
