@@ -279,6 +279,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     timings.update(stats_t)
     result = _result(problem, options, x, records, polished, time.perf_counter() - start, timings)
     result.extra["_x"] = x  # the NLP solution, for diagnostics (not written to the summary)
+    # the task's cost at the returned plan (the projection polish's own objective is a distance)
+    result.extra["control_cost"] = float(problem.objective_parts["control"](x, problem.params(0.0, 1.0)))
     return result
 
 

@@ -249,6 +249,8 @@ class PlanResult:
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)")
+        if "control_cost" in self.extra:
+            lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if not st.converged:
             lines.append(f"  {st.message}")
         return "\n".join(lines)

@@ -42,6 +42,7 @@ def test_plan_command_writes_results(tmp_path, capsys):
     assert summary["command"] == "plan" and summary["converged"]
     assert summary["complementarity_residual"] <= 1e-6 and summary["terminal_error"] <= 1e-6
     assert all({"rho", "objective", "complementarity_residual", "iterations", "time_s", "status"} <= set(r) for r in summary["nlps"])
+    assert summary["control_cost"] > 0  # the task's cost h sum u^T u (not the polish's distance): a hop needs force
     data = np.load(out / "trajectory.npz")
     for key in ("tau", "y", "t", "q", "v", "u", "impact_times"):
         assert key in data.files
