@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
+
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
 ROBOT_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.xml"
@@ -51,16 +53,8 @@ HOLE_TOL = 1e-3  # the holes metric may dip this far below 1 (IPOPT's constraint
 
 
 # ==================================================================================================
-# the task (numbers of robots/capler.toml; read without planner so that nosnoc runs on its own)
+# the task (numbers of robots/capler.toml, read here so that nosnoc's problem does not need the planner's objects)
 # ==================================================================================================
-
-@dataclass(frozen=True)
-class Hole:
-    x: float
-    a: float
-    b: float
-    z: float = 0.0
-
 
 @dataclass(frozen=True)
 class CaplerTask:
@@ -76,7 +70,7 @@ class CaplerTask:
     u_max: float = 60.0
     hip_bounds: tuple = (-3 * math.pi / 8, 3 * math.pi / 8)
     knee_bounds: tuple = (-math.pi / 2, math.pi / 2)
-    holes: tuple = (Hole(0.5, 0.25, 0.1), Hole(1.5, 0.25, 0.1), Hole(2.5, 0.25, 0.1))
+    holes: tuple = (Ellipse(0.5, 0.25, 0.1), Ellipse(1.5, 0.25, 0.1), Ellipse(2.5, 0.25, 0.1))
     sigma0: float = 1.0
     kappa: float = 10.0
     n_nlp: int = 5
@@ -100,7 +94,7 @@ def load_capler_task(path: Path = TASK_FILE) -> CaplerTask:
         N=int(hz["N"]), tau_f=float(hz["tau_f"]), q0=tuple(data["initial"]["q"]), q_target=tuple(plan["target_q"]),
         mu=float(contact["mu"]), a_n=float(contact["a_n"]), a_t=float(contact["a_t"]),
         hip_bounds=bounds["hip"], knee_bounds=bounds["knee"],
-        holes=tuple(Hole(h["x"], h["a"], h["b"], h.get("z", 0.0)) for h in plan.get("holes", [])),
+        holes=tuple(Ellipse(h["x"], h["a"], h["b"], h.get("z", 0.0)) for h in plan.get("holes", [])),
         sigma0=float(hom.get("rho0", 1.0)), kappa=float(hom.get("kappa", 10.0)), n_nlp=int(hom.get("n_nlp", 5)))
 
 
