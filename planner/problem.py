@@ -11,8 +11,9 @@ Direct transcription with N regularized implicit-Euler steps (planner.discretiza
 
 and after the N stages the one l_inf slack s_c (Penalty.LINF only). y_0 is the task's initial state,
 a constant, except for a periodic task (plan.periodic), where it is the block "y0" (ny,) ahead of
-the stages (q in the joint bounds, the fixed coordinates and the clock pinned). The NLP has two parameters p = (rho, hole_scale): the complementarity penalty, so the
-homotopy builds IPOPT once and only changes rho, and the scale r of the holes
+the stages (q in the joint bounds, the fixed coordinates and the clock pinned). The NLP's parameters
+(Problem.params) include the complementarity penalty rho, so the homotopy builds IPOPT once and
+only changes rho, and the scale r of the holes
 (((x - xc)/a)^2 + ((z - zc)/b)^2 >= r^2; r = 1 is the task's scene, r = 0 drops the holes), so the
 solver can run a continuation in the scene without rebuilding.
 
@@ -150,7 +151,7 @@ class Pair:
 class Problem:
     """The transcribed OCP. Everything needed to solve, inspect and post-process it.
 
-    x (nx,) SX decision variables, p (2,) SX parameters (rho, hole_scale), f objective, g (ng,)
+    x (nx,) SX decision variables, p (6,) SX parameters (Problem.params), f objective, g (ng,)
     constraints with lbg <= g <= ubg; lbx, ubx, x0 (nx,) bounds and the hint-free initial guess.
     var_names (nx,); var_blocks: name -> int index array into x: "u" (N, nu), "s" (N, 1) if
     present, "y" (N, ny) (states y_1 .. y_N), "w" (N, nw) and its parts "sigma", "theta",
@@ -198,7 +199,7 @@ class Problem:
 
     def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
                terminal_weight: float = 0.0, rho_l1: float = 0.0) -> np.ndarray:
-        """The parameter vector p (5,): penalty rho, hole scale r, auxiliary gain scales (only with
+        """The parameter vector p (6,): penalty rho, hole scale r, auxiliary gain scales (only with
         ProblemOptions.aux_continuation), soft-terminal weight (objective + w ||terminal residual||^2;
         the solver relaxes the hard terminal rows when it uses w > 0), and with Penalty.LINF an extra
         l1 weight rho_l1 on the sum of the (gated) products (0: the pure l_inf penalty)."""
