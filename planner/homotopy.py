@@ -213,8 +213,9 @@ class _Solvers:
         return self.cache["projection"]
 
     def get(self, warm: bool, loose: bool = False):
+        need_two = self.options.warm_mu_init is not None
         loose = loose and self.options.intermediate_tol is not None
-        key = warm if not loose else ("loose_warm" if warm else "loose")
+        key = (warm and need_two) if not loose else ("loose_warm" if warm and need_two else "loose")
         if key not in self.cache:
             t0 = time.perf_counter()
             name = key if isinstance(key, str) else "warm" if key else "cold"
