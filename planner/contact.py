@@ -54,6 +54,13 @@ class ContactTerms:
     dae_no_slip_v: ca.SX  # f_DAE,f,v = f_v + M^-1 J^T lambda (nv,)
 
 
+def plane_axes(surface) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The contact plane's unit normal s = (s_x, 0, s_z) and in-plane tangent e = (s_z, 0, -s_x) (3,) each:
+    the directions of the gap c and of the tangential coordinate (module docstring)."""
+    sx, _, sz = surface
+    return (sx, 0.0, sz), (sz, 0.0, -sx)
+
+
 def contact_terms(dyn: Dynamics, point: str, ground_height: float, q, v, u, M=None, fv=None,
                   surface=(0.0, 0.0, 1.0)) -> ContactTerms:
     """Build the contact quantities of `point` from the robot's dynamics.
@@ -72,7 +79,7 @@ def contact_terms(dyn: Dynamics, point: str, ground_height: float, q, v, u, M=No
     if tuple(surface) == (0.0, 0.0, 1.0):
         gap, n, t, drift_n, drift_t = pos[2] - ground_height, jac[2, :].T, jac[0, :].T, drift[2], drift[0]
     else:
-        s, e = ca.DM(surface), ca.DM([surface[2], 0.0, -surface[0]])
+        s, e = (ca.DM(d) for d in plane_axes(surface))
         gap = ca.dot(s, pos[:3]) - surface[2] * ground_height
         n, t = ca.mtimes(jac[:3, :].T, s), ca.mtimes(jac[:3, :].T, e)
         drift_n, drift_t = ca.dot(s, drift[:3]), ca.dot(e, drift[:3])

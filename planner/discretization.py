@@ -25,6 +25,7 @@ from enum import Enum
 import casadi as ca
 import numpy as np
 
+from .contact import plane_axes
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
@@ -353,8 +354,8 @@ def _secant_rows(system: TimeFreezingSystem) -> tuple[ca.Function, np.ndarray]:
             rows.append(ca.SX.zeros(1, nv))
             continue
         contact = system.contacts[system.labels.index(sw.contact)]
-        sx, _, sz = contact.normal
-        direction = ca.DM([sx, 0.0, sz] if sw.function == "n^T v" else [sz, 0.0, -sx])
+        normal, tangent = plane_axes(contact.normal)
+        direction = ca.DM(normal if sw.function == "n^T v" else tangent)
         jac = system.dyn.point_jacobian(contact.point)
         rows.append(sum(w * ca.mtimes(direction.T, jac(qa + s * (qb - qa))[:3, :]) for s, w in zip(_GAUSS_S, _GAUSS_W)))
         mask[i] = 1.0
