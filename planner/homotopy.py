@@ -52,6 +52,13 @@ class HoleSchedule(Enum):
     RELAXED_FIRST = "relaxed_first"  # not in NLP 1, fully from NLP 2 on
 
 
+class WarmStart(Enum):
+    """What a homotopy NLP takes from the one before (docs/formulation.md, round 5)."""
+
+    PRIMAL = "primal"  # x only; IPOPT initializes the multipliers itself and starts at mu_init
+    PRIMAL_DUAL = "primal_dual"  # x and the multipliers (IPOPT's warm_start_init_point)
+
+
 class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
@@ -67,7 +74,11 @@ class SolveOptions:
     path led NLP 4 astray: docs/formulation.md round 4);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
     "mumps"); mu_strategy: IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
-    warm_mu_init: barrier parameter the warm-started NLPs start from (None: same as mu_init; a
+    warm_start: WarmStart: PRIMAL (default) restarts IPOPT's multipliers and barrier at every NLP
+    from the previous NLP's x; PRIMAL_DUAL also passes the multipliers. Measured: PRIMAL_DUAL gave
+    the full Capler task a lower cost (91 vs 109) but led the biped walk into a worse local
+    optimum (objective 546 vs 50 at rho = 1e6) whose polish failed; PRIMAL lets each NLP re-centre.
+    warm_mu_init: barrier parameter the later NLPs start from (None: same as mu_init; a
     small value keeps a warm start near its point); bound_push, bound_frac: how far IPOPT moves
     the initial point inside the bounds (the warm start uses the same); nlp_scaling_method:
     IPOPT's ("gradient-based" or "none"); holes: HoleSchedule; polish: Polish; polish_after_failure:
@@ -113,6 +124,7 @@ class SolveOptions:
     linear_solver: str = "mumps"
     mu_strategy: MuStrategy = MuStrategy.ADAPTIVE
     mu_init: float = 0.1
+    warm_start: WarmStart = WarmStart.PRIMAL
     warm_mu_init: float | None = None
     bound_push: float = 0.01
     bound_frac: float = 0.01
@@ -141,7 +153,7 @@ class SolveOptions:
     intermediate_tol: float | None = None
 
     def __post_init__(self):
-        for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish)):
+        for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart)):
             if not isinstance(getattr(self, key), enum):
                 raise InputError(f"SolveOptions.{key} = {getattr(self, key)!r} is not allowed; it must be one of {[e.value for e in enum]}")
         checks = [
@@ -168,8 +180,9 @@ class SolveOptions:
 
 
 def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dict:
-    """CasADi nlpsol options for IPOPT (a cold solver for NLP 1, a warm one for the rest; loose:
-    an intermediate homotopy NLP solved to options.intermediate_tol)."""
+    """CasADi nlpsol options for IPOPT (a cold solver for NLP 1, a warm one for the rest: with
+    WarmStart.PRIMAL_DUAL it starts from the multipliers passed in; loose: an intermediate homotopy
+    NLP solved to options.intermediate_tol)."""
     tol = options.intermediate_tol if (loose and options.intermediate_tol is not None) else options.tol
     ip = {
         "tol": tol, "acceptable_tol": max(options.acceptable_tol, tol), "max_iter": options.max_iter,
@@ -178,11 +191,11 @@ def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dic
         "bound_push": options.bound_push, "bound_frac": options.bound_frac,
         "nlp_scaling_method": options.nlp_scaling_method,
     }
-    if warm:
+    if warm and options.warm_start is WarmStart.PRIMAL_DUAL:
         ip.update(warm_start_init_point="yes", warm_start_bound_push=options.bound_push, warm_start_bound_frac=options.bound_frac,
                   warm_start_mult_bound_push=options.bound_push)
-        if options.warm_mu_init is not None:
-            ip["mu_init"] = options.warm_mu_init
+    if warm and options.warm_mu_init is not None:
+        ip["mu_init"] = options.warm_mu_init
     return {"print_time": False, "ipopt": ip}
 
 
@@ -195,7 +208,7 @@ class _Solvers:
 
     def __init__(self, problem: Problem, options: SolveOptions):
         self.nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
-        self.options, self.cache, self.setup_time_s = options, {}, 0.0
+        self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
         self.problem = problem
 
     def projection(self):
@@ -213,13 +226,13 @@ class _Solvers:
         return self.cache["projection"]
 
     def get(self, warm: bool, loose: bool = False):
-        need_two = self.options.warm_mu_init is not None
-        loose = loose and self.options.intermediate_tol is not None
-        key = (warm and need_two) if not loose else ("loose_warm" if warm and need_two else "loose")
+        opts = ipopt_options(self.options, warm, loose)
+        key = repr(sorted(opts["ipopt"].items()))  # one IPOPT per distinct option set (creating one takes ~1 s)
         if key not in self.cache:
             t0 = time.perf_counter()
-            name = key if isinstance(key, str) else "warm" if key else "cold"
-            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.nlp, ipopt_options(self.options, warm, loose))
+            name = ("loose_" if loose and self.options.intermediate_tol is not None else "") + ("warm" if warm else "cold")
+            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.nlp, opts)
+            self.names[key] = name
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]
 
@@ -356,7 +369,7 @@ def _ipopt_timing(solvers) -> dict:
     for key, s in solvers.cache.items():
         st = s.stats()
         evals = {k[len("t_wall_"):]: float(v) for k, v in st.items() if k.startswith("t_wall_") and k != "t_wall_total"}
-        out["ipopt_last_call_" + (key if isinstance(key, str) else "warm" if key else "cold")] = {"total_s": float(st.get("t_wall_total", 0.0)), **evals}
+        out["ipopt_last_call_" + solvers.names[key]] = {"total_s": float(st.get("t_wall_total", 0.0)), **evals}
     return out
 
 

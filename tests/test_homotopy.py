@@ -73,11 +73,24 @@ def test_active_set_bounds_fix_one_side():
 
 @pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"), ({"mu_strategy": "adaptive"}, "mu_strategy"),
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
-                                         ({"polish": "yes"}, "polish")])
+                                         ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
+
+
+def test_warm_start_modes_pass_the_multipliers_only_when_asked():
+    """WarmStart.PRIMAL_DUAL turns on IPOPT's warm_start_init_point for the later NLPs (so the
+    multipliers passed in are used); PRIMAL does not, and then the later NLPs share NLP 1's IPOPT
+    because their options are identical."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=6))
+    for mode, shared in ((H.WarmStart.PRIMAL, True), (H.WarmStart.PRIMAL_DUAL, False)):
+        opts = H.SolveOptions(warm_start=mode)
+        assert ("warm_start_init_point" in H.ipopt_options(opts, warm=True)["ipopt"]) is not shared
+        assert "warm_start_init_point" not in H.ipopt_options(opts, warm=False)["ipopt"]
+        solvers = H._Solvers(prob, opts)
+        assert (solvers.get(warm=True) is solvers.get(warm=False)) is shared
 
 
 def test_gating_and_ungate_keep_the_trajectory():
