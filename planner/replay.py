@@ -628,12 +628,19 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
 class _Reference:
     """The plan sampled on MuJoCo's time grid t_0 + k dt, k = 0..n.
 
-    q, v are linear between samples; at a repeated time (an impact) the later, post-impact sample
-    holds from that time on. u is held from its sample to the next (zero-order hold).
+    q is linear between samples; at a repeated time (an impact) the later, post-impact sample holds
+    from that time on. v is the slope of that piecewise-linear q on the interval (t_{i-1}, t_i] a
+    time falls in (v[0] at t_0): the only velocity consistent with the position reference. The
+    sampled v is not: a first-order plan moves by h v_{i+1} over a step, and linear interpolation of
+    v lags it by h a / 2, which the PD's damping turned into a steady position error (up to 12 cm on
+    the point-mass stress plans at h = 40 ms). Semi-implicit Euler (MuJoCo) has the same step rule,
+    so a MuJoCo rollout sampled every step replays bit for bit.
+    u[i] is the control that drove the plan from sample i-1 to sample i (planner.result.recover),
+    so u[i+1] is held on [t_i, t_{i+1}) (zero-order hold).
     """
 
     def __init__(self, arrays: Mapping[str, np.ndarray], dt: float):
-        t = arrays["t"]
+        t, q, v = arrays["t"], arrays["q"], arrays["v"]
         self.dt = dt
         self.steps = max(1, int(round((t[-1] - t[0]) / dt)))
         self.times = t[0] + dt * np.arange(self.steps + 1)
@@ -642,9 +649,13 @@ class _Reference:
         nxt = np.minimum(idx + 1, last)
         span = t[nxt] - t[idx]
         w = np.clip(np.where(span > 0, (self.times - t[idx]) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)[:, None]
-        self.q = arrays["q"][idx] + w * (arrays["q"][nxt] - arrays["q"][idx])  # (n+1, nq)
-        self.v = arrays["v"][idx] + w * (arrays["v"][nxt] - arrays["v"][idx])  # (n+1, nv)
-        self.u = arrays["u"][idx]  # (n+1, nu)
+        self.q = q[idx] + w * (q[nxt] - q[idx])  # (n+1, nq)
+        end = np.clip(np.searchsorted(t, self.times, side="left"), 1, last)
+        chord_dt = t[end] - t[end - 1]
+        chord = (q[end] - q[end - 1]) / np.where(chord_dt > 0, chord_dt, 1.0)[:, None]
+        self.v = np.where((chord_dt > 0)[:, None], chord, v[end])  # (n+1, nv)
+        self.v[0] = v[idx[0]]
+        self.u = arrays["u"][nxt]  # (n+1, nu)
 
 
 def resolve_gains(scene: Scene, gains: TrackingGains, q0: np.ndarray) -> ResolvedGains:
@@ -841,7 +852,8 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
 
     control(t, q, v) -> u (nu,) is evaluated every `sample_every` MuJoCo steps and held in between
     (zero-order hold, like the plan's controls); None means u = 0. The samples are those instants,
-    so `u[i]` acts on [t_i, t_{i+1}) exactly. MuJoCo's contacts are soft, so an impact spans steps
+    and `u[i]` is the control that acted on [t_{i-1}, t_i) (u[0] = u[1]), the convention of the
+    planner's trajectories (planner.result.recover). MuJoCo's contacts are soft, so an impact spans steps
     and has no repeated-time sample; `impact_times` are the contact onsets after flight and
     `impact_points` (I,) their contact points. Also returns `tau` = t and `y` = (q, v, t).
     """
@@ -860,7 +872,7 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
     run = _simulate(scene, np.asarray(q0, float), np.asarray(v0, float), steps, 0.0, command)
     impacts = detect_impacts(run.times, run.active, scene.points, min_flight_s, run.touching0)
     picks = np.arange(0, steps + 1, sample_every)
-    u = np.vstack([run.ctrl, run.ctrl[-1:]])[picks] if model.nu else np.zeros((picks.size, 0))
+    u = run.ctrl[np.maximum(picks - 1, 0)] if model.nu else np.zeros((picks.size, 0))
     u = np.clip(u, scene.ctrl_lower, scene.ctrl_upper)  # what MuJoCo applied
     t, q, v = run.times[picks], run.qpos[picks], run.qvel[picks]
     return {"tau": t.copy(), "y": np.hstack([q, v, t[:, None]]), "t": t, "q": q, "v": v, "u": u,

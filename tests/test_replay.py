@@ -46,9 +46,11 @@ GROUND_TRUTH_TOL_M = 1e-9
 # Sampled every 8 steps (2 ms zero-order hold), the reference is linear between samples; the
 # PD corrects the interpolation error (measured 0.08 mm).
 DECIMATED_TOL_M = 5e-4
-# The analytic point-mass plan is tracked by PD on both (actuated) coordinates; the soft contact
-# and the one-step impact lag leave sub-millimetre errors.
-ANALYTIC_PLAN_TOL_M = 1e-3
+# The analytic point-mass plan is tracked by PD on both (actuated) coordinates. The largest error
+# is one step after the impact, where the reference is already on the ground and MuJoCo's soft
+# contact is still stopping the 4.43 m/s impact: v dt = 1.1 mm (measured 1.07 mm; the velocity
+# reference is the chord slope of the 20 ms samples, see replay._Reference).
+ANALYTIC_PLAN_TOL_M = 1.5e-3
 
 
 def _task(point: str, mu: float = 0.0, restitution: float = 0.0, ground_height: float = 0.0, q0=(0.0, 1.0)):
