@@ -75,10 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p)
     p.set_defaults(run=_cmd_gait)
 
-    p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, PD tracking, open loop)",
+    p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, tracking, open loop)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  planner validate results/capler --json")
     p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
+                   help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_validate)
 
@@ -221,11 +223,11 @@ def _cmd_gait(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .replay import validate, write_validation
+    from .replay import ValidationOptions, validate, write_validation
 
     if not args.dir.is_dir():
         raise InputError(f"result directory not found: {args.dir}")
-    result = validate(args.dir)
+    result = validate(args.dir, ValidationOptions(controller=args.controller))
     write_validation(args.dir, result)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
