@@ -192,6 +192,9 @@ class Switch:
     contact: str
     function: str  # what h_i is, e.g. "n^T v"
     wanted: float  # sigma_i* used by rho_f ||sigma - sigma*||^2
+    # False: no rho_f term: zeta of a frictionless contact (frictionless_tangential) multiplies a zero field,
+    # so there is no sliding mode for sigma* to select, and a rho_f term would price tangential sliding
+    regularized: bool = True
 
 
 @dataclass(frozen=True)
@@ -302,9 +305,9 @@ class TimeFreezingSystem:
             self.terms.append(ct)
             pt = contact.point
 
-            def switch(name, expr, what, wanted):
+            def switch(name, expr, what, wanted, regularized=True):
                 h.append(expr)
-                self.switches.append(Switch(f"{name}[{pt}]", pt, what, wanted))
+                self.switches.append(Switch(f"{name}[{pt}]", pt, what, wanted, regularized))
                 return Poly.var(len(self.switches) - 1)
 
             def field(name, value, auxiliary, impulse=(0, 0)):
@@ -340,7 +343,7 @@ class TimeFreezingSystem:
             if no_slip or self.frictionless_tangential:
                 a_tg = contact.a_t if no_slip else 0.0
                 a_t = field("a_t", ca.vertcat(zq, a_tg * ct.minv_tangent, zp, 0), True, (0, a_tg))
-                ze = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+                ze = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR, no_slip)
                 jmp = (1 - al) * a_n + (1 - 2 * ze) * a_t
                 df = (1 / ALPHA_STAR) * ((1 - ga) * dae + ga * ode) - (1 - ga) * a_n
                 mix = be * ode + (1 - be) * (jmp + al * df)
@@ -394,9 +397,9 @@ class TimeFreezingSystem:
         zp = ca.SX.zeros(0)
         selectors = []
         for contact, model, ct, label in zip(self.contacts, self.models, self.terms, self.labels):
-            def switch(name, expr, what, wanted):
+            def switch(name, expr, what, wanted, regularized=True):
                 h.append(expr)
-                self.switches.append(Switch(f"{name}[{label}]", label, what, wanted))
+                self.switches.append(Switch(f"{name}[{label}]", label, what, wanted, regularized))
                 return Poly.var(len(self.switches) - 1)
 
             lam_n = self.lam[self.lam_index[label].start]
@@ -404,7 +407,7 @@ class TimeFreezingSystem:
                    "beta": switch("beta", ct.gap, "c(q)", BETA_STAR),
                    "gamma": switch("gamma", -lam_n, "-lambda_n", GAMMA_STAR)}
             if model is ContactModel.NO_SLIP or self.frictionless_tangential:
-                sel["zeta"] = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+                sel["zeta"] = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR, model is ContactModel.NO_SLIP)
             selectors.append(sel)
         # fields: per point the auxiliary a_n (, a_t) and the unit-force fields of its lambda entries
         force_fields = []
@@ -494,6 +497,11 @@ class TimeFreezingSystem:
     def wanted(self) -> np.ndarray:
         """sigma* (n_sigma,)."""
         return np.array([s.wanted for s in self.switches], dtype=float)
+
+    @property
+    def regularized(self) -> np.ndarray:
+        """(n_sigma,) bool: the selectors in rho_f ||sigma - sigma*||^2 (Switch.regularized)."""
+        return np.array([s.regularized for s in self.switches], dtype=bool)
 
     @property
     def auxiliary_mask(self) -> np.ndarray:
