@@ -319,6 +319,8 @@ class ImplicitEulerStep:
             g_blocks["contact_forces"] = slice(start, start + sum(e.shape[0] for e in extra))
         comp = tuple((lam0[i], sigma[i]) for i in range(n)) + tuple((lam1[i], 1 - sigma[i]) for i in range(n))
         dev = sigma - ca.DM(sys_.wanted)
+        if not sys_.regularized.all():
+            dev = dev[np.flatnonzero(sys_.regularized).tolist()]
         objective = self.rho_f * ca.dot(dev, dev)
         names = tuple(f"{nm}{tag}" for nm in self.w_names)
         return Step(w=w, w_names=names, w_blocks=dict(self.w_blocks), lbw=self.lbw.copy(), ubw=self.ubw.copy(), w0=self.w0.copy(),

@@ -294,6 +294,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     result.extra["_x"] = x  # the NLP solution, for diagnostics (not written to the summary)
     # the task's cost at the returned plan (the projection polish's own objective is a distance)
     result.extra["control_cost"] = float(problem.objective_parts["control"](x, problem.params(0.0, 1.0)))
+    result.extra["scene"] = problem.skips.to_json()  # what the scene analysis left out, and why (summary.json)
     return result
 
 
@@ -469,7 +470,7 @@ def _feasible(problem, x, options) -> bool:
 def _result(problem: Problem, options: SolveOptions, x, records, polished, wall, timings) -> PlanResult:
     parts = problem.split(x)
     frozen_tol = options.frozen_tol
-    if len(problem.task.contacts) > 1:
+    if len(problem.system.contacts) > 1:
         frozen_tol = options.frozen_tol_several
     traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
     comp = problem.complementarity_residual(x)
@@ -496,7 +497,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]
     beta = parts["W"][:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
-    contact = problem.task.contacts[0].point
+    contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in parts["Y"]])
     # the robot flies when every contact point does (one contact: its beta)
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(problem.N), foot)

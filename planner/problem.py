@@ -21,7 +21,9 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
 
     dynamics, stationarity, lifting   the implicit Euler step (eq. 24b, c; lifting of Sec. 5.1)
     above_ground                      z of each task.plan.above_ground point >= ground_height
-    holes                             each contact point outside each ellipse (scaled by r)
+    holes                             each contact point outside each ellipse (scaled by r), without
+                                      the pairs the scene analysis finds out of reach (planner.scene)
+    never_touching                    gap >= 0 of each contact with touches = false (planner.scene)
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
@@ -63,7 +65,9 @@ import numpy as np
 from .discretization import ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics
 from .errors import InputError
+from .contact import plane_axes
 from .model import Robot
+from .scene import Skips, analyze_scene
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem
 
@@ -110,6 +114,9 @@ class ProblemOptions:
       in running steps (R = 1) and in frozen impacts (R = 0), positive for a partly frozen step.
       Default 0 (off): on the periodic biped walk, where the stance runs partly frozen without it,
       10 and 100 both kept the homotopy from converging (docs/formulation.md, "Periodic walking").
+    scene_analysis: build only what the scene needs (planner.scene: no tangential machinery for
+      mu = 0, no contact machinery for touches = false, no holes out of reach); False builds it all,
+      the reference the skips are measured against (scripts/bench_skips.py).
     """
 
     penalty: Penalty = Penalty.LINF
@@ -122,8 +129,11 @@ class ProblemOptions:
     aux_continuation: bool = False
     velocity_switch: SwitchVelocity = SwitchVelocity.SECANT
     clock_weight: float = 0.0
+    scene_analysis: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.scene_analysis, bool):
+            raise InputError(f"ProblemOptions.scene_analysis = {self.scene_analysis!r} is not allowed; it must be True or False")
         if not isinstance(self.velocity_switch, SwitchVelocity):
             raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in SwitchVelocity]}")
         if not isinstance(self.step_form, StepForm):
@@ -159,7 +169,8 @@ class Problem:
     module docstring). pairs: the complementarity pairs over the whole horizon (Pair, in x
     indices); pair_scale (n_pairs,) multiplies a product to give it in unscaled units.
     objective_parts: name -> ca.Function(x, p) -> scalar. Functions: products(x) -> (n_pairs,)
-    unscaled products; trajectory parts via `split(x)`.
+    unscaled products; trajectory parts via `split(x)`. skips: the scene analysis' record (planner.scene);
+    system.contacts are the task's contacts without the never-touching ones.
     """
 
     robot: Robot
@@ -188,6 +199,7 @@ class Problem:
     products: ca.Function
     build_time_s: float = 0.0
     notes: dict = field(default_factory=dict)
+    skips: Skips = field(default_factory=Skips)  # what the scene analysis left out, with reasons
 
     @property
     def nx(self) -> int:
@@ -229,7 +241,11 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     task.check_against(robot)
     plan, hz = task.plan, task.horizon
     dyn = dynamics or Dynamics(robot)
-    system = TimeFreezingSystem(dyn, task.contacts, task.ground_height)
+    skips = analyze_scene(robot, task, options.scene_analysis)
+    contacts = tuple(c for c in task.contacts if c.point not in skips.never_touching)
+    if not contacts:
+        raise InputError("every [[contacts]] entry has touches = false; the time-freezing OCP needs at least one point that may touch")
+    system = TimeFreezingSystem(dyn, contacts, task.ground_height, frictionless_tangential=not skips.enabled)
     if any(m is ContactModel.ELASTIC for m in system.models):
         raise InputError("planning with elastic contacts (restitution > 0) is not supported yet; set restitution = 0")
     known = {s.function for s in system.switches}
@@ -247,7 +263,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     v0 = np.zeros(nv) if task.initial.v is None else np.array(task.initial.v, float)
     y0 = system.initial_state(np.array(task.initial.q, float), v0)
     gap0 = np.asarray(system.gap_fn(y0, np.zeros(nu)), float).ravel()
-    for c, gap in zip(task.contacts, gap0):
+    for c, gap in zip(contacts, gap0):
         if gap < -1e-9:
             raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground")
 
@@ -305,15 +321,17 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     ground = task.ground_height
     above = [dyn.point_position(pt)(q_sym)[2] - ground for pt in plan.above_ground]
     hole_exprs = []
-    for ct in task.contacts:
+    for ct in contacts:
         pos = dyn.point_position(ct.point)(q_sym)
-        for e in plan.holes:
+        for i, e in enumerate(plan.holes):
+            if (ct.point, i) in skips.dropped_holes:
+                continue
             hole_exprs.append(((pos[0] - e.x) / e.a) ** 2 + ((pos[2] - e.z) / e.b) ** 2 - hole_scale**2)
     z = ca.vertcat(1, ws[builder.w_blocks["sigma"]], ws[builder.w_blocks["theta"]])
     coef = ca.mtimes(ca.DM(builder.C), z)  # P_j(sigma) per field, linear in the lifted variables
     field_names = [f.name for f in system.fields]
     cone = []
-    if options.friction_cone and len(task.contacts) > 1:
+    if options.friction_cone and len(contacts) > 1:
         # several contacts: the joint forces lambda_i are step variables (switched off, = 0, where the
         # point's force row is off) and act through the clock R = prod_i r_i (the coefficient of the
         # ODE field): R = 1 on every sliding manifold, 0 in any frozen impact (docs/formulation.md)
@@ -321,13 +339,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         for label, model in zip(system.labels, system.models):
             if model is not ContactModel.NO_SLIP:
                 continue
-            mu = task.contacts[system.labels.index(label)].mu
+            mu = contacts[system.labels.index(label)].mu
             lam_all = ws[builder.w_blocks["forces"]]
             sl = builder.mm.lam_index[label] if builder.mm is not None else system.lam_index[label]
             lam = lam_all[sl]
             cone += [weight * (mu * lam[0] - lam[1]), weight * (mu * lam[0] + lam[1])]
     elif options.friction_cone:
-        for ct, model, terms in zip(task.contacts, system.models, system.terms):
+        for ct, model, terms in zip(contacts, system.models, system.terms):
             if model is not ContactModel.NO_SLIP:
                 continue
             weight = coef[field_names.index(f"dae_f[{ct.point}]")]
@@ -337,7 +355,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                 lam = ws[builder.w_blocks["forces"]][builder.mm.lam_index[ct.point]]
                 lam_n, lam_t = lam[0], lam[1]
             cone += [weight * (ct.mu * lam_n - lam_t), weight * (ct.mu * lam_n + lam_t)]
+    clearance = []  # touches = false: the gap of the point's plane, c = s^T p - s_z ground
+    for ct in task.contacts:
+        if ct.point in skips.never_touching:
+            s = plane_axes(ct.normal)[0]
+            clearance.append(ca.dot(ca.DM(s), dyn.point_position(ct.point)(q_sym)[:3]) - s[2] * ground)
     path_fn = {
+        "never_touching": ca.Function("never_touching", [ys], [ca.vertcat(*clearance)]) if clearance else None,
         "above_ground": ca.Function("above_ground", [ys], [ca.vertcat(*above)]) if above else None,
         "holes": ca.Function("holes", [ys, hole_scale], [ca.vertcat(*hole_exprs)]) if hole_exprs else None,
         "friction_cone": ca.Function("friction_cone", [ys, us, ws], [ca.vertcat(*cone)]) if cone else None,
@@ -345,7 +369,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     # --- stages ------------------------------------------------------------------------------------
     step_blocks = ("dynamics", "stationarity", "lifting") + (("contact_forces",) if builder.mm is not None else ())
-    g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "friction_cone")}
+    g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "never_touching", "friction_cone")}
     control_cost, selector_cost = 0, 0
     pairs: list[Pair] = []
     prods = []
@@ -366,6 +390,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             g_parts["above_ground"].append(path_fn["above_ground"](yk))
         if path_fn["holes"] is not None:
             g_parts["holes"].append(path_fn["holes"](yk, hole_scale))
+        if path_fn["never_touching"] is not None:
+            g_parts["never_touching"].append(path_fn["never_touching"](yk))
         if path_fn["friction_cone"] is not None:
             g_parts["friction_cone"].append(path_fn["friction_cone"](yk, uk, wk))
         sig_idx, l0_idx, l1_idx = var_blocks["sigma"][k], var_blocks["lambda0"][k], var_blocks["lambda1"][k]
@@ -406,6 +432,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         add(name, g_parts[name], 0.0, 0.0)
     add("above_ground", g_parts["above_ground"], 0.0, np.inf)
     add("holes", g_parts["holes"], 0.0, np.inf)
+    add("never_touching", g_parts["never_touching"], 0.0, np.inf)
     add("friction_cone", g_parts["friction_cone"], 0.0, np.inf)
     y_N = X[var_blocks["y"][-1]]
     if periodic:  # q_N = S q_0 + step e_along, v_N = S v_0 (the soft-terminal residual too)
@@ -482,7 +509,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                    x=X, p=P, f=f, g=ca.vertcat(*g_list), lbx=lbx, ubx=ubx, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg),
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=g_blocks, pairs=tuple(pairs),
                    pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
-                   notes=notes)
+                   notes=notes, skips=skips)
 
 
 def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X, N) -> ca.SX:

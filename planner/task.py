@@ -34,6 +34,8 @@ class Contact:
     a_n: float = 200.0  # normal auxiliary-ODE gain [1/s^2 scaled]; larger = shorter frozen intervals
     a_t: float = 600.0  # tangential auxiliary-ODE gain, a_t >> a_n (Sec. 6)
     normal: tuple[float, ...] = (0.0, 0.0, 1.0)
+    touches: bool = True  # false: the task says this point never touches; planning gives it no contact
+    # machinery, only the path constraint gap >= 0 (planner.scene)
 
     def __post_init__(self):
         _require(len(self.normal) == 3, "contacts.normal", list(self.normal), "3 numbers (x, y, z)")
@@ -468,6 +470,10 @@ def _convert(tp, value, key: str):
         if math.isnan(value):
             raise TaskError(f"{key} must be a number, got nan")
         return float(value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise TaskError(f"{key} must be true or false, got {_typename(value)}")
+        return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise TaskError(f"{key} must be an integer, got {_typename(value)}")

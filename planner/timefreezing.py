@@ -192,6 +192,9 @@ class Switch:
     contact: str
     function: str  # what h_i is, e.g. "n^T v"
     wanted: float  # sigma_i* used by rho_f ||sigma - sigma*||^2
+    # False: no rho_f term: zeta of a frictionless contact (frictionless_tangential) multiplies a zero field,
+    # so there is no sliding mode for sigma* to select, and a rho_f term would price tangential sliding
+    regularized: bool = True
 
 
 @dataclass(frozen=True)
@@ -252,9 +255,15 @@ class TimeFreezingSystem:
       switching_fn takes (y, u, lam) (gamma_i switches on -lambda_n,i).
     """
 
-    def __init__(self, dyn: Dynamics, contacts: tuple[Contact, ...] | list[Contact], ground_height: float = 0.0):
+    def __init__(self, dyn: Dynamics, contacts: tuple[Contact, ...] | list[Contact], ground_height: float = 0.0,
+                 frictionless_tangential: bool = False):
         contacts = tuple(contacts)
         self.dyn, self.contacts = dyn, contacts
+        # frictionless_tangential: give frictionless contacts the tangential switch zeta and a jump field
+        # a_t of gain 0 too (mu = 0: no tangential impulse). F is unchanged (with alpha* = 1/2 the NO_SLIP
+        # polynomials reduce to the frictionless ones); it is what the system carries when the scene
+        # analysis is off (planner.scene), so that a benchmark can measure what dropping it saves.
+        self.frictionless_tangential = bool(frictionless_tangential)
         self.models = tuple(contact_model(c) for c in contacts)
         self.labels = contact_labels(contacts)
         if len(contacts) > 1 and ContactModel.ELASTIC in self.models:
@@ -296,9 +305,9 @@ class TimeFreezingSystem:
             self.terms.append(ct)
             pt = contact.point
 
-            def switch(name, expr, what, wanted):
+            def switch(name, expr, what, wanted, regularized=True):
                 h.append(expr)
-                self.switches.append(Switch(f"{name}[{pt}]", pt, what, wanted))
+                self.switches.append(Switch(f"{name}[{pt}]", pt, what, wanted, regularized))
                 return Poly.var(len(self.switches) - 1)
 
             def field(name, value, auxiliary, impulse=(0, 0)):
@@ -331,9 +340,10 @@ class TimeFreezingSystem:
             al = switch("alpha", ct.normal_velocity, "n^T v", ALPHA_STAR)
             be = switch("beta", ct.gap, "c(q)", BETA_STAR)
             ga = switch("gamma", ct.phi, "phi", GAMMA_STAR)
-            if no_slip:
-                a_t = field("a_t", ca.vertcat(zq, contact.a_t * ct.minv_tangent, zp, 0), True, (0, contact.a_t))
-                ze = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+            if no_slip or self.frictionless_tangential:
+                a_tg = contact.a_t if no_slip else 0.0
+                a_t = field("a_t", ca.vertcat(zq, a_tg * ct.minv_tangent, zp, 0), True, (0, a_tg))
+                ze = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR, no_slip)
                 jmp = (1 - al) * a_n + (1 - 2 * ze) * a_t
                 df = (1 / ALPHA_STAR) * ((1 - ga) * dae + ga * ode) - (1 - ga) * a_n
                 mix = be * ode + (1 - be) * (jmp + al * df)
@@ -387,17 +397,17 @@ class TimeFreezingSystem:
         zp = ca.SX.zeros(0)
         selectors = []
         for contact, model, ct, label in zip(self.contacts, self.models, self.terms, self.labels):
-            def switch(name, expr, what, wanted):
+            def switch(name, expr, what, wanted, regularized=True):
                 h.append(expr)
-                self.switches.append(Switch(f"{name}[{label}]", label, what, wanted))
+                self.switches.append(Switch(f"{name}[{label}]", label, what, wanted, regularized))
                 return Poly.var(len(self.switches) - 1)
 
             lam_n = self.lam[self.lam_index[label].start]
             sel = {"alpha": switch("alpha", ct.normal_velocity, "n^T v", ALPHA_STAR),
                    "beta": switch("beta", ct.gap, "c(q)", BETA_STAR),
                    "gamma": switch("gamma", -lam_n, "-lambda_n", GAMMA_STAR)}
-            if model is ContactModel.NO_SLIP:
-                sel["zeta"] = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR)
+            if model is ContactModel.NO_SLIP or self.frictionless_tangential:
+                sel["zeta"] = switch("zeta", ct.tangential_velocity, "t^T v", ZETA_STAR, model is ContactModel.NO_SLIP)
             selectors.append(sel)
         # fields: per point the auxiliary a_n (, a_t) and the unit-force fields of its lambda entries
         force_fields = []
@@ -408,8 +418,9 @@ class TimeFreezingSystem:
                 self.fields.append(Field(key, label, auxiliary))
 
             field("a_n", ca.vertcat(zq, contact.a_n * ct.minv_normal, zp, 0), True, (contact.a_n, 0))
-            if model is ContactModel.NO_SLIP:
-                field("a_t", ca.vertcat(zq, contact.a_t * ct.minv_tangent, zp, 0), True, (0, contact.a_t))
+            if model is ContactModel.NO_SLIP or self.frictionless_tangential:
+                a_tg = contact.a_t if model is ContactModel.NO_SLIP else 0.0
+                field("a_t", ca.vertcat(zq, a_tg * ct.minv_tangent, zp, 0), True, (0, a_tg))
             field("lam_n", ca.vertcat(zq, ct.minv_normal, zp, 0), False)
             force_fields.append(f"lam_n[{label}]")
             if model is ContactModel.NO_SLIP:
@@ -443,7 +454,7 @@ class TimeFreezingSystem:
             al, be = sel["alpha"], sel["beta"]
             others = pre[i][0] * suf[i + 2][0]  # R_-i
             mix = mix + ((1 - be) * (1 - al) - others * g[i][0]) * Mix.field(f"a_n[{label}]")
-            if model is ContactModel.NO_SLIP:
+            if "zeta" in sel:
                 mix = mix + ((1 - be) * (1 - 2 * sel["zeta"])) * Mix.field(f"a_t[{label}]")
         switches = []
         for sel, size in zip(selectors, sizes):
@@ -486,6 +497,11 @@ class TimeFreezingSystem:
     def wanted(self) -> np.ndarray:
         """sigma* (n_sigma,)."""
         return np.array([s.wanted for s in self.switches], dtype=float)
+
+    @property
+    def regularized(self) -> np.ndarray:
+        """(n_sigma,) bool: the selectors in rho_f ||sigma - sigma*||^2 (Switch.regularized)."""
+        return np.array([s.regularized for s in self.switches], dtype=bool)
 
     @property
     def auxiliary_mask(self) -> np.ndarray:
@@ -612,6 +628,7 @@ def _mass_matrix_form(system: TimeFreezingSystem) -> MassMatrixForm:
             forces[f"dae_f[{pt}]"] = tau + ca.mtimes(J.T, lam)
         else:
             forces[f"dae[{pt}]"] = tau + ca.mtimes(J.T, lam)
+            forces[f"a_t[{pt}]"] = ca.SX.zeros(nv)  # frictionless_tangential: the jump field of gain 0
         phi[pt] = ca.dot(ct.normal, acc) + ct.normal_drift
     names = [f"acc[{i}]" for i in range(nv)] + lam_names + d_names
     cols = []
@@ -644,8 +661,8 @@ def _mass_matrix_form_several(system: TimeFreezingSystem) -> MassMatrixForm:
         rows_jdv += [ct.normal_drift] + ([ct.tangent_drift] if no_slip else [])
         forces[f"a_n[{label}]"] = contact.a_n * ct.normal
         forces[f"lam_n[{label}]"] = ct.normal
+        forces[f"a_t[{label}]"] = (contact.a_t if no_slip else 0.0) * ct.tangent  # 0: frictionless_tangential
         if no_slip:
-            forces[f"a_t[{label}]"] = contact.a_t * ct.tangent
             forces[f"lam_t[{label}]"] = ct.tangent
     J = ca.vertcat(*rows_J)
     defining = ca.vertcat(ca.mtimes(M, acc) - tau, ca.mtimes(M, d) - ca.mtimes(J.T, lam))

@@ -371,3 +371,25 @@ def test_readme_figures_photograph_the_replay(tmp_path):
     img = np.asarray(Image.open(tmp_path / "img" / "replay.png").convert("RGB")).astype(float)
     assert img.shape[:2] == (600, 800) and img.std() > 5.0  # 5 levels: the blank-page bound of tests/test_view.py
     assert (tmp_path / "img" / "foot_path.png").is_file() and (tmp_path / "img" / "states.png").is_file()
+
+
+def test_bench_skips_quick_run(tmp_path, capsys):
+    """--quick --json: results.json has one record per skip case with both variants (sizes, iterations,
+    wall time, convergence, the scene record) and the solution differences; the skip has fewer
+    variables or constraints. No timing or convergence assertions: --quick is a smoke run."""
+    bench_skips = _load("bench_skips")
+    assert bench_skips.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    results = json.loads(capsys.readouterr().out)
+    assert results == json.loads((tmp_path / "results.json").read_text())
+    records = {r["case"]: r for r in results["records"]}
+    assert set(records) == set(bench_skips.CASES)
+    for name, r in records.items():
+        on, off = r["on"], r["off"]
+        for key in ("n_variables", "n_constraints", "n_pairs", "jacobian_nnz", "ipopt_iterations", "wall_s", "converged", "scene"):
+            assert key in on and key in off, (name, key)
+        assert on["scene"]["enabled"] and not off["scene"]["enabled"]
+        assert on["n_variables"] + on["n_constraints"] < off["n_variables"] + off["n_constraints"], name
+        assert math.isfinite(r["max_physical_q_diff"])
+    assert records["frictionless"]["on"]["scene"]["frictionless"] == ["point"]
+    assert records["never_touching"]["on"]["scene"]["never_touching"] == ["knee"]
+    assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2

@@ -1,0 +1,179 @@
+"""The scene analysis (planner.scene): each skip removes what it says and keeps the solution."""
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from planner.errors import InputError, TaskError
+from planner.homotopy import solve
+from planner.model import load_robot
+from planner.problem import ProblemOptions, build_problem
+from planner.scene import analyze_scene, reach_box
+from planner.task import Horizon, load_task, parse_task
+
+# The two variants of the frictionless drop reach the same complementarity-exact plan; IPOPT's tol
+# 1e-8 and interior-point selectors ~1e-6 off their bounds leave differences of ~1e-5 (measured 1.2e-5)
+SAME_SOLUTION_TOL = 1e-4  # [m, m/s, s] on the node states
+SAMPLES = 2000  # random configurations for the reach-box checks
+
+
+def slide_task(N: int):
+    """Frictionless point mass dropped from 0.2 m and pushed to x = 0.5 m (one impact, then sliding)."""
+    return parse_task({"contacts": [{"point": "point", "mu": 0.0}], "initial": {"q": [0.0, 0.2]},
+                       "horizon": {"tau_f": 1.0, "N": N}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+
+
+def holes_task(N: int):
+    """Point-mass hop with x in [-0.1, 0.6] m: hole 0 in reach, holes 1 and 2 far beyond it."""
+    holes = [{"x": 0.25, "a": 0.05, "b": 0.05}, {"x": 1.5, "a": 0.25, "b": 0.1}, {"x": 2.5, "a": 0.25, "b": 0.1}]
+    return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": N},
+                       "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": holes,
+                                "joint_bounds": [{"joint": "x", "lower": -0.1, "upper": 0.6}]}})
+
+
+def knee_task(N: int, touches: bool = False):
+    """Capler with contacts foot and knee (the knee marked touches = false unless `touches`)."""
+    return parse_task({"contacts": [{"point": "foot", "mu": 0.8}, {"point": "knee", "mu": 0.8, "touches": touches}],
+                       "initial": {"q": [0.0, 0.4 * np.cos(0.3), 0.3, -0.6]}, "horizon": {"tau_f": 0.3, "N": N},
+                       "plan": {"target_q": [0.1, 0.4 * np.cos(0.3), 0.3, -0.6], "above_ground": ["base"]}})
+
+
+@pytest.fixture(scope="module")
+def point_mass():
+    return load_robot("robots/point_mass.xml")
+
+
+@pytest.fixture(scope="module")
+def capler():
+    return load_robot("robots/capler.xml")
+
+
+def test_frictionless_skip_drops_the_tangential_machinery(point_mass):
+    """mu = 0: per step one selector (zeta), its two multipliers, one lifted product (beta zeta), their
+    stationarity, lifting and two penalty rows, and two pairs fewer; everything named zeta is gone."""
+    N = 4
+    on = build_problem(point_mass, slide_task(N))
+    off = build_problem(point_mass, slide_task(N), ProblemOptions(scene_analysis=False))
+    assert on.skips.frictionless == ("point",) and off.skips.frictionless == () and not off.skips.enabled
+    assert (on.system.n_sigma, off.system.n_sigma) == (3, 4)
+    assert off.nx - on.nx == 4 * N and off.ng - on.ng == 4 * N and len(off.pairs) - len(on.pairs) == 2 * N
+    extra = set(off.var_names) - set(on.var_names)
+    assert extra and all("zeta" in name for name in extra) and set(on.var_names) <= set(off.var_names)
+
+
+def test_frictionless_reference_has_the_same_vector_field(point_mass):
+    """Without the skip, F is the same for every selector value: the tangential jump field has gain 0
+    and with alpha* = 1/2 the Sec. 6 polynomials equal the frictionless ones (zeta is free)."""
+    on = build_problem(point_mass, slide_task(2)).system
+    off = build_problem(point_mass, slide_task(2), ProblemOptions(scene_analysis=False)).system
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        y, u, sigma = rng.normal(size=on.ny), rng.normal(size=on.nu), rng.uniform(size=on.n_sigma)
+        zeta = rng.uniform()
+        f_on = np.asarray(ca.evalf(on.vector_field(sigma, ca.DM(y), ca.DM(u))), float)
+        f_off = np.asarray(ca.evalf(off.vector_field(np.append(sigma, zeta), ca.DM(y), ca.DM(u))), float)
+        np.testing.assert_allclose(f_off, f_on, rtol=0, atol=1e-12)
+    assert not off.regularized[-1] and off.regularized[:-1].all()  # zeta has no sigma* to be pulled to
+
+
+def test_frictionless_skip_gives_the_same_solution(point_mass):
+    """Solved with and without the skip (N = 6): the same plan, node by node."""
+    a = solve(build_problem(point_mass, slide_task(6)))
+    b = solve(build_problem(point_mass, slide_task(6), ProblemOptions(scene_analysis=False)))
+    assert a.stats.converged and b.stats.converged
+    assert np.max(np.abs(a.trajectory.y - b.trajectory.y)) <= SAME_SOLUTION_TOL
+
+
+def test_never_touching_point_gets_only_a_gap_constraint(capler):
+    """touches = false: one contact (foot) instead of two, no selectors or forces for the knee, and the
+    row gap >= 0 of the knee at every node; without the analysis the knee is a full contact."""
+    N = 3
+    on = build_problem(capler, knee_task(N))
+    off = build_problem(capler, knee_task(N), ProblemOptions(scene_analysis=False))
+    assert [c.point for c in on.system.contacts] == ["foot"] and on.skips.never_touching == ("knee",)
+    assert [c.point for c in off.system.contacts] == ["foot", "knee"]
+    assert on.g_blocks["never_touching"].shape == (N, 1) and "never_touching" not in off.g_blocks
+    assert not any("[knee]" in name and not name.startswith(("q[", "v[")) for name in on.var_names)  # knee is also a joint
+    assert on.nx < off.nx and on.ng < off.ng and len(on.pairs) < len(off.pairs)
+    g = np.asarray(ca.Function("g", [on.x, on.p], [on.g])(on.x0, on.params(1.0)), float).ravel()
+    knee_z = float(np.asarray(on.system.dyn.point_position("knee")(on.y0[:4]), float).ravel()[2])
+    np.testing.assert_allclose(g[on.g_blocks["never_touching"].ravel()], knee_z, atol=1e-12)  # x0 holds y0 at every node
+    # the same task with the knee touching builds what the analysis-off problem builds
+    same = build_problem(capler, knee_task(N, touches=True))
+    assert (same.nx, same.ng, len(same.pairs)) == (off.nx, off.ng, len(off.pairs))
+
+
+def test_touches_key_is_checked(capler):
+    """contacts.touches must be a boolean; a task whose every contact is touches = false cannot be planned."""
+    with pytest.raises(TaskError, match="contacts\\[0\\].touches must be true or false"):
+        parse_task({"contacts": [{"point": "foot", "touches": "no"}], "initial": {"q": [0.0, 0.4, 0, 0]},
+                    "horizon": {"tau_f": 1.0, "N": 2}})
+    task = knee_task(2)
+    task = dataclasses.replace(task, contacts=(task.contacts[1],))
+    with pytest.raises(InputError, match="touches = false"):
+        build_problem(capler, task)
+
+
+def test_unreachable_holes_are_dropped_and_cannot_be_active(point_mass):
+    """Holes 1 and 2 lie beyond every position the bounded point can take: dropped, and positive at
+    every sampled configuration of the unskipped problem (so never active); the kept rows are the same."""
+    N = 3
+    on = build_problem(point_mass, holes_task(N))
+    off = build_problem(point_mass, holes_task(N), ProblemOptions(scene_analysis=False))
+    assert on.skips.dropped_holes == (("point", 1), ("point", 2))
+    assert on.g_blocks["holes"].shape == (N, 1) and off.g_blocks["holes"].shape == (N, 3)
+    assert on.nx == off.nx and off.ng - on.ng == 2 * N
+    g_on, g_off = (ca.Function("g", [pb.x, pb.p], [pb.g]) for pb in (on, off))
+    keep = np.setdiff1d(np.arange(off.ng), off.g_blocks["holes"][:, 1:].ravel())
+    rng = np.random.default_rng(1)
+    lo, hi = np.array([-0.1, -1.0]), np.array([0.6, 1.0])
+    for _ in range(20):
+        x = on.x0 + rng.normal(size=on.nx)
+        x[on.var_blocks["y"][:, :2]] = rng.uniform(lo, hi, size=(N, 2))  # q inside the bounds (z: any height)
+        a = np.asarray(g_on(x, on.params(1.0)), float).ravel()
+        b = np.asarray(g_off(x, off.params(1.0)), float).ravel()
+        np.testing.assert_allclose(a, b[keep], rtol=0, atol=1e-12)
+        assert np.all(b[off.g_blocks["holes"][:, 1:].ravel()] > 0)
+
+
+def test_reach_box_holds_every_sampled_position(capler):
+    """Capler with bounded base slides: every sampled foot and knee position lies in its reach box;
+    unbounded slides (the default task) give an unbounded box in x and z, so no hole is dropped."""
+    task = load_task("robots/capler.toml")
+    lower, upper = task.q_bounds(capler)
+    lo_x, hi_x = lower.copy(), upper.copy()
+    lo_x[:2], hi_x[:2] = (-0.1, 0.2), (1.0, 0.6)
+    rng = np.random.default_rng(2)
+    from planner.dynamics import Dynamics
+
+    dyn = Dynamics(capler)
+    for point in ("foot", "knee"):
+        box_lo, box_hi = reach_box(capler, point, lo_x, hi_x)
+        pos = np.array([np.asarray(dyn.point_position(point)(rng.uniform(lo_x, hi_x)), float).ravel() for _ in range(SAMPLES)])
+        assert np.all(pos >= box_lo - 1e-12) and np.all(pos <= box_hi + 1e-12), point
+        lo, hi = reach_box(capler, point, lower, upper)
+        assert np.isinf(lo[[0, 2]]).all() and np.isinf(hi[[0, 2]]).all()
+    assert analyze_scene(capler, task).dropped_holes == ()
+
+
+def test_scene_record_and_option(point_mass):
+    """Problem.skips says what was left out and why (the JSON that summary.json carries); the elastic
+    state is never built for inelastic scenes; scene_analysis must be a bool."""
+    pb = build_problem(point_mass, holes_task(2))
+    rec = pb.skips.to_json()
+    assert rec["enabled"] and rec["dropped_holes"] == [{"contact": "point", "hole": 1}, {"contact": "point", "hole": 2}]
+    assert rec["elastic_state"] == [] and any("elastic state p: not built" in r for r in rec["reasons"])
+    assert sum("out of reach" in r for r in rec["reasons"]) == 2
+    assert pb.system.ny == 2 * 2 + 1  # q, v, clock: no p
+    with pytest.raises(InputError, match="scene_analysis"):
+        ProblemOptions(scene_analysis="yes")
+
+
+def test_summary_carries_the_scene(point_mass):
+    """solve() puts the record into the result's summary (summary.json key "scene")."""
+    task = dataclasses.replace(slide_task(2), horizon=Horizon(tau_f=0.2, N=2))
+    res = solve(build_problem(point_mass, task))
+    assert res.summary()["scene"]["frictionless"] == ["point"]
