@@ -413,12 +413,14 @@ class FESDOptions:
     per step h (>= 2: one element boundary per step is free to move onto a switch; a step holds at
     most n_fe - 1 switches). rho_h: weight of the step equilibration penalty
     rho_h sum_n ((h_n - h/n_fe) / (h/n_fe))^2, which fixes the lengths that no switch pins (without
-    it they are free and the NLP degenerate); small, so that the complementarity penalty wins.
+    it they are free and the NLP degenerate). The complementarity penalty grows past it in the
+    homotopy; with rho_h = 0.1 the point-mass drop started with two elements of length ~0 (free
+    selectors there), with 1 it did not.
     """
 
     n_s: int = 2
     n_fe: int = 2
-    rho_h: float = 1e-2
+    rho_h: float = 1.0
 
     def __post_init__(self):
         checks = [(self.n_s in (1, 2, 3), "n_s", self.n_s, "1, 2 or 3"),
