@@ -228,6 +228,10 @@ class CaplerDrop:
     mu: float = 0.8
     mujoco_timesteps: tuple[float, ...] = (1e-3, 5e-4, 2.5e-4, 1.25e-4)
     variants: tuple[Variant, ...] = (Variant("default"),)
+    # a second reference, FESD at this step: implicit Euler's fine grid is itself O(h_ref) off (its
+    # impact 1.5e-4 s early), more than the FESD runs' own error; None skips it
+    fesd_reference: Variant | None = None
+    fesd_reference_h: float = 0.005
 
     def task(self, h: float):
         hip, knee = self.hold
@@ -272,14 +276,27 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
             "capler_mujoco": {"timestep": replay.ContactSettings().timestep, "wall_time_s": mj_wall,
                               "impact_time_s": float(mj["impact_times"][0]) if mj["impact_times"].size else None},
             "capler_exact_impact_time_s": exact_impact}
+    fesd_ref = None
+    if case.fesd_reference is not None:
+        fesd_task = case.task(case.fesd_reference_h)
+        fesd_ref, fesd_wall = _timed(lambda: simulate(robot, fesd_task, _options(case.fesd_reference), dynamics=dyn), 1)
+        if not fesd_ref.stats.converged:
+            raise RuntimeError(f"the Capler FESD reference run did not converge: {fesd_ref.stats.message}")
+        t_end = min(t_end, fesd_ref.trajectory.t[-1])
+        refs["capler_reference_fesd"] = {"h": case.fesd_reference_h, "N": fesd_task.horizon.N, "wall_time_s": fesd_wall,
+                                         "options": case.fesd_reference.options, "n_nlp": fesd_ref.stats.n_nlp,
+                                         "impact_time_s": fesd_ref.trajectory.impacts[0].time if fesd_ref.trajectory.impacts else None}
+    default_against = ("ref", "mujoco") + (("fesd_ref",) if fesd_ref is not None else ())
 
-    def compare(t, q, impacts, t_stop, against=("ref", "mujoco")):
+    def compare(t, q, impacts, t_stop, against=default_against):
         """Base error [m] on [0, t_stop] and first impact time difference [s] against the fine-grid run
         ("ref") and the default MuJoCo rollout ("mujoco"); impact time difference to the exact one."""
         grid = np.arange(0.0, t_stop, COMMON_GRID_S)
         base = _base_positions(scene, grid, t, q)
         others = {"ref": (ref.trajectory.t, ref.trajectory.q, refs["capler_reference"]["impact_time_s"]),
                   "mujoco": (mj["t"], mj["q"], refs["capler_mujoco"]["impact_time_s"])}
+        if fesd_ref is not None:
+            others["fesd_ref"] = (fesd_ref.trajectory.t, fesd_ref.trajectory.q, refs["capler_reference_fesd"]["impact_time_s"])
         first = impacts[0] if len(impacts) else None
         err = {}
         for key in against:
@@ -303,7 +320,7 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
             log(rec)
     for timestep in case.mujoco_timesteps:  # MuJoCo's own work-precision line, judged by the fine-grid run
         (_, run), wall = _timed(lambda: rollout(timestep), repeat)
-        errors = compare(run["t"], run["q"], run["impact_times"], min(t_end, run["t"][-1]), against=("ref",))
+        errors = compare(run["t"], run["q"], run["impact_times"], min(t_end, run["t"][-1]), against=("ref",) + default_against[2:])
         rec = {"suite": "simulate", "simulator": "mujoco", "case": "capler_pd_drop_mujoco", "variant": "default", "h": timestep,
                "N": len(run["t"]) - 1, "tau_f": float(run["t"][-1]), "options": {"simulator": f"mujoco {mujoco.__version__}"},
                "converged": True, "wall_time_s": wall, "errors": errors}
@@ -343,7 +360,7 @@ def simulate_cases(quick: bool) -> tuple[list[PointMassCase], CaplerDrop]:
     capler_fesd = () if quick else tuple(fesd_variant(n_s, 4, (0.02, 0.01)) for n_s in (1, 2, 3))
     capler = CaplerDrop(hs=(0.02, 0.01) if quick else (0.02, 0.01, 0.005, 0.0025), tau_f=0.2 if quick else 0.5,
                         mujoco_timesteps=(5e-4, 2.5e-4) if quick else CaplerDrop.mujoco_timesteps,
-                        variants=(Variant("default"),) + capler_fesd)
+                        variants=(Variant("default"),) + capler_fesd, fesd_reference=None if quick else fesd_variant(2, 4))
     return cases, capler
 
 
@@ -406,7 +423,8 @@ def machine_info() -> dict:
 
 
 # Which error each panel of the plot shows, by case: (panel title, error key per case prefix)
-PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs fine grid", {"pm_": "state_error_m", "capler_": "base_error_ref_m"}),
+PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs FESD n_s=2 at 5 ms (else IE fine grid)",
+           {"pm_": "state_error_m", "capler_": ("base_error_fesd_ref_m", "base_error_ref_m")}),
           ("impact time error [s]\npoint mass: vs sqrt(2 z0/g); Capler: vs sqrt(2 drop/g)", {"pm_": "impact_time_error_s", "capler_": "impact_time_diff_exact_s"}))
 MARKERS = "osD^vPX*hp<>"
 
@@ -422,6 +440,8 @@ def plot(records: list[dict], path: Path) -> None:
     for ax, (title, keys) in zip(axes, PANELS):
         for i, (case, variant) in enumerate(lines):
             key = next(k for prefix, k in keys.items() if case.startswith(prefix))
+            if isinstance(key, tuple):  # the first key the runs have (the quick run has no FESD reference)
+                key = next((k for k in key if any(r["errors"].get(k) is not None for r in records if r["case"] == case)), key[-1])
             runs = sorted((r for r in records if (r["case"], r["variant"]) == (case, variant) and r["converged"]
                            and (r["errors"].get(key) or 0) > 0), key=lambda r: -r["h"])  # refinement order
             if not runs:
@@ -444,7 +464,7 @@ def plot(records: list[dict], path: Path) -> None:
 
 def table(records: list[dict]) -> str:
     """A Markdown table of the records (errors in their own units, times in s)."""
-    keys = ["state_error_m", "base_error_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
+    keys = ["state_error_m", "base_error_ref_m", "base_error_fesd_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
             "impact_time_diff_mujoco_s", "impact_time_diff_exact_s", "v_post_error_mps", "penetration_m"]
     keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
     lines = ["| case | variant | h [s] | N | wall [s] | NLPs | " + " | ".join(keys) + " |", "|---" * (6 + len(keys)) + "|"]
