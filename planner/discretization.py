@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .contact import plane_axes
+from .errors import InputError
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
@@ -259,14 +260,17 @@ class ImplicitEulerStep:
         forces = self.forces_at(y, u) if self.mm is not None else None
         return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
 
-    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "", field_scale=None) -> Step:
+    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "", field_scale=None, dy=None) -> Step:
         """Create the step's algebraic variables and its constraints (see module docstring).
 
         y_k, y_next (ny,), u_k (nu,), s_k (scalar) are CasADi expressions (SX or MX) or numbers;
-        h [s] the numerical-time step. The new variables are SX symbols unless y_next is MX.
-        `tag` is appended to the variable names (e.g. the step index). field_scale (n_fields,)
-        optionally multiplies each field's coefficient P_j (an OCP uses it to continue the auxiliary
-        gains a_n, a_t from weak to the task's values; 1 everywhere is the task's system).
+        h [s] the numerical-time step (a number or an expression). The new variables are SX symbols
+        unless y_next is MX. `tag` is appended to the variable names (e.g. the step index).
+        field_scale (n_fields,) optionally multiplies each field's coefficient P_j (an OCP uses it to
+        continue the auxiliary gains a_n, a_t from weak to the task's values; 1 everywhere is the
+        task's system). dy (ny,) replaces the increment y_next - y_k that must equal h s F(y_next):
+        a collocation stage passes sum_l A^-1_jl (Y_l - y_k) (FESDInterval), with the algebraic
+        conditions still at y_next (the stage).
         """
         sys_ = self.system
         sym = ca.MX.sym if isinstance(y_next, ca.MX) else ca.SX.sym
@@ -284,7 +288,7 @@ class ImplicitEulerStep:
         extra = []
         if self.mm is None:
             F = ca.mtimes(sys_.fields_fn(y_next, u_k), coef)
-            dynamics = y_next - y_k - h * s_k * F
+            dynamics = (y_next - y_k if dy is None else dy) - h * s_k * F
             if lam is None:
                 hval = sys_.switching_fn(y_next, u_k)
             else:
@@ -295,7 +299,7 @@ class ImplicitEulerStep:
             forces = w[self.w_blocks["forces"]]
             fmat, hval, defining, M = self.mm.fn(y_next, u_k, forces)
             F = ca.mtimes(fmat, coef)
-            dy = y_next - y_k
+            dy = y_next - y_k if dy is None else dy
             dv = ca.mtimes(M, dy[nq : nq + nv])  # velocity rows times M(q_{k+1}): no inverse
             dynamics = ca.vertcat(dy[:nq], dv, dy[nq + nv :]) - h * s_k * F
             extra = [defining]
@@ -362,3 +366,172 @@ def _secant_rows(system: TimeFreezingSystem) -> tuple[ca.Function, np.ndarray]:
         rows.append(sum(w * ca.mtimes(direction.T, jac(qa + s * (qb - qa))[:3, :]) for s, w in zip(_GAUSS_S, _GAUSS_W)))
         mask[i] = 1.0
     return ca.Function("secant_rows", [qa, qb], [ca.vertcat(*rows)], ["q_a", "q_b"], ["rows"]), mask
+
+
+# ==================================================================================================
+# finite elements with switch detection (FESD)
+# ==================================================================================================
+
+class Discretization(Enum):
+    """How a simulation discretizes the time-freezing system.
+
+    IMPLICIT_EULER: the paper's regularized implicit Euler step (ImplicitEulerStep), one per step h.
+    FESD: finite elements with switch detection (Nurkanovic et al.): each step h is split into
+    n_fe Radau IIA elements of free lengths h_n (sum h), and cross-complementarity puts every switch
+    of the selectors on an element boundary (FESDInterval).
+    """
+
+    IMPLICIT_EULER = "implicit_euler"
+    FESD = "fesd"
+
+
+def radau_iia(n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Butcher tableau of the n_s-stage Radau IIA collocation method (order 2 n_s - 1, stiffly accurate).
+
+    Returns A (n_s, n_s), b (n_s,), c (n_s,) with c the right Radau points on [0, 1] (c[-1] = 1) and
+    b = A[-1]: the last stage is the end of the element. n_s = 1 is implicit Euler.
+    """
+    if n_s not in (1, 2, 3):
+        raise ValueError(f"n_s must be 1, 2 or 3, got {n_s!r}")
+    # right Radau points: the roots of P_s(2c - 1) - P_{s-1}(2c - 1) (Legendre P), all in (0, 1]
+    legendre = np.polynomial.legendre.Legendre
+    x = (legendre.basis(n_s) - legendre.basis(n_s - 1)).roots()
+    c = np.sort(np.real((x + 1.0) / 2.0))
+    c[-1] = 1.0
+    A = np.zeros((n_s, n_s))
+    for l in range(n_s):
+        others = np.delete(c, l)
+        basis = np.polynomial.Polynomial(np.atleast_1d(np.poly(others))[::-1]) / np.prod(c[l] - others)  # Lagrange basis of c_l
+        integral = basis.integ()
+        A[:, l] = integral(c) - integral(0.0)
+    return A, A[-1].copy(), c
+
+
+@dataclass(frozen=True)
+class FESDOptions:
+    """Settings of the FESD discretization.
+
+    n_s: Radau IIA stages per element (1..3; order 2 n_s - 1 between switches). n_fe: finite elements
+    per step h (>= 2: one element boundary per step is free to move onto a switch; a step holds at
+    most n_fe - 1 switches). rho_h: weight of the step equilibration penalty
+    rho_h sum_n ((h_n - h/n_fe) / (h/n_fe))^2, which fixes the lengths that no switch pins (without
+    it they are free and the NLP degenerate). The complementarity penalty grows past it in the
+    homotopy; with rho_h = 0.1 the point-mass drop started with two elements of length ~0 (free
+    selectors there), with 1 it did not.
+    """
+
+    n_s: int = 2
+    n_fe: int = 2
+    rho_h: float = 1.0
+
+    def __post_init__(self):
+        checks = [(self.n_s in (1, 2, 3), "n_s", self.n_s, "1, 2 or 3"),
+                  (isinstance(self.n_fe, int) and self.n_fe >= 1, "n_fe", self.n_fe, "an integer >= 1"),
+                  (self.rho_h >= 0, "rho_h", self.rho_h, ">= 0")]
+        for ok, key, value, allowed in checks:
+            if not ok:
+                raise InputError(f"FESDOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+@dataclass(frozen=True, eq=False)
+class Interval:
+    """NLP pieces of one FESD step of length H [s] (symbolic, SX).
+
+    x (nx,) variables: the element lengths h (n_fe,) [s], then per element n and stage j the stage
+    state Y_nj (ny,) and the stage's algebraic variables w_nj (nw, ImplicitEulerStep blocks);
+    lbx, ubx (nx,) bounds; y_end (ny,) the step's end state (the last stage of the last element).
+    g (ng,) equalities: sum h = H, then every stage's Step.g. complementarity: pairs (a, b), a, b >= 0,
+    a * b = 0 wanted: per element, selector, stage j and point j' (the element's stages and its left
+    boundary), the cross-complementarity lambda0_j' sigma_j and lambda1_j' (1 - sigma_j).
+    objective: the stages' rho_f terms weighted b_j h_n / H (with constant weights, collapsing an
+    element to h_n = 0 would let its selectors go to sigma* for free), plus the step equilibration.
+    """
+
+    x: object
+    lbx: np.ndarray
+    ubx: np.ndarray
+    y_end: object
+    g: object
+    complementarity: tuple[tuple[object, object], ...]
+    objective: object
+
+    def comp_products(self):
+        """vertcat of a * b over the complementarity pairs."""
+        return ca.vertcat(*[a * b for a, b in self.complementarity])
+
+
+class FESDInterval:
+    """Builder of FESD steps (finite elements with switch detection) for a time-freezing system.
+
+    Every stage of every element is one ImplicitEulerStep stage: the same selectors, lifting,
+    stationarity and (several contacts) force rows, with the collocation increment in place of the
+    Euler one. Elements are Radau IIA of n_s stages; the element lengths h_n are variables with sum
+    H. Cross-complementarity: within an element and with its left boundary (the previous element's
+    last stage, or the previous step's end given as a parameter), a selector may not be at a bound
+    at one point while its multiplier is positive at another; so a selector changes its bound only
+    at an element boundary, and the free h_n put that boundary on the switching surface.
+    """
+
+    def __init__(self, step: ImplicitEulerStep, options: FESDOptions = FESDOptions()):
+        self.step, self.options = step, options
+        self.A, self.b, self.c = radau_iia(options.n_s)
+        self.A_inv = np.linalg.inv(self.A)
+        ny, nw = step.system.ny, step.nw
+        self.n_fe, self.n_s, self.n_stage = options.n_fe, options.n_s, ny + nw
+        self.nx = self.n_fe + self.n_fe * self.n_s * self.n_stage
+
+    def stage_slice(self, n: int, j: int) -> slice:
+        """Where stage j of element n (Y_nj, then w_nj) sits in x."""
+        start = self.n_fe + (n * self.n_s + j) * self.n_stage
+        return slice(start, start + self.n_stage)
+
+    def build(self, y_k, control, H: float, lam_prev, tag: str = "") -> Interval:
+        """One FESD step from y_k (ny,) over H [s] of numerical time, speed of time 1.
+
+        control(y) -> u (nu,): the control acting at a stage state y (a constant, or a feedback law).
+        lam_prev (2 n_sigma,): (lambda0, lambda1) at y_k, the left boundary of the first element.
+        """
+        st, opts = self.step, self.options
+        sys_ = st.system
+        ny, n = sys_.ny, sys_.n_sigma
+        hs = ca.SX.sym(f"h{tag}", self.n_fe)
+        h_bar = H / self.n_fe
+        x, lbx, ubx, g, pairs = [hs], [np.zeros(self.n_fe)], [np.full(self.n_fe, H)], [ca.sum1(hs) - H], []
+        objective = opts.rho_h * ca.sumsqr((hs - h_bar) / h_bar)
+        start, lam0_left, lam1_left = y_k, lam_prev[:n], lam_prev[n:]
+        for e in range(self.n_fe):
+            Y = [ca.SX.sym(f"Y{tag}_{e}_{j}", ny) for j in range(self.n_s)]
+            stages = []
+            for j in range(self.n_s):
+                dy = sum(self.A_inv[j, l] * (Y[l] - start) for l in range(self.n_s))
+                stages.append(st.build(start, Y[j], control(Y[j]), 1.0, hs[e], tag=f"{tag}_{e}_{j}", dy=dy))
+            for j, stage in enumerate(stages):
+                x += [Y[j], stage.w]
+                lbx += [np.full(ny, -np.inf), stage.lbw]
+                ubx += [np.full(ny, np.inf), stage.ubw]
+                g.append(stage.g)
+                objective += self.b[j] * hs[e] / H * stage.objective  # quadrature of the regularization over the step
+            # one pair per (multiplier point, stage), not sums: IPOPT relaxes bounds by ~1e-8, and in a
+            # sum a stage at -1e-8 cancels another at +1e-8 (measured with sums: the switch 3e-8 m off
+            # the surface, the free-flight clock 5e-9 slow, the impact time 1e-8 off)
+            lam0 = [lam0_left] + [s.block("lambda0") for s in stages]
+            lam1 = [lam1_left] + [s.block("lambda1") for s in stages]
+            for s in stages:
+                sig = s.block("sigma")
+                pairs += [(l0[i], sig[i]) for l0 in lam0 for i in range(n)] + [(l1[i], 1 - sig[i]) for l1 in lam1 for i in range(n)]
+            start, lam0_left, lam1_left = Y[-1], stages[-1].block("lambda0"), stages[-1].block("lambda1")
+        return Interval(x=ca.vertcat(*x), lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), y_end=start,
+                        g=ca.vertcat(*g), complementarity=tuple(pairs), objective=objective)
+
+    def guess(self, H: float, y, w) -> np.ndarray:
+        """Initial guess (nx,): equal lengths H / n_fe, every stage at the state y (ny,) with the
+        algebraic variables w (nw,)."""
+        return np.concatenate([np.full(self.n_fe, H / self.n_fe)] + [np.concatenate([y, w])] * (self.n_fe * self.n_s))
+
+    def unpack(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Element lengths h (n_fe,) [s], stage states Y (n_fe, n_s, ny) and algebraic variables
+        W (n_fe, n_s, nw) of a numeric x (nx,)."""
+        x = np.asarray(x, float).ravel()
+        ny = self.step.system.ny
+        body = x[self.n_fe : self.nx].reshape(self.n_fe, self.n_s, self.n_stage)
+        return x[: self.n_fe].copy(), body[:, :, :ny].copy(), body[:, :, ny:].copy()

@@ -285,7 +285,7 @@ IMPULSE_SHARE = 1e-2
 
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
-            frozen_tol: float = FROZEN_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
+            frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
 
     tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
@@ -295,6 +295,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
     the largest (the largest first; one contact: always one Impact), all with the interval's time,
     posture and pre-/post-impact velocities, and one pair of samples.
+    switch_at_start: the first frozen step of an interval starts at the impact (FESD puts the switch on
+    an element boundary), so the impact's time, posture and pre-impact velocity are its start point;
+    otherwise (implicit Euler) the landing happens inside that step and they are taken at its end.
     Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
     """
     y, u_steps = np.asarray(y, float), np.asarray(u_steps, float)
@@ -317,8 +320,11 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             b += 1
         # the first frozen step may run the clock for part of the step (a landing), never backwards: a
         # solver's bound relaxation can leave it 1e-10 s behind the previous sample
-        t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
-        v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
+        if switch_at_start:  # the clock a selector leaks while frozen (~1e-6 of a step) stays out of the impact time
+            t_imp, q_imp, v_pre = max(clock[a], ts[-1]), y[a, :nq], y[a, nq : nq + nv]
+        else:
+            t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
+            v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
         v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
         imp = np.sum(np.asarray(impulses)[a : b + 1], axis=0)  # (n_contacts, 2)
         order = np.argsort(-np.abs(imp[:, 0]), kind="stable") if len(contacts) else np.zeros(1, int)

@@ -27,7 +27,7 @@ from enum import Enum
 import casadi as ca
 import numpy as np
 
-from .discretization import ImplicitEulerStep
+from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep
 from .dynamics import Dynamics
 from .errors import InputError
 from .model import Robot
@@ -76,10 +76,18 @@ class SimulateOptions:
     verbose: bool = False
     restarts: bool = True
     restart_rho0: float = 1e4  # holds an exact solution whose switching functions are >= 2 rho_f / 1e4 away from 0
+    discretization: Discretization = Discretization.IMPLICIT_EULER
+    fesd: FESDOptions = FESDOptions()  # used when discretization is FESD
 
     def __post_init__(self):
         if not isinstance(self.strategy, Strategy):
             raise InputError(f"strategy = {self.strategy!r} is not allowed; it must be one of {[s.value for s in Strategy]}")
+        if not isinstance(self.discretization, Discretization):
+            raise InputError(f"discretization = {self.discretization!r} is not allowed; it must be one of {[d.value for d in Discretization]}")
+        if not isinstance(self.fesd, FESDOptions):
+            raise InputError(f"fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
+        if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
+            raise InputError("discretization = fesd is implemented for strategy = stepwise only")
         checks = [
             (self.rho_f is None or self.rho_f >= 0, "rho_f", self.rho_f, ">= 0 or None"),
             (self.rho0 > 0, "rho0", self.rho0, "> 0"),
@@ -155,14 +163,23 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     builder = ImplicitEulerStep(system, rho_f)
     h, N = task.horizon.h, task.horizon.N
     start = time.perf_counter()
-    run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
-    Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
-    stats = dict(stats, solve_time_s=time.perf_counter() - start)
-    trajectory = step_trajectory(system, builder, Y, W, U, h, options.frozen_tol)
+    if options.discretization is Discretization.FESD:
+        fesd = FESDInterval(builder, options.fesd)
+        elements, stats = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
+        stats = dict(stats, solve_time_s=time.perf_counter() - start)
+        trajectory = element_trajectory(system, builder, *elements, fesd.b, options.frozen_tol)
+        U = elements[4][:, -1]
+    else:
+        run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
+        Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
+        stats = dict(stats, solve_time_s=time.perf_counter() - start)
+        trajectory = step_trajectory(system, builder, Y, W, U, h, options.frozen_tol)
     converged = stats["comp"] <= options.comp_tol and stats["ok"]
     solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
     extra = {} if law is None else {"pd": _pd_summary(robot, task, law, U)}
+    if options.discretization is Discretization.FESD:
+        extra["discretization"] = {"name": "fesd", "n_s": options.fesd.n_s, "n_fe": options.fesd.n_fe, "rho_h": options.fesd.rho_h}
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     return SimulationResult(robot=str(robot.path), task=task.source, trajectory=trajectory, stats=solve,
@@ -181,11 +198,9 @@ def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
 
 
 def _ipopt_options(options: SimulateOptions) -> dict:
-    return {
-        "print_time": False,
-        "ipopt": {"tol": options.ipopt_tol, "max_iter": options.max_iter, "print_level": 5 if options.verbose else 0,
-                  "sb": "yes", "warm_start_init_point": "yes", "mu_strategy": "adaptive"},
-    }
+    ipopt = {"tol": options.ipopt_tol, "max_iter": options.max_iter, "print_level": 5 if options.verbose else 0,
+             "sb": "yes", "warm_start_init_point": "yes", "mu_strategy": "adaptive"}
+    return {"print_time": False, "ipopt": ipopt}
 
 
 def _penalized_nlp(x_vars, steps, params):
@@ -275,6 +290,55 @@ def _stepwise(system, builder, y0, task, h, N, options, law=None):
         U[k] = _applied(law, system, u, Y[k + 1])
         w_prev = W[k]
     return Y, W, U, total
+
+
+def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None):
+    """STEPWISE with FESD: one NLP per step h of n_fe Radau IIA elements, built once with (y_k, u_ff,
+    the multipliers at y_k, rho) as parameters; a PD law acts at every stage state.
+
+    Returns the elements (tau (K+1,), Y (K+1, ny) element boundaries, stage states (K, n_s, ny),
+    stage algebraic variables (K, n_s, nw), stage controls (K, n_s, nu), lengths (K,)) with K = n_fe
+    times the steps solved, and the stats dict of _stepwise. No predictor restarts (yet)."""
+    builder = fesd.step
+    ny, nu, n = system.ny, system.nu, system.n_sigma
+    y_k, u_k, lam_prev = ca.SX.sym("y_k", ny), ca.SX.sym("u_k", nu), ca.SX.sym("lam_prev", 2 * n)
+    iv = fesd.build(y_k, lambda y: _applied(law, system, u_k, y), h, lam_prev)
+    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(iv.x, [iv], ca.vertcat(y_k, u_k, lam_prev))
+    solver = ca.nlpsol("fesd", "ipopt", nlp, _ipopt_options(options))
+    lbx, ubx = np.concatenate([iv.lbx, [0.0]]), np.concatenate([iv.ubx, [np.inf]])
+    lbg = np.zeros(n_eq + n_comp)
+    ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
+    control = ca.Function("control", [y_k, u_k], [_applied(law, system, u_k, y_k)])
+    lam0, lam1 = builder.w_blocks["lambda0"], builder.w_blocks["lambda1"]
+    w_guess = builder.guess(y0, _applied(law, system, task.simulate.controls_at(0.0, nu), y0))
+    left = np.concatenate([w_guess[lam0], w_guess[lam1]])  # the multipliers at y0 from its switching functions
+    y, lengths, bounds, Ys, Ws, Us = np.asarray(y0, float), [], [y0], [], [], []
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
+    for k in range(N):
+        u = task.simulate.controls_at(y[-1] + 0.5 * h, nu)
+        x0 = np.concatenate([fesd.guess(h, y, w_guess), [0.0]])
+        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([y, u, left]), lbx, ubx, lbg, ubg, options)
+        total["n_nlp"] += n_nlp
+        total["iterations"] += iters
+        total["comp"] = max(total["comp"], comp)
+        if not (ok and comp <= options.comp_tol):
+            total["ok"] = False
+            total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s) did not converge: IPOPT {msg}, "
+                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs")
+            break
+        hk, Yk, Wk = fesd.unpack(x)
+        lengths += list(hk)
+        bounds += list(Yk[:, -1])
+        Ys.append(Yk)
+        Ws.append(Wk)
+        Us.append([[np.asarray(control(ys, u), float).ravel() for ys in Ye] for Ye in Yk])
+        y, w_guess = Yk[-1, -1], Wk[-1, -1]
+        left = np.concatenate([w_guess[lam0], w_guess[lam1]])
+    n_s, nw = fesd.n_s, builder.nw
+    shape = lambda parts, m: np.array(parts, float).reshape(-1, n_s, m)  # noqa: E731
+    elements = (np.concatenate([[0.0], np.cumsum(lengths)]), np.array(bounds, float).reshape(-1, ny), shape(Ys, ny),
+                shape(Ws, nw), shape(Us, nu), np.array(lengths, float))
+    return elements, total
 
 
 def _predictor(system, builder, law, h):
@@ -391,6 +455,22 @@ def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W
     (default 1): step k advances numerical time h and integrates h S[k] F."""
     N = len(W)
     S = np.ones(N) if S is None else np.asarray(S, float).ravel()
+    Y, W, U = np.asarray(Y, float), np.asarray(W, float).reshape(N, builder.nw), np.asarray(U, float).reshape(N, system.nu)
+    return element_trajectory(system, builder, h * np.arange(N + 1), Y, Y[1:, None], W[:, None], U[:, None], h * S,
+                              np.ones(1), frozen_tol, switch_at_start=False)
+
+
+def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, tau, Y, Ys, Ws, Us, dt, b, frozen_tol,
+                       switch_at_start: bool = True) -> Trajectory:
+    """Per-element auxiliary increments and impulses by the elements' quadrature, then the Thm. 10 recovery.
+
+    tau (N+1,) numerical time [s] and Y (N+1, ny) states at the element boundaries; per element k the
+    stage states Ys (N, n_s, ny), algebraic variables Ws (N, n_s, nw) and controls Us (N, n_s, nu);
+    dt (N,) the integrated length h s [s]; b (n_s,) the quadrature weights of the stages (Radau IIA,
+    the last stage the element's end; implicit Euler: n_s = 1, b = (1,)). Selectors and forces are
+    reported at the elements' last stage. switch_at_start: impacts start at an element boundary
+    (FESD; see result.recover)."""
+    N = len(Ws)
     nq, nv = system.nq, system.nv
     aux = system.auxiliary_mask
     dv_aux = np.zeros((N, nv))
@@ -398,15 +478,15 @@ def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W
     impulses = np.zeros((N, n_c, 2))
     sigma = np.zeros((N, system.n_sigma))
     for k in range(N):
-        coef = builder.coefficients(W[k])
-        fmat = np.asarray(system.fields_fn(Y[k + 1], U[k]))
-        dv_aux[k] = h * S[k] * fmat[nq : nq + nv, aux] @ coef[aux]
-        if n_c:
-            impulses[k] = (h * S[k] * np.asarray(system.impulse_fn(Y[k + 1], U[k])) @ coef).reshape(n_c, 2)
-        sigma[k] = W[k][builder.w_blocks["sigma"]]
-    tau = h * np.arange(N + 1)
-    t, q, v, u, impacts = recover(tau, Y, U, h * S, dv_aux, impulses, nq, nv,
-                                  system.labels, frozen_tol)
+        for j, weight in enumerate(b):
+            coef = builder.coefficients(Ws[k, j])
+            fmat = np.asarray(system.fields_fn(Ys[k, j], Us[k, j]))
+            dv_aux[k] += weight * dt[k] * fmat[nq : nq + nv, aux] @ coef[aux]
+            if n_c:
+                impulses[k] += (weight * dt[k] * np.asarray(system.impulse_fn(Ys[k, j], Us[k, j])) @ coef).reshape(n_c, 2)
+        sigma[k] = Ws[k, -1][builder.w_blocks["sigma"]]
+    W, U = Ws[:, -1], Us[:, -1]
+    t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol, switch_at_start=switch_at_start)
     forces = None
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)

@@ -47,6 +47,7 @@ from matplotlib.figure import Figure
 from planner import replay
 from planner.dynamics import Dynamics
 from planner.model import load_robot
+from planner.discretization import Discretization, FESDOptions
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import parse_task
 
@@ -116,11 +117,18 @@ class Drop:
 @dataclass(frozen=True)
 class Variant:
     """Discretization options of one line of the plot: contact keys (a_n, ...) replacing the case's,
-    and SimulateOptions fields (strategy, rho_f, ...)."""
+    and SimulateOptions fields (strategy, rho_f, discretization, fesd as a dict of FESDOptions fields,
+    ...); hs: the steps h [s] of this line when not the case's grid."""
 
     label: str
     contact: dict = field(default_factory=dict)
     options: dict = field(default_factory=dict)
+    hs: tuple[float, ...] | None = None
+
+
+def fesd_variant(n_s: int, n_fe: int, hs: tuple[float, ...] | None = None) -> Variant:
+    """The FESD line with n_s Radau IIA stages and n_fe elements per step."""
+    return Variant(f"fesd n_s={n_s}", options={"discretization": "fesd", "fesd": {"n_s": n_s, "n_fe": n_fe}}, hs=hs)
 
 
 @dataclass(frozen=True)
@@ -151,6 +159,10 @@ def _options(variant: Variant) -> SimulateOptions:
     opts = dict(variant.options)
     if "strategy" in opts:
         opts["strategy"] = Strategy(opts["strategy"])
+    if "discretization" in opts:
+        opts["discretization"] = Discretization(opts["discretization"])
+    if "fesd" in opts:
+        opts["fesd"] = FESDOptions(**opts["fesd"])
     return SimulateOptions(**opts)
 
 
@@ -178,7 +190,7 @@ def point_mass_records(case: PointMassCase, robot, dyn: Dynamics, repeat: int, l
     records = []
     for variant in case.variants:
         contact = {"point": "point", **case.contact, **variant.contact}
-        for h in case.hs:
+        for h in variant.hs or case.hs:
             task = parse_task({"contacts": [contact], "initial": {"q": [ex.x0, ex.z0], "v": [ex.vx, 0.0]},
                                "horizon": {"tau_f": case.tau_f, "N": round(case.tau_f / h)}})
             result, wall = _timed(lambda: simulate(robot, task, _options(variant), dynamics=dyn), repeat)
@@ -215,6 +227,11 @@ class CaplerDrop:
     kd: float = 2.0  # the law then stays inside the 60 N m motors on both simulators (tests/test_crosscheck.py)
     mu: float = 0.8
     mujoco_timesteps: tuple[float, ...] = (1e-3, 5e-4, 2.5e-4, 1.25e-4)
+    variants: tuple[Variant, ...] = (Variant("default"),)
+    # a second reference, FESD at this step: implicit Euler's fine grid is itself O(h_ref) off (its
+    # impact 1.5e-4 s early), more than the FESD runs' own error; None skips it
+    fesd_reference: Variant | None = None
+    fesd_reference_h: float = 0.005
 
     def task(self, h: float):
         hip, knee = self.hold
@@ -259,14 +276,27 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
             "capler_mujoco": {"timestep": replay.ContactSettings().timestep, "wall_time_s": mj_wall,
                               "impact_time_s": float(mj["impact_times"][0]) if mj["impact_times"].size else None},
             "capler_exact_impact_time_s": exact_impact}
+    fesd_ref = None
+    if case.fesd_reference is not None:
+        fesd_task = case.task(case.fesd_reference_h)
+        fesd_ref, fesd_wall = _timed(lambda: simulate(robot, fesd_task, _options(case.fesd_reference), dynamics=dyn), 1)
+        if not fesd_ref.stats.converged:
+            raise RuntimeError(f"the Capler FESD reference run did not converge: {fesd_ref.stats.message}")
+        t_end = min(t_end, fesd_ref.trajectory.t[-1])
+        refs["capler_reference_fesd"] = {"h": case.fesd_reference_h, "N": fesd_task.horizon.N, "wall_time_s": fesd_wall,
+                                         "options": case.fesd_reference.options, "n_nlp": fesd_ref.stats.n_nlp,
+                                         "impact_time_s": fesd_ref.trajectory.impacts[0].time if fesd_ref.trajectory.impacts else None}
+    default_against = ("ref", "mujoco") + (("fesd_ref",) if fesd_ref is not None else ())
 
-    def compare(t, q, impacts, t_stop, against=("ref", "mujoco")):
+    def compare(t, q, impacts, t_stop, against=default_against):
         """Base error [m] on [0, t_stop] and first impact time difference [s] against the fine-grid run
         ("ref") and the default MuJoCo rollout ("mujoco"); impact time difference to the exact one."""
         grid = np.arange(0.0, t_stop, COMMON_GRID_S)
         base = _base_positions(scene, grid, t, q)
         others = {"ref": (ref.trajectory.t, ref.trajectory.q, refs["capler_reference"]["impact_time_s"]),
                   "mujoco": (mj["t"], mj["q"], refs["capler_mujoco"]["impact_time_s"])}
+        if fesd_ref is not None:
+            others["fesd_ref"] = (fesd_ref.trajectory.t, fesd_ref.trajectory.q, refs["capler_reference_fesd"]["impact_time_s"])
         first = impacts[0] if len(impacts) else None
         err = {}
         for key in against:
@@ -276,20 +306,21 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
         err["impact_time_diff_exact_s"] = abs(first - exact_impact) if first is not None else None
         return err
 
-    records, default = [], Variant("default", options={})
-    for h in case.hs:
-        task = case.task(h)
-        result, wall = _timed(lambda: simulate(robot, task, dynamics=dyn), repeat)
-        rec = _run_record("capler_pd_drop", default, task, result, wall, {"mu": case.mu, "a_n": task.contacts[0].a_n, "a_t": task.contacts[0].a_t})
-        tr = result.trajectory
-        errors = compare(tr.t, tr.q, tr.impact_times, min(t_end, tr.t[-1]))
-        errors["penetration_m"] = penetration(dyn, task, tr.y)
-        rec.update(errors=errors, steps_beyond_actuator_bounds=result.extra["pd"]["steps_beyond_actuator_bounds"])
-        records.append(rec)
-        log(rec)
+    records = []
+    for variant in case.variants:
+        for h in variant.hs or case.hs:
+            task = case.task(h)
+            result, wall = _timed(lambda: simulate(robot, task, _options(variant), dynamics=dyn), repeat)
+            rec = _run_record("capler_pd_drop", variant, task, result, wall, {"mu": case.mu, "a_n": task.contacts[0].a_n, "a_t": task.contacts[0].a_t})
+            tr = result.trajectory
+            errors = compare(tr.t, tr.q, tr.impact_times, min(t_end, tr.t[-1]))
+            errors["penetration_m"] = penetration(dyn, task, tr.y)
+            rec.update(errors=errors, steps_beyond_actuator_bounds=result.extra["pd"]["steps_beyond_actuator_bounds"])
+            records.append(rec)
+            log(rec)
     for timestep in case.mujoco_timesteps:  # MuJoCo's own work-precision line, judged by the fine-grid run
         (_, run), wall = _timed(lambda: rollout(timestep), repeat)
-        errors = compare(run["t"], run["q"], run["impact_times"], min(t_end, run["t"][-1]), against=("ref",))
+        errors = compare(run["t"], run["q"], run["impact_times"], min(t_end, run["t"][-1]), against=("ref",) + default_against[2:])
         rec = {"suite": "simulate", "simulator": "mujoco", "case": "capler_pd_drop_mujoco", "variant": "default", "h": timestep,
                "N": len(run["t"]) - 1, "tau_f": float(run["t"][-1]), "options": {"simulator": f"mujoco {mujoco.__version__}"},
                "converged": True, "wall_time_s": wall, "errors": errors}
@@ -309,9 +340,12 @@ def simulate_cases(quick: bool) -> tuple[list[PointMassCase], CaplerDrop]:
     drop_tau, drop_window = (0.8, 0.5) if quick else (1.2, 0.8)
     frictionless = {"mu": 0.0, "a_n": 100.0}
     drop = Drop(z0=1.0, vx=1.0)
+    # FESD: n_fe = 3 elements per step, since the step with the impact can also hold the end of the
+    # frozen interval (|v| / a_n = 0.044 s of numerical time): two switches
+    fesd = (fesd_variant(2, 3),) if quick else tuple(fesd_variant(n_s, 3, (0.04, 0.02, 0.01)) for n_s in (1, 2, 3))
     variants = (Variant("default"), Variant("rho_f=0.1", options={"rho_f": 0.1}), Variant("rho_f=10", options={"rho_f": 10.0}),
                 Variant("a_n=25", contact={"a_n": 25.0}), Variant("a_n=400", contact={"a_n": 400.0}),
-                Variant("horizon", options={"strategy": "horizon"}))
+                Variant("horizon", options={"strategy": "horizon"})) + fesd
     # k = a_n = 16: each elastic frozen interval lasts ~0.8 s of numerical time; the window ends before
     # the exact second impact (0.90 s), after the first apex (0.68 s); at h = 0.04 the restitution comes
     # out low (0.2), the bounces are shorter and 3.6 s of numerical time are needed to reach t = 0.85 s
@@ -321,8 +355,12 @@ def simulate_cases(quick: bool) -> tuple[list[PointMassCase], CaplerDrop]:
                            drop_tau, drop_window, hs),
              PointMassCase("pm_drop_elastic_0.5", {"restitution": 0.5, "a_n": 16.0}, Drop(z0=1.0, restitution=0.5),
                            elastic_tau, 0.5 if quick else 0.85, hs)]
+    # FESD on Capler: n_fe = 4, since the impact step holds the landing, the ends of the normal and the
+    # tangential jump (a_n = 200, a_t = 600) and the start of sticking
+    capler_fesd = () if quick else tuple(fesd_variant(n_s, 4, (0.02, 0.01)) for n_s in (1, 2, 3))
     capler = CaplerDrop(hs=(0.02, 0.01) if quick else (0.02, 0.01, 0.005, 0.0025), tau_f=0.2 if quick else 0.5,
-                        mujoco_timesteps=(5e-4, 2.5e-4) if quick else CaplerDrop.mujoco_timesteps)
+                        mujoco_timesteps=(5e-4, 2.5e-4) if quick else CaplerDrop.mujoco_timesteps,
+                        variants=(Variant("default"),) + capler_fesd, fesd_reference=None if quick else fesd_variant(2, 4))
     return cases, capler
 
 
@@ -385,8 +423,9 @@ def machine_info() -> dict:
 
 
 # Which error each panel of the plot shows, by case: (panel title, error key per case prefix)
-PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs fine grid", {"pm_": "state_error_m", "capler_": "base_error_ref_m"}),
-          ("impact time error [s]\npoint mass: vs sqrt(2 z0/g); Capler: vs fine grid", {"pm_": "impact_time_error_s", "capler_": "impact_time_diff_ref_s"}))
+PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs FESD n_s=2 at 5 ms (else IE fine grid)",
+           {"pm_": "state_error_m", "capler_": ("base_error_fesd_ref_m", "base_error_ref_m")}),
+          ("impact time error [s]\npoint mass: vs sqrt(2 z0/g); Capler: vs sqrt(2 drop/g)", {"pm_": "impact_time_error_s", "capler_": "impact_time_diff_exact_s"}))
 MARKERS = "osD^vPX*hp<>"
 
 
@@ -401,12 +440,15 @@ def plot(records: list[dict], path: Path) -> None:
     for ax, (title, keys) in zip(axes, PANELS):
         for i, (case, variant) in enumerate(lines):
             key = next(k for prefix, k in keys.items() if case.startswith(prefix))
+            if isinstance(key, tuple):  # the first key the runs have (the quick run has no FESD reference)
+                key = next((k for k in key if any(r["errors"].get(k) is not None for r in records if r["case"] == case)), key[-1])
             runs = sorted((r for r in records if (r["case"], r["variant"]) == (case, variant) and r["converged"]
                            and (r["errors"].get(key) or 0) > 0), key=lambda r: -r["h"])  # refinement order
             if not runs:
                 continue
             color = matplotlib.colormaps["tab10"](i % 10)
-            ax.plot([r["wall_time_s"] for r in runs], [r["errors"][key] for r in runs], "-", color=color,
+            style = "--" if variant.startswith("fesd") else "-"  # FESD lines dashed: told apart from implicit Euler at a glance
+            ax.plot([r["wall_time_s"] for r in runs], [r["errors"][key] for r in runs], style, color=color,
                     label=case if variant == "default" else f"{case} {variant}")
             for r in runs:
                 ax.plot(r["wall_time_s"], r["errors"][key], marker[r["h"]], color=color, markersize=6)
@@ -422,7 +464,7 @@ def plot(records: list[dict], path: Path) -> None:
 
 def table(records: list[dict]) -> str:
     """A Markdown table of the records (errors in their own units, times in s)."""
-    keys = ["state_error_m", "base_error_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
+    keys = ["state_error_m", "base_error_ref_m", "base_error_fesd_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
             "impact_time_diff_mujoco_s", "impact_time_diff_exact_s", "v_post_error_mps", "penetration_m"]
     keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
     lines = ["| case | variant | h [s] | N | wall [s] | NLPs | " + " | ".join(keys) + " |", "|---" * (6 + len(keys)) + "|"]

@@ -57,7 +57,7 @@ def test_work_precision_quick_run(bench, tmp_path, capsys):
             for key in ("base_error_ref_m", "base_error_mujoco_m", "impact_time_diff_ref_s", "impact_time_diff_mujoco_s"):
                 assert r["errors"][key] is not None, key
     assert {(r["case"], r["variant"]) for r in records if r["case"] == "pm_drop_frictionless"} >= {
-        ("pm_drop_frictionless", "default"), ("pm_drop_frictionless", "horizon")}
+        ("pm_drop_frictionless", "default"), ("pm_drop_frictionless", "horizon"), ("pm_drop_frictionless", "fesd n_s=2")}
     assert len({r["h"] for r in records if r["case"] == "pm_drop_noslip"}) == 2  # --quick: 2 grid points
     assert all(math.isfinite(o["order"]) for o in results["orders"]) and results["orders"]
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
