@@ -295,12 +295,13 @@ def desired_curve(model: PinnedBiped, x0: np.ndarray, xf: np.ndarray, T: float, 
     t = np.linspace(0.0, T, N + 1)
     s = t / T
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    # d/dt = (1/T) d/ds: the basis for the tangents (scaled by T) loses that T once per derivative
     d00, d10, d01, d11 = (6 * s**2 - 6 * s) / T, 3 * s**2 - 4 * s + 1, (-6 * s**2 + 6 * s) / T, 3 * s**2 - 2 * s
     e00, e10, e01, e11 = (12 * s - 6) / T**2, (6 * s - 4) / T, (-12 * s + 6) / T**2, (6 * s - 2) / T
     p0, v0, p1, v1 = x0[:3], x0[3:], xf[:3], xf[3:]
     th = np.outer(h00, p0) + T * np.outer(h10, v0) + np.outer(h01, p1) + T * np.outer(h11, v1)
-    thd = np.outer(d00, p0) + T * np.outer(d10, v0) + np.outer(d01, p1) + T * np.outer(d11, v1)
-    thdd = np.outer(e00, p0) + T * np.outer(e10, v0) + np.outer(e01, p1) + T * np.outer(e11, v1)
+    thd = np.outer(d00, p0) + np.outer(d10, v0) + np.outer(d01, p1) + np.outer(d11, v1)
+    thdd = np.outer(e00, p0) + np.outer(e10, v0) + np.outer(e01, p1) + np.outer(e11, v1)
     ude = np.array(model.inverse.map(N + 1)(th.T, thd.T, thdd.T)).T
     return t, np.hstack([th, thd]), ude
 

@@ -19,6 +19,8 @@ on a fixed grid (f is one integrator step, l already carries its step length). O
    iteration falls back to the quasi-Newton LQ without the dynamics' curvature, which is convex
    for the quadratic costs used here.
 3. **Armijo line search** on g(P(xi + gamma zeta)), gamma = 1, beta, beta^2, ...
+   At convergence (predicted decrease below the tolerance) one last full Newton step is taken
+   without line search when it does not raise g beyond round-off (not counted as an iteration).
 
 Every sweep over time (projection, Riccati recursions, costate, LQ forward pass) and every
 derivative evaluation is one compiled CasADi graph (map / mapaccum); Python only loops over
@@ -35,6 +37,8 @@ import casadi as ca
 import numpy as np
 
 from .errors import InputError, SolveError
+
+ROUNDOFF = 1e-13  # relative round-off of a cost evaluation: ~N = 1e2 terms of relative error 1e-16, with margin
 
 
 @dataclass(frozen=True)
@@ -181,6 +185,13 @@ class Pronto:
                 newton = False
                 K, Z, V, slope, minors = self._direction_at(x, u, False)
             if -slope < opts.tolerance:  # also catches a (round-off) slope >= 0 at the optimum
+                if slope < 0:
+                    # polish with the full Newton step: its decrease is below the round-off of g (a large
+                    # terminal penalty), so Armijo cannot see it, but the step still moves x_N; without it a
+                    # Newton update of the target x_T after a converged solve would not move the trajectory
+                    xn, un, gn = self.project(x0, x + Z, u + V, K)
+                    if np.isfinite(gn) and gn <= g + ROUNDOFF * max(abs(g), 1.0):
+                        x, u, g = xn, un, gn
                 converged, message = True, "converged"
                 break
             gamma = 1.0
