@@ -241,19 +241,22 @@ class Pronto:
         mT = ocp.terminal(xs, ts)
         w = ca.vertcat(xs, us)
         A, B = ca.jacobian(fx, xs), ca.jacobian(fx, us)
-        lin = ca.Function("lin", [xs, us], [A, B])
+        # common-subexpression elimination: the derivatives of an integrator step repeat many terms
+        # (biped RK4: Jacobians 20.8k -> 13.5k instructions, Hessian 67.6k -> 54.9k); they dominate an iteration
+        sx_opts = {"cse": True}
+        lin = ca.Function("lin", [xs, us], [A, B], sx_opts)
         grad = ca.Function("grad", [xs, us, ps, ts], [ca.gradient(l, xs), ca.gradient(l, us)])
         # Hessian of l + second_order * q' f: the exact weight of PRONTO's second-order LQ
         hl = ca.hessian(l, w)[0]
         hf = ca.hessian(ca.dot(qs, fx), w)[0]
-        hess = ca.Function("lagrangian_hessian", [xs, us, ps, ts, qs, s2], [hl + s2 * hf])
+        hess = ca.Function("lagrangian_hessian", [xs, us, ps, ts, qs, s2], [hl + s2 * hf], sx_opts)
         term = ca.Function("term", [xs, ts], [mT, ca.gradient(mT, xs), ca.hessian(mT, xs)[0]])
 
         # closed-loop step of the projection: u = mu + K (alpha - x)
         Ks = ca.SX.sym("K", m, n)
         al, mu = ca.SX.sym("alpha", n), ca.SX.sym("mu", m)
         ucl = mu + ca.mtimes(Ks, al - xs)
-        cl_step = ca.Function("cl_step", [xs, al, mu, Ks], [ocp.step(xs, ucl), ucl])
+        cl_step = ca.Function("cl_step", [xs, al, mu, Ks], [ocp.step(xs, ucl), ucl], sx_opts)
         roll = cl_step.mapaccum("projection", N)
 
         # LQR Riccati step for the projection feedback (per-step weights Qp, Rp)
