@@ -634,8 +634,9 @@ class WalkReport:
     steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
     `steps_asked`); fell: the hip dropped below 0.6 m or the torso passed +-90 deg; impact_times
     [s] (MuJoCo) against the plan's (j+1) T; max_hinge_error [rad], max_torso_error [rad],
-    max_hip_height_error [m]: over the steps walked, against the gait's reference re-started at
-    each MuJoCo impact; max_torque [N m].
+    max_hip_height_error [m]: over the steps walked, against the plan at the same stance-leg angle
+    (WalkControl.PHASE) or at the same time since the last landing (time-indexed modes);
+    max_torque [N m].
     """
 
     steps_asked: int
@@ -647,7 +648,7 @@ class WalkReport:
     max_torso_error: float
     max_hip_height_error: float
     max_torque: float
-    swing_contact_from: float  # [s] into each step: when the swing foot's contact switches on
+    swing_contact_from: float  # [s] into the plan's step when the swing foot's contact switches on (PHASE: at its theta1)
     gains: WalkGains
 
     def to_json(self) -> dict:
@@ -656,7 +657,7 @@ class WalkReport:
                 "max_hinge_error_rad": self.max_hinge_error, "max_torso_error_rad": self.max_torso_error,
                 "max_hip_height_error_m": self.max_hip_height_error, "max_torque_Nm": self.max_torque,
                 "swing_contact_from_s": self.swing_contact_from, "control": self.gains.control.value,
-                "kp": self.gains.kp, "kd": self.gains.kd}
+                "bandwidth_rad_s": self.gains.bandwidth, "kp": self.gains.kp, "kd": self.gains.kd}
 
 
 def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, gains: WalkGains | None = None,
