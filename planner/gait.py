@@ -599,12 +599,17 @@ class PhaseReference:
         from scipy.interpolate import CubicHermiteSpline
 
         th1 = x[:, 0]
-        if not (np.all(np.diff(th1) > 0) and np.all(x[:, 3] > 0)):
+        if not self.applies(x):
             raise InputError("the gait's stance-leg angle theta1 does not increase monotonically, so it cannot index "
                              "the replay's reference; use WalkControl.LQR or HINGE_PD")
         self.lo, self.hi = float(th1[0]), float(th1[-1])
         self.spline = CubicHermiteSpline(th1, x[:, 1:3], x[:, 4:6] / x[:, 3:4])
         self.slope, self.curvature = self.spline.derivative(), self.spline.derivative(2)
+
+    @staticmethod
+    def applies(x: np.ndarray) -> bool:
+        """Whether theta1 indexes the gait x (N+1, 6): strictly increasing, with a positive rate."""
+        return bool(np.all(np.diff(x[:, 0]) > 0) and np.all(x[:, 3] > 0))
 
     def __call__(self, theta1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(y_d (2,) [rad], dy_d/dtheta1 (2,), d2y_d/dtheta1^2 (2,) [1/rad]) at theta1 [rad]."""
@@ -806,7 +811,9 @@ class GaitRunResult:
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
         if self.walking is not None:
             w = self.walking
-            lines.append(f"MuJoCo: walked {w.steps_walked} of {w.steps_asked} steps{' then fell' if w.fell else ''}")
+            lines.append(f"MuJoCo ({w.gains.control.value} control): walked {w.steps_walked} of {w.steps_asked} steps"
+                         f"{' then fell' if w.fell else ''}; max hinge error {np.rad2deg(w.max_hinge_error):.2f} deg, "
+                         f"max torque {w.max_torque:.0f} N m")
         return "\n".join(lines)
 
 
@@ -837,7 +844,9 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                         f"q = {np.round(q0, 9).tolist()}, v = {np.round(v0, 9).tolist()}")
     sol = solve_gait(model, spec, progress)
     walk = periodic_walk(model, sol, g.steps)
-    walking = replay_gait(model, sol, task, g.steps) if validate else None
+    # a gait whose stance leg stops or turns back has no phase variable: the time-indexed LQR replay
+    control = WalkControl.PHASE if PhaseReference.applies(sol.x) else WalkControl.LQR
+    walking = replay_gait(model, sol, task, g.steps, WalkGains(control=control)) if validate else None
     force = np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T
     height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
     u_paper = -sol.u
