@@ -391,11 +391,11 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
     # step 2: embedded system, continuation on rho_emb
     pe = ocp.pronto_e
     rho_emb, rho_f, x_target = cont.rho_emb, cont.rho_f, xf.copy()
-    x, u = xd, ude[:N]
+    x, u, K = xd, ude[:N], None
     while True:
         pe.set_parameters(params, np.concatenate([[rho_emb, rho_f], x_target]))
-        res = pe.solve(x0, x, u)
-        x, u = res.x, res.u
+        res = pe.solve(x0, x, u, K)  # K: the last solve's gains stabilize its trajectory, the new start
+        x, u, K = res.x, res.u, res.K
         total_it += res.iterations
         emb = float(np.max(np.abs(u[:, 2])))
         done = emb < cont.emb_tolerance
@@ -410,12 +410,12 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
 
     # step 3: underactuated system; rho_f continuation, then Newton on the target
     pu = ocp.pronto_u
-    x, u = x_emb, u_emb[:, :2]
+    x, u, K = x_emb, u_emb[:, :2], None
     converged, message = False, "outer-loop limit (gait.continuation.max_outer) reached"
     while len(loops) < cont.max_outer:
         pu.set_parameters(params, np.concatenate([[rho_f], x_target]))
-        res = pu.solve(x0, x, u)
-        x, u = res.x, res.u
+        res = pu.solve(x0, x, u, K)
+        x, u, K = res.x, res.u, res.K
         total_it += res.iterations
         err = float(np.linalg.norm(x[-1] - xf))
         if err < cont.final_tolerance and res.converged:

@@ -207,7 +207,8 @@ class Pronto:
                 message = "line search failed"
                 break
             x, u, g = xn, un, gn
-        K = self.feedback(x, u)
+        if not converged:  # else K is the last direction's, about x (the polish moves x by a round-off-level step)
+            K = self.feedback(x, u)
         return ProntoResult(x=x, u=u, K=K, cost=g, converged=converged, iterations=len(history),
                             solve_time_s=time.perf_counter() - start, history=tuple(history), message=message)
 
