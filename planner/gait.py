@@ -295,12 +295,13 @@ def desired_curve(model: PinnedBiped, x0: np.ndarray, xf: np.ndarray, T: float, 
     t = np.linspace(0.0, T, N + 1)
     s = t / T
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    # d/dt = (1/T) d/ds: the basis for the tangents (scaled by T) loses that T once per derivative
     d00, d10, d01, d11 = (6 * s**2 - 6 * s) / T, 3 * s**2 - 4 * s + 1, (-6 * s**2 + 6 * s) / T, 3 * s**2 - 2 * s
     e00, e10, e01, e11 = (12 * s - 6) / T**2, (6 * s - 4) / T, (-12 * s + 6) / T**2, (6 * s - 2) / T
     p0, v0, p1, v1 = x0[:3], x0[3:], xf[:3], xf[3:]
     th = np.outer(h00, p0) + T * np.outer(h10, v0) + np.outer(h01, p1) + T * np.outer(h11, v1)
-    thd = np.outer(d00, p0) + T * np.outer(d10, v0) + np.outer(d01, p1) + T * np.outer(d11, v1)
-    thdd = np.outer(e00, p0) + T * np.outer(e10, v0) + np.outer(e01, p1) + T * np.outer(e11, v1)
+    thd = np.outer(d00, p0) + np.outer(d10, v0) + np.outer(d01, p1) + np.outer(d11, v1)
+    thdd = np.outer(e00, p0) + np.outer(e10, v0) + np.outer(e01, p1) + np.outer(e11, v1)
     ude = np.array(model.inverse.map(N + 1)(th.T, thd.T, thdd.T)).T
     return t, np.hstack([th, thd]), ude
 
@@ -390,11 +391,11 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
     # step 2: embedded system, continuation on rho_emb
     pe = ocp.pronto_e
     rho_emb, rho_f, x_target = cont.rho_emb, cont.rho_f, xf.copy()
-    x, u = xd, ude[:N]
+    x, u, K = xd, ude[:N], None
     while True:
         pe.set_parameters(params, np.concatenate([[rho_emb, rho_f], x_target]))
-        res = pe.solve(x0, x, u)
-        x, u = res.x, res.u
+        res = pe.solve(x0, x, u, K)  # K: the last solve's gains stabilize its trajectory, the new start
+        x, u, K = res.x, res.u, res.K
         total_it += res.iterations
         emb = float(np.max(np.abs(u[:, 2])))
         done = emb < cont.emb_tolerance
@@ -409,12 +410,12 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
 
     # step 3: underactuated system; rho_f continuation, then Newton on the target
     pu = ocp.pronto_u
-    x, u = x_emb, u_emb[:, :2]
+    x, u, K = x_emb, u_emb[:, :2], None
     converged, message = False, "outer-loop limit (gait.continuation.max_outer) reached"
     while len(loops) < cont.max_outer:
         pu.set_parameters(params, np.concatenate([[rho_f], x_target]))
-        res = pu.solve(x0, x, u)
-        x, u = res.x, res.u
+        res = pu.solve(x0, x, u, K)
+        x, u, K = res.x, res.u, res.K
         total_it += res.iterations
         err = float(np.linalg.norm(x[-1] - xf))
         if err < cont.final_tolerance and res.converged:
@@ -544,23 +545,33 @@ def periodic_walk(model: PinnedBiped, sol: GaitSolution, steps: int) -> Walk:
 
 
 class WalkControl(Enum):
-    """Feedback of the MuJoCo replay, added to the gait's feed-forward torques.
+    """Feedback of the MuJoCo replay.
 
-    LQR: the projection's own time-varying gains on the whole pinned state (theta, theta'),
-    read from MuJoCo's floating state: u = u_k + K_k (x_k - x). It also acts on the unactuated
-    stance-leg angle through the coupling. HINGE_PD: PD on the two hinge angles only.
+    PHASE (default): the plan's swing-leg and torso angles as functions of the stance-leg angle
+    theta1 (which increases monotonically over a step), tracked by computed torque on the pinned
+    model: y = (theta2, theta3) - y_d(theta1) obeys y'' + 2 w y' + w^2 y = 0 (w = WalkGains.bandwidth).
+    The reference follows the robot's own progress along the step, so timing errors (a late or
+    early landing, a slower stance leg) do not turn into tracking errors; on the plan the torque
+    equals the plan's. The unactuated stance-leg motion is then the gait's hybrid zero dynamics
+    (Grizzle, Abba & Plestan 2001, paper 001's ref. [29]).
+    LQR: feed-forward torques plus the projection's own time-varying gains on the whole pinned
+    state, time-indexed from each landing: u = u_k + K_k (x_k - x).
+    HINGE_PD: feed-forward torques plus PD on the two hinge angles, time-indexed.
     """
 
+    PHASE = "phase"
     LQR = "lqr"
     HINGE_PD = "hinge_pd"
 
 
 @dataclass(frozen=True)
 class WalkGains:
-    """Feedback of the MuJoCo replay (WalkControl); for HINGE_PD:
-    u = u_ff + kp (hinge_ref - hinge) + kd (hinge_rate_ref - hinge_rate) [N m/rad, N m s/rad]."""
+    """Feedback of the MuJoCo replay (WalkControl). PHASE: bandwidth w [rad/s] of the critically
+    damped output error. HINGE_PD: u = u_ff + kp (hinge_ref - hinge) + kd (hinge_rate_ref -
+    hinge_rate) [N m/rad, N m s/rad]."""
 
-    control: WalkControl = WalkControl.LQR
+    control: WalkControl = WalkControl.PHASE
+    bandwidth: float = 20.0  # [rad/s] PHASE: fast against the 1.53 s step, slow against the 4 ms control sample
     kp: float = 400.0
     kd: float = 40.0
     ground_gap: float = 1e-3  # [m] the swing foot's contact switches on once the plan keeps it above -ground_gap
@@ -570,8 +581,55 @@ class WalkGains:
     #   near T such a drop lets it lift off (see replay_gait). 0.1 mm keeps it engaged.
 
     def __post_init__(self):
-        if self.kp < 0 or self.kd < 0 or self.ground_gap < 0 or self.sample_every < 1:
-            raise InputError("walk gains: kp, kd, ground_gap >= 0, sample_every >= 1")
+        if not isinstance(self.control, WalkControl):
+            raise UnknownNameError("walk control", str(self.control), [c.value for c in WalkControl])
+        if self.kp < 0 or self.kd < 0 or self.bandwidth <= 0 or self.ground_gap < 0 or self.sample_every < 1:
+            raise InputError("walk gains: kp, kd, ground_gap >= 0, bandwidth > 0, sample_every >= 1")
+
+
+class PhaseReference:
+    """The gait's actuated angles (theta2, theta3) as functions of the stance-leg angle theta1.
+
+    A C1 piecewise cubic through the plan's samples with the exact slopes d theta_j / d theta1 =
+    theta_j' / theta1'. Outside the step's range of theta1 it continues along the end slopes.
+    Raises InputError when theta1 is not strictly increasing along the plan (no phase variable).
+    """
+
+    def __init__(self, x: np.ndarray):
+        from scipy.interpolate import CubicHermiteSpline
+
+        th1 = x[:, 0]
+        if not self.applies(x):
+            raise InputError("the gait's stance-leg angle theta1 does not increase monotonically, so it cannot index "
+                             "the replay's reference; use WalkControl.LQR or HINGE_PD")
+        self.lo, self.hi = float(th1[0]), float(th1[-1])
+        self.spline = CubicHermiteSpline(th1, x[:, 1:3], x[:, 4:6] / x[:, 3:4])
+        self.slope, self.curvature = self.spline.derivative(), self.spline.derivative(2)
+
+    @staticmethod
+    def applies(x: np.ndarray) -> bool:
+        """Whether theta1 indexes the gait x (N+1, 6): strictly increasing, with a positive rate."""
+        return bool(np.all(np.diff(x[:, 0]) > 0) and np.all(x[:, 3] > 0))
+
+    def __call__(self, theta1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(y_d (2,) [rad], dy_d/dtheta1 (2,), d2y_d/dtheta1^2 (2,) [1/rad]) at theta1 [rad]."""
+        c = min(max(theta1, self.lo), self.hi)
+        d1 = self.slope(c)
+        d2 = self.curvature(c) if c == theta1 else np.zeros(2)
+        return self.spline(c) + d1 * (theta1 - c), d1, d2
+
+
+def _output_control(model: PinnedBiped) -> ca.Function:
+    """Computed torque of WalkControl.PHASE: (theta (3,), theta' (3,), dy_d (2,), d2y_d (2,), w (2,))
+    -> u (2,) [N m] such that y'' = w for y = (theta2, theta3) - y_d(theta1) on the pinned model."""
+    th, thd = ca.SX.sym("theta", 3), ca.SX.sym("dtheta", 3)
+    d1, d2, w = ca.SX.sym("dy", 2), ca.SX.sym("ddy", 2), ca.SX.sym("w", 2)
+    Phi = ca.horzcat(-d1, ca.DM.eye(2))  # y' = Phi theta'
+    Minv_B = ca.solve(model.mass(th), model.actuation(th))
+    Minv_h = ca.solve(model.mass(th), model.bias(th, thd))
+    # y'' = Phi M^-1 (B u - h) - d2 theta1'^2
+    u = ca.solve(ca.mtimes(Phi, Minv_B), w + d2 * thd[0] ** 2 + ca.mtimes(Phi, Minv_h))
+    return ca.Function("output_control", [th, thd, d1, d2, w], [u])
 
 
 @dataclass(frozen=True)
@@ -581,8 +639,9 @@ class WalkReport:
     steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
     `steps_asked`); fell: the hip dropped below 0.6 m or the torso passed +-90 deg; impact_times
     [s] (MuJoCo) against the plan's (j+1) T; max_hinge_error [rad], max_torso_error [rad],
-    max_hip_height_error [m]: over the steps walked, against the gait's reference re-started at
-    each MuJoCo impact; max_torque [N m].
+    max_hip_height_error [m]: over the steps walked, against the plan at the same stance-leg angle
+    (WalkControl.PHASE) or at the same time since the last landing (time-indexed modes);
+    max_torque [N m].
     """
 
     steps_asked: int
@@ -594,7 +653,7 @@ class WalkReport:
     max_torso_error: float
     max_hip_height_error: float
     max_torque: float
-    swing_contact_from: float  # [s] into each step: when the swing foot's contact switches on
+    swing_contact_from: float  # [s] into the plan's step when the swing foot's contact switches on (PHASE: at its theta1)
     gains: WalkGains
 
     def to_json(self) -> dict:
@@ -603,29 +662,32 @@ class WalkReport:
                 "max_hinge_error_rad": self.max_hinge_error, "max_torso_error_rad": self.max_torso_error,
                 "max_hip_height_error_m": self.max_hip_height_error, "max_torque_Nm": self.max_torque,
                 "swing_contact_from_s": self.swing_contact_from, "control": self.gains.control.value,
-                "kp": self.gains.kp, "kd": self.gains.kd}
+                "bandwidth_rad_s": self.gains.bandwidth, "kp": self.gains.kp, "kd": self.gains.kd}
 
 
 def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, gains: WalkGains | None = None,
                 trace: list | None = None, settings=None) -> WalkReport:
     """Walk the gait `steps` times on the robot file in MuJoCo (replay.build_scene's contact model).
 
-    Control: the gait's feed-forward motor torques plus feedback (WalkGains.control: the
-    projection's LQR gains on the pinned state, or hinge PD), with the reference of step j
-    re-started when MuJoCo's swing foot lands, so timing errors do not accumulate. The three-link biped has no knees: its swing foot touches the ground
-    where the legs cross and, unless they cross exactly upright, stays below it until it lands
-    (paper 001 ignores this scuffing). So the swing foot's contact pair is switched off (margin
-    -1 m) until the plan keeps the swing foot above -ground_gap for the rest of the step -- the
-    usual stand-in for foot clearance. If the plan's foot reaches the ground from below (gait 1 and 2:
-    at +1.19 m/s), its contact instead stays off until the foot reaches the ground, armed after its
+    Control (WalkGains.control): by default the plan's actuated angles indexed by the stance-leg
+    angle and tracked by computed torque (WalkControl.PHASE); the time-indexed modes restart the
+    reference when MuJoCo's swing foot lands. Legs swap at every landing. The three-link biped has no
+    knees: its swing foot touches the ground where the legs cross and, unless they cross exactly
+    upright, stays below it until it lands (paper 001 ignores this scuffing). So the swing foot's
+    contact pair is switched off (margin -1 m) until the plan keeps the swing foot above -ground_gap
+    for the rest of the step -- the usual stand-in for foot clearance -- measured in theta1 for
+    PHASE and in time otherwise. If the plan's foot reaches the ground from below (gait 1 and 2: at
+    +1.19 m/s), its contact instead stays off until the foot reaches the ground, armed after its
     lowest point; that is the landing. settings: replay.ContactSettings (default: no push-out
     stiffness, see the comment below).
-    trace (optional list) receives (t, step, s, measured pinned x (6,), reference x (6,)) per
-    control update in LQR mode, for diagnostics.
+    trace (optional list) receives (t, step, s, measured pinned x (6,), reference x (6,), motor
+    torques u (nu,)) per control update, for diagnostics (PHASE: s is theta1 and the reference is
+    the plan at that theta1).
     """
     from .replay import ContactSettings, build_scene, mujoco_rollout  # MuJoCo only when replaying
 
     gains = gains or WalkGains()
+    phase = gains.control is WalkControl.PHASE
     # no push-out stiffness: with the positive stance margin, k > 0 would lift the resting foot to the
     # margin's edge, where its contact drops out again; dead-beat damping alone holds it (0.1 um drift per step)
     settings = settings or ContactSettings(stiffness_ratio=0.0)
@@ -636,69 +698,87 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
     for foot in (lay.stance_foot, lay.swing_foot):
         if foot not in pair_of:
             raise TaskError(f"the gait replay needs both feet as [[contacts]]; {foot!r} is missing")
-    hinge_ref = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T[:, [lay.stance_hinge, lay.swing_hinge]]
-    hinge_rate_ref = np.array(model.v_of.map(N + 1)(sol.x[:, :3].T, sol.x[:, 3:].T)).T[:, [lay.stance_hinge, lay.swing_hinge]]
-    hip_ref = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T[:, lay.z]
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
     state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False}
     height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
     below = np.nonzero(height[:-1] < -gains.ground_gap)[0]
-    gate = float(sol.t[below[-1] + 1]) if len(below) else 0.0
-    gate = min(gate, T - dt)  # at least the last step: the landing needs the contact
+    gate_k = min(below[-1] + 1 if len(below) else 0, N - 1)  # at least the last step: the landing needs the contact
     # knee-less landing from below: the plan's swing foot reaches the ground moving up (gait 1: +1.19 m/s);
     # its contact then switches on when it reaches the ground, armed after its lowest point
     from_below = height[N - 1] < 0.0
     if from_below:
-        gate = float(sol.t[int(np.argmin(height))])
+        gate_k = int(np.argmin(height))
+    gate = float(sol.t[gate_k])
     sample_s = gains.sample_every * scene.settings.timestep  # [s] one control sample
     margins = scene.model.pair_margin
+    if phase:
+        ref = PhaseReference(sol.x)
+        output_control = _output_control(model)
+        w = gains.bandwidth
+        x_of_theta1 = lambda th1: np.array([np.interp(th1, sol.x[:, 0], sol.x[:, i]) for i in range(6)])
 
     def feet(j):  # (stance, swing) foot names of step j
         return (lay.stance_foot, lay.swing_foot) if j % 2 == 0 else (lay.swing_foot, lay.stance_foot)
 
+    def pinned(q, v, j):  # the pinned state (6,) of step j read from the floating state
+        hinges = [lay.stance_hinge, lay.swing_hinge] if j % 2 == 0 else [lay.swing_hinge, lay.stance_hinge]
+        th = q[lay.torso] + np.array([q[hinges[0]], q[hinges[1]], 0.0])
+        thd = v[lay.torso] + np.array([v[hinges[0]], v[hinges[1]], 0.0])
+        return np.concatenate([th, thd]), hinges
+
     def control(t, q, v):
         j = state["j"]
         stance, swing = feet(j)
-        s = t - state["t0"]
+        x, _ = pinned(q, v, j)
+        s = x[0] if phase else t - state["t0"]  # progress along the step: theta1 [rad] or time [s]
+        armed = s >= (sol.x[gate_k, 0] if phase else gate)
         swing_z = float(foot_pos[swing](q)[2])
         if from_below:  # lands when it reaches the ground within the next control sample
             swing_zdot = float(foot_pos[swing](q + 1e-6 * v)[2] - swing_z) / 1e-6  # [m/s]
             lands = swing_z + sample_s * max(swing_zdot, 0.0) >= 0.0
         else:
             lands = swing_z < gains.ground_gap
-        if s >= gate and lands and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
+        if armed and lands and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
             state["impacts"].append(t)
-            state["j"], state["t0"], s = j + 1, t, 0.0
+            state["j"], state["t0"] = j + 1, t
             j, (stance, swing) = j + 1, feet(j + 1)
+            # MuJoCo resolves the impact over the next steps: this sample still sees the pre-impact rates,
+            # so the feedback acts on the rigid impact map's post-impact state (else ~1200 N m for one sample)
+            x = model.delta(x)
+            s, armed = (x[0], False) if phase else (0.0, False)
         if (q[lay.z] < 0.6 or abs(q[lay.torso]) > np.pi / 2) and j < steps and not state["down"]:
             state["down"], state["fall_t"] = True, t
         # the swing foot's contact: off until the plan keeps that foot above ground (no knees, no clearance)
-        margins[pair_of[swing]] = gains.stance_margin if s >= gate and not from_below else -1.0
+        margins[pair_of[swing]] = gains.stance_margin if armed and not from_below else -1.0
         margins[pair_of[stance]] = gains.stance_margin
-        k = min(int(s / dt), N - 1)
-        a = min(s / dt, N) - min(int(s / dt), N)  # linear interpolation weight of the reference
-        kk = min(int(s / dt), N)
-        k2 = min(kk + 1, N)
-        href = (1 - a) * hinge_ref[kk] + a * hinge_ref[k2]
-        hdref = (1 - a) * hinge_rate_ref[kk] + a * hinge_rate_ref[k2]
-        hinges = [lay.stance_hinge, lay.swing_hinge] if j % 2 == 0 else [lay.swing_hinge, lay.stance_hinge]
+        _, hinges = pinned(q, v, j)
         motors = [lay.stance_motor, lay.swing_motor] if j % 2 == 0 else [lay.swing_motor, lay.stance_motor]
         u = np.zeros(model.robot.nu)
-        if gains.control is WalkControl.LQR:
-            x_ref = (1 - a) * sol.x[kk] + a * sol.x[k2]
-            th = q[lay.torso] + np.array([q[hinges[0]], q[hinges[1]], 0.0])
-            thd = v[lay.torso] + np.array([v[hinges[0]], v[hinges[1]], 0.0])
-            u[motors] = sol.u[k] + sol.K[k] @ (x_ref - np.concatenate([th, thd]))
-            if trace is not None:  # (t [s], step, time into the step [s], measured pinned state (6,), reference (6,))
-                trace.append((t, j, s, np.concatenate([th, thd]), x_ref))
+        if phase:
+            yd, d1, d2 = ref(x[0])
+            y, ydot = x[1:3] - yd, x[4:6] - d1 * x[3]
+            u[motors] = np.array(output_control(x[:3], x[3:], d1, d2, -w * w * y - 2 * w * ydot)).ravel()
+            x_ref = x_of_theta1(x[0])
+            x_ref[:3] = np.concatenate([[x[0]], yd])
         else:
-            u[motors] = sol.u[k] + gains.kp * (href - q[hinges]) + gains.kd * (hdref - v[hinges])
+            k = min(int(s / dt), N - 1)
+            a = min(s / dt, N) - min(int(s / dt), N)  # linear interpolation weight of the reference
+            kk = min(int(s / dt), N)
+            x_ref = (1 - a) * sol.x[kk] + a * sol.x[min(kk + 1, N)]
+            if gains.control is WalkControl.LQR:
+                u[motors] = sol.u[k] + sol.K[k] @ (x_ref - x)
+            else:
+                href = np.array(model.q_of(x_ref[:3])).ravel()[[lay.stance_hinge, lay.swing_hinge]]
+                hdref = np.array(model.v_of(x_ref[:3], x_ref[3:])).ravel()[[lay.stance_hinge, lay.swing_hinge]]
+                u[motors] = sol.u[k] + gains.kp * (href - q[hinges]) + gains.kd * (hdref - v[hinges])
+        if trace is not None:  # (t [s], step, progress (time [s] or theta1 [rad]), measured x (6,), reference (6,), u)
+            trace.append((t, j, s, x, x_ref, u.copy()))
         if not state["down"] and j < steps:
             err = state["err"]
-            err[0] = max(err[0], float(np.max(np.abs(href - q[hinges]))))
-            torso_ref = (1 - a) * sol.x[kk, 2] + a * sol.x[k2, 2]
-            err[1] = max(err[1], abs(torso_ref - q[lay.torso]))
-            err[2] = max(err[2], abs((1 - a) * hip_ref[kk] + a * hip_ref[k2] - q[lay.z]))
+            hinge_ref = np.array(model.q_of(x_ref[:3])).ravel()[[lay.stance_hinge, lay.swing_hinge]]
+            err[0] = max(err[0], float(np.max(np.abs(hinge_ref - q[hinges]))))
+            err[1] = max(err[1], abs(x_ref[2] - q[lay.torso]))
+            err[2] = max(err[2], abs(float(model.q_of(x_ref[:3])[lay.z]) - q[lay.z]))
         return u
 
     q0, v0 = model.floating(sol.x[0, :3], sol.x[0, 3:])
@@ -731,7 +811,9 @@ class GaitRunResult:
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
         if self.walking is not None:
             w = self.walking
-            lines.append(f"MuJoCo: walked {w.steps_walked} of {w.steps_asked} steps{' then fell' if w.fell else ''}")
+            lines.append(f"MuJoCo ({w.gains.control.value} control): walked {w.steps_walked} of {w.steps_asked} steps"
+                         f"{' then fell' if w.fell else ''}; max hinge error {np.rad2deg(w.max_hinge_error):.2f} deg, "
+                         f"max torque {w.max_torque:.0f} N m")
         return "\n".join(lines)
 
 
@@ -762,7 +844,9 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                         f"q = {np.round(q0, 9).tolist()}, v = {np.round(v0, 9).tolist()}")
     sol = solve_gait(model, spec, progress)
     walk = periodic_walk(model, sol, g.steps)
-    walking = replay_gait(model, sol, task, g.steps) if validate else None
+    # a gait whose stance leg stops or turns back has no phase variable: the time-indexed LQR replay
+    control = WalkControl.PHASE if PhaseReference.applies(sol.x) else WalkControl.LQR
+    walking = replay_gait(model, sol, task, g.steps, WalkGains(control=control)) if validate else None
     force = np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T
     height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
     u_paper = -sol.u

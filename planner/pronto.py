@@ -19,6 +19,8 @@ on a fixed grid (f is one integrator step, l already carries its step length). O
    iteration falls back to the quasi-Newton LQ without the dynamics' curvature, which is convex
    for the quadratic costs used here.
 3. **Armijo line search** on g(P(xi + gamma zeta)), gamma = 1, beta, beta^2, ...
+   At convergence (predicted decrease below the tolerance) one last full Newton step is taken
+   without line search when it does not raise g beyond round-off (not counted as an iteration).
 
 Every sweep over time (projection, Riccati recursions, costate, LQ forward pass) and every
 derivative evaluation is one compiled CasADi graph (map / mapaccum); Python only loops over
@@ -35,6 +37,8 @@ import casadi as ca
 import numpy as np
 
 from .errors import InputError, SolveError
+
+ROUNDOFF = 1e-13  # relative round-off of a cost evaluation: ~N = 1e2 terms of relative error 1e-16, with margin
 
 
 @dataclass(frozen=True)
@@ -181,6 +185,13 @@ class Pronto:
                 newton = False
                 K, Z, V, slope, minors = self._direction_at(x, u, False)
             if -slope < opts.tolerance:  # also catches a (round-off) slope >= 0 at the optimum
+                if slope < 0:
+                    # polish with the full Newton step: its decrease is below the round-off of g (a large
+                    # terminal penalty), so Armijo cannot see it, but the step still moves x_N; without it a
+                    # Newton update of the target x_T after a converged solve would not move the trajectory
+                    xn, un, gn = self.project(x0, x + Z, u + V, K)
+                    if np.isfinite(gn) and gn <= g + ROUNDOFF * max(abs(g), 1.0):
+                        x, u, g = xn, un, gn
                 converged, message = True, "converged"
                 break
             gamma = 1.0
@@ -196,7 +207,8 @@ class Pronto:
                 message = "line search failed"
                 break
             x, u, g = xn, un, gn
-        K = self.feedback(x, u)
+        if not converged:  # else K is the last direction's, about x (the polish moves x by a round-off-level step)
+            K = self.feedback(x, u)
         return ProntoResult(x=x, u=u, K=K, cost=g, converged=converged, iterations=len(history),
                             solve_time_s=time.perf_counter() - start, history=tuple(history), message=message)
 
@@ -230,19 +242,22 @@ class Pronto:
         mT = ocp.terminal(xs, ts)
         w = ca.vertcat(xs, us)
         A, B = ca.jacobian(fx, xs), ca.jacobian(fx, us)
-        lin = ca.Function("lin", [xs, us], [A, B])
+        # common-subexpression elimination: the derivatives of an integrator step repeat many terms
+        # (biped RK4: Jacobians 20.8k -> 13.5k instructions, Hessian 67.6k -> 54.9k); they dominate an iteration
+        sx_opts = {"cse": True}
+        lin = ca.Function("lin", [xs, us], [A, B], sx_opts)
         grad = ca.Function("grad", [xs, us, ps, ts], [ca.gradient(l, xs), ca.gradient(l, us)])
         # Hessian of l + second_order * q' f: the exact weight of PRONTO's second-order LQ
         hl = ca.hessian(l, w)[0]
         hf = ca.hessian(ca.dot(qs, fx), w)[0]
-        hess = ca.Function("lagrangian_hessian", [xs, us, ps, ts, qs, s2], [hl + s2 * hf])
+        hess = ca.Function("lagrangian_hessian", [xs, us, ps, ts, qs, s2], [hl + s2 * hf], sx_opts)
         term = ca.Function("term", [xs, ts], [mT, ca.gradient(mT, xs), ca.hessian(mT, xs)[0]])
 
         # closed-loop step of the projection: u = mu + K (alpha - x)
         Ks = ca.SX.sym("K", m, n)
         al, mu = ca.SX.sym("alpha", n), ca.SX.sym("mu", m)
         ucl = mu + ca.mtimes(Ks, al - xs)
-        cl_step = ca.Function("cl_step", [xs, al, mu, Ks], [ocp.step(xs, ucl), ucl])
+        cl_step = ca.Function("cl_step", [xs, al, mu, Ks], [ocp.step(xs, ucl), ucl], sx_opts)
         roll = cl_step.mapaccum("projection", N)
 
         # LQR Riccati step for the projection feedback (per-step weights Qp, Rp)
