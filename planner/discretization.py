@@ -239,7 +239,9 @@ class ImplicitEulerStep:
         b = np.asarray(sys_.constraint_fn(y, u, zero), float).ravel()  # J f_v + dJ/dt v
         G = np.column_stack([np.asarray(sys_.constraint_fn(y, u, e), float).ravel() - b for e in np.eye(sys_.n_lambda)])
         A = s[:, None] * G + np.diag((1 - s) * sys_.force_scale)
-        return np.linalg.solve(A, -s * b)
+        # least squares: with dependent contact rows (e.g. foot and knee on one line) A is singular
+        # and any force that balances is as good as another for a guess
+        return np.linalg.lstsq(A, -s * b, rcond=None)[0]
 
     def guess(self, y, u) -> np.ndarray:
         """Initial guess (nw,) consistent with the switching functions at a numeric state y (ny,), u (nu,):

@@ -152,3 +152,14 @@ def test_secant_switch_velocity_keeps_the_gap_of_a_step():
     assert np.all(diff[mask == 0] <= EVAL_TOL) and np.all(diff[mask == 1] > 0)
     with pytest.raises(ValueError):
         ImplicitEulerStep(s, velocity_switch="secant")
+
+
+def test_guess_with_dependent_contact_rows_is_finite():
+    """Capler standing straight with the foot and the knee as contact points: their constraint rows
+    are linearly dependent (one line), so the guess's force system is singular; the guess still
+    returns finite values whose switching-function signs give the selectors (least squares)."""
+    s = TimeFreezingSystem(Dynamics(load_robot("capler")), [Contact("foot", mu=0.8), Contact("knee", mu=0.8)])
+    y = np.zeros(s.ny)
+    y[1] = 0.4  # base height: the straight leg's foot exactly on the ground
+    w = ImplicitEulerStep(s).guess(y, np.zeros(s.nu))
+    assert np.all(np.isfinite(w))
