@@ -53,8 +53,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="forward time-freezing simulation of the task's initial state",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner simulate point_mass --out results/drop\n"
-                              "  planner simulate robots/point_mass.xml --task my_drop.toml --json")
+                              "  planner simulate robots/point_mass.xml --task my_drop.toml --json\n"
+                              "  planner simulate capler --discretization fesd --stages 2 --out results/drop_fesd")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
+    p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
+                   help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection)")
+    p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
+    p.add_argument("--elements", type=int, default=4,
+                   help="fesd: finite elements per step, at least one more than the switches in a step "
+                        "(default 4: an impact step holds its start, the end of the frozen phase and the landing mode)")
     _add_common(p)
     p.set_defaults(run=_cmd_simulate)
 
@@ -169,10 +176,16 @@ def _write(args, result, out: Path) -> Path:
 
 
 def _cmd_simulate(args) -> int:
+    from .discretization import Discretization, FESDOptions
     from .simulate import SimulateOptions, simulate
 
+    names = {d.value: d for d in Discretization}
+    if args.discretization not in names:
+        raise InputError(f"--discretization {args.discretization!r} is not allowed; it must be one of {sorted(names)}")
+    options = SimulateOptions(verbose=args.verbose, discretization=names[args.discretization],
+                              fesd=FESDOptions(n_s=args.stages, n_fe=args.elements))
     robot, task, out = _load_inputs(args)
-    result = simulate(robot, task, SimulateOptions(verbose=args.verbose))
+    result = simulate(robot, task, options)
     target = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
     _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}")

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from planner.cli import main
@@ -85,6 +86,22 @@ def test_simulate_writes_the_contract(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["command"] == "simulate" and summary["converged"]
     assert {"trajectory.npz", "summary.json", "clock.png"} <= {p.name for p in out.iterdir()}
+
+
+FESD_IMPACT_TOL_S = 1e-7  # the switch sits on an element boundary: solver tolerance, not the step h
+
+
+def test_simulate_fesd_from_the_command_line(tmp_path, capsys):
+    """`simulate --discretization fesd` detects the drop's impact at sqrt(2 z0 / g) (z0 = 0.2 m)
+    where implicit Euler's h = 0.04 s grid cannot; an unknown discretization is exit 2, one line."""
+    out = tmp_path / "out"
+    argv = ["simulate", "point_mass", "--task", _task(tmp_path, tau_f=0.4, N=10), "--out", str(out), "--json",
+            "--discretization", "fesd", "--stages", "2"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["converged"] and summary["impacts"]
+    assert abs(summary["impacts"][0]["time"] - np.sqrt(2 * 0.2 / 9.81)) <= FESD_IMPACT_TOL_S
+    _one_line_exit_2(capsys, argv[:-4] + ["--discretization", "rk4"], "--discretization 'rk4' is not allowed")
 
 
 @pytest.mark.parametrize(
