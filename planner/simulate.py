@@ -298,7 +298,8 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
 
     Returns the elements (tau (K+1,), Y (K+1, ny) element boundaries, stage states (K, n_s, ny),
     stage algebraic variables (K, n_s, nw), stage controls (K, n_s, nu), lengths (K,)) with K = n_fe
-    times the steps solved, and the stats dict of _stepwise. No predictor restarts (yet)."""
+    times the steps solved, and the stats dict of _stepwise. A step that fails is restarted from the
+    selectors of its own start state and with a stronger first penalty (_fesd_starts)."""
     builder = fesd.step
     ny, nu, n = system.ny, system.nu, system.n_sigma
     y_k, u_k, lam_prev = ca.SX.sym("y_k", ny), ca.SX.sym("u_k", nu), ca.SX.sym("lam_prev", 2 * n)
@@ -313,18 +314,22 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     w_guess = builder.guess(y0, _applied(law, system, task.simulate.controls_at(0.0, nu), y0))
     left = np.concatenate([w_guess[lam0], w_guess[lam1]])  # the multipliers at y0 from its switching functions
     y, lengths, bounds, Ys, Ws, Us = np.asarray(y0, float), [], [y0], [], [], []
-    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok"}
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0}
     for k in range(N):
         u = task.simulate.controls_at(y[-1] + 0.5 * h, nu)
-        x0 = np.concatenate([fesd.guess(h, y, w_guess), [0.0]])
-        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([y, u, left]), lbx, ubx, lbg, ubg, options)
-        total["n_nlp"] += n_nlp
-        total["iterations"] += iters
+        for attempt, (w_start, opts) in enumerate(_fesd_starts(builder, law, system, y, u, w_guess, options)):
+            x0 = np.concatenate([fesd.guess(h, y, w_start), [0.0]])
+            x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([y, u, left]), lbx, ubx, lbg, ubg, opts)
+            total["n_nlp"] += n_nlp
+            total["iterations"] += iters
+            if ok and comp <= options.comp_tol:
+                break
         total["comp"] = max(total["comp"], comp)
+        total["restarted_steps"] += attempt > 0
         if not (ok and comp <= options.comp_tol):
             total["ok"] = False
             total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s) did not converge: IPOPT {msg}, "
-                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs")
+                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs ({attempt} restarts)")
             break
         hk, Yk, Wk = fesd.unpack(x)
         lengths += list(hk)
@@ -339,6 +344,19 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     elements = (np.concatenate([[0.0], np.cumsum(lengths)]), np.array(bounds, float).reshape(-1, ny), shape(Ys, ny),
                 shape(Ws, nw), shape(Us, nu), np.array(lengths, float))
     return elements, total
+
+
+def _fesd_starts(builder, law, system, y, u, w_prev, options):
+    """Starting selectors (w (nw,), options) of one FESD step: the previous element's, then (only while
+    the step fails) those of the switching functions at y itself, each also with rho0 = restart_rho0."""
+    yield w_prev, options
+    if not options.restarts:
+        return
+    fresh = builder.guess(y, _applied(law, system, u, y))
+    for rho0 in (options.restart_rho0, options.rho0):
+        for w in (w_prev, fresh):
+            if not (rho0 == options.rho0 and w is w_prev):
+                yield w, replace(options, rho0=rho0)
 
 
 def _predictor(system, builder, law, h):

@@ -122,3 +122,21 @@ def test_implicit_euler_misses_the_impact_time():
     than IMPACT_TIME_TOL (measured 8.8e-3 s at h = 0.02)."""
     result = drop(Discretization.IMPLICIT_EULER)
     assert abs(result.trajectory.impacts[0].time - math.sqrt(2.0 / G)) > 1e4 * IMPACT_TIME_TOL
+
+
+def test_fesd_restart_rescues_the_capler_impact_step():
+    """Capler dropped under joint PD with FESD n_s = 1, n_fe = 4, h = 0.01 s: the impact step fails
+    from the previous element's selectors and converges when restarted from its own state's
+    selectors (restarts=False stops there)."""
+    robot = load_robot("capler")
+    hip, knee = 0.0, 0.3
+    z_base = 0.2 * math.cos(hip) + 0.2 * math.cos(hip + knee) + 0.05  # the foot 5 cm above the ground
+    task = parse_task({"contacts": [{"point": "foot", "mu": 0.8}], "initial": {"q": [0.0, z_base, hip, knee]},
+                       "horizon": {"tau_f": 0.2, "N": 20},
+                       "simulate": {"pd": {"joints": ["hip", "knee"], "kp": [100.0] * 2, "kd": [2.0] * 2}}})
+    fesd = FESDOptions(n_s=1, n_fe=4)
+    plain = simulate(robot, task, SimulateOptions(discretization=Discretization.FESD, fesd=fesd, restarts=False))
+    assert not plain.stats.converged
+    rescued = simulate(robot, task, SimulateOptions(discretization=Discretization.FESD, fesd=fesd))
+    assert rescued.stats.converged, rescued.stats.message
+    assert rescued.extra["restarted_steps"] >= 1 and len(rescued.trajectory.impacts) == 1
