@@ -695,7 +695,9 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
 
     Control (WalkGains.control): by default the plan's actuated angles indexed by the stance-leg
     angle and tracked by computed torque (WalkControl.PHASE); the time-indexed modes restart the
-    reference when MuJoCo's swing foot lands. Legs swap at every landing. The three-link biped has no
+    reference when MuJoCo's swing foot lands. Legs swap at every landing. PHASE with
+    WalkGains.speed_gain/speed_integral: at each landing the torso reference gets a constant forward
+    lean, a PI of the stance-leg rate's shortfall against the plan's at its end. The three-link biped has no
     knees: its swing foot touches the ground where the legs cross and, unless they cross exactly
     upright, stays below it until it lands (paper 001 ignores this scuffing). So the swing foot's
     contact pair is switched off (margin -1 m) until the plan keeps the swing foot above -ground_gap
@@ -820,6 +822,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
         return u
 
     q0, v0 = model.floating(sol.x[0, :3], sol.x[0, 3:])
+    # 20 % spare: a walk whose first steps are slower than the plan's (the speed loop catching up) still ends
     run = mujoco_rollout(scene, q0, v0, (1.2 * steps + 0.5) * T, control, sample_every=gains.sample_every)
     walked = sum(1 for t in state["impacts"] if t < state.get("fall_t", np.inf))  # landings before any fall
     # the base against the plan tiled in time: timing drift included (information; PHASE ignores time)
