@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics
-from .errors import InputError, TaskError, UnknownNameError
+from .errors import InputError, SolveError, TaskError, UnknownNameError
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import write_files
@@ -1031,6 +1031,11 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     from .replay import MAX_PENETRATION_M, _kinematic, build_scene
 
     model, step = plan_step(robot, task, arrays)
+    if not PhaseReference.applies(step.x):
+        # a valid plan the phase controller cannot replay: the validation fails (exit 1), the input is fine
+        raise SolveError(f"the plan's stance-leg angle ({model.layout.stance_foot}) does not increase monotonically "
+                         "over its step (double support or a stance that turns back), so it cannot index the walk's "
+                         "reference; the plan was not walked in MuJoCo")
     height = np.array(model.swing_height.map(len(step.t))(step.x[:, :3].T)).ravel()
     walking = replay_gait(model, step, task, steps, gains or PLAN_WALK_GAINS, arm_index=last_apex(height))
     kin = _kinematic(build_scene(robot, task), robot, np.asarray(arrays["t"], float), np.asarray(arrays["q"], float),
