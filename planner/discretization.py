@@ -239,8 +239,15 @@ class ImplicitEulerStep:
         b = np.asarray(sys_.constraint_fn(y, u, zero), float).ravel()  # J f_v + dJ/dt v
         G = np.column_stack([np.asarray(sys_.constraint_fn(y, u, e), float).ravel() - b for e in np.eye(sys_.n_lambda)])
         A = s[:, None] * G + np.diag((1 - s) * sys_.force_scale)
-        # least squares: with dependent contact rows (e.g. foot and knee on one line) A is singular
-        # and any force that balances is as good as another for a guess
+        # with dependent contact rows (e.g. foot and knee on one line) A is singular and any force that
+        # balances is as good as another for a guess: least squares. Not always: its round-off differs from
+        # the LU solve's, and the biped walk's hint-free solve (tests/test_walk.py) fails from that start
+        try:
+            lam = np.linalg.solve(A, -s * b)
+            if np.all(np.isfinite(lam)):
+                return lam
+        except np.linalg.LinAlgError:
+            pass
         return np.linalg.lstsq(A, -s * b, rcond=None)[0]
 
     def guess(self, y, u) -> np.ndarray:

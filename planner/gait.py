@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics
-from .errors import InputError, TaskError, UnknownNameError
+from .errors import InputError, SolveError, TaskError, UnknownNameError
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import write_files
@@ -284,6 +284,19 @@ class GaitSolution:
     pronto_iterations: int
     solve_time_s: float
     message: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class PinnedGait:
+    """One step of a gait on the pinned model, what the walk replay needs (a GaitSolution is one too):
+    t (N+1,) [s] increasing, not necessarily uniform; x (N+1, 6) pinned states from the post-impact
+    state of the last landing to the pre-impact state of the next; u (N, 2) [N m, motor convention]
+    held over each interval; K (N, 2, 6) LQR gains or None (only WalkControl.LQR uses them)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    K: np.ndarray | None = None
 
 
 def desired_curve(model: PinnedBiped, x0: np.ndarray, xf: np.ndarray, T: float, N: int):
@@ -579,12 +592,16 @@ class WalkGains:
     stance_margin: float = 1e-4  # [m] the feet's contacts act from this height above the ground (MuJoCo pair
     #   margin): the stance foot rests ~0.1 um deep, so with margin 0 its contact drops out for single steps;
     #   near T such a drop lets it lift off (see replay_gait). 0.1 mm keeps it engaged.
+    speed_gain: float = 0.0  # [rad per rad/s] PHASE: stride-to-stride torso lean on the landing speed error
+    speed_integral: float = 0.0  # [rad per rad/s] the same on the sum of the errors of all steps so far; 0, 0: none
 
     def __post_init__(self):
         if not isinstance(self.control, WalkControl):
             raise UnknownNameError("walk control", str(self.control), [c.value for c in WalkControl])
-        if self.kp < 0 or self.kd < 0 or self.bandwidth <= 0 or self.ground_gap < 0 or self.sample_every < 1:
-            raise InputError("walk gains: kp, kd, ground_gap >= 0, bandwidth > 0, sample_every >= 1")
+        if self.kp < 0 or self.kd < 0 or self.bandwidth <= 0 or self.ground_gap < 0 or self.sample_every < 1 \
+                or self.speed_gain < 0 or self.speed_integral < 0:
+            raise InputError("walk gains: kp, kd, ground_gap, speed_gain, speed_integral >= 0, bandwidth > 0, "
+                             "sample_every >= 1")
 
 
 class PhaseReference:
@@ -655,6 +672,9 @@ class WalkReport:
     max_torque: float
     swing_contact_from: float  # [s] into the plan's step when the swing foot's contact switches on (PHASE: at its theta1)
     gains: WalkGains
+    step_lengths: tuple[float, ...] = ()  # [m] MuJoCo: new stance foot x minus the old one, per landing
+    planned_step_length: float = 0.0  # [m]
+    max_base_error_in_time: float = 0.0  # [m] hip (x, z) against the tiled plan at the same time, steps walked
 
     def to_json(self) -> dict:
         return {"steps_asked": self.steps_asked, "steps_walked": self.steps_walked, "fell": self.fell,
@@ -662,24 +682,32 @@ class WalkReport:
                 "max_hinge_error_rad": self.max_hinge_error, "max_torso_error_rad": self.max_torso_error,
                 "max_hip_height_error_m": self.max_hip_height_error, "max_torque_Nm": self.max_torque,
                 "swing_contact_from_s": self.swing_contact_from, "control": self.gains.control.value,
-                "bandwidth_rad_s": self.gains.bandwidth, "kp": self.gains.kp, "kd": self.gains.kd}
+                "step_lengths_m": list(self.step_lengths), "planned_step_length_m": self.planned_step_length,
+                "max_base_error_in_time_m": self.max_base_error_in_time,
+                "bandwidth_rad_s": self.gains.bandwidth, "kp": self.gains.kp, "kd": self.gains.kd,
+                "speed_gain": self.gains.speed_gain, "speed_integral": self.gains.speed_integral}
 
 
-def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, gains: WalkGains | None = None,
-                trace: list | None = None, settings=None) -> WalkReport:
+def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, steps: int,
+                gains: WalkGains | None = None, trace: list | None = None, settings=None,
+                arm_index: int | None = None) -> WalkReport:
     """Walk the gait `steps` times on the robot file in MuJoCo (replay.build_scene's contact model).
 
     Control (WalkGains.control): by default the plan's actuated angles indexed by the stance-leg
     angle and tracked by computed torque (WalkControl.PHASE); the time-indexed modes restart the
-    reference when MuJoCo's swing foot lands. Legs swap at every landing. The three-link biped has no
+    reference when MuJoCo's swing foot lands. Legs swap at every landing. PHASE with
+    WalkGains.speed_gain/speed_integral: at each landing the torso reference gets a constant forward
+    lean, a PI of the stance-leg rate's shortfall against the plan's at its end. The three-link biped has no
     knees: its swing foot touches the ground where the legs cross and, unless they cross exactly
     upright, stays below it until it lands (paper 001 ignores this scuffing). So the swing foot's
     contact pair is switched off (margin -1 m) until the plan keeps the swing foot above -ground_gap
     for the rest of the step -- the usual stand-in for foot clearance -- measured in theta1 for
     PHASE and in time otherwise. If the plan's foot reaches the ground from below (gait 1 and 2: at
     +1.19 m/s), its contact instead stays off until the foot reaches the ground, armed after its
-    lowest point; that is the landing. settings: replay.ContactSettings (default: no push-out
-    stiffness, see the comment below).
+    lowest point; that is the landing. arm_index (optional): the plan's sample from which the swing
+    foot's contact and the landing detection are armed instead (e.g. a plan whose swing foot grazes
+    the ground at the crossing: its last apex). settings: replay.ContactSettings (default: no push-out
+    stiffness, see the comment below). The time-indexed modes need a uniform grid (sol.t).
     trace (optional list) receives (t, step, s, measured pinned x (6,), reference x (6,), motor
     torques u (nu,)) per control update, for diagnostics (PHASE: s is theta1 and the reference is
     the plan at that theta1).
@@ -693,21 +721,26 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
     settings = settings or ContactSettings(stiffness_ratio=0.0)
     scene = build_scene(model.robot, task, settings)
     lay, N = model.layout, len(sol.u)
-    T, dt = float(sol.t[-1]), float(sol.t[1] - sol.t[0])
+    T, dt = float(sol.t[-1] - sol.t[0]), float(sol.t[1] - sol.t[0])
+    if not phase and np.ptp(np.diff(sol.t)) > 1e-9 * T:
+        raise InputError(f"walk control {gains.control.value!r} indexes the plan by time and needs a uniform grid; "
+                         "use 'phase'")
     pair_of = {p: i for i, p in enumerate(scene.points)}
     for foot in (lay.stance_foot, lay.swing_foot):
         if foot not in pair_of:
             raise TaskError(f"the gait replay needs both feet as [[contacts]]; {foot!r} is missing")
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
-    state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False}
+    state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0}
     height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
     below = np.nonzero(height[:-1] < -gains.ground_gap)[0]
     gate_k = min(below[-1] + 1 if len(below) else 0, N - 1)  # at least the last step: the landing needs the contact
     # knee-less landing from below: the plan's swing foot reaches the ground moving up (gait 1: +1.19 m/s);
     # its contact then switches on when it reaches the ground, armed after its lowest point
-    from_below = height[N - 1] < 0.0
+    from_below = height[N - 1] < 0.0 and arm_index is None
     if from_below:
         gate_k = int(np.argmin(height))
+    if arm_index is not None:
+        gate_k = arm_index
     gate = float(sol.t[gate_k])
     sample_s = gains.sample_every * scene.settings.timestep  # [s] one control sample
     margins = scene.model.pair_margin
@@ -740,6 +773,12 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
             lands = swing_z < gains.ground_gap
         if armed and lands and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
             state["impacts"].append(t)
+            state["steps"].append(float(foot_pos[swing](q)[0] - foot_pos[stance](q)[0]))
+            # stride-to-stride speed loop: a step that ends slower than the plan leans the torso forward for the
+            # next step; the integral removes a steady deficit (MuJoCo's impact loses more than the plan's)
+            slow = sol.x[-1, 3] - x[3]  # [rad/s] stance-leg rate short of the plan's at the landing
+            state["speed_sum"] += slow
+            state["lean"] = gains.speed_gain * slow + gains.speed_integral * state["speed_sum"]
             state["j"], state["t0"] = j + 1, t
             j, (stance, swing) = j + 1, feet(j + 1)
             # MuJoCo resolves the impact over the next steps: this sample still sees the pre-impact rates,
@@ -756,6 +795,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
         u = np.zeros(model.robot.nu)
         if phase:
             yd, d1, d2 = ref(x[0])
+            yd = yd + np.array([0.0, state["lean"]])
             y, ydot = x[1:3] - yd, x[4:6] - d1 * x[3]
             u[motors] = np.array(output_control(x[:3], x[3:], d1, d2, -w * w * y - 2 * w * ydot)).ravel()
             x_ref = x_of_theta1(x[0])
@@ -782,14 +822,21 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution, task: Task, steps: int, g
         return u
 
     q0, v0 = model.floating(sol.x[0, :3], sol.x[0, 3:])
-    run = mujoco_rollout(scene, q0, v0, (steps + 0.5) * T, control, sample_every=gains.sample_every)
+    # 20 % spare: a walk whose first steps are slower than the plan's (the speed loop catching up) still ends
+    run = mujoco_rollout(scene, q0, v0, (1.2 * steps + 0.5) * T, control, sample_every=gains.sample_every)
     walked = sum(1 for t in state["impacts"] if t < state.get("fall_t", np.inf))  # landings before any fall
+    # the base against the plan tiled in time: timing drift included (information; PHASE ignores time)
+    tiled = periodic_walk(model, sol, steps)
+    upto = run["t"] <= min(state.get("fall_t", np.inf), steps * T)
+    plan_base = np.column_stack([np.interp(run["t"][upto], tiled.t, tiled.q[:, i]) for i in (lay.x, lay.z)])
+    base_error = np.linalg.norm(run["q"][upto][:, [lay.x, lay.z]] - plan_base, axis=1)
     return WalkReport(steps_asked=steps, steps_walked=min(walked, steps), fell=state["down"],
                       impact_times=tuple(float(x) for x in state["impacts"]),
                       planned_impact_times=tuple((j + 1) * T for j in range(steps)),
                       max_hinge_error=state["err"][0], max_torso_error=state["err"][1],
                       max_hip_height_error=state["err"][2], max_torque=float(np.max(np.abs(run["u"]))),
-                      swing_contact_from=gate, gains=gains)
+                      swing_contact_from=gate, gains=gains, step_lengths=tuple(state["steps"]),
+                      planned_step_length=tiled.step_length, max_base_error_in_time=float(np.max(base_error, initial=0.0)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -878,3 +925,127 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                   "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str)}
         write_files(out_dir, arrays, summary)
     return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)
+
+
+# ==================================================================================================
+# the time-freezing walk (`planner plan` with plan.periodic) replayed by the same controller
+# ==================================================================================================
+
+WALK_VALIDATION_STEPS = 10  # issue 7B: steps a periodic plan must walk in MuJoCo
+# the plan's impact keeps the trailing foot's horizontal velocity at 0 (a tangential impulse without a normal
+# one); MuJoCo's, like the rigid map, lets it slide off and loses more: without the speed loop the steps slow
+# down by ~20 ms each until the robot stalls (8 of 10); P only or I only leaves an 8-step speed oscillation
+PLAN_WALK_GAINS = WalkGains(speed_gain=0.5, speed_integral=0.2)
+
+
+def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, PinnedGait]:
+    """A periodic plan's step (result arrays t (P,), q (P, nq), v (P, nv), u (P, nu)) on the pinned model.
+
+    The stance foot is the contact point that moves least along x over the step, the other one swings;
+    plan.periodic.swap must exchange exactly their two leg hinges (the relabelling of the walk). Of
+    samples at one physical time (a frozen impact) the last, post-impact one is kept; u[i] drove
+    sample i-1 to i (planner.result.recover). Raises TaskError for a task without plan.periodic, not
+    two contacts, or another swap; InputError when the robot is not the floating planar biped.
+    """
+    per = task.plan.periodic if task.plan is not None else None
+    if per is None:
+        raise TaskError(f"{task.source or 'the task'} has no [plan.periodic]: only a periodic plan can be walked")
+    points = [c.point for c in task.contacts]
+    if len(points) != 2:
+        raise TaskError(f"walking a periodic plan needs two contact points (the feet); the task has {points}")
+    t, q, v, u = (np.asarray(arrays[k], float) for k in ("t", "q", "v", "u"))
+    dyn = Dynamics(robot)
+    travel = [np.ptp(np.array(dyn.point_position(p).map(len(t))(q.T))[0]) for p in points]
+    stance, swing = (points[0], points[1]) if travel[0] <= travel[1] else (points[1], points[0])
+    model = PinnedBiped(robot, dyn, find_layout(robot, stance, swing))
+    lay = model.layout
+    hinges = {robot.dof_names[lay.stance_hinge], robot.dof_names[lay.swing_hinge]}
+    if len(per.swap) != 1 or set(per.swap[0]) != hinges:
+        raise TaskError(f"plan.periodic.swap must be [{sorted(hinges)}] (the leg hinges) to walk the plan; it is "
+                        f"{[list(p) for p in per.swap]}")
+    keep = np.append(np.diff(t) > 0, True)  # the last sample of each physical time
+    t, q, v, u = t[keep], q[keep], v[keep], u[keep]
+    rows = [lay.stance_hinge, lay.swing_hinge]
+    x = np.column_stack([q[:, lay.torso, None] + np.column_stack([q[:, rows], np.zeros(len(t))]),
+                         v[:, lay.torso, None] + np.column_stack([v[:, rows], np.zeros(len(t))])])
+    return model, PinnedGait(t=t - t[0], x=x, u=u[1:][:, [lay.stance_motor, lay.swing_motor]])
+
+
+@dataclass(frozen=True, eq=False)
+class WalkValidation:
+    """MuJoCo validation of a periodic plan: its step repeated `steps` times on the floating robot
+    with the phase-indexed controller (`replay_gait`, WalkControl.PHASE), legs swapped per step.
+
+    Passed when every step is walked (no fall) and the plan's own step does not penetrate the
+    ground beyond replay.MAX_PENETRATION_M (kinematic replay). `to_json()` is the contract's
+    `validation` object (mode "walk")."""
+
+    passed: bool
+    robot: str
+    stance_foot: str
+    swing_foot: str
+    period_s: float
+    max_penetration_m: float
+    walking: WalkReport
+    failures: tuple[str, ...]
+
+    def to_json(self) -> dict:
+        return {"passed": self.passed, "mode": "walk", "robot": self.robot, "stance_foot": self.stance_foot,
+                "swing_foot": self.swing_foot, "period_s": self.period_s, "max_penetration_m": self.max_penetration_m,
+                "steps_asked": self.walking.steps_asked, "steps_walked": self.walking.steps_walked,
+                "walking": self.walking.to_json(), "failures": list(self.failures)}
+
+    def report(self) -> str:
+        """A few human-readable lines for the command line."""
+        w = self.walking
+        steps = np.array(w.step_lengths[:w.steps_walked])
+        dt = np.array(w.impact_times[:w.steps_walked]) - np.array(w.planned_impact_times[:w.steps_walked])
+        lines = [f"MuJoCo walk of {self.robot}: {'PASSED' if self.passed else 'FAILED'}",
+                 f"  steps walked in MuJoCo: {w.steps_walked} of {w.steps_asked}{' then fell' if w.fell else ''} "
+                 f"({w.gains.control.value} control, {w.gains.bandwidth:g} rad/s; stance {self.stance_foot}, "
+                 f"period {self.period_s:.3f} s)",
+                 f"  at the same stance-leg angle: max hinge error {np.rad2deg(w.max_hinge_error):.2f} deg, torso "
+                 f"{np.rad2deg(w.max_torso_error):.2f} deg, hip height {w.max_hip_height_error * 1e3:.2f} mm; "
+                 f"max torque {w.max_torque:.1f} N m",
+                 f"  base against the plan in time: max {w.max_base_error_in_time * 1e3:.1f} mm; step lengths "
+                 + (f"{steps.min():.4f}-{steps.max():.4f} m (plan {w.planned_step_length:.4f}); landing times "
+                    f"{dt.min() * 1e3:+.1f} to {dt.max() * 1e3:+.1f} ms from the plan's" if steps.size else "none"),
+                 f"  kinematic: max penetration {self.max_penetration_m * 1e3:.3f} mm"]
+        return "\n".join(lines + [f"  failed: {f}" for f in self.failures])
+
+
+def last_apex(height: np.ndarray) -> int:
+    """Index of the swing foot's last apex: where its final descent to the landing starts (height (N+1,))."""
+    k = len(height) - 1
+    while k > 0 and height[k - 1] >= height[k]:
+        k -= 1
+    return k
+
+
+def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALIDATION_STEPS,
+                  gains: WalkGains | None = None) -> WalkValidation:
+    """Walk a periodic plan `steps` times in MuJoCo (see WalkValidation); gains default to
+    PLAN_WALK_GAINS (phase control with the stride-to-stride speed loop). The swing foot's contact
+    and the landing detection are armed from its last apex: the time-freezing plan lets the knee-less
+    swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking")."""
+    from .replay import MAX_PENETRATION_M, _kinematic, build_scene
+
+    model, step = plan_step(robot, task, arrays)
+    if not PhaseReference.applies(step.x):
+        # a valid plan the phase controller cannot replay: the validation fails (exit 1), the input is fine
+        raise SolveError(f"the plan's stance-leg angle ({model.layout.stance_foot}) does not increase monotonically "
+                         "over its step (double support or a stance that turns back), so it cannot index the walk's "
+                         "reference; the plan was not walked in MuJoCo")
+    height = np.array(model.swing_height.map(len(step.t))(step.x[:, :3].T)).ravel()
+    walking = replay_gait(model, step, task, steps, gains or PLAN_WALK_GAINS, arm_index=last_apex(height))
+    kin = _kinematic(build_scene(robot, task), robot, np.asarray(arrays["t"], float), np.asarray(arrays["q"], float),
+                     tol=1e-3)
+    failures = []
+    if walking.steps_walked < steps:
+        failures.append(f"walked {walking.steps_walked} of {steps} steps in MuJoCo")
+    if not kin.max_penetration_m <= MAX_PENETRATION_M:
+        failures.append(f"penetration {kin.max_penetration_m:.4g} m > {MAX_PENETRATION_M} m")
+    lay = model.layout
+    return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
+                          swing_foot=lay.swing_foot, period_s=float(step.t[-1]),
+                          max_penetration_m=kin.max_penetration_m, walking=walking, failures=tuple(failures))

@@ -492,8 +492,10 @@ class Validation:
 # entry points
 # ==================================================================================================
 
-def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> Validation:
-    """Validate the plan in result directory `out_dir` (trajectory.npz + summary.json).
+def validate(out_dir: str | Path, options: ValidationOptions | None = None):
+    """Validate the plan in result directory `out_dir` (trajectory.npz + summary.json): a Validation,
+    or for a periodic plan (task plan.periodic) a planner.gait.WalkValidation: its step walked
+    gait.WALK_VALIDATION_STEPS times with the phase-indexed controller (`options` do not apply).
 
     The robot and task files are the ones named in summary.json (a relative path is tried from the
     working directory, then from `out_dir`). Missing or garbled files raise InputError.
@@ -505,6 +507,10 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
     robot = load_robot(locate_input(summary["robot"], out_dir, "robot"))
     task = load_task(locate_input(summary["task"], out_dir, "task"))
     traj = read_trajectory(out_dir)
+    if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
+        from .gait import validate_walk
+
+        return validate_walk(robot, task, check_trajectory(robot, traj))
     contacts = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
     return validate_trajectory(robot, task, traj, options, impact_points=contacts)
 

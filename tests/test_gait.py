@@ -205,11 +205,15 @@ def test_phase_reference_interpolates_the_plan(gaits):
 
 
 def test_walk_gains_are_validated():
-    """An unknown replay control is an UnknownNameError naming the valid modes; a bandwidth <= 0 is an InputError."""
+    """An unknown replay control is an UnknownNameError naming the valid modes; a bandwidth <= 0 or a
+    negative speed-loop gain is an InputError."""
     with pytest.raises(UnknownNameError, match="phase"):
         WalkGains(control="dance")
     with pytest.raises(InputError):
         WalkGains(bandwidth=0.0)
+    for key in ("speed_gain", "speed_integral"):
+        with pytest.raises(InputError, match="speed"):
+            WalkGains(**{key: -0.1})
 
 
 @pytest.mark.slow

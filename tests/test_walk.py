@@ -14,12 +14,20 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from planner.errors import TaskError
+from planner.gait import RELABEL, WALK_VALIDATION_STEPS as WALK_STEPS, PhaseReference, plan_step, validate_walk
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.task import Horizon, load_task, parse_task
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 FINGERPRINT = Path(__file__).resolve().parent / "data" / "one_contact_fingerprint.json"
+# the default task's plan (`planner plan biped`, 2026-11-22): t, q, v, u, impact_times of its one step
+WALK_STEP = Path(__file__).resolve().parent / "data" / "biped_walk_step.npz"
+PERIODIC_TOL = 1e-9  # [rad] the plan's periodicity residual is 2e-14; the pinned angles inherit it
+STEP_LENGTH_TOL = 0.01  # [m] MuJoCo's step lengths against the plan's 0.25 m; measured within 2.0 mm
+WALK_ANGLE_TOL = np.deg2rad(3.0)  # [rad] hinge and torso against the plan (plus the speed loop's lean) at the
+#   same stance-leg angle; measured 1.6 deg, mostly the lean's step change at a landing
 
 
 def fingerprint(prob) -> dict:
@@ -146,3 +154,41 @@ def test_biped_walks_periodically_from_a_hint_free_start():
     # the foot that lands is the one that swings: in flight during the step and on the ground at the ends
     swing = np.asarray(b1 if imp.contact == "foot_2" else b2)
     assert swing.sum() >= pb.N // 2
+    tr = res.trajectory
+    walk = validate_walk(robot, task, {"t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u})
+    assert walk.passed and walk.walking.steps_walked == WALK_STEPS, walk.report()
+
+
+def _saved_step():
+    return dict(np.load(WALK_STEP))
+
+
+def test_plan_step_is_the_pinned_stance_of_the_saved_plan():
+    """The saved plan's step on the pinned model: foot_2 stands (it lands at t = 0), foot_1 swings; the
+    frozen landing's pre-impact samples are dropped (time strictly increasing from 0); the stance-leg
+    angle indexes the step; the end angles are the start's with the legs swapped (periodicity)."""
+    robot, task = _biped(N=None)
+    model, step = plan_step(robot, task, _saved_step())
+    assert (model.layout.stance_foot, model.layout.swing_foot) == ("foot_2", "foot_1")
+    assert step.t[0] == 0.0 and np.all(np.diff(step.t) > 0) and step.u.shape == (len(step.t) - 1, 2)
+    assert PhaseReference.applies(step.x)
+    np.testing.assert_allclose(RELABEL @ step.x[-1, :3], step.x[0, :3], atol=PERIODIC_TOL)
+    with pytest.raises(TaskError, match="periodic"):
+        plan_step(robot, dataclasses.replace(task, plan=None), _saved_step())
+
+
+def test_saved_walk_plan_walks_ten_steps_in_mujoco(tmp_path):
+    """`planner validate` on a periodic plan walks its step 10 times on the floating robot in MuJoCo
+    (phase-indexed virtual constraints, legs swapped per step) and reports it: exit 0, steps walked
+    10 of 10, step lengths and angles close to the plan's."""
+    from planner.cli import main
+    from planner.result import write_files
+
+    write_files(tmp_path, _saved_step(), {"command": "plan", "robot": str(ROBOTS / "biped.xml"),
+                                          "task": str(ROBOTS / "biped.toml"), "converged": True})
+    assert main(["validate", str(tmp_path), "-q"]) == 0
+    v = json.loads((tmp_path / "summary.json").read_text())["validation"]
+    assert v["mode"] == "walk" and v["passed"] and (v["steps_walked"], v["steps_asked"]) == (WALK_STEPS, WALK_STEPS)
+    w = v["walking"]
+    assert np.max(np.abs(np.array(w["step_lengths_m"][:WALK_STEPS]) - w["planned_step_length_m"])) < STEP_LENGTH_TOL
+    assert max(w["max_hinge_error_rad"], w["max_torso_error_rad"]) < WALK_ANGLE_TOL
