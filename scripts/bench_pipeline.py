@@ -59,7 +59,10 @@ CALLBACKS = ("f", "g", "grad_f", "jac_g", "hess_l")
 VARIANTS = {
     "baseline": {},
     "mumps_amd": {"mumps_pivot_order": 0},
+    "mumps_amf": {"mumps_pivot_order": 2},
+    "mumps_pord": {"mumps_pivot_order": 4},
     "mumps_metis": {"mumps_pivot_order": 5},
+    "mumps_qamd": {"mumps_pivot_order": 6},
     "mumps_pivtol_1e-8": {"mumps_pivtol": 1e-8},
     "mumps_no_scaling": {"mumps_scaling": 0, "mumps_permuting_scaling": 0},
     "mumps_mem_200": {"mumps_mem_percent": 200},
