@@ -132,9 +132,10 @@ class SolveOptions:
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
-    The factorizations are ~85 % of an iteration's CPU on Capler; MUMPS's own choice (AUTO) costs
-    32 ms per iteration at N = 125 where AMD costs 21 ms, but the ordering changes the round-off and
-    so the path (docs/benchmarks.md, "Speed of the pipeline").
+    MUMPS and IPOPT are ~88 % of an iteration's CPU on the default Capler task; with AMD NLP 1's
+    iterations cost a third less CPU than with MUMPS's own choice (AUTO, default), but the ordering
+    changes the round-off and so the path: the one full solve measured with AMD took 7239
+    iterations instead of 6099 (docs/benchmarks.md, "Speed of the pipeline").
     """
 
     tol: float = 1e-8
