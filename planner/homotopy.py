@@ -59,6 +59,22 @@ class WarmStart(Enum):
     PRIMAL_DUAL = "primal_dual"  # x and the multipliers (IPOPT's warm_start_init_point)
 
 
+class MumpsOrdering(Enum):
+    """MUMPS's fill-reducing ordering of IPOPT's KKT matrix (IPOPT's mumps_pivot_order: the integer)."""
+
+    AMD = "amd"  # 0
+    AMF = "amf"  # 2
+    SCOTCH = "scotch"  # 3
+    PORD = "pord"  # 4
+    METIS = "metis"  # 5
+    QAMD = "qamd"  # 6
+    AUTO = "auto"  # 7, MUMPS chooses by the matrix (IPOPT's default)
+
+
+_MUMPS_PIVOT_ORDER = {MumpsOrdering.AMD: 0, MumpsOrdering.AMF: 2, MumpsOrdering.SCOTCH: 3, MumpsOrdering.PORD: 4,
+                      MumpsOrdering.METIS: 5, MumpsOrdering.QAMD: 6, MumpsOrdering.AUTO: 7}
+
+
 class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
@@ -115,6 +131,11 @@ class SolveOptions:
     re-optimized on the fixed active set.
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
+    mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
+    MUMPS and IPOPT are ~88 % of an iteration's CPU on the default Capler task; with AMD NLP 1's
+    iterations cost a third less CPU than with MUMPS's own choice (AUTO, default), but the ordering
+    changes the round-off and so the path: the one full solve measured with AMD took 7239
+    iterations instead of 6099 (docs/benchmarks.md, "Speed of the pipeline").
     """
 
     tol: float = 1e-8
@@ -151,9 +172,11 @@ class SolveOptions:
     l1_schedule: tuple[float, ...] | None = None
     polish_projection: bool = True
     intermediate_tol: float | None = None
+    mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
 
     def __post_init__(self):
-        for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart)):
+        for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
+                          ("mumps_ordering", MumpsOrdering)):
             if not isinstance(getattr(self, key), enum):
                 raise InputError(f"SolveOptions.{key} = {getattr(self, key)!r} is not allowed; it must be one of {[e.value for e in enum]}")
         checks = [
@@ -191,6 +214,8 @@ def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dic
         "bound_push": options.bound_push, "bound_frac": options.bound_frac,
         "nlp_scaling_method": options.nlp_scaling_method,
     }
+    if options.linear_solver == "mumps":
+        ip["mumps_pivot_order"] = _MUMPS_PIVOT_ORDER[options.mumps_ordering]
     if warm and options.warm_start is WarmStart.PRIMAL_DUAL:
         ip.update(warm_start_init_point="yes", warm_start_bound_push=options.bound_push, warm_start_bound_frac=options.bound_frac,
                   warm_start_mult_bound_push=options.bound_push)

@@ -73,7 +73,8 @@ def test_active_set_bounds_fix_one_side():
 
 @pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"), ({"mu_strategy": "adaptive"}, "mu_strategy"),
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
-                                         ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start")])
+                                         ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
+                                         ({"mumps_ordering": "amd"}, "mumps_ordering")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
@@ -91,6 +92,16 @@ def test_warm_start_modes_pass_the_multipliers_only_when_asked():
         assert "warm_start_init_point" not in H.ipopt_options(opts, warm=False)["ipopt"]
         solvers = H._Solvers(prob, opts)
         assert (solvers.get(warm=True) is solvers.get(warm=False)) is shared
+
+
+def test_mumps_ordering_is_passed_to_ipopt():
+    """SolveOptions.mumps_ordering becomes IPOPT's mumps_pivot_order (only with MUMPS); an unknown
+    name lists the valid ones."""
+    assert H.ipopt_options(H.SolveOptions(mumps_ordering=H.MumpsOrdering.AMD), warm=False)["ipopt"]["mumps_pivot_order"] == 0
+    assert H.ipopt_options(H.SolveOptions(mumps_ordering=H.MumpsOrdering.AUTO), warm=True)["ipopt"]["mumps_pivot_order"] == 7
+    assert "mumps_pivot_order" not in H.ipopt_options(H.SolveOptions(linear_solver="ma27"), warm=False)["ipopt"]
+    with pytest.raises(InputError, match="metis"):
+        H.SolveOptions(mumps_ordering="nested")
 
 
 def test_gating_and_ungate_keep_the_trajectory():

@@ -393,3 +393,33 @@ def test_bench_skips_quick_run(tmp_path, capsys):
     assert records["frictionless"]["on"]["scene"]["frictionless"] == ["point"]
     assert records["never_touching"]["on"]["scene"]["never_touching"] == ["knee"]
     assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2
+
+
+# --- scripts/bench_pipeline.py -------------------------------------------------------------------------
+
+def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
+    """--quick --codegen --json: the hop's stages (build, solver creation) and, per variant, the
+    fixed-iteration NLP 1 split into callbacks and the rest; every variant that keeps the pivoting
+    reaches the baseline's iterate (codegen: the same functions compiled). Without gcc the codegen
+    variant is skipped with a message, never silently. No timing assertions."""
+    bench = _load("bench_pipeline")
+    argv = ["--quick", "--codegen", "--json", "--cache", str(tmp_path / "cache"), "--out", str(tmp_path / "out"),
+            "--variants", "baseline", "fixed_relax_bounds"]
+    assert bench.main(argv) == 0
+    results = json.loads(capsys.readouterr().out)
+    assert results == json.loads((tmp_path / "out" / "results.json").read_text())
+    assert (tmp_path / "out" / "pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (rec,) = results["records"]
+    assert rec["case"] == "hop" and rec["build_s"] > 0 and rec["solver_create_s"] > 0
+    variants = rec["variants"]
+    base = variants["baseline"]
+    assert base["iterations"] == 10 and set(base["eval_cpu_ms_per_iter"]) == set(bench.CALLBACKS)
+    if shutil.which("gcc") is None:
+        assert "gcc" in rec["codegen"]["skipped"] and "codegen_O1" not in variants
+    else:
+        assert variants["codegen_O1"]["iterations"] == base["iterations"]
+        assert variants["codegen_O1"]["objective"] == pytest.approx(base["objective"], rel=1e-9)
+        assert bench.main(argv) == 0  # the second run loads the cached library
+        assert json.loads(capsys.readouterr().out)["records"][0]["codegen"]["cached"]
+    monkeypatch.setattr(bench.shutil, "which", lambda name: None)
+    assert "gcc not found" in bench.compile_nlp(None, tmp_path / "cache", ["-O1"])["skipped"]

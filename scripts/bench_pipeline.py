@@ -1,0 +1,276 @@
+"""Speed of the pipeline (issue 9): where the time of a solve goes, and what the variants change.
+
+For each case: the build (build_problem) [s], the creation of the cold IPOPT (nlpsol: the SX
+derivatives) [s], and a fixed-iteration run of the homotopy's NLP 1 (the hint-free start, the first
+rho of the schedule, holes relaxed, soft terminal: exactly what planner.homotopy.solve runs first)
+with IPOPT's max_iter = --iters, split per iteration into the function evaluations (per callback:
+nlp_f, nlp_g, nlp_grad_f, nlp_jac_g, nlp_hess_l, CasADi's own timers) and the rest (MUMPS and
+IPOPT's own work). Every variant starts from the same point with the same options but one, so
+the iterates are the same unless the variant changes the pivoting (the record has the iteration
+count and the objective reached, to compare). CPU times (process time, one thread) are the
+numbers to compare on a loaded machine; wall times are recorded beside them.
+
+Variants (VARIANTS): IPOPT/MUMPS options, and with --codegen the NLP's functions generated as C
+(nlpsol.generate_dependencies), compiled with gcc (--codegen-flags) into --cache (file name: the
+hash of the C source, so a second run reuses it) and loaded with nlpsol(..., "lib.so"); generate
+and compile times are recorded separately. With --full, the default task of each case is also
+solved end to end with the default SolveOptions (iterations x per-iteration cost).
+
+Cases: capler50 (robots/capler.toml with N = 50, h = 0.05 s), capler125 (the default N = 125),
+hop (the point mass hopping to x = 0.5 m, N = 40, tests/test_homotopy.py's task).
+
+    python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
+        [--variants NAME ...] [--codegen] [--full] [--out DIR] [--json]      (repository root)
+
+--quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import hashlib
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from planner.homotopy import SolveOptions, _terminal_rows, ipopt_options, solve, task_rho_schedule
+from planner.model import load_robot
+from planner.problem import build_problem
+from planner.task import Horizon, load_task, parse_task
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = Path("results/bench/pipeline")
+DEFAULT_CACHE = Path.home() / ".cache" / "planner" / "codegen"
+CALLBACKS = ("f", "g", "grad_f", "jac_g", "hess_l")
+
+# name -> IPOPT options changed from the default (planner.homotopy.ipopt_options)
+VARIANTS = {
+    "baseline": {},
+    "mumps_amd": {"mumps_pivot_order": 0},
+    "mumps_amf": {"mumps_pivot_order": 2},
+    "mumps_pord": {"mumps_pivot_order": 4},
+    "mumps_metis": {"mumps_pivot_order": 5},
+    "mumps_qamd": {"mumps_pivot_order": 6},
+    "mumps_pivtol_1e-8": {"mumps_pivtol": 1e-8},
+    "mumps_no_scaling": {"mumps_scaling": 0, "mumps_permuting_scaling": 0},
+    "mumps_mem_200": {"mumps_mem_percent": 200},
+    "slack_based_scaling": {"linear_system_scaling": "slack-based"},
+    "fixed_relax_bounds": {"fixed_variable_treatment": "relax_bounds"},
+    "perturb_dec_0.6": {"perturb_dec_fact": 0.6},
+}
+
+
+def capler_case(N: int):
+    """robots/capler.toml with N steps over its horizon tau_f = 2.5 s (N = 50: h = 0.05 s)."""
+    task = load_task(ROOT / "robots" / "capler.toml")
+    return load_robot(ROOT / "robots" / "capler.xml"), dataclasses.replace(task, horizon=Horizon(tau_f=task.horizon.tau_f, N=N))
+
+
+def hop_case(N: int):
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": N},
+                       "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    return load_robot(ROOT / "robots" / "point_mass.xml"), task
+
+
+CASES = {"capler50": lambda quick: capler_case(50), "capler125": lambda quick: capler_case(125),
+         "hop": lambda quick: hop_case(6 if quick else 40)}
+
+
+def nlp1_arguments(problem, options: SolveOptions) -> dict:
+    """The arguments planner.homotopy.solve gives NLP 1 (default options: holes relaxed, soft terminal)."""
+    rho = task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)[0]
+    lbg, ubg = problem.lbg.copy(), problem.ubg.copy()
+    rows = _terminal_rows(problem)
+    lbg[rows], ubg[rows] = -np.inf, np.inf
+    p = problem.params(rho, 0.0, terminal_weight=options.soft_terminal_weight)
+    return {"x0": problem.x0, "p": p, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": lbg, "ubg": ubg}
+
+
+def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
+    """Generate the solver's NLP functions as C, compile them with gcc into cache/<hash>.so (reused
+    when present): {"so": path or None, "generate_s", "compile_s", "cached", "c_bytes", "skipped"}."""
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        return {"so": None, "skipped": "gcc not found on PATH: the codegen variant needs a C compiler (apt-get install gcc)"}
+    cache.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    c_file = cache / "nlp_tmp.c"
+    solver.generate_dependencies(c_file.name, {"with_header": False})  # CasADi writes into the cwd
+    Path(c_file.name).replace(c_file)
+    generate_s = time.perf_counter() - t0
+    source = c_file.read_bytes()
+    key = hashlib.sha256(source + " ".join(flags).encode() + ca.__version__.encode()).hexdigest()[:16]
+    so = cache / f"nlp_{key}.so"
+    out = {"so": str(so), "generate_s": generate_s, "c_bytes": len(source), "flags": flags, "cached": so.exists(), "compile_s": 0.0}
+    if not so.exists():
+        t0 = time.perf_counter()
+        tmp = so.with_suffix(f".{os.getpid()}.so")
+        subprocess.run([gcc, "-fPIC", "-shared", *flags, str(c_file), "-o", str(tmp)], check=True)
+        tmp.replace(so)  # atomic: a concurrent run never loads a half-written library
+        out["compile_s"] = time.perf_counter() - t0
+    c_file.unlink()
+    return out
+
+
+def run_once(solver, args: dict) -> dict:
+    """One fixed-iteration run: per-iteration CPU and wall [ms], split into the callbacks and the rest."""
+    c0, w0 = time.process_time(), time.perf_counter()
+    sol = solver(**args)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    st = solver.stats()
+    it = max(int(st["iter_count"]), 1)
+    ev_cpu = {c: 1e3 * float(st[f"t_proc_nlp_{c}"]) / it for c in CALLBACKS}
+    ev_wall = {c: 1e3 * float(st[f"t_wall_nlp_{c}"]) / it for c in CALLBACKS}
+    return {"iterations": int(st["iter_count"]), "objective": float(sol["f"]), "status": str(st["return_status"]),
+            "cpu_ms_per_iter": 1e3 * cpu / it, "wall_ms_per_iter": 1e3 * wall / it,
+            "eval_cpu_ms_per_iter": ev_cpu, "eval_wall_ms_per_iter": ev_wall,
+            "rest_cpu_ms_per_iter": 1e3 * cpu / it - sum(ev_cpu.values()), "rest_wall_ms_per_iter": 1e3 * wall / it - sum(ev_wall.values())}
+
+
+def median_record(runs: list[dict]) -> dict:
+    """Median over the repeats of every timing; the iterate facts of the first run (checked equal)."""
+    def med(key, sub=None):
+        return statistics.median(r[key][sub] if sub else r[key] for r in runs)
+    out = {k: runs[0][k] for k in ("iterations", "objective", "status")}
+    out["reproducible"] = all(r["iterations"] == runs[0]["iterations"] and r["objective"] == runs[0]["objective"] for r in runs)
+    for key in ("cpu_ms_per_iter", "wall_ms_per_iter", "rest_cpu_ms_per_iter", "rest_wall_ms_per_iter"):
+        out[key] = med(key)
+    for key in ("eval_cpu_ms_per_iter", "eval_wall_ms_per_iter"):
+        out[key] = {c: med(key, c) for c in CALLBACKS}
+    out["repeats"] = len(runs)
+    return out
+
+
+def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None, full: bool, log) -> dict:
+    robot, task = CASES[name](quick)
+    t0 = time.perf_counter()
+    problem = build_problem(robot, task)
+    rec = {"case": name, "N": task.horizon.N, "h": task.horizon.h, "n_variables": problem.nx, "n_constraints": problem.ng,
+           "build_s": time.perf_counter() - t0, "iters": iters}
+    options = SolveOptions(max_iter=iters)
+    nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
+    solvers, create_s = {}, {}
+    for v in variants:
+        opts = ipopt_options(options, False)
+        opts["ipopt"].update(VARIANTS[v])
+        t0 = time.perf_counter()
+        solvers[v] = ca.nlpsol("bench_" + "".join(ch if ch.isalnum() else "_" for ch in v).strip("_").replace("__", "_"), "ipopt", nlp, opts)
+        create_s[v] = time.perf_counter() - t0
+    rec["solver_create_s"] = create_s.get("baseline", next(iter(create_s.values())))
+    if codegen is not None:
+        base = solvers.get("baseline") or next(iter(solvers.values()))
+        info = compile_nlp(base, codegen["cache"], codegen["flags"])
+        rec["codegen"] = info
+        log(name, "codegen", info)
+        if info["so"] is not None:
+            label = "codegen_" + "".join(codegen["flags"]).replace("-", "")
+            t0 = time.perf_counter()
+            solvers[label] = ca.nlpsol("bench_codegen", "ipopt", info["so"], ipopt_options(options, False))
+            create_s[label] = time.perf_counter() - t0
+    args = nlp1_arguments(problem, SolveOptions())
+    runs = {v: [] for v in solvers}
+    for _ in range(repeats):  # interleaved: a load change hits every variant alike
+        for v, s in solvers.items():
+            runs[v].append(run_once(s, args))
+    rec["variants"] = {v: {**median_record(r), "create_s": create_s[v]} for v, r in runs.items()}
+    for v, r in rec["variants"].items():
+        log(name, v, r)
+    if full:
+        c0, t0 = time.process_time(), time.perf_counter()
+        res = solve(problem)
+        rec["full_solve"] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+                             "ipopt_iterations": res.stats.ipopt_iterations, "nlp_iterations": [r.iterations for r in res.nlps],
+                             "n_nlp": res.stats.n_nlp, "converged": res.stats.converged, "complementarity": res.stats.complementarity_residual,
+                             "terminal_error": res.terminal_error, "control_cost": res.extra["control_cost"], "timings": res.timings,
+                             "message": res.stats.message}
+        log(name, "full", rec["full_solve"])
+    return rec
+
+
+def table(records) -> str:
+    lines = ["| case | variant | iterations | objective | CPU ms/it | evals ms/it (f, g, grad_f, jac_g, hess_l) | rest ms/it | wall ms/it | create s |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        for v, m in r["variants"].items():
+            ev = m["eval_cpu_ms_per_iter"]
+            lines.append(f"| {r['case']} | {v} | {m['iterations']} | {m['objective']:.10g} | {m['cpu_ms_per_iter']:.2f} | "
+                         f"{sum(ev.values()):.2f} ({', '.join(f'{ev[c]:.2f}' for c in CALLBACKS)}) | {m['rest_cpu_ms_per_iter']:.2f} | "
+                         f"{m['wall_ms_per_iter']:.2f} | {m['create_s']:.2f} |")
+    return "\n".join(lines)
+
+
+def plot(records, path: Path) -> None:
+    """Stacked bars: CPU ms per iteration of every (case, variant), callbacks and the rest."""
+    rows = [(f"{r['case']} {v}", m) for r in records for v, m in r["variants"].items()]
+    fig = Figure(figsize=(9, 0.35 * len(rows) + 1.2))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    y = np.arange(len(rows))
+    left = np.zeros(len(rows))
+    for c in (*CALLBACKS, "rest"):
+        w = np.array([m["rest_cpu_ms_per_iter"] if c == "rest" else m["eval_cpu_ms_per_iter"][c] for _, m in rows])
+        ax.barh(y, w, left=left, label="nlp_" + c if c != "rest" else "rest (MUMPS + IPOPT)")
+        left += w
+    ax.set_yticks(y, [label for label, _ in rows], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel("CPU time per IPOPT iteration [ms] (NLP 1, fixed iterations)")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6, 10 iterations, 1 repeat")
+    parser.add_argument("--cases", nargs="+", choices=sorted(CASES), help="default: all (--quick: hop)")
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), help="IPOPT variants (default: all; baseline is always run)")
+    parser.add_argument("--iters", type=int, help="IPOPT iterations of the fixed run (default 150, --quick 10)")
+    parser.add_argument("--repeats", type=int, help="interleaved repeats, the median is reported (default 3, --quick 1)")
+    parser.add_argument("--codegen", action="store_true", help="also the generated-and-compiled NLP functions (gcc; minutes for Capler)")
+    parser.add_argument("--codegen-flags", nargs="+", default=["-O1"], help="gcc flags of --codegen (default -O1)")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
+    parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
+    parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
+    args = parser.parse_args(argv)
+    cases = args.cases or (["hop"] if args.quick else list(CASES))
+    variants = ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
+    iters = args.iters or (10 if args.quick else 150)
+    repeats = args.repeats or (1 if args.quick else 3)
+    codegen = {"cache": args.cache, "flags": [f for f in args.codegen_flags]} if args.codegen else None
+
+    def log(case, what, rec):  # progress on stderr: stdout keeps the table or the JSON
+        if "cpu_ms_per_iter" in rec:
+            rec = {k: rec[k] for k in ("iterations", "objective", "cpu_ms_per_iter", "rest_cpu_ms_per_iter", "wall_ms_per_iter")}
+        print(f"{case:<10} {what:<20} {json.dumps(rec, default=str)[:300]}", file=sys.stderr, flush=True)
+
+    load_before, start = os.getloadavg(), time.perf_counter()
+    records = [run_case(c, args.quick, iters, repeats, variants, codegen, args.full, log) for c in cases]
+    results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
+               "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
+               "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                           "casadi": ca.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+                           "date": datetime.date.today().isoformat(), "load_average_before": load_before,
+                           "load_average_after": os.getloadavg()},
+               "variants": {v: VARIANTS[v] for v in variants}, "records": records}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+    plot(records, args.out / "pipeline.png")
+    print(json.dumps(results, indent=1, default=str) if args.json else table(records))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
