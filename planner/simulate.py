@@ -272,19 +272,9 @@ def _stepwise(system, builder, y0, task, h, N, options, law=None):
         u = task.simulate.controls_at(Y[k, -1] + 0.5 * h, nu)  # midpoint: a change at t1 acts from the step nearest t1
         w_guess = builder.guess(Y[k], _applied(law, system, u, Y[k])) if w_prev is None else w_prev
         starts = _starts(np.concatenate([Y[k], w_guess, [0.0]]), predict, system, builder, law, Y[k], u, w_prev, options)
-        for attempt, (x0, opts) in enumerate(starts):
-            x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([Y[k], u]), lbx, ubx, lbg, ubg, opts)
-            total["n_nlp"] += n_nlp
-            total["iterations"] += iters
-            if ok and comp <= options.comp_tol:
-                break
-        total["comp"] = max(total["comp"], comp)
-        total["restarted_steps"] += attempt > 0
-        if not (ok and comp <= options.comp_tol):  # stop here; the steps so far are the diagnostics
-            total["ok"] = False
-            total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {Y[k, -1]:.4g} s) did not converge: IPOPT {msg}, "
-                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs"
-                                f" ({attempt} restarts)")
+        x = _first_converged(solver, comp_fn, starts, np.concatenate([Y[k], u]), (lbx, ubx, lbg, ubg), options, total,
+                             f"step {k} (tau = {k * h:.4g} s, t = {Y[k, -1]:.4g} s)")
+        if x is None:  # stop here; the steps so far are the diagnostics
             return Y[: k + 1], W[:k], U[:k], total
         Y[k + 1], W[k] = x[:ny], x[ny : ny + nw]
         U[k] = _applied(law, system, u, Y[k + 1])
@@ -317,19 +307,10 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0}
     for k in range(N):
         u = task.simulate.controls_at(y[-1] + 0.5 * h, nu)
-        for attempt, (w_start, opts) in enumerate(_fesd_starts(builder, law, system, y, u, w_guess, options)):
-            x0 = np.concatenate([fesd.guess(h, y, w_start), [0.0]])
-            x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, np.concatenate([y, u, left]), lbx, ubx, lbg, ubg, opts)
-            total["n_nlp"] += n_nlp
-            total["iterations"] += iters
-            if ok and comp <= options.comp_tol:
-                break
-        total["comp"] = max(total["comp"], comp)
-        total["restarted_steps"] += attempt > 0
-        if not (ok and comp <= options.comp_tol):
-            total["ok"] = False
-            total["message"] = (f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s) did not converge: IPOPT {msg}, "
-                                f"complementarity residual {comp:.3g} > {options.comp_tol:g} after {n_nlp} NLPs ({attempt} restarts)")
+        starts = ((np.concatenate([fesd.guess(h, y, w), [0.0]]), opts) for w, opts in _fesd_starts(builder, law, system, y, u, w_guess, options))
+        x = _first_converged(solver, comp_fn, starts, np.concatenate([y, u, left]), (lbx, ubx, lbg, ubg), options, total,
+                             f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s)")
+        if x is None:
             break
         hk, Yk, Wk = fesd.unpack(x)
         lengths += list(hk)
@@ -344,6 +325,26 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     elements = (np.concatenate([[0.0], np.cumsum(lengths)]), np.array(bounds, float).reshape(-1, ny), shape(Ys, ny),
                 shape(Ws, nw), shape(Us, nu), np.array(lengths, float))
     return elements, total
+
+
+def _first_converged(solver, comp_fn, starts, p, bounds, options, total: dict, where: str):
+    """Solve one step's homotopy from each (x0, options) of `starts` (consumed lazily) until one ends
+    with complementarity <= options.comp_tol; counts NLPs, iterations and restarts into `total`.
+    Returns the solution x, or None with total["ok"] = False and the message naming `where`."""
+    for attempt, (x0, opts) in enumerate(starts):
+        x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, p, *bounds, opts)
+        total["n_nlp"] += n_nlp
+        total["iterations"] += iters
+        if ok and comp <= options.comp_tol:
+            break
+    total["comp"] = max(total["comp"], comp)
+    total["restarted_steps"] += attempt > 0
+    if ok and comp <= options.comp_tol:
+        return x
+    total["ok"] = False
+    total["message"] = (f"{where} did not converge: IPOPT {msg}, complementarity residual {comp:.3g} > {options.comp_tol:g} "
+                        f"after {n_nlp} NLPs ({attempt} restarts)")
+    return None
 
 
 def _fesd_starts(builder, law, system, y, u, w_prev, options):
