@@ -302,15 +302,17 @@ FAMILIES = {
 }
 
 
-def _torque_expect(b: Base, params: dict) -> str:
-    """The point mass cannot leave the ground when its vertical actuator is weaker than its weight, and
-    its no-slip contact cannot slide: the target is out of reach in the model. (No claim for Capler,
-    whose lift-off force depends on the posture.)"""
-    return "infeasible" if b.name == "point_mass" and params["u_bound"] < b.weight else "feasible?"
+def _torque_expect(b: Base, t: dict, params: dict) -> str:
+    """The point mass at rest on the ground with |u_x|, |u_z| <= U can neither lift off (U < m g) nor
+    slide (U <= mu (m g - U), i.e. U <= mu m g / (1 + mu)) below U = mu m g / (1 + mu): the target is
+    out of reach. Above it the point may slide (the plan of torque-00, U = 5.3 N, slides and is valid
+    in MuJoCo). No claim for Capler, whose forces depend on the posture."""
+    mu = t["contacts"][0]["mu"]
+    return "infeasible" if b.name == "point_mass" and params["u_bound"] <= mu * b.weight / (1 + mu) else "feasible?"
 
 
 # what a family's task is expected to be: "infeasible" must be diagnosed; "feasible?" makes no claim
-EXPECT = {"infeasible": lambda b, params: "infeasible", "torque": _torque_expect}
+EXPECT = {"infeasible": lambda b, t, params: "infeasible", "torque": _torque_expect}
 
 
 def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler", N: int | None = None,
@@ -336,7 +338,7 @@ def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler
                 t["horizon"]["N"] = N
             params = FAMILIES[fam](b, t, rng, k)
             specs.append({"id": f"{fam}-{k:02d}", "family": fam, "index": k, "seed": seed, "robot": b.robot, "base": b.name,
-                          "expect": EXPECT.get(fam, lambda b, p: "feasible?")(b, params), "params": _plain(params), "task": _plain(t),
+                          "expect": EXPECT.get(fam, lambda b, t, p: "feasible?")(b, t, params), "params": _plain(params), "task": _plain(t),
                           "solve_options": dict(solve_options or {})})
     return specs
 
