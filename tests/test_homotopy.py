@@ -85,9 +85,13 @@ def test_locally_infeasible_homotopy_is_retried_with_a_stronger_soft_terminal():
     """Point-mass stress task holes-00 (docs/stability.md): with the soft terminal's weight 100, NLP 1
     lands on the hole's edge 0.24 m short and every later NLP is locally infeasible; the retry with
     retry_terminal_weight = 1e4 converges, and both attempts are recorded."""
+    from planner.task import parse_task
+
     robot = load_robot("robots/point_mass.xml")
     hole = {"x": 0.29990508500621443, "z": 0.0, "a": 0.038225447857940895, "b": 0.06721718092065786}
-    res = H.solve(build_problem(robot, hop_task(N=40, holes=[hole])))
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 100.0}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 40}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": [hole]}})
+    res = H.solve(build_problem(robot, task))
     assert res.stats.converged and res.terminal_error <= TERMINAL_TOL, res.stats.message
     assert "after a retry with soft_terminal_weight 10000" in res.stats.message
     first = [r for r in res.nlps if r.label.startswith("try 1: ")]
