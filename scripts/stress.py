@@ -236,7 +236,7 @@ def fam_friction(b: Base, t: dict, rng, k: int) -> dict:
 
 def fam_gains(b: Base, t: dict, rng, k: int) -> dict:
     """a_n and a_t each scaled by a log-uniform factor in [0.1, 10] (a_t may end below a_n); the point
-    mass: a_n so, and a_t = mu a_n x a log-uniform factor in [0.1, 1] (an impact within the friction cone)."""
+    mass: a_n likewise, a_t = mu a_n x a log-uniform factor in [0.1, 1] (an impact within the friction cone)."""
     c = t["contacts"][0]
     sn, st = _log_uniform(rng, 0.1, 10.0), _log_uniform(rng, 0.1, 1.0 if b.coulomb_at else 10.0)
     c["a_n"] = c.get("a_n", 200.0) * sn
