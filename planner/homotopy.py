@@ -27,7 +27,7 @@ says so (PlanResult.nlps).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 from typing import Callable
 
@@ -136,6 +136,12 @@ class SolveOptions:
     iterations cost a third less CPU than with MUMPS's own choice (AUTO, default), but the ordering
     changes the round-off and so the path: the one full solve measured with AMD took 7239
     iterations instead of 6099 (docs/benchmarks.md, "Speed of the pipeline").
+    retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
+    (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
+    retry; only with soft_terminal_nlps >= 1). A weak soft terminal lets NLP 1 stop short of the
+    target where the hard terminal of NLP 2 is locally infeasible: measured on the point-mass stress
+    task holes-00 (docs/stability.md), NLP 1 landed on the hole's edge, 0.24 m short, and every later
+    NLP was infeasible; with weight 1e4 (or 1e3) every NLP converged. Converging solves never retry.
     """
 
     tol: float = 1e-8
@@ -173,6 +179,7 @@ class SolveOptions:
     polish_projection: bool = True
     intermediate_tol: float | None = None
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
+    retry_terminal_weight: float | None = 1e4
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
@@ -196,6 +203,8 @@ class SolveOptions:
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
             (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
+            (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
+             self.retry_terminal_weight, "> 0 or None"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -320,7 +329,28 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     # the task's cost at the returned plan (the projection polish's own objective is a distance)
     result.extra["control_cost"] = float(problem.objective_parts["control"](x, problem.params(0.0, 1.0)))
     result.extra["scene"] = problem.skips.to_json()  # what the scene analysis left out, and why (summary.json)
+    if (not result.stats.converged and options.retry_terminal_weight is not None and options.soft_terminal_nlps >= 1
+            and any(r.status == "Infeasible_Problem_Detected" for r in records)):
+        return _retry(problem, options, result, progress)
     return result
+
+
+def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress: Progress | None) -> PlanResult:
+    """SolveOptions.retry_terminal_weight: the solve once more with that soft-terminal weight. Returns the
+    retry when it converged, else the first result; either way the NLPs of both attempts are recorded
+    (the first attempt's labelled "try 1: ...") and the message says what happened."""
+    w = options.retry_terminal_weight
+    retry = solve(problem, replace(options, soft_terminal_weight=w, retry_terminal_weight=None), progress)
+    tried = tuple(replace(r, label=f"try 1: {r.label}") for r in first.nlps)
+    if retry.stats.converged:
+        keep, note = retry, f"; after a retry with soft_terminal_weight {w:g} (try 1: {first.stats.message})"
+    else:
+        keep, note = first, f"; a retry with soft_terminal_weight {w:g} did not converge either ({retry.stats.message})"
+    stats = replace(keep.stats, message=keep.stats.message + note, n_nlp=first.stats.n_nlp + retry.stats.n_nlp,
+                    solve_time_s=first.stats.solve_time_s + retry.stats.solve_time_s,
+                    ipopt_iterations=first.stats.ipopt_iterations + retry.stats.ipopt_iterations)
+    nlps = tried + retry.nlps if keep is retry else first.nlps + tuple(replace(r, label=f"retry: {r.label}") for r in retry.nlps)
+    return replace(keep, stats=stats, nlps=nlps)
 
 
 def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label):

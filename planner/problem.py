@@ -25,6 +25,7 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
                                       the pairs the scene analysis finds out of reach (planner.scene)
     never_touching                    gap >= 0 of each contact with touches = false (planner.scene)
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
+    impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
     periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
@@ -109,6 +110,13 @@ class ProblemOptions:
       keeps the gap in persistent contact; with the paper's POINT the stances sink (2.6 cm on Capler
       N = 50), an exactly complementary plan cannot end standing at the target after moving, and the
       full Capler task did not converge (docs/formulation.md, "OCP and solve", round 4).
+    impact_cone: for one NO_SLIP contact with a_t <= mu a_n, keep each step's auxiliary impulse in the
+      friction cone: |a_t P_at(sigma)| <= mu a_n P_an(sigma), with P_an, P_at the coefficients of the
+      a_n and a_t fields (linear in the lifted variables). Without it a stance step whose t^T v ends
+      at 0 leaves zeta free in [0, 1] and the a_t field can brake any tangential speed within one
+      step with the clock running (point-mass stress task rho_f-03: 1.5 m/s in 25 ms, 60 N against
+      a friction limit of 4.9 N; docs/stability.md). With the paper's a_t >> a_n (a_t > mu a_n) it
+      would forbid every impact with a tangential velocity, so it is not imposed there.
     clock_weight: objective + clock_weight sum_k (R_k (1 - R_k))^2 with R_k the step's clock rate (the
       coefficient of the ODE field, linear in the lifted variables; objective part "clock"): zero
       in running steps (R = 1) and in frozen impacts (R = 0), positive for a partly frozen step.
@@ -123,6 +131,7 @@ class ProblemOptions:
     step_form: StepForm = StepForm.MASS_MATRIX
     switch_scale: tuple[tuple[str, float], ...] = ()
     friction_cone: bool = True
+    impact_cone: bool = True
     terminal_velocity: bool = True
     clock_guess_running: bool = False
     gating: bool = True
@@ -360,8 +369,15 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         if ct.point in skips.never_touching:
             s = plane_axes(ct.normal)[0]
             clearance.append(ca.dot(ca.DM(s), dyn.point_position(ct.point)(q_sym)[:3]) - s[2] * ground)
+    impact = []
+    if options.impact_cone and len(contacts) == 1:  # the contacts the system is built for (planner.scene)
+        for ct, model in zip(contacts, system.models):
+            if model is ContactModel.NO_SLIP and ct.a_t <= ct.mu * ct.a_n:
+                p_an, p_at = coef[field_names.index(f"a_n[{ct.point}]")], coef[field_names.index(f"a_t[{ct.point}]")]
+                impact += [ct.mu * ct.a_n * p_an - ct.a_t * p_at, ct.mu * ct.a_n * p_an + ct.a_t * p_at]
     path_fn = {
         "never_touching": ca.Function("never_touching", [ys], [ca.vertcat(*clearance)]) if clearance else None,
+        "impact_cone": ca.Function("impact_cone", [ws], [ca.vertcat(*impact)]) if impact else None,
         "above_ground": ca.Function("above_ground", [ys], [ca.vertcat(*above)]) if above else None,
         "holes": ca.Function("holes", [ys, hole_scale], [ca.vertcat(*hole_exprs)]) if hole_exprs else None,
         "friction_cone": ca.Function("friction_cone", [ys, us, ws], [ca.vertcat(*cone)]) if cone else None,
@@ -369,7 +385,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     # --- stages ------------------------------------------------------------------------------------
     step_blocks = ("dynamics", "stationarity", "lifting") + (("contact_forces",) if builder.mm is not None else ())
-    g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "never_touching", "friction_cone")}
+    g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "never_touching", "friction_cone", "impact_cone")}
     control_cost, selector_cost = 0, 0
     pairs: list[Pair] = []
     prods = []
@@ -394,6 +410,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             g_parts["never_touching"].append(path_fn["never_touching"](yk))
         if path_fn["friction_cone"] is not None:
             g_parts["friction_cone"].append(path_fn["friction_cone"](yk, uk, wk))
+        if path_fn["impact_cone"] is not None:
+            g_parts["impact_cone"].append(path_fn["impact_cone"](wk))
         sig_idx, l0_idx, l1_idx = var_blocks["sigma"][k], var_blocks["lambda0"][k], var_blocks["lambda1"][k]
         for i, sw in enumerate(system.switches):
             pairs.append(Pair(int(l0_idx[i]), int(sig_idx[i]), False, f"lambda0*sigma[{sw.name}]_{k}"))
@@ -434,6 +452,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     add("holes", g_parts["holes"], 0.0, np.inf)
     add("never_touching", g_parts["never_touching"], 0.0, np.inf)
     add("friction_cone", g_parts["friction_cone"], 0.0, np.inf)
+    add("impact_cone", g_parts["impact_cone"], 0.0, np.inf)
     y_N = X[var_blocks["y"][-1]]
     if periodic:  # q_N = S q_0 + step e_along, v_N = S v_0 (the soft-terminal residual too)
         shift = np.zeros(nq)

@@ -55,9 +55,12 @@ DIAGNOSED = "did not converge, diagnosed"
 CRASHED = "crashed"
 OUTCOMES = (CONVERGED_VALID, CONVERGED_INVALID, DIAGNOSED, CRASHED)
 
-# The cheap base task: a point mass hopping 0.5 m along the table in 1 s (tests/test_plan.py's task).
+# The cheap base task: a point mass hopping 0.5 m along the table in 1 s (tests/test_plan.py's task), with
+# a_t = mu a_n: an impact's tangential impulse then stays within mu times its normal one, as MuJoCo's
+# Coulomb contact requires; the default a_t = 3 a_n stopped landings at 2-3 m/s along the ground that MuJoCo
+# cannot stop (docs/stability.md). The friction and gains families keep a_t <= mu a_n.
 POINT_MASS_TASK = {
-    "contacts": [{"point": "point", "mu": 0.5}],
+    "contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 100.0}],
     "initial": {"q": [0.0, 0.0]},
     "horizon": {"tau_f": 1.0, "N": 40},
     "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0},
@@ -80,6 +83,8 @@ class Base:
     foot: str  # the contact point
     joints: tuple[int, ...]  # q indices of the actuated joints (perturbed postures)
     u_max: float  # largest actuator bound [N m or N]
+    weight: float  # m g of the whole robot [N]
+    coulomb_at: bool  # the families keep a_t <= mu a_n (point mass); Capler keeps the paper's a_t = 3 a_n
 
     def foot_height(self, q) -> float:
         """Height of the foot above z = 0 at q [m] (Pinocchio's forward kinematics)."""
@@ -115,7 +120,11 @@ def base_task(name: str) -> Base:
     task = tomllib.loads((ROOT / "robots/capler.toml").read_text()) if name == "capler" else copy.deepcopy(POINT_MASS_TASK)
     robot = _robot(path)
     joints = tuple(a.dof for a in robot.actuators if a.dof not in (X, Z))
-    return Base(name, path, task, task["contacts"][0]["point"], joints, float(np.max(np.abs(robot.u_upper))))
+    import pinocchio as pin
+
+    weight = float(pin.computeTotalMass(robot.model)) * 9.81
+    return Base(name, path, task, task["contacts"][0]["point"], joints, float(np.max(np.abs(robot.u_upper))), weight,
+                name == "point_mass")
 
 
 def _log_uniform(rng, lo: float, hi: float) -> float:
@@ -216,17 +225,22 @@ def fam_init_penetrating(b: Base, t: dict, rng, k: int) -> dict:
 
 
 def fam_friction(b: Base, t: dict, rng, k: int) -> dict:
-    """mu = 0 (the first task of the family) or log-uniform in [1e-3, 20]."""
+    """mu = 0 (the first task of the family) or log-uniform in [1e-3, 20]; the point mass keeps a_t = mu a_n."""
     mu = 0.0 if k == 0 else _log_uniform(rng, 1e-3, 20.0)
-    t["contacts"][0]["mu"] = mu
-    return {"mu": mu}
+    c = t["contacts"][0]
+    c["mu"] = mu
+    if b.coulomb_at and mu > 0:
+        c["a_t"] = mu * c["a_n"]
+    return {"mu": mu, "a_t": c.get("a_t", 600.0)}
 
 
 def fam_gains(b: Base, t: dict, rng, k: int) -> dict:
-    """a_n and a_t each scaled by a log-uniform factor in [0.1, 10] (a_t may end below a_n)."""
+    """a_n and a_t each scaled by a log-uniform factor in [0.1, 10] (a_t may end below a_n); the point
+    mass: a_n likewise, a_t = mu a_n x a log-uniform factor in [0.1, 1] (an impact within the friction cone)."""
     c = t["contacts"][0]
-    sn, st = _log_uniform(rng, 0.1, 10.0), _log_uniform(rng, 0.1, 10.0)
-    c["a_n"], c["a_t"] = c.get("a_n", 200.0) * sn, c.get("a_t", 600.0) * st
+    sn, st = _log_uniform(rng, 0.1, 10.0), _log_uniform(rng, 0.1, 1.0 if b.coulomb_at else 10.0)
+    c["a_n"] = c.get("a_n", 200.0) * sn
+    c["a_t"] = c["mu"] * c["a_n"] * st if b.coulomb_at else c.get("a_t", 600.0) * st
     return {"a_n_scale": sn, "a_t_scale": st, "a_n": c["a_n"], "a_t": c["a_t"]}
 
 
@@ -286,7 +300,19 @@ FAMILIES = {
     "torque": fam_torque,
     "infeasible": fam_infeasible,
 }
-EXPECT = {"infeasible": "infeasible"}  # every other family: "feasible?" (no claim)
+
+
+def _torque_expect(b: Base, t: dict, params: dict) -> str:
+    """The point mass at rest on the ground with |u_x|, |u_z| <= U can neither lift off (U < m g) nor
+    slide (U <= mu (m g - U), i.e. U <= mu m g / (1 + mu)) below U = mu m g / (1 + mu): the target is
+    out of reach. Above it the point may slide (the plan of torque-00, U = 5.3 N, slides and is valid
+    in MuJoCo). No claim for Capler, whose forces depend on the posture."""
+    mu = t["contacts"][0]["mu"]
+    return "infeasible" if b.name == "point_mass" and params["u_bound"] <= mu * b.weight / (1 + mu) else "feasible?"
+
+
+# what a family's task is expected to be: "infeasible" must be diagnosed; "feasible?" makes no claim
+EXPECT = {"infeasible": lambda b, t, params: "infeasible", "torque": _torque_expect}
 
 
 def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler", N: int | None = None,
@@ -312,7 +338,7 @@ def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler
                 t["horizon"]["N"] = N
             params = FAMILIES[fam](b, t, rng, k)
             specs.append({"id": f"{fam}-{k:02d}", "family": fam, "index": k, "seed": seed, "robot": b.robot, "base": b.name,
-                          "expect": EXPECT.get(fam, "feasible?"), "params": _plain(params), "task": _plain(t),
+                          "expect": EXPECT.get(fam, lambda b, t, p: "feasible?")(b, t, params), "params": _plain(params), "task": _plain(t),
                           "solve_options": dict(solve_options or {})})
     return specs
 
@@ -442,7 +468,7 @@ def finish(spec: dict, result) -> dict:
             rec["nonfinite"] = [{"stage": result.stage, "what": result.error}]
     else:
         rec = result
-    rec["unexpected"] = rec["expect"] == "infeasible" and rec["outcome"] in (CONVERGED_VALID, CRASHED)
+    rec["unexpected"] = rec["expect"] == "infeasible" and rec["outcome"] != DIAGNOSED
     rec["task"] = spec["task"]
     assert rec["outcome"] in OUTCOMES, rec["outcome"]
     return rec
@@ -468,7 +494,13 @@ def summarize(records: list[dict]) -> dict:
     for r in records:
         for f in r["nonfinite"]:
             stages[f["stage"]] = stages.get(f["stage"], 0) + 1
+    feasible = [r for r in records if r["expect"] != "infeasible"]
+    infeasible = [r for r in records if r["expect"] == "infeasible"]
+    rates = {"feasible": len(feasible), "feasible_valid": sum(r["outcome"] == CONVERGED_VALID for r in feasible),
+             "infeasible": len(infeasible), "infeasible_diagnosed": sum(r["outcome"] == DIAGNOSED for r in infeasible)}
+    rates["feasible_valid_pct"] = 100.0 * rates["feasible_valid"] / len(feasible) if feasible else None
     return {"total": counts(records), "families": {f: counts([r for r in records if r["family"] == f]) for f in families},
+            "rates": rates,
             "nonfinite_by_stage": stages,
             "crashed": [{"id": r["id"], "stage": r["stage"], "error": r["message"]} for r in records if r["outcome"] == CRASHED]}
 
@@ -484,11 +516,16 @@ def markdown(summary: dict, records: list[dict], header: str) -> str:
         return f"| {name} | " + " | ".join(cells) + " |"
 
     lines += [row(f, c) for f, c in summary["families"].items()] + [row("**all**", summary["total"])]
+    r = summary["rates"]
+    pct = "" if r["feasible_valid_pct"] is None else f" ({r['feasible_valid_pct']:.1f} %)"
+    lines += ["", f"Feasible tasks (all but the expected infeasible): {r['feasible_valid']} of {r['feasible']} converged and "
+              f"valid{pct}; expected infeasible: {r['infeasible_diagnosed']} of {r['infeasible']} diagnosed."]
     lines += ["", "| task | outcome | stage | message |", "|---|---|---|---|"]
     for r in records:
         if r["outcome"] != CONVERGED_VALID:
             msg = (r.get("message") or "").replace("|", "\\|").replace("\n", " ")
-            lines.append(f"| {r['id']} | {r['outcome']} | {r.get('stage') or ''} | {msg[:200]} |")
+            expect = " (expected infeasible)" if r["expect"] == "infeasible" else ""
+            lines.append(f"| {r['id']} | {r['outcome']}{expect} | {r.get('stage') or ''} | {msg[:200]} |")
     if summary["nonfinite_by_stage"]:
         lines += ["", "NaN/Inf seen, by stage: " + ", ".join(f"{k} {v}" for k, v in summary["nonfinite_by_stage"].items())]
     return "\n".join(lines) + "\n"

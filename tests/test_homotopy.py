@@ -74,11 +74,30 @@ def test_active_set_bounds_fix_one_side():
 @pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"), ({"mu_strategy": "adaptive"}, "mu_strategy"),
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
-                                         ({"mumps_ordering": "amd"}, "mumps_ordering")])
+                                         ({"mumps_ordering": "amd"}, "mumps_ordering"),
+                                         ({"retry_terminal_weight": 0.0}, "retry_terminal_weight")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
+
+
+def test_locally_infeasible_homotopy_is_retried_with_a_stronger_soft_terminal():
+    """Point-mass stress task holes-00 (docs/stability.md): with the soft terminal's weight 100, NLP 1
+    lands on the hole's edge 0.24 m short and every later NLP is locally infeasible; the retry with
+    retry_terminal_weight = 1e4 converges, and both attempts are recorded."""
+    from planner.task import parse_task
+
+    robot = load_robot("robots/point_mass.xml")
+    hole = {"x": 0.29990508500621443, "z": 0.0, "a": 0.038225447857940895, "b": 0.06721718092065786}
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 100.0}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 40}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": [hole]}})
+    res = H.solve(build_problem(robot, task))
+    assert res.stats.converged and res.terminal_error <= TERMINAL_TOL, res.stats.message
+    assert "after a retry with soft_terminal_weight 10000" in res.stats.message
+    first = [r for r in res.nlps if r.label.startswith("try 1: ")]
+    assert first and "Infeasible_Problem_Detected" in {r.status for r in first}
+    assert res.stats.n_nlp == len(res.nlps)
 
 
 def test_warm_start_modes_pass_the_multipliers_only_when_asked():

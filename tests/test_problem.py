@@ -103,3 +103,26 @@ def test_bad_inputs():
         ProblemOptions(switch_scale=(("phi", -1.0),))
     with pytest.raises(InputError, match="penalty"):
         ProblemOptions(penalty="l1")
+
+
+def test_impact_cone_only_where_a_t_is_within_mu_a_n():
+    """ProblemOptions.impact_cone: two rows per step (mu a_n P_an -+ a_t P_at >= 0) for a no-slip contact
+    with a_t <= mu a_n; none with the paper's a_t = 600 > mu a_n, nor when switched off. At a frozen
+    impact (P_an = 1, P_at = 1 - 2 zeta) the rows are mu a_n -+ a_t (1 - 2 zeta)."""
+    import casadi as ca
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    coulomb = {"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 100.0}], "initial": {"q": [0.0, 0.0]},
+               "horizon": {"tau_f": 1.0, "N": 5}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
+    prob = build_problem(robot, parse_task(coulomb))
+    assert prob.g_blocks["impact_cone"].shape == (5, 2)
+    assert "impact_cone" not in build_problem(robot, hop_task(N=5)).g_blocks  # a_t = 600 > mu a_n = 100
+    assert "impact_cone" not in build_problem(robot, parse_task(coulomb), ProblemOptions(impact_cone=False)).g_blocks
+    # a frozen impact step sliding forward (zeta = 0: the a_t field at full strength) sits on the cone's edge
+    rows = prob.g_blocks["impact_cone"][0]
+    g = ca.Function("g", [prob.x, prob.p], [prob.g[rows.tolist()]])
+    x = prob.x0.copy()
+    sig = dict(zip([s.name for s in prob.system.switches], prob.var_blocks["sigma"][0]))
+    x[sig["alpha[point]"]], x[sig["beta[point]"]], x[sig["gamma[point]"]], x[sig["zeta[point]"]] = 0.0, 0.0, 0.0, 0.0
+    x[prob.var_blocks["w"][0]] = prob.builder.w_from(x[prob.var_blocks["sigma"][0]], np.zeros(len(sig)), np.zeros(len(sig)))
+    assert np.allclose(np.asarray(g(x, prob.params(1.0))).ravel(), [0.5 * 200 - 100, 0.5 * 200 + 100])
