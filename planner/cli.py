@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner simulate point_mass --out results/drop\n"
                               "  planner simulate robots/point_mass.xml --task my_drop.toml --json\n"
-                              "  planner simulate capler --discretization fesd --stages 2 --out results/drop_fesd")
+                              "  planner simulate point_mass --discretization fesd --stages 2 --out results/drop_fesd   # impact at sqrt(2/g)")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection)")
