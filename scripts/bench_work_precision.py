@@ -1,6 +1,7 @@
-"""Work-precision benchmark of the time-freezing simulation (issue 9): wall time against error.
+"""Work-precision benchmark of the time-freezing simulation and of the planning OCP (issue 9): wall
+time against error.
 
-Cases (suite "simulate"; an "ocp" suite is meant to be added to SUITES once the Capler OCP converges):
+Suite "simulate" (the default; --cases picks among CASE_NAMES):
 
 * point mass (robots/point_mass.xml) against its exact solution (class Drop): the inelastic
   frictionless drop from (0, 1) m with v = (1, 0) m/s (Example 1 of the paper) under several
@@ -15,16 +16,34 @@ Cases (suite "simulate"; an "ocp" suite is meant to be added to SUITES once the 
   A MuJoCo line (timestep varied, error against the fine-grid run) puts the soft-contact simulator on
   the same plot.
 
+Suite "ocp" (--suite ocp; --cases among OCP_CASE_NAMES): the planner (build_problem + solve with the
+default SolveOptions) over the grid N, h = tau_f / N. The plans of different N are different local
+optima, so no plan is compared with another; each is judged against its own dynamics:
+
+* ocp_pm_hop: the point-mass hop of tests/test_problem.py (to x = 0.5 m, tau_f = 1 s), N = 20 ... 80.
+* ocp_capler: robots/capler.toml with its three holes, N = 40, 50, 75, 100 (--capler-N; the task's
+  own 125 takes ~5 min and 6000 IPOPT iterations). Planned once whatever --repeat says.
+
+Errors: the re-simulation defect (resimulation_defect: from the plan's state every 0.1 s of physical
+time, planner.simulate at h / 8 with the plan's controls open loop for 0.1 s; max distance of the base
+origin and of the contact points from the plan [m]); the MuJoCo tracking error (base, joint PD on the
+plan: what `planner validate` reports) [m]; penetration -min gap over the nodes [m]; terminal error
+[m, rad]; point mass also the first flight against the exact motion under the plan's controls from its
+own take-off state (max |q - q_exact|_inf [m], landing time error [s]; exact_flight). Records also hold
+IPOPT iterations, NLPs, convergence, hops and impacts.
+
 Writes OUT/results.json (one record per run, the convergence orders, the machine) and
-OUT/work_precision.png (log-log error against wall time). Runs one simulation at a time in this
-process (no worker processes), so a 2-core machine shared with other jobs still gives comparable
+OUT/work_precision.png (log-log error against wall time). Runs one simulation or plan at a time in
+this process (no worker processes), so a 2-core machine shared with other jobs still gives comparable
 numbers; the runs are deterministic (no random numbers).
 
     python -m scripts.bench_work_precision [--quick] [--out DIR] [--json]   (from the repository root)
+    python -m scripts.bench_work_precision --suite ocp [--quick] [--capler-N 40 50 ...] [--out DIR]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import math
@@ -33,6 +52,7 @@ import platform
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,14 +65,17 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from planner import replay
-from planner.dynamics import Dynamics
-from planner.model import load_robot
 from planner.discretization import Discretization, FESDOptions
+from planner.dynamics import Dynamics
+from planner.homotopy import SolveOptions, solve
+from planner.model import load_robot
+from planner.problem import build_problem
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
-from planner.task import parse_task
+from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
+DEFAULT_OUT_OCP = Path("results/bench/work_precision_ocp")
 REFERENCE_REFINEMENT = 8  # Capler reference step = smallest h of the grid / 8
 # IPOPT tol 1e-10 and complementarity <= 1e-9 leave errors up to ~1e-6 (the interior point keeps
 # selectors ~3e-6 off their bounds; tests/test_simulate.py uses SOLVER_TOL = 1e-5): errors below it
@@ -333,6 +356,270 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
 
 
 # ==================================================================================================
+# the OCP suite: the planner's wall time against the accuracy of its plan, over the grid N
+# ==================================================================================================
+
+# The defect windows: restart the simulation every DEFECT_WINDOW_S of the plan's physical time
+DEFECT_WINDOW_S = 0.1
+# numerical time of a window's simulation per second of physical time: room for its frozen intervals
+DEFECT_TAU_MARGIN = 1.25
+# Capler grids (h = 2.5 s / N): N = 50 plans in 66-90 s on the shared 2-core machine, the task's own N = 125 in ~5 min
+CAPLER_NS = (40, 50, 75, 100)
+ROBOTS = Path(__file__).resolve().parents[1] / "robots"
+# the errors whose slope against h is reported (the others are the plan's optimum, not the grid's)
+OCP_ORDER_KEYS = ("defect_base_m", "defect_points_m", "flight_error_m", "landing_time_error_s")
+
+
+@dataclass(frozen=True)
+class OcpCase:
+    """A planning task over the grids Ns (h = tau_f / N): name, robot name (robots/NAME.xml), the task
+    at a given N (task(N) -> Task), and whether the flight phases are checked against the exact
+    constant-acceleration solution (only true for the point mass, whose contact point is q = (x, z))."""
+
+    name: str
+    robot: str
+    task: Callable[[int], Task]
+    Ns: tuple[int, ...]
+    exact_flight: bool = False
+    repeat: bool = True  # honour --repeat (the Capler plans run once: minutes each)
+
+
+def point_mass_hop_task(N: int):
+    """The point-mass hop of tests/test_problem.py: at rest on the ground (mu = 0.5, no slip), asked to
+    be at x = 0.5 m at tau_f = 1 s with |u| <= 30 N; it must hop."""
+    return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": N}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+
+
+def capler_task(N: int):
+    """robots/capler.toml (three holes, tau_f = 2.5 s) on N steps."""
+    task = load_task(ROBOTS / "capler.toml")
+    return dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=N))
+
+
+def ocp_cases(quick: bool, capler_Ns: tuple[int, ...] | None = None) -> list[OcpCase]:
+    """The point-mass hop (quick: N = 20, 40) and, unless quick, Capler over capler_Ns (default
+    CAPLER_NS; the task's own N = 125 takes ~5 min and is left to --capler-N)."""
+    pm = OcpCase("ocp_pm_hop", "point_mass", point_mass_hop_task, (20, 40) if quick else (20, 30, 40, 60, 80), exact_flight=True)
+    if quick:
+        return [pm]
+    return [pm, OcpCase("ocp_capler", "capler", capler_task, tuple(capler_Ns or CAPLER_NS), repeat=False)]
+
+
+def plan_arrays(traj) -> dict:
+    """The contract arrays (t, q, v, u, impact_times) of a plan's trajectory (what `planner validate` reads)."""
+    return {"t": traj.t, "q": traj.q, "v": traj.v, "u": traj.u, "impact_times": traj.impact_times}
+
+
+def control_pieces(t: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The zero-order-hold controls of physical-time samples t (P,), u (P, nu) (u[i] acts on
+    [t[i-1], t[i]), planner.result.recover) as pieces: start times (M,) [s] and controls (M, nu).
+    Impacts (repeated times) hold no piece."""
+    keep = np.diff(t) > 0
+    return t[:-1][keep], u[1:][keep]
+
+
+def open_loop_schedule(t: np.ndarray, u: np.ndarray, t0: float, t1: float) -> tuple[ControlChange, ...]:
+    """task.simulate.schedule that replays the plan's controls (samples t (P,), u (P, nu)) open loop on
+    [t0, t1] of its physical time, with the simulation's clock starting at t0 (schedule time t - t0 >= 0)."""
+    starts, controls = control_pieces(t, u)
+    idx = np.nonzero((starts >= t0 - 1e-12) & (starts < t1))[0]
+    before = np.nonzero(starts < t0 - 1e-12)[0]  # the piece running at t0 (t0 inside a piece)
+    if before.size and (not idx.size or starts[idx[0]] > t0 + 1e-12):
+        idx = np.concatenate([[before[-1]], idx])
+    return tuple(ControlChange(t=max(float(starts[i] - t0), 0.0), u=tuple(float(x) for x in controls[i])) for i in idx)
+
+
+def _window_starts(t: np.ndarray, window: float) -> list[int]:
+    """Sample indices of the defect windows: the first sample at or after each multiple of `window`
+    [s] of physical time that is not an impact (its time is not repeated), leaving >= window / 2 of
+    plan after it."""
+    unique = np.ones(len(t), bool)
+    unique[1:] &= np.diff(t) > 0
+    unique[:-1] &= np.diff(t) > 0
+    out = []
+    for start in np.arange(t[0], t[-1] - window / 2, window):
+        cand = np.nonzero(unique & (t >= start - 1e-12))[0]
+        if cand.size and t[cand[0]] < start + window / 2 and (not out or cand[0] > out[-1]):
+            out.append(int(cand[0]))
+    return out
+
+
+def resimulation_defect(robot, dyn: Dynamics, task, traj, scene, refinement: int = REFERENCE_REFINEMENT,
+                        window: float = DEFECT_WINDOW_S) -> dict:
+    """The plan's local defect against a fine time-freezing simulation of its own controls.
+
+    From the plan's state (q, v) at each window start (every `window` s of physical time, _window_starts)
+    planner.simulate runs the task's contacts with the plan's controls held as planned (open loop,
+    open_loop_schedule) on the step h / refinement for `window` s of physical time; the defect is the
+    largest distance of the base origin and of the contact points from the plan at the plan's own
+    samples in each window (the fine run interpolated linearly there) [m]. The windows restart from the
+    plan, so a feedback-free drift of the unstable robot does not grow over the whole plan, and every
+    plan is judged against its own dynamics (the plans of different N are different local optima).
+    A contact point slightly below the ground at a start (the plan's complementarity tolerance,
+    <= 1e-6 m) lowers that window's ground by as much: the simulation must start in c >= 0.
+    Returns defect_base_m, defect_points_m, the windows' count, the failed ones, and their wall time [s].
+    """
+    t, q, v, u = traj.t, traj.q, traj.v, traj.u
+    h_ref = task.horizon.h / refinement
+    n_steps = max(1, math.ceil(DEFECT_TAU_MARGIN * window / h_ref))
+    gap_fns = [dyn.point_position(c.point) for c in task.contacts]
+    base_err, point_err, failed, per_window, start = 0.0, 0.0, [], [], time.perf_counter()
+    for i0 in _window_starts(t, window):
+        t0, t1 = float(t[i0]), min(float(t[i0]) + window, float(t[-1]))
+        low = min(float(np.asarray(f(q[i0])).ravel()[2]) for f in gap_fns) - task.ground_height
+        w_task = dataclasses.replace(
+            task, plan=None, ground_height=task.ground_height + min(low, 0.0),
+            initial=Initial(q=tuple(map(float, q[i0])), v=tuple(map(float, v[i0]))),
+            horizon=Horizon(tau_f=n_steps * h_ref, N=n_steps),
+            simulate=Simulate(schedule=open_loop_schedule(t, u, t0, t1), rho_f=task.plan.rho_f))
+        sim = simulate(robot, w_task, dynamics=dyn)
+        if not sim.stats.converged:
+            failed.append(round(t0, 6))  # its solved steps still count, up to where they reach
+        st = sim.trajectory
+        keep = (t > t0) & (t <= min(t1, t0 + st.t[-1]))
+        if not keep.any():
+            per_window.append((t0, None, None))
+            continue
+        q_sim = np.column_stack([np.interp(t[keep] - t0, st.t, st.q[:, j]) for j in range(robot.nq)])
+        base_p, pts_p = replay._planned_positions(scene, q[keep])
+        base_s, pts_s = replay._planned_positions(scene, q_sim)
+        per_window.append((t0, float(np.linalg.norm(base_p - base_s, axis=1).max()), float(np.linalg.norm(pts_p - pts_s, axis=2).max())))
+        base_err, point_err = max(base_err, per_window[-1][1]), max(point_err, per_window[-1][2])
+    return {"defect_base_m": base_err, "defect_points_m": point_err, "windows": len(per_window), "failed_windows": failed,
+            "per_window": [{"t0": a, "base_m": b, "points_m": c} for a, b, c in per_window],
+            "h_ref": h_ref, "window_s": window, "wall_time_s": time.perf_counter() - start}
+
+
+# a sample "is on the ground" when the point mass is less than this above it [m] (the plan's
+# complementarity tolerance is 1e-6; a step of flight lifts it by mm)
+GROUND_TOL_M = 1e-6
+
+
+def first_flight(traj, iz: int, ground: float) -> tuple[int, float] | None:
+    """(take-off sample index, landing impact time [s]) of the plan's first flight: the first impact
+    preceded by samples above the ground (height q[:, iz] > ground + GROUND_TOL_M) with at most one
+    ground sample (the touchdown node) between them and the impact; take-off is the last ground
+    sample before those. None when no impact ends a flight (an impact at rest is no landing)."""
+    t, z = traj.t, traj.q[:, iz] - ground
+    for imp in traj.impacts:
+        i = int(np.searchsorted(t, imp.time - 1e-12))  # the impact's pre-impact sample
+        j = i - 1 if i >= 1 and z[i - 1] <= GROUND_TOL_M else i
+        k = j - 1
+        while k >= 0 and z[k] > GROUND_TOL_M:
+            k -= 1
+        if k < j - 1 and k >= 0:
+            return k, imp.time
+    return None
+
+
+def exact_flight(robot, dyn: Dynamics, task, traj) -> dict | None:
+    """The plan's first flight (first_flight) against the exact solution of its own controls (point
+    mass only: the contact point is q = (x, z) and the acceleration M^-1 (B u - h) is constant per
+    control piece; the plans push in flight too, so the motion is not the ballistic parabola).
+
+    From the plan's state at take-off the exact motion under the plan's zero-order-hold controls is
+    one parabola per control piece, landing where z reaches the ground. Returns flight_error_m (max
+    |q - q_exact|_inf over the plan's samples strictly between take-off and the earlier of the two
+    landings [m]), landing_time_error_s (|the plan's impact - the exact landing| [s]; None when the
+    exact motion does not land within the plan), the take-off, plan and exact landing times [s] and
+    the number of samples compared; None when the plan has no flight."""
+    iz, zg = robot.dof_index("z"), task.ground_height
+    flight = first_flight(traj, iz, zg)
+    if flight is None:
+        return None
+    i0, plan_landing = flight
+    t, q, v = traj.t, traj.q, traj.v
+    takeoff_time = float(t[i0])
+    starts, controls = control_pieces(t, traj.u)
+    ends = np.append(starts[1:], t[-1])
+    qk, vk, tk = q[i0].astype(float), v[i0].astype(float), takeoff_time
+    pieces, landing = [], None  # (start [s], q, v, acceleration) of each exact parabola
+    for s1, uk in zip(ends, controls):
+        if s1 <= tk + 1e-12:
+            continue
+        a = np.asarray(dyn.forward(qk, vk, uk), float).ravel()
+        pieces.append((tk, qk, vk, a))
+        dt = s1 - tk
+        # z(s) = z + vz s + az s^2 / 2 comes down on the ground at the smallest root in (0, dt] where it
+        # falls (a take-off state at the ground, z ~ 1e-9 m, has a rising root near 0: not a landing)
+        roots = np.roots([a[iz] / 2, vk[iz], qk[iz] - zg])
+        hits = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and 0 < r.real <= dt + 1e-9 and vk[iz] + a[iz] * r.real < 0]
+        if hits:
+            landing = tk + min(hits)
+            break
+        qk, vk, tk = qk + vk * dt + a * dt**2 / 2, vk + a * dt, float(s1)
+    stop = min(x for x in (landing, plan_landing) if x is not None)
+    inside = np.nonzero((t > takeoff_time + 1e-12) & (t < stop - 1e-12))[0]
+    err = 0.0
+    for i in inside:
+        s0, qs, vs, a = [p for p in pieces if p[0] <= t[i]][-1]
+        s = t[i] - s0
+        err = max(err, float(np.max(np.abs(q[i] - (qs + vs * s + a * s**2 / 2)))))
+    return {"flight_error_m": err if inside.size else None,
+            "landing_time_error_s": abs(plan_landing - landing) if landing is not None else None,
+            "takeoff_time_s": takeoff_time, "plan_landing_time_s": plan_landing, "exact_landing_time_s": landing,
+            "flight_samples": int(inside.size)}
+
+
+def _plan(robot, task, dyn: Dynamics):
+    """build_problem + solve with the planner's defaults; (result, build wall [s])."""
+    start = time.perf_counter()
+    problem = build_problem(robot, task, dynamics=dyn)
+    build = time.perf_counter() - start
+    return solve(problem, SolveOptions()), build
+
+
+def ocp_records(case: OcpCase, repeat: int, log) -> list[dict]:
+    """One record per N of an OCP case: wall time (build_problem + solve), IPOPT iterations, converged,
+    hops, impacts and the errors (penetration, terminal error, MuJoCo tracking, re-simulation defect;
+    point mass also the exact flight and landing)."""
+    robot = load_robot(case.robot)
+    dyn = Dynamics(robot)
+    records = []
+    for N in case.Ns:
+        task = case.task(N)
+        (result, build), wall = _timed(lambda: _plan(robot, task, dyn), repeat if case.repeat else 1)
+        tr, st = result.trajectory, result.stats
+        rec = {"suite": "ocp", "simulator": "planner", "case": case.name, "variant": "default", "h": task.horizon.h, "N": N,
+               "tau_f": task.horizon.tau_f, "options": {"solve": "SolveOptions() defaults", "holes": len(task.plan.holes)},
+               "converged": st.converged, "message": st.message, "wall_time_s": wall, "build_time_s": build,
+               "solve_time_s": st.solve_time_s, "n_nlp": st.n_nlp, "ipopt_iterations": st.ipopt_iterations,
+               "nlps_failed": [r.label for r in result.nlps if not r.success], "polished": result.polished,
+               "complementarity_residual": st.complementarity_residual, "physical_duration_s": tr.physical_duration,
+               "n_impacts": len(tr.impacts), "hops": len(result.hops)}
+        errors = {"penetration_m": penetration(dyn, task, tr.y), "terminal_error": result.terminal_error}
+        if len(tr.t) > 1:
+            validation = replay.validate_trajectory(robot, task, plan_arrays(tr), impact_points=[imp.contact for imp in tr.impacts])
+            errors["tracking_error_m"] = validation.max_tracking_error_m
+            errors["tracking_point_error_m"] = max(validation.tracking.max_foot_error_m.values(), default=None)
+            rec["tracking_diverged"] = validation.tracking.diverged
+            scene = replay.build_scene(robot, task)
+            defect = resimulation_defect(robot, dyn, task, tr, scene)
+            errors["defect_base_m"], errors["defect_points_m"] = defect.pop("defect_base_m"), defect.pop("defect_points_m")
+            rec["defect"] = defect
+        flight = exact_flight(robot, dyn, task, tr) if case.exact_flight else None
+        if flight is not None:
+            errors["flight_error_m"], errors["landing_time_error_s"] = flight.pop("flight_error_m"), flight.pop("landing_time_error_s")
+            rec["flight"] = flight
+        rec["errors"] = errors
+        records.append(rec)
+        log(rec)
+    return records
+
+
+def run_ocp_suite(quick: bool, repeat: int, log, cases: set[str] | None = None, capler_Ns: tuple[int, ...] | None = None) -> tuple[list[dict], dict]:
+    """All OCP records; `cases` restricts to case names (None: all). No references: each plan is judged
+    against its own dynamics and the exact flight (returned dict: how)."""
+    records = []
+    for case in ocp_cases(quick, capler_Ns):
+        if cases is None or case.name in cases:
+            records += ocp_records(case, repeat, log)
+    refs = {"defect": {"refinement": REFERENCE_REFINEMENT, "window_s": DEFECT_WINDOW_S, "simulator": "planner.simulate (implicit Euler, stepwise)"}}
+    return records, refs
+
+
+# ==================================================================================================
 # the suites
 # ==================================================================================================
 
@@ -383,22 +670,24 @@ def run_simulate_suite(quick: bool, repeat: int, log, cases: set[str] | None = N
     return records, refs
 
 
-SUITES = {"simulate": run_simulate_suite}  # "ocp": the Capler OCP against nosnoc, later (issue 9)
-CASE_NAMES = ("pm_drop_frictionless", "pm_drop_noslip", "pm_drop_elastic_0.5", "capler_pd_drop")
+SUITES = {"simulate": run_simulate_suite, "ocp": run_ocp_suite}
+CASE_NAMES = ("pm_drop_frictionless", "pm_drop_noslip", "pm_drop_elastic_0.5", "capler_pd_drop")  # suite "simulate"
+OCP_CASE_NAMES = ("ocp_pm_hop", "ocp_capler")  # suite "ocp"
 
 
 # ==================================================================================================
 # orders, machine, outputs
 # ==================================================================================================
 
-def convergence_orders(records: list[dict]) -> list[dict]:
-    """Slope of log(error) against log(h) per (case, variant, error) of the time-freezing runs, over the
-    converged runs with an error above ERROR_FLOOR (below it the error is the solver's, not the grid's)."""
+def convergence_orders(records: list[dict], keys: tuple[str, ...] | None = None) -> list[dict]:
+    """Slope of log(error) against log(h) per (case, variant, error) of the time-freezing simulations
+    and plans, over the converged runs with an error above ERROR_FLOOR (below it the error is the
+    solver's, not the grid's); keys: only these errors (None: all)."""
     out = []
-    tf = [r for r in records if r["simulator"] == "time-freezing" and r["converged"]]
+    tf = [r for r in records if r["simulator"] in ("time-freezing", "planner") and r["converged"]]
     for case, variant in sorted({(r["case"], r["variant"]) for r in tf}):
         runs = [r for r in tf if (r["case"], r["variant"]) == (case, variant)]
-        for key in sorted({k for r in runs for k in r["errors"]}):
+        for key in sorted({k for r in runs for k in r["errors"] if keys is None or k in keys}):
             pts = [(r["h"], r["errors"][key]) for r in runs if r["errors"].get(key) is not None and r["errors"][key] > ERROR_FLOOR]
             if len({h for h, _ in pts}) >= 2:
                 hs, errs = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
@@ -430,20 +719,28 @@ def machine_info() -> dict:
 PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs FESD n_s=2 at 5 ms (else IE fine grid)",
            {"pm_": "state_error_m", "capler_": ("base_error_fesd_ref_m", "base_error_ref_m")}),
           ("impact time error [s]\npoint mass: vs sqrt(2 z0/g); Capler: vs sqrt(2 drop/g)", {"pm_": "impact_time_error_s", "capler_": "impact_time_diff_exact_s"}))
+# the OCP suite's panels: the plan against a fine simulation of its own controls, against MuJoCo,
+# and (point mass) against the exact flight
+OCP_PANELS = (("re-simulation defect [m]\nbase vs implicit Euler at h/8 from the plan's state, every 0.1 s", {"ocp_": "defect_base_m"}),
+              ("MuJoCo tracking error [m]\nbase, joint PD on the plan (planner validate)", {"ocp_": "tracking_error_m"}),
+              ("flight error [m]\npoint mass: max |q - q_exact| from its take-off", {"ocp_pm": "flight_error_m"}))
 MARKERS = "osD^vPX*hp<>"
 
 
-def plot(records: list[dict], path: Path) -> None:
-    """Log-log error against wall time: one line per (case, variant), one marker per h."""
-    fig = Figure(figsize=(12, 5))
+def plot(records: list[dict], path: Path, panels=PANELS) -> None:
+    """Log-log error against wall time: one panel per entry of `panels`, one line per (case,
+    variant), one marker per h."""
+    fig = Figure(figsize=(6 * len(panels), 5))
     FigureCanvasAgg(fig)
     hs = sorted({r["h"] for r in records}, reverse=True)
     marker = {h: MARKERS[i % len(MARKERS)] for i, h in enumerate(hs)}
     lines = sorted({(r["case"], r["variant"]) for r in records}, key=lambda cv: (cv[0], cv[1] != "default", cv[1]))
-    axes = fig.subplots(1, 2)
-    for ax, (title, keys) in zip(axes, PANELS):
+    axes = fig.subplots(1, len(panels))
+    for ax, (title, keys) in zip(axes, panels):
         for i, (case, variant) in enumerate(lines):
-            key = next(k for prefix, k in keys.items() if case.startswith(prefix))
+            key = next((k for prefix, k in keys.items() if case.startswith(prefix)), None)
+            if key is None:  # a panel for some cases only
+                continue
             if isinstance(key, tuple):  # the first key the runs have (the quick run has no FESD reference)
                 key = next((k for k in key if any(r["errors"].get(k) is not None for r in records if r["case"] == case)), key[-1])
             runs = sorted((r for r in records if (r["case"], r["variant"]) == (case, variant) and r["converged"]
@@ -461,8 +758,9 @@ def plot(records: list[dict], path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
     h_handles = [axes[1].plot([], [], MARKERS[i % len(MARKERS)], color="gray")[0] for i, _ in enumerate(hs)]
-    fig.legend(handles + h_handles, labels + [f"h = {h:g} s" for h in hs], loc="center left", bbox_to_anchor=(0.775, 0.5), fontsize=7)
-    fig.subplots_adjust(left=0.06, right=0.77, wspace=0.22)
+    right = 1 - 0.23 * 2 / len(panels)  # the legend column keeps its width
+    fig.legend(handles + h_handles, labels + [f"h = {h:g} s" for h in hs], loc="center left", bbox_to_anchor=(right + 0.005, 0.5), fontsize=7)
+    fig.subplots_adjust(left=0.06 * 2 / len(panels), right=right, wspace=0.22)
     fig.savefig(path, dpi=80)
 
 
@@ -475,6 +773,19 @@ def table(records: list[dict]) -> str:
     for r in records:
         cells = [r["case"], r["variant"], f"{r['h']:g}", str(r["N"]), f"{r['wall_time_s']:.2f}" + ("" if r["converged"] else " (failed)"),
                  str(r.get("n_nlp", "")), *(("" if r["errors"].get(k) is None else f"{r['errors'][k]:.2e}") for k in keys)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def ocp_table(records: list[dict]) -> str:
+    """A Markdown table of the OCP records (errors in m or s, times in s)."""
+    keys = ["defect_base_m", "defect_points_m", "tracking_error_m", "flight_error_m", "landing_time_error_s", "penetration_m", "terminal_error"]
+    keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
+    lines = ["| case | N | h [s] | wall [s] | IPOPT it | converged | hops | impacts | " + " | ".join(keys) + " |", "|---" * (8 + len(keys)) + "|"]
+    for r in records:
+        cells = [r["case"], str(r["N"]), f"{r['h']:g}", f"{r['wall_time_s']:.1f}", str(r["ipopt_iterations"]),
+                 "yes" if r["converged"] else "no", str(r["hops"]), str(r["n_impacts"]),
+                 *(("" if r["errors"].get(k) is None else f"{r['errors'][k]:.2e}") for k in keys)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -496,15 +807,23 @@ def _strict(obj):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
-    parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons")
+    parser.add_argument("--out", type=Path, help=f"output directory (default {DEFAULT_OUT}, suite ocp: {DEFAULT_OUT_OCP})")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons (ocp: the point mass only)")
     parser.add_argument("--json", action="store_true", help="print the summary (orders, machine, files) as JSON")
     parser.add_argument("--suite", choices=sorted(SUITES), default="simulate")
-    parser.add_argument("--cases", nargs="+", choices=CASE_NAMES, help="run only these cases (default: all)")
-    parser.add_argument("--repeat", type=int, default=1, help="runs per point; the wall time is their median")
+    parser.add_argument("--cases", nargs="+", choices=CASE_NAMES + OCP_CASE_NAMES, help="run only these cases of the suite (default: all)")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per point; the wall time is their median (ocp: not Capler, planned once)")
+    parser.add_argument("--capler-N", type=int, nargs="+", metavar="N",
+                        help=f"suite ocp: the Capler grids (default {' '.join(map(str, CAPLER_NS))}; the task's own 125 takes ~5 min)")
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
+    if args.capler_N and (args.suite != "ocp" or min(args.capler_N) < 1):
+        parser.error("--capler-N needs --suite ocp and N >= 1")
+    suite_cases = CASE_NAMES if args.suite == "simulate" else OCP_CASE_NAMES
+    if args.cases and not set(args.cases) <= set(suite_cases):
+        parser.error(f"--cases of suite {args.suite}: {', '.join(suite_cases)}")
+    out = args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP)
 
     def log(rec):  # progress on stderr: stdout keeps the table or the JSON
         errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["errors"].items() if v is not None)
@@ -513,22 +832,23 @@ def main(argv: list[str] | None = None) -> int:
 
     load_before = os.getloadavg()
     start = time.perf_counter()
-    records, refs = SUITES[args.suite](args.quick, args.repeat, log, set(args.cases) if args.cases else None)
+    extra = {"capler_Ns": tuple(args.capler_N)} if args.capler_N else {}
+    records, refs = SUITES[args.suite](args.quick, args.repeat, log, set(args.cases) if args.cases else None, **extra)
     machine = {**machine_info(), "load_average_before": load_before, "load_average_after": os.getloadavg()}
-    orders = convergence_orders(records)
-    args.out.mkdir(parents=True, exist_ok=True)
+    orders = convergence_orders(records, None if args.suite == "simulate" else OCP_ORDER_KEYS)
+    out.mkdir(parents=True, exist_ok=True)
     results = {"command": "python -m scripts.bench_work_precision " + " ".join(argv if argv is not None else sys.argv[1:]),
                "suite": args.suite, "quick": args.quick, "repeat": args.repeat, "total_wall_time_s": time.perf_counter() - start,
                "machine": machine, "references": refs, "orders": orders, "records": records}
-    (args.out / "results.json").write_text(json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
-    plot(records, args.out / "work_precision.png")
-    summary = {"results": str(args.out / "results.json"), "plot": str(args.out / "work_precision.png"),
+    (out / "results.json").write_text(json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
+    plot(records, out / "work_precision.png", PANELS if args.suite == "simulate" else OCP_PANELS)
+    summary = {"results": str(out / "results.json"), "plot": str(out / "work_precision.png"),
                "n_records": len(records), "n_failed": sum(not r["converged"] for r in records),
                "total_wall_time_s": results["total_wall_time_s"], "machine": machine, "orders": orders}
     if args.json:
         print(json.dumps(_strict(summary), indent=1))
     else:
-        print(table(records))
+        print(table(records) if args.suite == "simulate" else ocp_table(records))
         print("\nconvergence orders (slope of log error vs log h):")
         for o in orders:
             print(f"  {o['case']:<22} {o['variant']:<10} {o['error']:<26} {o['order']:5.2f}")

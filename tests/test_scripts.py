@@ -63,6 +63,75 @@ def test_work_precision_quick_run(bench, tmp_path, capsys):
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
+    """--suite ocp --quick --json: the point-mass hop planned at N = 20 and 40 (no Capler), one record
+    per N with wall time, IPOPT iterations, convergence, hops and impacts, and finite errors: the
+    re-simulation defect, MuJoCo tracking, penetration, terminal error and the exact flight. The
+    landing time error against the exact flight falls from N = 20 to 40 (measured 2.4e-2 and 1.0e-2 s:
+    different local optima, one and two hops, but both land with implicit Euler's O(h) error)."""
+    assert bench.main(["--suite", "ocp", "--quick", "--json", "--out", str(tmp_path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["suite"] == "ocp" and summary["n_records"] == len(results["records"]) == 2
+    assert results["machine"]["cpu_count"] and results["machine"]["date"]
+    records = sorted(results["records"], key=lambda r: r["N"])
+    assert [(r["case"], r["N"]) for r in records] == [("ocp_pm_hop", 20), ("ocp_pm_hop", 40)]
+    for r in records:
+        for key in ("h", "wall_time_s", "ipopt_iterations", "converged", "hops", "n_impacts", "defect", "flight"):
+            assert r.get(key) is not None, (key, r["N"])
+        assert r["converged"] and r["wall_time_s"] > 0 and r["ipopt_iterations"] > 0
+        for key in ("defect_base_m", "tracking_error_m", "penetration_m", "terminal_error", "flight_error_m", "landing_time_error_s"):
+            assert r["errors"][key] is not None and math.isfinite(r["errors"][key]), (key, r["N"])
+        assert r["defect"]["windows"] >= 5 and r["defect"]["failed_windows"] == []
+    assert records[1]["errors"]["landing_time_error_s"] < records[0]["errors"]["landing_time_error_s"]
+    assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_open_loop_schedule_replays_the_plan_controls(bench):
+    """The plan's zero-order-hold controls (u[i] acts on [t[i-1], t[i]), an impact repeats a time)
+    become a simulate.schedule in the window's own clock: the piece running at the window start
+    comes first at t = 0, impacts hold no piece."""
+    t = np.array([0.0, 0.1, 0.2, 0.2, 0.3])
+    u = np.array([[0.0], [1.0], [2.0], [9.0], [3.0]])
+    starts, controls = bench.control_pieces(t, u)
+    np.testing.assert_allclose(starts, [0.0, 0.1, 0.2])
+    np.testing.assert_allclose(controls.ravel(), [1.0, 2.0, 3.0])
+    sched = bench.open_loop_schedule(t, u, 0.15, 0.3)
+    assert [(c.t, c.u) for c in sched] == [(0.0, (2.0,)), (pytest.approx(0.05), (3.0,))]
+    from planner.task import Simulate
+
+    sim = Simulate(schedule=sched)
+    assert sim.controls_at(0.01, 1)[0] == 2.0 and sim.controls_at(0.06, 1)[0] == 3.0
+
+
+def test_exact_flight_of_an_exact_parabola(bench):
+    """A point mass leaving the ground at v = (1, 2) m/s with u = 0, sampled exactly every 0.05 s and
+    landing (an impact pair) at 4 / g: flight error ~0 and landing time error ~0; the same samples
+    with the impact reported 0.01 s late give a landing time error of 0.01 s. A trajectory whose
+    only impact is at rest (no sample above the ground before it) has no flight."""
+    from types import SimpleNamespace
+
+    from planner.dynamics import Dynamics
+    from planner.model import load_robot
+
+    robot = load_robot("point_mass")
+    dyn, task = Dynamics(robot), bench.point_mass_hop_task(20)
+    g, land = bench.G, 4.0 / bench.G
+    ts = np.append(np.arange(0.0, land, 0.05), [land, land])
+    q = np.column_stack([ts, 2 * ts - g * ts**2 / 2])
+    q[-2:, 1] = 0.0
+    v = np.column_stack([np.ones_like(ts), 2 - g * ts])
+    v[-1] = 0.0
+    traj = SimpleNamespace(t=ts, q=q, v=v, u=np.zeros((len(ts), 2)), impacts=(SimpleNamespace(time=land),))
+    out = bench.exact_flight(robot, dyn, task, traj)
+    assert out["flight_error_m"] < 1e-12 and out["landing_time_error_s"] < 1e-12 and out["flight_samples"] == len(ts) - 3
+    late = SimpleNamespace(**{**vars(traj), "t": np.append(ts[:-2], [land + 0.01] * 2), "impacts": (SimpleNamespace(time=land + 0.01),)})
+    assert bench.exact_flight(robot, dyn, task, late)["landing_time_error_s"] == pytest.approx(0.01)
+    rest = SimpleNamespace(t=np.array([0.0, 0.1, 0.1]), q=np.zeros((3, 2)), v=np.zeros((3, 2)), u=np.zeros((3, 2)),
+                           impacts=(SimpleNamespace(time=0.1),))
+    assert bench.exact_flight(robot, dyn, task, rest) is None
+
+
 def test_drop_exact_solution(bench):
     """The benchmark's ground truth: impact at sqrt(2 z0 / g); frictionless the mass slides on at vx,
     no-slip it stops; elastic bounces reach eps^(2k) z0 and leave at eps times the impact speed."""
