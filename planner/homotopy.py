@@ -75,6 +75,13 @@ _MUMPS_PIVOT_ORDER = {MumpsOrdering.AMD: 0, MumpsOrdering.AMF: 2, MumpsOrdering.
                       MumpsOrdering.METIS: 5, MumpsOrdering.QAMD: 6, MumpsOrdering.AUTO: 7}
 
 
+class VariableScaling(Enum):
+    """The variables IPOPT sees in the homotopy's NLPs (docs/formulation.md, round 6)."""
+
+    NONE = "none"  # x as built
+    FIRST_NLP = "first_nlp"  # from NLP 2 on, x = D xs with D = variable_scale(problem, NLP 1's solution)
+
+
 class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
@@ -136,6 +143,15 @@ class SolveOptions:
     iterations cost a third less CPU than with MUMPS's own choice (AUTO, default), but the ordering
     changes the round-off and so the path: the one full solve measured with AMD took 7239
     iterations instead of 6099 (docs/benchmarks.md, "Speed of the pipeline").
+    variable_scaling: VariableScaling, or None (default) for the task's `[plan.homotopy]
+    scale_variables` (FIRST_NLP if true, else NONE). FIRST_NLP: NLPs 2 and later see x = D xs, with D
+    each variable column's largest magnitude in NLP 1's solution (variable_scale). IPOPT's Hessian
+    regularization and fraction-to-the-boundary rule are not scale invariant, and Capler's variables
+    span 1 (selectors) to 1.4e3 (accelerations): unscaled, NLP 2 of the default task crawled to its
+    3000-iteration cap (3958 to converge); scaled it converges in 1535 and every NLP converges
+    (robots/capler.toml opts in). On the biped walk it made NLP 5 stop at its cap (4222 iterations
+    against 2143), so it is a per-task choice (docs/formulation.md, round 6). NLP 1 and the polish see x as built; the scaled IPOPT is created
+    after NLP 1 (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
     retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
     (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
     retry; only with soft_terminal_nlps >= 1). A weak soft terminal lets NLP 1 stop short of the
@@ -180,10 +196,13 @@ class SolveOptions:
     intermediate_tol: float | None = None
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
     retry_terminal_weight: float | None = 1e4
+    variable_scaling: VariableScaling | None = None
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
-                          ("mumps_ordering", MumpsOrdering)):
+                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling)):
+            if key == "variable_scaling" and self.variable_scaling is None:
+                continue
             if not isinstance(getattr(self, key), enum):
                 raise InputError(f"SolveOptions.{key} = {getattr(self, key)!r} is not allowed; it must be one of {[e.value for e in enum]}")
         checks = [
@@ -242,8 +261,18 @@ class _Solvers:
 
     def __init__(self, problem: Problem, options: SolveOptions):
         self.nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
+        self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
         self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
         self.problem = problem
+
+    def set_scale(self, D: np.ndarray) -> None:
+        """From now on the warm (later-NLP) solvers see x = D xs (VariableScaling.FIRST_NLP)."""
+        pb = self.problem
+        self.scale = np.asarray(D, float)
+        xs = ca.SX.sym("xs", pb.nx)
+        x = ca.DM(self.scale) * xs
+        self.scaled_nlp = {"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)}
+        self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled")}
 
     def projection(self):
         """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
@@ -261,11 +290,12 @@ class _Solvers:
 
     def get(self, warm: bool, loose: bool = False):
         opts = ipopt_options(self.options, warm, loose)
-        key = repr(sorted(opts["ipopt"].items()))  # one IPOPT per distinct option set (creating one takes ~1 s)
+        scaled = warm and self.scale is not None
+        key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:
             t0 = time.perf_counter()
             name = ("loose_" if loose and self.options.intermediate_tol is not None else "") + ("warm" if warm else "cold")
-            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.nlp, opts)
+            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.scaled_nlp if scaled else self.nlp, opts)
             self.names[key] = name
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]
@@ -292,6 +322,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         return 1.0 if not values else float(values[min(i, len(values) - 1)])
 
     term_rows = _terminal_rows(problem)
+    scaling = options.variable_scaling or (VariableScaling.FIRST_NLP if hom.scale_variables else VariableScaling.NONE)
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
@@ -307,6 +338,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         records.append(rec)
         if progress:
             progress(rec)
+        if i == 0 and scaling is VariableScaling.FIRST_NLP:
+            solvers.set_scale(variable_scale(problem, x))
         starts = ([(x, lam_x, lam_g, rec.label)] + starts)[: options.polish_starts]
     homotopy_ok = all(r.success for r in records)
     polished = False
@@ -379,6 +412,18 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
     return None
 
 
+def variable_scale(problem: Problem, x) -> np.ndarray:
+    """D (nx,) for VariableScaling.FIRST_NLP: for each column of the stage blocks u, y, w (one column per
+    variable kind: a joint's angle, a contact force, a selector, ...) the largest |value| over the
+    stages at x, at least 1; 1 for every other variable (speeds of time, the slack, a periodic y0)."""
+    x = np.asarray(x, float).ravel()
+    D = np.ones(problem.nx)
+    for name in ("u", "y", "w"):
+        rows = problem.var_blocks[name]
+        D[rows] = np.maximum(np.abs(x[rows]).max(axis=0), 1.0)[None, :]
+    return D
+
+
 def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None = None,
                       refine: tuple[float, ...] = ()) -> list[float]:
     """rho0 kappa^i for i < n_nlp, continued while <= rho_max, without the values below rho_min
@@ -395,6 +440,7 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
+    warm_solver = warm and not projection  # the solver that sees the scaled variables, once set
     solver = solvers.projection() if projection else solvers.get(warm, loose)
     if projection:
         lam_x, lam_g, warm = None, None, False
@@ -402,21 +448,22 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     rho, hole_scale = float(p[-6]), float(p[-5])
     lbg = problem.lbg if lbg is None else lbg
     ubg = problem.ubg if ubg is None else ubg
-    args = {"x0": x0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+    D = solvers.scale if (warm_solver and solvers.scale is not None) else np.ones(problem.nx)
+    args = {"x0": np.asarray(x0, float) / D, "p": p, "lbx": lbx / D, "ubx": ubx / D, "lbg": lbg, "ubg": ubg}
     if warm:
-        args.update(lam_x0=lam_x, lam_g0=lam_g)
+        args.update(lam_x0=np.asarray(lam_x, float) * D, lam_g0=lam_g)
     t0 = time.perf_counter()
     sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
-    x = np.asarray(sol["x"], float).ravel()
+    x = np.asarray(sol["x"], float).ravel() * D
     gp = problem.notes.get("gated_products")
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
                     complementarity_residual=(float(np.max(np.abs(np.asarray(gp(x), float)), initial=0.0)) if gp is not None
                                               else problem.complementarity_residual(x)), iterations=int(st.get("iter_count", 0)),
                     time_s=wall, status=str(st.get("return_status", "")), success=bool(st.get("success", False)),
                     terminal_error=terminal_error(problem, x))
-    return x, np.asarray(sol["lam_x"], float).ravel(), np.asarray(sol["lam_g"], float).ravel(), rec
+    return x, np.asarray(sol["lam_x"], float).ravel() / D, np.asarray(sol["lam_g"], float).ravel(), rec
 
 
 def _ipopt_timing(solvers) -> dict:

@@ -92,11 +92,14 @@ class Ellipse:
 
 @dataclass(frozen=True)
 class Homotopy:
-    """l_inf penalty homotopy: rho_k = rho0 * kappa^k, k = 0 .. n_nlp-1."""
+    """l_inf penalty homotopy: rho_k = rho0 * kappa^k, k = 0 .. n_nlp-1. scale_variables: the NLPs after
+    the first see every variable divided by its largest magnitude in NLP 1's solution
+    (planner.homotopy.VariableScaling.FIRST_NLP; measured per task, docs/formulation.md round 6)."""
 
     rho0: float = 1.0
     kappa: float = 10.0
     n_nlp: int = 5
+    scale_variables: bool = False
 
     def __post_init__(self):
         _require(self.rho0 > 0, "plan.homotopy.rho0", self.rho0, "> 0")

@@ -113,6 +113,46 @@ def test_warm_start_modes_pass_the_multipliers_only_when_asked():
         assert (solvers.get(warm=True) is solvers.get(warm=False)) is shared
 
 
+SCALED_NLP_TOL = 1e-9  # relative: the scaled NLP is the same function, only the rounding of x = D xs differs
+
+
+def test_variable_scaling_sees_the_same_nlp_in_scaled_variables():
+    """VariableScaling.FIRST_NLP: variable_scale gives each stage column its largest magnitude (at least
+    1, and 1 outside the stage blocks); the scaled warm IPOPT's objective and constraints at xs = x / D
+    equal the unscaled ones at x (to rounding), the cold NLP 1 solver stays unscaled, and a solve with
+    it on the point-mass hop converges with every NLP. The task key [plan.homotopy] scale_variables
+    chooses the mode when SolveOptions leaves it None; an unknown mode is rejected."""
+    import casadi as ca
+
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=8))
+    rng = np.random.default_rng(0)
+    x = prob.x0 + rng.normal(scale=50.0, size=prob.nx)
+    D = H.variable_scale(prob, x)
+    u = prob.var_blocks["u"]
+    assert np.all(D >= 1.0) and D[prob.var_blocks["s_c"]] == 1.0
+    np.testing.assert_array_equal(D[u[0]], np.maximum(np.abs(x[u]).max(axis=0), 1.0))
+    solvers = H._Solvers(prob, H.SolveOptions(variable_scaling=H.VariableScaling.FIRST_NLP))
+    cold = solvers.get(warm=False)
+    solvers.set_scale(D)
+    assert solvers.get(warm=False) is cold and solvers.get(warm=True) is not cold
+    P = prob.params(1e3, 1.0)
+    fg = ca.Function("fg", [prob.x, prob.p], [prob.f, prob.g])
+    fgs = ca.Function("fgs", [solvers.scaled_nlp["x"], solvers.scaled_nlp["p"]], [solvers.scaled_nlp["f"], solvers.scaled_nlp["g"]])
+    (f0, g0), (f1, g1) = fg(x, P), fgs(x / D, P)
+    np.testing.assert_allclose(float(f1), float(f0), rtol=SCALED_NLP_TOL)
+    np.testing.assert_allclose(np.asarray(g1).ravel(), np.asarray(g0).ravel(), rtol=SCALED_NLP_TOL, atol=SCALED_NLP_TOL)
+
+    res = H.solve(build_problem(load_robot("robots/point_mass.xml"), hop_task(N=40)),
+                  H.SolveOptions(variable_scaling=H.VariableScaling.FIRST_NLP))
+    assert res.stats.converged and all(r.success for r in res.nlps), res.stats.message
+    assert res.stats.complementarity_residual <= COMP_TOL and res.terminal_error <= TERMINAL_TOL
+    with pytest.raises(InputError, match="first_nlp"):
+        H.SolveOptions(variable_scaling="on")
+    from planner.task import load_task
+
+    assert load_task("robots/capler.toml").plan.homotopy.scale_variables and not hop_task(N=4).plan.homotopy.scale_variables
+
+
 def test_mumps_ordering_is_passed_to_ipopt():
     """SolveOptions.mumps_ordering becomes IPOPT's mumps_pivot_order (only with MUMPS); an unknown
     name lists the valid ones."""
