@@ -92,9 +92,9 @@ class Polish(Enum):
 class SolveOptions:
     """Numerical settings of the homotopy (the homotopy's rho0, kappa, n_nlp come from the task).
 
-    tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP (NLP 2 of
-    the default Capler task stops at 3000 on its way to hopping; allowed to converge, at 3958, the
-    path led NLP 4 astray: docs/formulation.md round 4);
+    tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP (unscaled, NLP 2 of
+    the default Capler task stopped at 3000 on its way to hopping, and allowed to converge, at 3958,
+    the path led NLP 4 astray; with variable_scaling it converges in 1535: docs/formulation.md round 6);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
     "mumps"); mu_strategy: IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
     warm_start: WarmStart: PRIMAL (default) restarts IPOPT's multipliers and barrier at every NLP

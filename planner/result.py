@@ -179,7 +179,7 @@ class NlpRecord:
     rho: float  # complementarity penalty
     hole_scale: float  # scale r of the holes (0: relaxed, 1: the task's)
     objective: float  # NLP objective at its solution
-    complementarity_residual: float  # max over all pairs of a * b (unscaled)
+    complementarity_residual: float  # max over all pairs of a * b (unscaled; with gating the largest gated product)
     iterations: int  # IPOPT iterations
     time_s: float  # wall time of the IPOPT call [s]
     status: str  # IPOPT return status
