@@ -149,3 +149,22 @@ def test_fesd_hop_impact_time_is_exact(hop):
     a = u[land - 1, 1] / MASS - G
     root = (-vz - np.sqrt(vz**2 - 2 * a * z)) / a  # the later root of z + vz s + a s^2 / 2 = 0 (a < 0)
     assert impact.time == pytest.approx(t + root, abs=IMPACT_TIME_TOL)
+
+
+def test_physical_time_and_l1_blocks():
+    """With horizon.physical_time every FESD step gets a speed of time s_k >= 1 (block "s" (N, 1), in
+    every stage's dynamics) and the row t_N = T; Penalty.L1 has no slacks and no penalty rows."""
+    import dataclasses
+
+    from planner.task import Horizon
+
+    robot = load_robot("robots/point_mass.xml")
+    task = dataclasses.replace(hop_task(N=3), horizon=Horizon(tau_f=1.0, N=3, physical_time=0.8))
+    prob = build_problem(robot, task, fesd_options(2, 2))
+    assert prob.var_blocks["s"].shape == (3, 1) and np.all(prob.lbx[prob.var_blocks["s"]] == 1)
+    rows = prob.g_blocks["physical_time"].ravel()
+    assert np.all(prob.lbg[rows] == 0.8) and np.all(prob.ubg[rows] == 0.8)
+    dyn = ca.Function("dyn", [prob.x], [ca.jacobian(prob.g[prob.g_blocks["dynamics"][1].tolist()], prob.x[prob.var_blocks["s"][1].tolist()])])
+    assert np.any(np.asarray(dyn(prob.x0), float) != 0)  # s_1 scales step 1's stage increments
+    l1 = build_problem(robot, hop_task(N=3), fesd_options(2, 2, penalty=Penalty.L1))
+    assert "s_c" not in l1.var_blocks and "penalty" not in l1.g_blocks and "s_c_step" not in l1.var_blocks
