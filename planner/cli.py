@@ -10,11 +10,16 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from .errors import InputError, PlannerError
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+# `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
+# point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
+# the one from the 1e5 point converged in 48 iterations (docs/formulation.md, "FESD in the OCP")
+FESD_RHO_MAX = 1e5
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,9 +73,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
-                              "  planner plan point_mass --task hop.toml --no-validate --json")
+                              "  planner plan point_mass --task hop.toml --no-validate --json\n"
+                              "  planner plan robots/capler.xml --discretization fesd --stages 2 --elements 3 --out results/capler_fesd")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
+    p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
+                   help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; "
+                        "docs/formulation.md \"FESD in the OCP\")")
+    p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
+    p.add_argument("--elements", type=int, default=3,
+                   help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
     _add_common(p)
     p.set_defaults(run=_cmd_plan)
 
@@ -175,15 +187,21 @@ def _write(args, result, out: Path) -> Path:
     return target
 
 
-def _cmd_simulate(args) -> int:
+def _discretization(args):
+    """(Discretization, FESDOptions) of --discretization, --stages, --elements (InputError naming the valid values)."""
     from .discretization import Discretization, FESDOptions
-    from .simulate import SimulateOptions, simulate
 
     names = {d.value: d for d in Discretization}
     if args.discretization not in names:
         raise InputError(f"--discretization {args.discretization!r} is not allowed; it must be one of {sorted(names)}")
-    options = SimulateOptions(verbose=args.verbose, discretization=names[args.discretization],
-                              fesd=FESDOptions(n_s=args.stages, n_fe=args.elements))
+    return names[args.discretization], FESDOptions(n_s=args.stages, n_fe=args.elements)
+
+
+def _cmd_simulate(args) -> int:
+    from .simulate import SimulateOptions, simulate
+
+    discretization, fesd = _discretization(args)
+    options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
     target = _write(args, result, out)
@@ -193,9 +211,15 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_plan(args) -> int:
+    from .discretization import Discretization
     from .homotopy import SolveOptions, solve
-    from .problem import build_problem
+    from .problem import ProblemOptions, build_problem
 
+    discretization, fesd = _discretization(args)
+    problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
+    solve_options = SolveOptions(print_level=5 if args.verbose else 0)
+    if discretization is Discretization.FESD:
+        solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
     robot, task, out = _load_inputs(args)
     if task.plan is None:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
@@ -204,8 +228,8 @@ def _cmd_plan(args) -> int:
         _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "
                         f"{rec.complementarity_residual:.1e}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  {rec.status}")
 
-    problem = build_problem(robot, task)
-    result = solve(problem, SolveOptions(print_level=5 if args.verbose else 0), progress=progress)
+    problem = build_problem(robot, task, problem_options)
+    result = solve(problem, solve_options, progress=progress)
     target = _write(args, result, out)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"

@@ -19,7 +19,7 @@ complementarity penalty or relaxation; `planner.simulate` does the same for one 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 
 import casadi as ca
@@ -453,7 +453,9 @@ class Interval:
     a * b = 0 wanted: per element, selector, stage j and point j' (the element's stages and its left
     boundary), the cross-complementarity lambda0_j' sigma_j and lambda1_j' (1 - sigma_j).
     objective: the stages' rho_f terms weighted b_j h_n / H (with constant weights, collapsing an
-    element to h_n = 0 would let its selectors go to sigma* for free), plus the step equilibration.
+    element to h_n = 0 would let its selectors go to sigma* for free), plus the step equilibration
+    (also alone as `equilibration`). g_blocks: name -> rows of g, "element_lengths" (1,) and each
+    Step.g block over the stages in element-major order (e.g. "dynamics" (n_fe n_s ny,)).
     """
 
     x: object
@@ -463,6 +465,8 @@ class Interval:
     g: object
     complementarity: tuple[tuple[object, object], ...]
     objective: object
+    equilibration: object = 0.0
+    g_blocks: dict = field(default_factory=dict)
 
     def comp_products(self):
         """vertcat of a * b over the complementarity pairs."""
@@ -494,11 +498,13 @@ class FESDInterval:
         start = self.n_fe + (n * self.n_s + j) * self.n_stage
         return slice(start, start + self.n_stage)
 
-    def build(self, y_k, control, H: float, lam_prev, tag: str = "") -> Interval:
-        """One FESD step from y_k (ny,) over H [s] of numerical time, speed of time 1.
+    def build(self, y_k, control, H: float, lam_prev, tag: str = "", s_k=1.0, field_scale=None) -> Interval:
+        """One FESD step from y_k (ny,) over H [s] of numerical time with speed of time s_k (a number
+        or an expression; every stage integrates h_n s_k F).
 
         control(y) -> u (nu,): the control acting at a stage state y (a constant, or a feedback law).
         lam_prev (2 n_sigma,): (lambda0, lambda1) at y_k, the left boundary of the first element.
+        field_scale: as in ImplicitEulerStep.build (an OCP's auxiliary-gain continuation).
         """
         st, opts = self.step, self.options
         sys_ = st.system
@@ -506,19 +512,25 @@ class FESDInterval:
         hs = ca.SX.sym(f"h{tag}", self.n_fe)
         h_bar = H / self.n_fe
         x, lbx, ubx, g, pairs = [hs], [np.zeros(self.n_fe)], [np.full(self.n_fe, H)], [ca.sum1(hs) - H], []
-        objective = opts.rho_h * ca.sumsqr((hs - h_bar) / h_bar)
+        equilibration = opts.rho_h * ca.sumsqr((hs - h_bar) / h_bar)
+        objective = equilibration
+        rows: dict[str, list] = {"element_lengths": [0]}
+        row = 1
         start, lam0_left, lam1_left = y_k, lam_prev[:n], lam_prev[n:]
         for e in range(self.n_fe):
             Y = [ca.SX.sym(f"Y{tag}_{e}_{j}", ny) for j in range(self.n_s)]
             stages = []
             for j in range(self.n_s):
                 dy = sum(self.A_inv[j, l] * (Y[l] - start) for l in range(self.n_s))
-                stages.append(st.build(start, Y[j], control(Y[j]), 1.0, hs[e], tag=f"{tag}_{e}_{j}", dy=dy))
+                stages.append(st.build(start, Y[j], control(Y[j]), s_k, hs[e], tag=f"{tag}_{e}_{j}", field_scale=field_scale, dy=dy))
             for j, stage in enumerate(stages):
                 x += [Y[j], stage.w]
                 lbx += [np.full(ny, -np.inf), stage.lbw]
                 ubx += [np.full(ny, np.inf), stage.ubw]
                 g.append(stage.g)
+                for name, sl in stage.g_blocks.items():
+                    rows.setdefault(name, []).extend(range(row + sl.start, row + sl.stop))
+                row += stage.g.shape[0]
                 objective += self.b[j] * hs[e] / H * stage.objective  # quadrature of the regularization over the step
             # one pair per (multiplier point, stage), not sums: IPOPT relaxes bounds by ~1e-8, and in a
             # sum a stage at -1e-8 cancels another at +1e-8 (measured with sums: the switch 3e-8 m off
@@ -530,7 +542,8 @@ class FESDInterval:
                 pairs += [(l0[i], sig[i]) for l0 in lam0 for i in range(n)] + [(l1[i], 1 - sig[i]) for l1 in lam1 for i in range(n)]
             start, lam0_left, lam1_left = Y[-1], stages[-1].block("lambda0"), stages[-1].block("lambda1")
         return Interval(x=ca.vertcat(*x), lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), y_end=start,
-                        g=ca.vertcat(*g), complementarity=tuple(pairs), objective=objective)
+                        g=ca.vertcat(*g), complementarity=tuple(pairs), objective=objective, equilibration=equilibration,
+                        g_blocks={name: np.array(r, dtype=int) for name, r in rows.items()})
 
     def guess(self, H: float, y, w) -> np.ndarray:
         """Initial guess (nx,): equal lengths H / n_fe, every stage at the state y (ny,) with the

@@ -27,7 +27,7 @@ says so (PlanResult.nlps).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, is_dataclass, replace
 from enum import Enum
 from typing import Callable
 
@@ -36,8 +36,8 @@ import numpy as np
 
 from .errors import InputError
 from .problem import Problem
-from .result import FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
-from .simulate import step_trajectory
+from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
+from .simulate import element_trajectory, step_trajectory
 
 
 class MuStrategy(Enum):
@@ -308,6 +308,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     residual, IPOPT iterations, wall time, IPOPT status). A failed solve is not an exception: the
     result has stats.converged = False and a message saying what failed.
     """
+    if problem.fesd is not None and options.polish is Polish.HYBRID:
+        # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
+        raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
     start = time.perf_counter()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
@@ -485,8 +488,9 @@ def ungate(problem: Problem, x, tol: float = 1e-6) -> np.ndarray:
     gates = np.asarray(problem.notes["gates"](x), float).ravel()
     b = problem.builder
     n = problem.system.n_sigma
-    for k in range(problem.N):
-        wk = problem.var_blocks["w"][k]
+    stages = problem.var_blocks["w"].reshape(-1, b.nw)  # implicit Euler: the N steps; FESD: every stage
+    for k in range(len(stages)):
+        wk = stages[k]
         w = x[wk]
         sig, l0, l1 = w[b.w_blocks["sigma"]].copy(), w[b.w_blocks["lambda0"]].copy(), w[b.w_blocks["lambda1"]].copy()
         g = gates[k * 2 * n : k * 2 * n + n]
@@ -527,9 +531,19 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
             lbx[j0] = ubx[j0] = 0.0
         else:
             lbx[j0] = ubx[j0] = lbx[j1] = ubx[j1] = 0.0
+    if problem.fesd is not None:
+        # cross-complementarity: a multiplier at any point of an element is fixed to zero unless the
+        # selector it pairs with is fixed at that multiplier's bound (the rule above is its own-stage case)
+        gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
+        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], gates):
+            held = lbx[pr.b] == ubx[pr.b] == (1.0 if pr.b_upper else 0.0)
+            if not held and (own or gate > 1e-6):  # a cross pair of a selector the gates switch off is not imposed
+                lbx[pr.a] = ubx[pr.a] = 0.0
     if "s_c" in problem.var_blocks and ratio is None:  # the hybrid stage keeps the l_inf slack for its free pairs
         j = problem.var_blocks["s_c"][0]
         lbx[j] = ubx[j] = 0.0
+        if "s_c_step" in problem.var_blocks:  # FESD: the step slacks under s_c
+            lbx[problem.var_blocks["s_c_step"]] = ubx[problem.var_blocks["s_c_step"]] = 0.0
     return lbx, ubx, np.clip(x, lbx, ubx)
 
 
@@ -574,7 +588,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     frozen_tol = options.frozen_tol
     if len(problem.system.contacts) > 1:
         frozen_tol = options.frozen_tol_several
-    traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
+    traj, W, nodes = plan_trajectory(problem, parts, frozen_tol)
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
@@ -598,19 +612,45 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]
-    beta = parts["W"][:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
+    beta = W[:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
     contact = problem.system.contacts[0].point
-    foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in parts["Y"]])
+    foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
     # the robot flies when every contact point does (one contact: its beta)
-    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(problem.N), foot)
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
                       options={"problem": _plain(problem.options), "solve": _plain(options)})
 
 
+def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
+    """The plan's Trajectory from problem.split(x), with the algebraic variables W (K, nw) of each
+    interval's end and the nodes Y (K+1, ny): implicit Euler K = N steps; FESD K = the N n_fe elements
+    less the collapsed ones (result.COLLAPSED; the Radau quadrature of the auxiliary fields, impacts
+    starting at an element boundary)."""
+    if problem.fesd is None:
+        traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
+        return traj, parts["W"], parts["Y"]
+    fesd, ny, nw, nu = problem.fesd, problem.system.ny, problem.builder.nw, problem.system.nu
+    K, n_s = problem.N * fesd.n_fe, fesd.n_s
+    lengths = parts["h"].ravel()
+    # an element of length ~0 (no switch pins it; IPOPT leaves it at ~1e-10 s or a hair below 0) ends where
+    # it starts and carries nothing: leave it out, so that tau increases strictly (planner.view requires it)
+    keep = lengths > COLLAPSED * lengths.max()
+    Ys, Ws = parts["Ys"].reshape(K, n_s, ny)[keep], parts["Ws"].reshape(K, n_s, nw)[keep]
+    nodes = np.vstack([parts["Y"][:1], Ys[:, -1]])
+    Us = np.repeat(parts["U"], fesd.n_fe * n_s, axis=0).reshape(K, n_s, nu)[keep]  # u_k is constant over the step
+    dt = (lengths * np.repeat(parts["S"], fesd.n_fe))[keep]
+    tau = np.concatenate([[0.0], np.cumsum(lengths[keep])])
+    traj = element_trajectory(problem.system, problem.builder, tau, nodes, Ys, Ws, Us, dt, fesd.b, frozen_tol)
+    return traj, Ws[:, -1], nodes
+
+
 def _plain(opts) -> dict:
     out = {}
     for k, v in vars(opts).items():
+        if is_dataclass(v):  # e.g. ProblemOptions.fesd
+            out[k] = _plain(v)
+            continue
         out[k] = v.value if isinstance(v, Enum) else [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v
     return out

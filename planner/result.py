@@ -278,6 +278,9 @@ class PlanResult:
 # step; real impact entries froze at least 1.4e-2 (point mass and Capler drops): 1e-4 reported
 # false impacts of 3e-4 to 2e-3 N s next to a 2 N s landing.
 FROZEN_TOL = 1e-2
+# A FESD element shorter than this share of the longest is collapsed (its length is ~0 up to IPOPT's
+# bound relaxation, ~1e-10 s measured) and never frozen; implicit Euler steps all have length h s >= h.
+COLLAPSED = 1e-6
 # Several contacts: a contact takes part in an impact (gets its own Impact record, same time and
 # velocities) when its normal impulse over the frozen interval is at least this share of the
 # largest one; smaller shares are the implicit step's drift corrections of contacts at rest.
@@ -304,7 +307,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     n_steps = len(y) - 1
     clock = y[:, -1]
     advance = np.diff(clock)
-    frozen = advance < (1.0 - frozen_tol) * np.asarray(dt_steps, float)
+    dt_steps = np.asarray(dt_steps, float)
+    # a FESD element collapsed to length ~0 (no switch to pin it) advances nothing and is no impact
+    frozen = (advance < (1.0 - frozen_tol) * dt_steps) & (dt_steps > COLLAPSED * np.max(dt_steps, initial=0.0))
     nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
     u0 = u_steps[0] if n_steps else np.zeros(nu)
     ts, qs, vs, us = [clock[0]], [y[0, :nq]], [y[0, nq : nq + nv]], [u0]

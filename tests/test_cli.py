@@ -157,3 +157,19 @@ def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     for name, data in earlier.items():
         assert (out / name).read_bytes() == data
     assert json.loads((out / "failed" / "summary.json").read_text())["converged"] is False
+
+
+def test_plan_fesd_from_the_command_line(tmp_path, capsys):
+    """`plan --discretization fesd` solves the point-mass hop (no slip, to x = 0.5 m, N = 10) with FESD
+    stages and says so in summary.json; n_fe = 0 elements is exit 2, one line naming n_fe."""
+    task = tmp_path / "hop.toml"
+    task.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                    '[horizon]\ntau_f = 1.0\nN = 10\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+    argv = ["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "--json",
+            "--discretization", "fesd", "--stages", "2", "--elements", "3"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["converged"] and summary["polished"]
+    assert summary["options"]["problem"]["discretization"] == "fesd" and summary["options"]["problem"]["fesd"]["n_fe"] == 3
+    assert summary["options"]["solve"]["rho_max"] == 1e5
+    _one_line_exit_2(capsys, argv[:-1] + ["0"], "n_fe = 0 is not allowed")

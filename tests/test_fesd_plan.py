@@ -1,0 +1,170 @@
+"""FESD in the optimal control problem (ProblemOptions.discretization = FESD): the transcription's
+blocks, the options it refuses, and the point-mass hop solved with exact switch detection."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from planner import homotopy as H
+from planner.discretization import Discretization, FESDOptions
+from planner.errors import InputError
+from planner.model import load_robot
+from planner.problem import Penalty, ProblemOptions, build_problem
+
+from test_problem import hop_task
+
+G = 9.81  # [m/s^2], robots/point_mass.xml
+MASS = 1.0  # [kg]
+EVAL_TOL = 1e-12  # the same expression built two ways: rounding only
+COMP_TOL = 1e-6  # the verdict's complementarity and terminal thresholds (SolveOptions defaults)
+TERMINAL_TOL = 1e-6  # [m, m/s]
+# impact time against the parabola integrated in closed form from the take-off state with the
+# plan's piecewise-constant controls: IPOPT's bound relaxation leaves the landing boundary ~1e-8 off
+IMPACT_TIME_TOL = 1e-6  # [s]
+
+
+def fesd_options(n_s: int = 2, n_fe: int = 3, **kwargs) -> ProblemOptions:
+    return ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=n_s, n_fe=n_fe), **kwargs)
+
+
+def test_blocks_and_shapes():
+    """Stage k owns u_k (nu,), the element lengths h (n_fe,), and per element e and stage j the state
+    Y (ny,) and algebraic variables w (nw,); y_{k+1} is the last stage of the last element. The step
+    rows are (N, n_fe n_s m) blocks, the element-length row (N, 1), the boundary path constraints
+    (N, n_fe m), the per-stage cones (N, n_fe n_s m), the penalty one row per pair (N, pairs per
+    step), and the pairs are FESDInterval's cross-complementarity, 2 (n_s + 1) n_s n_sigma per element."""
+    robot = load_robot("robots/point_mass.xml")
+    N, n_s, n_fe = 4, 2, 3
+    prob = build_problem(robot, hop_task(N=N, holes=[{"x": 0.25, "z": 0.0, "a": 0.1, "b": 0.05}]), fesd_options(n_s, n_fe))
+    ny, nu, nw, n = prob.system.ny, robot.nu, prob.builder.nw, prob.system.n_sigma
+    vb, gb = prob.var_blocks, prob.g_blocks
+    assert vb["u"].shape == (N, nu) and vb["h"].shape == (N, n_fe)
+    assert vb["Y"].shape == (N, n_fe, n_s, ny) and vb["w"].shape == (N, n_fe, n_s, nw)
+    assert vb["sigma"].shape == (N, n_fe, n_s, n)
+    np.testing.assert_array_equal(vb["y"], vb["Y"][:, -1, -1])
+    assert prob.nx == N * (nu + prob.fesd.nx) + N + 1 == len(prob.var_names) == len(prob.x0)  # + the step slacks and s_c
+    assert vb["s_c_step"].shape == (N, 1) and gb["penalty_max"].shape == (N, 1)
+    assert gb["element_lengths"].shape == (N, 1)
+    assert gb["dynamics"].shape == (N, n_fe * n_s * ny) and gb["stationarity"].shape == (N, n_fe * n_s * n)
+    assert gb["holes"].shape == (N, n_fe) and gb["friction_cone"].shape == (N, n_fe * n_s * 2)
+    pairs_per_step = n_fe * n_s * 2 * (n_s + 1) * n
+    assert len(prob.pairs) == N * pairs_per_step and gb["penalty"].shape == (N, pairs_per_step)
+    assert set(prob.objective_parts) == {"control", "selectors", "equilibration", "penalty"}
+    assert np.all(prob.lbx[vb["h"]] == 0) and np.allclose(prob.ubx[vb["h"]], prob.h)
+    # the hint-free guess: y_0 at every stage, equal lengths, every product zero
+    assert np.allclose(prob.x0[vb["Y"]], prob.y0) and np.allclose(prob.x0[vb["h"]], prob.h / n_fe)
+    assert prob.complementarity_residual(prob.x0) == pytest.approx(0.0, abs=EVAL_TOL)
+    # the pairs are the interval's own: step 1 (whose left boundary is step 0's end) against FESDInterval
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.1, 1.0, prob.nx)
+    mine = np.asarray(prob.notes["gated_products"](x), float).ravel()[pairs_per_step : 2 * pairs_per_step]
+    gates = np.asarray(prob.notes["pair_gates"](x), float).ravel()[pairs_per_step : 2 * pairs_per_step]
+    end0 = vb["w"][0, -1, -1]
+    lam_prev = ca.vertcat(prob.x[end0[prob.builder.w_blocks["lambda0"]].tolist()], prob.x[end0[prob.builder.w_blocks["lambda1"]].tolist()])
+    iv = prob.fesd.build(prob.x[vb["y"][0].tolist()], lambda y: prob.x[vb["u"][1].tolist()], prob.h, lam_prev, tag="_check")
+    sub = ca.Function("interval", [iv.x, prob.x], [iv.comp_products()])
+    first = vb["u"][1][-1] + 1
+    theirs = np.asarray(sub(x[first : first + prob.fesd.nx], x), float).ravel()
+    np.testing.assert_allclose(mine, theirs * gates, atol=EVAL_TOL)
+
+
+@pytest.mark.parametrize("kwargs, key", [({"discretization": "fesd"}, "discretization"), ({"fesd": (2, 3)}, "fesd"),
+                                         ({"discretization": Discretization.FESD, "clock_weight": 1.0}, "clock_weight")])
+def test_invalid_options_raise(kwargs, key):
+    """A discretization that is not the Enum, fesd that is not FESDOptions, and FESD with the clock
+    weight (not transcribed for FESD) are InputErrors naming the option and the valid values."""
+    with pytest.raises(InputError, match=key):
+        ProblemOptions(**kwargs)
+    with pytest.raises(InputError, match="n_fe"):
+        FESDOptions(n_fe=0)
+
+
+def test_hybrid_polish_is_refused():
+    """Polish.HYBRID reads one selector's own multipliers only: with FESD solve refuses it, naming the valid polishes."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=2), fesd_options())
+    with pytest.raises(InputError, match="active_set"):
+        H.solve(prob, H.SolveOptions(polish=H.Polish.HYBRID))
+
+
+def test_implicit_euler_default_is_unchanged():
+    """The default ProblemOptions still transcribes implicit Euler: no FESD builder, the old blocks."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    assert prob.fesd is None and prob.options.discretization is Discretization.IMPLICIT_EULER
+    assert prob.var_blocks["w"].shape == (3, prob.builder.nw) and "h" not in prob.var_blocks
+
+
+@pytest.fixture(scope="module")
+def hop():
+    """The point-mass hop of tests/test_problem.py (no slip: it must hop to x = 0.5 m) with FESD n_s = 2,
+    n_fe = 3, solved from the hint-free start with the CLI's FESD schedule (rho up to 1e5, then the polish)."""
+    from planner.cli import FESD_RHO_MAX
+
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=HOP_N), fesd_options(2, 3))
+    res = H.solve(prob, H.SolveOptions(rho_max=FESD_RHO_MAX))
+    return prob, res
+
+
+FLIGHT_BETA = 1 - 1e-3  # an element flies when beta exceeds this at every stage (the barrier leaves it ~1e-8 below 1)
+HOP_N = 10  # steps of h = 0.1 s: the landing step holds the touchdown and both jumps' ends (3 elements)
+
+
+def test_fesd_hop_converges(hop):
+    """The FESD OCP of the hop converges: polished, complementarity (own-stage pairs and the gated
+    cross-complementarity) <= 1e-6, terminal error <= 1e-6, every constraint kept, one hop to x = 0.5."""
+    prob, res = hop
+    assert res.stats.converged, res.stats.message
+    assert res.polished
+    assert res.stats.complementarity_residual <= COMP_TOL and res.terminal_error <= TERMINAL_TOL
+    main = [hp for hp in res.hops if hp.distance > 0.1]
+    assert len(main) == 1 and main[0].distance == pytest.approx(0.5, abs=1e-6)
+
+
+def test_fesd_hop_impact_time_is_exact(hop):
+    """The landing is on an element boundary at the analytic touchdown time: the parabola of each
+    flight element (constant acceleration u_z/m - g of its step), chained in closed form from the
+    plan's take-off state, reaches z = 0 where the plan's impact is, to IMPACT_TIME_TOL."""
+    prob, res = hop
+    parts = prob.split(res.extra["_x"])
+    K = prob.N * prob.fesd.n_fe
+    lengths = parts["h"].ravel()
+    nodes = np.vstack([parts["Y"][:1], parts["Ys"].reshape(K, prob.fesd.n_s, -1)[:, -1]])
+    u = np.repeat(parts["U"], prob.fesd.n_fe, axis=0)
+    flight = next(hp for hp in res.hops if hp.distance > 0.1)
+    impact = min(res.trajectory.impacts, key=lambda imp: abs(imp.time - flight.landing_time))  # the landing
+    tau = np.concatenate([[0.0], np.cumsum(lengths)])
+    land = int(np.argmin(np.abs(tau - impact.tau_start)))  # the element boundary where the impact starts
+    beta = parts["Ws"].reshape(K, prob.fesd.n_s, -1)[:, :, prob.builder.w_blocks["sigma"]][:, :, 1]
+    takeoff = land
+    # the flight's elements: beta = 1 at every stage (a stance may hold beta fractional, e.g. 0.95 with the
+    # a_n field carrying part of the weight at gap 0; it is no flight)
+    while takeoff > 0 and np.all(beta[takeoff - 1] > FLIGHT_BETA):
+        takeoff -= 1
+    assert land - takeoff >= 2
+    z, vz, t = nodes[takeoff, 1], nodes[takeoff, 3], nodes[takeoff, -1]
+    for n in range(takeoff, land - 1):  # whole flight elements in closed form
+        a = u[n, 1] / MASS - G
+        z, vz, t = z + vz * lengths[n] + 0.5 * a * lengths[n] ** 2, vz + a * lengths[n], t + lengths[n]
+        assert z > 0
+    a = u[land - 1, 1] / MASS - G
+    root = (-vz - np.sqrt(vz**2 - 2 * a * z)) / a  # the later root of z + vz s + a s^2 / 2 = 0 (a < 0)
+    assert impact.time == pytest.approx(t + root, abs=IMPACT_TIME_TOL)
+
+
+def test_physical_time_and_l1_blocks():
+    """With horizon.physical_time every FESD step gets a speed of time s_k >= 1 (block "s" (N, 1), in
+    every stage's dynamics) and the row t_N = T; Penalty.L1 has no slacks and no penalty rows."""
+    import dataclasses
+
+    from planner.task import Horizon
+
+    robot = load_robot("robots/point_mass.xml")
+    task = dataclasses.replace(hop_task(N=3), horizon=Horizon(tau_f=1.0, N=3, physical_time=0.8))
+    prob = build_problem(robot, task, fesd_options(2, 2))
+    assert prob.var_blocks["s"].shape == (3, 1) and np.all(prob.lbx[prob.var_blocks["s"]] == 1)
+    rows = prob.g_blocks["physical_time"].ravel()
+    assert np.all(prob.lbg[rows] == 0.8) and np.all(prob.ubg[rows] == 0.8)
+    dyn = ca.Function("dyn", [prob.x], [ca.jacobian(prob.g[prob.g_blocks["dynamics"][1].tolist()], prob.x[prob.var_blocks["s"][1].tolist()])])
+    assert np.any(np.asarray(dyn(prob.x0), float) != 0)  # s_1 scales step 1's stage increments
+    l1 = build_problem(robot, hop_task(N=3), fesd_options(2, 2, penalty=Penalty.L1))
+    assert "s_c" not in l1.var_blocks and "penalty" not in l1.g_blocks and "s_c_step" not in l1.var_blocks
