@@ -150,7 +150,8 @@ class SolveOptions:
     span 1 (selectors) to 1.4e3 (accelerations): unscaled, NLP 2 of the default task crawled to its
     3000-iteration cap (3958 to converge); scaled it converges in 1535 and every NLP converges
     (robots/capler.toml opts in). On the biped walk it made NLP 5 stop at its cap (4222 iterations
-    against 2143), so it is a per-task choice (docs/formulation.md, round 6). NLP 1 and the polish see x as built; the scaled IPOPT is created
+    against 2143), so it is a per-task choice (docs/formulation.md, round 6). Not measured to help FESD:
+    on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their cap. NLP 1 and the polish see x as built; the scaled IPOPT is created
     after NLP 1 (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
     retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
     (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
@@ -460,9 +461,11 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     wall = time.perf_counter() - t0
     st = solver.stats()
     x = np.asarray(sol["x"], float).ravel() * D
+    # gated: the largest product the l_inf slack bounds. Not |.|: a gate IPOPT left at -1e-8 (its bound
+    # relaxation) times a 1e6 multiplier of a switched-off pair is a negative product ungate removes
     gp = problem.notes.get("gated_products")
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
-                    complementarity_residual=(float(np.max(np.abs(np.asarray(gp(x), float)), initial=0.0)) if gp is not None
+                    complementarity_residual=(float(np.max(np.asarray(gp(x), float), initial=0.0)) if gp is not None
                                               else problem.complementarity_residual(x)), iterations=int(st.get("iter_count", 0)),
                     time_s=wall, status=str(st.get("return_status", "")), success=bool(st.get("success", False)),
                     terminal_error=terminal_error(problem, x))
