@@ -440,18 +440,10 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         names.append("s_c")
 
     # --- the hint-free initial guess --------------------------------------------------------------
-    x0 = np.zeros(nx)
-    if periodic:
-        x0[var_blocks["y0"]] = y0
     w_guess = builder.guess(y0, np.zeros(nu))
-    for k in range(N):
-        yk = y0.copy()
-        if options.clock_guess_running:
-            yk[-1] = y0[-1] + (k + 1) * h
-        x0[var_blocks["y"][k]] = yk
-        x0[var_blocks["w"][k]] = w_guess
-        if timed:
-            x0[var_blocks["s"][k]] = 1.0
+    x0, states = _hint_free_start(nx, var_blocks, y0, N, h, options.clock_guess_running)
+    x0[var_blocks["y"]] = states
+    x0[var_blocks["w"]] = w_guess
     products = ca.Function("products", [X], [prods * ca.DM(pair_scale)], ["x"], ["ab"])
     notes = {}
     if gates is not None:
@@ -471,6 +463,21 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.blocks, pairs=tuple(pairs),
                    pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
                    notes=notes, skips=skips)
+
+
+def _hint_free_start(nx: int, var_blocks, y0: np.ndarray, N: int, h: float, clock_running: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's hint-free start: x0 (nx,) with y_0 in the periodic block "y0" and speeds of time 1
+    where those blocks exist (zeros elsewhere), and the node states (N, ny) to place: y_0 at every node,
+    its clock t_0 + (k + 1) h when clock_running."""
+    x0 = np.zeros(nx)
+    if "y0" in var_blocks:
+        x0[var_blocks["y0"]] = y0
+    if "s" in var_blocks:
+        x0[var_blocks["s"]] = 1.0
+    states = np.tile(y0, (N, 1))
+    if clock_running:
+        states[:, -1] = y0[-1] + np.arange(1, N + 1) * h
+    return x0, states
 
 
 def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X, N) -> ca.SX:
@@ -745,17 +752,10 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     f = control_cost + selector_cost + equilibration + penalty + term_w * ca.dot(term_res, term_res)
 
     # --- the hint-free initial guess: y_0 at every stage, equal element lengths ----------------------
-    x0 = np.zeros(nx)
-    if periodic:
-        x0[var_blocks["y0"]] = y0
     w_guess = builder.guess(y0, np.zeros(nu))
+    x0, states = _hint_free_start(nx, var_blocks, y0, N, h, options.clock_guess_running)
     for k in range(N):
-        yk = y0.copy()
-        if options.clock_guess_running:
-            yk[-1] = y0[-1] + (k + 1) * h
-        x0[iv0[k] : iv0[k] + fesd.nx] = fesd.guess(h, yk, w_guess)
-        if timed:
-            x0[var_blocks["s"][k]] = 1.0
+        x0[iv0[k] : iv0[k] + fesd.nx] = fesd.guess(h, states[k], w_guess)
     products = ca.Function("products", [X], [reported * ca.DM(pair_scale)], ["x"], ["ab"])
     if linf:
         p0 = np.asarray(ca.Function("p0", [X], [pen_prods])(x0), float).reshape(N, per_step)
