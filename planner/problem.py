@@ -349,13 +349,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         lbx[var_blocks["s"]] = 1.0
     if linf:
         lbx[nx - 1] = 0.0
-    if periodic:  # y_0: q within the joint bounds, the fixed coordinates and the clock t_0 = 0 pinned
-        fixed = task.periodic_map(robot)[2]
-        lbx[:nq], ubx[:nq] = q_lo, q_hi
-        lbx[fixed], ubx[fixed] = y0[fixed], y0[fixed]
-        if plan.periodic.v_bound is not None:
-            lbx[nq : nq + nv], ubx[nq : nq + nv] = -plan.periodic.v_bound, plan.periodic.v_bound
-        lbx[ny - 1] = ubx[ny - 1] = y0[ny - 1]
+    if periodic:
+        _bound_periodic_start(lbx, ubx, robot, task, y0, q_lo, q_hi, nq, nv)
 
     # --- path-constraint functions of (y, u, w) ----------------------------------------------------
     path_fn, ws, coef, field_names = _path_functions(system, builder, dyn, task, contacts, skips, options, hole_scale)
@@ -463,6 +458,18 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.blocks, pairs=tuple(pairs),
                    pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
                    notes=notes, skips=skips)
+
+
+def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_lo, q_hi, nq: int, nv: int) -> None:
+    """Bounds of the free initial state of plan.periodic (x's first ny entries), in place: q within the
+    joint bounds, the fixed coordinates and the clock t_0 pinned to y0, |v| <= v_bound if given."""
+    fixed = task.periodic_map(robot)[2]
+    lbx[:nq], ubx[:nq] = q_lo, q_hi
+    lbx[fixed], ubx[fixed] = y0[fixed], y0[fixed]
+    v_bound = task.plan.periodic.v_bound
+    if v_bound is not None:
+        lbx[nq : nq + nv], ubx[nq : nq + nv] = -v_bound, v_bound
+    lbx[len(y0) - 1] = ubx[len(y0) - 1] = y0[-1]
 
 
 def _hint_free_start(nx: int, var_blocks, y0: np.ndarray, N: int, h: float, clock_running: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -710,12 +717,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     X = ca.vertcat(*x_parts)
     assert X.shape[0] == nx == len(names)
     if periodic:
-        fixed = task.periodic_map(robot)[2]
-        lbx[:nq], ubx[:nq] = q_lo, q_hi
-        lbx[fixed], ubx[fixed] = y0[fixed], y0[fixed]
-        if plan.periodic.v_bound is not None:
-            lbx[nq : nq + nv], ubx[nq : nq + nv] = -plan.periodic.v_bound, plan.periodic.v_bound
-        lbx[ny - 1] = ubx[ny - 1] = y0[ny - 1]
+        _bound_periodic_start(lbx, ubx, robot, task, y0, q_lo, q_hi, nq, nv)
     prods = ca.vertcat(*[X[pr.a] * (1 - X[pr.b] if pr.b_upper else X[pr.b]) for pr in pairs])
     notes = {}
     pen_prods, reported = prods, prods
