@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from planner.homotopy import SolveOptions, ipopt_options, task_rho_schedule, terminal_error
-from planner.problem import build_problem
+from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
 
@@ -80,6 +80,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--N", type=int, default=125)
     ap.add_argument("--case", choices=["capler", "hop"], default="capler", help="robots/capler.toml (tau_f 2.5 s, N steps) or the point-mass hop")
+    ap.add_argument("--penalty", choices=["linf", "l1"], default="linf", help="ProblemOptions.penalty (l1: no slack s_c, no penalty rows)")
     ap.add_argument("--max-iter", type=int, nargs="+", default=[150])
     ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution")
     ap.add_argument("--fatrop-opt", nargs="*", default=[], help="key=value FATROP options (numbers parsed)")
@@ -92,7 +93,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     robot, task = capler_case(a.N) if a.case == "capler" else hop_case(a.N)
     t0 = time.perf_counter()
-    problem = build_problem(robot, task)
+    problem = build_problem(robot, task, ProblemOptions(penalty=Penalty(a.penalty)))
     build_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     st = staged_nlp(problem)
@@ -111,7 +112,7 @@ def main(argv=None) -> int:
         except ValueError:
             pass
         fat_extra[k] = v
-    out = {"case": a.case, "N": a.N, "nx": problem.nx, "ng": problem.ng, "staged_nx": st.x.shape[0], "staged_ng": st.g.shape[0],
+    out = {"case": a.case, "N": a.N, "penalty": a.penalty, "nx": problem.nx, "ng": problem.ng, "staged_nx": st.x.shape[0], "staged_ng": st.g.shape[0],
            "build_s": build_s, "staged_s": staged_s, "rho_nlp1": rhos[0], "fatrop_options": fat_extra, "convexify": a.convexify, "scale": a.scale, "drop_free": a.drop_free,
            "date": datetime.datetime.utcnow().isoformat(timespec="minutes"), "casadi": ca.__version__,
            "load_before": os.getloadavg(), "runs": []}
