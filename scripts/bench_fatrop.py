@@ -8,6 +8,7 @@ largest constraint violation of the original NLP (with that NLP's lbg/ubg) and t
     OMP_NUM_THREADS=1 python -m scripts.bench_fatrop --N 125 --max-iter 150 3000
     OMP_NUM_THREADS=1 python -m scripts.bench_fatrop --N 50 --max-iter 3000 --warm --fatrop-opt tolerance=1e-3
     OMP_NUM_THREADS=1 python -m scripts.bench_fatrop --case hop --N 40 --max-iter 3000 --verbose
+    OMP_NUM_THREADS=1 python -m scripts.bench_fatrop --N 50 --max-iter 3000 --solvers ipopt ipopt_staged --ipopt-opt mu_strategy=monotone
 
 Solvers (--solvers): ipopt (the original NLP, planner.homotopy.ipopt_options), fatrop (the staged NLP,
 FATROP with IPOPT's tol, acceptable_tol, mu_init, bound_push; --fatrop-opt key=value overrides or adds
@@ -76,6 +77,21 @@ def run(solver, args) -> tuple[dict, np.ndarray]:
     return rec, np.asarray(sol["x"], float).ravel()
 
 
+def parse_options(pairs) -> dict:
+    """key=value strings to a dict: true/false to bool, numbers to int or float, the rest as strings."""
+    out = {}
+    for kv in pairs:
+        k, v = kv.split("=", 1)
+        if v in ("true", "false"):
+            out[k] = v == "true"
+            continue
+        try:
+            out[k] = int(v) if v.lstrip("-").isdigit() else float(v)
+        except ValueError:
+            out[k] = v
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--N", type=int, default=125)
@@ -84,6 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, nargs="+", default=[150])
     ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution")
     ap.add_argument("--fatrop-opt", nargs="*", default=[], help="key=value FATROP options (numbers parsed)")
+    ap.add_argument("--ipopt-opt", nargs="*", default=[], help="key=value IPOPT options for ipopt and ipopt_staged (numbers parsed)")
     ap.add_argument("--solvers", nargs="+", default=["ipopt", "fatrop"])
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--convexify", default=None, help="FATROP: CasADi's convexify_strategy of the Hessian blocks (regularize, eigen-reflect, eigen-clip)")
@@ -101,19 +118,9 @@ def main(argv=None) -> int:
     opts = SolveOptions()
     args1 = nlp1_arguments(problem, opts)
     rhos = task_rho_schedule(problem.task.plan.homotopy, opts.rho_min, opts.rho_max, opts.rho_refine)
-    fat_extra = {}
-    for kv in a.fatrop_opt:
-        k, v = kv.split("=", 1)
-        if v in ("true", "false"):
-            fat_extra[k] = v == "true"
-            continue
-        try:
-            v = int(v) if v.lstrip("-").isdigit() else float(v)
-        except ValueError:
-            pass
-        fat_extra[k] = v
+    fat_extra, ip_extra = parse_options(a.fatrop_opt), parse_options(a.ipopt_opt)
     out = {"case": a.case, "N": a.N, "penalty": a.penalty, "nx": problem.nx, "ng": problem.ng, "staged_nx": st.x.shape[0], "staged_ng": st.g.shape[0],
-           "build_s": build_s, "staged_s": staged_s, "rho_nlp1": rhos[0], "fatrop_options": fat_extra, "convexify": a.convexify, "scale": a.scale, "drop_free": a.drop_free,
+           "build_s": build_s, "staged_s": staged_s, "rho_nlp1": rhos[0], "fatrop_options": fat_extra, "ipopt_options": ip_extra, "convexify": a.convexify, "scale": a.scale, "drop_free": a.drop_free,
            "date": datetime.datetime.utcnow().isoformat(timespec="minutes"), "casadi": ca.__version__,
            "load_before": os.getloadavg(), "runs": []}
     log = (lambda *s: print(*s, file=sys.stderr, flush=True))
@@ -122,6 +129,7 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             if name == "ipopt":
                 o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
+                o["ipopt"].update(ip_extra)
                 solver = ca.nlpsol("ipopt_nlp1", "ipopt", {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, o)
                 args = dict(args1)
             elif name == "fatrop":
@@ -139,6 +147,7 @@ def main(argv=None) -> int:
                 args = {"x0": st1.lift(args1["x0"]), "p": args1["p"], "lbx": st1.lbx, "ubx": st1.ubx, "lbg": lbg * dg, "ubg": ubg * dg}
             elif name == "ipopt_staged":  # IPOPT on the staged NLP: separates the reformulation from the solver
                 o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
+                o["ipopt"].update(ip_extra)
                 solver = ca.nlpsol("ipopt_staged_nlp1", "ipopt", st.nlp, o)
                 lbg, ubg = st.bounds(args1["lbg"], args1["ubg"])
                 args = {"x0": st.lift(args1["x0"]), "p": args1["p"], "lbx": st.lbx, "ubx": st.ubx, "lbg": lbg, "ubg": ubg}
