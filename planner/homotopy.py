@@ -135,7 +135,10 @@ class SolveOptions:
     complementarity; N = 50 without holes, 112 iterations, where the cost polish stopped at its
     3000-iteration cap from each of the rho = 1e6, 1e5 and 1e4 points (docs/formulation.md, round 4).
     The plan keeps the homotopy's (penalized) optimum up to the projection; the task's cost is not
-    re-optimized on the fixed active set.
+    re-optimized on the fixed active set. The projection runs IPOPT's monotone barrier from mu = 1e-9:
+    its start is feasible to ~1e-6, and from mu = 1e-4 the adaptive rule raised mu to 1e-2, left the
+    point and took 904-1322 iterations back (default Capler task; now 10-19; docs/formulation.md,
+    round 7). With variable_scaling the distance is measured in xs = x / D.
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
@@ -151,14 +154,19 @@ class SolveOptions:
     3000-iteration cap (3958 to converge); scaled it converges in 1535 and every NLP converges
     (robots/capler.toml opts in). On the biped walk it made NLP 5 stop at its cap (4222 iterations
     against 2143), so it is a per-task choice (docs/formulation.md, round 6). Not measured to help FESD:
-    on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their cap. NLP 1 and the polish see x as built; the scaled IPOPT is created
-    after NLP 1 (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
+    on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their
+    cap (before round 7's projection). NLP 1 sees x as built; the scaled IPOPT is created after NLP 1
+    (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
     retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
     (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
     retry; only with soft_terminal_nlps >= 1). A weak soft terminal lets NLP 1 stop short of the
     target where the hard terminal of NLP 2 is locally infeasible: measured on the point-mass stress
     task holes-00 (docs/stability.md), NLP 1 landed on the hole's edge, 0.24 m short, and every later
     NLP was infeasible; with weight 1e4 (or 1e3) every NLP converged. Converging solves never retry.
+    early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones that converged with
+    its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
+    point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
+    NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing.
     """
 
     tol: float = 1e-8
@@ -198,6 +206,7 @@ class SolveOptions:
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
+    early_stop_comp: float | None = 1e-8
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
@@ -223,6 +232,7 @@ class SolveOptions:
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
             (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
+            (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
         ]
@@ -273,7 +283,7 @@ class _Solvers:
         xs = ca.SX.sym("xs", pb.nx)
         x = ca.DM(self.scale) * xs
         self.scaled_nlp = {"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)}
-        self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled")}
+        self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled") and k != "projection"}
 
     def projection(self):
         """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
@@ -281,10 +291,18 @@ class _Solvers:
             t0 = time.perf_counter()
             pb = self.problem
             xref = ca.SX.sym("x_ref", pb.nx)
-            d = pb.x - xref
-            nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
+            if self.scale is not None:  # the distance in the scaled variables: a 1e3 force and a 0..1 selector weigh alike
+                nlp = self.scaled_nlp
+                d = nlp["x"] - xref
+                nlp = {"x": nlp["x"], "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": nlp["g"]}
+            else:
+                d = pb.x - xref
+                nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
             opts = ipopt_options(self.options, False)
-            opts["ipopt"].update(mu_init=1e-4, bound_push=1e-6, bound_frac=1e-6)  # start next to x_ref
+            # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
+            # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
+            # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
+            opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
@@ -345,6 +363,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         if i == 0 and scaling is VariableScaling.FIRST_NLP:
             solvers.set_scale(variable_scale(problem, x))
         starts = ([(x, lam_x, lam_g, rec.label)] + starts)[: options.polish_starts]
+        if (options.early_stop_comp is not None and i >= max(1, options.soft_terminal_nlps) and rec.success
+                and rec.complementarity_residual <= options.early_stop_comp):
+            break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
     homotopy_ok = all(r.success for r in records)
     polished = False
     if options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
@@ -444,15 +465,15 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
-    warm_solver = warm and not projection  # the solver that sees the scaled variables, once set
+    scaled = (warm or projection) and solvers.scale is not None  # the solvers that see x / D, once set
     solver = solvers.projection() if projection else solvers.get(warm, loose)
+    D = solvers.scale if scaled else np.ones(problem.nx)
     if projection:
         lam_x, lam_g, warm = None, None, False
-        p = np.concatenate([np.asarray(x0, float), p])
+        p = np.concatenate([np.asarray(x0, float) / D, p])
     rho, hole_scale = float(p[-6]), float(p[-5])
     lbg = problem.lbg if lbg is None else lbg
     ubg = problem.ubg if ubg is None else ubg
-    D = solvers.scale if (warm_solver and solvers.scale is not None) else np.ones(problem.nx)
     args = {"x0": np.asarray(x0, float) / D, "p": p, "lbx": lbx / D, "ubx": ubx / D, "lbg": lbg, "ubg": ubg}
     if warm:
         args.update(lam_x0=np.asarray(lam_x, float) * D, lam_g0=lam_g)
