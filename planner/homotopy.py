@@ -39,6 +39,24 @@ from .problem import Problem
 from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
+
+
+def keep_freed_memory() -> bool:
+    """Ask glibc's malloc to serve large blocks from the heap and keep freed memory (mallopt
+    M_MMAP_MAX = 0, M_TRIM_THRESHOLD = 2 GiB, a C int's largest); True if it could. MUMPS allocates
+    its factor storage at every factorization (two or more per IPOPT iteration); by default each of
+    those blocks is a fresh mmap whose pages the kernel zeroes again: 16 of 95 s were system time on
+    the default Capler task, 0.4 s with this (docs/benchmarks.md, "Speed of the pipeline").
+    Process-wide; a no-op off glibc."""
+    import ctypes
+    import ctypes.util
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+        return bool(libc.mallopt(_M_MMAP_MAX, 0)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+    except (OSError, AttributeError):  # not glibc (macOS, musl without mallopt): keep the default allocator
+        return False
+
 
 class MuStrategy(Enum):
     ADAPTIVE = "adaptive"
@@ -102,7 +120,8 @@ class SolveOptions:
     the full Capler task a lower cost (91 vs 109) but led the biped walk into a worse local
     optimum (objective 546 vs 50 at rho = 1e6) whose polish failed; PRIMAL lets each NLP re-centre.
     warm_mu_init: barrier parameter the later NLPs start from (None: same as mu_init; a
-    small value keeps a warm start near its point); bound_push, bound_frac: how far IPOPT moves
+    small value keeps a warm start near its point; IPOPT reads mu_init and warm_mu_init only with
+    mu_strategy monotone, docs/formulation.md round 7); bound_push, bound_frac: how far IPOPT moves
     the initial point inside the bounds (the warm start uses the same); nlp_scaling_method:
     IPOPT's ("gradient-based" or "none"); holes: HoleSchedule; polish: Polish; polish_after_failure:
     also polish when an NLP of the homotopy stopped early (default: the polish decides; see the verdict below);
@@ -166,7 +185,9 @@ class SolveOptions:
     early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones that converged with
     its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
     point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
-    NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing.
+    NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing. The
+    default is comp_tol, the verdict's own threshold (with 1e-8 one path measured ran two more NLPs
+    for a point at 1.2e-8).
     """
 
     tol: float = 1e-8
@@ -206,7 +227,7 @@ class SolveOptions:
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
-    early_stop_comp: float | None = 1e-8
+    early_stop_comp: float | None = 1e-6
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
@@ -331,6 +352,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
     start = time.perf_counter()
+    keep_freed_memory()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
     x, lam_x, lam_g = problem.x0.copy(), None, None

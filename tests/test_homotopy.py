@@ -245,3 +245,33 @@ def test_task_rho_schedule():
     assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     assert H.task_rho_schedule(hom, 1e9) == [1e4]
     assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
+
+
+def test_keep_freed_memory_serves_large_blocks_from_the_heap():
+    """After keep_freed_memory() glibc serves a 64 MiB block (the size class of MUMPS's factor
+    storage) from the heap, not from a fresh mmap: mallinfo2's mmapped bytes do not grow."""
+    import ctypes
+    import ctypes.util
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("glibc's mallopt: Linux only")
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+    if not hasattr(libc, "mallinfo2"):
+        pytest.skip("glibc < 2.33 has no mallinfo2")
+
+    class MallInfo2(ctypes.Structure):
+        _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                    "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+    libc.mallinfo2.restype = MallInfo2
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    assert H.keep_freed_memory()
+    before = libc.mallinfo2().hblkhd
+    p = libc.malloc(64 << 20)
+    try:
+        assert p
+        assert libc.mallinfo2().hblkhd == before  # not an mmapped block
+    finally:
+        libc.free(p)
