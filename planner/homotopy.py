@@ -313,13 +313,10 @@ class _Solvers:
             t0 = time.perf_counter()
             pb = self.problem
             xref = ca.SX.sym("x_ref", pb.nx)
-            if self.scale is not None:  # the distance in the scaled variables: a 1e3 force and a 0..1 selector weigh alike
-                nlp = self.scaled_nlp
-                d = nlp["x"] - xref
-                nlp = {"x": nlp["x"], "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": nlp["g"]}
-            else:
-                d = pb.x - xref
-                nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
+            # with a scale, the distance in xs = x / D: a 1e3 force and a 0..1 selector weigh alike
+            base = self.scaled_nlp if self.scale is not None else self.nlp
+            d = base["x"] - xref
+            nlp = {"x": base["x"], "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": base["g"]}
             opts = ipopt_options(self.options, False)
             # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
