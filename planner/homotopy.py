@@ -502,15 +502,20 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     wall = time.perf_counter() - t0
     st = solver.stats()
     x = np.asarray(sol["x"], float).ravel() * D
-    # gated: the largest product the l_inf slack bounds. Not |.|: a gate IPOPT left at -1e-8 (its bound
-    # relaxation) times a 1e6 multiplier of a switched-off pair is a negative product ungate removes
-    gp = problem.notes.get("gated_products")
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
-                    complementarity_residual=(float(np.max(np.asarray(gp(x), float), initial=0.0)) if gp is not None
-                                              else problem.complementarity_residual(x)), iterations=int(st.get("iter_count", 0)),
+                    complementarity_residual=gated_complementarity(problem, x), iterations=int(st.get("iter_count", 0)),
                     time_s=wall, status=str(st.get("return_status", "")), success=bool(st.get("success", False)),
                     terminal_error=terminal_error(problem, x))
     return x, np.asarray(sol["lam_x"], float).ravel() / D, np.asarray(sol["lam_g"], float).ravel(), rec
+
+
+def gated_complementarity(problem: Problem, x) -> float:
+    """An NLP point's complementarity as its record reports it: with gating the largest gated product
+    (what the l_inf slack bounds), else problem.complementarity_residual. Not |.|: a gate IPOPT left at
+    -1e-8 (its bound relaxation) times a 1e6 multiplier of a switched-off pair is a negative product
+    that ungate removes."""
+    gp = problem.notes.get("gated_products")
+    return float(np.max(np.asarray(gp(x), float), initial=0.0)) if gp is not None else problem.complementarity_residual(x)
 
 
 def _ipopt_timing(solvers) -> dict:
