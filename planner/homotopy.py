@@ -77,6 +77,13 @@ class WarmStart(Enum):
     PRIMAL_DUAL = "primal_dual"  # x and the multipliers (IPOPT's warm_start_init_point)
 
 
+class Regularization(Enum):
+    """Where IPOPT's Hessian regularization (inertia correction) starts at each new KKT matrix."""
+
+    FROM_ZERO = "from_zero"  # IPOPT's rule: try the unregularized matrix first, then the last delta / 3, x 8 ...
+    FROM_LAST = "from_last"  # start from the last delta / 3 (skips the first factorization; see _Solvers)
+
+
 class MumpsOrdering(Enum):
     """MUMPS's fill-reducing ordering of IPOPT's KKT matrix (IPOPT's mumps_pivot_order: the integer)."""
 
@@ -182,6 +189,12 @@ class SolveOptions:
     target where the hard terminal of NLP 2 is locally infeasible: measured on the point-mass stress
     task holes-00 (docs/stability.md), NLP 1 landed on the hole's edge, 0.24 m short, and every later
     NLP was infeasible; with weight 1e4 (or 1e3) every NLP converged. Converging solves never retry.
+    regularization: Regularization. FROM_ZERO (default, IPOPT's rule) or FROM_LAST: start each factorization's
+    inertia correction from the last Hessian regularization instead of trying none first. NLP 2 of the
+    default Capler task needs one in 1515 of 1543 iterations; FROM_LAST cuts its factorizations from 2.5 to
+    1.55 per iteration and whole solves' CPU per iteration by 15-30 %, but it changes the homotopy's path:
+    over Capler N = 40 ... 125 it failed twice and took 58 % more iterations on the default task, and
+    helped at N = 75 and 100 (docs/formulation.md, round 8).
     early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones that converged with
     its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
     point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
@@ -226,13 +239,15 @@ class SolveOptions:
     polish_projection: bool = True
     intermediate_tol: float | None = None
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
+    regularization: Regularization = Regularization.FROM_ZERO
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
     early_stop_comp: float | None = 1e-10
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
-                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling)):
+                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling),
+                          ("regularization", Regularization)):
             if key == "variable_scaling" and self.variable_scaling is None:
                 continue
             if not isinstance(getattr(self, key), enum):
@@ -293,7 +308,13 @@ class _Solvers:
     They differ only in IPOPT options that CasADi fixes at creation."""
 
     def __init__(self, problem: Problem, options: SolveOptions):
-        self.nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
+        # Regularization.FROM_LAST: one free variable that appears nowhere (the probe) makes the unregularized
+        # KKT matrix singular, so IPOPT's degeneracy test marks the Hessian degenerate after three iterations and
+        # from then on starts each factorization from the last delta / 3 instead of from 0. The homotopy NLPs'
+        # Hessians are indefinite almost everywhere (NLP 2 of the default Capler task: 1515 of 1543 iterations
+        # regularized), so the try at 0 is a wasted factorization (docs/formulation.md, round 8).
+        self.n_probe = 1 if options.regularization is Regularization.FROM_LAST else 0
+        self.nlp = self._probed({"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g})
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
         self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
         self.problem = problem
@@ -304,8 +325,11 @@ class _Solvers:
         self.scale = np.asarray(D, float)
         xs = ca.SX.sym("xs", pb.nx)
         x = ca.DM(self.scale) * xs
-        self.scaled_nlp = {"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)}
+        self.scaled_nlp = self._probed({"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)})
         self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled") and k != "projection"}
+
+    def _probed(self, nlp: dict) -> dict:
+        return dict(nlp, x=ca.vertcat(nlp["x"], ca.SX.sym("probe", self.n_probe))) if self.n_probe else nlp
 
     def projection(self):
         """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
@@ -315,8 +339,9 @@ class _Solvers:
             xref = ca.SX.sym("x_ref", pb.nx)
             # with a scale, the distance in xs = x / D: a 1e3 force and a 0..1 selector weigh alike
             base = self.scaled_nlp if self.scale is not None else self.nlp
-            d = base["x"] - xref
-            nlp = {"x": base["x"], "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": base["g"]}
+            x = base["x"][: pb.nx]  # without the probe: the projection is a Newton projection, unregularized
+            d = x - xref
+            nlp = {"x": x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": base["g"]}
             opts = ipopt_options(self.options, False)
             # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
@@ -497,10 +522,17 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     args = {"x0": np.asarray(x0, float) / D, "p": p, "lbx": lbx / D, "ubx": ubx / D, "lbg": lbg, "ubg": ubg}
     if warm:
         args.update(lam_x0=np.asarray(lam_x, float) * D, lam_g0=lam_g)
+    n_probe = 0 if projection else solvers.n_probe
+    if n_probe:  # the probe is free, starts at 0 and is dropped from the solution
+        pad = np.zeros(n_probe)
+        for key, value in (("x0", pad), ("lbx", pad - np.inf), ("ubx", pad + np.inf), ("lam_x0", pad)):
+            if key in args:
+                args[key] = np.concatenate([args[key], value])
     t0 = time.perf_counter()
     sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
+    sol = {key: np.asarray(sol[key], float).ravel()[: problem.nx] if key in ("x", "lam_x") else sol[key] for key in sol}
     x = np.asarray(sol["x"], float).ravel() * D
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
                     complementarity_residual=gated_complementarity(problem, x), iterations=int(st.get("iter_count", 0)),

@@ -275,3 +275,24 @@ def test_keep_freed_memory_serves_large_blocks_from_the_heap():
         assert libc.mallinfo2().hblkhd == before  # not an mmapped block
     finally:
         libc.free(p)
+
+
+def test_regularization_from_last_skips_the_unregularized_try():
+    """Regularization.FROM_LAST: IPOPT regularizes the Hessian in every iteration after its degeneracy
+    test (it starts each factorization from the last delta instead of trying delta = 0 first), while with
+    FROM_ZERO some iterations of the same NLP run unregularized; the probe variable stays invisible (x and
+    lam_x have the problem's nx entries) and both converge. The projection polish is built without it."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
+    regularized = {}
+    for mode in H.Regularization:
+        solvers = H._Solvers(prob, H.SolveOptions(regularization=mode))
+        x, lam_x, _, rec = H._run(prob, solvers, prob.x0, None, None, prob.params(100.0, 1.0), prob.lbx, prob.ubx, "nlp 1")
+        assert rec.success and x.shape == lam_x.shape == (prob.nx,)
+        sizes = np.asarray(solvers.get(warm=False).stats()["iterations"]["regularization_size"])
+        regularized[mode] = sizes[4:] > 0  # the first iterations are IPOPT's degeneracy test
+        solvers.set_scale(np.ones(prob.nx))
+        assert solvers.projection().size_in(0) == (prob.nx, 1)
+    assert regularized[H.Regularization.FROM_LAST].all()
+    assert not regularized[H.Regularization.FROM_ZERO].all()
+    with pytest.raises(InputError, match="regularization"):
+        H.SolveOptions(regularization="from_last")
