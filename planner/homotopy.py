@@ -80,6 +80,18 @@ class VariableScaling(Enum):
 
     NONE = "none"  # x as built
     FIRST_NLP = "first_nlp"  # from NLP 2 on, x = D xs with D = variable_scale(problem, NLP 1's solution)
+    START = "start"  # from NLP 1 on, x = D xs with D = variable_scale(problem, the start x0) (a start that is a plan already)
+
+
+class FESDStart(Enum):
+    """Where the homotopy of an FESD problem (ProblemOptions.discretization FESD) starts (docs/formulation.md,
+    "FESD in the OCP", "Continuation through implicit Euler"). Ignored for implicit-Euler problems."""
+
+    HINT_FREE = "hint_free"  # the problem's own x0 (y_0 everywhere, u = 0), the task's rho schedule
+    # the implicit-Euler OCP of the same task and grid solved from its hint-free start (the default
+    # implicit-Euler solve), mapped onto the FESD variables (problem.fesd_start_from_implicit_euler),
+    # then the FESD NLPs of SolveOptions.fesd_rho_schedule and the polish: still no hint from the user
+    IMPLICIT_EULER = "implicit_euler"
 
 
 class Polish(Enum):
@@ -198,10 +210,12 @@ class SolveOptions:
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
+    fesd_start: FESDStart = FESDStart.HINT_FREE
+    fesd_rho_schedule: tuple[float, ...] = (1e4, 1e5)
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
-                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling)):
+                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling), ("fesd_start", FESDStart)):
             if key == "variable_scaling" and self.variable_scaling is None:
                 continue
             if not isinstance(getattr(self, key), enum):
@@ -225,6 +239,9 @@ class SolveOptions:
             (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
+            (isinstance(self.fesd_rho_schedule, tuple) and len(self.fesd_rho_schedule) >= 1
+             and all(isinstance(r, (int, float)) and r > 0 for r in self.fesd_rho_schedule),
+             "fesd_rho_schedule", self.fesd_rho_schedule, "a non-empty tuple of penalties > 0"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -263,6 +280,7 @@ class _Solvers:
     def __init__(self, problem: Problem, options: SolveOptions):
         self.nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
+        self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
         self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
         self.problem = problem
 
@@ -291,7 +309,7 @@ class _Solvers:
 
     def get(self, warm: bool, loose: bool = False):
         opts = ipopt_options(self.options, warm, loose)
-        scaled = warm and self.scale is not None
+        scaled = (warm or self.scale_cold) and self.scale is not None
         key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:
             t0 = time.perf_counter()
@@ -312,6 +330,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
+    if problem.fesd is not None and options.fesd_start is FESDStart.IMPLICIT_EULER:
+        return _solve_through_implicit_euler(problem, options, progress)
     start = time.perf_counter()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
@@ -327,6 +347,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
 
     term_rows = _terminal_rows(problem)
     scaling = options.variable_scaling or (VariableScaling.FIRST_NLP if hom.scale_variables else VariableScaling.NONE)
+    if scaling is VariableScaling.START:
+        solvers.set_scale(variable_scale(problem, x))
+        solvers.scale_cold = True
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
@@ -369,6 +392,50 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if (not result.stats.converged and options.retry_terminal_weight is not None and options.soft_terminal_nlps >= 1
             and any(r.status == "Infeasible_Problem_Detected" for r in records)):
         return _retry(problem, options, result, progress)
+    return result
+
+
+# IPOPT settings of the FESD NLPs that start from the mapped implicit-Euler plan (Capler N = 50 with holes,
+# docs/formulation.md "FESD in the OCP"): with the defaults (adaptive barrier from mu 0.1, bound push 1e-2)
+# the barrier rose to 10^3.6 and NLP 1 crawled with steps of 1e-4 for > 12 min; a monotone barrier from 1e-3,
+# a start kept next to the mapped point and the variables scaled by the mapped point's magnitudes
+# (VariableScaling.START: selectors 1, multipliers and accelerations up to ~1e3) made it descend
+FESD_FROM_EULER_IPOPT = dict(mu_strategy=MuStrategy.MONOTONE, mu_init=1e-3, bound_push=1e-4, bound_frac=1e-4,
+                             variable_scaling=VariableScaling.START)
+
+
+def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progress: Progress | None) -> PlanResult:
+    """FESDStart.IMPLICIT_EULER: solve the implicit-Euler OCP of the same task, grid and formulation options
+    from its hint-free start (with `options`: its rho schedule, scaling, polish), map its plan onto the FESD
+    variables (fesd_start_from_implicit_euler) and solve the FESD problem from there over
+    options.fesd_rho_schedule with the holes and the hard terminal enforced from the first NLP on (the
+    start already keeps them), then polish. Returns the FESD PlanResult; its NLP records start with the
+    implicit-Euler ones (labelled "implicit Euler: ..."), and iterations and solve time count both."""
+    from .discretization import Discretization
+    from .problem import build_problem, fesd_start_from_implicit_euler
+
+    start = time.perf_counter()
+    euler = build_problem(problem.robot, problem.task, replace(problem.options, discretization=Discretization.IMPLICIT_EULER),
+                          dynamics=problem.system.dyn)
+
+    def euler_progress(rec):
+        if progress:
+            progress(replace(rec, label=f"implicit Euler: {rec.label}"))
+
+    first = solve(euler, replace(options, fesd_start=FESDStart.HINT_FREE), euler_progress)
+    x0 = fesd_start_from_implicit_euler(problem, euler, first.extra["_x"])
+    fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule, holes=HoleSchedule.ENFORCED,
+                           soft_terminal_nlps=0, retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
+    result = solve(replace(problem, x0=x0), fesd_options, progress)
+    nlps = tuple(replace(r, label=f"implicit Euler: {r.label}") for r in first.nlps) + result.nlps
+    note = (f"; from the implicit-Euler plan ({first.stats.ipopt_iterations} iterations, "
+            + ("converged" if first.stats.converged else f"not converged: {first.stats.message}") + ")")
+    stats = replace(result.stats, message=result.stats.message + note, n_nlp=len(nlps), solve_time_s=time.perf_counter() - start,
+                    ipopt_iterations=first.stats.ipopt_iterations + result.stats.ipopt_iterations)
+    timings = dict(result.timings, implicit_euler_s=first.stats.solve_time_s, implicit_euler_build_s=euler.build_time_s)
+    result = replace(result, stats=stats, nlps=nlps, timings=timings)
+    result.extra["implicit_euler"] = {"converged": first.stats.converged, "ipopt_iterations": first.stats.ipopt_iterations,
+                                      "solve_time_s": first.stats.solve_time_s, "complementarity_residual": first.stats.complementarity_residual}
     return result
 
 
@@ -422,7 +489,7 @@ def variable_scale(problem: Problem, x) -> np.ndarray:
     stages at x, at least 1; 1 for every other variable (speeds of time, the slack, a periodic y0)."""
     x = np.asarray(x, float).ravel()
     D = np.ones(problem.nx)
-    for name in ("u", "y", "w"):
+    for name in ("u", "y", "w") + (("Y",) if "Y" in problem.var_blocks else ()):  # FESD: every stage state too
         rows = problem.var_blocks[name]
         D[rows] = np.maximum(np.abs(x[rows]).max(axis=0), 1.0)[None, :]
     return D
@@ -444,7 +511,7 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
-    warm_solver = warm and not projection  # the solver that sees the scaled variables, once set
+    warm_solver = (warm or solvers.scale_cold) and not projection  # the solver that sees the scaled variables, once set
     solver = solvers.projection() if projection else solvers.get(warm, loose)
     if projection:
         lam_x, lam_g, warm = None, None, False
