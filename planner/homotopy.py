@@ -165,6 +165,14 @@ class SolveOptions:
     against 2143), so it is a per-task choice (docs/formulation.md, round 6). Not measured to help FESD:
     on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their cap. NLP 1 and the polish see x as built; the scaled IPOPT is created
     after NLP 1 (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
+    VariableScaling.START (used by FESDStart.IMPLICIT_EULER's FESD NLPs): D from the start x0 (for FESD
+    also every stage state's column), seen by every NLP from the first on.
+    fesd_start: FESDStart, only for FESD problems. HINT_FREE (default): the homotopy from the problem's x0.
+    IMPLICIT_EULER: the implicit-Euler OCP of the same task solved first from its hint-free start with these
+    options (its own rho schedule: rho_schedule / rho_min / rho_max / rho_refine), its plan mapped onto the
+    FESD variables, then the FESD NLPs of fesd_rho_schedule (holes and hard terminal enforced, IPOPT settings
+    FESD_FROM_EULER_IPOPT) and the polish. fesd_rho_schedule: those FESD penalties (default 1e4, 1e5).
+    Measured: the point-mass hop converges (64 s against 10 s hint-free); Capler N = 50 with holes does not (docs/formulation.md, "FESD in the OCP", "Continuation through implicit Euler").
     retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
     (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
     retry; only with soft_terminal_nlps >= 1). A weak soft terminal lets NLP 1 stop short of the
@@ -348,7 +356,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     term_rows = _terminal_rows(problem)
     scaling = options.variable_scaling or (VariableScaling.FIRST_NLP if hom.scale_variables else VariableScaling.NONE)
     if scaling is VariableScaling.START:
-        solvers.set_scale(variable_scale(problem, x))
+        solvers.set_scale(variable_scale(problem, x, stages=True))
         solvers.scale_cold = True
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
@@ -399,7 +407,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
 # docs/formulation.md "FESD in the OCP"): with the defaults (adaptive barrier from mu 0.1, bound push 1e-2)
 # the barrier rose to 10^3.6 and NLP 1 crawled with steps of 1e-4 for > 12 min; a monotone barrier from 1e-3,
 # a start kept next to the mapped point and the variables scaled by the mapped point's magnitudes
-# (VariableScaling.START: selectors 1, multipliers and accelerations up to ~1e3) made it descend
+# (VariableScaling.START: selectors 1, multipliers and accelerations up to ~1e3) made it feasible and
+# descend, still too slowly to converge in 3000 iterations (complementarity 0.11 at rho 1e4)
 FESD_FROM_EULER_IPOPT = dict(mu_strategy=MuStrategy.MONOTONE, mu_init=1e-3, bound_push=1e-4, bound_frac=1e-4,
                              variable_scaling=VariableScaling.START)
 
@@ -483,13 +492,13 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
     return None
 
 
-def variable_scale(problem: Problem, x) -> np.ndarray:
-    """D (nx,) for VariableScaling.FIRST_NLP: for each column of the stage blocks u, y, w (one column per
+def variable_scale(problem: Problem, x, stages: bool = False) -> np.ndarray:
+    """D (nx,) for VariableScaling.FIRST_NLP and START (stages: FESD's stage states Y too): for each column of the stage blocks u, y, w (one column per
     variable kind: a joint's angle, a contact force, a selector, ...) the largest |value| over the
     stages at x, at least 1; 1 for every other variable (speeds of time, the slack, a periodic y0)."""
     x = np.asarray(x, float).ravel()
     D = np.ones(problem.nx)
-    for name in ("u", "y", "w") + (("Y",) if "Y" in problem.var_blocks else ()):  # FESD: every stage state too
+    for name in ("u", "y", "w") + (("Y",) if stages and "Y" in problem.var_blocks else ()):  # START: FESD's every stage state too
         rows = problem.var_blocks[name]
         D[rows] = np.maximum(np.abs(x[rows]).max(axis=0), 1.0)[None, :]
     return D

@@ -685,11 +685,6 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
 
     # --- complementarity pairs, in FESDInterval's order --------------------------------------------
     sig, lam0, lam1 = var_blocks["sigma"], var_blocks["lambda0"], var_blocks["lambda1"]
-    # a switching function that depends on u (phi: the normal acceleration without contact force) jumps with
-    # the piecewise-constant control at a step boundary, so its selector may switch there without a zero
-    # crossing: its left boundary in a step's first element is the step's own first stage (as for step 0),
-    # not the previous step's end, whose multipliers were computed with u_{k-1}
-    u_dependent = _u_dependent_switches(system)
     pairs: list[Pair] = []
     own: list[bool] = []  # the pair's multiplier is at its selector's own stage
     for k in range(N):
@@ -698,11 +693,11 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
                 left = (k, e - 1, n_s - 1)
             else:
                 left = (k - 1, n_fe - 1, n_s - 1) if k > 0 else (k, 0, 0)
+            points = [left] + [(k, e, j) for j in range(n_s)]
             for j in range(n_s):
                 for upper, lam, kind in ((False, lam0, "lambda0"), (True, lam1, "lambda1")):
-                    for point in range(n_s + 1):
+                    for p_k, p_e, p_j in points:
                         for i, sw in enumerate(system.switches):
-                            p_k, p_e, p_j = (left if not (e == 0 and u_dependent[i]) else (k, 0, 0)) if point == 0 else (k, e, point - 1)
                             own.append((p_k, p_e, p_j) == (k, e, j))
                             pairs.append(Pair(int(lam[p_k, p_e, p_j, i]), int(sig[k, e, j, i]), upper,
                                               f"{kind}[{sw.name}]_{p_k}_{p_e}_{p_j}*{'(1-sigma)' if upper else 'sigma'}_{k}_{e}_{j}"))
@@ -822,13 +817,6 @@ def fesd_start_from_implicit_euler(fesd_problem: Problem, euler_problem: Problem
         x0[vb["s_c_step"].ravel()] = np.max(prods, axis=1, initial=0.0).clip(0.0)
         x0[vb["s_c"]] = float(np.max(prods, initial=0.0).clip(0.0))
     return x0
-
-
-def _u_dependent_switches(system: TimeFreezingSystem) -> np.ndarray:
-    """(n_sigma,) bool: the switching function h_i(y, u) depends on the control u (structurally)."""
-    args = [system.y, system.u] + ([ca.SX.sym("lam", system.n_lambda)] if system.n_lambda else [])
-    h = system.switching_fn(*args)
-    return np.array([ca.depends_on(h[i], system.u) for i in range(h.shape[0])], dtype=bool)
 
 
 class _Rows:

@@ -10,7 +10,7 @@ from planner import homotopy as H
 from planner.discretization import Discretization, FESDOptions
 from planner.errors import InputError
 from planner.model import load_robot
-from planner.problem import Penalty, ProblemOptions, _u_dependent_switches, build_problem, fesd_start_from_implicit_euler
+from planner.problem import Penalty, ProblemOptions, build_problem, fesd_start_from_implicit_euler
 
 from test_problem import hop_task
 
@@ -60,11 +60,8 @@ def test_blocks_and_shapes():
     x = rng.uniform(0.1, 1.0, prob.nx)
     mine = np.asarray(prob.notes["gated_products"](x), float).ravel()[pairs_per_step : 2 * pairs_per_step]
     gates = np.asarray(prob.notes["pair_gates"](x), float).ravel()[pairs_per_step : 2 * pairs_per_step]
-    # a u-dependent switching function (phi) takes step 1's own first stage as its left boundary, the others step 0's end
-    u_dep = np.tile(_u_dependent_switches(prob.system), 2)
-    end0, first1 = vb["w"][0, -1, -1], vb["w"][1, 0, 0]
-    lams = [np.concatenate([w[prob.builder.w_blocks["lambda0"]], w[prob.builder.w_blocks["lambda1"]]]) for w in (end0, first1)]
-    lam_prev = prob.x[np.where(u_dep, lams[1], lams[0]).tolist()]
+    end0 = vb["w"][0, -1, -1]
+    lam_prev = ca.vertcat(prob.x[end0[prob.builder.w_blocks["lambda0"]].tolist()], prob.x[end0[prob.builder.w_blocks["lambda1"]].tolist()])
     iv = prob.fesd.build(prob.x[vb["y"][0].tolist()], lambda y: prob.x[vb["u"][1].tolist()], prob.h, lam_prev, tag="_check")
     sub = ca.Function("interval", [iv.x, prob.x], [iv.comp_products()])
     first = vb["u"][1][-1] + 1
