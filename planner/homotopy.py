@@ -39,6 +39,24 @@ from .problem import Problem
 from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
+
+
+def keep_freed_memory() -> bool:
+    """Ask glibc's malloc to serve large blocks from the heap and keep freed memory (mallopt
+    M_MMAP_MAX = 0, M_TRIM_THRESHOLD = 2 GiB, a C int's largest); True if it could. MUMPS allocates
+    its factor storage at every factorization (two or more per IPOPT iteration); by default each of
+    those blocks is a fresh mmap whose pages the kernel zeroes again: 16 of 95 s were system time on
+    the default Capler task, 0.4 s with this (docs/benchmarks.md, "Speed of the pipeline").
+    Process-wide; a no-op off glibc."""
+    import ctypes
+    import ctypes.util
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+        return bool(libc.mallopt(_M_MMAP_MAX, 0)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+    except (OSError, AttributeError):  # not glibc (macOS, musl without mallopt): keep the default allocator
+        return False
+
 
 class MuStrategy(Enum):
     ADAPTIVE = "adaptive"
@@ -114,7 +132,8 @@ class SolveOptions:
     the full Capler task a lower cost (91 vs 109) but led the biped walk into a worse local
     optimum (objective 546 vs 50 at rho = 1e6) whose polish failed; PRIMAL lets each NLP re-centre.
     warm_mu_init: barrier parameter the later NLPs start from (None: same as mu_init; a
-    small value keeps a warm start near its point); bound_push, bound_frac: how far IPOPT moves
+    small value keeps a warm start near its point; IPOPT reads mu_init and warm_mu_init only with
+    mu_strategy monotone, docs/formulation.md round 7); bound_push, bound_frac: how far IPOPT moves
     the initial point inside the bounds (the warm start uses the same); nlp_scaling_method:
     IPOPT's ("gradient-based" or "none"); holes: HoleSchedule; polish: Polish; polish_after_failure:
     also polish when an NLP of the homotopy stopped early (default: the polish decides; see the verdict below);
@@ -147,7 +166,10 @@ class SolveOptions:
     complementarity; N = 50 without holes, 112 iterations, where the cost polish stopped at its
     3000-iteration cap from each of the rho = 1e6, 1e5 and 1e4 points (docs/formulation.md, round 4).
     The plan keeps the homotopy's (penalized) optimum up to the projection; the task's cost is not
-    re-optimized on the fixed active set.
+    re-optimized on the fixed active set. The projection runs IPOPT's monotone barrier from mu = 1e-9:
+    its start is feasible to ~1e-6, and from mu = 1e-4 the adaptive rule raised mu to 1e-2, left the
+    point and took 904-1322 iterations back (default Capler task; now 10-19; docs/formulation.md,
+    round 7). With variable_scaling the distance is measured in xs = x / D.
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
@@ -163,10 +185,11 @@ class SolveOptions:
     3000-iteration cap (3958 to converge); scaled it converges in 1535 and every NLP converges
     (robots/capler.toml opts in). On the biped walk it made NLP 5 stop at its cap (4222 iterations
     against 2143), so it is a per-task choice (docs/formulation.md, round 6). Not measured to help FESD:
-    on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their cap. NLP 1 and the polish see x as built; the scaled IPOPT is created
-    after NLP 1 (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
+    on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their
+    cap (before round 7's projection). NLP 1 sees x as built; the scaled IPOPT is created after NLP 1
+    (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
     VariableScaling.START (used by FESDStart.IMPLICIT_EULER's FESD NLPs): D from the start x0 (for FESD
-    also every stage state's column), seen by every NLP from the first on.
+    also every stage state's column), seen by every NLP from the first on (and by the projection).
     fesd_start: FESDStart, only for FESD problems. HINT_FREE (default): the homotopy from the problem's x0.
     IMPLICIT_EULER: the implicit-Euler OCP of the same task solved first from its hint-free start with these
     options (its own rho schedule: rho_schedule / rho_min / rho_max / rho_refine), its plan mapped onto the
@@ -179,6 +202,12 @@ class SolveOptions:
     target where the hard terminal of NLP 2 is locally infeasible: measured on the point-mass stress
     task holes-00 (docs/stability.md), NLP 1 landed on the hole's edge, 0.24 m short, and every later
     NLP was infeasible; with weight 1e4 (or 1e3) every NLP converged. Converging solves never retry.
+    early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones that converged with
+    its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
+    point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
+    NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing. The
+    default is comp_tol, the verdict's own threshold (with 1e-8 one path measured ran two more NLPs
+    for a point at 1.2e-8).
     """
 
     tol: float = 1e-8
@@ -218,6 +247,7 @@ class SolveOptions:
     mumps_ordering: MumpsOrdering = MumpsOrdering.AUTO
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
+    early_stop_comp: float | None = 1e-6
     fesd_start: FESDStart = FESDStart.HINT_FREE
     fesd_rho_schedule: tuple[float, ...] = (1e4, 1e5)
 
@@ -245,6 +275,7 @@ class SolveOptions:
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
             (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
+            (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
             (isinstance(self.fesd_rho_schedule, tuple) and len(self.fesd_rho_schedule) >= 1
@@ -299,7 +330,7 @@ class _Solvers:
         xs = ca.SX.sym("xs", pb.nx)
         x = ca.DM(self.scale) * xs
         self.scaled_nlp = {"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)}
-        self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled")}
+        self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled") and k != "projection"}
 
     def projection(self):
         """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
@@ -307,10 +338,18 @@ class _Solvers:
             t0 = time.perf_counter()
             pb = self.problem
             xref = ca.SX.sym("x_ref", pb.nx)
-            d = pb.x - xref
-            nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
+            if self.scale is not None:  # the distance in the scaled variables: a 1e3 force and a 0..1 selector weigh alike
+                nlp = self.scaled_nlp
+                d = nlp["x"] - xref
+                nlp = {"x": nlp["x"], "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": nlp["g"]}
+            else:
+                d = pb.x - xref
+                nlp = {"x": pb.x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": pb.g}
             opts = ipopt_options(self.options, False)
-            opts["ipopt"].update(mu_init=1e-4, bound_push=1e-6, bound_frac=1e-6)  # start next to x_ref
+            # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
+            # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
+            # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
+            opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
@@ -341,6 +380,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if problem.fesd is not None and options.fesd_start is FESDStart.IMPLICIT_EULER:
         return _solve_through_implicit_euler(problem, options, progress)
     start = time.perf_counter()
+    keep_freed_memory()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
     x, lam_x, lam_g = problem.x0.copy(), None, None
@@ -376,6 +416,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         if i == 0 and scaling is VariableScaling.FIRST_NLP:
             solvers.set_scale(variable_scale(problem, x))
         starts = ([(x, lam_x, lam_g, rec.label)] + starts)[: options.polish_starts]
+        if (options.early_stop_comp is not None and i >= max(1, options.soft_terminal_nlps) and rec.success
+                and rec.complementarity_residual <= options.early_stop_comp):
+            break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
     homotopy_ok = all(r.success for r in records)
     polished = False
     if options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
@@ -520,15 +563,16 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
-    warm_solver = (warm or solvers.scale_cold) and not projection  # the solver that sees the scaled variables, once set
+    # the solvers that see x / D, once set: the warm ones, the projection, and the cold one with scale_cold (START)
+    scaled = (warm or projection or solvers.scale_cold) and solvers.scale is not None
     solver = solvers.projection() if projection else solvers.get(warm, loose)
+    D = solvers.scale if scaled else np.ones(problem.nx)
     if projection:
         lam_x, lam_g, warm = None, None, False
-        p = np.concatenate([np.asarray(x0, float), p])
+        p = np.concatenate([np.asarray(x0, float) / D, p])
     rho, hole_scale = float(p[-6]), float(p[-5])
     lbg = problem.lbg if lbg is None else lbg
     ubg = problem.ubg if ubg is None else ubg
-    D = solvers.scale if (warm_solver and solvers.scale is not None) else np.ones(problem.nx)
     args = {"x0": np.asarray(x0, float) / D, "p": p, "lbx": lbx / D, "ubx": ubx / D, "lbg": lbg, "ubg": ubg}
     if warm:
         args.update(lam_x0=np.asarray(lam_x, float) * D, lam_g0=lam_g)

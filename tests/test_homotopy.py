@@ -34,9 +34,36 @@ def test_point_mass_hop_converges(hop):
     assert res.polished
     assert res.stats.complementarity_residual <= COMP_TOL
     assert res.terminal_error <= TERMINAL_TOL
-    assert len(records) == len(res.nlps) == len(H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e6, (3e3,))) + 1
-    # the task's rho0 kappa^i without the rho < rho_min = 100 and continued to rho_max = 1e6 (SolveOptions)
-    assert [r.rho for r in records[:-1]] == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
+    assert len(records) == len(res.nlps)
+    # the task's rho0 kappa^i without the rho < rho_min = 100 and continued to rho_max = 1e6 (SolveOptions),
+    # up to the early stop (test_early_stop_ends_the_homotopy_at_the_first_complementary_nlp)
+    schedule = H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e6, (3e3,))
+    assert schedule == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
+    homotopy = [r for r in records if r.label.startswith("homotopy")]
+    assert [r.rho for r in homotopy] == schedule[: len(homotopy)] and records[-1].label == "polish"
+
+
+# The later NLPs (rho 1e5, 1e6) move an already complementary point by ~1e-5 (IPOPT's restart from
+# mu = 0.1 leaves it and comes back); both polishes project onto the same active set.
+SAME_PLAN_TOL = 1e-4  # [m, m/s, s] largest difference of the NLP states
+
+
+def test_early_stop_ends_the_homotopy_at_the_first_complementary_nlp(hop):
+    """SolveOptions.early_stop_comp: the homotopy ends at the first NLP after NLP 1 whose largest gated
+    product is <= early_stop_comp (every earlier one is above it); with None the whole schedule runs.
+    Both converge to the same plan (states within SAME_PLAN_TOL), and the projection polish stays next
+    to its start (squared distance <= 1e-6)."""
+    prob, res, records = hop
+    stop = H.SolveOptions().early_stop_comp
+    homotopy = [r for r in records if r.label.startswith("homotopy")]
+    assert homotopy[-1].complementarity_residual <= stop and homotopy[-1].success
+    assert all(r.complementarity_residual > stop for r in homotopy[1:-1])
+    assert len(homotopy) < 6  # the hop's products are ~1e-18 at rho = 1e4: 1e5 and 1e6 are skipped
+    full = H.solve(prob, H.SolveOptions(early_stop_comp=None))
+    assert full.stats.converged and [r.rho for r in full.nlps[:-1]] == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
+    Y0, Y1 = (prob.split(r.extra["_x"])["Y"] for r in (res, full))
+    assert np.abs(Y0 - Y1).max() <= SAME_PLAN_TOL
+    assert res.nlps[-1].objective <= 1e-6 and full.nlps[-1].objective <= 1e-6
 
 
 def test_point_mass_hop_phases(hop):
@@ -75,7 +102,8 @@ def test_active_set_bounds_fix_one_side():
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
                                          ({"mumps_ordering": "amd"}, "mumps_ordering"),
-                                         ({"retry_terminal_weight": 0.0}, "retry_terminal_weight")])
+                                         ({"retry_terminal_weight": 0.0}, "retry_terminal_weight"),
+                                         ({"early_stop_comp": 0.0}, "early_stop_comp")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
@@ -217,3 +245,33 @@ def test_task_rho_schedule():
     assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     assert H.task_rho_schedule(hom, 1e9) == [1e4]
     assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
+
+
+def test_keep_freed_memory_serves_large_blocks_from_the_heap():
+    """After keep_freed_memory() glibc serves a 64 MiB block (the size class of MUMPS's factor
+    storage) from the heap, not from a fresh mmap: mallinfo2's mmapped bytes do not grow."""
+    import ctypes
+    import ctypes.util
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("glibc's mallopt: Linux only")
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+    if not hasattr(libc, "mallinfo2"):
+        pytest.skip("glibc < 2.33 has no mallinfo2")
+
+    class MallInfo2(ctypes.Structure):
+        _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                    "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+    libc.mallinfo2.restype = MallInfo2
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    assert H.keep_freed_memory()
+    before = libc.mallinfo2().hblkhd
+    p = libc.malloc(64 << 20)
+    try:
+        assert p
+        assert libc.mallinfo2().hblkhd == before  # not an mmapped block
+    finally:
+        libc.free(p)
