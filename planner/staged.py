@@ -108,10 +108,14 @@ class StagedNlp:
 
     def bounds(self, lbg_orig, ubg_orig) -> tuple[np.ndarray, np.ndarray]:
         """Staged lbg, ubg for the original rows' bounds lbg_orig, ubg_orig (gap rows: 0)."""
-        lo, hi = np.zeros(len(self.g_src)), np.zeros(len(self.g_src))
-        rows = self.g_src >= 0
-        lo[rows], hi[rows] = np.asarray(lbg_orig, float)[self.g_src[rows]], np.asarray(ubg_orig, float)[self.g_src[rows]]
-        return lo, hi
+        return _row_bounds(self.g_src, lbg_orig, ubg_orig)
+
+
+def _row_bounds(g_src: np.ndarray, lbg_orig, ubg_orig) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = np.zeros(len(g_src)), np.zeros(len(g_src))
+    rows = g_src >= 0
+    lo[rows], hi[rows] = np.asarray(lbg_orig, float)[g_src[rows]], np.asarray(ubg_orig, float)[g_src[rows]]
+    return lo, hi
 
 
 def staged_nlp(problem: Problem) -> StagedNlp:
@@ -254,8 +258,6 @@ def staged_nlp(problem: Problem) -> StagedNlp:
     if linf:
         x_main[int(vb["s_c"][0])] = first[int(vb["s_c"][0])]
     assert (x_main >= 0).all() and (x_src[x_main] == np.arange(pb.nx)).all()
-    lbg, ubg = np.zeros(len(g_src)), np.zeros(len(g_src))
-    rows = g_src >= 0
-    lbg[rows], ubg[rows] = pb.lbg[g_src[rows]], pb.ubg[g_src[rows]]
+    lbg, ubg = _row_bounds(g_src, pb.lbg, pb.ubg)
     return StagedNlp(problem=pb, x=Xn, p=pb.p, f=F, g=G, lbx=np.array(lbx), ubx=np.array(ubx), lbg=lbg, ubg=ubg,
                      x_src=x_src, g_src=g_src, x_main=x_main, N=N, nxs=nxs, nus=nus, ngs=ngs)

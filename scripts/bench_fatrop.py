@@ -28,7 +28,7 @@ import time
 import casadi as ca
 import numpy as np
 
-from planner.homotopy import SolveOptions, ipopt_options, task_rho_schedule, terminal_error
+from planner.homotopy import SolveOptions, gated_complementarity, ipopt_options, task_rho_schedule, terminal_error
 from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
@@ -40,9 +40,7 @@ def measures(problem, x, p, lbg, ubg) -> dict:
     f = float(ca.Function("f", [problem.x, problem.p], [problem.f])(x, p))
     viol = max(float(np.max(np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0))),
                float(np.max(np.maximum(problem.lbx - x, 0) + np.maximum(x - problem.ubx, 0))))
-    gp = problem.notes.get("gated_products")
-    comp = float(np.max(np.asarray(gp(x), float), initial=0.0)) if gp is not None else problem.complementarity_residual(x)
-    return {"objective": f, "gated_product_max": comp, "complementarity_ungated": problem.complementarity_residual(x),
+    return {"objective": f, "gated_product_max": gated_complementarity(problem, x), "complementarity_ungated": problem.complementarity_residual(x),
             "constraint_violation": viol, "terminal_error": terminal_error(problem, x)}
 
 
@@ -60,6 +58,14 @@ def gradient_scaling(st, x0, p, max_grad: float = 100.0) -> tuple[float, np.ndar
 
 def scaled_nlp(st, df: float, dg: np.ndarray) -> dict:
     return {"x": st.x, "p": st.p, "f": df * st.f, "g": ca.DM(dg) * st.g}
+
+
+def fatrop_solver(name: str, st, fatrop_opts: dict, df: float, dg: np.ndarray, convexify: str | None):
+    """FATROP on the staged NLP st scaled by (df, dg), with CasADi's Hessian convexification if asked."""
+    fopts = st.fatrop_options(**fatrop_opts)
+    if convexify:
+        fopts.update(convexify_strategy=convexify, convexify_margin=1e-7)
+    return ca.nlpsol(name, "fatrop", scaled_nlp(st, df, dg), fopts)
 
 
 def run(solver, args) -> tuple[dict, np.ndarray]:
@@ -139,10 +145,7 @@ def main(argv=None) -> int:
                 fo.update(fat_extra)
                 df, dg = gradient_scaling(st1, st1.lift(args1["x0"]), args1["p"]) if a.scale else (1.0, np.ones(st1.g.shape[0]))
                 out["scaling"] = {"objective": df, "rows_scaled": int(np.sum(dg < 1)), "row_min": float(np.min(dg))}
-                fopts = st1.fatrop_options(**fo)
-                if a.convexify:
-                    fopts.update(convexify_strategy=a.convexify, convexify_margin=1e-7)
-                solver = ca.nlpsol("fatrop_nlp1", "fatrop", scaled_nlp(st1, df, dg), fopts)
+                solver = fatrop_solver("fatrop_nlp1", st1, fo, df, dg, a.convexify)
                 lbg, ubg = st1.bounds(args1["lbg"], args1["ubg"])
                 args = {"x0": st1.lift(args1["x0"]), "p": args1["p"], "lbx": st1.lbx, "ubx": st1.ubx, "lbg": lbg * dg, "ubg": ubg * dg}
             elif name == "ipopt_staged":  # IPOPT on the staged NLP: separates the reformulation from the solver
@@ -171,10 +174,7 @@ def main(argv=None) -> int:
                     fo["max_iter"] = 3000
                     x0n = st.lift(x)
                     df, dg = gradient_scaling(st, x0n, p2) if a.scale else (1.0, np.ones(st.g.shape[0]))
-                    fopts = st.fatrop_options(**fo)
-                    if a.convexify:
-                        fopts.update(convexify_strategy=a.convexify, convexify_margin=1e-7)
-                    solver = ca.nlpsol("fatrop_nlp2", "fatrop", scaled_nlp(st, df, dg), fopts)
+                    solver = fatrop_solver("fatrop_nlp2", st, fo, df, dg, a.convexify)
                     args = {"x0": x0n, "p": p2, "lbx": st.lbx, "ubx": st.ubx, "lbg": st.lbg * dg, "ubg": st.ubg * dg}
                 rec2, x2 = run(solver, args)
                 if name != "ipopt":

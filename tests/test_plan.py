@@ -62,7 +62,7 @@ def test_capler_default_task():
     plan is exactly complementary (active-set polished), meets the terminal pose to 1e-6, keeps every
     constraint to 1e-6 with the foot outside the holes and never below the ground, and hops at least
     three times, with Fig. 6's phases (assert_fig6_phases). Every NLP converges, with the task's
-    scale_variables (docs/formulation.md round 6; 4410 iterations, 4.7 min on a shared 2-core machine)."""
+    scale_variables (docs/formulation.md rounds 6-7; 2856 iterations, ~1.5 min on a shared 2-core machine)."""
     from planner.homotopy import SolveOptions, solve
     from planner.model import load_robot
     from planner.problem import build_problem
