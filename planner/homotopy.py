@@ -348,6 +348,11 @@ class _Solvers:
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
             opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
+            if pb.fesd is not None and self.scale is not None:
+                # IPOPT relaxes each bound by bound_relax_factor (1e-8) in xs, i.e. 1e-8 D in x: FESD Capler's
+                # gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke lambda >= 0 by
+                # 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md); keep it below that in x
+                opts["ipopt"]["bound_relax_factor"] = min(1e-8, 0.1 * self.options.constraint_tol / float(np.max(self.scale)))
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
@@ -641,7 +646,21 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     x = np.asarray(x, float).ravel()
     lbx, ubx = problem.lbx.copy(), problem.ubx.copy()
     sig, l0, l1 = (problem.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
-    for js, j0, j1 in zip(sig.ravel(), l0.ravel(), l1.ravel()):
+    fesd_gates = None
+    if problem.fesd is not None:
+        fesd_gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
+    side0, side1 = x[l0.ravel()], x[l1.ravel()]  # what a selector is compared with: its own multipliers, ...
+    if fesd_gates is not None and ratio is None:
+        # ... and with FESD every multiplier of its element it is paired with (cross-complementarity, the pairs
+        # imposed below): a selector at 1 whose left boundary's lambda1 is 4.2 (n^T v > 0 there, no switch)
+        # but whose own lambda1 is ~1e-7 was left free, and the cross rule then zeroed that lambda1 = 4.2,
+        # a stationarity row 4.2 off at the polish start (Capler N = 50, docs/formulation.md)
+        pos = {int(js): m for m, js in enumerate(sig.ravel())}
+        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
+            if own or gate > 1e-6:
+                side = side1 if pr.b_upper else side0
+                side[pos[pr.b]] = max(side[pos[pr.b]], x[pr.a])
+    for js, j0, j1, a0, a1 in zip(sig.ravel(), l0.ravel(), l1.ravel(), side0, side1):
         s = x[js]  # the sides are compared in the problem's own (scaled) units: the products the penalty saw
         if ratio is not None:
             lo_ok = x[j0] >= ratio * s and x[j1] <= 1e-8 and s <= 0.5
@@ -649,10 +668,10 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
             mid_ok = x[j0] <= 1e-8 and x[j1] <= 1e-8 and 1e-3 < s < 1 - 1e-3
             if not (lo_ok or hi_ok or mid_ok):
                 continue
-        if x[j0] >= s and s <= 0.5:
+        if a0 >= s and s <= 0.5:
             lbx[js] = ubx[js] = 0.0
             lbx[j1] = ubx[j1] = 0.0
-        elif x[j1] >= 1.0 - s and s > 0.5:
+        elif a1 >= 1.0 - s and s > 0.5:
             lbx[js] = ubx[js] = 1.0
             lbx[j0] = ubx[j0] = 0.0
         else:
@@ -660,8 +679,7 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     if problem.fesd is not None:
         # cross-complementarity: a multiplier at any point of an element is fixed to zero unless the
         # selector it pairs with is fixed at that multiplier's bound (the rule above is its own-stage case)
-        gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
-        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], gates):
+        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
             held = lbx[pr.b] == ubx[pr.b] == (1.0 if pr.b_upper else 0.0)
             if not held and (own or gate > 1e-6):  # a cross pair of a selector the gates switch off is not imposed
                 lbx[pr.a] = ubx[pr.a] = 0.0

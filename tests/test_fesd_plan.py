@@ -211,3 +211,27 @@ def test_invalid_fesd_start_options_raise(kwargs, key):
     """fesd_start must be the FESDStart Enum, fesd_rho_schedule a non-empty tuple of positive penalties."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
+
+
+def test_active_set_reads_cross_multipliers():
+    """The polish's active set (active_set_bounds) compares an FESD selector with every multiplier of its
+    element it is paired with, not only its own: a selector at 1 whose own lambda1 is ~0 but whose left
+    boundary's lambda1 is 4.2 (the switching function > 0 there: no switch) is held at 1, so that lambda1
+    stays free; before, the selector was left free and the cross rule zeroed the 4.2 (Capler N = 50: a
+    stationarity row 4.2 off at the polish start). A selector whose element multipliers are all ~0 stays free
+    and they are fixed to 0 (the own-stage rule of implicit Euler)."""
+    robot = load_robot("robots/point_mass.xml")
+    prob = build_problem(robot, hop_task(N=2), fesd_options(1, 3))
+    names = [s.name for s in prob.system.switches]
+    i = names.index("beta[point]")  # gate 1: its cross pairs are imposed
+    sig, l0, l1 = (prob.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
+    x = prob.x0.copy()
+    x[sig[0, 0, 0, i]], x[l0[0, 0, 0, i]], x[l1[0, 0, 0, i]] = 1.0, 0.0, 4.2  # the left boundary of element 1
+    x[sig[0, 1, 0, i]], x[l0[0, 1, 0, i]], x[l1[0, 1, 0, i]] = 1.0 - 1e-6, 1e-9, 1e-9  # own lambda1 < 1 - sigma
+    x[sig[0, 2, 0, i]], x[l0[0, 2, 0, i]], x[l1[0, 2, 0, i]] = 0.4, 1e-9, 1e-9  # element 2: its multipliers and its left boundary's ~0
+    lbx, ubx, xc = H.active_set_bounds(prob, x)
+    assert lbx[sig[0, 1, 0, i]] == ubx[sig[0, 1, 0, i]] == 1.0  # held by the left boundary's lambda1 = 4.2
+    assert ubx[l1[0, 0, 0, i]] == np.inf and xc[l1[0, 0, 0, i]] == 4.2  # which stays free
+    assert (lbx[sig[0, 2, 0, i]], ubx[sig[0, 2, 0, i]]) == (0.0, 1.0)  # interior: free
+    assert ubx[l0[0, 2, 0, i]] == ubx[l1[0, 2, 0, i]] == 0.0
+    assert np.all(xc >= lbx) and np.all(xc <= ubx)
