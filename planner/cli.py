@@ -78,11 +78,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
-                   help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; "
-                        "docs/formulation.md \"FESD in the OCP\")")
+                   help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
+                        "point-mass hop; on Capler N = 50 through --fesd-start implicit_euler with --stages 1; docs/formulation.md \"FESD in the OCP\")")
     p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
     p.add_argument("--elements", type=int, default=3,
                    help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
+    p.add_argument("--fesd-start", default="hint_free", metavar="NAME",
+                   help="fesd: hint_free (default: the FESD homotopy from y_0 everywhere, u = 0) or implicit_euler (solve the "
+                        "implicit-Euler OCP from its hint-free start, map its plan onto the FESD variables, then FESD NLPs at "
+                        "rho 1e4 and 1e5 and the polish; docs/formulation.md \"FESD in the OCP\")")
     _add_common(p)
     p.set_defaults(run=_cmd_plan)
 
@@ -212,13 +216,19 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
-    from .homotopy import SolveOptions, solve
+    from .homotopy import FESDStart, SolveOptions, solve
     from .problem import ProblemOptions, build_problem
 
     discretization, fesd = _discretization(args)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
     solve_options = SolveOptions(print_level=5 if args.verbose else 0)
-    if discretization is Discretization.FESD:
+    starts = {s.value: s for s in FESDStart}
+    if args.fesd_start not in starts:
+        raise InputError(f"--fesd-start {args.fesd_start!r} is not allowed; it must be one of {sorted(starts)}")
+    if discretization is Discretization.FESD and starts[args.fesd_start] is FESDStart.IMPLICIT_EULER:
+        # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
+        solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
+    elif discretization is Discretization.FESD:
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
     robot, task, out = _load_inputs(args)
     if task.plan is None:

@@ -105,6 +105,18 @@ class VariableScaling(Enum):
 
     NONE = "none"  # x as built
     FIRST_NLP = "first_nlp"  # from NLP 2 on, x = D xs with D = variable_scale(problem, NLP 1's solution)
+    START = "start"  # from NLP 1 on, x = D xs with D = variable_scale(problem, the start x0) (a start that is a plan already)
+
+
+class FESDStart(Enum):
+    """Where the homotopy of an FESD problem (ProblemOptions.discretization FESD) starts (docs/formulation.md,
+    "FESD in the OCP", "Continuation through implicit Euler"). Ignored for implicit-Euler problems."""
+
+    HINT_FREE = "hint_free"  # the problem's own x0 (y_0 everywhere, u = 0), the task's rho schedule
+    # the implicit-Euler OCP of the same task and grid solved from its hint-free start (the default
+    # implicit-Euler solve), mapped onto the FESD variables (problem.fesd_start_from_implicit_euler),
+    # then the FESD NLPs of SolveOptions.fesd_rho_schedule and the polish: still no hint from the user
+    IMPLICIT_EULER = "implicit_euler"
 
 
 class Polish(Enum):
@@ -183,6 +195,16 @@ class SolveOptions:
     on the FESD point-mass hop (n_s = 2, n_fe = 3, N = 10, rho_max 1e5) the polishes stopped at their
     cap (before round 7's projection). NLP 1 sees x as built; the scaled IPOPT is created after NLP 1
     (D is a constant in it: ~1-4 s, measured in timings solver_setup_s).
+    VariableScaling.START (used by FESDStart.IMPLICIT_EULER's FESD NLPs): D from the start x0 (for FESD
+    also every stage state's column), seen by every NLP from the first on (and by the projection).
+    fesd_start: FESDStart, only for FESD problems. HINT_FREE (default): the homotopy from the problem's x0.
+    IMPLICIT_EULER: the implicit-Euler OCP of the same task solved first from its hint-free start with these
+    options (its own rho schedule: rho_schedule / rho_min / rho_max / rho_refine), its plan mapped onto the
+    FESD variables, then the FESD NLPs of fesd_rho_schedule (holes and hard terminal enforced, IPOPT settings
+    FESD_FROM_EULER_IPOPT) and the polish. fesd_rho_schedule: those FESD penalties (default 1e4, 1e5).
+    Measured: the point-mass hop converges (48 s against 10 s hint-free); Capler N = 50 with holes, n_s = 1, n_fe = 3
+    converges (228 s against 52 s for implicit Euler alone; docs/formulation.md, "Continuation through implicit Euler",
+    session 6). With VariableScaling.START (this route) the polish re-scales D from the point it starts from.
     retry_terminal_weight: when the solve did not converge and an NLP reported local infeasibility
     (IPOPT's Infeasible_Problem_Detected), solve once more with this soft_terminal_weight (None: no
     retry; only with soft_terminal_nlps >= 1). A weak soft terminal lets NLP 1 stop short of the
@@ -243,11 +265,13 @@ class SolveOptions:
     retry_terminal_weight: float | None = 1e4
     variable_scaling: VariableScaling | None = None
     early_stop_comp: float | None = 1e-10
+    fesd_start: FESDStart = FESDStart.HINT_FREE
+    fesd_rho_schedule: tuple[float, ...] = (1e4, 1e5)
 
     def __post_init__(self):
         for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
                           ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling),
-                          ("regularization", Regularization)):
+                          ("regularization", Regularization), ("fesd_start", FESDStart)):
             if key == "variable_scaling" and self.variable_scaling is None:
                 continue
             if not isinstance(getattr(self, key), enum):
@@ -272,6 +296,9 @@ class SolveOptions:
             (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
+            (isinstance(self.fesd_rho_schedule, tuple) and len(self.fesd_rho_schedule) >= 1
+             and all(isinstance(r, (int, float)) and r > 0 for r in self.fesd_rho_schedule),
+             "fesd_rho_schedule", self.fesd_rho_schedule, "a non-empty tuple of penalties > 0"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -316,6 +343,7 @@ class _Solvers:
         self.n_probe = 1 if options.regularization is Regularization.FROM_LAST else 0
         self.nlp = self._probed({"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g})
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
+        self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
         self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
         self.problem = problem
 
@@ -347,13 +375,18 @@ class _Solvers:
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
             opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
+            if pb.fesd is not None and self.scale is not None:
+                # IPOPT relaxes each bound by bound_relax_factor (1e-8) in xs, i.e. 1e-8 D in x: FESD Capler's
+                # gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke lambda >= 0 by
+                # 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md); keep it below that in x
+                opts["ipopt"]["bound_relax_factor"] = min(1e-8, 0.1 * self.options.constraint_tol / float(np.max(self.scale)))
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
 
     def get(self, warm: bool, loose: bool = False):
         opts = ipopt_options(self.options, warm, loose)
-        scaled = warm and self.scale is not None
+        scaled = (warm or self.scale_cold) and self.scale is not None
         key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:
             t0 = time.perf_counter()
@@ -374,6 +407,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
+    if problem.fesd is not None and options.fesd_start is FESDStart.IMPLICIT_EULER:
+        return _solve_through_implicit_euler(problem, options, progress)
     start = time.perf_counter()
     keep_freed_memory()
     hom = problem.task.plan.homotopy
@@ -390,6 +425,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
 
     term_rows = _terminal_rows(problem)
     scaling = options.variable_scaling or (VariableScaling.FIRST_NLP if hom.scale_variables else VariableScaling.NONE)
+    if scaling is VariableScaling.START:
+        solvers.set_scale(variable_scale(problem, x, stages=True))
+        solvers.scale_cold = True
     for i, rho in enumerate(rhos):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
@@ -415,6 +453,10 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     polished = False
     if options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
         for x_start, lam_x, lam_g, start_label in starts:
+            if scaling is VariableScaling.START and problem.fesd is not None:
+                # the projection measures its distance in x / D: D from the point it starts from, not from the mapped
+                # implicit-Euler start (Capler N = 50: 2265 iterations with the start's D, 65 with this one)
+                solvers.set_scale(variable_scale(problem, x_start, stages=True))
             accepted = _polish(problem, solvers, options, x_start, lam_x, lam_g, records, progress,
                                "polish" if start_label == starts[0][3] else f"polish from {start_label}")
             if accepted is not None:
@@ -435,6 +477,51 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if (not result.stats.converged and options.retry_terminal_weight is not None and options.soft_terminal_nlps >= 1
             and any(r.status == "Infeasible_Problem_Detected" for r in records)):
         return _retry(problem, options, result, progress)
+    return result
+
+
+# IPOPT settings of the FESD NLPs that start from the mapped implicit-Euler plan (Capler N = 50 with holes,
+# docs/formulation.md "FESD in the OCP"): with the defaults (adaptive barrier from mu 0.1, bound push 1e-2)
+# the barrier rose to 10^3.6 and NLP 1 crawled with steps of 1e-4 for > 12 min; a monotone barrier from 1e-3,
+# a start kept next to the mapped point and the variables scaled by the mapped point's magnitudes
+# (VariableScaling.START: selectors 1, multipliers and accelerations up to ~1e3) made it feasible and
+# descend, still too slowly to converge in 3000 iterations (complementarity 0.11 at rho 1e4)
+FESD_FROM_EULER_IPOPT = dict(mu_strategy=MuStrategy.MONOTONE, mu_init=1e-3, bound_push=1e-4, bound_frac=1e-4,
+                             variable_scaling=VariableScaling.START)
+
+
+def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progress: Progress | None) -> PlanResult:
+    """FESDStart.IMPLICIT_EULER: solve the implicit-Euler OCP of the same task, grid and formulation options
+    from its hint-free start (with `options`: its rho schedule, scaling, polish), map its plan onto the FESD
+    variables (fesd_start_from_implicit_euler) and solve the FESD problem from there over
+    options.fesd_rho_schedule with the holes and the hard terminal enforced from the first NLP on (the
+    start already keeps them), then polish. Returns the FESD PlanResult; its NLP records start with the
+    implicit-Euler ones (labelled "implicit Euler: ..."), and iterations and solve time count both."""
+    from .discretization import Discretization
+    from .problem import build_problem, fesd_start_from_implicit_euler
+
+    start = time.perf_counter()
+    euler = build_problem(problem.robot, problem.task, replace(problem.options, discretization=Discretization.IMPLICIT_EULER),
+                          dynamics=problem.system.dyn)
+
+    def euler_progress(rec):
+        if progress:
+            progress(replace(rec, label=f"implicit Euler: {rec.label}"))
+
+    first = solve(euler, replace(options, fesd_start=FESDStart.HINT_FREE), euler_progress)
+    x0 = fesd_start_from_implicit_euler(problem, euler, first.extra["_x"])
+    fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule, holes=HoleSchedule.ENFORCED,
+                           soft_terminal_nlps=0, retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
+    result = solve(replace(problem, x0=x0), fesd_options, progress)
+    nlps = tuple(replace(r, label=f"implicit Euler: {r.label}") for r in first.nlps) + result.nlps
+    note = (f"; from the implicit-Euler plan ({first.stats.ipopt_iterations} iterations, "
+            + ("converged" if first.stats.converged else f"not converged: {first.stats.message}") + ")")
+    stats = replace(result.stats, message=result.stats.message + note, n_nlp=len(nlps), solve_time_s=time.perf_counter() - start,
+                    ipopt_iterations=first.stats.ipopt_iterations + result.stats.ipopt_iterations)
+    timings = dict(result.timings, implicit_euler_s=first.stats.solve_time_s, implicit_euler_build_s=euler.build_time_s)
+    result = replace(result, stats=stats, nlps=nlps, timings=timings)
+    result.extra["implicit_euler"] = {"converged": first.stats.converged, "ipopt_iterations": first.stats.ipopt_iterations,
+                                      "solve_time_s": first.stats.solve_time_s, "complementarity_residual": first.stats.complementarity_residual}
     return result
 
 
@@ -482,13 +569,13 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
     return None
 
 
-def variable_scale(problem: Problem, x) -> np.ndarray:
-    """D (nx,) for VariableScaling.FIRST_NLP: for each column of the stage blocks u, y, w (one column per
+def variable_scale(problem: Problem, x, stages: bool = False) -> np.ndarray:
+    """D (nx,) for VariableScaling.FIRST_NLP and START (stages: FESD's stage states Y too): for each column of the stage blocks u, y, w (one column per
     variable kind: a joint's angle, a contact force, a selector, ...) the largest |value| over the
     stages at x, at least 1; 1 for every other variable (speeds of time, the slack, a periodic y0)."""
     x = np.asarray(x, float).ravel()
     D = np.ones(problem.nx)
-    for name in ("u", "y", "w"):
+    for name in ("u", "y", "w") + (("Y",) if stages and "Y" in problem.var_blocks else ()):  # START: FESD's every stage state too
         rows = problem.var_blocks[name]
         D[rows] = np.maximum(np.abs(x[rows]).max(axis=0), 1.0)[None, :]
     return D
@@ -510,7 +597,8 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
     warm = lam_x is not None
-    scaled = (warm or projection) and solvers.scale is not None  # the solvers that see x / D, once set
+    # the solvers that see x / D, once set: the warm ones, the projection, and the cold one with scale_cold (START)
+    scaled = (warm or projection or solvers.scale_cold) and solvers.scale is not None
     solver = solvers.projection() if projection else solvers.get(warm, loose)
     D = solvers.scale if scaled else np.ones(problem.nx)
     if projection:
@@ -596,7 +684,21 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     x = np.asarray(x, float).ravel()
     lbx, ubx = problem.lbx.copy(), problem.ubx.copy()
     sig, l0, l1 = (problem.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
-    for js, j0, j1 in zip(sig.ravel(), l0.ravel(), l1.ravel()):
+    fesd_gates = None
+    if problem.fesd is not None:
+        fesd_gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
+    side0, side1 = x[l0.ravel()], x[l1.ravel()]  # what a selector is compared with: its own multipliers, ...
+    if fesd_gates is not None and ratio is None:
+        # ... and with FESD every multiplier of its element it is paired with (cross-complementarity, the pairs
+        # imposed below): a selector at 1 whose left boundary's lambda1 is 4.2 (n^T v > 0 there, no switch)
+        # but whose own lambda1 is ~1e-7 was left free, and the cross rule then zeroed that lambda1 = 4.2,
+        # a stationarity row 4.2 off at the polish start (Capler N = 50, docs/formulation.md)
+        pos = {int(js): m for m, js in enumerate(sig.ravel())}
+        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
+            if own or gate > 1e-6:
+                side = side1 if pr.b_upper else side0
+                side[pos[pr.b]] = max(side[pos[pr.b]], x[pr.a])
+    for js, j0, j1, a0, a1 in zip(sig.ravel(), l0.ravel(), l1.ravel(), side0, side1):
         s = x[js]  # the sides are compared in the problem's own (scaled) units: the products the penalty saw
         if ratio is not None:
             lo_ok = x[j0] >= ratio * s and x[j1] <= 1e-8 and s <= 0.5
@@ -604,10 +706,10 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
             mid_ok = x[j0] <= 1e-8 and x[j1] <= 1e-8 and 1e-3 < s < 1 - 1e-3
             if not (lo_ok or hi_ok or mid_ok):
                 continue
-        if x[j0] >= s and s <= 0.5:
+        if a0 >= s and s <= 0.5:
             lbx[js] = ubx[js] = 0.0
             lbx[j1] = ubx[j1] = 0.0
-        elif x[j1] >= 1.0 - s and s > 0.5:
+        elif a1 >= 1.0 - s and s > 0.5:
             lbx[js] = ubx[js] = 1.0
             lbx[j0] = ubx[j0] = 0.0
         else:
@@ -615,8 +717,7 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     if problem.fesd is not None:
         # cross-complementarity: a multiplier at any point of an element is fixed to zero unless the
         # selector it pairs with is fixed at that multiplier's bound (the rule above is its own-stage case)
-        gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
-        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], gates):
+        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
             held = lbx[pr.b] == ubx[pr.b] == (1.0 if pr.b_upper else 0.0)
             if not held and (own or gate > 1e-6):  # a cross pair of a selector the gates switch off is not imposed
                 lbx[pr.a] = ubx[pr.a] = 0.0

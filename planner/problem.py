@@ -773,6 +773,52 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
                    products=products, build_time_s=time.perf_counter() - start, notes=notes, skips=skips, fesd=fesd)
 
 
+def fesd_start_from_implicit_euler(fesd_problem: Problem, euler_problem: Problem, x_euler) -> np.ndarray:
+    """A start x0 (fesd_problem.nx,) for the FESD OCP from a solution x_euler (euler_problem.nx,) of the
+    implicit-Euler OCP of the same task and grid (homotopy.FESDStart.IMPLICIT_EULER; docs/formulation.md,
+    "FESD in the OCP"). Per step k: equal element lengths h / n_fe [s]; the stage states on the segment
+    y_k -> y_{k+1}, Y_ej = y_k + (e + c_j) / n_fe (y_{k+1} - y_k) (continuous across steps, the step's
+    end exactly y_{k+1}); every stage's algebraic variables the step's w_k (selectors, lifted products,
+    multipliers, forces); u_k, s_k and a periodic y_0 copied; the l_inf slacks the largest gated product
+    of their step (and of all).
+
+    What this point satisfies: the lifting rows, the bounds, the terminal rows and the step-end states
+    as implicit Euler did; every own-stage and within-step cross pair exactly as implicit Euler's plan
+    (the stages of a step are equal there); a stage's dynamics row is (h / n_fe)(F(y_{k+1}, w_k) -
+    F(Y_ej, w_k)) (the collocation increment of a straight segment is the segment's slope), zero at the
+    step's end; the stationarity and force rows are off by the change of h(y), forces(y) along the
+    segment. Keeping w_k at every stage was measured better than re-solving the multipliers and forces
+    at each stage state (which makes those rows exact but the products up to 30 on Capler N = 50): a
+    violated row costs IPOPT a restoration step, a product ~1 costs rho times it in the objective.
+    What it violates are the cross pairs across a step boundary where implicit Euler switched inside
+    the step (its switch is not on an element boundary): moving the lengths is then the FESD solve's job."""
+    if fesd_problem.fesd is None or euler_problem.fesd is not None:
+        raise InputError("fesd_start_from_implicit_euler needs an FESD problem and an implicit-Euler problem")
+    if (fesd_problem.N, fesd_problem.h) != (euler_problem.N, euler_problem.h) or fesd_problem.builder.nw != euler_problem.builder.nw:
+        raise InputError(f"the implicit-Euler problem (N = {euler_problem.N}, h = {euler_problem.h}) is not on the FESD problem's grid "
+                         f"(N = {fesd_problem.N}, h = {fesd_problem.h}) or has other algebraic variables")
+    parts = euler_problem.split(x_euler)
+    fesd, vb, N = fesd_problem.fesd, fesd_problem.var_blocks, fesd_problem.N
+    Y, W = parts["Y"], parts["W"]
+    x0 = np.zeros(fesd_problem.nx)
+    frac = (np.arange(fesd.n_fe)[:, None] + fesd.c[None, :]) / fesd.n_fe  # (n_fe, n_s) where each stage sits in the step
+    x0[vb["u"]] = parts["U"]
+    x0[vb["h"]] = fesd_problem.h / fesd.n_fe
+    x0[vb["Y"]] = Y[:-1, None, None, :] + frac[None, :, :, None] * (Y[1:] - Y[:-1])[:, None, None, :]
+    x0[vb["y"]] = Y[1:]  # the step's end as implicit Euler's node, not y_k + 1 (y_{k+1} - y_k) rounded
+    x0[vb["w"]] = W[:, None, None, :]
+    if "s" in vb:
+        x0[vb["s"]] = parts["S"][:, None]
+    if "y0" in vb:
+        x0[vb["y0"]] = Y[0]
+    if "s_c" in vb:
+        gp = fesd_problem.notes.get("gated_products", fesd_problem.products)
+        prods = np.asarray(gp(x0), float).reshape(N, -1) / fesd_problem.pair_scale.reshape(N, -1)  # the penalty's own units
+        x0[vb["s_c_step"].ravel()] = np.max(prods, axis=1, initial=0.0).clip(0.0)
+        x0[vb["s_c"]] = float(np.max(prods, initial=0.0).clip(0.0))
+    return x0
+
+
 class _Rows:
     """Named constraint blocks of g: `add(name, rows, lo, hi)` appends rows (a list of equally long
     expressions, one per stage) as block `name` (len(rows), m) with lo <= g <= hi."""

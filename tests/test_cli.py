@@ -159,6 +159,12 @@ def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     assert json.loads((out / "failed" / "summary.json").read_text())["converged"] is False
 
 
+def test_plan_rejects_an_unknown_fesd_start(tmp_path, capsys):
+    """`plan --fesd-start NAME` with a NAME that is not an FESDStart exits 2 with one line naming the valid ones."""
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--discretization", "fesd", "--fesd-start", "euler", "--out", str(tmp_path / "o")],
+                     "hint_free")
+
+
 def test_plan_fesd_from_the_command_line(tmp_path, capsys):
     """`plan --discretization fesd` solves the point-mass hop (no slip, to x = 0.5 m, N = 10) with FESD
     stages and says so in summary.json; n_fe = 0 elements is exit 2, one line naming n_fe."""

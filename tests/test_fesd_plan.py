@@ -10,7 +10,7 @@ from planner import homotopy as H
 from planner.discretization import Discretization, FESDOptions
 from planner.errors import InputError
 from planner.model import load_robot
-from planner.problem import Penalty, ProblemOptions, build_problem
+from planner.problem import Penalty, ProblemOptions, build_problem, fesd_start_from_implicit_euler
 
 from test_problem import hop_task
 
@@ -168,3 +168,70 @@ def test_physical_time_and_l1_blocks():
     assert np.any(np.asarray(dyn(prob.x0), float) != 0)  # s_1 scales step 1's stage increments
     l1 = build_problem(robot, hop_task(N=3), fesd_options(2, 2, penalty=Penalty.L1))
     assert "s_c" not in l1.var_blocks and "penalty" not in l1.g_blocks and "s_c_step" not in l1.var_blocks
+
+
+MAP_TOL = 1e-8  # rows the implicit-Euler plan keeps to IPOPT's tolerance (tol 1e-8) and the mapping copies
+
+
+def test_implicit_euler_plan_maps_onto_fesd():
+    """FESDStart.IMPLICIT_EULER's start (fesd_start_from_implicit_euler) from the solved implicit-Euler hop:
+    every step's end state is the implicit-Euler node y_{k+1}, the element lengths are h / n_fe, the
+    lifting, terminal and bound rows hold to MAP_TOL, each step's last stage satisfies its dynamics row
+    to MAP_TOL (a straight segment's collocation increment is its slope: the implicit-Euler step), every
+    pair within a step is as complementary as the implicit-Euler plan (the stages of a step are equal),
+    and the only violated pairs pair a multiplier at the previous step's end (the switch implicit Euler
+    put inside a step); the l_inf slacks bound the products."""
+    robot = load_robot("robots/point_mass.xml")
+    task = hop_task(N=HOP_N)
+    euler = build_problem(robot, task)
+    res = H.solve(euler)
+    assert res.stats.converged, res.stats.message
+    prob = build_problem(robot, task, fesd_options(2, 3), dynamics=euler.system.dyn)
+    x0 = fesd_start_from_implicit_euler(prob, euler, res.extra["_x"])
+    vb, gb = prob.var_blocks, prob.g_blocks
+    np.testing.assert_array_equal(x0[vb["y"]], euler.split(res.extra["_x"])["Y"][1:])
+    np.testing.assert_allclose(x0[vb["h"]], prob.h / 3, rtol=0, atol=EVAL_TOL)
+    viol = H.constraint_violation(prob, x0)
+    for name in ("lifting", "terminal", "bounds", "element_lengths"):
+        assert viol[name] <= MAP_TOL, (name, viol[name])
+    g = np.asarray(H._g_fn(prob)(x0, prob.params(0.0)), float).ravel()
+    ny = prob.system.ny
+    assert np.max(np.abs(g[gb["dynamics"][:, -ny:]])) <= MAP_TOL  # the last stage of the last element: the step's end
+    prods = np.asarray(prob.notes["gated_products"](x0), float).ravel()
+    across = np.array([name.split("*")[0].split("]_")[1].split("_")[0] != name.split("_")[-3] for name in (p.name for p in prob.pairs)])
+    assert np.max(np.abs(prods[~across])) <= MAP_TOL
+    assert x0[vb["s_c"][0]] >= np.max(prods) and np.all(x0[vb["s_c_step"].ravel()] >= prods.reshape(prob.N, -1).max(axis=1) - EVAL_TOL)
+    with pytest.raises(InputError, match="grid"):
+        fesd_start_from_implicit_euler(build_problem(robot, hop_task(N=HOP_N + 1), fesd_options(2, 3)), euler, res.extra["_x"])
+
+
+@pytest.mark.parametrize("kwargs, key", [({"fesd_start": "implicit_euler"}, "fesd_start"), ({"fesd_rho_schedule": ()}, "fesd_rho_schedule"),
+                                         ({"fesd_rho_schedule": (1e4, -1.0)}, "fesd_rho_schedule")])
+def test_invalid_fesd_start_options_raise(kwargs, key):
+    """fesd_start must be the FESDStart Enum, fesd_rho_schedule a non-empty tuple of positive penalties."""
+    with pytest.raises(InputError, match=key):
+        H.SolveOptions(**kwargs)
+
+
+def test_active_set_reads_cross_multipliers():
+    """The polish's active set (active_set_bounds) compares an FESD selector with every multiplier of its
+    element it is paired with, not only its own: a selector at 1 whose own lambda1 is ~0 but whose left
+    boundary's lambda1 is 4.2 (the switching function > 0 there: no switch) is held at 1, so that lambda1
+    stays free; before, the selector was left free and the cross rule zeroed the 4.2 (Capler N = 50: a
+    stationarity row 4.2 off at the polish start). A selector whose element multipliers are all ~0 stays free
+    and they are fixed to 0 (the own-stage rule of implicit Euler)."""
+    robot = load_robot("robots/point_mass.xml")
+    prob = build_problem(robot, hop_task(N=2), fesd_options(1, 3))
+    names = [s.name for s in prob.system.switches]
+    i = names.index("beta[point]")  # gate 1: its cross pairs are imposed
+    sig, l0, l1 = (prob.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
+    x = prob.x0.copy()
+    x[sig[0, 0, 0, i]], x[l0[0, 0, 0, i]], x[l1[0, 0, 0, i]] = 1.0, 0.0, 4.2  # the left boundary of element 1
+    x[sig[0, 1, 0, i]], x[l0[0, 1, 0, i]], x[l1[0, 1, 0, i]] = 1.0 - 1e-6, 1e-9, 1e-9  # own lambda1 < 1 - sigma
+    x[sig[0, 2, 0, i]], x[l0[0, 2, 0, i]], x[l1[0, 2, 0, i]] = 0.4, 1e-9, 1e-9  # element 2: its multipliers and its left boundary's ~0
+    lbx, ubx, xc = H.active_set_bounds(prob, x)
+    assert lbx[sig[0, 1, 0, i]] == ubx[sig[0, 1, 0, i]] == 1.0  # held by the left boundary's lambda1 = 4.2
+    assert ubx[l1[0, 0, 0, i]] == np.inf and xc[l1[0, 0, 0, i]] == 4.2  # which stays free
+    assert (lbx[sig[0, 2, 0, i]], ubx[sig[0, 2, 0, i]]) == (0.0, 1.0)  # interior: free
+    assert ubx[l0[0, 2, 0, i]] == ubx[l1[0, 2, 0, i]] == 0.0
+    assert np.all(xc >= lbx) and np.all(xc <= ubx)
