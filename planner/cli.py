@@ -74,15 +74,18 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
                               "  planner plan point_mass --task hop.toml --no-validate --json\n"
-                              "  planner plan robots/capler.xml --discretization fesd --stages 2 --elements 3 --out results/capler_fesd")
+                              "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 3 --fesd-start implicit_euler --steps 50 --out results/capler_fesd")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
-                        "point-mass hop; on Capler N = 50 through --fesd-start implicit_euler with --stages 1; docs/formulation.md \"FESD in the OCP\")")
+                        "point-mass hop; on Capler through --fesd-start implicit_euler --stages 1 --steps 50; docs/formulation.md \"FESD in the OCP\")")
     p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
     p.add_argument("--elements", type=int, default=3,
                    help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
+    p.add_argument("--steps", type=int, metavar="N",
+                   help="override the task's [horizon] N (same tau_f, so h = tau_f / N): e.g. the FESD Capler plan at N = 50 "
+                        "(3 elements per step) next to the default task's 125 implicit-Euler steps")
     p.add_argument("--fesd-start", default="hint_free", metavar="NAME",
                    help="fesd: hint_free (default: the FESD homotopy from y_0 everywhere, u = 0) or implicit_euler (solve the "
                         "implicit-Euler OCP from its hint-free start, map its plan onto the FESD variables, then FESD NLPs at "
@@ -230,9 +233,13 @@ def _cmd_plan(args) -> int:
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
     elif discretization is Discretization.FESD:
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
+    if args.steps is not None and args.steps < 1:
+        raise InputError(f"--steps must be >= 1, got {args.steps}")
     robot, task, out = _load_inputs(args)
     if task.plan is None:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
+    if args.steps is not None:
+        task = replace(task, horizon=replace(task.horizon, N=args.steps))
 
     def progress(rec):
         _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "

@@ -179,3 +179,16 @@ def test_plan_fesd_from_the_command_line(tmp_path, capsys):
     assert summary["options"]["problem"]["discretization"] == "fesd" and summary["options"]["problem"]["fesd"]["n_fe"] == 3
     assert summary["options"]["solve"]["rho_max"] == 1e5
     _one_line_exit_2(capsys, argv[:-1] + ["0"], "n_fe = 0 is not allowed")
+
+
+def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
+    """`plan --steps N` plans the task on N steps of h = tau_f / N instead of the task's own N (the hop's
+    task says 40; the plan has 8 steps of 0.125 s); --steps 0 is exit 2, one line naming --steps."""
+    task = tmp_path / "hop.toml"
+    task.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                    '[horizon]\ntau_f = 1.0\nN = 40\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+    argv = ["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "--json", "--steps", "8"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_steps"] == 8 and summary["h"] == 0.125
+    _one_line_exit_2(capsys, argv[:-1] + ["0"], "--steps must be >= 1")
