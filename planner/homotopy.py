@@ -570,9 +570,10 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
 
 
 def variable_scale(problem: Problem, x, stages: bool = False) -> np.ndarray:
-    """D (nx,) for VariableScaling.FIRST_NLP and START (stages: FESD's stage states Y too): for each column of the stage blocks u, y, w (one column per
-    variable kind: a joint's angle, a contact force, a selector, ...) the largest |value| over the
-    stages at x, at least 1; 1 for every other variable (speeds of time, the slack, a periodic y0)."""
+    """D (nx,) for VariableScaling.FIRST_NLP and START (stages: FESD's stage states Y too): for each column
+    of the stage blocks u, y, w (one column per variable kind: a joint's angle, a contact force, a
+    selector, ...) the largest |value| over the stages at x, at least 1; 1 for every other variable
+    (speeds of time, the slack, a periodic y0)."""
     x = np.asarray(x, float).ravel()
     D = np.ones(problem.nx)
     for name in ("u", "y", "w") + (("Y",) if stages and "Y" in problem.var_blocks else ()):  # START: FESD's every stage state too
@@ -620,7 +621,8 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
-    sol = {key: np.asarray(sol[key], float).ravel()[: problem.nx] if key in ("x", "lam_x") else sol[key] for key in sol}
+    if n_probe:
+        sol = dict(sol, x=sol["x"][: problem.nx], lam_x=sol["lam_x"][: problem.nx])
     x = np.asarray(sol["x"], float).ravel() * D
     rec = NlpRecord(label=label, rho=float(rho), hole_scale=float(hole_scale), objective=float(sol["f"]),
                     complementarity_residual=gated_complementarity(problem, x), iterations=int(st.get("iter_count", 0)),
@@ -687,6 +689,8 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     fesd_gates = None
     if problem.fesd is not None:
         fesd_gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
+    # the FESD pairs the rules below impose: own-stage ones and the cross pairs the gates leave on
+    imposed = [own or gate > 1e-6 for own, gate in zip(problem.notes["own_pairs"], fesd_gates)] if fesd_gates is not None else []
     side0, side1 = x[l0.ravel()], x[l1.ravel()]  # what a selector is compared with: its own multipliers, ...
     if fesd_gates is not None and ratio is None:
         # ... and with FESD every multiplier of its element it is paired with (cross-complementarity, the pairs
@@ -694,8 +698,8 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
         # but whose own lambda1 is ~1e-7 was left free, and the cross rule then zeroed that lambda1 = 4.2,
         # a stationarity row 4.2 off at the polish start (Capler N = 50, docs/formulation.md)
         pos = {int(js): m for m, js in enumerate(sig.ravel())}
-        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
-            if own or gate > 1e-6:
+        for pr, on in zip(problem.pairs, imposed):
+            if on:
                 side = side1 if pr.b_upper else side0
                 side[pos[pr.b]] = max(side[pos[pr.b]], x[pr.a])
     for js, j0, j1, a0, a1 in zip(sig.ravel(), l0.ravel(), l1.ravel(), side0, side1):
@@ -717,9 +721,9 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     if problem.fesd is not None:
         # cross-complementarity: a multiplier at any point of an element is fixed to zero unless the
         # selector it pairs with is fixed at that multiplier's bound (the rule above is its own-stage case)
-        for pr, own, gate in zip(problem.pairs, problem.notes["own_pairs"], fesd_gates):
+        for pr, on in zip(problem.pairs, imposed):
             held = lbx[pr.b] == ubx[pr.b] == (1.0 if pr.b_upper else 0.0)
-            if not held and (own or gate > 1e-6):  # a cross pair of a selector the gates switch off is not imposed
+            if on and not held:  # a cross pair of a selector the gates switch off is not imposed
                 lbx[pr.a] = ubx[pr.a] = 0.0
     if "s_c" in problem.var_blocks and ratio is None:  # the hybrid stage keeps the l_inf slack for its free pairs
         j = problem.var_blocks["s_c"][0]
