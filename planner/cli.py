@@ -194,14 +194,19 @@ def _write(args, result, out: Path) -> Path:
     return target
 
 
+def _choice(flag: str, value: str, enum):
+    """The member of `enum` whose value is `value` (InputError naming `flag` and the valid values)."""
+    names = {m.value: m for m in enum}
+    if value not in names:
+        raise InputError(f"{flag} {value!r} is not allowed; it must be one of {sorted(names)}")
+    return names[value]
+
+
 def _discretization(args):
     """(Discretization, FESDOptions) of --discretization, --stages, --elements (InputError naming the valid values)."""
     from .discretization import Discretization, FESDOptions
 
-    names = {d.value: d for d in Discretization}
-    if args.discretization not in names:
-        raise InputError(f"--discretization {args.discretization!r} is not allowed; it must be one of {sorted(names)}")
-    return names[args.discretization], FESDOptions(n_s=args.stages, n_fe=args.elements)
+    return _choice("--discretization", args.discretization, Discretization), FESDOptions(n_s=args.stages, n_fe=args.elements)
 
 
 def _cmd_simulate(args) -> int:
@@ -225,10 +230,8 @@ def _cmd_plan(args) -> int:
     discretization, fesd = _discretization(args)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
     solve_options = SolveOptions(print_level=5 if args.verbose else 0)
-    starts = {s.value: s for s in FESDStart}
-    if args.fesd_start not in starts:
-        raise InputError(f"--fesd-start {args.fesd_start!r} is not allowed; it must be one of {sorted(starts)}")
-    if discretization is Discretization.FESD and starts[args.fesd_start] is FESDStart.IMPLICIT_EULER:
+    fesd_start = _choice("--fesd-start", args.fesd_start, FESDStart)
+    if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
     elif discretization is Discretization.FESD:

@@ -650,7 +650,12 @@ def _ipopt_timing(solvers) -> dict:
     return out
 
 
-def ungate(problem: Problem, x, tol: float = 1e-6) -> np.ndarray:
+# a gate (the factor a gated pair's product carries) at or below this leaves its selector without effect on
+# F: ungate resets such selectors, and active_set_bounds leaves FESD cross pairs with such gates free
+GATE_OFF = 1e-6
+
+
+def ungate(problem: Problem, x, tol: float = GATE_OFF) -> np.ndarray:
     """ProblemOptions.gating: at every step whose gate of a selector is <= tol (the selector does not
     act on F there), reset that selector and its multipliers to theta(h) of the step's own switching
     value h = lambda1 - lambda0 (stationarity) and recompute the lifted products. The state trajectory
@@ -690,7 +695,7 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     if problem.fesd is not None:
         fesd_gates = np.asarray(problem.notes["pair_gates"](x), float).ravel() if "pair_gates" in problem.notes else np.ones(len(problem.pairs))
     # the FESD pairs the rules below impose: own-stage ones and the cross pairs the gates leave on
-    imposed = [own or gate > 1e-6 for own, gate in zip(problem.notes["own_pairs"], fesd_gates)] if fesd_gates is not None else []
+    imposed = [own or gate > GATE_OFF for own, gate in zip(problem.notes["own_pairs"], fesd_gates)] if fesd_gates is not None else []
     side0, side1 = x[l0.ravel()], x[l1.ravel()]  # what a selector is compared with: its own multipliers, ...
     if fesd_gates is not None and ratio is None:
         # ... and with FESD every multiplier of its element it is paired with (cross-complementarity, the pairs
