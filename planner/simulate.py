@@ -198,8 +198,11 @@ def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
 
 
 def _ipopt_options(options: SimulateOptions) -> dict:
+    # MUMPS's column permutation (maximum transversal) costs more than it saves on these small step
+    # KKT systems: without it FESD Capler steps take 25-30 % less time, implicit Euler 5-10 %, same
+    # iterations within 3 % (docs/benchmarks.md, "FESD against implicit Euler", session 7)
     ipopt = {"tol": options.ipopt_tol, "max_iter": options.max_iter, "print_level": 5 if options.verbose else 0,
-             "sb": "yes", "warm_start_init_point": "yes", "mu_strategy": "adaptive"}
+             "sb": "yes", "warm_start_init_point": "yes", "mu_strategy": "adaptive", "mumps_permuting_scaling": 0}
     return {"print_time": False, "ipopt": ipopt}
 
 
