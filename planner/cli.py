@@ -74,18 +74,18 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
                               "  planner plan point_mass --task hop.toml --no-validate --json\n"
-                              "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 3 --fesd-start implicit_euler --steps 50 --out results/capler_fesd")
+                              "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
-                        "point-mass hop; on Capler through --fesd-start implicit_euler --stages 1 --steps 50; docs/formulation.md \"FESD in the OCP\")")
+                        "point-mass hop; on Capler through --fesd-start implicit_euler --stages 1 --elements 2; docs/formulation.md \"FESD in the OCP\")")
     p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
     p.add_argument("--elements", type=int, default=3,
                    help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
     p.add_argument("--steps", type=int, metavar="N",
-                   help="override the task's [horizon] N (same tau_f, so h = tau_f / N): e.g. the FESD Capler plan at N = 50 "
-                        "(3 elements per step) next to the default task's 125 implicit-Euler steps")
+                   help="override the task's [horizon] N (same tau_f, so h = tau_f / N): e.g. a coarser grid to compare "
+                        "implicit Euler and FESD plans on")
     p.add_argument("--fesd-start", default="hint_free", metavar="NAME",
                    help="fesd: hint_free (default: the FESD homotopy from y_0 everywhere, u = 0) or implicit_euler (solve the "
                         "implicit-Euler OCP from its hint-free start, map its plan onto the FESD variables, then FESD NLPs at "
