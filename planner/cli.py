@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
-                        "point-mass hop; on Capler through --fesd-start implicit_euler --stages 1 --elements 2; docs/formulation.md \"FESD in the OCP\")")
+                        "point-mass hop; on Capler with --stages 1 --elements 2, hint-free or through --fesd-start implicit_euler; docs/formulation.md \"FESD in the OCP\")")
     p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
     p.add_argument("--elements", type=int, default=3,
                    help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
