@@ -107,6 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
     p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
                    help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
+    p.add_argument("--window", type=float, default=None, metavar="SECONDS",
+                   help="restart the windowed tracking replay from the plan this often [s] (default 0.1)")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_validate)
 
@@ -284,7 +286,8 @@ def _cmd_validate(args) -> int:
 
     if not args.dir.is_dir():
         raise InputError(f"result directory not found: {args.dir}")
-    result = validate(args.dir, ValidationOptions(controller=args.controller))
+    windowed = {} if args.window is None else {"window_s": args.window}
+    result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))
     write_validation(args.dir, result)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED

@@ -49,6 +49,10 @@ MAX_PENETRATION_M = 0.002  # depth of any contact point below the ground along t
 OPEN_LOOP_BAND_M = 0.05  # open loop: how long the base stays within this distance of the plan [m]
 CONTACT_GAP_TOL_M = 1e-3  # a point "is in contact" when its gap is below this [m]; the plan's
 #   contact gaps are at the complementarity tolerance (<< 1 mm) while a step of flight moves a foot by cm
+WINDOW_S = 0.1  # length of the windowed tracking replays [s]: the window of the re-simulation
+#   defect (scripts/bench_work_precision.py), short against a hop's flight (~0.3 s)
+WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans the window statistics
+#   with 10 ms strides agree with these to ~10 % (docs/validation.md), at a quarter of the cost
 MIN_FLIGHT_S = 0.01  # a MuJoCo impact is a contact onset after at least this long without contact [s];
 #   shorter gaps are chatter of the soft contact, not a flight phase
 
@@ -177,8 +181,12 @@ class ValidationOptions:
     open_loop_band_m: float = OPEN_LOOP_BAND_M
     contact_gap_tol_m: float = CONTACT_GAP_TOL_M
     min_flight_s: float = MIN_FLIGHT_S
+    window_s: float = WINDOW_S
+    window_stride_s: float = WINDOW_STRIDE_S
 
     def __post_init__(self):
+        _check(self.window_s > 0, "window_s", self.window_s, "> 0")
+        _check(self.window_stride_s > 0, "window_stride_s", self.window_stride_s, "> 0")
         if not isinstance(self.controller, TrackingController):
             names = [c.value for c in TrackingController]
             if self.controller not in names:
@@ -413,6 +421,44 @@ class RolloutReport:
 
 
 @dataclass(frozen=True)
+class WindowReport:
+    """The tracking replay restarted from the plan's state (q, v) in overlapping windows.
+
+    Window j starts at starts_s[j] (every stride_s) and runs the same controller for window_s from
+    the plan's state there, so an error made in one hop does not carry into the next:
+    max_base_error_m[j] is how far MuJoCo's physics takes the base from the plan within one window,
+    not how the unstable hopper's errors grow over the whole plan (information only; the pass/fail
+    tracking error is the whole replay's). Overlapping windows make the statistics independent of
+    where the window boundaries fall relative to the impacts.
+    """
+
+    window_s: float
+    stride_s: float
+    starts_s: tuple[float, ...]  # (W,) [s]
+    max_base_error_m: tuple[float, ...]  # (W,) [m]
+    diverged: bool
+
+    @property
+    def mean_m(self) -> float:
+        return float(np.mean(self.max_base_error_m)) if self.max_base_error_m else 0.0
+
+    @property
+    def median_m(self) -> float:
+        return float(np.median(self.max_base_error_m)) if self.max_base_error_m else 0.0
+
+    @property
+    def p90_m(self) -> float:
+        return float(np.percentile(self.max_base_error_m, 90)) if self.max_base_error_m else 0.0
+
+    @property
+    def worst_m(self) -> float:
+        return max(self.max_base_error_m, default=0.0)
+
+    def summary(self) -> dict:
+        return {"mean_m": self.mean_m, "median_m": self.median_m, "p90_m": self.p90_m, "worst_m": self.worst_m}
+
+
+@dataclass(frozen=True)
 class ResolvedGains:
     actuators: tuple[str, ...]
     kp: tuple[float, ...]
@@ -444,6 +490,7 @@ class Validation:
     failures: tuple[str, ...]
     robot: str
     controller: TrackingController = TrackingController.JOINT_PD
+    windows: WindowReport | None = None
     mujoco_version: str = mujoco.__version__
 
     def to_json(self) -> dict:
@@ -462,6 +509,8 @@ class Validation:
                                  "solref_inelastic": list(self.contact_settings.solref(0.0))},
             "gains": asdict(self.gains),
             "controller": self.controller.value,
+            "windows": None if self.windows is None else {
+                **asdict(self.windows), **self.windows.summary()},
             "robot": self.robot,
             "mujoco_version": self.mujoco_version,
         }
@@ -482,6 +531,12 @@ class Validation:
             + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items())
             + f"; saturation {tr.saturation_fraction:.1%}",
             f"  impacts (MuJoCo - plan): {dts}",
+        ]
+        if self.windows is not None:
+            w = self.windows
+            lines.append(f"  tracking in {len(w.starts_s)} windows of {w.window_s:g} s from the plan: base error "
+                         f"mean {w.mean_m * 1e3:.2f} mm, median {w.median_m * 1e3:.2f} mm, worst {w.worst_m * 1e3:.2f} mm")
+        lines += [
             f"  open loop: base within {th.open_loop_band_m * 1e2:.0f} cm for {ol.time_within_band_s:.3f} of {ol.duration_s:.3f} s",
         ]
         lines += [f"  failed: {f}" for f in self.failures]
@@ -534,6 +589,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
     tracking = _replay(scene, reference, gains, planned, options, options.controller)
+    windows = _windows(scene, reference, gains, planned, options)
     open_loop = _replay(scene, reference, None, planned, options)
 
     failures = []
@@ -552,6 +608,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
                               options.contact_gap_tol_m, options.min_flight_s),
         kinematic=kinematic, tracking=tracking, open_loop=open_loop, contact_settings=scene.settings,
         gains=gains, failures=tuple(failures), robot=str(robot.path), controller=options.controller,
+        windows=windows,
     )
 
 
@@ -701,6 +758,13 @@ class _Reference:
         self.v[0] = v[idx[0]]
         self.u = arrays["u"][nxt]  # (n+1, nu)
 
+    def window(self, first: int, last: int) -> "_Reference":
+        """The reference from MuJoCo step `first` to step `last` (both included)."""
+        out = object.__new__(_Reference)
+        out.dt, out.steps = self.dt, last - first
+        out.times, out.q, out.v, out.u = (a[first:last + 1] for a in (self.times, self.q, self.v, self.u))
+        return out
+
 
 def resolve_gains(scene: Scene, gains: TrackingGains, q0: np.ndarray) -> ResolvedGains:
     """Per-actuator kp, kd (see TrackingGains) with the mass matrix at posture q0 (nq,)."""
@@ -818,6 +882,23 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
         time_within_band_s=float(within), diverged=run.diverged,
         wall_time_s=_time.perf_counter() - started,
     )
+
+
+def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, planned: list[tuple[str, float]],
+             options: ValidationOptions) -> WindowReport:
+    """The tracking replay restarted from the reference in overlapping windows (WindowReport).
+
+    A window shorter than half of window_s at the end of the plan is not started.
+    """
+    per = max(1, int(round(options.window_s / ref.dt)))
+    stride = max(1, int(round(options.window_stride_s / ref.dt)))
+    starts, errors, diverged = [], [], False
+    for first in range(0, max(1, ref.steps - per // 2), stride):
+        run = _replay(scene, ref.window(first, min(first + per, ref.steps)), gains, planned, options, options.controller)
+        starts.append(float(ref.times[first]))
+        errors.append(run.max_base_error_m)
+        diverged |= run.diverged
+    return WindowReport(options.window_s, options.window_stride_s, tuple(starts), tuple(errors), diverged)
 
 
 class _StanceRetarget:

@@ -226,14 +226,30 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
     assert len(result.tracking.impacts) == 1 and result.tracking.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
     assert result.kinematic.contacts_agree and result.kinematic.max_site_disagreement_m < 1e-12
     assert result.tracking.saturation_fraction == 0.0
+    windows = result.windows  # each window restarts from a MuJoCo state of the same run
+    assert len(windows.starts_s) == math.ceil((0.6 - windows.window_s / 2) / windows.stride_s)
+    assert windows.worst_m <= GROUND_TRUTH_TOL_M and not windows.diverged
 
     summary = json.loads(replay.write_validation(out, result).read_text())
     block = summary["validation"]
     for key in ("passed", "mode", "max_tracking_error_m", "final_tracking_error_m", "max_penetration_m", "thresholds"):
         assert key in block
+    assert block["windows"]["worst_m"] == windows.worst_m and len(block["windows"]["max_base_error_m"]) == len(windows.starts_s)
     assert block["thresholds"]["max_tracking_error_m"] == replay.MAX_TRACKING_ERROR_M == 0.01
     assert block["thresholds"]["max_penetration_m"] == replay.MAX_PENETRATION_M == 0.002
     json.dumps(block, allow_nan=False)  # strict JSON
+
+
+def test_cli_window_option(ground_truth, capsys):
+    """`planner validate DIR --window S` sets the window length in the JSON it prints; a window of
+    zero is a user error (exit 2, one line naming the option)."""
+    from planner.cli import main
+
+    _, out = ground_truth
+    assert main(["validate", str(out), "--window", "0.2", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows"]["window_s"] == 0.2
+    assert main(["validate", str(out), "--window", "0"]) == 2
+    assert "window_s" in capsys.readouterr().err
 
 
 def test_decimated_rollout_validates(capler):
@@ -256,6 +272,8 @@ def test_shifted_base_fails(ground_truth, capler):
     assert not result.passed
     assert result.max_tracking_error_m > replay.MAX_TRACKING_ERROR_M
     assert any("tracking" in f for f in result.failures)
+    # every window starts hovering, so the windows see the fall too
+    assert result.windows.median_m > replay.MAX_TRACKING_ERROR_M
 
 
 def test_foot_under_ground_fails(ground_truth, capler):
@@ -465,6 +483,30 @@ def test_controller_option_is_an_enum():
     assert replay.ValidationOptions(controller="stance_retarget").controller is replay.TrackingController.STANCE_RETARGET
     with pytest.raises(UnknownNameError, match="joint_pd, stance_retarget"):
         replay.ValidationOptions(controller="lqr")
+
+
+def test_window_options_are_checked():
+    """Window length and stride must be positive; the error names the option."""
+    with pytest.raises(InputError, match="window_s"):
+        replay.ValidationOptions(window_s=0.0)
+    with pytest.raises(InputError, match="window_stride_s"):
+        replay.ValidationOptions(window_stride_s=-0.1)
+
+
+@pytest.mark.parametrize("controller", list(replay.TrackingController))
+def test_one_window_is_the_whole_replay(capler, controller):
+    """A window as long as the plan, started at its first sample, is the tracking replay itself: the
+    same MuJoCo steps from the same state with the same commands, so the same base error to the bit
+    (on the first 0.75 s of the default Capler plan, where the error is 0.1 m and any offset of the
+    window's reference by one step would show)."""
+    robot, _ = capler
+    task = load_task(ROBOTS_DIR / "capler.toml")
+    traj = dict(np.load(Path(__file__).parent / "data" / "capler_first_hop.npz"))
+    span = float(traj["t"][-1] - traj["t"][0])
+    options = replay.ValidationOptions(controller=controller, window_s=span, window_stride_s=span)
+    result = replay.validate_trajectory(robot, task, traj, options)
+    assert result.windows.starts_s == (float(traj["t"][0]),)
+    assert result.windows.max_base_error_m[0] == result.max_tracking_error_m > replay.MAX_TRACKING_ERROR_M
 
 
 @pytest.mark.parametrize("controller", list(replay.TrackingController))

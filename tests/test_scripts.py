@@ -80,7 +80,7 @@ def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
         for key in ("h", "wall_time_s", "ipopt_iterations", "converged", "hops", "n_impacts", "defect", "flight"):
             assert r.get(key) is not None, (key, r["N"])
         assert r["converged"] and r["wall_time_s"] > 0 and r["ipopt_iterations"] > 0
-        for key in ("defect_base_m", "tracking_error_m", "penetration_m", "terminal_error", "flight_error_m", "landing_time_error_s"):
+        for key in ("defect_base_m", "tracking_error_m", "tracking_window_mean_m", "penetration_m", "terminal_error", "flight_error_m", "landing_time_error_s"):
             assert r["errors"][key] is not None and math.isfinite(r["errors"][key]), (key, r["N"])
         assert r["defect"]["windows"] >= 5 and r["defect"]["failed_windows"] == []
     assert records[1]["errors"]["landing_time_error_s"] < records[0]["errors"]["landing_time_error_s"]
