@@ -117,6 +117,45 @@ def test_fesd_detects_the_impact_exactly(n_s, n_fe, h):
     assert result.extra["discretization"] == {"name": "fesd", "n_s": n_s, "n_fe": n_fe, "rho_h": FESDOptions().rho_h}
 
 
+# A biped foot comes down at ~2.4 m/s from 0.3 m: the element boundary sits ~1e-8 m inside the
+# ground (IPOPT's bound relaxation), i.e. ~4e-9 s of its impact time (measured 4.1e-9 s)
+BIPED_DROP_M = 0.3
+FOOT_REST_TOL = 1e-6  # [m/s] the landed foot's velocity after the impulse: the barrier's residue (measured 4.6e-8)
+
+
+def test_fesd_detects_the_first_foot_of_a_falling_biped():
+    """Several contact points: the biped (two feet, mu = 0.8) dropped from rest with its feet at
+    different heights falls as a rigid body (uniform gravity, no torque, so no joint acceleration):
+    its lower foot lands at sqrt(2 d / g) for a drop d. FESD (n_s = 2, two elements per step) puts
+    that impact on an element boundary to IMPACT_TIME_TOL, assigns it to the right foot, and the
+    inelastic, sticking impact leaves that foot at rest (the post-impact sample); implicit Euler at
+    the same step misses the time by O(h)."""
+    robot = load_robot("biped")
+    dyn = Dynamics(robot)
+    q0 = np.array([0.0, 1.0, 0.0, 0.3, -0.1])  # leg 2 closer to vertical: foot_2 is the lower one
+    heights = [float(np.asarray(dyn.point_position(f)(q0)).ravel()[-1]) for f in ("foot_1", "foot_2")]
+    assert heights[1] < heights[0] - 0.03
+    q0[1] += BIPED_DROP_M - heights[1]
+    # a_n is a force per unit of the contact's inverse inertia: 35 kg need a large one for the impact to end
+    # within the horizon (ends before foot_1 lands at t ~ 0.30 s)
+    feet = [{"point": f, "mu": 0.8, "a_n": 4000.0, "a_t": 12000.0} for f in ("foot_1", "foot_2")]
+    task = parse_task({"contacts": feet, "initial": {"q": q0.tolist()}, "horizon": {"tau_f": 0.3, "N": 15}})
+    exact = math.sqrt(2.0 * BIPED_DROP_M / G)
+    times = {}
+    for disc in (Discretization.FESD, Discretization.IMPLICIT_EULER):
+        result = simulate(robot, task, SimulateOptions(discretization=disc, fesd=FESDOptions(n_s=2, n_fe=2)), dynamics=dyn)
+        assert result.stats.converged, result.stats.message
+        first = result.trajectory.impacts[0]
+        assert first.contact == "foot_2"
+        times[disc] = first.time
+        if disc is Discretization.FESD:
+            after = int(np.nonzero(result.trajectory.t == first.time)[0][-1])  # the post-impact sample
+            foot_velocity = np.asarray(dyn.point_jacobian("foot_2")(result.trajectory.q[after])) @ result.trajectory.v[after]
+            assert np.abs(foot_velocity).max() < FOOT_REST_TOL
+    assert times[Discretization.FESD] == pytest.approx(exact, abs=IMPACT_TIME_TOL)
+    assert abs(times[Discretization.IMPLICIT_EULER] - exact) > 1e4 * IMPACT_TIME_TOL
+
+
 def test_implicit_euler_misses_the_impact_time():
     """Implicit Euler at the same step lands inside a step: its impact time is off by O(h), far more
     than IMPACT_TIME_TOL (measured 8.8e-3 s at h = 0.02)."""
