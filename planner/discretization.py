@@ -58,10 +58,24 @@ class SwitchVelocity(Enum):
     up to O(|dq|^7): a step in persistent contact keeps the gap (and, no slip, the foot's x) where it
     was. When q does not move (a frozen impact) nbar = n(q): the same as POINT. Same switching
     surfaces in continuous time (the average tends to n(q) as h -> 0).
+    COLLOCATED: n(q_{k+1})^T v_{k+1} plus the collocation defect of the gap c of the same point,
+    (dc - grad c(q_{k+1}) dq) / (h s): dq and dc are the step's increments of q and of c(q) (implicit
+    Euler: q_{k+1} - q_k and c(q_{k+1}) - c(q_k); a FESD stage j: the collocation combinations
+    sum_l (A^-1)_jl (q_l - q_0) and sum_l (A^-1)_jl (c(q_l) - c(q_0)) over the element's stages, passed
+    as `dy` and `dgap`). The switching function is then the collocated rate of the gap, dc / (h s), where
+    q moves at the speed of the clock (grad c dq = h s n^T v), and n^T v where q is frozen (dq = 0,
+    an impact). So a sliding mode of alpha (persistent contact) keeps c(q) at every stage where the
+    element started, to O(h (1 - r) n^T v) with r the stage's clock rate: the position-level condition
+    that beta's complementarity needs at every stage (docs/formulation.md, "FESD in persistent contact").
+    With POINT, a Radau IIA element (n_s >= 2) in persistent contact holds n^T v = 0 at its stages but
+    moves the gap by the collocation error of c(q), up or down; a gap above 0 under a compressive force
+    has no complementary selectors. Same switching surfaces in continuous time (dc / (h s) -> n^T v).
+    The correction is zero for a point whose gap is linear in q (the point mass).
     """
 
     POINT = "point"
     SECANT = "secant"
+    COLLOCATED = "collocated"
 
 
 # 3-point Gauss-Legendre rule on [0, 1]: exact for polynomials of degree 5
@@ -128,6 +142,7 @@ class ImplicitEulerStep:
             raise ValueError(f"velocity_switch must be one of {[m.value for m in SwitchVelocity]}, got {velocity_switch!r}")
         self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
         self._secant = _secant_rows(system) if velocity_switch is SwitchVelocity.SECANT else None
+        self._gaps = _gap_rows(system) if velocity_switch is SwitchVelocity.COLLOCATED else None
         self.mm = system.mass_matrix_form() if form is StepForm.MASS_MATRIX else None
         # forces: MASS_MATRIX the form's z; EXPLICIT with several contacts the contact forces lambda
         nz = self.mm.nz if self.mm is not None else system.n_lambda
@@ -269,7 +284,8 @@ class ImplicitEulerStep:
         forces = self.forces_at(y, u) if self.mm is not None else None
         return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
 
-    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "", field_scale=None, dy=None) -> Step:
+    def build(self, y_k, y_next, u_k, s_k=1.0, h: float = 0.01, tag: str = "", field_scale=None, dy=None, dgap=None,
+              gap_weight=None) -> Step:
         """Create the step's algebraic variables and its constraints (see module docstring).
 
         y_k, y_next (ny,), u_k (nu,), s_k (scalar) are CasADi expressions (SX or MX) or numbers;
@@ -279,7 +295,10 @@ class ImplicitEulerStep:
         continue the auxiliary gains a_n, a_t from weak to the task's values; 1 everywhere is the
         task's system). dy (ny,) replaces the increment y_next - y_k that must equal h s F(y_next):
         a collocation stage passes sum_l A^-1_jl (Y_l - y_k) (FESDInterval), with the algebraic
-        conditions still at y_next (the stage).
+        conditions still at y_next (the stage). dgap (n_sigma,): SwitchVelocity.COLLOCATED only, the
+        increment of the gaps c(q) that goes with dy (FESDInterval: sum_l A^-1_jl (c(q_l) - c(q_0)));
+        None: c(q_next) - c(q_k). gap_weight (n_sigma,): COLLOCATED only, multiplies each row's correction
+        (a number or a parameter: 1 the COLLOCATED switching function, 0 the POINT one); None: 1.
         """
         sys_ = self.system
         sym = ca.MX.sym if isinstance(y_next, ca.MX) else ca.SX.sym
@@ -319,6 +338,14 @@ class ImplicitEulerStep:
             nq, nv = sys_.nq, sys_.nv
             rows, mask = self._secant
             hval = hval * ca.DM(1.0 - mask) + ca.mtimes(rows(y_k[:nq], y_next[:nq]), y_next[nq : nq + nv])
+        if self._gaps is not None:
+            nq = sys_.nq
+            gaps, grads = self._gaps
+            dq = (y_next - y_k if dy is None else dy)[:nq]
+            if dgap is None:
+                dgap = gaps(y_next[:nq]) - gaps(y_k[:nq])
+            correction = (dgap - ca.mtimes(grads(y_next[:nq]), dq)) / (h * s_k)  # rows of n^T v only
+            hval = hval + (correction if gap_weight is None else gap_weight * correction)
         stationarity = hval / ca.DM(self.switch_scale) - lam1 + lam0
         index = {m: j for j, m in enumerate(self.monomials)}
         n = sys_.n_sigma
@@ -375,6 +402,22 @@ def _secant_rows(system: TimeFreezingSystem) -> tuple[ca.Function, np.ndarray]:
         rows.append(sum(w * ca.mtimes(direction.T, jac(qa + s * (qb - qa))[:3, :]) for s, w in zip(_GAUSS_S, _GAUSS_W)))
         mask[i] = 1.0
     return ca.Function("secant_rows", [qa, qb], [ca.vertcat(*rows)], ["q_a", "q_b"], ["rows"]), mask
+
+
+def _gap_rows(system: TimeFreezingSystem) -> tuple[ca.Function, ca.Function]:
+    """SwitchVelocity.COLLOCATED: Functions q -> (n_sigma,) gaps and q -> (n_sigma, nq) their gradients,
+    row i the gap of switch i's contact when switch i is an n^T v, zero otherwise."""
+    q = ca.SX.sym("q", system.nq)
+    rows = []
+    for sw in system.switches:
+        if sw.function != "n^T v" or sw.contact is None:
+            rows.append(ca.SX(0))
+            continue
+        contact = system.contacts[system.labels.index(sw.contact)]
+        normal, _ = plane_axes(contact.normal)
+        rows.append(ca.dot(ca.DM(normal), system.dyn.point_position(contact.point)(q)[:3]))
+    gaps = ca.vertcat(*rows)
+    return ca.Function("gap_rows", [q], [gaps]), ca.Function("gap_gradients", [q], [ca.jacobian(gaps, q)])
 
 
 # ==================================================================================================
@@ -482,7 +525,9 @@ class FESDInterval:
     H. Cross-complementarity: within an element and with its left boundary (the previous element's
     last stage, or the previous step's end given as a parameter), a selector may not be at a bound
     at one point while its multiplier is positive at another; so a selector changes its bound only
-    at an element boundary, and the free h_n put that boundary on the switching surface.
+    at an element boundary, and the free h_n put that boundary on the switching surface. With a
+    step of SwitchVelocity.COLLOCATED, each stage's n^T v switching function gets the collocation
+    defect of its point's gap (ImplicitEulerStep.build's dgap).
     """
 
     def __init__(self, step: ImplicitEulerStep, options: FESDOptions = FESDOptions()):
@@ -498,13 +543,14 @@ class FESDInterval:
         start = self.n_fe + (n * self.n_s + j) * self.n_stage
         return slice(start, start + self.n_stage)
 
-    def build(self, y_k, control, H: float, lam_prev, tag: str = "", s_k=1.0, field_scale=None) -> Interval:
+    def build(self, y_k, control, H: float, lam_prev, tag: str = "", s_k=1.0, field_scale=None, gap_weight=None) -> Interval:
         """One FESD step from y_k (ny,) over H [s] of numerical time with speed of time s_k (a number
         or an expression; every stage integrates h_n s_k F).
 
         control(y) -> u (nu,): the control acting at a stage state y (a constant, or a feedback law).
         lam_prev (2 n_sigma,): (lambda0, lambda1) at y_k, the left boundary of the first element.
         field_scale: as in ImplicitEulerStep.build (an OCP's auxiliary-gain continuation).
+        gap_weight (n_sigma,): SwitchVelocity.COLLOCATED only, as in ImplicitEulerStep.build (every stage).
         """
         st, opts = self.step, self.options
         sys_ = st.system
@@ -520,9 +566,15 @@ class FESDInterval:
         for e in range(self.n_fe):
             Y = [ca.SX.sym(f"Y{tag}_{e}_{j}", ny) for j in range(self.n_s)]
             stages = []
+            gap_inc = None  # SwitchVelocity.COLLOCATED: c(q_l) - c(q_0) of the stages
+            if st._gaps is not None:
+                gaps, nq = st._gaps[0], sys_.nq
+                gap_inc = [gaps(Y[l][:nq]) - gaps(start[:nq]) for l in range(self.n_s)]
             for j in range(self.n_s):
                 dy = sum(self.A_inv[j, l] * (Y[l] - start) for l in range(self.n_s))
-                stages.append(st.build(start, Y[j], control(Y[j]), s_k, hs[e], tag=f"{tag}_{e}_{j}", field_scale=field_scale, dy=dy))
+                dgap = None if gap_inc is None else sum(self.A_inv[j, l] * gap_inc[l] for l in range(self.n_s))
+                stages.append(st.build(start, Y[j], control(Y[j]), s_k, hs[e], tag=f"{tag}_{e}_{j}", field_scale=field_scale, dy=dy,
+                                       dgap=dgap, gap_weight=gap_weight))
             for j, stage in enumerate(stages):
                 x += [Y[j], stage.w]
                 lbx += [np.full(ny, -np.inf), stage.lbw]

@@ -165,8 +165,9 @@ class ProblemOptions:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")
         if not isinstance(self.scene_analysis, bool):
             raise InputError(f"ProblemOptions.scene_analysis = {self.scene_analysis!r} is not allowed; it must be True or False")
-        if not isinstance(self.velocity_switch, SwitchVelocity):
-            raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in SwitchVelocity]}")
+        allowed = [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED]  # COLLOCATED: planner simulate only (untried in the OCP)
+        if self.velocity_switch not in allowed:
+            raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in allowed]}")
         if not isinstance(self.step_form, StepForm):
             raise InputError(f"ProblemOptions.step_form = {self.step_form!r} is not allowed; it must be one of {[p.value for p in StepForm]}")
         if not self.clock_weight >= 0:

@@ -27,7 +27,7 @@ from enum import Enum
 import casadi as ca
 import numpy as np
 
-from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep
+from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics
 from .errors import InputError
 from .model import Robot
@@ -58,6 +58,11 @@ class SimulateOptions:
     the implicit Euler step with the selectors held at free flight (sigma = 1) and at the previous
     step's values (solved by Newton), each with rho0 = restart_rho0 and then with rho0
     (docs/formulation.md, "Steps that do not converge").
+    velocity_switch: the SwitchVelocity of the n^T v switching functions; None (default): with FESD of
+    n_s >= 2 stages COLLOCATED for each contact that starts a step in persistent contact and POINT for
+    the others (FESD's interior stages otherwise let the gap drift in persistent contact; an impact step
+    keeps POINT; docs/formulation.md, "FESD in persistent contact"), POINT (the paper's) with implicit
+    Euler and FESD n_s = 1. COLLOCATED: in every step.
     """
 
     strategy: Strategy = Strategy.STEPWISE
@@ -78,6 +83,7 @@ class SimulateOptions:
     restart_rho0: float = 1e4  # holds an exact solution whose switching functions are >= 2 rho_f / 1e4 away from 0
     discretization: Discretization = Discretization.IMPLICIT_EULER
     fesd: FESDOptions = FESDOptions()  # used when discretization is FESD
+    velocity_switch: SwitchVelocity | None = None
 
     def __post_init__(self):
         if not isinstance(self.strategy, Strategy):
@@ -86,6 +92,9 @@ class SimulateOptions:
             raise InputError(f"discretization = {self.discretization!r} is not allowed; it must be one of {[d.value for d in Discretization]}")
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
+        if self.velocity_switch is not None and not isinstance(self.velocity_switch, SwitchVelocity):
+            raise InputError(f"velocity_switch = {self.velocity_switch!r} is not allowed; it must be None or one of "
+                             f"{[v.value for v in SwitchVelocity]}")
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")
         checks = [
@@ -160,7 +169,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
                              "the initial state must have every contact at or above the ground")
     rho_f = task.simulate.rho_f if options.rho_f is None else options.rho_f
     law = pd_law(robot, task)
-    builder = ImplicitEulerStep(system, rho_f)
+    builder = ImplicitEulerStep(system, rho_f, velocity_switch=_velocity_switch(options))
     h, N = task.horizon.h, task.horizon.N
     start = time.perf_counter()
     if options.discretization is Discretization.FESD:
@@ -179,11 +188,47 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
     extra = {} if law is None else {"pd": _pd_summary(robot, task, law, U)}
     if options.discretization is Discretization.FESD:
-        extra["discretization"] = {"name": "fesd", "n_s": options.fesd.n_s, "n_fe": options.fesd.n_fe, "rho_h": options.fesd.rho_h}
+        extra["discretization"] = {"name": "fesd", "n_s": options.fesd.n_s, "n_fe": options.fesd.n_fe, "rho_h": options.fesd.rho_h,
+                                   "velocity_switch": builder.velocity_switch.value}
+        if builder.velocity_switch is SwitchVelocity.COLLOCATED:  # steps solved with the gap correction on
+            extra["discretization"]["collocated_steps"] = stats["collocated_steps"]
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     return SimulationResult(robot=str(robot.path), task=task.source, trajectory=trajectory, stats=solve,
                             strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
+
+
+def _velocity_switch(options: SimulateOptions) -> SwitchVelocity:
+    """options.velocity_switch, or by default COLLOCATED for FESD with n_s >= 2 stages (used per step
+    for the contacts in persistent contact, _persistent_weights) and POINT (the paper's) otherwise.
+    With one stage there is no interior collocation point and the correction is only first order
+    (dc / h - n^T v = O(h |v|^2)): it left n^T v at 1.8e-2 m/s after the Capler PD drop's impact and
+    stopped that run (tests/test_fesd.py, n_s = 1)."""
+    if options.velocity_switch is not None:
+        return options.velocity_switch
+    fesd = options.discretization is Discretization.FESD and options.fesd.n_s >= 2
+    return SwitchVelocity.COLLOCATED if fesd else SwitchVelocity.POINT
+
+
+# A contact starts a step in persistent contact when the multipliers at the step's start say alpha
+# slides (both of n^T v's below this) and the point is not above the ground (beta's lambda1 = max(c, 0)
+# below it) [m/s, m]: sliding multipliers are ~1e-8 (IPOPT's bound relaxation), a flight's >= |n^T v| or c
+PERSISTENT_TOL = 1e-6
+
+
+def _persistent_weights(system, lam0, lam1) -> np.ndarray:
+    """(n_sigma,) weights of the COLLOCATED correction for one FESD step from the multipliers (lam0,
+    lam1) (n_sigma,) at its start: 1 on the n^T v row of a contact in persistent contact, else 0 (POINT:
+    an impact step keeps the paper's switching function, which ends the impact at n^T v = 0)."""
+    functions = [sw.function for sw in system.switches]
+    weights = np.zeros(system.n_sigma)
+    for i, sw in enumerate(system.switches):
+        if sw.function != "n^T v":
+            continue
+        b = next(k for k, other in enumerate(system.switches) if other.contact == sw.contact and functions[k] == "c(q)")
+        if lam0[i] + lam1[i] <= PERSISTENT_TOL and lam1[b] <= PERSISTENT_TOL:
+            weights[i] = 1.0
+    return weights
 
 
 def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
@@ -296,9 +341,18 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     builder = fesd.step
     ny, nu, n = system.ny, system.nu, system.n_sigma
     y_k, u_k, lam_prev = ca.SX.sym("y_k", ny), ca.SX.sym("u_k", nu), ca.SX.sym("lam_prev", 2 * n)
-    iv = fesd.build(y_k, lambda y: _applied(law, system, u_k, y), h, lam_prev)
-    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(iv.x, [iv], ca.vertcat(y_k, u_k, lam_prev))
-    solver = ca.nlpsol("fesd", "ipopt", nlp, _ipopt_options(options))
+    # COLLOCATED: a second NLP whose n^T v rows carry the gap correction times a parameter per switch;
+    # steps with no contact in persistent contact use the first, built with weight 0: its expressions
+    # are POINT's exactly (CasADi drops 0 * x), so flight and impact steps are solved as before
+    collocated = builder.velocity_switch is SwitchVelocity.COLLOCATED
+    weights_fixed = collocated and options.velocity_switch is SwitchVelocity.COLLOCATED
+    nlps = {}
+    for kind in ("collocated",) if weights_fixed else ("point", "collocated") if collocated else ("point",):
+        gap_weight = ca.SX.sym("gap_weight", n) if kind == "collocated" else ca.SX.zeros(0)
+        iv = fesd.build(y_k, lambda y: _applied(law, system, u_k, y), h, lam_prev,
+                        gap_weight=(gap_weight if kind == "collocated" else 0.0) if collocated else None)
+        nlp, comp_fn, n_eq, n_comp = _penalized_nlp(iv.x, [iv], ca.vertcat(y_k, u_k, lam_prev, gap_weight))
+        nlps[kind] = (ca.nlpsol(f"fesd_{kind}", "ipopt", nlp, _ipopt_options(options)), comp_fn)
     lbx, ubx = np.concatenate([iv.lbx, [0.0]]), np.concatenate([iv.ubx, [np.inf]])
     lbg = np.zeros(n_eq + n_comp)
     ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
@@ -307,11 +361,18 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     w_guess = builder.guess(y0, _applied(law, system, task.simulate.controls_at(0.0, nu), y0))
     left = np.concatenate([w_guess[lam0], w_guess[lam1]])  # the multipliers at y0 from its switching functions
     y, lengths, bounds, Ys, Ws, Us = np.asarray(y0, float), [], [y0], [], [], []
-    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0}
+    total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0, "collocated_steps": 0}
     for k in range(N):
         u = task.simulate.controls_at(y[-1] + 0.5 * h, nu)
         starts = ((np.concatenate([fesd.guess(h, y, w), [0.0]]), opts) for w, opts in _fesd_starts(builder, law, system, y, u, w_guess, options))
-        x = _first_converged(solver, comp_fn, starts, np.concatenate([y, u, left]), (lbx, ubx, lbg, ubg), options, total,
+        weights = np.zeros(n)
+        if collocated:  # options.velocity_switch COLLOCATED: everywhere; None: the contacts in persistent contact
+            weights = np.ones(n) if weights_fixed else _persistent_weights(system, left[:n], left[n:])
+        kind = "collocated" if weights.any() else "point"
+        total["collocated_steps"] += kind == "collocated"
+        solver, comp_fn = nlps[kind]
+        p = np.concatenate([y, u, left] + ([weights] if kind == "collocated" else []))
+        x = _first_converged(solver, comp_fn, starts, p, (lbx, ubx, lbg, ubg), options, total,
                              f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s)")
         if x is None:
             break
