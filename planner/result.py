@@ -159,8 +159,9 @@ def _contract_keys(result, terminal_error: float | None) -> dict:
 def _headline(result, details: str) -> str:
     """`COMMAND ROBOT: verdict in T s (steps, DETAILS NLPs, iterations, complementarity` (unclosed)."""
     tr, st = result.trajectory, result.stats
+    steps = round(float(tr.tau[-1] - tr.tau[0]) / result.h)  # not len(tau) - 1: FESD samples every element
     return (f"{result.command} {Path(result.robot).name}: {'converged' if st.converged else 'NOT converged'} in "
-            f"{st.solve_time_s:.2f} s ({len(tr.tau) - 1} steps of h = {result.h:g} s, {details}{st.n_nlp} NLPs, "
+            f"{st.solve_time_s:.2f} s ({steps} steps of h = {result.h:g} s, {details}{st.n_nlp} NLPs, "
             f"{st.ipopt_iterations} IPOPT iterations, complementarity {st.complementarity_residual:.1e}")
 
 

@@ -101,6 +101,8 @@ def test_simulate_fesd_from_the_command_line(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] and summary["impacts"]
     assert abs(summary["impacts"][0]["time"] - np.sqrt(2 * 0.2 / 9.81)) <= FESD_IMPACT_TOL_S
+    assert main(argv[:-5] + ["--discretization", "fesd", "--stages", "2"]) == 0  # the terminal's headline
+    assert "(10 steps of h = 0.04 s" in capsys.readouterr().out  # steps, not the elements the trajectory samples
     _one_line_exit_2(capsys, argv[:-4] + ["--discretization", "rk4"], "--discretization 'rk4' is not allowed")
 
 

@@ -242,8 +242,9 @@ def test_collocated_switch_velocity_is_the_collocated_rate_of_the_gap():
 
 
 @pytest.mark.slow
-def test_default_capler_fesd_simulation_holds_the_collapsing_stance():
-    """`planner simulate capler --discretization fesd` (n_s = 2, n_fe = 4, h = 0.02 s): the unactuated
+def test_unactuated_capler_fesd_simulation_holds_the_collapsing_stance():
+    """The default Capler task without its [simulate.pd] (zero controls), FESD n_s = 2, n_fe = 4,
+    h = 0.02 s (`planner simulate capler --discretization fesd` before session 8): the unactuated
     leg buckles in persistent contact (knee to 11 rad/s by tau = 1.02 s). With the default switching
     velocity (COLLOCATED for a contact in persistent contact) every step to tau = 1.2 s converges with
     complementarity <= comp_tol in one NLP, the foot never rises above the ground (beyond IPOPT's 1e-8
@@ -258,7 +259,7 @@ def test_default_capler_fesd_simulation_holds_the_collapsing_stance():
 
     robot = load_robot("capler")
     task = load_task(Path(__file__).parents[1] / "robots" / "capler.toml")
-    task = replace(task, horizon=replace(task.horizon, tau_f=1.2, N=60))
+    task = replace(task, horizon=replace(task.horizon, tau_f=1.2, N=60), simulate=replace(task.simulate, pd=None))
     options = SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=2, n_fe=4))
     result = simulate(robot, task, options)
     assert result.stats.converged, result.stats.message
