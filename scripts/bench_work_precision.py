@@ -724,7 +724,8 @@ PANELS = (("position error [m]\npoint mass: max |q - q_exact|; Capler: base vs F
 # the OCP suite's panels: the plan against a fine simulation of its own controls, against MuJoCo,
 # and (point mass) against the exact flight
 OCP_PANELS = (("re-simulation defect [m]\nbase vs implicit Euler at h/8 from the plan's state, every 0.1 s", {"ocp_": "defect_base_m"}),
-              ("MuJoCo tracking error [m]\nbase, joint PD on the plan (planner validate)", {"ocp_": "tracking_error_m"}),
+              ("MuJoCo tracking error [m]\nbase, joint PD, mean over 0.1 s windows from the plan (planner validate)",
+               {"ocp_": "tracking_window_mean_m"}),
               ("flight error [m]\npoint mass: max |q - q_exact| from its take-off", {"ocp_pm": "flight_error_m"}))
 MARKERS = "osD^vPX*hp<>"
 
