@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
                    help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
     p.add_argument("--window", type=float, default=None, metavar="SECONDS",
-                   help="restart the windowed tracking replay from the plan this often [s] (default 0.1)")
+                   help="length of the windows in which the tracking replay restarts from the plan [s] "
+                        "(default 0.1; one starts every 25 ms)")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_validate)
 

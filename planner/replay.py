@@ -22,6 +22,7 @@ Units: SI throughout (m, s, rad, N, N m). Arrays follow the result contract of .
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -760,8 +761,8 @@ class _Reference:
 
     def window(self, first: int, last: int) -> "_Reference":
         """The reference from MuJoCo step `first` to step `last` (both included)."""
-        out = object.__new__(_Reference)
-        out.dt, out.steps = self.dt, last - first
+        out = copy.copy(self)
+        out.steps = last - first
         out.times, out.q, out.v, out.u = (a[first:last + 1] for a in (self.times, self.q, self.v, self.u))
         return out
 
