@@ -164,6 +164,45 @@ def test_fesd_detects_the_first_foot_of_a_falling_biped():
     assert abs(times[Discretization.IMPLICIT_EULER] - exact) > 1e4 * IMPACT_TIME_TOL
 
 
+# foot_1's landing while foot_2 stands (docs/formulation.md, "Several contact points"): implicit Euler
+# at h = 1 ms puts it at 0.30170 s, early by O(h) like its foot_2 landing at that h (-4.9e-4 s); FESD's
+# landing is exact to ~1e-8 s, so the two differ by IE's error, not more than 1e-3 s
+BIPED_SECOND_LANDING_IE_1MS = 0.30170
+BIPED_SECOND_LANDING_TOL = 1e-3
+
+
+@pytest.mark.slow
+def test_fesd_runs_through_the_second_foot_landing_with_enough_elements():
+    """The biped drop continued to tau = 0.4 s: foot_1 lands while foot_2 stands, and its step holds
+    three switches (the landing; the end of foot_1's tangential jump, where foot_2 changes from held
+    to lifted; the end of the normal jump, where the clock restarts and foot_2 lifts off). With
+    n_fe = 4 elements (three free boundaries) and h = 0.01 s FESD runs through: foot_1's impact sits
+    within BIPED_SECOND_LANDING_TOL of implicit Euler's at h = 1 ms, foot_1 is at rest after the
+    impulse, stays on the ground, and foot_2 ends above the ground rising (implicit Euler: the body
+    pivots onto foot_1). n_fe = 2 cannot hold the three switches; at h = 0.02 s a 4-element solution of
+    that step exists, but the homotopy from the simulation's starts stalls above comp_tol (docs)."""
+    robot = load_robot("biped")
+    dyn = Dynamics(robot)
+    q0 = np.array([0.0, 1.0, 0.0, 0.3, -0.1])
+    q0[1] += BIPED_DROP_M - float(np.asarray(dyn.point_position("foot_2")(q0)).ravel()[-1])
+    feet = [{"point": f, "mu": 0.8, "a_n": 4000.0, "a_t": 12000.0} for f in ("foot_1", "foot_2")]
+    task = parse_task({"contacts": feet, "initial": {"q": q0.tolist()}, "horizon": {"tau_f": 0.4, "N": 40}})
+    result = simulate(robot, task, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=2, n_fe=4)), dynamics=dyn)
+    assert result.stats.converged, result.stats.message
+    tr = result.trajectory
+    assert tr.impacts[0].contact == "foot_2"
+    assert tr.impacts[0].time == pytest.approx(math.sqrt(2.0 * BIPED_DROP_M / G), abs=IMPACT_TIME_TOL)
+    second = next(imp for imp in tr.impacts if imp.contact == "foot_1")
+    assert second.time == pytest.approx(BIPED_SECOND_LANDING_IE_1MS, abs=BIPED_SECOND_LANDING_TOL)
+    after = int(np.nonzero(tr.t == second.time)[0][-1])  # the post-impact sample
+    foot_1 = lambda k: np.asarray(dyn.point_jacobian("foot_1")(tr.q[k])) @ tr.v[k]  # noqa: E731
+    assert np.abs(foot_1(after)).max() < FOOT_REST_TOL
+    height = lambda f, k: float(np.asarray(dyn.point_position(f)(tr.q[k])).ravel()[-1])  # noqa: E731
+    assert abs(height("foot_1", -1)) < FOOT_REST_TOL
+    foot_2_rate = float((np.asarray(dyn.point_jacobian("foot_2")(tr.q[-1])) @ tr.v[-1])[-1])
+    assert height("foot_2", -1) > 1e-3 and foot_2_rate > 0
+
+
 def test_implicit_euler_misses_the_impact_time():
     """Implicit Euler at the same step lands inside a step: its impact time is off by O(h), far more
     than IMPACT_TIME_TOL (measured 8.8e-3 s at h = 0.02)."""
