@@ -128,7 +128,7 @@ def test_fesd_detects_the_impact_exactly(n_s, n_fe, h):
 # A biped foot comes down at ~2.4 m/s from 0.3 m: the element boundary sits ~1e-8 m inside the
 # ground (IPOPT's bound relaxation), i.e. ~4e-9 s of its impact time (measured 4.1e-9 s)
 BIPED_DROP_M = 0.3
-FOOT_REST_TOL = 1e-6  # [m/s] the landed foot's velocity after the impulse: the barrier's residue (measured 4.6e-8)
+FOOT_REST_TOL = 1e-6  # [m/s] a landed foot's velocity after the impulse: the barrier's residue (measured 4.6e-8, and 4.5e-7 for the second landing)
 
 
 def test_fesd_detects_the_first_foot_of_a_falling_biped():
@@ -169,6 +169,9 @@ def test_fesd_detects_the_first_foot_of_a_falling_biped():
 # landing is exact to ~1e-8 s, so the two differ by IE's error, not more than 1e-3 s
 BIPED_SECOND_LANDING_IE_1MS = 0.30170
 BIPED_SECOND_LANDING_TOL = 1e-3
+# a foot in stance stays on the ground to the barrier's residue; the stance foot sank 5e-7 m during
+# the other foot's impact (docs/formulation.md, "Several contact points"); foot_1 ends at -1.4e-8 m (measured)
+STANCE_GAP_TOL_M = 1e-6
 
 
 @pytest.mark.slow
@@ -195,12 +198,18 @@ def test_fesd_runs_through_the_second_foot_landing_with_enough_elements():
     second = next(imp for imp in tr.impacts if imp.contact == "foot_1")
     assert second.time == pytest.approx(BIPED_SECOND_LANDING_IE_1MS, abs=BIPED_SECOND_LANDING_TOL)
     after = int(np.nonzero(tr.t == second.time)[0][-1])  # the post-impact sample
-    foot_1 = lambda k: np.asarray(dyn.point_jacobian("foot_1")(tr.q[k])) @ tr.v[k]  # noqa: E731
-    assert np.abs(foot_1(after)).max() < FOOT_REST_TOL
-    height = lambda f, k: float(np.asarray(dyn.point_position(f)(tr.q[k])).ravel()[-1])  # noqa: E731
-    assert abs(height("foot_1", -1)) < FOOT_REST_TOL
-    foot_2_rate = float((np.asarray(dyn.point_jacobian("foot_2")(tr.q[-1])) @ tr.v[-1])[-1])
-    assert height("foot_2", -1) > 1e-3 and foot_2_rate > 0
+
+    def velocity(foot, k):
+        return np.asarray(dyn.point_jacobian(foot)(tr.q[k])) @ tr.v[k]
+
+    def height(foot, k):
+        return float(np.asarray(dyn.point_position(foot)(tr.q[k])).ravel()[-1])
+
+    print(f"\nfoot_1 after its impact: velocity {np.abs(velocity('foot_1', after)).max():.2g} m/s; at the end: "
+          f"height {height('foot_1', -1):.2g} m; foot_2 height {height('foot_2', -1):.3g} m")
+    assert np.abs(velocity("foot_1", after)).max() < FOOT_REST_TOL
+    assert abs(height("foot_1", -1)) < STANCE_GAP_TOL_M
+    assert height("foot_2", -1) > 1e-3 and velocity("foot_2", -1)[-1] > 0
 
 
 def test_implicit_euler_misses_the_impact_time():
