@@ -346,11 +346,12 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     # are POINT's exactly (CasADi drops 0 * x), so flight and impact steps are solved as before
     collocated = builder.velocity_switch is SwitchVelocity.COLLOCATED
     weights_fixed = collocated and options.velocity_switch is SwitchVelocity.COLLOCATED
+    kinds = ("collocated",) if weights_fixed else ("point", "collocated") if collocated else ("point",)
     nlps = {}
-    for kind in ("collocated",) if weights_fixed else ("point", "collocated") if collocated else ("point",):
+    for kind in kinds:  # a POINT builder ignores gap_weight
         gap_weight = ca.SX.sym("gap_weight", n) if kind == "collocated" else ca.SX.zeros(0)
         iv = fesd.build(y_k, lambda y: _applied(law, system, u_k, y), h, lam_prev,
-                        gap_weight=(gap_weight if kind == "collocated" else 0.0) if collocated else None)
+                        gap_weight=gap_weight if kind == "collocated" else 0.0)
         nlp, comp_fn, n_eq, n_comp = _penalized_nlp(iv.x, [iv], ca.vertcat(y_k, u_k, lam_prev, gap_weight))
         nlps[kind] = (ca.nlpsol(f"fesd_{kind}", "ipopt", nlp, _ipopt_options(options)), comp_fn)
     lbx, ubx = np.concatenate([iv.lbx, [0.0]]), np.concatenate([iv.ubx, [np.inf]])
