@@ -6,13 +6,13 @@ display is needed and the caller's matplotlib backend and global state are left 
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from .errors import InputError
+from .result import write_atomically
 from .view import Result, load_result
 
 MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
@@ -41,12 +41,9 @@ def plot_results(out_dir) -> list[Path]:
 def _save(fig, name: str, directory: Path) -> Path:
     """Save atomically: an earlier plot of the same name stays intact until the new one is complete."""
     path = directory / name
-    tmp = directory / f".{name}.tmp"
     try:
-        fig.savefig(tmp, format="png", dpi=DPI)  # [dots per inch]
-        os.replace(tmp, path)
+        write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=DPI))  # [dots per inch]
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise InputError(f"cannot write {path}: {exc.strerror}") from None
     return path
 

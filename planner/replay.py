@@ -25,8 +25,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
-import tempfile
 import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -39,7 +37,7 @@ import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError
 from .model import Robot, RobotFormat, load_robot
-from .result import locate_input, read_summary, read_trajectory
+from .result import locate_input, read_summary, read_trajectory, write_atomically
 from .task import Task, load_task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -621,14 +619,7 @@ def write_validation(out_dir: str | Path, validation: Validation) -> Path:
     path = Path(out_dir) / "summary.json"
     summary = read_summary(Path(out_dir))
     summary["validation"] = validation.to_json()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".summary.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(summary, indent=2) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(path, json.dumps(summary, indent=2) + "\n")
     return path
 
 

@@ -374,10 +374,10 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     npz = out / "trajectory.npz"
-    _atomic(npz, lambda f: np.savez(f, **arrays))
+    write_atomically(npz, lambda f: np.savez(f, **arrays))
     path = out / "summary.json"
     text = json.dumps(summary, indent=2, default=_json_default) + "\n"
-    _atomic(path, lambda f: f.write(text.encode()))
+    write_atomically(path, text)
     return npz, path
 
 
@@ -389,8 +389,14 @@ def _json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
-def _atomic(path: Path, write) -> None:
-    """Write through a temp file in the same directory, then os.replace: readers never see half a file."""
+def write_atomically(path: str | os.PathLike, write) -> None:
+    """Write path through a temp file in the same directory, then os.replace: readers never see half a
+    file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
+    or bytes is written as it is (str as UTF-8)."""
+    path = Path(path)
+    if isinstance(write, (str, bytes)):
+        data = write.encode() if isinstance(write, str) else write
+        write = lambda f: f.write(data)  # noqa: E731
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:

@@ -30,7 +30,7 @@ import pinocchio as pin
 
 from .errors import InputError, PlannerError
 from .model import Robot, RobotFormat, load_robot
-from .result import locate_input, read_summary, read_trajectory
+from .result import locate_input, read_summary, read_trajectory, write_atomically
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -532,12 +532,9 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     vis = _visualizer(_Recorder())
     overlay = _draw(vis, load_result(out_dir), slow_motion)
     html = _page(vis.window.commands, overlay)
-    tmp = html_path.with_name(f".{html_path.name}.tmp")
     try:
-        tmp.write_text(html, encoding="utf-8")
-        tmp.replace(html_path)  # atomic: a reader never sees half a page
+        write_atomically(html_path, html)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise InputError(f"cannot write {html_path}: {exc.strerror}") from None
     return html_path
 

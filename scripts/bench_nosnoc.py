@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
+from planner.result import write_atomically
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -546,8 +547,8 @@ def main(argv: list[str] | None = None) -> int:
         for key, value in (rec.pop("_trajectory", None) or {}).items():
             arrays[f"{rec['solver']}_{rec['variant']}_{key}"] = value
     if arrays:
-        np.savez(args.out / "trajectories.npz", **arrays)
-    (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str))
+        write_atomically(args.out / "trajectories.npz", lambda f: np.savez(f, **arrays))
+    write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     text = table(records)
     if ratio is not None:
         text += f"\nwall time nosnoc (hint-free) / planner = {ratio:.2f}"

@@ -45,9 +45,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from planner.homotopy import SolveOptions, _terminal_rows, ipopt_options, solve, task_rho_schedule
+from planner.homotopy import SolveOptions, _terminal_rows, ipopt_options, keep_freed_memory, solve, task_rho_schedule
 from planner.model import load_robot
 from planner.problem import build_problem
+from planner.result import write_atomically
 from planner.task import Horizon, load_task, parse_task
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -256,17 +257,19 @@ def main(argv: list[str] | None = None) -> int:
             rec = {k: rec[k] for k in ("iterations", "objective", "cpu_ms_per_iter", "rest_cpu_ms_per_iter", "wall_ms_per_iter")}
         print(f"{case:<10} {what:<20} {json.dumps(rec, default=str)[:300]}", file=sys.stderr, flush=True)
 
+    # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
+    heap_kept = keep_freed_memory()
     load_before, start = os.getloadavg(), time.perf_counter()
     records = [run_case(c, args.quick, iters, repeats, variants, codegen, args.full, log) for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
-                           "casadi": ca.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+                           "casadi": ca.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "keep_freed_memory": heap_kept,
                            "date": datetime.date.today().isoformat(), "load_average_before": load_before,
                            "load_average_after": os.getloadavg()},
                "variants": {v: VARIANTS[v] for v in variants}, "records": records}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+    write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     plot(records, args.out / "pipeline.png")
     print(json.dumps(results, indent=1, default=str) if args.json else table(records))
     return 0

@@ -40,6 +40,7 @@ from planner.dynamics import Dynamics
 from planner.homotopy import solve
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
+from planner.result import write_atomically
 from planner.task import load_task, parse_task
 
 DEFAULT_OUT = Path("results/bench/skips")
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start, "cpu_count": os.cpu_count(),
                "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "load_average": os.getloadavg(), "records": records}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    write_atomically(args.out / "results.json", json.dumps(results, indent=1) + "\n")
     print(json.dumps(results, indent=1) if args.json else table(records))
     return 0
 

@@ -72,6 +72,7 @@ from planner.model import load_robot
 from planner.problem import build_problem
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
+from planner.result import write_atomically
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
@@ -843,7 +844,7 @@ def main(argv: list[str] | None = None) -> int:
     results = {"command": "python -m scripts.bench_work_precision " + " ".join(argv if argv is not None else sys.argv[1:]),
                "suite": args.suite, "quick": args.quick, "repeat": args.repeat, "total_wall_time_s": time.perf_counter() - start,
                "machine": machine, "references": refs, "orders": orders, "records": records}
-    (out / "results.json").write_text(json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
+    write_atomically(out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
     plot(records, out / "work_precision.png", PANELS if args.suite == "simulate" else OCP_PANELS)
     summary = {"results": str(out / "results.json"), "plot": str(out / "work_precision.png"),
                "n_records": len(records), "n_failed": sum(not r["converged"] for r in records),

@@ -45,6 +45,7 @@ import numpy as np
 
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
+from planner.result import write_atomically
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -623,10 +624,10 @@ def main(argv: list[str] | None = None) -> int:
     results = {"command": command, "seed": args.seed, "robot": args.robot, "per_family": args.per_family, "N": args.N,
                "solve_options": overrides, "scheduler": args.scheduler, "workers": args.workers, "total_wall_time_s": wall,
                "machine": machine, "summary": summary, "records": records}
-    (args.out / "results.json").write_text(json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
+    write_atomically(args.out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
     header = (f"Stress run `{command}` on {machine['date'][:10]}: {len(records)} tasks, base {args.robot}, seed {args.seed}, "
               f"{wall:.0f} s wall")
-    (args.out / "summary.md").write_text(markdown(summary, records, header))
+    write_atomically(args.out / "summary.md", markdown(summary, records, header))
     out = {"results": str(args.out / "results.json"), "summary_md": str(args.out / "summary.md"), "n_tasks": len(records),
            "total_wall_time_s": wall, **summary}
     if args.json:

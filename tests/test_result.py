@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from planner.model import load_robot
-from planner.result import SimulationResult, SolveStats, Trajectory, recover, write_results
+from planner.result import SimulationResult, SolveStats, Trajectory, recover, write_atomically, write_results
 from planner.simulate import simulate
 from planner.task import parse_task
 
@@ -119,3 +119,18 @@ def test_write_results_replaces_atomically(tmp_path):
     write_results(result, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
     assert json.loads((tmp_path / "summary.json").read_text())["impacts"] == []
+
+
+def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
+    """A writer that raises half-way leaves the previous file byte for byte and no temporary file behind."""
+    path = tmp_path / "results.json"
+    write_atomically(path, '{"good": 1}\n')
+
+    def crash(f):
+        f.write(b'{"half')
+        raise RuntimeError("crash while writing")
+
+    with pytest.raises(RuntimeError):
+        write_atomically(path, crash)
+    assert path.read_text() == '{"good": 1}\n'
+    assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
