@@ -134,3 +134,19 @@ def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
         write_atomically(path, crash)
     assert path.read_text() == '{"good": 1}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+def test_recover_ignores_a_frozen_sliver_of_numerical_time():
+    """A FESD element 1e-4 of the longest (above result.COLLAPSED) whose clock leaks (advance 2e-11 s)
+    is frozen by the per-step test, but a frozen run that stops the clock for less than frozen_tol of
+    the longest step is no impact: its samples are kept as running ones. The real impact of the same
+    trajectory is still found."""
+    tau, y, u, dt, dv, imp = handmade()
+    sliver = 1e-5  # [s] of numerical time; the FESD biped run had 2e-8 s against elements of 3.3e-3 s
+    y = np.insert(y, 7, y[6] + [0.0, 0.0, 2e-11], axis=0)
+    tau = np.insert(tau, 7, tau[6] + sliver)
+    dt, u = np.insert(dt, 6, sliver), np.insert(u, 6, u[6], axis=0)
+    dv, imp = np.insert(dv, 6, [1e-6], axis=0), np.insert(imp, 6, [[1e-6, 0.0]], axis=0)
+    t, _, _, _, impacts = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))
+    assert [im.time for im in impacts] == pytest.approx([0.24], abs=EXACT)
+    assert len(t) == 8  # the sliver's end is one more running sample
