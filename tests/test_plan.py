@@ -131,3 +131,37 @@ def test_capler_coarse_with_holes_every_nlp_converges_and_shows_fig6_phases():
     assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
     assert max(res.constraint_violation.values()) <= 1e-6
     assert_fig6_phases(res, robot, task, re_sticking=False)
+
+
+FESD_N = 100  # the hint-free FESD plan converges at N = 50 (through the soft-terminal retry), 75, 100 and 125; 100 is the quickest
+ON_GROUND_TOL = 1e-6  # [m] the foot's height at an FESD impact's start: the switch is an element boundary (rows to 1e-8)
+
+
+@pytest.mark.slow
+def test_capler_fesd_plan_from_the_hint_free_start():
+    """`planner plan capler --discretization fesd --stages 1 --elements 2 --steps 100` through the API:
+    FESD's own homotopy from the hint-free start converges (complementarity and terminal error <= 1e-6,
+    every constraint <= 1e-6), the plan shows Fig. 6's phases, and every impact starts with the foot on
+    the ground to ON_GROUND_TOL: switch detection puts the landing on an element boundary, where
+    implicit Euler lands inside a step. Measured 261 s, 4985 iterations (docs/benchmarks.md)."""
+    import dataclasses
+
+    from planner.cli import FESD_RHO_MAX
+    from planner.discretization import Discretization, FESDOptions
+    from planner.dynamics import Dynamics
+    from planner.homotopy import SolveOptions, solve
+    from planner.model import load_robot
+    from planner.problem import ProblemOptions, build_problem
+    from planner.task import load_task
+
+    robot, task = load_robot("robots/capler.xml"), load_task("robots/capler.toml")
+    task = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=FESD_N))
+    options = ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2))
+    res = solve(build_problem(robot, task, options), SolveOptions(rho_max=FESD_RHO_MAX))
+    assert res.stats.converged and res.polished, res.stats.message
+    assert res.stats.complementarity_residual <= 1e-6 and res.terminal_error <= 1e-6
+    assert max(res.constraint_violation.values()) <= 1e-6
+    assert_fig6_phases(res, robot, task, re_sticking=False)
+    foot = Dynamics(robot).point_position("foot")
+    heights = [float(np.asarray(foot(imp.q)).ravel()[-1]) for imp in res.trajectory.impacts]
+    assert heights and max(abs(z) for z in heights) <= ON_GROUND_TOL, heights
