@@ -61,6 +61,7 @@ FESDInterval. Blocks and shapes are in `_build_fesd`'s docstring; docs/formulati
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 from enum import Enum
@@ -241,6 +242,13 @@ class Problem:
     @property
     def ng(self) -> int:
         return self.g.shape[0]
+
+    @property
+    def signature(self) -> str:
+        """A digest of var_names: problems with the same one have the same x, variable by variable (the
+        same N, contacts, discretization and formulation), whatever the task's numbers (target, holes,
+        gains, bounds). A plan's x can start another problem with its signature (planner plan --init)."""
+        return hashlib.sha256("\n".join(self.var_names).encode()).hexdigest()[:16]
 
     def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
                terminal_weight: float = 0.0, rho_l1: float = 0.0) -> np.ndarray:

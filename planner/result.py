@@ -371,6 +371,8 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
     }
     if tr.forces is not None:
         arrays.update(forces=tr.forces, force_names=np.array(tr.force_names, dtype=str))
+    if "_x" in result.extra and "_signature" in result.extra:  # a plan: its NLP point, to start a replan from
+        arrays.update(nlp_x=np.asarray(result.extra["_x"], float), nlp_signature=np.array(result.extra["_signature"]))
     sampled = tr.contact_force_samples()
     if sampled is not None:
         arrays.update(lambda_n=sampled[0], lambda_t=sampled[1])
@@ -450,6 +452,22 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     if missing:
         raise InputError(f"{path} lacks {', '.join(missing)}")
     return arrays
+
+
+def read_start(out_dir: Path, signature: str, nx: int) -> np.ndarray:
+    """The NLP point (nx,) that a plan stored in out_dir/trajectory.npz, to start a problem whose
+    Problem.signature is `signature` from it; InputError when out_dir holds no plan's point or one of
+    other variables (another N, contact set, discretization or formulation)."""
+    arrays = read_trajectory(out_dir)
+    if "nlp_x" not in arrays or "nlp_signature" not in arrays:
+        raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
+    x = np.asarray(arrays["nlp_x"], float)
+    if str(arrays["nlp_signature"]) != signature or x.shape != (nx,):
+        raise InputError(f"the plan in {out_dir} has other NLP variables ({x.size} against this problem's {nx}): "
+                         "a start needs the same robot contacts, N, discretization and options")
+    if not np.all(np.isfinite(x)):
+        raise InputError(f"the NLP point in {Path(out_dir) / 'trajectory.npz'} is not finite")
+    return x
 
 
 def locate_input(name: str, out_dir: Path, what: str) -> Path:
