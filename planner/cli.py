@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", type=Path, metavar="DIR",
                    help="start from the plan in DIR (a `planner plan` result with the same contacts, N and options) and solve "
                         "one NLP at a high penalty, then polish: a replan after a change of target or bounds that DIR's plan "
-                        "nearly meets (Capler's target moved 0.1 m: ~4x faster than hint-free; holes moved under its footholds: "
+                        "nearly meets (Capler's target moved 0.1 m: ~5x faster than hint-free; holes moved under its footholds: "
                         "slower). Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
