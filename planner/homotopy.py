@@ -321,9 +321,9 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     from the start, monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local
     optimum next to the old plan (the same contact sequence, moved), not a new hint-free search."""
     return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO,), soft_terminal_nlps=0,
-                               holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
-                               mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
-                               bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
+                   holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
+                   mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
+                   bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
 
 
 def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dict:
