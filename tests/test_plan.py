@@ -143,7 +143,7 @@ def test_capler_fesd_plan_from_the_hint_free_start():
     FESD's own homotopy from the hint-free start converges (complementarity and terminal error <= 1e-6,
     every constraint <= 1e-6), the plan shows Fig. 6's phases, and every impact starts with the foot on
     the ground to ON_GROUND_TOL: switch detection puts the landing on an element boundary, where
-    implicit Euler lands inside a step. Measured 261 s, 4985 iterations (docs/benchmarks.md)."""
+    implicit Euler lands inside a step. 266 s here (session 9; the CLI run: 261 s, 4985 iterations, docs/benchmarks.md)."""
     import dataclasses
 
     from planner.cli import FESD_RHO_MAX
