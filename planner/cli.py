@@ -267,6 +267,8 @@ def _cmd_plan(args) -> int:
         problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx))
         solve_options = replan_options(solve_options)
     result = solve(problem, solve_options, progress=progress)
+    if args.init is not None:
+        result.options["init"] = str(args.init)  # summary.json says which plan this one started from
     target = _write(args, result, out)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"

@@ -202,7 +202,7 @@ HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
 
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: it converges
-    with one NLP at the replan penalty (summary.json's solve options say so). A DIR without a plan's
+    with one NLP at the replan penalty (summary.json's options say so, and name DIR). A DIR without a plan's
     NLP point (a simulation), a plan on another grid (--steps) and FESD are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
@@ -215,6 +215,7 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] and summary["polished"]
     assert summary["options"]["solve"]["rho_schedule"] == [1e4] and len(summary["nlps"]) == 2  # the NLP and the polish
+    assert summary["options"]["init"] == str(tmp_path / "hop")
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
