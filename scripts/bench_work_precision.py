@@ -70,9 +70,9 @@ from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, solve
 from planner.model import load_robot
 from planner.problem import build_problem
+from planner.result import write_atomically
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
-from planner.result import write_atomically
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
