@@ -96,6 +96,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fesd: hint_free (default: the FESD homotopy from y_0 everywhere, u = 0) or implicit_euler (solve the "
                         "implicit-Euler OCP from its hint-free start, map its plan onto the FESD variables, then FESD NLPs at "
                         "rho 1e4 and 1e5 and the polish; docs/formulation.md \"FESD in the OCP\")")
+    p.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE",
+                   help="an IPOPT option for every NLP of the homotopy (repeatable), e.g. --ipopt alpha_for_y=min; "
+                        "checked by IPOPT (SolveOptions.ipopt)")
+    p.add_argument("--warm-ipopt", action="append", default=[], metavar="NAME=VALUE",
+                   help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
     _add_common(p)
     p.set_defaults(run=_cmd_plan)
 
@@ -231,6 +236,22 @@ def _cmd_simulate(args) -> int:
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
+def _ipopt_args(flag: str, items: list[str]) -> dict:
+    """NAME=VALUE strings as IPOPT options: VALUE an int, a float or else a string (IPOPT checks it)."""
+    out = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name:
+            raise InputError(f"{flag} {item!r}: expected NAME=VALUE, e.g. {flag} alpha_for_y=min")
+        for kind in (int, float):
+            try:
+                out[name] = kind(text)
+                break
+            except ValueError:
+                out[name] = text
+    return out
+
+
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
     from .homotopy import FESDStart, SolveOptions, solve
@@ -238,7 +259,8 @@ def _cmd_plan(args) -> int:
 
     discretization, fesd = _discretization(args)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
-    solve_options = SolveOptions(print_level=5 if args.verbose else 0)
+    solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
+                                 warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
     fesd_start = _choice("--fesd-start", args.fesd_start, FESDStart)
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule

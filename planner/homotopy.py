@@ -27,7 +27,7 @@ says so (PlanResult.nlps).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, is_dataclass, replace
+from dataclasses import dataclass, fields, is_dataclass, replace
 from enum import Enum
 from typing import Callable
 
@@ -123,6 +123,12 @@ class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
     HYBRID = "hybrid"  # fix only the clearly separated pairs, penalize the rest (rho = hybrid_rho), then ACTIVE_SET
+
+
+# the SolveOptions fields that take an Enum (solve_options_from_dict reads them by value)
+ENUM_FIELDS = {"mu_strategy": MuStrategy, "holes": HoleSchedule, "polish": Polish, "warm_start": WarmStart,
+               "mumps_ordering": MumpsOrdering, "variable_scaling": VariableScaling, "regularization": Regularization,
+               "fesd_start": FESDStart}
 
 
 @dataclass(frozen=True)
@@ -224,6 +230,13 @@ class SolveOptions:
     default 1e-10 is well below IPOPT's tol (1e-8), the level at which the barrier leaves pairs whose
     two sides are both ~0: the FESD point-mass hop's rho = 1e4 NLP ends at 1e-8, and the polish from
     there took 2285 iterations to a plan without its landing, against 19 from the rho = 1e5 point.
+    ipopt: further IPOPT options for every NLP of the homotopy (a dict or (name, value) pairs, kept as
+    sorted pairs), e.g. {"alpha_for_y": "min"}; warm_ipopt: the same for NLP 2 and later only (over
+    ipopt). Checked against IPOPT when the options are made: an unknown name or a value IPOPT rejects
+    is an InputError, and so is an option a field above owns (IPOPT_OWNED: "tol" is set through tol).
+    The projection polish keeps its own barrier settings. Measured on the default Capler task: warm
+    alpha_for_y = min takes NLP 2 alone from 1535 to 1044 iterations, but the whole solve to more
+    (docs/benchmarks.md, "Full solves and the gap", session 10).
     """
 
     tol: float = 1e-8
@@ -267,11 +280,13 @@ class SolveOptions:
     early_stop_comp: float | None = 1e-10
     fesd_start: FESDStart = FESDStart.HINT_FREE
     fesd_rho_schedule: tuple[float, ...] = (1e4, 1e5)
+    ipopt: tuple[tuple[str, object], ...] = ()
+    warm_ipopt: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self):
-        for key, enum in (("mu_strategy", MuStrategy), ("holes", HoleSchedule), ("polish", Polish), ("warm_start", WarmStart),
-                          ("mumps_ordering", MumpsOrdering), ("variable_scaling", VariableScaling),
-                          ("regularization", Regularization), ("fesd_start", FESDStart)):
+        for key in ("ipopt", "warm_ipopt"):
+            object.__setattr__(self, key, _ipopt_pairs(key, getattr(self, key), warm=key == "warm_ipopt"))
+        for key, enum in ENUM_FIELDS.items():
             if key == "variable_scaling" and self.variable_scaling is None:
                 continue
             if not isinstance(getattr(self, key), enum):
@@ -303,6 +318,73 @@ class SolveOptions:
         for ok, key, value, allowed in checks:
             if not ok:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> SolveOptions:
+    """`base` (default SolveOptions()) with the fields in `values` (e.g. parsed JSON): Enum fields by their
+    value ("monotone"), lists as tuples, ipopt / warm_ipopt as dicts. Unknown fields and values are InputErrors."""
+    names = [f.name for f in fields(SolveOptions)]
+    out = {}
+    for key, value in values.items():
+        if key not in names:
+            raise InputError(f"SolveOptions has no field {key!r}; the fields are {names}")
+        if key in ENUM_FIELDS and value is not None:
+            allowed = [e.value for e in ENUM_FIELDS[key]]
+            if value not in allowed:
+                raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be one of {allowed}")
+            value = ENUM_FIELDS[key](value)
+        out[key] = tuple(value) if isinstance(value, list) else value
+    return replace(base or SolveOptions(), **out)
+
+
+# IPOPT options that SolveOptions fields set (ipopt_options): SolveOptions.ipopt must not fight them
+IPOPT_OWNED = {"tol": "tol", "acceptable_tol": "acceptable_tol", "max_iter": "max_iter", "print_level": "print_level",
+               "sb": "print_level", "linear_solver": "linear_solver", "mu_strategy": "mu_strategy", "mu_init": "mu_init",
+               "bound_push": "bound_push", "bound_frac": "bound_frac", "nlp_scaling_method": "nlp_scaling_method",
+               "mumps_pivot_order": "mumps_ordering", "warm_start_init_point": "warm_start"}
+
+
+def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...]:
+    """SolveOptions.ipopt / warm_ipopt as sorted (name, value) pairs, checked by IPOPT itself."""
+    try:
+        pairs = tuple(sorted(dict(given).items()))
+    except (TypeError, ValueError):
+        raise InputError(f"SolveOptions.{field} = {given!r} is not allowed; it must be a dict of IPOPT options") from None
+    for name, value in pairs:
+        if not isinstance(name, str) or isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; names are strings, values numbers or strings")
+        owner = "warm_mu_init" if (warm and name == "mu_init") else IPOPT_OWNED.get(name)
+        if owner:
+            raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that instead")
+    if pairs:
+        _check_with_ipopt(field, dict(pairs))
+    return pairs
+
+
+def _check_with_ipopt(field: str, opts: dict) -> None:
+    """Create IPOPT for min x^2 with `opts`; IPOPT's complaint (it prints it, CasADi raises) as an InputError."""
+    import contextlib
+    import io
+    x = ca.SX.sym("x")
+    error, printed = None, io.StringIO()
+    with contextlib.redirect_stdout(printed):  # CasADi's Python interface prints IPOPT's output through sys.stdout
+        try:
+            ca.nlpsol("ipopt_option_check", "ipopt", {"x": x, "f": x * x}, {"print_time": False, "ipopt": dict(opts, print_level=0, sb="yes")})
+        except RuntimeError as e:
+            error = e
+    text = printed.getvalue()
+    if error is None:
+        return
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    reason = lines[0] if lines else str(error).strip().splitlines()[-1].split(": ", 1)[-1]
+    if reason == "type mismatch":
+        reason += " (IPOPT takes numbers for its numeric options and strings for the others)"
+    if "Valid Settings:" in lines:
+        names = [ln.split()[0] for ln in lines[lines.index("Valid Settings:") + 1:] if not ln.startswith("Default:")]
+        reason += " Valid: " + ", ".join(names)
+    else:
+        reason += "".join(f" Range: {ln}" for ln in lines if "<=" in ln)
+    raise InputError(f"SolveOptions.{field} = {opts!r} is not allowed: {reason}")
 
 
 # Replanning from a converged plan of a nearby task (planner plan --init): its point is already
@@ -345,6 +427,9 @@ def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dic
                   warm_start_mult_bound_push=options.bound_push)
     if warm and options.warm_mu_init is not None:
         ip["mu_init"] = options.warm_mu_init
+    ip.update(options.ipopt)
+    if warm:
+        ip.update(options.warm_ipopt)
     return {"print_time": False, "ipopt": ip}
 
 

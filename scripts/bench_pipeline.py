@@ -14,13 +14,16 @@ Variants (VARIANTS): IPOPT/MUMPS options, and with --codegen the NLP's functions
 (nlpsol.generate_dependencies), compiled with gcc (--codegen-flags) into --cache (file name: the
 hash of the C source, so a second run reuses it) and loaded with nlpsol(..., "lib.so"); generate
 and compile times are recorded separately. With --full, the default task of each case is also
-solved end to end with the default SolveOptions (iterations x per-iteration cost).
+solved end to end with the default SolveOptions (iterations x per-iteration cost), or once per --solve
+JSON object with those SolveOptions fields changed (e.g. '{}' '{"warm_ipopt": {"alpha_for_y": "min"}}'
+'{"rho_schedule": [300, 1000, 3000, 1e4, 1e5, 1e6]}': three solves); --full-only skips the
+fixed-iteration runs.
 
 Cases: capler50 (robots/capler.toml with N = 50, h = 0.05 s), capler125 (the default N = 125),
 hop (the point mass hopping to x = 0.5 m, N = 40, tests/test_homotopy.py's task).
 
     python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
-        [--variants NAME ...] [--codegen] [--full] [--out DIR] [--json]      (repository root)
+        [--variants NAME ...] [--codegen] [--full] [--full-only] [--solve JSON ...] [--out DIR] [--json]  (repository root)
 
 --quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
 """
@@ -45,7 +48,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from planner.homotopy import SolveOptions, _terminal_rows, ipopt_options, keep_freed_memory, solve, task_rho_schedule
+from planner.homotopy import (SolveOptions, _terminal_rows, ipopt_options, keep_freed_memory, solve, solve_options_from_dict,
+                              task_rho_schedule)
+from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.result import write_atomically
@@ -154,7 +159,8 @@ def median_record(runs: list[dict]) -> dict:
     return out
 
 
-def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None, full: bool, log) -> dict:
+def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None,
+             full: list[tuple[dict, SolveOptions]], log) -> dict:
     robot, task = CASES[name](quick)
     t0 = time.perf_counter()
     problem = build_problem(robot, task)
@@ -162,6 +168,7 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
            "build_s": time.perf_counter() - t0, "iters": iters}
     options = SolveOptions(max_iter=iters)
     nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
+    rec["variants"] = {}
     solvers, create_s = {}, {}
     for v in variants:
         opts = ipopt_options(options, False)
@@ -169,7 +176,8 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
         t0 = time.perf_counter()
         solvers[v] = ca.nlpsol("bench_" + "".join(ch if ch.isalnum() else "_" for ch in v).strip("_").replace("__", "_"), "ipopt", nlp, opts)
         create_s[v] = time.perf_counter() - t0
-    rec["solver_create_s"] = create_s.get("baseline", next(iter(create_s.values())))
+    if create_s:
+        rec["solver_create_s"] = create_s.get("baseline", next(iter(create_s.values())))
     if codegen is not None:
         base = solvers.get("baseline") or next(iter(solvers.values()))
         info = compile_nlp(base, codegen["cache"], codegen["flags"])
@@ -188,15 +196,18 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
     rec["variants"] = {v: {**median_record(r), "create_s": create_s[v]} for v, r in runs.items()}
     for v, r in rec["variants"].items():
         log(name, v, r)
-    if full:
+    rec["full_solves"] = []
+    for given, options in full:
         c0, t0 = time.process_time(), time.perf_counter()
-        res = solve(problem)
-        rec["full_solve"] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-                             "ipopt_iterations": res.stats.ipopt_iterations, "nlp_iterations": [r.iterations for r in res.nlps],
-                             "n_nlp": res.stats.n_nlp, "converged": res.stats.converged, "complementarity": res.stats.complementarity_residual,
-                             "terminal_error": res.terminal_error, "control_cost": res.extra["control_cost"], "timings": res.timings,
-                             "message": res.stats.message}
-        log(name, "full", rec["full_solve"])
+        res = solve(problem, options)
+        rec["full_solves"].append({
+            "solve": given, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+            "ipopt_iterations": res.stats.ipopt_iterations, "nlp_iterations": [r.iterations for r in res.nlps],
+            "nlp_status": [r.status for r in res.nlps], "rho": [r.rho for r in res.nlps], "hops": len(res.hops),
+            "n_nlp": res.stats.n_nlp, "converged": res.stats.converged, "complementarity": res.stats.complementarity_residual,
+            "terminal_error": res.terminal_error, "control_cost": res.extra["control_cost"], "timings": res.timings,
+            "message": res.stats.message})
+        log(name, "full", rec["full_solves"][-1])
     return rec
 
 
@@ -209,6 +220,13 @@ def table(records) -> str:
             lines.append(f"| {r['case']} | {v} | {m['iterations']} | {m['objective']:.10g} | {m['cpu_ms_per_iter']:.2f} | "
                          f"{sum(ev.values()):.2f} ({', '.join(f'{ev[c]:.2f}' for c in CALLBACKS)}) | {m['rest_cpu_ms_per_iter']:.2f} | "
                          f"{m['wall_ms_per_iter']:.2f} | {m['create_s']:.2f} |")
+    full = [(r["case"], f) for r in records for f in r["full_solves"]]
+    if full:
+        lines += ["", "| case | --solve | end-to-end: iterations per NLP | total | converged | control cost | hops | wall s |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for case, f in full:
+            lines.append(f"| {case} | `{json.dumps(f['solve'])}` | {' / '.join(map(str, f['nlp_iterations']))} | {f['ipopt_iterations']} | "
+                         f"{f['converged']} | {f['control_cost']:.1f} | {f['hops']} | {f['wall_s']:.1f} |")
     return "\n".join(lines)
 
 
@@ -244,10 +262,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--codegen-flags", nargs="+", default=["-O1"], help="gcc flags of --codegen (default -O1)")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
+    parser.add_argument("--full-only", action="store_true", help="only the end-to-end solve (no fixed-iteration runs)")
+    parser.add_argument("--solve", nargs="+", default=["{}"], metavar="JSON",
+                        help="one end-to-end solve per JSON object of SolveOptions fields (default '{}': the defaults), "
+                             "e.g. '{\"warm_ipopt\": {\"alpha_for_y\": \"min\"}}'")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     cases = args.cases or (["hop"] if args.quick else list(CASES))
-    variants = ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
+    variants = [] if args.full_only else ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
+    full = []
+    for text in args.solve if (args.full or args.full_only) else []:
+        try:
+            given = json.loads(text)
+            full.append((given, solve_options_from_dict(given)))
+        except (json.JSONDecodeError, InputError, AttributeError) as e:
+            parser.error(f"--solve {text}: {e}")
     iters = args.iters or (10 if args.quick else 150)
     repeats = args.repeats or (1 if args.quick else 3)
     codegen = {"cache": args.cache, "flags": [f for f in args.codegen_flags]} if args.codegen else None
@@ -260,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
     heap_kept = keep_freed_memory()
     load_before, start = os.getloadavg(), time.perf_counter()
-    records = [run_case(c, args.quick, iters, repeats, variants, codegen, args.full, log) for c in cases]
+    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log) for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
@@ -270,7 +299,8 @@ def main(argv: list[str] | None = None) -> int:
                "variants": {v: VARIANTS[v] for v in variants}, "records": records}
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
-    plot(records, args.out / "pipeline.png")
+    if any(r["variants"] for r in records):
+        plot(records, args.out / "pipeline.png")
     print(json.dumps(results, indent=1, default=str) if args.json else table(records))
     return 0
 

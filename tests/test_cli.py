@@ -34,6 +34,9 @@ def test_check_model_json_contract():
         (["check-model", "capler", "--samples", "0"], "--samples must be >= 1"),
         (["check-model"], "the following arguments are required: robot"),
         (["fly", "capler"], "invalid choice: 'fly'"),
+        (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),
+        (["plan", "point_mass", "--warm-ipopt", "tol=1e-3"], "SolveOptions.tol owns"),
+        (["plan", "point_mass", "--ipopt", "alpha_for_y"], "expected NAME=VALUE"),
     ],
 )
 def test_user_errors_are_one_line_exit_2(argv, fragment, capsys):

@@ -1,6 +1,8 @@
 """The homotopy solves a small frictional hop exactly; options are validated."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -189,6 +191,40 @@ def test_mumps_ordering_is_passed_to_ipopt():
     assert "mumps_pivot_order" not in H.ipopt_options(H.SolveOptions(linear_solver="ma27"), warm=False)["ipopt"]
     with pytest.raises(InputError, match="metis"):
         H.SolveOptions(mumps_ordering="nested")
+
+
+@pytest.mark.parametrize("kwargs, fragment", [
+    ({"ipopt": {"no_such_option": 1}}, "No such IPOPT option: no_such_option"),
+    ({"ipopt": {"alpha_for_y": "sideways"}}, "Valid: primal, bound-mult, min"),
+    ({"warm_ipopt": {"max_cpu_time": -1.0}}, "Range: 0 <"),
+    ({"ipopt": {"tol": 1e-3}}, "SolveOptions.tol owns"),
+    ({"warm_ipopt": {"mu_init": 1e-3}}, "SolveOptions.warm_mu_init owns"),
+    ({"ipopt": {"print_user_options": True}}, "values numbers or strings"),
+    ({"ipopt": ["alpha_for_y"]}, "must be a dict of IPOPT options"),
+])
+def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment):
+    """SolveOptions.ipopt / warm_ipopt: what IPOPT rejects (unknown name, value outside its list or range), an
+    option a field owns, and a malformed value are InputErrors when the options are made, with IPOPT's reason."""
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        H.SolveOptions(**kwargs)
+
+
+CPU_LIMIT = 1e-9  # [s] IPOPT's max_cpu_time: expires at the first check, so the NLP's status shows the option arrived
+
+
+def test_ipopt_pass_through_reaches_the_cold_and_the_warm_nlps():
+    """ipopt reaches every homotopy NLP, warm_ipopt only NLP 2 on: with max_cpu_time ~0 there, exactly those
+    NLPs stop with IPOPT's CPU-time status; the options are kept as sorted pairs."""
+    robot, task = load_robot("robots/point_mass.xml"), hop_task(N=10)
+    problem = build_problem(robot, task)
+    base = dict(rho_schedule=(100.0, 1000.0), polish=H.Polish.NONE, retry_terminal_weight=None, early_stop_comp=None)
+    warm = H.solve(problem, H.SolveOptions(**base, warm_ipopt={"max_cpu_time": CPU_LIMIT}))
+    assert [r.status for r in warm.nlps] == ["Solve_Succeeded", "Maximum_CpuTime_Exceeded"]
+    every = H.solve(problem, H.SolveOptions(**base, ipopt={"max_cpu_time": CPU_LIMIT}))
+    assert [r.status for r in every.nlps] == ["Maximum_CpuTime_Exceeded"] * 2
+    opts = H.SolveOptions(ipopt={"max_soc": 0, "alpha_for_y": "min"})
+    assert opts.ipopt == (("alpha_for_y", "min"), ("max_soc", 0))
+    assert H.ipopt_options(opts, warm=False)["ipopt"]["alpha_for_y"] == "min"
 
 
 def test_gating_and_ungate_keep_the_trajectory():

@@ -526,3 +526,20 @@ def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
         assert json.loads(capsys.readouterr().out)["records"][0]["codegen"]["cached"]
     monkeypatch.setattr(bench.shutil, "which", lambda name: None)
     assert "gcc not found" in bench.compile_nlp(None, tmp_path / "cache", ["-O1"])["skipped"]
+
+
+def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
+    """--full-only --solve JSON: only the end-to-end solve runs, once per JSON object, with those SolveOptions fields (here
+    warm_ipopt max_cpu_time ~0, so NLP 2 on stop with IPOPT's CPU-time status and NLP 1 does not); a field
+    or value SolveOptions does not know is a usage error (exit 2)."""
+    bench = _load("bench_pipeline")
+    solve = json.dumps({"warm_ipopt": {"max_cpu_time": 1e-9}, "rho_schedule": [100, 1000], "polish": "none"})
+    assert bench.main(["--quick", "--full-only", "--json", "--out", str(tmp_path), "--solve", solve]) == 0
+    (rec,) = json.loads(capsys.readouterr().out)["records"]
+    assert rec["variants"] == {} and not (tmp_path / "pipeline.png").exists()
+    (full,) = rec["full_solves"]
+    assert full["solve"] == json.loads(solve)
+    assert full["nlp_status"][0] != "Maximum_CpuTime_Exceeded" and full["nlp_status"][1:] == ["Maximum_CpuTime_Exceeded"]
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(["--quick", "--full-only", "--out", str(tmp_path), "--solve", '{"polish": "sometimes"}'])
+    assert exit_info.value.code == 2 and "active_set" in capsys.readouterr().err
