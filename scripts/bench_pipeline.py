@@ -2,7 +2,8 @@
 
 For each case: the build (build_problem) [s], the creation of the cold IPOPT (nlpsol: the SX
 derivatives) [s], and a fixed-iteration run of the homotopy's NLP 1 (the hint-free start, the first
-rho of the schedule, holes relaxed, soft terminal: exactly what planner.homotopy.solve runs first)
+rho of the schedule, holes relaxed, soft terminal: exactly what planner.homotopy.solve runs first;
+with --nlp 2 the homotopy's NLP 2 instead, from NLP 1's solution, in the variables solve gives it)
 with IPOPT's max_iter = --iters, split per iteration into the function evaluations (per callback:
 nlp_f, nlp_g, nlp_grad_f, nlp_jac_g, nlp_hess_l, CasADi's own timers) and the rest (MUMPS and
 IPOPT's own work). Every variant starts from the same point with the same options but one, so
@@ -23,7 +24,7 @@ Cases: capler50 (robots/capler.toml with N = 50, h = 0.05 s), capler125 (the def
 hop (the point mass hopping to x = 0.5 m, N = 40, tests/test_homotopy.py's task).
 
     python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
-        [--variants NAME ...] [--codegen] [--full] [--full-only] [--solve JSON ...] [--out DIR] [--json]  (repository root)
+        [--variants NAME ...] [--nlp 1|2] [--codegen] [--full] [--full-only] [--solve JSON ...] [--out DIR] [--json]
 
 --quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
 """
@@ -48,8 +49,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from planner.homotopy import (SolveOptions, _terminal_rows, ipopt_options, keep_freed_memory, solve, solve_options_from_dict,
-                              task_rho_schedule)
+from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_options, keep_freed_memory, solve,
+                              solve_options_from_dict, task_rho_schedule, variable_scale)
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
@@ -75,6 +76,17 @@ VARIANTS = {
     "slack_based_scaling": {"linear_system_scaling": "slack-based"},
     "fixed_relax_bounds": {"fixed_variable_treatment": "relax_bounds"},
     "perturb_dec_0.6": {"perturb_dec_fact": 0.6},
+    # IPOPT's step rules (session 10, run on NLP 2 with --nlp 2 --iters 3000: iterations to convergence)
+    "alpha_for_y_min": {"alpha_for_y": "min"},
+    "alpha_for_y_safer": {"alpha_for_y": "safer-min-dual-infeas"},
+    "alpha_for_y_bound_mult": {"alpha_for_y": "bound-mult"},
+    "corrector_affine": {"corrector_type": "affine"},
+    "corrector_primal_dual": {"corrector_type": "primal-dual"},
+    "recalc_y": {"recalc_y": "yes"},
+    "kappa_d_0": {"kappa_d": 0.0},
+    "max_soc_0": {"max_soc": 0},
+    "mu_globalization_kkt": {"adaptive_mu_globalization": "kkt-error"},
+    "mu_globalization_never_monotone": {"adaptive_mu_globalization": "never-monotone-mode"},
 }
 
 
@@ -102,6 +114,22 @@ def nlp1_arguments(problem, options: SolveOptions) -> dict:
     lbg[rows], ubg[rows] = -np.inf, np.inf
     p = problem.params(rho, 0.0, terminal_weight=options.soft_terminal_weight)
     return {"x0": problem.x0, "p": p, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": lbg, "ubg": ubg}
+
+
+def nlp2_setup(problem) -> tuple[dict, dict]:
+    """NLP 1 solved as planner.homotopy.solve solves it (default options), then the NLP that solve hands
+    IPOPT for NLP 2 (x / D with D from NLP 1's solution when the task scales its variables) and its
+    arguments (the second rho of the schedule, holes and hard terminal on, from NLP 1's point)."""
+    options = SolveOptions()
+    solvers = _Solvers(problem, options)
+    x1 = np.asarray(solvers.get(False)(**nlp1_arguments(problem, options))["x"], float).ravel()
+    scaled = problem.task.plan.homotopy.scale_variables
+    D = variable_scale(problem, x1) if scaled else np.ones(problem.nx)
+    solvers.set_scale(D)
+    rho = task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)[1]
+    args = {"x0": x1 / D, "p": problem.params(rho, 1.0), "lbx": problem.lbx / D, "ubx": problem.ubx / D,
+            "lbg": problem.lbg, "ubg": problem.ubg}
+    return solvers.scaled_nlp, args
 
 
 def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
@@ -160,18 +188,22 @@ def median_record(runs: list[dict]) -> dict:
 
 
 def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None,
-             full: list[tuple[dict, SolveOptions]], log) -> dict:
+             full: list[tuple[dict, SolveOptions]], log, nlp_index: int = 1) -> dict:
     robot, task = CASES[name](quick)
     t0 = time.perf_counter()
     problem = build_problem(robot, task)
     rec = {"case": name, "N": task.horizon.N, "h": task.horizon.h, "n_variables": problem.nx, "n_constraints": problem.ng,
-           "build_s": time.perf_counter() - t0, "iters": iters}
+           "build_s": time.perf_counter() - t0, "iters": iters, "nlp": nlp_index}
     options = SolveOptions(max_iter=iters)
-    nlp = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}
+    if nlp_index == 2 and variants:
+        nlp, args = nlp2_setup(problem)
+    else:
+        nlp, args = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, nlp1_arguments(problem, SolveOptions())
+    warm = nlp_index == 2
     rec["variants"] = {}
     solvers, create_s = {}, {}
     for v in variants:
-        opts = ipopt_options(options, False)
+        opts = ipopt_options(options, warm)
         opts["ipopt"].update(VARIANTS[v])
         t0 = time.perf_counter()
         solvers[v] = ca.nlpsol("bench_" + "".join(ch if ch.isalnum() else "_" for ch in v).strip("_").replace("__", "_"), "ipopt", nlp, opts)
@@ -186,9 +218,8 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
         if info["so"] is not None:
             label = "codegen_" + "".join(codegen["flags"]).replace("-", "")
             t0 = time.perf_counter()
-            solvers[label] = ca.nlpsol("bench_codegen", "ipopt", info["so"], ipopt_options(options, False))
+            solvers[label] = ca.nlpsol("bench_codegen", "ipopt", info["so"], ipopt_options(options, warm))
             create_s[label] = time.perf_counter() - t0
-    args = nlp1_arguments(problem, SolveOptions())
     runs = {v: [] for v in solvers}
     for _ in range(repeats):  # interleaved: a load change hits every variant alike
         for v, s in solvers.items():
@@ -244,7 +275,7 @@ def plot(records, path: Path) -> None:
         left += w
     ax.set_yticks(y, [label for label, _ in rows], fontsize=7)
     ax.invert_yaxis()
-    ax.set_xlabel("CPU time per IPOPT iteration [ms] (NLP 1, fixed iterations)")
+    ax.set_xlabel(f"CPU time per IPOPT iteration [ms] (NLP {records[0]['nlp']}, fixed iterations)")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -263,6 +294,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
     parser.add_argument("--full-only", action="store_true", help="only the end-to-end solve (no fixed-iteration runs)")
+    parser.add_argument("--nlp", type=int, choices=(1, 2), default=1,
+                        help="the homotopy NLP of the fixed-iteration runs: 1 (default) or 2 (from NLP 1's solution, as solve runs it)")
     parser.add_argument("--solve", nargs="+", default=["{}"], metavar="JSON",
                         help="one end-to-end solve per JSON object of SolveOptions fields (default '{}': the defaults), "
                              "e.g. '{\"warm_ipopt\": {\"alpha_for_y\": \"min\"}}'")
@@ -289,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
     heap_kept = keep_freed_memory()
     load_before, start = os.getloadavg(), time.perf_counter()
-    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log) for c in cases]
+    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp) for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),

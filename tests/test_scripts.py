@@ -12,6 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner import homotopy as H
+from planner.problem import build_problem
+
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
@@ -543,3 +546,21 @@ def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--quick", "--full-only", "--out", str(tmp_path), "--solve", '{"polish": "sometimes"}'])
     assert exit_info.value.code == 2 and "active_set" in capsys.readouterr().err
+
+
+SAME_OBJECTIVE_REL = 1e-9  # the same IPOPT on the same NLP from the same point: equal up to round-off
+
+
+def test_bench_pipeline_nlp2_is_the_homotopys_nlp2(tmp_path, capsys):
+    """--nlp 2 runs the NLP that solve() hands IPOPT second (from NLP 1's solution, holes and hard terminal
+    on, its variables and rho): run to convergence, its baseline takes solve()'s NLP 2 iterations to solve()'s
+    NLP 2 objective."""
+    bench = _load("bench_pipeline")
+    robot, task = bench.hop_case(6)
+    nlp2 = H.solve(build_problem(robot, task)).nlps[1]
+    assert bench.main(["--quick", "--nlp", "2", "--iters", "3000", "--variants", "baseline", "--json", "--out", str(tmp_path)]) == 0
+    (rec,) = json.loads(capsys.readouterr().out)["records"]
+    base = rec["variants"]["baseline"]
+    assert rec["nlp"] == 2 and base["status"] == nlp2.status == "Solve_Succeeded"
+    assert base["iterations"] == nlp2.iterations
+    assert base["objective"] == pytest.approx(nlp2.objective, rel=SAME_OBJECTIVE_REL)
