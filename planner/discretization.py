@@ -33,6 +33,21 @@ from .timefreezing import ContactModel, TimeFreezingSystem
 W_BLOCKS = ("sigma", "theta", "lambda0", "lambda1")
 
 
+# The several-contact guesses below start hint-free solves whose path depends on the last bits of the start
+# (the biped walk, FESD steps with two feet). numpy's small solves and products go through the BLAS kernels
+# its OpenBLAS picks for the CPU (Haswell or SkylakeX ones: different round-off; with Haswell's the biped walk
+# did not converge, docs/formulation.md "Periodic walking"); CasADi's dense solve and product are the same
+# code on every machine.
+def _solve(A, b) -> np.ndarray:
+    """A^-1 b (n,) for a small dense A (n, n); nan where A is singular."""
+    return np.asarray(ca.solve(ca.DM(np.asarray(A, float)), ca.DM(np.asarray(b, float))), float).ravel()
+
+
+def _matvec(A, x) -> np.ndarray:
+    """A x for a small dense A (m, n) and x (n,)."""
+    return np.asarray(ca.mtimes(ca.DM(np.asarray(A, float)), ca.DM(np.asarray(x, float))), float).ravel()
+
+
 class StepForm(Enum):
     """How the step writes the velocity rows of y' = F.
 
@@ -222,7 +237,7 @@ class ImplicitEulerStep:
             if self.mm is None:
                 return lam
             Jt = self._stacked_jacobian(y)
-            return np.concatenate([acc, lam, np.linalg.solve(M, Jt.T @ lam)])
+            return np.concatenate([acc, lam, _solve(M, _matvec(Jt.T, lam))])
         lam, ds = [], []
         for model, terms in zip(sys_.models, sys_.terms):
             no_slip = model is ContactModel.NO_SLIP
@@ -230,7 +245,7 @@ class ImplicitEulerStep:
             lam_c, n_c, t_c = (np.asarray(a, float).ravel() for a in fn(y, u))
             J = np.vstack([n_c, t_c]) if no_slip else n_c[None, :]
             lam.append(lam_c)
-            ds.append(np.linalg.solve(M, J.T @ lam_c))
+            ds.append(np.linalg.solve(M, J.T @ lam_c))  # one contact: kept as it was (the Capler benchmarks' start)
         return np.concatenate([acc, *lam, *ds])
 
     def _stacked_jacobian(self, y) -> np.ndarray:
@@ -249,20 +264,17 @@ class ImplicitEulerStep:
         sys_ = self.system
         x = sys_.variables(np.asarray(sigma, float))
         z = np.concatenate([[1.0], x, [np.prod([x[i] for i in m]) for m in self.lifted]])
-        s = self.switch_matrix @ z
+        s = _matvec(self.switch_matrix, z)
         zero = np.zeros(sys_.n_lambda)
         b = np.asarray(sys_.constraint_fn(y, u, zero), float).ravel()  # J f_v + dJ/dt v
         G = np.column_stack([np.asarray(sys_.constraint_fn(y, u, e), float).ravel() - b for e in np.eye(sys_.n_lambda)])
         A = s[:, None] * G + np.diag((1 - s) * sys_.force_scale)
         # with dependent contact rows (e.g. foot and knee on one line) A is singular and any force that
         # balances is as good as another for a guess: least squares. Not always: its round-off differs from
-        # the LU solve's, and the biped walk's hint-free solve (tests/test_walk.py) fails from that start
-        try:
-            lam = np.linalg.solve(A, -s * b)
-            if np.all(np.isfinite(lam)):
-                return lam
-        except np.linalg.LinAlgError:
-            pass
+        # the regular solve's, and the biped walk's hint-free solve (tests/test_walk.py) fails from that start
+        lam = _solve(A, -s * b)
+        if np.all(np.isfinite(lam)):
+            return lam
         return np.linalg.lstsq(A, -s * b, rcond=None)[0]
 
     def guess(self, y, u) -> np.ndarray:
