@@ -243,12 +243,12 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
         name, sep, text = item.partition("=")
         if not sep or not name:
             raise InputError(f"{flag} {item!r}: expected NAME=VALUE, e.g. {flag} alpha_for_y=min")
-        for kind in (int, float):
+        for kind in (int, float, str):
             try:
                 out[name] = kind(text)
                 break
             except ValueError:
-                out[name] = text
+                continue
     return out
 
 

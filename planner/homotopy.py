@@ -26,6 +26,8 @@ says so (PlanResult.nlps).
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import time
 from dataclasses import dataclass, fields, is_dataclass, replace
 from enum import Enum
@@ -363,8 +365,6 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
 
 def _check_with_ipopt(field: str, opts: dict) -> None:
     """Create IPOPT for min x^2 with `opts`; IPOPT's complaint (it prints it, CasADi raises) as an InputError."""
-    import contextlib
-    import io
     x = ca.SX.sym("x")
     error, printed = None, io.StringIO()
     with contextlib.redirect_stdout(printed):  # CasADi's Python interface prints IPOPT's output through sys.stdout
