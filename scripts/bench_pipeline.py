@@ -200,7 +200,6 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
     else:
         nlp, args = {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, nlp1_arguments(problem, SolveOptions())
     warm = nlp_index == 2
-    rec["variants"] = {}
     solvers, create_s = {}, {}
     for v in variants:
         opts = ipopt_options(options, warm)
