@@ -225,8 +225,8 @@ class SolveOptions:
     1.55 per iteration and whole solves' CPU per iteration by 15-30 %, but it changes the homotopy's path:
     over Capler N = 40 ... 125 it failed twice and took 58 % more iterations on the default task, and
     helped at N = 75 and 100 (docs/formulation.md, round 8).
-    early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones that converged with
-    its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
+    early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones, with the holes at
+    full size, that converged with its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
     point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
     NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing. The
     default 1e-10 is well below IPOPT's tol (1e-8), the level at which the barrier leaves pairs whose
@@ -392,17 +392,24 @@ def _check_with_ipopt(field: str, opts: dict) -> None:
 # constraint on from the start, and IPOPT's barrier started next to the point (monotone mu from 1e-6,
 # bounds pushed by 1e-8) instead of re-centred: Capler with the target moved 3.0 -> 2.9 m, 598 + 23
 # iterations (19 s); with the default barrier settings 802 and a failed polish (docs/benchmarks.md).
+# When that NLP leaves the products above REPLAN_STOP_COMP, a second one at REPLAN_RHO_MAX closes them
+# before the polish: the polish's fixed active set absorbed Capler's 1.8e-6 (23 iterations) but not the
+# biped's 6.5e-5 (step 0.25 -> 0.26 m: "infeasible"; with the second NLP 302 iterations in all).
 REPLAN_RHO = 1e4
+REPLAN_RHO_MAX = 1e6
+REPLAN_STOP_COMP = 1e-5
 REPLAN_MU_INIT = 1e-6
 REPLAN_BOUND_PUSH = 1e-8
 
 
 def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     """`options` (default SolveOptions()) set up to start from a converged plan of a task with the same
-    Problem.signature: one NLP at REPLAN_RHO, holes and terminal constraint enforced, variables scaled
-    from the start, monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local
-    optimum next to the old plan (the same contact sequence, moved), not a new hint-free search."""
-    return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO,), soft_terminal_nlps=0,
+    Problem.signature: one NLP at REPLAN_RHO (and one at REPLAN_RHO_MAX unless its products are <=
+    REPLAN_STOP_COMP), holes and terminal constraint enforced, variables scaled from the start,
+    monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local optimum next to
+    the old plan (the same contact sequence, moved), not a new hint-free search."""
+    return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0,
+                   early_stop_comp=REPLAN_STOP_COMP,
                    holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
                    mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
                    bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
@@ -552,7 +559,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         if i == 0 and scaling is VariableScaling.FIRST_NLP:
             solvers.set_scale(variable_scale(problem, x))
         starts = ([(x, lam_x, lam_g, rec.label)] + starts)[: options.polish_starts]
-        if (options.early_stop_comp is not None and i >= max(1, options.soft_terminal_nlps) and rec.success
+        if (options.early_stop_comp is not None and not soft and scale == 1.0 and rec.success
                 and rec.complementarity_residual <= options.early_stop_comp):
             break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
     homotopy_ok = all(r.success for r in records)

@@ -26,6 +26,8 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     never_touching                    gap >= 0 of each contact with touches = false (planner.scene)
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
     impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
+    velocity_bounds                   task.plan.velocity_bounds (sums of joint velocities) at y_1 .. y_N
+    velocity_bounds_y0 (1, m)         the same at y_0 where it is free (plan.periodic)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
     periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
@@ -416,6 +418,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         rows.add(name, g_parts[name], 0.0, 0.0)
     for name in ("above_ground", "holes", "never_touching", "friction_cone", "impact_cone"):
         rows.add(name, g_parts[name], 0.0, np.inf)
+    _velocity_bounds(rows, robot, task, nq, [[X[var_blocks["y"][k]]] for k in range(N)],
+                     X[var_blocks["y0"]] if periodic else None)
     term_res = _terminal(rows, robot, task, options, X, var_blocks, y0)
     if linf:
         rows.add("penalty", [X[nx - 1] - pen_prods[k * 2 * n_sig : (k + 1) * 2 * n_sig] for k in range(N)], 0.0, np.inf)
@@ -607,7 +611,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     "Y" (ny,) and the algebraic variables "w" (nw,); the step's end y_{k+1} ("y") is the last stage of
     the last element. The interval's rows (lengths sum to h, every stage's step equations) become the
     blocks element_lengths (N, 1), dynamics, stationarity, lifting [, contact_forces] (N, n_fe n_s m).
-    Path constraints: above_ground, holes, never_touching at every element boundary (N, n_fe m);
+    Path constraints: above_ground, holes, never_touching, velocity_bounds at every element boundary (N, n_fe m);
     friction_cone, impact_cone at every stage (N, n_fe n_s m). Complementarity (Problem.pairs): per
     step, element, stage j and point j' of the element (its left boundary, then its stages) the
     cross-complementarity lambda0_j' sigma_j, lambda1_j' (1 - sigma_j), as FESDInterval; the left
@@ -751,6 +755,8 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
         rows.add(name, g_parts[name], 0.0, 0.0)
     for name in at_bounds + at_stages:
         rows.add(name, g_parts[name], 0.0, np.inf)
+    _velocity_bounds(rows, robot, task, nq, [[X[Yi[k, e, -1]] for e in range(n_fe)] for k in range(N)],
+                     X[var_blocks["y0"]] if periodic else None)
     term_res = _terminal(rows, robot, task, options, X, var_blocks, y0)
     per_step = len(pairs) // N
     if linf:
@@ -826,6 +832,19 @@ def fesd_start_from_implicit_euler(fesd_problem: Problem, euler_problem: Problem
         x0[vb["s_c_step"].ravel()] = np.max(prods, axis=1, initial=0.0).clip(0.0)
         x0[vb["s_c"]] = float(np.max(prods, initial=0.0).clip(0.0))
     return x0
+
+
+def _velocity_bounds(rows: "_Rows", robot, task: Task, nq: int, ends: list, y0) -> None:
+    """Blocks velocity_bounds (N, m per state in ends[k]) and velocity_bounds_y0 (1, m; y0 the free
+    initial state or None) of task.plan.velocity_bounds: lower <= A v <= upper (Task.velocity_rows)."""
+    A, lo, hi = task.velocity_rows(robot)
+    if not len(lo):
+        return
+    rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
+    rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends],
+             np.tile(lo, len(ends) * len(ends[0])), np.tile(hi, len(ends) * len(ends[0])))
+    if y0 is not None:
+        rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
 
 
 class _Rows:

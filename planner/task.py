@@ -120,6 +120,25 @@ class JointBound:
 
 
 @dataclass(frozen=True)
+class VelocityBound:
+    """lower <= sum of the named coordinates' velocities <= upper [m/s or rad/s] at every node of the
+    plan. A planar link's angle to the vertical is the sum of the joint angles from the floating base
+    to it, so its angular velocity is a sum of joint rates: e.g. ["torso", "hinge_1"] is the biped's
+    leg 1 (robots/biped.toml), whose increasing angle is the phase variable of its walk replay."""
+
+    joints: tuple[str, ...]
+    lower: float = -math.inf
+    upper: float = math.inf
+
+    def __post_init__(self):
+        _require(len(self.joints) > 0 and len(set(self.joints)) == len(self.joints), "plan.velocity_bounds.joints",
+                 list(self.joints), "one or more different joint names")
+        _require(self.lower <= self.upper, "plan.velocity_bounds.lower", self.lower, f"<= upper ({self.upper})")
+        _require(math.isfinite(self.lower) or math.isfinite(self.upper), "plan.velocity_bounds",
+                 [self.lower, self.upper], "a finite lower or upper bound")
+
+
+@dataclass(frozen=True)
 class Periodic:
     """One step of a periodic gait (`plan.periodic`): q(tau_f) = S q(0) + step e_along and
     v(tau_f) = S v(0), S the relabelling that swaps each pair of coordinates in `swap`; the
@@ -157,6 +176,7 @@ class Plan:
     holes: tuple[Ellipse, ...] = ()
     above_ground: tuple[str, ...] = ()  # named points kept at z >= ground_height (knee, base, ...)
     joint_bounds: tuple[JointBound, ...] = ()
+    velocity_bounds: tuple[VelocityBound, ...] = ()  # on sums of joint velocities at every node
     u_bound: float | None = None  # |u_i| <= u_bound; default: the actuators' ctrlrange
     periodic: Periodic | None = None  # one step of a periodic gait instead of a target
 
@@ -347,6 +367,7 @@ class Task:
         for p in self.plan.above_ground:
             if p not in robot.points:
                 raise UnknownNameError("point", p, robot.points)
+        self.velocity_rows(robot)
         if self.plan.periodic is not None:
             self.periodic_map(robot)
             return
@@ -398,6 +419,15 @@ class Task:
                                 f"(actuated joints: {', '.join(robot.dof_names[a.dof] for a in robot.actuators) or 'none'})")
             out.append((dof, dof, drives[0]))
         return tuple(out)
+
+    def velocity_rows(self, robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """plan.velocity_bounds as (A (m, nv) of 0/1, lower (m,), upper (m,)): lower <= A v <= upper.
+        Raises UnknownNameError for a joint the robot does not have."""
+        bounds = self.plan.velocity_bounds if self.plan else ()
+        A = np.zeros((len(bounds), robot.nv))
+        for r, b in enumerate(bounds):
+            A[r, [robot.dof_index(name) for name in b.joints]] = 1.0
+        return A, np.array([b.lower for b in bounds]), np.array([b.upper for b in bounds])
 
     def q_bounds(self, robot) -> tuple[np.ndarray, np.ndarray]:
         """Joint position bounds (nq,): the robot file's limits, replaced by plan.joint_bounds."""

@@ -87,6 +87,8 @@ VARIANTS = {
     "max_soc_0": {"max_soc": 0},
     "mu_globalization_kkt": {"adaptive_mu_globalization": "kkt-error"},
     "mu_globalization_never_monotone": {"adaptive_mu_globalization": "never-monotone-mode"},
+    # quasi-Newton Hessian (session 11): no Hessian evaluations, a KKT matrix without the Hessian's fill
+    "limited_memory": {"hessian_approximation": "limited-memory"},
 }
 
 

@@ -1,6 +1,7 @@
 """The homotopy solves a small frictional hop exactly; options are validated."""
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
@@ -334,6 +335,27 @@ def test_regularization_from_last_skips_the_unregularized_try():
         H.SolveOptions(regularization="from_last")
 
 
+HOP_VX_BOUND = 1.0  # [m/s] below the unbounded hop's top speed (1.51 m/s), so the bound must act
+BOUND_TOL = 1e-6  # [m/s] IPOPT's constraint tolerance is 1e-8; the polish ends within it
+BOUND_ACTIVE = 1e-3  # [m/s] the bounded hop's top speed is this close to the bound (measured 6.5e-8 below)
+
+
+def test_velocity_bound_caps_the_hop_and_is_active(hop):
+    """plan.velocity_bounds on x: the hop's speed stays <= 1 m/s at every node and reaches it (the
+    unbounded hop flies faster), and the plan still converges to the target."""
+    from planner.task import VelocityBound
+
+    prob, free, _ = hop
+    assert free.extra["_x"][prob.var_blocks["y"]][:, 2].max() > HOP_VX_BOUND + 0.1
+    task = hop_task(N=40)
+    task = dataclasses.replace(task, plan=dataclasses.replace(task.plan, velocity_bounds=(VelocityBound(("x",), upper=HOP_VX_BOUND),)))
+    bounded = build_problem(load_robot("robots/point_mass.xml"), task)
+    res = H.solve(bounded)
+    assert res.stats.converged and res.terminal_error <= TERMINAL_TOL
+    vx = res.extra["_x"][bounded.var_blocks["y"]][:, 2]
+    assert HOP_VX_BOUND - BOUND_ACTIVE <= vx.max() <= HOP_VX_BOUND + BOUND_TOL
+
+
 # A replan from the plan of a nearby task keeps its contact sequence and only moves it: measured 79
 # iterations against the hint-free hop's 620 (and 378 for the moved task itself). A third is a margin
 # against round-off in the path, still far below any hint-free solve of these tasks.
@@ -346,8 +368,6 @@ def test_replan_from_a_nearby_plan_converges_in_a_fraction_of_the_iterations(hop
     replan_options: one NLP at REPLAN_RHO and the polish converge to a complementary plan at the new
     target, in fewer than REPLAN_SHARE of the hint-free solve's iterations. A problem on another grid
     has another signature."""
-    import dataclasses
-
     prob, res, _ = hop
     task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
     moved = build_problem(prob.robot, task)

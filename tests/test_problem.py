@@ -10,7 +10,7 @@ from planner.discretization import StepForm
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import Penalty, ProblemOptions, build_problem
-from planner.task import Horizon, load_task, parse_task
+from planner.task import Horizon, VelocityBound, load_task, parse_task
 
 ROBOTS = "robots"
 
@@ -126,3 +126,32 @@ def test_impact_cone_only_where_a_t_is_within_mu_a_n():
     x[sig["alpha[point]"]], x[sig["beta[point]"]], x[sig["gamma[point]"]], x[sig["zeta[point]"]] = 0.0, 0.0, 0.0, 0.0
     x[prob.var_blocks["w"][0]] = prob.builder.w_from(x[prob.var_blocks["sigma"][0]], np.zeros(len(sig)), np.zeros(len(sig)))
     assert np.allclose(np.asarray(g(x, prob.params(1.0))).ravel(), [0.5 * 200 - 100, 0.5 * 200 + 100])
+
+
+def test_velocity_bounds_rows_are_the_joint_rate_sums():
+    """plan.velocity_bounds: one row per bound at y_1 .. y_N (block velocity_bounds (N, m)) and, for a
+    periodic plan whose y_0 is free, at y_0 (velocity_bounds_y0 (1, m)); each row is the sum of the
+    named joints' velocities, bounded by the task's lower and upper. With FESD the rows sit at every
+    element boundary (N, n_fe m). Checked at a seeded random point."""
+    import casadi as ca
+
+    from planner.discretization import Discretization, FESDOptions
+
+    robot = load_robot(f"{ROBOTS}/biped.xml")
+    task = load_task(f"{ROBOTS}/biped.toml")
+    plan = dataclasses.replace(task.plan, velocity_bounds=(VelocityBound(("torso", "hinge_1"), lower=0.3),
+                                                           VelocityBound(("x",), lower=-1.0, upper=2.0)))
+    task = dataclasses.replace(task, horizon=Horizon(tau_f=0.12, N=4), plan=plan)
+    prob = build_problem(robot, task)
+    assert prob.g_blocks["velocity_bounds"].shape == (4, 2) and prob.g_blocks["velocity_bounds_y0"].shape == (1, 2)
+    x = np.random.default_rng(7).normal(size=prob.nx)
+    g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g])(x, prob.params(1.0)), float).ravel()
+    nq = robot.nq
+    V = np.vstack([x[prob.var_blocks["y0"]][None, nq:2 * nq], x[prob.var_blocks["y"]][:, nq:2 * nq]])
+    expect = np.column_stack([V[:, 2] + V[:, 3], V[:, 0]])  # torso + hinge_1, x
+    rows = np.vstack([prob.g_blocks["velocity_bounds_y0"], prob.g_blocks["velocity_bounds"]])
+    np.testing.assert_allclose(g[rows], expect, rtol=1e-15, atol=0)
+    np.testing.assert_array_equal(prob.lbg[rows], np.tile([0.3, -1.0], (5, 1)))
+    np.testing.assert_array_equal(prob.ubg[rows], np.tile([np.inf, 2.0], (5, 1)))
+    fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
+    assert fesd.g_blocks["velocity_bounds"].shape == (4, 4) and fesd.g_blocks["velocity_bounds_y0"].shape == (1, 2)

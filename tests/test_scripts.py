@@ -501,6 +501,36 @@ def test_bench_skips_quick_run(tmp_path, capsys):
     assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2
 
 
+# --- scripts/bench_biped_walk.py -----------------------------------------------------------------------
+
+def test_bench_biped_walk_quick_run(tmp_path, capsys):
+    """--quick --json: one record (the default bound) with the documented fields, as printed and as in
+    results.json; the varied tasks are the default task with only the bound changed or removed, and
+    they load. No timing or convergence assertions: --quick (N = 6, no walk) is a smoke run."""
+    import tomllib
+
+    from planner.task import parse_task
+
+    bench = _load("bench_biped_walk")
+    assert bench.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    runs = json.loads(capsys.readouterr().out)
+    assert runs == json.loads((tmp_path / "results.json").read_text())["runs"]
+    (r,) = runs
+    for key in ("lower_rad_s", "exit_code", "converged", "ipopt_iterations", "solve_time_s", "control_cost",
+                "physical_period_s", "impact_times_s", "walk_passed", "steps_walked", "max_torque_Nm", "failures"):
+        assert key in r, key
+    assert r["lower_rad_s"] == "0.3" and r["walk_passed"] is None  # --quick does not walk
+    default = tomllib.loads(bench.TASK.read_text())
+    default["plan"].pop("velocity_bounds")
+    for lower, expect in (("none", []), ("0.2", [0.2])):
+        task = tomllib.loads(bench.task_text(lower))
+        parse_task(task)
+        assert [b["lower"] for b in task["plan"].pop("velocity_bounds", [])] == expect
+        assert task == default
+    with pytest.raises(SystemExit):
+        bench.main(["--lower", "fast", "--out", str(tmp_path)])
+
+
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
 
 def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):

@@ -129,6 +129,35 @@ def test_bad_periodic_values_are_named(changes, message):
         parse_task(_periodic(**changes))
 
 
+@pytest.mark.parametrize(
+    "bound, message",
+    [
+        ({"joints": [], "lower": 0.1}, r"plan.velocity_bounds.joints = \[\] .* one or more different joint names"),
+        ({"joints": ["torso", "torso"], "lower": 0.1}, r"plan.velocity_bounds.joints .* different joint names"),
+        ({"joints": ["torso"], "lower": 1.0, "upper": 0.5}, r"plan.velocity_bounds.lower = 1.0 .* <= upper \(0.5\)"),
+        ({"joints": ["torso"]}, r"plan.velocity_bounds = \[-inf, inf\] .* a finite lower or upper bound"),
+        ({"joint": "torso", "lower": 0.1}, r"unknown key 'plan.velocity_bounds\[0\].joint'; valid keys: joints, lower, upper"),
+    ],
+)
+def test_bad_velocity_bounds_are_named(bound, message):
+    """plan.velocity_bounds entries: a non-empty set of names and a real (non-empty, not infinite) interval."""
+    with pytest.raises(TaskError, match=message):
+        parse_task(_periodic(velocity_bounds=[bound]))
+
+
+def test_velocity_bounds_as_rows():
+    """Each bound is one row of A (0/1 on the named joints' velocity indices) with its lower and upper
+    bound; an unknown joint lists the robot's joints."""
+    robot = load_robot(ROBOTS / "biped.xml")
+    task = parse_task(_periodic(velocity_bounds=[{"joints": ["torso", "hinge_1"], "lower": 0.3},
+                                                 {"joints": ["x"], "lower": -1.0, "upper": 2.0}]))
+    A, lower, upper = task.velocity_rows(robot)
+    assert A.tolist() == [[0, 0, 1, 1, 0], [1, 0, 0, 0, 0]]
+    assert lower.tolist() == [0.3, -1.0] and upper.tolist() == [float("inf"), 2.0]
+    with pytest.raises(UnknownNameError, match="valid joints: hinge_1, hinge_2, torso, x, z"):
+        parse_task(_periodic(velocity_bounds=[{"joints": ["knee"], "lower": 0.0}])).check_against(robot)
+
+
 def test_plan_without_target_or_periodic():
     with pytest.raises(TaskError, match=r"missing key 'plan.target_q' \(required unless plan.periodic"):
         parse_task({**BIPED_PERIODIC, "plan": {"rho_f": 1.0}})

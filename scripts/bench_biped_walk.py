@@ -1,0 +1,98 @@
+"""Which hint-free biped plans the MuJoCo walk replays, against plan.velocity_bounds (issue 9 / 7B).
+
+robots/biped.toml bounds leg 1's angular velocity (torso + hinge_1) from below at every node, so the
+stance leg's angle can index the phase-driven replay (planner.gait.PhaseReference). This runs
+`planner plan biped` (hint-free solve, then the 10-step MuJoCo walk) once per lower bound, on a
+copy of the default task with only that bound changed ("none": the bound removed), and records per
+run: exit code, IPOPT iterations, solve time [s], control cost, the impact's time against the
+physical period [s], and the walk (steps walked, max torque [N m]) or the reason it was not walked.
+Writes OUT/results.json and prints a Markdown table.
+
+    python -m scripts.bench_biped_walk [--lower none 0.1 0.2 0.3 0.4 0.5] [--out DIR] [--quick] [--json]
+
+--quick (the CI smoke run): N = 6 steps, no MuJoCo walk, the default bound only. Iterations are
+deterministic on one machine; the walls depend on its load.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+from planner.cli import main as planner_main
+from planner.result import write_atomically
+
+ROOT = Path(__file__).resolve().parent.parent
+TASK = ROOT / "robots" / "biped.toml"
+BOUND_LINE = re.compile(r"^velocity_bounds = .*$", re.MULTILINE)
+
+
+def task_text(lower: str) -> str:
+    """robots/biped.toml with leg 1's lower velocity bound set to `lower` [rad/s] ("none": removed)."""
+    text = TASK.read_text()
+    if not BOUND_LINE.search(text):
+        raise SystemExit(f"{TASK} has no 'velocity_bounds = ...' line to vary")
+    line = "" if lower == "none" else f'velocity_bounds = [{{ joints = ["torso", "hinge_1"], lower = {float(lower)} }}]'
+    return BOUND_LINE.sub(line, text)
+
+
+def run(lower: str, out: Path, quick: bool) -> dict:
+    run_dir = out / f"lower_{lower}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    task = run_dir / "task.toml"
+    task.write_text(task_text(lower))
+    argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
+    code = planner_main(argv + (["--steps", "6", "--no-validate"] if quick else []))
+    plan = run_dir / "plan"
+    if not (plan / "summary.json").is_file():  # a solve that did not converge writes to OUT/failed
+        plan = plan / "failed"
+    s = json.loads((plan / "summary.json").read_text())
+    v = s.get("validation") or {}
+    walk = v.get("walking") or {}
+    return {"lower_rad_s": lower, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
+            "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
+            "physical_period_s": s["physical_duration_s"], "impact_times_s": [i["time"] for i in s["impacts"]],
+            "walk_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
+            "max_torque_Nm": walk.get("max_torque_Nm"), "failures": v.get("failures", [])}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| lower bound [rad/s] | exit | IPOPT it. | solve [s] | cost | impact / period [s] | MuJoCo walk |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        walk = ("not run" if r["walk_passed"] is None and r["exit_code"] == 0 else
+                f"{r['steps_walked']} of 10, max torque {r['max_torque_Nm']:.0f} N m" if r["steps_walked"] is not None
+                else "refused: the stance-leg angle is not monotonic")
+        if not r["converged"]:
+            walk = "(not converged) " + walk
+        impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
+        lines.append(f"| {r['lower_rad_s']} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+                     f"{r['control_cost']:.2f} | {impacts} / {r['physical_period_s']:.3f} | {walk} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--lower", nargs="+", default=["none", "0.1", "0.2", "0.3", "0.4", "0.5"],
+                        help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biped_walk")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
+    args = parser.parse_args(argv)
+    lowers = ["0.3"] if args.quick else args.lower
+    for lower in lowers:  # a typo fails here, before any solve
+        try:
+            if lower != "none" and not float(lower) >= 0:
+                raise ValueError
+        except ValueError:
+            parser.error(f"--lower {lower!r}: give a number >= 0 [rad/s] or none")
+    rows = [run(lower, args.out, args.quick) for lower in lowers]
+    write_atomically(args.out / "results.json", json.dumps({"task": str(TASK), "quick": args.quick, "runs": rows}, indent=1) + "\n")
+    print(json.dumps(rows, indent=1) if args.json else table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
