@@ -938,12 +938,37 @@ WALK_VALIDATION_STEPS = 10  # issue 7B: steps a periodic plan must walk in MuJoC
 PLAN_WALK_GAINS = WalkGains(speed_gain=0.5, speed_integral=0.2)
 
 
+def landing_first(robot: Robot, task: Task, arrays: dict) -> tuple[np.ndarray, ...]:
+    """The periodic plan's (t (P,), q (P, nq), v (P, nv), u (P, nu)) started at its landing: with one
+    impact at 0 < t_i < T, the samples from the post-impact one at t_i to T, then those after t = 0 up
+    to the landing's post-impact sample, relabelled by plan.periodic (q -> S q + step e_along, v -> S v,
+    each motor's u to the motor of the swapped joint) and delayed by T; times from 0. By periodicity
+    the plan's state at T is the relabelled, shifted state at 0, so the step is continuous. Without
+    impact_times, or with another number of impacts or one at either end, the arrays as they are."""
+    t, q, v, u = (np.asarray(arrays[k], float) for k in ("t", "q", "v", "u"))
+    impacts = np.atleast_1d(np.asarray(arrays.get("impact_times", []), float))
+    T = t[-1] - t[0]
+    if len(impacts) != 1 or not t[0] + 1e-9 * T < impacts[0] < t[-1] - 1e-9 * T:
+        return t, q, v, u
+    k = np.nonzero(np.abs(t - impacts[0]) <= 1e-9 * T)[0][-1]  # the landing's post-impact sample
+    perm, along, _ = task.periodic_map(robot)
+    shift = np.zeros(q.shape[1])
+    shift[along] = task.plan.periodic.step
+    dofs = [a.dof for a in robot.actuators]
+    motors = [dofs.index(perm[d]) for d in dofs]
+    before = slice(1, k + 1)
+    return (np.concatenate([t[k:], t[before] + T]) - t[k], np.vstack([q[k:], q[before][:, perm] + shift]),
+            np.vstack([v[k:], v[before][:, perm]]), np.vstack([u[k:], u[before][:, motors]]))
+
+
 def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, PinnedGait]:
     """A periodic plan's step (result arrays t (P,), q (P, nq), v (P, nv), u (P, nu)) on the pinned model.
 
-    The stance foot is the contact point that moves least along x over the step, the other one swings;
-    plan.periodic.swap must exchange exactly their two leg hinges (the relabelling of the walk). Of
-    samples at one physical time (a frozen impact) the last, post-impact one is kept; u[i] drove
+    A plan whose one landing (arrays["impact_times"], when given) falls inside the period is first
+    rotated to start there (`landing_first`), so the step runs from landing to landing on one stance
+    foot. The stance foot is the contact point that moves least along x over the step, the other one
+    swings; plan.periodic.swap must exchange exactly their two leg hinges (the relabelling of the walk).
+    Of samples at one physical time (a frozen impact) the last, post-impact one is kept; u[i] drove
     sample i-1 to i (planner.result.recover). Raises TaskError for a task without plan.periodic, not
     two contacts, or another swap; InputError when the robot is not the floating planar biped.
     """
@@ -953,7 +978,7 @@ def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, Pinn
     points = [c.point for c in task.contacts]
     if len(points) != 2:
         raise TaskError(f"walking a periodic plan needs two contact points (the feet); the task has {points}")
-    t, q, v, u = (np.asarray(arrays[k], float) for k in ("t", "q", "v", "u"))
+    t, q, v, u = landing_first(robot, task, arrays)
     dyn = Dynamics(robot)
     travel = [np.ptp(np.array(dyn.point_position(p).map(len(t))(q.T))[0]) for p in points]
     stance, swing = (points[0], points[1]) if travel[0] <= travel[1] else (points[1], points[0])

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from planner.errors import TaskError
-from planner.gait import RELABEL, WALK_VALIDATION_STEPS as WALK_STEPS, PhaseReference, plan_step
+from planner.gait import RELABEL, WALK_VALIDATION_STEPS as WALK_STEPS, PhaseReference, landing_first, plan_step, validate_walk
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.task import Horizon, load_task, parse_task
@@ -24,6 +24,9 @@ ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 FINGERPRINT = Path(__file__).resolve().parent / "data" / "one_contact_fingerprint.json"
 # the default task's plan (`planner plan biped`, 2026-11-22): t, q, v, u, impact_times of its one step
 WALK_STEP = Path(__file__).resolve().parent / "data" / "biped_walk_step.npz"
+# the default task's hint-free plan without its velocity bound (`python -m scripts.bench_biped_walk --lower none`,
+# 2026-11-23): foot_2 stands, foot_1 lands inside the period (t = 0.215 of 0.406 s), then stands
+MIDSTEP = Path(__file__).resolve().parent / "data" / "biped_walk_midstep.npz"
 PERIODIC_TOL = 1e-9  # [rad] the plan's periodicity residual is 2e-14; the pinned angles inherit it
 STEP_LENGTH_TOL = 0.01  # [m] MuJoCo's step lengths against the plan's 0.25 m; measured within 2.0 mm (saved plan), 4.6 mm (hint-free)
 WALK_ANGLE_TOL = np.deg2rad(3.0)  # [rad] hinge and torso against the plan (plus the speed loop's lean) at the
@@ -141,7 +144,6 @@ def test_biped_walks_periodically_from_a_hint_free_start():
     support, exactly one impact per step (the swing foot: normal and tangential impulse), leg 1 turning
     forward at >= 0.3 rad/s (the task's velocity bound), and the plan walks 10 of 10 steps in MuJoCo with
     the phase-indexed replay (validate_walk), step lengths close to the plan's."""
-    from planner.gait import validate_walk
     from planner.homotopy import solve
 
     robot, task = _biped(N=None)
@@ -195,6 +197,50 @@ def test_plan_step_is_the_pinned_stance_of_the_saved_plan():
     np.testing.assert_allclose(RELABEL @ step.x[-1, :3], step.x[0, :3], atol=PERIODIC_TOL)
     with pytest.raises(TaskError, match="periodic"):
         plan_step(robot, dataclasses.replace(task, plan=None), _saved_step())
+
+
+def test_landing_first_starts_a_midstep_landing_plan_at_its_landing():
+    """landing_first on a plan whose landing is inside the period: the same number of samples, times
+    from 0 to T (non-decreasing), starting with the landing's post-impact sample and ending with it
+    relabelled and shifted one step; the seam joins the plan's last sample to its relabelled second
+    one, which holds because the plan's state at T is its relabelled, shifted state at 0 (checked). The
+    rotated step has one stance foot whose leg angle indexes the replay (the unrotated plan's does
+    not). A plan landing at t = 0, and arrays without impact_times, come back as they are."""
+    robot, task = _biped(N=None)
+    a = dict(np.load(MIDSTEP))
+    t, q, v, u = (a[k] for k in ("t", "q", "v", "u"))
+    perm, along, _ = task.periodic_map(robot)
+    shift = np.zeros(robot.nq)
+    shift[along] = task.plan.periodic.step
+    np.testing.assert_allclose(q[0][perm] + shift, q[-1], atol=PERIODIC_TOL)
+    np.testing.assert_allclose(v[0][perm], v[-1], atol=PERIODIC_TOL)
+    k = np.nonzero(t == a["impact_times"][0])[0][-1]
+    t2, q2, v2, u2 = landing_first(robot, task, a)
+    assert len(t2) == len(t) and t2[0] == 0.0 and t2[-1] == pytest.approx(t[-1]) and np.all(np.diff(t2) >= 0)
+    np.testing.assert_array_equal(q2[0], q[k])
+    np.testing.assert_array_equal(q2[-1], q[k][perm] + shift)
+    np.testing.assert_array_equal(v2[-1], v[k][perm])
+    np.testing.assert_array_equal(u2[-1], u[k][::-1])  # the two motors drive the swapped hinges
+    seam = len(t) - k
+    np.testing.assert_array_equal(q2[seam - 1], q[-1])
+    np.testing.assert_array_equal(q2[seam], q[1][perm] + shift)
+    model, step = plan_step(robot, task, a)
+    assert model.layout.stance_foot == "foot_1" and PhaseReference.applies(step.x)  # from its landing to the next
+    assert not PhaseReference.applies(plan_step(robot, task, {k: a[k] for k in ("t", "q", "v", "u")})[1].x)
+    saved = _saved_step()
+    for arrays in (saved, {k: a[k] for k in ("t", "q", "v", "u")}):
+        for got, key in zip(landing_first(robot, task, arrays), ("t", "q", "v", "u")):
+            np.testing.assert_array_equal(got, arrays[key])
+
+
+def test_midstep_landing_plan_walks_ten_steps_in_mujoco():
+    """The plan whose landing is inside the period (refused before landing_first: its stance-leg angle
+    turned back) walks 10 of 10 steps in MuJoCo, step lengths close to the plan's."""
+    robot, task = _biped(N=None)
+    walk = validate_walk(robot, task, dict(np.load(MIDSTEP)))
+    assert walk.passed, walk.failures
+    steps = np.array(walk.walking.step_lengths[:WALK_STEPS])
+    assert np.max(np.abs(steps - walk.walking.planned_step_length)) < STEP_LENGTH_TOL
 
 
 def test_saved_walk_plan_walks_ten_steps_in_mujoco(tmp_path):
