@@ -226,12 +226,13 @@ class SolveOptions:
     over Capler N = 40 ... 125 it failed twice and took 58 % more iterations on the default task, and
     helped at N = 75 and 100 (docs/formulation.md, round 8).
     early_stop_comp: end the homotopy at the first NLP after the soft-terminal ones, with the holes at
-    full size, that converged with its largest gated product <= this value (None: run every rho). A larger rho cannot improve such a
-    point; IPOPT's restart only moves away from it and back: on the default Capler task the rho = 3e3
-    NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660 iterations for nothing. The
-    default 1e-10 is well below IPOPT's tol (1e-8), the level at which the barrier leaves pairs whose
-    two sides are both ~0: the FESD point-mass hop's rho = 1e4 NLP ends at 1e-8, and the polish from
-    there took 2285 iterations to a plan without its landing, against 19 from the rho = 1e5 point.
+    full size, that converged with its largest gated product <= this value (None: run every rho). A
+    larger rho cannot improve such a point; IPOPT's restart only moves away from it and back: on the
+    default Capler task the rho = 3e3 NLP ends at 1.5e-11, and the rho = 1e4, 1e5, 1e6 NLPs cost 660
+    iterations for nothing. The default 1e-10 is well below IPOPT's tol (1e-8), the level at which the
+    barrier leaves pairs whose two sides are both ~0: the FESD point-mass hop's rho = 1e4 NLP ends at
+    1e-8, and the polish from there took 2285 iterations to a plan without its landing, against 19 from
+    the rho = 1e5 point.
     ipopt: further IPOPT options for every NLP of the homotopy (a dict or (name, value) pairs, kept as
     sorted pairs), e.g. {"alpha_for_y": "min"}; warm_ipopt: the same for NLP 2 and later only (over
     ipopt). Checked against IPOPT when the options are made: an unknown name or a value IPOPT rejects

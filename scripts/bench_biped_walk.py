@@ -1,7 +1,7 @@
 """Which hint-free biped plans the MuJoCo walk replays, against plan.velocity_bounds (issue 9 / 7B).
 
 robots/biped.toml bounds leg 1's angular velocity (torso + hinge_1) from below at every node, so the
-stance leg's angle can index the phase-driven replay (planner.gait.PhaseReference). This runs
+stance leg keeps turning forward, as the phase-indexed replay needs (planner.gait.PhaseReference). This runs
 `planner plan biped` (hint-free solve, then the 10-step MuJoCo walk) once per lower bound, on a
 copy of the default task with only that bound changed ("none": the bound removed), and records per
 run: exit code, IPOPT iterations, solve time [s], control cost, the impact's time against the
