@@ -1,14 +1,15 @@
-"""Which hint-free biped plans the MuJoCo walk replays, against plan.velocity_bounds (issue 9 / 7B).
+"""Which hint-free biped plans the MuJoCo walk replays, against plan.velocity_bounds and the step (issue 9 / 7B).
 
 robots/biped.toml bounds leg 1's angular velocity (torso + hinge_1) from below at every node, so the
 stance leg keeps turning forward, as the phase-indexed replay needs (planner.gait.PhaseReference). This runs
-`planner plan biped` (hint-free solve, then the 10-step MuJoCo walk) once per lower bound, on a
-copy of the default task with only that bound changed ("none": the bound removed), and records per
-run: exit code, IPOPT iterations, solve time [s], control cost, the impact's time against the
-physical period [s], and the walk (steps walked, max torque [N m]) or the reason it was not walked.
-Writes OUT/results.json and prints a Markdown table.
+`planner plan biped` (hint-free solve, then the 10-step MuJoCo walk) once per lower bound and step
+length, on a copy of the default task with only these changed ("none": the bound removed; a step s
+also moves the standing guess to feet s apart: hinges -+a, hip height cos a, sin a = s / 2 for the
+unit legs), and records per run: exit code, IPOPT iterations, solve time [s], control cost, the
+impact's time against the physical period [s], and the walk (steps walked, max torque [N m]) or the
+reason it was not walked. Writes OUT/results.json and prints a Markdown table.
 
-    python -m scripts.bench_biped_walk [--lower none 0.1 0.2 0.3 0.4 0.5] [--out DIR] [--quick] [--json]
+    python -m scripts.bench_biped_walk [--lower none 0.1 ... 0.5] [--step 0.25 ...] [--out DIR] [--quick] [--json]
 
 --quick (the CI smoke run): N = 6 steps, no MuJoCo walk, the default bound only. Iterations are
 deterministic on one machine; the walls depend on its load.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -27,22 +29,32 @@ from planner.result import write_atomically
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
 BOUND_LINE = re.compile(r"^velocity_bounds = .*$", re.MULTILINE)
+STEP_LINE = re.compile(r"^step = .*$", re.MULTILINE)
+GUESS_LINE = re.compile(r"^q = .*$", re.MULTILINE)  # [initial] q: the task's only line that starts so
+DEFAULT_STEP = 0.25  # [m] robots/biped.toml's
 
 
-def task_text(lower: str) -> str:
-    """robots/biped.toml with leg 1's lower velocity bound set to `lower` [rad/s] ("none": removed)."""
+def task_text(lower: str, step: float = DEFAULT_STEP) -> str:
+    """robots/biped.toml with leg 1's lower velocity bound set to `lower` [rad/s] ("none": removed) and,
+    for another step [m], plan.periodic.step and the standing guess (feet `step` apart) changed."""
     text = TASK.read_text()
-    if not BOUND_LINE.search(text):
-        raise SystemExit(f"{TASK} has no 'velocity_bounds = ...' line to vary")
+    for name, pattern in (("velocity_bounds", BOUND_LINE), ("step", STEP_LINE), ("q", GUESS_LINE)):
+        if len(pattern.findall(text)) != 1:
+            raise SystemExit(f"{TASK} needs exactly one '{name} = ...' line to vary")
     line = "" if lower == "none" else f'velocity_bounds = [{{ joints = ["torso", "hinge_1"], lower = {float(lower)} }}]'
-    return BOUND_LINE.sub(line, text)
+    text = BOUND_LINE.sub(line, text)
+    if step != DEFAULT_STEP:
+        a = math.asin(step / 2)
+        text = STEP_LINE.sub(f"step = {step!r}", text)
+        text = GUESS_LINE.sub(f"q = [0.0, {math.cos(a)!r}, 0.0, {-a!r}, {a!r}]", text)
+    return text
 
 
-def run(lower: str, out: Path, quick: bool) -> dict:
-    run_dir = out / f"lower_{lower}"
+def run(lower: str, step: float, out: Path, quick: bool) -> dict:
+    run_dir = out / (f"lower_{lower}" + ("" if step == DEFAULT_STEP else f"_step_{step}"))
     run_dir.mkdir(parents=True, exist_ok=True)
     task = run_dir / "task.toml"
-    task.write_text(task_text(lower))
+    task.write_text(task_text(lower, step))
     argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
     code = planner_main(argv + (["--steps", "6", "--no-validate"] if quick else []))
     plan = run_dir / "plan"
@@ -51,7 +63,7 @@ def run(lower: str, out: Path, quick: bool) -> dict:
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     walk = v.get("walking") or {}
-    return {"lower_rad_s": lower, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
+    return {"lower_rad_s": lower, "step_m": step, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
             "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
             "physical_period_s": s["physical_duration_s"], "impact_times_s": [i["time"] for i in s["impacts"]],
             "walk_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
@@ -59,8 +71,8 @@ def run(lower: str, out: Path, quick: bool) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| lower bound [rad/s] | exit | IPOPT it. | solve [s] | cost | impact / period [s] | MuJoCo walk |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| lower bound [rad/s] | step [m] | exit | IPOPT it. | solve [s] | cost | impact / period [s] | MuJoCo walk |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         walk = ("not run" if r["walk_passed"] is None and r["exit_code"] == 0 else
                 f"{r['steps_walked']} of 10, max torque {r['max_torque_Nm']:.0f} N m" if r["steps_walked"] is not None
@@ -68,7 +80,7 @@ def table(rows: list[dict]) -> str:
         if not r["converged"]:
             walk = "(not converged) " + walk
         impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
-        lines.append(f"| {r['lower_rad_s']} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+        lines.append(f"| {r['lower_rad_s']} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
                      f"{r['control_cost']:.2f} | {impacts} / {r['physical_period_s']:.3f} | {walk} |")
     return "\n".join(lines)
 
@@ -77,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--lower", nargs="+", default=["none", "0.1", "0.2", "0.3", "0.4", "0.5"],
                         help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
+    parser.add_argument("--step", type=float, nargs="+", default=[DEFAULT_STEP],
+                        help=f"step lengths [m], each with every bound (default {DEFAULT_STEP}: the task's)")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biped_walk")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
@@ -88,7 +102,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError
         except ValueError:
             parser.error(f"--lower {lower!r}: give a number >= 0 [rad/s] or none")
-    rows = [run(lower, args.out, args.quick) for lower in lowers]
+    if not all(0 < s < 2 for s in args.step):
+        parser.error(f"--step {args.step}: give lengths in (0, 2) m (the legs are 1 m long)")
+    rows = [run(lower, step, args.out, args.quick) for step in args.step for lower in lowers]
     write_atomically(args.out / "results.json", json.dumps({"task": str(TASK), "quick": args.quick, "runs": rows}, indent=1) + "\n")
     print(json.dumps(rows, indent=1) if args.json else table(rows))
     return 0

@@ -505,8 +505,9 @@ def test_bench_skips_quick_run(tmp_path, capsys):
 
 def test_bench_biped_walk_quick_run(tmp_path, capsys):
     """--quick --json: one record (the default bound) with the documented fields, as printed and as in
-    results.json; the varied tasks are the default task with only the bound changed or removed, and
-    they load. No timing or convergence assertions: --quick (N = 6, no walk) is a smoke run."""
+    results.json; the varied tasks are the default task with only the bound changed or removed (and for
+    another step, the step and the standing guess), and they load; a bad --lower or --step is a usage
+    error. No timing or convergence assertions: --quick (N = 6, no walk) is a smoke run."""
     import tomllib
 
     from planner.task import parse_task
@@ -516,10 +517,10 @@ def test_bench_biped_walk_quick_run(tmp_path, capsys):
     runs = json.loads(capsys.readouterr().out)
     assert runs == json.loads((tmp_path / "results.json").read_text())["runs"]
     (r,) = runs
-    for key in ("lower_rad_s", "exit_code", "converged", "ipopt_iterations", "solve_time_s", "control_cost",
+    for key in ("lower_rad_s", "step_m", "exit_code", "converged", "ipopt_iterations", "solve_time_s", "control_cost",
                 "physical_period_s", "impact_times_s", "walk_passed", "steps_walked", "max_torque_Nm", "failures"):
         assert key in r, key
-    assert r["lower_rad_s"] == "0.3" and r["walk_passed"] is None  # --quick does not walk
+    assert r["lower_rad_s"] == "0.3" and r["step_m"] == 0.25 and r["walk_passed"] is None  # --quick does not walk
     default = tomllib.loads(bench.TASK.read_text())
     default["plan"].pop("velocity_bounds")
     for lower, expect in (("none", []), ("0.2", [0.2])):
@@ -527,8 +528,18 @@ def test_bench_biped_walk_quick_run(tmp_path, capsys):
         parse_task(task)
         assert [b["lower"] for b in task["plan"].pop("velocity_bounds", [])] == expect
         assert task == default
-    with pytest.raises(SystemExit):
-        bench.main(["--lower", "fast", "--out", str(tmp_path)])
+    # another step moves the standing guess: feet `step` apart on the unit legs
+    task = tomllib.loads(bench.task_text("0.3", 0.2))
+    parse_task(task)
+    q = task["initial"].pop("q")
+    assert task["plan"]["periodic"].pop("step") == 0.2 and np.sin(q[4]) == pytest.approx(0.1) and q[3] == -q[4]
+    assert q[1] == pytest.approx(np.cos(q[4]))
+    del default["initial"]["q"], default["plan"]["periodic"]["step"]
+    task["plan"].pop("velocity_bounds")
+    assert task == default
+    for bad in (["--lower", "fast"], ["--step", "2.5"]):
+        with pytest.raises(SystemExit):
+            bench.main(bad + ["--out", str(tmp_path)])
 
 
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
