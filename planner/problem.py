@@ -841,8 +841,8 @@ def _velocity_bounds(rows: "_Rows", robot, task: Task, nq: int, ends: list, y0) 
     if not len(lo):
         return
     rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
-    rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends],
-             np.tile(lo, len(ends) * len(ends[0])), np.tile(hi, len(ends) * len(ends[0])))
+    n_states = len(ends) * len(ends[0])
+    rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends], np.tile(lo, n_states), np.tile(hi, n_states))
     if y0 is not None:
         rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
 
