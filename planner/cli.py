@@ -75,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
                               "  planner plan point_mass --task hop.toml --no-validate --json\n"
                               "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
-                              "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan")
+                              "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan\n"
+                              "  planner plan capler --task capler_closer.toml --init results/capler --keep-schedule --out results/capler_closer")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--init", type=Path, metavar="DIR",
@@ -83,6 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "one NLP at a high penalty, then polish: a replan after a change of target or bounds that DIR's plan "
                         "nearly meets (Capler's target moved 0.1 m: ~5x faster than hint-free; holes moved under its footholds: "
                         "slower). Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
+    p.add_argument("--keep-schedule", action="store_true",
+                   help="with --init: first re-optimize with DIR's contact schedule held (its impacts on the same steps, one "
+                        "smooth NLP: Capler's target moved 0.1 m in ~4 s of solve); if that fails, the --init replan. Fast, "
+                        "but keeps DIR's timing, where the --init replan may find a cheaper one")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
                         "point-mass hop; on Capler with --stages 1 --elements 2, hint-free or through --fesd-start implicit_euler; docs/formulation.md \"FESD in the OCP\")")
@@ -271,6 +276,8 @@ def _cmd_plan(args) -> int:
         raise InputError(f"--steps must be >= 1, got {args.steps}")
     if args.init is not None and discretization is not Discretization.IMPLICIT_EULER:
         raise InputError("--init works with --discretization implicit_euler only")
+    if args.keep_schedule and args.init is None:
+        raise InputError("--keep-schedule needs --init DIR: the plan whose contact schedule it keeps")
     robot, task, out = _load_inputs(args)
     if task.plan is None:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
@@ -287,7 +294,7 @@ def _cmd_plan(args) -> int:
         from .result import read_start
 
         problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx))
-        solve_options = replan_options(solve_options)
+        solve_options = replace(replan_options(solve_options), keep_schedule=args.keep_schedule)
     result = solve(problem, solve_options, progress=progress)
     if args.init is not None:
         result.options["init"] = str(args.init)  # summary.json says which plan this one started from

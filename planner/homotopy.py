@@ -240,6 +240,18 @@ class SolveOptions:
     The projection polish keeps its own barrier settings. Measured on the default Capler task: warm
     alpha_for_y = min takes NLP 2 alone from 1535 to 1044 iterations, but the whole solve to more
     (docs/benchmarks.md, "Full solves and the gap", session 10).
+    keep_schedule: before the homotopy, solve the task's own cost with the contact schedule of the
+    start x0 held (active_set_bounds of x0: every complementarity pair's side that is zero at x0 stays
+    zero), one smooth NLP of at most schedule_max_iter IPOPT iterations (SCHEDULE_IPOPT). Accepted as
+    the polish is (converged, constraints and terminal kept) and only if it has no new impact (each of
+    its impacts overlaps one of x0's at the same contact point); then no homotopy runs, else the
+    homotopy runs from x0 as without it. For a start that is a converged plan of a nearby task
+    (planner plan --init DIR --keep-schedule): the motion moves, its impacts stay on their steps, so the
+    plan is the best one with the old timing, not the best nearby. Measured (docs/benchmarks.md,
+    "Replanning", session 12): Capler's target moved -0.2 ... +0.1 m in 38-106 iterations (the penalty
+    replan: 375-4410) at its cost or lower; the biped's step 0.25 -> 0.22 ... 0.27 m in 15-30
+    iterations (penalty replan: 234-2815) at twice its cost: the penalty replan also lengthens the
+    period.
     """
 
     tol: float = 1e-8
@@ -285,6 +297,8 @@ class SolveOptions:
     fesd_rho_schedule: tuple[float, ...] = (1e4, 1e5)
     ipopt: tuple[tuple[str, object], ...] = ()
     warm_ipopt: tuple[tuple[str, object], ...] = ()
+    keep_schedule: bool = False
+    schedule_max_iter: int = 200
 
     def __post_init__(self):
         for key in ("ipopt", "warm_ipopt"):
@@ -298,6 +312,7 @@ class SolveOptions:
             (self.tol > 0, "tol", self.tol, "> 0"),
             (self.acceptable_tol > 0, "acceptable_tol", self.acceptable_tol, "> 0"),
             (self.max_iter >= 1, "max_iter", self.max_iter, ">= 1"),
+            (self.schedule_max_iter >= 1, "schedule_max_iter", self.schedule_max_iter, ">= 1"),
             (self.polish_starts >= 1, "polish_starts", self.polish_starts, ">= 1"),
             (0 <= self.print_level <= 12, "print_level", self.print_level, "in 0 .. 12"),
             (self.mu_init > 0, "mu_init", self.mu_init, "> 0"),
@@ -401,6 +416,13 @@ REPLAN_RHO_MAX = 1e6
 REPLAN_STOP_COMP = 1e-5
 REPLAN_MU_INIT = 1e-6
 REPLAN_BOUND_PUSH = 1e-8
+# SolveOptions.keep_schedule's NLP starts at an exactly complementary, nearly feasible point and its pairs are
+# held by bounds: a monotone barrier from 1e-9 with the start pushed in by 1e-9 stays next to it (Capler target
+# 3.0 -> 2.9 m, IPOPT's bound relaxation at its default: 25 iterations; from mu = 1e-6 148, and from the adaptive
+# rule's 0.1 425, to the same plan). The held pairs leave equality rows that depend on each other, so IPOPT
+# needs a constraint regularization in every iteration: perturb_always_cd asks for it at once instead of after
+# a failed factorization (same iterates, 50 instead of 70 ms per iteration).
+SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9, "bound_frac": 1e-9, "perturb_always_cd": "yes"}
 
 
 def replan_options(options: SolveOptions | None = None) -> SolveOptions:
@@ -408,7 +430,8 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     Problem.signature: one NLP at REPLAN_RHO (and one at REPLAN_RHO_MAX unless its products are <=
     REPLAN_STOP_COMP), holes and terminal constraint enforced, variables scaled from the start,
     monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local optimum next to
-    the old plan (the same contact sequence, moved), not a new hint-free search."""
+    the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
+    (planner plan --keep-schedule) the task's cost with the plan's contact schedule held comes first."""
     return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0,
                    early_stop_comp=REPLAN_STOP_COMP,
                    holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
@@ -470,6 +493,11 @@ class _Solvers:
         self.scaled_nlp = self._probed({"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)})
         self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled") and k != "projection"}
 
+    def _bound_relax(self) -> float:
+        """IPOPT's bound_relax_factor for a solver that sees xs = x / D: IPOPT relaxes each bound by it (default
+        1e-8) in xs, i.e. by that times D in x; kept a tenth of the verdict's constraint_tol in x."""
+        return min(1e-8, 0.1 * self.options.constraint_tol / float(np.max(self.scale)))
+
     def _probed(self, nlp: dict) -> dict:
         return dict(nlp, x=ca.vertcat(nlp["x"], ca.SX.sym("probe", self.n_probe))) if self.n_probe else nlp
 
@@ -490,21 +518,25 @@ class _Solvers:
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
             opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
             if pb.fesd is not None and self.scale is not None:
-                # IPOPT relaxes each bound by bound_relax_factor (1e-8) in xs, i.e. 1e-8 D in x: FESD Capler's
-                # gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke lambda >= 0 by
-                # 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md); keep it below that in x
-                opts["ipopt"]["bound_relax_factor"] = min(1e-8, 0.1 * self.options.constraint_tol / float(np.max(self.scale)))
+                # FESD Capler's gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke
+                # lambda >= 0 by 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md)
+                opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
 
-    def get(self, warm: bool, loose: bool = False):
+    def get(self, warm: bool, loose: bool = False, schedule: bool = False):
+        """schedule: the keep_schedule NLP's IPOPT (SCHEDULE_IPOPT, schedule_max_iter)."""
         opts = ipopt_options(self.options, warm, loose)
+        if schedule:
+            opts["ipopt"].update(SCHEDULE_IPOPT, max_iter=self.options.schedule_max_iter)
+            if self.scale is not None:  # IPOPT's bound relaxation (1e-8 in xs) is 1e-8 D in x: Capler target 2.8 m broke a bound by 9.8e-6
+                opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
         scaled = (warm or self.scale_cold) and self.scale is not None
         key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:
             t0 = time.perf_counter()
-            name = ("loose_" if loose and self.options.intermediate_tol is not None else "") + ("warm" if warm else "cold")
+            name = "schedule" if schedule else ("loose_" if loose and self.options.intermediate_tol is not None else "") + ("warm" if warm else "cold")
             self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.scaled_nlp if scaled else self.nlp, opts)
             self.names[key] = name
             self.setup_time_s += time.perf_counter() - t0
@@ -542,7 +574,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     if scaling is VariableScaling.START:
         solvers.set_scale(variable_scale(problem, x, stages=True))
         solvers.scale_cold = True
-    for i, rho in enumerate(rhos):
+    held = _keep_schedule(problem, solvers, options, x, records, progress) if options.keep_schedule else None
+    for i, rho in enumerate(rhos if held is None else []):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
         lbg, ubg = problem.lbg, problem.ubg
@@ -563,9 +596,11 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         if (options.early_stop_comp is not None and not soft and scale == 1.0 and rec.success
                 and rec.complementarity_residual <= options.early_stop_comp):
             break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
-    homotopy_ok = all(r.success for r in records)
-    polished = False
-    if options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
+    homotopy_ok = all(r.success for r in records if r.label.startswith("homotopy"))
+    polished = held is not None
+    if polished:
+        x = held
+    elif options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
         for x_start, lam_x, lam_g, start_label in starts:
             if scaling is VariableScaling.START and problem.fesd is not None:
                 # the projection measures its distance in x / D: D from the point it starts from, not from the mapped
@@ -658,6 +693,39 @@ def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress:
     return replace(keep, stats=stats, nlps=nlps)
 
 
+def _keep_schedule(problem, solvers, options, x0, records, progress):
+    """SolveOptions.keep_schedule: the task's cost with x0's contact schedule held; the accepted point, or None."""
+    if "gates" in problem.notes:
+        x0 = ungate(problem, x0)
+    lbx, ubx, x_held = active_set_bounds(problem, x0)
+    x, _, _, rec = _run(problem, solvers, x_held, None, None, problem.params(0.0, 1.0), lbx, ubx, "schedule", schedule=True)
+    records.append(rec)
+    if progress:
+        progress(rec)
+    # a selector strictly inside (0, 1) at x0 is not held: the biped's step 0.25 -> 0.28 m made its first step a
+    # frozen impact of the stance foot that the start does not have. The schedule is kept if every impact overlaps
+    # one of the start's at the same point: one may end a step later (Capler at 3.1 m: steps 95-98 -> 95-99), and one
+    # may go (the N = 20 hop's start has steps 6-10 partly frozen, a stance the held schedule runs unfrozen)
+    old = _impact_steps(problem, x0, options)
+    new = [(c, a, b) for c, a, b in _impact_steps(problem, x, options) if not any(c == c0 and a < b0 and a0 < b for c0, a0, b0 in old)]
+    return x if _accepted(problem, options, x, rec) and not new else None
+
+
+def _impact_steps(problem: Problem, x, options) -> list[tuple[str, int, int]]:
+    """The plan's impacts at NLP point x as (contact point, first step, last step + 1)."""
+    traj, _, _ = plan_trajectory(problem, problem.split(x), _frozen_tol(problem, options))
+    return [(i.contact, round(i.tau_start / problem.h), round(i.tau_end / problem.h)) for i in traj.impacts]
+
+
+def _frozen_tol(problem: Problem, options) -> float:
+    return options.frozen_tol_several if len(problem.system.contacts) > 1 else options.frozen_tol
+
+
+def _accepted(problem, options, x, rec) -> bool:
+    """A polishing NLP's point stands in for the homotopy's: IPOPT converged, constraints and terminal kept."""
+    return rec.success and _feasible(problem, x, options) and rec.terminal_error <= options.terminal_tol
+
+
 def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label):
     """The polishing stage(s) from one homotopy point: (x, lam_x, lam_g) of the accepted polish, or None."""
     if "gates" in problem.notes:
@@ -679,7 +747,7 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
     records.append(rec)
     if progress:
         progress(rec)
-    if rec.success and _feasible(problem, xp, options) and rec.terminal_error <= options.terminal_tol:
+    if _accepted(problem, options, xp, rec):
         return xp, lxp, lgp
     return None
 
@@ -711,11 +779,11 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
     return sorted(rhos + inside)
 
 
-def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False):
+def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False, schedule=False):
     warm = lam_x is not None
     # the solvers that see x / D, once set: the warm ones, the projection, and the cold one with scale_cold (START)
     scaled = (warm or projection or solvers.scale_cold) and solvers.scale is not None
-    solver = solvers.projection() if projection else solvers.get(warm, loose)
+    solver = solvers.projection() if projection else solvers.get(warm, loose, schedule)
     D = solvers.scale if scaled else np.ones(problem.nx)
     if projection:
         lam_x, lam_g, warm = None, None, False
@@ -890,11 +958,7 @@ def _feasible(problem, x, options) -> bool:
 
 
 def _result(problem: Problem, options: SolveOptions, x, records, polished, wall, timings) -> PlanResult:
-    parts = problem.split(x)
-    frozen_tol = options.frozen_tol
-    if len(problem.system.contacts) > 1:
-        frozen_tol = options.frozen_tol_several
-    traj, W, nodes = plan_trajectory(problem, parts, frozen_tol)
+    traj, W, nodes = plan_trajectory(problem, problem.split(x), _frozen_tol(problem, options))
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
@@ -912,7 +976,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, polished, wall,
         reasons.append(f"constraint {worst} violated by {viol[worst]:.3g}")
     capped = [r.label for r in homotopy if not r.success and r is not last]
     converged = not reasons
-    message = "ok" + (" (active-set polished)" if polished else "") if converged else "; ".join(reasons)
+    how = " (the start's contact schedule kept)" if last.label == "schedule" else " (active-set polished)"
+    message = "ok" + (how if polished else "") if converged else "; ".join(reasons)
     if capped:
         message += f"; on the way, IPOPT stopped early in {', '.join(capped)}"
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),

@@ -206,7 +206,8 @@ HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: it converges
     with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name
-    DIR). A DIR without a plan's NLP point (a simulation), a plan on another grid (--steps) and FESD are
+    DIR); with --keep-schedule in the one NLP that holds DIR's contact schedule. A DIR without a plan's NLP
+    point (a simulation), a plan on another grid (--steps), FESD and --keep-schedule without --init are
     exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
@@ -221,6 +222,12 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     # the NLP at 1e4 ends complementary enough (<= REPLAN_STOP_COMP) to skip the one at 1e6: that NLP and the polish
     assert summary["options"]["solve"]["rho_schedule"] == [1e4, 1e6] and len(summary["nlps"]) == 2
     assert summary["options"]["init"] == str(tmp_path / "hop")
+    kept = [a if a != str(tmp_path / "closer") else str(tmp_path / "kept") for a in argv] + ["--keep-schedule"]
+    assert main(kept) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["converged"] and [n["label"] for n in summary["nlps"]] == ["schedule"]
+    assert summary["options"]["solve"]["keep_schedule"] is True
+    _one_line_exit_2(capsys, first + ["--keep-schedule"], "--keep-schedule needs --init DIR")
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")

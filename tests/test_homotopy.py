@@ -379,3 +379,27 @@ def test_replan_from_a_nearby_plan_converges_in_a_fraction_of_the_iterations(hop
     assert warm.stats.complementarity_residual <= COMP_TOL and warm.terminal_error <= TERMINAL_TOL
     assert warm.trajectory.q[-1, 0] == pytest.approx(REPLAN_TARGET_X, abs=TERMINAL_TOL)
     assert warm.stats.ipopt_iterations < REPLAN_SHARE * res.stats.ipopt_iterations
+
+
+def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monkeypatch):
+    """keep_schedule from the hop's plan for the hop to x = 0.55 m: the one "schedule" NLP (the start's
+    contact schedule held) is accepted: converged, exactly complementary, at the new target, with the
+    start's impacts on the same steps, in fewer iterations than the penalty replan. When it is not
+    accepted (IPOPT stopped after one iteration, or the plan has an impact the start has not) the penalty replan runs
+    from the same start and converges as without it."""
+    prob, res, _ = hop
+    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
+    moved = dataclasses.replace(build_problem(prob.robot, task), x0=res.extra["_x"])
+    options = dataclasses.replace(H.replan_options(), keep_schedule=True)
+    held = H.solve(moved, options)
+    assert [r.label for r in held.nlps] == ["schedule"] and held.stats.converged and held.polished, held.stats.message
+    assert held.stats.complementarity_residual == 0.0 and held.terminal_error <= TERMINAL_TOL
+    assert H._impact_steps(moved, held.extra["_x"], options) == H._impact_steps(prob, res.extra["_x"], options)
+    assert held.stats.ipopt_iterations < H.solve(moved, H.replan_options()).stats.ipopt_iterations
+    capped = H.solve(moved, dataclasses.replace(options, schedule_max_iter=1))
+    start = H.ungate(moved, moved.x0) if "gates" in moved.notes else moved.x0  # the point the schedule is read from
+    monkeypatch.setattr(H, "_impact_steps", lambda problem, x, options: [("point", 38, 39)] + ([] if np.array_equal(x, start) else [("point", 30, 31)]))
+    moved_impacts = H.solve(moved, options)
+    for run in (capped, moved_impacts):
+        assert run.nlps[0].label == "schedule" and run.nlps[1].label == "homotopy 1"
+        assert run.stats.converged and run.stats.message == "ok (active-set polished)"
