@@ -542,6 +542,35 @@ def test_bench_biped_walk_quick_run(tmp_path, capsys):
             bench.main(bad + ["--out", str(tmp_path)])
 
 
+# --- scripts/bench_replan.py ---------------------------------------------------------------------------
+
+def test_bench_replan_quick_run(tmp_path, capsys):
+    """--quick --json: the hop's start plan, then one moved task replanned both ways, with the documented
+    fields, as printed and as in results.json; the keep_schedule run's first NLP is "schedule" and the
+    other's is not. moved_task changes only the periodic step or, without one, the target's first
+    coordinate; a task without either is refused before any solve. No timing assertions."""
+    import tomllib
+
+    bench = _load("bench_replan")
+    assert bench.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    runs = json.loads(capsys.readouterr().out)
+    assert runs == json.loads((tmp_path / "results.json").read_text())["runs"]
+    assert [(r["value"], r["variant"]) for r in runs] == [(0.52, "replan"), (0.52, "keep_schedule")]
+    for r in runs:
+        for key in ("exit_code", "converged", "nlps", "ipopt_iterations", "solve_time_s", "control_cost", "impact_times_s",
+                    "validation_passed", "steps_walked"):
+            assert key in r, key
+    assert runs[0]["nlps"][0][0] == "homotopy 1" and runs[1]["nlps"][0][0] == "schedule"
+    hop = tomllib.loads(bench.QUICK_TASK)
+    moved = tomllib.loads(bench.moved_task(bench.QUICK_TASK, 0.6))
+    assert moved["plan"].pop("target_q") == [0.6, 0.0] and hop["plan"].pop("target_q") == [0.5, 0.0] and moved == hop
+    biped = (bench.ROOT / "robots" / "biped.toml").read_text()
+    walk, moved = tomllib.loads(biped), tomllib.loads(bench.moved_task(biped, 0.3))
+    assert moved["plan"]["periodic"].pop("step") == 0.3 and walk["plan"]["periodic"].pop("step") == 0.25 and moved == walk
+    with pytest.raises(SystemExit):
+        bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
+
+
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
 
 def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):

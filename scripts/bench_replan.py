@@ -1,0 +1,113 @@
+"""Replanning from a plan (`planner plan --init DIR`), with and without --keep-schedule, as the task moves.
+
+For a robot in robots/ this plans its default task hint-free once (or takes `--init DIR`, a plan of it),
+then replans copies of the task with one number changed, each twice: the penalty replan (`--init`) and
+the replan that first holds the start's contact schedule (`--init --keep-schedule`). The number is the
+target's first coordinate (`plan.target_q[0]`, Capler's x [m]) or, for a periodic task, the step
+(`plan.periodic.step` [m]). Per run: exit code, converged, the NLPs (label, IPOPT iterations), solve time
+[s], control cost, impact times [s], and with --validate the MuJoCo verdict (a walk's steps walked).
+Writes OUT/results.json and prints a Markdown table.
+
+    python -m scripts.bench_replan capler --values 2.8 2.9 2.95 3.1 [--init DIR] [--validate] [--out DIR] [--json]
+    python -m scripts.bench_replan biped --values 0.22 0.24 0.26 0.27 0.28 0.3 --validate
+    python -m scripts.bench_replan --quick --json     # CI smoke run: the point-mass hop, N = 20
+
+Iterations are deterministic on one machine; the walls depend on its load.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+from planner.cli import main as planner_main
+from planner.result import write_atomically
+
+ROOT = Path(__file__).resolve().parent.parent
+TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
+STEP_LINE = re.compile(r"^(step = )([^\s#]+)", re.MULTILINE)
+QUICK_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+              '[horizon]\ntau_f = 1.0\nN = 20\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+VARIANTS = {"replan": [], "keep_schedule": ["--keep-schedule"]}
+
+
+def moved_task(text: str, value: float) -> str:
+    """The task file's text with its moved number (the periodic step, else the target's first coordinate) set."""
+    name, pattern = ("step", STEP_LINE) if STEP_LINE.search(text) else ("target_q", TARGET_LINE)
+    if len(pattern.findall(text)) != 1:
+        raise SystemExit(f"the task needs exactly one '{name} = ...' line to move")
+    return pattern.sub(lambda m: m.group(1) + repr(float(value)), text)
+
+
+def record(out: Path, code: int) -> dict:
+    """What a `planner plan` run wrote to `out` (OUT/failed when it did not converge)."""
+    plan = out if (out / "summary.json").is_file() else out / "failed"
+    if not (plan / "summary.json").is_file():  # exit 2: the input was refused, nothing was planned
+        raise SystemExit(f"planner plan exited {code} without a result in {out}")
+    s = json.loads((plan / "summary.json").read_text())
+    v = s.get("validation") or {}
+    return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
+            "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
+            "impact_times_s": [i["time"] for i in s["impacts"]], "validation_passed": v.get("passed"),
+            "steps_walked": v.get("steps_walked")}
+
+
+def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) -> dict:
+    code = planner_main(["plan", robot, "--task", str(task), "--out", str(out), "-q", *extra] + ([] if validate else ["--no-validate"]))
+    return record(out, code)
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] | cost | impacts [s] | MuJoCo |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        nlps = ", ".join(f"{label} {its}" for label, its in r["nlps"])
+        mujoco = ("not run" if r["validation_passed"] is None else
+                  f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else ""))
+        impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
+        lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | {nlps} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+                     f"{r['control_cost']:.2f} | {impacts} | {mujoco} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("robot", nargs="?", default="capler", help="a robot in robots/ with its default task (default capler)")
+    parser.add_argument("--values", type=float, nargs="+", help="the moved number's values (target x or step [m])")
+    parser.add_argument("--init", type=Path, metavar="DIR", help="the start plan (default: plan the default task hint-free first)")
+    parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "replan")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.quick:
+        robot, values, base_text = "point_mass", [0.52], QUICK_TASK
+    else:
+        if not args.values:
+            parser.error("--values is required (the moved target x or step [m])")
+        robot, values, base_text = args.robot, args.values, (ROOT / "robots" / f"{args.robot}.toml").read_text()
+    moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
+    base_task = args.out / "base.toml"
+    base_task.write_text(base_text)
+    start = args.init
+    if start is None:
+        start = args.out / "base"
+        if plan(robot, base_task, start, [], False)["exit_code"] != 0:
+            raise SystemExit(f"the start plan did not converge: see {start}")
+    rows = []
+    for value in values:
+        task = args.out / f"task_{value:g}.toml"
+        task.write_text(moved_task(base_text, value))
+        for variant, extra in VARIANTS.items():
+            run = plan(robot, task, args.out / f"{variant}_{value:g}", ["--init", str(start), *extra], args.validate)
+            rows.append({"value": value, "variant": variant, **run})
+    write_atomically(args.out / "results.json", json.dumps({"robot": robot, "start": str(start), "quick": args.quick, "runs": rows}, indent=1) + "\n")
+    print(json.dumps(rows, indent=1) if args.json else table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
