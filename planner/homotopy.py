@@ -702,13 +702,15 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     records.append(rec)
     if progress:
         progress(rec)
+    if not _accepted(problem, options, x, rec):
+        return None
     # a selector strictly inside (0, 1) at x0 is not held: the biped's step 0.25 -> 0.28 m made its first step a
     # frozen impact of the stance foot that the start does not have. The schedule is kept if every impact overlaps
     # one of the start's at the same point: one may end a step later (Capler at 3.1 m: steps 95-98 -> 95-99), and one
     # may go (the N = 20 hop's start has steps 6-10 partly frozen, a stance the held schedule runs unfrozen)
     old = _impact_steps(problem, x0, options)
     new = [(c, a, b) for c, a, b in _impact_steps(problem, x, options) if not any(c == c0 and a < b0 and a0 < b for c0, a0, b0 in old)]
-    return x if _accepted(problem, options, x, rec) and not new else None
+    return None if new else x
 
 
 def _impact_steps(problem: Problem, x, options) -> list[tuple[str, int, int]]:
