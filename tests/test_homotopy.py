@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import re
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -43,7 +44,7 @@ def test_point_mass_hop_converges(hop):
     schedule = H.task_rho_schedule(prob.task.plan.homotopy, 100.0, 1e6, (3e3,))
     assert schedule == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
     homotopy = [r for r in records if r.label.startswith("homotopy")]
-    assert [r.rho for r in homotopy] == schedule[: len(homotopy)] and records[-1].label == "polish"
+    assert [r.rho for r in homotopy] == schedule[: len(homotopy)] and [r.label for r in records[-2:]] == ["polish", "reoptimize"]
 
 
 # The later NLPs (rho 1e5, 1e6) move an already complementary point by ~1e-5 (IPOPT's restart from
@@ -63,10 +64,10 @@ def test_early_stop_ends_the_homotopy_at_the_first_complementary_nlp(hop):
     assert all(r.complementarity_residual > stop for r in homotopy[1:-1])
     assert len(homotopy) < 6  # the hop's products are ~1e-18 at rho = 1e4: 1e5 and 1e6 are skipped
     full = H.solve(prob, H.SolveOptions(early_stop_comp=None))
-    assert full.stats.converged and [r.rho for r in full.nlps[:-1]] == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
+    assert full.stats.converged and [r.rho for r in full.nlps if r.label.startswith("homotopy")] == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6]
     Y0, Y1 = (prob.split(r.extra["_x"])["Y"] for r in (res, full))
     assert np.abs(Y0 - Y1).max() <= SAME_PLAN_TOL
-    assert res.nlps[-1].objective <= 1e-6 and full.nlps[-1].objective <= 1e-6
+    assert all(next(r for r in run.nlps if r.label == "polish").objective <= 1e-6 for run in (res, full))
 
 
 def test_point_mass_hop_phases(hop):
@@ -153,7 +154,6 @@ def test_variable_scaling_sees_the_same_nlp_in_scaled_variables():
     equal the unscaled ones at x (to rounding), the cold NLP 1 solver stays unscaled, and a solve with
     it on the point-mass hop converges with every NLP. The task key [plan.homotopy] scale_variables
     chooses the mode when SolveOptions leaves it None; an unknown mode is rejected."""
-    import casadi as ca
 
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=8))
     rng = np.random.default_rng(0)
@@ -381,6 +381,29 @@ def test_replan_from_a_nearby_plan_converges_in_a_fraction_of_the_iterations(hop
     assert warm.stats.ipopt_iterations < REPLAN_SHARE * res.stats.ipopt_iterations
 
 
+def test_reoptimize_makes_the_polished_plan_the_cheapest_on_its_schedule(hop, monkeypatch):
+    """The hop's default solve ends with the "reoptimize" NLP (the task's cost with the polished plan's
+    contact schedule held): the plan it returns is exactly complementary, at the target, and its NLP
+    objective is no larger than the polished plan's (SolveOptions(reoptimize=False)). A re-optimized
+    point that is not cheaper is not taken: the polished plan is returned as without the stage."""
+    prob, res, _ = hop
+    plain = H.solve(prob, H.SolveOptions(reoptimize=False))
+    assert [r.label for r in plain.nlps][-1] == "polish" and plain.stats.message == "ok (active-set polished)"
+    assert [r.label for r in res.nlps][-2:] == ["polish", "reoptimize"]
+    f = ca.Function("f", [prob.x, prob.p], [prob.f])
+    cost = {run: float(f(run.extra["_x"], prob.params(0.0, 1.0))) for run in (res, plain)}
+    assert res.stats.converged and res.stats.complementarity_residual == 0.0 and res.terminal_error <= TERMINAL_TOL
+    assert cost[res] <= cost[plain]
+    if res.stats.message.endswith("re-optimized on its contact schedule)"):
+        assert cost[res] < cost[plain]
+    else:
+        np.testing.assert_array_equal(res.extra["_x"], plain.extra["_x"])
+    monkeypatch.setattr(H, "_held", lambda problem, solvers, options, x0, records, progress, label: (x0, x0))  # not cheaper
+    kept = H.solve(prob, H.SolveOptions())
+    assert kept.stats.message == "ok (active-set polished)"
+    np.testing.assert_array_equal(kept.extra["_x"], plain.extra["_x"])
+
+
 def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monkeypatch):
     """keep_schedule from the hop's plan for the hop to x = 0.55 m: the one "schedule" NLP (the start's
     contact schedule held) is accepted: converged, exactly complementary, at the new target, with the
@@ -402,4 +425,4 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
     moved_impacts = H.solve(moved, options)
     for run in (capped, moved_impacts):
         assert run.nlps[0].label == "schedule" and run.nlps[1].label == "homotopy 1"
-        assert run.stats.converged and run.stats.message == "ok (active-set polished)"
+        assert run.stats.converged and run.stats.message.startswith("ok (active-set polished")
