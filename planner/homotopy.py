@@ -433,13 +433,12 @@ REPLAN_BOUND_PUSH = 1e-8
 # then spent 13 iterations creeping from its acceptable level 1e-6 towards tol at a fixed mu (every Capler target).
 SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9, "bound_frac": 1e-9, "perturb_always_cd": "yes",
                   "acceptable_iter": 2}
-# The held-schedule NLP (keep_schedule, reoptimize): MUMPS's permuting scaling (its weighted matching, IPOPT's
-# default 7) cost two thirds of an iteration there. Without it, Capler's schedule NLP (target 3.0 -> 2.9 m) took 35
-# instead of 39 iterations at 15 instead of 45 ms. The projection polish keeps it: without it the penalty replan's
-# polish took 17 instead of 65 ms per iteration, but the biped's default plan moved and walked 9 of 10 steps in
-# MuJoCo (tests/test_walk.py); on the homotopy's NLPs it changes the path, not the cost (docs/benchmarks.md,
-# "Replanning", session 13).
-SCHEDULE_MUMPS = {"mumps_permuting_scaling": 0}
+# The NLPs whose barrier starts at mu = 1e-9 (the held-schedule NLP of keep_schedule and reoptimize, the projection
+# polish): MUMPS's permuting scaling (its weighted matching, IPOPT's default 7) cost two thirds of an iteration
+# there. Without it, Capler's schedule NLP (target 3.0 -> 2.9 m) took 35 instead of 39 iterations at 15 instead of
+# 45 ms, the penalty replan's polish 24 iterations at 17 instead of 65 ms. On the homotopy's NLPs it changes the
+# path, not the cost (docs/benchmarks.md, "Full solves and the gap", session 13).
+SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
 
 
 def replan_options(options: SolveOptions | None = None) -> SolveOptions:
@@ -534,6 +533,8 @@ class _Solvers:
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
             opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
+            if self.options.linear_solver == "mumps":
+                opts["ipopt"].update(SMALL_MU_MUMPS)
             if pb.fesd is not None and self.scale is not None:
                 # FESD Capler's gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke
                 # lambda >= 0 by 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md)
@@ -548,7 +549,7 @@ class _Solvers:
         if schedule:
             opts["ipopt"].update(SCHEDULE_IPOPT, max_iter=self.options.schedule_max_iter)
             if self.options.linear_solver == "mumps":
-                opts["ipopt"].update(SCHEDULE_MUMPS)
+                opts["ipopt"].update(SMALL_MU_MUMPS)
             if self.scale is not None:  # IPOPT's bound relaxation (1e-8 in xs) is 1e-8 D in x: Capler target 2.8 m broke a bound by 9.8e-6
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
         scaled = (warm or schedule or self.scale_cold) and self.scale is not None
