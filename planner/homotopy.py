@@ -258,7 +258,7 @@ class SolveOptions:
     makes the homotopy's point complementary; this makes the plan the cheapest with that schedule. Its
     impacts may differ by a step from the polished plan's (a frozen step split in two). Implicit Euler
     only (FESD plans are returned as polished). Measured on seven Capler tasks (docs/benchmarks.md,
-    "Re-optimizing on the polished schedule", session 13): 0.4-46 % cheaper, 25-63 iterations.
+    "Re-optimizing on the polished schedule", session 13): 0.4-46 % cheaper, 26-58 iterations.
     """
 
     tol: float = 1e-8
@@ -720,34 +720,31 @@ def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress:
 
 
 def _held(problem, solvers, options, x0, records, progress, label):
-    """The task's cost with x0's contact schedule held (SCHEDULE_IPOPT): (ungated x0, the accepted point or None)."""
-    if "gates" in problem.notes:
-        x0 = ungate(problem, x0)
+    """The task's cost with the contact schedule of x0 (ungated) held (SCHEDULE_IPOPT): the accepted point, or None."""
     lbx, ubx, x_held = active_set_bounds(problem, x0)
     x, _, _, rec = _run(problem, solvers, x_held, None, None, problem.params(0.0, 1.0), lbx, ubx, label, schedule=True)
     records.append(rec)
     if progress:
         progress(rec)
-    return x0, (x if _accepted(problem, options, x, rec) else None)
+    return x if _accepted(problem, options, x, rec) else None
 
 
 def _reoptimize(problem, solvers, options, x0, records, progress):
     """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None."""
+    if "gates" in problem.notes:
+        x0 = ungate(problem, x0)
     # scaled by the plan's own magnitudes, as the replan's schedule NLP is (VariableScaling.START)
-    solvers.set_scale(variable_scale(problem, ungate(problem, x0) if "gates" in problem.notes else x0, stages=True))
-    x0, x = _held(problem, solvers, options, x0, records, progress, "reoptimize")
-    if x is None:
-        return None
-    f = problem.notes.get("f_fn")
-    if f is None:
-        f = problem.notes["f_fn"] = ca.Function("f", [problem.x, problem.p], [problem.f])
+    solvers.set_scale(variable_scale(problem, x0, stages=True))
+    x = _held(problem, solvers, options, x0, records, progress, "reoptimize")
     p = problem.params(0.0, 1.0)
-    return x if float(f(x, p)) < float(f(x0, p)) else None
+    return x if x is not None and float(_f_fn(problem)(x, p)) < float(_f_fn(problem)(x0, p)) else None
 
 
 def _keep_schedule(problem, solvers, options, x0, records, progress):
     """SolveOptions.keep_schedule: the task's cost with x0's contact schedule held; the accepted point, or None."""
-    x0, x = _held(problem, solvers, options, x0, records, progress, "schedule")
+    if "gates" in problem.notes:
+        x0 = ungate(problem, x0)
+    x = _held(problem, solvers, options, x0, records, progress, "schedule")
     if x is None:
         return None
     # a selector strictly inside (0, 1) at x0 is not held: the biped's step 0.25 -> 0.28 m made its first step a
@@ -987,6 +984,13 @@ def _g_fn(problem: Problem):
     fn = problem.notes.get("g_fn")
     if fn is None:
         fn = problem.notes["g_fn"] = ca.Function("g", [problem.x, problem.p], [problem.g])
+    return fn
+
+
+def _f_fn(problem: Problem):
+    fn = problem.notes.get("f_fn")
+    if fn is None:
+        fn = problem.notes["f_fn"] = ca.Function("f", [problem.x, problem.p], [problem.f])
     return fn
 
 
