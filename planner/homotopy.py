@@ -617,33 +617,31 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
                 and rec.complementarity_residual <= options.early_stop_comp):
             break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
     homotopy_ok = all(r.success for r in records if r.label.startswith("homotopy"))
-    polished = held is not None
-    if polished:
-        x = held
+    source = None  # the label of the polishing NLP whose point x becomes (None: x stays the homotopy's)
+    if held is not None:
+        x, source = held, "schedule"
     elif options.polish is not Polish.NONE and (homotopy_ok or options.polish_after_failure):
         for x_start, lam_x, lam_g, start_label in starts:
             if scaling is VariableScaling.START and problem.fesd is not None:
                 # the projection measures its distance in x / D: D from the point it starts from, not from the mapped
                 # implicit-Euler start (Capler N = 50: 2265 iterations with the start's D, 65 with this one)
                 solvers.set_scale(variable_scale(problem, x_start, stages=True))
-            accepted = _polish(problem, solvers, options, x_start, lam_x, lam_g, records, progress,
-                               "polish" if start_label == starts[0][3] else f"polish from {start_label}")
+            label = "polish" if start_label == starts[0][3] else f"polish from {start_label}"
+            accepted = _polish(problem, solvers, options, x_start, lam_x, lam_g, records, progress, label)
             if accepted is not None:
-                x, lam_x, lam_g = accepted
-                polished = True
+                (x, lam_x, lam_g), source = accepted, label
+                if options.reoptimize and problem.fesd is None:
+                    better = _reoptimize(problem, solvers, options, x, records, progress)
+                    if better is not None:
+                        x, source = better, "reoptimize"
                 break
-    source = "schedule" if held is not None else next((r.label for r in reversed(records) if r.label.startswith("polish")), None)
-    if polished and held is None and options.reoptimize and problem.fesd is None:
-        better = _reoptimize(problem, solvers, options, x, records, progress)
-        if better is not None:
-            x, source = better, "reoptimize"
-    if not polished and "gates" in problem.notes:
+    if source is None and "gates" in problem.notes:
         x = ungate(problem, x)
     timings["solver_setup_s"] = solvers.setup_time_s
     timings["ipopt_s"] = sum(r.time_s for r in records)
     stats_t = _ipopt_timing(solvers)
     timings.update(stats_t)
-    result = _result(problem, options, x, records, source if polished else None, time.perf_counter() - start, timings)
+    result = _result(problem, options, x, records, source, time.perf_counter() - start, timings)
     result.extra["_x"] = x  # the NLP solution (trajectory.npz's nlp_x, for planner plan --init; not in the summary)
     result.extra["_signature"] = problem.signature
     # the task's cost at the returned plan (the projection polish's own objective is a distance)
@@ -736,8 +734,8 @@ def _reoptimize(problem, solvers, options, x0, records, progress):
     # scaled by the plan's own magnitudes, as the replan's schedule NLP is (VariableScaling.START)
     solvers.set_scale(variable_scale(problem, x0, stages=True))
     x = _held(problem, solvers, options, x0, records, progress, "reoptimize")
-    p = problem.params(0.0, 1.0)
-    return x if x is not None and float(_f_fn(problem)(x, p)) < float(_f_fn(problem)(x0, p)) else None
+    f, p = _f_fn(problem), problem.params(0.0, 1.0)
+    return x if x is not None and float(f(x, p)) < float(f(x0, p)) else None
 
 
 def _keep_schedule(problem, solvers, options, x0, records, progress):
