@@ -29,12 +29,15 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True) -> None:
+def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     if task:
         p.add_argument("--task", type=Path, help="task file (default: the .toml beside the robot file)")
     if out:
         p.add_argument("--out", type=Path, help="directory that receives the results")
+    if plots:
+        p.add_argument("--no-plots", action="store_true",
+                       help="write no PNG plots (matplotlib takes ~2 s, most of a 4 s replan; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
     verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
@@ -67,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elements", type=int, default=4,
                    help="fesd: finite elements per step, at least one more than the switches in a step "
                         "(default 4: an impact step holds its start, the end of the frozen phase and the landing mode)")
-    _add_common(p)
+    _add_common(p, plots=True)
     p.set_defaults(run=_cmd_simulate)
 
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
@@ -106,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked by IPOPT (SolveOptions.ipopt)")
     p.add_argument("--warm-ipopt", action="append", default=[], metavar="NAME=VALUE",
                    help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
-    _add_common(p)
+    _add_common(p, plots=True)
     p.set_defaults(run=_cmd_plan)
 
     p = sub.add_parser("gait", help="periodic biped gait by paper 001's embedding, relaxation, Newton and PRONTO",
@@ -198,11 +201,14 @@ def _load_inputs(args):
 def _write(args, result, out: Path) -> Path:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
     good earlier result in `out` is never overwritten."""
-    from .plots import plot_results
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
+    if args.no_plots:
+        return target
+    from .plots import plot_results  # matplotlib: ~1 s to import
+
     try:
         plot_results(target)
     except InputError as exc:

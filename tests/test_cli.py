@@ -91,6 +91,18 @@ def test_simulate_writes_the_contract(tmp_path, capsys):
     assert {"trajectory.npz", "summary.json", "clock.png"} <= {p.name for p in out.iterdir()}
 
 
+def test_no_plots_writes_the_contract_without_pngs(tmp_path, capsys):
+    """`simulate --no-plots` (as `plan --no-plots`) writes trajectory.npz and summary.json and no PNG at all."""
+    out = tmp_path / "out"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--no-plots", "-q"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"trajectory.npz", "summary.json"} <= names and not any(n.endswith(".png") for n in names), names
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["plan", "--help"])
+    assert "--no-plots" in capsys.readouterr().out
+
+
 FESD_IMPACT_TOL_S = 1e-7  # the switch sits on an element boundary: solver tolerance, not the step h
 
 
