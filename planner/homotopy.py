@@ -509,6 +509,11 @@ class _Solvers:
         self.scaled_nlp = self._probed({"x": xs, "p": pb.p, "f": ca.substitute(pb.f, pb.x, x), "g": ca.substitute(pb.g, pb.x, x)})
         self.cache = {k: v for k, v in self.cache.items() if not k.startswith("scaled") and k != "projection"}
 
+    def sees_scale(self, warm: bool, schedule: bool = False, projection: bool = False) -> bool:
+        """Whether that solver solves for xs = x / D: once a scale is set, the warm ones, the projection, the
+        held-schedule one, and the cold one with scale_cold (VariableScaling.START)."""
+        return (warm or schedule or projection or self.scale_cold) and self.scale is not None
+
     def _bound_relax(self) -> float:
         """IPOPT's bound_relax_factor for a solver that sees xs = x / D: IPOPT relaxes each bound by it (default
         1e-8) in xs, i.e. by that times D in x; kept a tenth of the verdict's constraint_tol in x."""
@@ -524,7 +529,7 @@ class _Solvers:
             pb = self.problem
             xref = ca.SX.sym("x_ref", pb.nx)
             # with a scale, the distance in xs = x / D: a 1e3 force and a 0..1 selector weigh alike
-            base = self.scaled_nlp if self.scale is not None else self.nlp
+            base = self.scaled_nlp if self.sees_scale(False, projection=True) else self.nlp
             x = base["x"][: pb.nx]  # without the probe: the projection is a Newton projection, unregularized
             d = x - xref
             nlp = {"x": x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": base["g"]}
@@ -552,7 +557,7 @@ class _Solvers:
                 opts["ipopt"].update(SMALL_MU_MUMPS)
             if self.scale is not None:  # IPOPT's bound relaxation (1e-8 in xs) is 1e-8 D in x: Capler target 2.8 m broke a bound by 9.8e-6
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
-        scaled = (warm or schedule or self.scale_cold) and self.scale is not None
+        scaled = self.sees_scale(warm, schedule)
         key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:
             t0 = time.perf_counter()
@@ -734,7 +739,7 @@ def _reoptimize(problem, solvers, options, x0, records, progress):
     # scaled by the plan's own magnitudes, as the replan's schedule NLP is (VariableScaling.START)
     solvers.set_scale(variable_scale(problem, x0, stages=True))
     x = _held(problem, solvers, options, x0, records, progress, "reoptimize")
-    f, p = _f_fn(problem), problem.params(0.0, 1.0)
+    f, p = _nlp_fn(problem, "f"), problem.params(0.0, 1.0)
     return x if x is not None and float(f(x, p)) < float(f(x0, p)) else None
 
 
@@ -824,8 +829,7 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False, schedule=False):
     warm = lam_x is not None
-    # the solvers that see x / D, once set: the warm ones, the projection, the held-schedule one, and the cold one with scale_cold (START)
-    scaled = (warm or projection or schedule or solvers.scale_cold) and solvers.scale is not None
+    scaled = solvers.sees_scale(warm, schedule, projection)
     solver = solvers.projection() if projection else solvers.get(warm, loose, schedule)
     D = solvers.scale if scaled else np.ones(problem.nx)
     if projection:
@@ -966,7 +970,7 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
 
 def terminal_error(problem: Problem, x) -> float:
     """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s]."""
-    g_fn = _g_fn(problem)
+    g_fn = _nlp_fn(problem, "g")
     g = np.asarray(g_fn(x, problem.params(0.0, 1.0)), float).ravel()
     rows = _terminal_rows(problem)
     return float(np.max(np.abs(g[rows] - problem.lbg[rows])))
@@ -978,23 +982,17 @@ def _terminal_rows(problem: Problem) -> np.ndarray:
     return (problem.g_blocks["terminal"] if "terminal" in problem.g_blocks else problem.g_blocks["periodic"]).ravel()
 
 
-def _g_fn(problem: Problem):
-    fn = problem.notes.get("g_fn")
-    if fn is None:
-        fn = problem.notes["g_fn"] = ca.Function("g", [problem.x, problem.p], [problem.g])
-    return fn
-
-
-def _f_fn(problem: Problem):
-    fn = problem.notes.get("f_fn")
-    if fn is None:
-        fn = problem.notes["f_fn"] = ca.Function("f", [problem.x, problem.p], [problem.f])
-    return fn
+def _nlp_fn(problem: Problem, name: str):
+    """The NLP's objective ("f") or constraints ("g") as a Function of (x, p), built once per problem."""
+    key = f"{name}_fn"
+    if key not in problem.notes:
+        problem.notes[key] = ca.Function(name, [problem.x, problem.p], [getattr(problem, name)])
+    return problem.notes[key]
 
 
 def constraint_violation(problem: Problem, x, hole_scale: float = 1.0) -> dict[str, float]:
     """Largest violation [constraint units] of each constraint block and of the bounds at x."""
-    g = np.asarray(_g_fn(problem)(x, problem.params(0.0, hole_scale)), float).ravel()
+    g = np.asarray(_nlp_fn(problem, "g")(x, problem.params(0.0, hole_scale)), float).ravel()
     viol = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
     out = {name: float(np.max(viol[rows.ravel()], initial=0.0)) for name, rows in problem.g_blocks.items() if name != "penalty"}
     x = np.asarray(x, float).ravel()

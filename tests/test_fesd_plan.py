@@ -194,7 +194,7 @@ def test_implicit_euler_plan_maps_onto_fesd():
     viol = H.constraint_violation(prob, x0)
     for name in ("lifting", "terminal", "bounds", "element_lengths"):
         assert viol[name] <= MAP_TOL, (name, viol[name])
-    g = np.asarray(H._g_fn(prob)(x0, prob.params(0.0)), float).ravel()
+    g = np.asarray(H._nlp_fn(prob, "g")(x0, prob.params(0.0)), float).ravel()
     ny = prob.system.ny
     assert np.max(np.abs(g[gb["dynamics"][:, -ny:]])) <= MAP_TOL  # the last stage of the last element: the step's end
     prods = np.asarray(prob.notes["gated_products"](x0), float).ravel()

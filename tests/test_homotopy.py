@@ -246,10 +246,10 @@ def test_gating_and_ungate_keep_the_trajectory():
     gates = np.asarray(prob.notes["gates"](x), float).ravel()
     n = prob.system.n_sigma
     assert gates[names.index("alpha")] == 0 and gates[names.index("zeta")] == 0 and gates[names.index("beta")] == 1
-    g_before = np.asarray(H._g_fn(prob)(x, prob.params(0.0)), float).ravel()
+    g_before = np.asarray(H._nlp_fn(prob, "g")(x, prob.params(0.0)), float).ravel()
     xu = H.ungate(prob, x)
     rows = np.concatenate([prob.g_blocks[b].ravel() for b in ("dynamics", "stationarity")])
-    g_after = np.asarray(H._g_fn(prob)(xu, prob.params(0.0)), float).ravel()
+    g_after = np.asarray(H._nlp_fn(prob, "g")(xu, prob.params(0.0)), float).ravel()
     assert np.allclose(g_after[rows], g_before[rows], atol=1e-12)
     assert np.allclose(g_after[prob.g_blocks["lifting"].ravel()], 0.0, atol=1e-12)  # lifted products recomputed
     prods = np.asarray(prob.products(xu), float).ravel()[: 2 * n]
@@ -266,10 +266,10 @@ def test_aux_continuation_scale_one_is_the_task():
     b = build_problem(robot, hop_task(N=3), ProblemOptions(aux_continuation=True))
     rng = np.random.default_rng(0)
     x = a.x0 + 0.1 * rng.standard_normal(a.nx)
-    ga = np.asarray(H._g_fn(a)(x, a.params(1.0)), float).ravel()
-    gb = np.asarray(H._g_fn(b)(x, b.params(1.0)), float).ravel()
+    ga = np.asarray(H._nlp_fn(a, "g")(x, a.params(1.0)), float).ravel()
+    gb = np.asarray(H._nlp_fn(b, "g")(x, b.params(1.0)), float).ravel()
     assert np.allclose(ga, gb)
-    gh = np.asarray(H._g_fn(b)(x, b.params(1.0, 1.0, 0.5, 0.5)), float).ravel()
+    gh = np.asarray(H._nlp_fn(b, "g")(x, b.params(1.0, 1.0, 0.5, 0.5)), float).ravel()
     assert not np.allclose(ga, gh)
 
 
