@@ -314,6 +314,41 @@ def test_keep_freed_memory_serves_large_blocks_from_the_heap():
         libc.free(p)
 
 
+@pytest.mark.parametrize("mode", list(H.Regularization))
+def test_shared_derivatives_are_the_derivatives_of_each_ipopts_own_nlp(mode):
+    """Every IPOPT of a solve gets its gradient, Jacobian and Lagrangian Hessian from one derivation of the
+    unscaled NLP (_Solvers.derivatives): for the unscaled NLP, the scaled one (xs = x / D) and the
+    projection (distance to x_ref in xs, no probe variable) they equal, value and sparsity, what CasADi
+    derives from that IPOPT's own NLP, with and without the Regularization.FROM_LAST probe."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=8))
+    rng = np.random.default_rng(1)
+    x = prob.x0 + rng.normal(scale=2.0, size=prob.nx)
+    solvers = H._Solvers(prob, H.SolveOptions(regularization=mode))
+    solvers.set_scale(H.variable_scale(prob, 30.0 * x))
+    D = solvers.scale
+    lam_g = rng.normal(size=prob.g.numel())
+    for scaled, projection in ((False, False), (True, False), (True, True)):
+        nlp = solvers.scaled_nlp if scaled else solvers.nlp
+        xv = np.concatenate([x / D if scaled else x, np.zeros(solvers.n_probe)])
+        p = prob.params(1e3, 1.0)
+        if projection:
+            x_ref = ca.SX.sym("x_ref", prob.nx)
+            dist = nlp["x"][: prob.nx] - x_ref
+            nlp = {"x": nlp["x"][: prob.nx], "p": ca.vertcat(x_ref, nlp["p"]), "f": ca.dot(dist, dist), "g": nlp["g"]}
+            xv, p = xv[: prob.nx], np.concatenate([xv[: prob.nx] + 0.1, p])
+        own = ca.Function("own", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]], ["x", "p"], ["f", "g"])
+        ref = {"grad_f": own.factory("a", ["x", "p"], ["f", "grad:f:x"]), "jac_g": own.factory("b", ["x", "p"], ["g", "jac:g:x"]),
+               "hess_lag": own.factory("c", ["x", "p", "lam:f", "lam:g"], ["triu:hess:gamma:x:x"], {"gamma": ["f", "g"]})}
+        shared = solvers.derivatives(scaled, projection)
+        for name, args in (("grad_f", (xv, p)), ("jac_g", (xv, p)), ("hess_lag", (xv, p, 0.7, lam_g))):
+            got, want = shared[name].call(list(args)), ref[name].call(list(args))
+            assert shared[name].name_out() == ref[name].name_out()
+            for a, b in zip(got, want):
+                assert a.sparsity() == b.sparsity(), (scaled, projection, name)
+                np.testing.assert_allclose(np.asarray(ca.densify(a)), np.asarray(ca.densify(b)), rtol=SCALED_NLP_TOL,
+                                           atol=SCALED_NLP_TOL, err_msg=f"{name} scaled={scaled} projection={projection}")
+
+
 def test_regularization_from_last_skips_the_unregularized_try():
     """Regularization.FROM_LAST: IPOPT regularizes the Hessian in every iteration after its degeneracy
     test (it starts each factorization from the last delta instead of trying delta = 0 first), while with
