@@ -618,6 +618,26 @@ def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
     assert exit_info.value.code == 2 and "active_set" in capsys.readouterr().err
 
 
+def test_bench_pipeline_capler_set_is_seven_distinct_tasks_and_summarized_per_solve():
+    """--cases capler_set names the seven Capler tasks (N = 125, 100, 75, 50; the target's x_B at 2.8, 2.9, 3.1 m, the
+    rest of robots/capler.toml unchanged), and a multi-case table ends with one summary row per --solve object
+    (converged count, median and total iterations) computed from its cases only."""
+    bench = _load("bench_pipeline")
+    tasks = {name: bench.CASES[name](False)[1] for name in bench.CAPLER_SET}
+    assert [tasks[n].horizon.N for n in bench.CAPLER_SET] == [125, 100, 75, 50, 125, 125, 125]
+    assert [tasks[n].plan.target_q[0] for n in bench.CAPLER_SET] == [3.0, 3.0, 3.0, 3.0, 2.8, 2.9, 3.1]
+    assert all(t.plan.target_q[1:] == tasks["capler125"].plan.target_q[1:] and t.plan.holes == tasks["capler125"].plan.holes
+               for t in tasks.values())
+
+    def full(solve, its, ok):
+        return {"solve": solve, "nlp_iterations": [its], "ipopt_iterations": its, "converged": ok, "control_cost": 1.0,
+                "hops": 1, "wall_s": its / 100}
+    records = [{"case": c, "variants": {}, "full_solves": [full({}, a, True), full({"x": 1}, b, ok)]}
+               for c, a, b, ok in (("capler125", 100, 50, True), ("capler50", 300, 900, False), ("capler75", 200, 70, True))]
+    summary = bench.table(records).splitlines()[-2:]
+    assert summary == ["| `{}` | 3 of 3 | 200, 600 | 2.0, 6.0 |", '| `{"x": 1}` | 2 of 3 | 70, 1020 | 0.7, 10.2 |']
+
+
 SAME_OBJECTIVE_REL = 1e-9  # the same IPOPT on the same NLP from the same point: equal up to round-off
 
 
