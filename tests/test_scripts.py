@@ -621,7 +621,7 @@ def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
 def test_bench_pipeline_capler_set_is_seven_distinct_tasks_and_summarized_per_solve():
     """--cases capler_set names the seven Capler tasks (N = 125, 100, 75, 50; the target's x_B at 2.8, 2.9, 3.1 m, the
     rest of robots/capler.toml unchanged), and a multi-case table ends with one summary row per --solve object
-    (converged count, median and total iterations) computed from its cases only."""
+    (converged count, median and total iterations and wall time) computed from its cases only."""
     bench = _load("bench_pipeline")
     tasks = {name: bench.CASES[name](False)[1] for name in bench.CAPLER_SET}
     assert [tasks[n].horizon.N for n in bench.CAPLER_SET] == [125, 100, 75, 50, 125, 125, 125]
