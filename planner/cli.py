@@ -109,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked by IPOPT (SolveOptions.ipopt)")
     p.add_argument("--warm-ipopt", action="append", default=[], metavar="NAME=VALUE",
                    help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
+    p.add_argument("--no-race", action="store_true",
+                   help="solve with the default variant only. Without it a hint-free implicit-Euler plan races a second "
+                        "variant (multipliers carried between NLPs) on a second CPU, if there is one, and keeps the "
+                        "converged one with fewer IPOPT iterations (planner.race; the same pick on any machine)")
     _add_common(p, plots=True)
     p.set_defaults(run=_cmd_plan)
 
@@ -300,7 +304,12 @@ def _cmd_plan(args) -> int:
 
         problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx))
         solve_options = replace(replan_options(solve_options), keep_schedule=args.keep_schedule)
-    result = solve(problem, solve_options, progress=progress)
+    if args.no_race or args.init is not None or discretization is not Discretization.IMPLICIT_EULER:
+        result = solve(problem, solve_options, progress=progress)
+    else:  # the hint-free homotopy's iteration count is a draw: two draws on two CPUs (docs/benchmarks.md)
+        from .race import default_arms, race
+
+        result = race(problem, default_arms(solve_options), progress=progress)
     if args.init is not None:
         result.options["init"] = str(args.init)  # summary.json says which plan this one started from
     target = _write(args, result, out)

@@ -252,6 +252,8 @@ class PlanResult:
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)")
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
+        if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others
+            lines.append("race: " + ", ".join(f"{a['arm']} {a['outcome']} ({a['iterations']} it, {a['wall_s']:.1f} s)" for a in self.extra["race"]))
         if not st.converged:
             lines.append(f"  {st.message}")
         return "\n".join(lines)

@@ -18,7 +18,9 @@ and compile times are recorded separately. With --full, the default task of each
 solved end to end with the default SolveOptions (iterations x per-iteration cost), or once per --solve
 JSON object with those SolveOptions fields changed (e.g. '{}' '{"warm_ipopt": {"alpha_for_y": "min"}}'
 '{"rho_schedule": [300, 1000, 3000, 1e4, 1e5, 1e6]}': three solves); --full-only skips the
-fixed-iteration runs.
+fixed-iteration runs; --race runs each end-to-end solve as `planner plan` does: its options raced against
+the same with the primal-dual warm start on two CPUs (planner.race.default_arms; the winner's iterations,
+the race's wall).
 
 Cases: capler50 (robots/capler.toml with N = 50, h = 0.05 s), capler125 (the default N = 125),
 hop (the point mass hopping to x = 0.5 m, N = 40, tests/test_homotopy.py's task); for end-to-end comparisons
@@ -26,7 +28,7 @@ also capler75, capler100 and capler_x2.8, capler_x2.9, capler_x3.1 (N = 125, the
 capler_set, all seven Capler tasks (CAPLER_SET: one task's iteration count is a draw, docs/benchmarks.md).
 
     python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
-        [--variants NAME ...] [--nlp 1|2] [--codegen] [--full] [--full-only] [--solve JSON ...] [--out DIR] [--json]
+        [--variants NAME ...] [--nlp 1|2] [--codegen] [--full] [--full-only] [--solve JSON ...] [--race] [--out DIR] [--json]
 
 --quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
 """
@@ -56,6 +58,7 @@ from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_opti
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
+from planner.race import default_arms, race
 from planner.result import write_atomically
 from planner.task import Horizon, load_task, parse_task
 
@@ -202,7 +205,7 @@ def median_record(runs: list[dict]) -> dict:
 
 
 def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None,
-             full: list[tuple[dict, SolveOptions]], log, nlp_index: int = 1) -> dict:
+             full: list[tuple[dict, SolveOptions]], log, nlp_index: int = 1, raced: bool = False) -> dict:
     robot, task = CASES[name](quick)
     t0 = time.perf_counter()
     problem = build_problem(robot, task)
@@ -243,9 +246,9 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
     rec["full_solves"] = []
     for given, options in full:
         c0, t0 = time.process_time(), time.perf_counter()
-        res = solve(problem, options)
+        res = race(problem, default_arms(options), processes=2) if raced else solve(problem, options)
         rec["full_solves"].append({
-            "solve": given, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+            "solve": given, "race": res.extra.get("race"), "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "ipopt_iterations": res.stats.ipopt_iterations, "nlp_iterations": [r.iterations for r in res.nlps],
             "nlp_status": [r.status for r in res.nlps], "rho": [r.rho for r in res.nlps], "hops": len(res.hops),
             "n_nlp": res.stats.n_nlp, "converged": res.stats.converged, "complementarity": res.stats.complementarity_residual,
@@ -269,18 +272,25 @@ def table(records) -> str:
         lines += ["", "| case | --solve | end-to-end: iterations per NLP | total | converged | control cost | hops | wall s |",
                   "|---|---|---|---|---|---|---|---|"]
         for case, f in full:
-            lines.append(f"| {case} | `{json.dumps(f['solve'])}` | {' / '.join(map(str, f['nlp_iterations']))} | {f['ipopt_iterations']} | "
+            lines.append(f"| {case} | `{_given(f)}` | {' / '.join(map(str, f['nlp_iterations']))} | {f['ipopt_iterations']} | "
                          f"{f['converged']} | {f['control_cost']:.1f} | {f['hops']} | {f['wall_s']:.1f} |")
         if len(records) > 1:  # the set's verdict per --solve: one case's iteration count is a draw
             lines += ["", "| --solve | converged | iterations: median, total | wall s: median, total |", "|---|---|---|---|"]
             groups: dict[str, list] = {}
             for _, f in full:
-                groups.setdefault(json.dumps(f["solve"]), []).append(f)
+                groups.setdefault(json.dumps(f["solve"]) + (" raced" if f.get("race") else ""), []).append(f)
             for given, runs in groups.items():
                 its, wall = [f["ipopt_iterations"] for f in runs], [f["wall_s"] for f in runs]
                 lines.append(f"| `{given}` | {sum(f['converged'] for f in runs)} of {len(runs)} | {statistics.median(its):.0f}, {sum(its)} | "
                              f"{statistics.median(wall):.1f}, {sum(wall):.1f} |")
     return "\n".join(lines)
+
+
+def _given(full_solve: dict) -> str:
+    """A full solve's --solve object as the tables print it, with the race's arms when it raced."""
+    text = json.dumps(full_solve["solve"])
+    arms = full_solve.get("race")
+    return text if not arms else text + " race: " + ", ".join(f"{a['arm']} {a['outcome']} {a['iterations']}" for a in arms)
 
 
 def plot(records, path: Path) -> None:
@@ -322,6 +332,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--solve", nargs="+", default=["{}"], metavar="JSON",
                         help="one end-to-end solve per JSON object of SolveOptions fields (default '{}': the defaults), "
                              "e.g. '{\"warm_ipopt\": {\"alpha_for_y\": \"min\"}}'")
+    parser.add_argument("--race", action="store_true",
+                        help="race each end-to-end solve against the primal-dual warm start on two CPUs, as `planner plan` does")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     cases = args.cases or (["hop"] if args.quick else ["capler50", "capler125", "hop"])
@@ -346,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
     # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
     heap_kept = keep_freed_memory()
     load_before, start = os.getloadavg(), time.perf_counter()
-    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp) for c in cases]
+    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race) for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),

@@ -246,3 +246,23 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
     _one_line_exit_2(capsys, argv + ["--steps", "10"], "other NLP variables")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
+
+
+def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatch):
+    """A hint-free `plan` races the default variant against the primal-dual warm start (two CPUs assumed
+    here) and summary.json lists both arms, exactly one of them "won", with the winner's options in
+    options.solve; `--no-race` solves the default variant alone, with no race in the summary."""
+    from planner import race
+
+    monkeypatch.setattr(race, "usable_cpus", lambda: 2)
+    (tmp_path / "hop.toml").write_text(HOP_TOML.format(x=0.5))
+    argv = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "out"), "--no-validate", "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    arms = {a["arm"]: a for a in summary["race"]}
+    assert set(arms) == {"default", "primal_dual"} and [a["outcome"] for a in arms.values()].count("won") == 1
+    winner = next(name for name, a in arms.items() if a["outcome"] == "won")
+    assert summary["options"]["solve"]["warm_start"] == ("primal_dual" if winner == "primal_dual" else "primal")
+    assert main(argv + ["--no-race"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "race" not in summary and summary["options"]["solve"]["warm_start"] == "primal"

@@ -618,6 +618,18 @@ def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
     assert exit_info.value.code == 2 and "active_set" in capsys.readouterr().err
 
 
+def test_bench_pipeline_race_records_the_arms(tmp_path, capsys):
+    """--full-only --race: the end-to-end solve is a race of the two default arms, recorded per full solve (each
+    arm's outcome, exactly one "won") and named in the table's --solve column."""
+    bench = _load("bench_pipeline")
+    assert bench.main(["--quick", "--full-only", "--race", "--json", "--out", str(tmp_path)]) == 0
+    (rec,) = json.loads(capsys.readouterr().out)["records"]
+    (full,) = rec["full_solves"]
+    assert [a["arm"] for a in full["race"]] == ["default", "primal_dual"]
+    assert [a["outcome"] for a in full["race"]].count("won") == 1
+    assert " race: default " in bench.table([rec])
+
+
 def test_bench_pipeline_capler_set_is_seven_distinct_tasks_and_summarized_per_solve():
     """--cases capler_set names the seven Capler tasks (N = 125, 100, 75, 50; the target's x_B at 2.8, 2.9, 3.1 m, the
     rest of robots/capler.toml unchanged), and a multi-case table ends with one summary row per --solve object

@@ -1,0 +1,133 @@
+"""A race of solve variants: the same plan solved by several SolveOptions at once, one process each
+(forked, so the built problem is shared); the first arm to converge wins and the others are stopped.
+
+Why: the homotopy's iteration count is a chaotic function of the arithmetic. Any change of IPOPT's
+warm start, regularization or round-off draws a new count, and on the seven Capler tasks of
+`scripts/bench_pipeline.py --cases capler_set` one variant's count runs from ~2300 to ~8000 while the
+other's is uncorrelated (docs/benchmarks.md, "A race on the two cores"). A second core does not make
+one solve faster (MUMPS gains nothing from it), but it can run a second draw.
+
+The returned plan is the winning arm's own, bit for bit what that arm gives when solved alone; which
+arm wins is a matter of wall time, so two arms that finish close together may swap on another
+machine (the summary names the winner). A rule by iteration counts would be load-independent, but
+it measured 3.0-3.5x slower on two of seven tasks: an arm's iterations cost 10 to 67 ms, and proving
+the slower arm could not win meant waiting for it.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import pickle
+import time
+import traceback
+from dataclasses import replace
+from multiprocessing.connection import wait
+
+from .errors import InputError, SolveError
+from .homotopy import Progress, SolveOptions, WarmStart, solve
+from .problem import Problem
+from .result import PlanResult
+
+# The second arm of `planner plan`: multipliers carried from NLP to NLP. On the seven-task set it drew
+# 3164, 4665, 4096, 3140, 2330, 3774, 2663 iterations against the default's 2881, 8039, 4120, 3417, 3673,
+# 3367, 2793 (docs/benchmarks.md, session 16).
+SECOND_ARM = {"warm_start": WarmStart.PRIMAL_DUAL}
+
+
+def default_arms(options: SolveOptions) -> tuple[tuple[str, SolveOptions], ...]:
+    """The arms `planner plan` races: `options` itself ("default") and the same with SECOND_ARM."""
+    return (("default", options), ("primal_dual", replace(options, **SECOND_ARM)))
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask, not the machine's count)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def race(problem: Problem, arms, progress: Progress | None = None, processes: int | None = None) -> PlanResult:
+    """Solve `problem` with each (name, SolveOptions) of `arms` at once; returns the winner's PlanResult.
+
+    The winner is the first arm to converge; the others are stopped then. If none converges, the first
+    arm's result. Only the first `processes` arms run (default: the usable CPUs); with one, the first arm
+    is solved in this process. progress gets each arm's NLP records, labelled "name: label". The
+    result's stats.solve_time_s is the race's wall time [s], its message names the outcome of every arm,
+    and extra["race"] lists them (summary.json): arm, outcome, IPOPT iterations of its finished NLPs,
+    wall time [s] at which it finished or was stopped.
+    """
+    arms = tuple(arms)
+    if not arms:
+        raise InputError("race needs at least one (name, SolveOptions) arm")
+    names = [name for name, _ in arms]
+    if len(set(names)) != len(names):
+        raise InputError(f"race arm names must differ, got {names}")
+    if processes is not None and processes < 1:
+        raise InputError(f"race processes must be >= 1, got {processes}")
+    n = min(len(arms), usable_cpus() if processes is None else processes)
+    if n == 1:
+        return solve(problem, arms[0][1], progress)
+    start = time.perf_counter()
+    ctx = mp.get_context("fork")  # the children inherit the built problem (CasADi functions do not pickle cheaply)
+    pipes, procs = [], []
+    for i in range(n):
+        reader, writer = ctx.Pipe(duplex=False)  # one pipe per arm: killing an arm cannot corrupt another's channel
+        proc = ctx.Process(target=_arm, args=(problem, arms[i][1], writer), name=f"planner-race-{names[i]}", daemon=True)
+        proc.start()
+        writer.close()
+        pipes.append(reader)
+        procs.append(proc)
+    done: dict[int, tuple[str, PlanResult | None, float]] = {}  # arm -> (outcome, result, wall [s])
+    iterations = [0] * n  # IPOPT iterations of each arm's finished NLPs
+    errors: dict[int, Exception] = {}
+    win: int | None = None  # the first arm that converged
+    try:
+        while win is None and len(done) < n:
+            for reader in wait([p for i, p in enumerate(pipes) if i not in done]):
+                i = pipes.index(reader)
+                try:
+                    kind, payload = reader.recv()
+                except EOFError:  # the arm died without a word (e.g. killed by the OS)
+                    done[i] = ("died", None, time.perf_counter() - start)
+                    continue
+                if kind == "progress":
+                    iterations[i] += payload.iterations
+                    if progress:
+                        progress(replace(payload, label=f"{names[i]}: {payload.label}"))
+                elif kind == "error":
+                    errors[i] = payload[0]
+                    done[i] = ("error: " + payload[1].strip().splitlines()[-1], None, time.perf_counter() - start)
+                else:
+                    iterations[i] = payload.stats.ipopt_iterations
+                    done[i] = ("converged" if payload.stats.converged else "not converged", payload, time.perf_counter() - start)
+                    if payload.stats.converged and win is None:
+                        win = i
+    finally:
+        for i, proc in enumerate(procs):
+            if proc.is_alive():
+                proc.kill()
+                if i not in done:
+                    done[i] = ("stopped", None, time.perf_counter() - start)
+            proc.join()
+    pick = 0 if win is None else win  # none converged: the first arm's result, as its plain solve would give
+    result = done[pick][1]
+    if result is None:  # no arm converged and the first one raised or died: what a single solve would have done
+        raise errors.get(pick) or SolveError(f"race: arm {names[pick]!r} {done[pick][0]}")
+    table = [{"arm": names[i], "outcome": "won" if i == win else done[i][0], "iterations": iterations[i], "wall_s": done[i][2]}
+             for i in range(n)]
+    note = "; race of " + ", ".join(f"{t['arm']} {t['outcome']} ({t['iterations']} it)" for t in table)
+    stats = replace(result.stats, solve_time_s=time.perf_counter() - start, message=result.stats.message + note)
+    return replace(result, stats=stats, extra=dict(result.extra, race=table))
+
+
+def _arm(problem: Problem, options: SolveOptions, conn) -> None:
+    """One arm, in its own process: solve, sending each NLP record, then the result (or the error)."""
+    try:
+        result = solve(problem, options, lambda rec: conn.send(("progress", rec)))
+        conn.send(("done", result))
+    except Exception as exc:  # the parent re-raises it if this arm's result is the one to return
+        try:
+            pickle.dumps(exc)
+        except Exception:
+            exc = SolveError(f"{type(exc).__name__}: {exc}")
+        conn.send(("error", (exc, traceback.format_exc())))
+    finally:
+        conn.close()

@@ -1,0 +1,106 @@
+"""A race of solve variants returns exactly what running them one after the other would pick."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from planner import homotopy as H
+from planner import race as R
+from planner.errors import InputError, SolveError
+from planner.model import load_robot
+from planner.problem import build_problem
+
+from test_problem import hop_task
+
+# The point-mass hop: both default arms converge on it, with different iteration counts (measured 635 and
+# 418 IPOPT iterations), so the race has a winner and a loser.
+HOP_N = 40
+
+
+@pytest.fixture(scope="module")
+def hop_problem():
+    return build_problem(load_robot("robots/point_mass.xml"), hop_task(N=HOP_N))
+
+
+@pytest.fixture(scope="module")
+def one_by_one(hop_problem):
+    """Each default arm solved alone, in this process."""
+    return {name: H.solve(hop_problem, options) for name, options in R.default_arms(H.SolveOptions())}
+
+
+def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_one):
+    """The race returns the plan of an arm that converges when solved alone, to the last bit (a forked arm does
+    the same arithmetic), with that arm's NLPs and iterations; the table has each arm once, exactly one
+    "won", the other stopped or finished; every progress record is labelled with its arm."""
+    assert all(r.stats.converged for r in one_by_one.values())  # else the race has nothing to show here
+    records = []
+    result = R.race(hop_problem, R.default_arms(H.SolveOptions()), progress=records.append, processes=2)
+    table = {row["arm"]: row for row in result.extra["race"]}
+    assert set(table) == set(one_by_one)
+    (winner,) = [name for name, row in table.items() if row["outcome"] == "won"]
+    alone = one_by_one[winner]
+    assert np.array_equal(result.extra["_x"], alone.extra["_x"])
+    assert result.stats.ipopt_iterations == alone.stats.ipopt_iterations == table[winner]["iterations"]
+    assert [r.label for r in result.nlps] == [r.label for r in alone.nlps]
+    (loser,) = set(table) - {winner}
+    assert table[loser]["outcome"] in ("stopped", "converged")
+    assert table[loser]["iterations"] <= one_by_one[loser].stats.ipopt_iterations
+    assert records and all(r.label.split(": ", 1)[0] in table for r in records)
+    assert result.stats.solve_time_s >= table[winner]["wall_s"] > 0
+    assert f"race of default {table['default']['outcome']}" in result.stats.message
+
+
+def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
+    """With processes = 1 the race is the first arm's plain solve (no fork, no race table)."""
+    result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=1)
+    assert "race" not in result.extra
+    assert np.array_equal(result.extra["_x"], one_by_one["default"].extra["_x"])
+
+
+def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_converges(hop_problem, monkeypatch):
+    """An arm that raises does not take the race down: the other arm wins. If no arm converges and the
+    first one raised, the race raises that error, as the plain solve would."""
+    solve = H.solve
+
+    def flaky(problem, options, progress=None):
+        if options.warm_start is H.WarmStart.PRIMAL_DUAL:
+            raise InputError("arm says no")
+        return solve(problem, options, progress)
+
+    monkeypatch.setattr(R, "solve", flaky)  # the forked arms inherit the patch
+    quick = H.SolveOptions()
+    result = R.race(hop_problem, R.default_arms(quick), processes=2)
+    table = {row["arm"]: row for row in result.extra["race"]}
+    assert table["primal_dual"]["outcome"] == "error: planner.errors.InputError: arm says no"
+    assert table["default"]["outcome"] == "won"
+    arms = (("first", dataclasses.replace(quick, warm_start=H.WarmStart.PRIMAL_DUAL)), ("second", quick))
+    monkeypatch.setattr(R, "solve", lambda problem, options, progress=None:
+                        (_ for _ in ()).throw(InputError("always no")))
+    with pytest.raises(InputError, match="always no"):
+        R.race(hop_problem, arms, processes=2)
+
+
+def test_unpicklable_arm_errors_arrive_as_solve_errors(hop_problem, monkeypatch):
+    """An arm's exception that cannot cross the process boundary arrives as a SolveError naming it."""
+    class Local(Exception):  # a local class does not pickle
+        pass
+
+    def fail(problem, options, progress=None):
+        raise Local("no pickle")
+
+    monkeypatch.setattr(R, "solve", fail)
+    with pytest.raises(SolveError, match="Local: no pickle"):
+        R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
+
+
+@pytest.mark.parametrize("arms, processes, fragment", [
+    ((), None, "at least one"),
+    ((("a", H.SolveOptions()), ("a", H.SolveOptions())), None, "must differ"),
+    ((("a", H.SolveOptions()),), 0, "processes must be >= 1"),
+])
+def test_bad_race_input(hop_problem, arms, processes, fragment):
+    """No arms, two arms of one name, or fewer than one process is an InputError saying which."""
+    with pytest.raises(InputError, match=fragment):
+        R.race(hop_problem, arms, processes=processes)
