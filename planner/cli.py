@@ -1,7 +1,7 @@
 """The `planner` command: one subcommand per job, each taking a robot file (or a name in robots/).
 
-Exit codes: 0 success; 1 the solve or the validation failed (diagnostics still written); 2 bad input.
-A user error prints one line on stderr, never a traceback.
+Exit codes: 0 success; 1 the solve or the validation failed (diagnostics still written); 2 bad input;
+130 interrupted (Ctrl-C). A user error prints one line on stderr, never a traceback.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pathlib import Path
 from .errors import InputError, PlannerError
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
 # `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
 # point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
 # the one from the 1e5 point converged in 48 iterations (docs/formulation.md, "FESD in the OCP")
@@ -39,7 +40,7 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
         p.add_argument("--no-plots", action="store_true",
                        help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
-    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output")
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (a racing plan's two arms interleave theirs; --no-race gives one log)")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
 
 
@@ -161,6 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
+        print(f"planner {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 def _progress(args, line: str) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import pickle
+import signal
 import time
 import traceback
 from dataclasses import replace
@@ -120,6 +121,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
 
 def _arm(problem: Problem, options: SolveOptions, conn) -> None:
     """One arm, in its own process: solve, sending each NLP record, then the result (or the error)."""
+    _die_with_parent()
     try:
         result = solve(problem, options, lambda rec: conn.send(("progress", rec)))
         conn.send(("done", result))
@@ -131,3 +133,17 @@ def _arm(problem: Problem, options: SolveOptions, conn) -> None:
         conn.send(("error", (exc, traceback.format_exc())))
     finally:
         conn.close()
+
+
+def _die_with_parent() -> None:
+    """The arm never outlives the race: Ctrl-C is the parent's to handle (it kills the arms), and on Linux the
+    arm gets SIGKILL if the parent dies (prctl PR_SET_PDEATHSIG) instead of solving on for minutes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the parent's finally still kills the arms on any exception
+        pass
+    if os.getppid() == 1:  # the parent died before prctl took effect
+        os._exit(1)

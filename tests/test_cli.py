@@ -266,3 +266,17 @@ def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatc
     assert main(argv + ["--no-race"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert "race" not in summary and summary["options"]["solve"]["warm_start"] == "primal"
+
+
+def test_ctrl_c_is_one_line_and_exit_130(tmp_path, capsys, monkeypatch):
+    """Ctrl-C during a command (KeyboardInterrupt) prints one line naming the command, no traceback, and
+    exits 130 (128 + SIGINT, as shells report it)."""
+    from planner import cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_cmd_plan", interrupted)
+    assert main(["plan", "point_mass", "--out", str(tmp_path / "o")]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "planner plan: interrupted"

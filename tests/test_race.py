@@ -2,6 +2,11 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -104,3 +109,42 @@ def test_bad_race_input(hop_problem, arms, processes, fragment):
     """No arms, two arms of one name, or fewer than one process is an InputError saying which."""
     with pytest.raises(InputError, match=fragment):
         R.race(hop_problem, arms, processes=processes)
+
+
+# How long an arm may outlive its race's parent: the kernel's PR_SET_PDEATHSIG, or the parent's cleanup, acts at once
+ARM_EXIT_S = 5.0
+ARMS_THAT_SLEEP = """
+import multiprocessing as mp, threading, time
+from planner import race as R
+from planner.homotopy import SolveOptions
+R.solve = lambda problem, options, progress=None: time.sleep(120)
+threading.Thread(target=lambda: (time.sleep(1), print(*[c.pid for c in mp.active_children()], flush=True)), daemon=True).start()
+R.race(None, R.default_arms(SolveOptions()), processes=2)
+"""
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] in ("Z", "X")  # a zombie nobody reaped has exited
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and relies on prctl")
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_arms_do_not_outlive_the_race(sig):
+    """Killing the racing process (SIGKILL: the arms get the kernel's death signal) or interrupting it (SIGINT:
+    its cleanup kills them; the arms themselves ignore Ctrl-C) leaves no arm running within ARM_EXIT_S."""
+    proc = subprocess.Popen([sys.executable, "-c", ARMS_THAT_SLEEP], stdout=subprocess.PIPE, text=True)
+    pids = [int(p) for p in proc.stdout.readline().split()]
+    assert len(pids) == 2
+    os.kill(proc.pid, sig)
+    proc.wait(timeout=ARM_EXIT_S)
+    deadline = time.monotonic() + ARM_EXIT_S
+    while not all(_gone(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [p for p in pids if not _gone(p)]
+    for pid in left:  # a failing run must not leave sleepers behind
+        os.kill(pid, signal.SIGKILL)
+    assert not left
