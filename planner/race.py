@@ -24,7 +24,7 @@ import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, SolveError
+from .errors import InputError, PlannerError, SolveError
 from .homotopy import Progress, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult
@@ -126,13 +126,21 @@ def _arm(problem: Problem, options: SolveOptions, conn) -> None:
         result = solve(problem, options, lambda rec: conn.send(("progress", rec)))
         conn.send(("done", result))
     except Exception as exc:  # the parent re-raises it if this arm's result is the one to return
-        try:
-            pickle.dumps(exc)
-        except Exception:
-            exc = SolveError(f"{type(exc).__name__}: {exc}")
-        conn.send(("error", (exc, traceback.format_exc())))
+        conn.send(("error", (_portable(exc), traceback.format_exc())))
     finally:
         conn.close()
+
+
+def _portable(exc: Exception) -> Exception:
+    """exc if it survives a trip through pickle, else the nearest planner error with its message (an InputError
+    stays one: the CLI's exit 2). Exceptions with required constructor arguments (UnknownNameError) do not."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:
+        if isinstance(exc, PlannerError):
+            return (InputError if isinstance(exc, InputError) else SolveError)(str(exc))
+        return SolveError(f"{type(exc).__name__}: {exc}")
 
 
 def _die_with_parent() -> None:

@@ -13,7 +13,7 @@ import pytest
 
 from planner import homotopy as H
 from planner import race as R
-from planner.errors import InputError, SolveError
+from planner.errors import InputError, SolveError, UnknownNameError
 from planner.model import load_robot
 from planner.problem import build_problem
 
@@ -87,16 +87,18 @@ def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_conver
         R.race(hop_problem, arms, processes=2)
 
 
-def test_unpicklable_arm_errors_arrive_as_solve_errors(hop_problem, monkeypatch):
-    """An arm's exception that cannot cross the process boundary arrives as a SolveError naming it."""
-    class Local(Exception):  # a local class does not pickle
-        pass
-
+@pytest.mark.parametrize("make, expected, fragment", [
+    (lambda: type("Local", (Exception,), {})("no pickle"), SolveError, "Local: no pickle"),  # a class pickle cannot find
+    (lambda: UnknownNameError("joint", "elbow", ["hip", "knee"]), InputError, "valid joints: hip, knee"),  # required init args
+])
+def test_arm_errors_that_do_not_pickle_arrive_as_the_nearest_planner_error(hop_problem, monkeypatch, make, expected, fragment):
+    """An arm's exception that cannot cross the process boundary arrives with its message: a user error as an
+    InputError (the CLI's exit 2), anything else as a SolveError naming the original type."""
     def fail(problem, options, progress=None):
-        raise Local("no pickle")
+        raise make()
 
     monkeypatch.setattr(R, "solve", fail)
-    with pytest.raises(SolveError, match="Local: no pickle"):
+    with pytest.raises(expected, match=fragment):
         R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
 
 
