@@ -27,7 +27,7 @@ from multiprocessing.connection import wait
 from .errors import InputError, PlannerError, SolveError
 from .homotopy import Progress, SolveOptions, WarmStart, solve
 from .problem import Problem
-from .result import PlanResult
+from .result import PlanResult, race_arms_text
 
 # The second arm of `planner plan`: multipliers carried from NLP to NLP. On the seven-task set it drew
 # 3164, 4665, 4096, 3140, 2330, 3774, 2663 iterations against the default's 2881, 8039, 4120, 3417, 3673,
@@ -114,8 +114,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
         raise errors.get(pick) or SolveError(f"race: arm {names[pick]!r} {done[pick][0]}")
     table = [{"arm": names[i], "outcome": "won" if i == win else done[i][0], "iterations": iterations[i], "wall_s": done[i][2]}
              for i in range(n)]
-    note = "; race of " + ", ".join(f"{t['arm']} {t['outcome']} ({t['iterations']} it)" for t in table)
-    stats = replace(result.stats, solve_time_s=time.perf_counter() - start, message=result.stats.message + note)
+    stats = replace(result.stats, solve_time_s=time.perf_counter() - start, message=f"{result.stats.message}; race of {race_arms_text(table)}")
     return replace(result, stats=stats, extra=dict(result.extra, race=table))
 
 

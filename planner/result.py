@@ -253,7 +253,7 @@ class PlanResult:
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others
-            lines.append("race: " + ", ".join(f"{a['arm']} {a['outcome']} ({a['iterations']} it, {a['wall_s']:.1f} s)" for a in self.extra["race"]))
+            lines.append("race: " + race_arms_text(self.extra["race"]))
         if not st.converged:
             lines.append(f"  {st.message}")
         return "\n".join(lines)
@@ -274,6 +274,11 @@ class PlanResult:
             "options": self.options,
             **{k: v for k, v in self.extra.items() if not k.startswith("_")},
         }
+
+
+def race_arms_text(arms: list[dict]) -> str:
+    """planner.race's table (PlanResult.extra["race"]) as one line: each arm's outcome, iterations, wall time."""
+    return ", ".join(f"{a['arm']} {a['outcome']} ({a['iterations']} it, {a['wall_s']:.1f} s)" for a in arms)
 
 
 # Relative clock deficit of a step that counts as frozen (an impact). In persistent contact the

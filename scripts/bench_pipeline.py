@@ -59,7 +59,7 @@ from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.race import default_arms, race
-from planner.result import write_atomically
+from planner.result import race_arms_text, write_atomically
 from planner.task import Horizon, load_task, parse_task
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -290,7 +290,7 @@ def _given(full_solve: dict) -> str:
     """A full solve's --solve object as the tables print it, with the race's arms when it raced."""
     text = json.dumps(full_solve["solve"])
     arms = full_solve.get("race")
-    return text if not arms else text + " race: " + ", ".join(f"{a['arm']} {a['outcome']} {a['iterations']}" for a in arms)
+    return text if not arms else f"{text} race: {race_arms_text(arms)}"
 
 
 def plot(records, path: Path) -> None:

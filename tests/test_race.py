@@ -1,4 +1,4 @@
-"""A race of solve variants returns exactly what running them one after the other would pick."""
+"""A race of solve variants returns the first converged arm's own plan, bit for bit, and never leaves an arm behind."""
 from __future__ import annotations
 
 import dataclasses
