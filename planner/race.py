@@ -29,15 +29,21 @@ from .homotopy import Progress, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
 
-# The second arm of `planner plan`: multipliers carried from NLP to NLP. On the seven-task set it drew
-# 3164, 4665, 4096, 3140, 2330, 3774, 2663 iterations against the default's 2881, 8039, 4120, 3417, 3673,
-# 3367, 2793 (docs/benchmarks.md, session 16).
+# The second arm of `planner plan`: multipliers carried from NLP to NLP, and MUMPS without its weighted-matching
+# permutation and scaling (IPOPT's mumps_permuting_scaling 0), so that it differs from the default from NLP 1 on
+# (281 against 472 iterations on the default task). Alone on the seven-task set (two solves side by side) it drew
+# 2298, 2995, 2731, 8598 (capler50: not converged), 4312, 2655, 4076 iterations; raced against the default, the
+# set's median fell from 50.4 to 48.6 s and its total from 427.7 to 348.7 s against the primal-dual warm start
+# alone as the second arm (docs/benchmarks.md, session 18). A user's own mumps_permuting_scaling is kept.
 SECOND_ARM = {"warm_start": WarmStart.PRIMAL_DUAL}
+SECOND_ARM_IPOPT = {"mumps_permuting_scaling": 0}
 
 
 def default_arms(options: SolveOptions) -> tuple[tuple[str, SolveOptions], ...]:
-    """The arms `planner plan` races: `options` itself ("default") and the same with SECOND_ARM."""
-    return (("default", options), ("primal_dual", replace(options, **SECOND_ARM)))
+    """The arms `planner plan` races: `options` itself ("default") and the same with SECOND_ARM and, with MUMPS,
+    SECOND_ARM_IPOPT added to options.ipopt ("primal_dual_no_matching")."""
+    ipopt = {**SECOND_ARM_IPOPT, **dict(options.ipopt)} if options.linear_solver == "mumps" else options.ipopt
+    return (("default", options), ("primal_dual_no_matching", replace(options, ipopt=ipopt, **SECOND_ARM)))
 
 
 def usable_cpus() -> int:
@@ -105,9 +111,9 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
         for i, proc in enumerate(procs):
             if proc.is_alive():
                 proc.kill()
-                if i not in done:
-                    done[i] = ("stopped", None, time.perf_counter() - start)
             proc.join()
+            if i not in done:  # killed here, or it ended after the winner with its own outcome still unread
+                done[i] = ("stopped", None, time.perf_counter() - start)
     pick = 0 if win is None else win  # none converged: the first arm's result, as its plain solve would give
     result = done[pick][1]
     if result is None:  # no arm converged and the first one raised or died: what a single solve would have done

@@ -20,7 +20,7 @@ from planner.problem import build_problem
 from test_problem import hop_task
 
 # The point-mass hop: both default arms converge on it, with different iteration counts (measured 635 and
-# 418 IPOPT iterations), so the race has a winner and a loser.
+# 417 IPOPT iterations), so the race has a winner and a loser.
 HOP_N = 40
 
 
@@ -64,6 +64,34 @@ def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
     assert np.array_equal(result.extra["_x"], one_by_one["default"].extra["_x"])
 
 
+# how long the patched race waits after each wake-up: long enough for the other arm (which finishes LATE_ARM_S
+# after the winner) to have sent its result and exited before the race looks at it
+WAKE_DELAY_S, LATE_ARM_S = 0.5, 0.05
+
+
+def test_an_arm_that_ends_after_the_winner_unread_is_listed_as_stopped(hop_problem, one_by_one, monkeypatch):
+    """An arm whose result arrives after the winner's, and which has exited by the time the race stops the
+    others, is still in the race table (as stopped): its unread outcome once left a gap (KeyError)."""
+    done = one_by_one["default"]
+
+    def quick(problem, options, progress=None):
+        if options.warm_start is H.WarmStart.PRIMAL_DUAL:
+            time.sleep(LATE_ARM_S)
+        return done
+
+    real_wait = R.wait
+
+    def slow_wait(readers):
+        ready = real_wait(readers)
+        time.sleep(WAKE_DELAY_S)
+        return ready
+
+    monkeypatch.setattr(R, "solve", quick)  # the forked arms inherit the patch
+    monkeypatch.setattr(R, "wait", slow_wait)
+    result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
+    assert [(row["arm"], row["outcome"]) for row in result.extra["race"]] == [("default", "won"), ("primal_dual_no_matching", "stopped")]
+
+
 def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_converges(hop_problem, monkeypatch):
     """An arm that raises does not take the race down: the other arm wins. If no arm converges and the
     first one raised, the race raises that error, as the plain solve would."""
@@ -78,7 +106,7 @@ def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_conver
     quick = H.SolveOptions()
     result = R.race(hop_problem, R.default_arms(quick), processes=2)
     table = {row["arm"]: row for row in result.extra["race"]}
-    assert table["primal_dual"]["outcome"] == "error: planner.errors.InputError: arm says no"
+    assert table["primal_dual_no_matching"]["outcome"] == "error: planner.errors.InputError: arm says no"
     assert table["default"]["outcome"] == "won"
     arms = (("first", dataclasses.replace(quick, warm_start=H.WarmStart.PRIMAL_DUAL)), ("second", quick))
     monkeypatch.setattr(R, "solve", lambda problem, options, progress=None:
