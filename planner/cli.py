@@ -112,8 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
     p.add_argument("--no-race", action="store_true",
                    help="solve with the default variant only (deterministic). Without it a hint-free implicit-Euler plan "
-                        "races a second variant (multipliers carried between NLPs, MUMPS without its matching) on a second CPU, if there is one, and "
-                        "keeps the first to converge (planner.race; two that finish close together may swap between machines)")
+                        "races a second variant (multipliers carried between NLPs, the inertia correction started from its "
+                        "last value, MUMPS without its matching) on a second CPU, if there is one, and keeps the first to "
+                        "converge (planner.race; two that finish close together may swap between machines)")
     _add_common(p, plots=True)
     p.set_defaults(run=_cmd_plan)
 

@@ -25,25 +25,25 @@ from dataclasses import replace
 from multiprocessing.connection import wait
 
 from .errors import InputError, PlannerError, SolveError
-from .homotopy import Progress, SolveOptions, WarmStart, solve
+from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
 
-# The second arm of `planner plan`: multipliers carried from NLP to NLP, and MUMPS without its weighted-matching
-# permutation and scaling (IPOPT's mumps_permuting_scaling 0), so that it differs from the default from NLP 1 on
-# (281 against 472 iterations on the default task). Alone on the seven-task set (two solves side by side) it drew
-# 2298, 2995, 2731, 8598 (capler50: not converged), 4312, 2655, 4076 iterations; raced against the default, the
-# set's median fell from 50.4 to 48.6 s and its total from 427.7 to 348.7 s against the primal-dual warm start
-# alone as the second arm (docs/benchmarks.md, session 18). A user's own mumps_permuting_scaling is kept.
-SECOND_ARM = {"warm_start": WarmStart.PRIMAL_DUAL}
+# The second arm of `planner plan` ("alternate"): multipliers carried from NLP to NLP, IPOPT's inertia correction
+# started from the last regularization (Regularization.FROM_LAST: ~1.5 factorizations per iteration instead of ~2.5)
+# and MUMPS without its weighted-matching permutation and scaling (IPOPT's mumps_permuting_scaling 0), so that it
+# differs from the default from NLP 1 on. Alone on the seven-task set it converged on all seven, in 2348, 3286,
+# 3746, 2501, 4832, 3367, 3850 iterations against the default's 2881, 8039, 4120, 3417, 3673, 3367, 2793
+# (docs/benchmarks.md, session 18). A user's own mumps_permuting_scaling is kept.
+SECOND_ARM = {"warm_start": WarmStart.PRIMAL_DUAL, "regularization": Regularization.FROM_LAST}
 SECOND_ARM_IPOPT = {"mumps_permuting_scaling": 0}
 
 
 def default_arms(options: SolveOptions) -> tuple[tuple[str, SolveOptions], ...]:
     """The arms `planner plan` races: `options` itself ("default") and the same with SECOND_ARM and, with MUMPS,
-    SECOND_ARM_IPOPT added to options.ipopt ("primal_dual_no_matching")."""
+    SECOND_ARM_IPOPT added to options.ipopt ("alternate")."""
     ipopt = {**SECOND_ARM_IPOPT, **dict(options.ipopt)} if options.linear_solver == "mumps" else options.ipopt
-    return (("default", options), ("primal_dual_no_matching", replace(options, ipopt=ipopt, **SECOND_ARM)))
+    return (("default", options), ("alternate", replace(options, ipopt=ipopt, **SECOND_ARM)))
 
 
 def usable_cpus() -> int:

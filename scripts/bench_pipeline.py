@@ -19,8 +19,8 @@ solved end to end with the default SolveOptions (iterations x per-iteration cost
 JSON object with those SolveOptions fields changed (e.g. '{}' '{"warm_ipopt": {"alpha_for_y": "min"}}'
 '{"rho_schedule": [300, 1000, 3000, 1e4, 1e5, 1e6]}': three solves); --full-only skips the
 fixed-iteration runs; --race runs each end-to-end solve as `planner plan` does: its options raced against
-the same with the primal-dual warm start and MUMPS without its matching on two CPUs
-(planner.race.default_arms; the winner's iterations, the race's wall).
+the alternate arm (race.SECOND_ARM: primal-dual warm start, regularization from_last, MUMPS without its
+matching) on two CPUs (planner.race.default_arms; the winner's iterations, the race's wall).
 
 Cases: capler50 (robots/capler.toml with N = 50, h = 0.05 s), capler125 (the default N = 125),
 hop (the point mass hopping to x = 0.5 m, N = 40, tests/test_homotopy.py's task); for end-to-end comparisons

@@ -249,8 +249,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
 
 
 def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatch):
-    """A hint-free `plan` races the default variant against the primal-dual warm start without MUMPS's matching
-    (two CPUs assumed here) and summary.json lists both arms, exactly one of them "won", with the winner's options
+    """A hint-free `plan` races the default variant against the alternate one (race.SECOND_ARM; two CPUs assumed
+    here) and summary.json lists both arms, exactly one of them "won", with the winner's options
     in options.solve; `--no-race` solves the default variant alone, with no race in the summary."""
     from planner import race
 
@@ -260,10 +260,11 @@ def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatc
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     arms = {a["arm"]: a for a in summary["race"]}
-    assert set(arms) == {"default", "primal_dual_no_matching"} and [a["outcome"] for a in arms.values()].count("won") == 1
+    assert set(arms) == {"default", "alternate"} and [a["outcome"] for a in arms.values()].count("won") == 1
     second = next(name for name, a in arms.items() if a["outcome"] == "won") != "default"
     solve = summary["options"]["solve"]
     assert solve["warm_start"] == ("primal_dual" if second else "primal")
+    assert solve["regularization"] == ("from_last" if second else "from_zero")
     assert (["mumps_permuting_scaling", 0] in solve["ipopt"]) == second
     assert main(argv + ["--no-race"]) == 0
     summary = json.loads(capsys.readouterr().out)

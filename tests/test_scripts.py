@@ -625,7 +625,7 @@ def test_bench_pipeline_race_records_the_arms(tmp_path, capsys):
     assert bench.main(["--quick", "--full-only", "--race", "--json", "--out", str(tmp_path)]) == 0
     (rec,) = json.loads(capsys.readouterr().out)["records"]
     (full,) = rec["full_solves"]
-    assert [a["arm"] for a in full["race"]] == ["default", "primal_dual_no_matching"]
+    assert [a["arm"] for a in full["race"]] == ["default", "alternate"]
     assert [a["outcome"] for a in full["race"]].count("won") == 1
     assert " race: default " in bench.table([rec])
 
