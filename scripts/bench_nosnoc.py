@@ -19,8 +19,9 @@ stage point; nosnoc's own: max over its FESD cross-complementarity products), te
 max |q_N - q_target|, penetration -min foot height over the nodes, the holes metric
 min over nodes and holes of ((x - xc)/a)^2 + ((z - zc)/b)^2 (>= 1: outside), IPOPT statuses.
 
-`--planner` also runs our own planner on the same task file in the same process (defaults of
-planner.problem / planner.homotopy) for the wall-time ratio. `--quick` uses a coarse grid (N = 25,
+`--planner` also runs our own planner on the same task file in the same process, as `planner plan` does
+(defaults of planner.problem / planner.homotopy, its race of two solver variants on two CPUs: planner.race)
+for the wall-time ratio. `--quick` uses a coarse grid (N = 25,
 no holes) for both. nosnoc is an optional dependency (pip install nosnoc); it is imported in main().
 
     python -m scripts.bench_nosnoc [--quick] [--planner] [--out DIR] [--json]   (from the repository root)
@@ -370,10 +371,12 @@ def run_nosnoc(ns, ca, task: CaplerTask, variant: str, **build_kw) -> dict:
 # ==================================================================================================
 
 def run_planner(quick: bool) -> dict:
-    """One solve of robots/capler.toml (quick: N = 25, no holes) with planner's defaults."""
-    from planner.homotopy import solve
+    """One solve of robots/capler.toml (quick: N = 25, no holes) as `planner plan` solves it: planner's
+    defaults, raced on the usable CPUs (planner.race.default_arms; one CPU: the default solve)."""
+    from planner.homotopy import SolveOptions
     from planner.model import load_robot
     from planner.problem import build_problem
+    from planner.race import default_arms, race
     from planner.task import load_task
 
     robot = load_robot(ROBOT_FILE)
@@ -383,7 +386,7 @@ def run_planner(quick: bool) -> dict:
                                    plan=dataclasses.replace(task.plan, holes=()))
     t0 = time.perf_counter()
     problem = build_problem(robot, task)
-    res = solve(problem)
+    res = race(problem, default_arms(SolveOptions()))
     wall = time.perf_counter() - t0
     st = res.stats
     tr = res.trajectory
@@ -393,7 +396,7 @@ def run_planner(quick: bool) -> dict:
            "ipopt_iterations": int(st.ipopt_iterations), "n_nlp": int(st.n_nlp),
            "complementarity_ours": float(st.complementarity_residual), "complementarity_nosnoc": None,
            "terminal_error": float(res.terminal_error), "constraint_violation": res.constraint_violation,
-           "message": st.message, "nlp_statuses": [r.status for r in res.nlps]}
+           "message": st.message, "nlp_statuses": [r.status for r in res.nlps], "race": res.extra.get("race")}
     # penetration and holes at the numerical-time nodes, with this script's kinematics (the same as
     # robots/capler.xml: tests compare them with Pinocchio)
     import casadi as ca
@@ -481,7 +484,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="coarse grid (N = 25, no holes) for every solver")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    parser.add_argument("--planner", action="store_true", help="also solve with our planner (its defaults) for the ratio")
+    parser.add_argument("--planner", action="store_true", help="also solve with our planner (its defaults and race, as planner plan) for the ratio")
     parser.add_argument("--variants", nargs="+", choices=("hint-free", "hint"), default=["hint-free", "hint"])
     parser.add_argument("--n-fe", type=int, default=1, help="nosnoc finite elements per control stage (default 1)")
     parser.add_argument("--n-s", type=int, default=1, help="nosnoc Radau IIA stages (default 1: implicit Euler)")
