@@ -268,7 +268,8 @@ def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatc
     assert (["mumps_permuting_scaling", 0] in solve["ipopt"]) == second
     assert main(argv + ["--no-race"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert "race" not in summary and summary["options"]["solve"]["warm_start"] == "primal" and summary["options"]["solve"]["ipopt"] == []
+    assert "race" not in summary
+    assert summary["options"]["solve"]["warm_start"] == "primal" and summary["options"]["solve"]["ipopt"] == []
 
 
 def test_ctrl_c_is_one_line_and_exit_130(tmp_path, capsys, monkeypatch):

@@ -66,7 +66,7 @@ def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
 
 # how long the patched race waits after each wake-up: long enough for the other arm (which finishes LATE_ARM_S
 # after the winner) to have sent its result and exited before the race looks at it
-WAKE_DELAY_S, LATE_ARM_S = 0.5, 0.05
+WAKE_DELAY_S, LATE_ARM_S = 1.0, 0.2
 
 
 def test_an_arm_that_ends_after_the_winner_unread_is_listed_as_stopped(hop_problem, one_by_one, monkeypatch):
