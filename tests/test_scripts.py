@@ -464,11 +464,12 @@ def test_bench_nosnoc_planner_side_races_as_planner_plan_does(bench_nosnoc, monk
     """--planner solves as `planner plan` does: the race of planner.race.default_arms (two CPUs assumed here),
     recorded with each arm's outcome, exactly one "won", on the quick task (N = 25, no holes)."""
     from planner import race
+    from planner.homotopy import SolveOptions
 
     monkeypatch.setattr(race, "usable_cpus", lambda: 2)
     rec = bench_nosnoc.run_planner(quick=True)
     assert rec["solver"] == "planner" and rec["N"] == 25 and rec["holes"] == 0 and rec["ipopt_iterations"] > 0
-    assert [a["arm"] for a in rec["race"]] == [name for name, _ in race.default_arms(race.SolveOptions())]
+    assert [a["arm"] for a in rec["race"]] == [name for name, _ in race.default_arms(SolveOptions())]
     assert rec["converged"]  # the quick task converges (measured: 1630 iterations, ~7 s), so the race has a winner
     assert [a["outcome"] for a in rec["race"]].count("won") == 1
 
