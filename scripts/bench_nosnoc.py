@@ -21,8 +21,8 @@ min over nodes and holes of ((x - xc)/a)^2 + ((z - zc)/b)^2 (>= 1: outside), IPO
 
 `--planner` also runs our own planner on the same task file in the same process, as `planner plan` does
 (defaults of planner.problem / planner.homotopy, its race of two solver variants on two CPUs: planner.race)
-for the wall-time ratio. `--quick` uses a coarse grid (N = 25,
-no holes) for both. nosnoc is an optional dependency (pip install nosnoc); it is imported in main().
+for the wall-time ratio. `--quick` uses a coarse grid (N = 25, no holes) for both. nosnoc is an optional
+dependency (pip install nosnoc); it is imported in main().
 
     python -m scripts.bench_nosnoc [--quick] [--planner] [--out DIR] [--json]   (from the repository root)
 """
