@@ -143,8 +143,11 @@ def test_bad_race_input(hop_problem, arms, processes, fragment):
 
 # How long an arm may outlive its race's parent: the kernel's PR_SET_PDEATHSIG, or the parent's cleanup, acts at once
 ARM_EXIT_S = 5.0
+# The racing process takes Ctrl-C as a terminal delivers it: a shell without job control starts background commands
+# with SIGINT ignored, and the child would inherit that (the suite run as `bash .ci/run &` hung here for 5 s).
 ARMS_THAT_SLEEP = """
-import multiprocessing as mp, threading, time
+import multiprocessing as mp, signal, threading, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from planner import race as R
 from planner.homotopy import SolveOptions
 R.solve = lambda problem, options, progress=None: time.sleep(120)
