@@ -144,7 +144,8 @@ def test_bad_race_input(hop_problem, arms, processes, fragment):
 # How long an arm may outlive its race's parent: the kernel's PR_SET_PDEATHSIG, or the parent's cleanup, acts at once
 ARM_EXIT_S = 5.0
 # The racing process takes Ctrl-C as a terminal delivers it: a shell without job control starts background commands
-# with SIGINT ignored, and the child would inherit that (the suite run as `bash .ci/run &` hung here for 5 s).
+# with SIGINT ignored, and the child would inherit that (the suite run as `bash .ci/run &` failed here: the
+# racing process never exited and proc.wait timed out after ARM_EXIT_S).
 ARMS_THAT_SLEEP = """
 import multiprocessing as mp, signal, threading, time
 signal.signal(signal.SIGINT, signal.default_int_handler)
