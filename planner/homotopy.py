@@ -441,6 +441,11 @@ SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9
 SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
 
 
+def _small_mu_ipopt(options: SolveOptions) -> dict:
+    """The IPOPT options of an NLP whose barrier starts at mu = 1e-9: SMALL_MU_MUMPS with MUMPS, else none."""
+    return dict(SMALL_MU_MUMPS) if options.linear_solver == "mumps" else {}
+
+
 def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     """`options` (default SolveOptions()) set up to start from a converged plan of a task with the same
     Problem.signature: one NLP at REPLAN_RHO (and one at REPLAN_RHO_MAX unless its products are <=
@@ -498,6 +503,7 @@ class _Solvers:
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
         self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
         self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
+        self.eval_s: dict[str, dict[str, float]] = {}  # IPOPT's name -> callback -> wall s, summed over all its calls
         self.problem = problem
         self._derivs = None
 
@@ -559,6 +565,14 @@ class _Solvers:
                 "jac_g": ca.Function("nlp_jac_g", [xs, p], [g, J], ["x", "p"], ["g", "jac_g_x"]),
                 "hess_lag": ca.Function("nlp_hess_l", [xs, p, lf, lg], [H], ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])}
 
+    def add_evals(self, name: str, stats: dict) -> None:
+        """Add one call's callback wall times (CasADi's t_wall_nlp_* stats) to eval_s[name]."""
+        acc = self.eval_s.setdefault(name, {})
+        for key, value in stats.items():
+            if key.startswith("t_wall_"):
+                callback = key[len("t_wall_"):]
+                acc[callback] = acc.get(callback, 0.0) + float(value)
+
     def projection(self):
         """IPOPT for min ||x - x_ref||^2 s.t. the problem's constraints (x_ref, then p, as parameters)."""
         if "projection" not in self.cache:
@@ -576,8 +590,7 @@ class _Solvers:
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
             opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
-            if self.options.linear_solver == "mumps":
-                opts["ipopt"].update(SMALL_MU_MUMPS)
+            opts["ipopt"].update(_small_mu_ipopt(self.options))
             if pb.fesd is not None and self.scale is not None:
                 # FESD Capler's gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke
                 # lambda >= 0 by 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md)
@@ -592,8 +605,7 @@ class _Solvers:
         opts = ipopt_options(self.options, warm, loose)
         if schedule:
             opts["ipopt"].update(SCHEDULE_IPOPT, max_iter=self.options.schedule_max_iter)
-            if self.options.linear_solver == "mumps":
-                opts["ipopt"].update(SMALL_MU_MUMPS)
+            opts["ipopt"].update(_small_mu_ipopt(self.options))
             if self.scale is not None:  # IPOPT's bound relaxation (1e-8 in xs) is 1e-8 D in x: Capler target 2.8 m broke a bound by 9.8e-6
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
         scaled = self.sees_scale(warm, schedule)
@@ -895,6 +907,7 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
+    solvers.add_evals(solver.name(), st)
     if n_probe:
         sol = dict(sol, x=sol["x"][: problem.nx], lam_x=sol["lam_x"][: problem.nx])
     x = np.asarray(sol["x"], float).ravel() * D
@@ -915,13 +928,10 @@ def gated_complementarity(problem: Problem, x) -> float:
 
 
 def _ipopt_timing(solvers) -> dict:
-    """Where IPOPT's time went over the last call of each solver (function evaluations vs the rest)."""
-    out = {}
-    for key, s in solvers.cache.items():
-        st = s.stats()
-        # CasADi 3.8 reports per-callback times only (no t_wall_total): the NLP records carry the wall time
-        out["ipopt_last_call_" + solvers.names[key]] = {k[len("t_wall_"):]: float(v) for k, v in st.items() if k.startswith("t_wall_")}
-    return out
+    """Where IPOPT's time went in the NLP callbacks: "ipopt_evals_s" = {IPOPT's name: {callback: wall s}}, summed
+    over every call of that IPOPT in the solve (a re-scaled IPOPT of the same name adds to the same entry)."""
+    # CasADi 3.8 reports per-callback times only (no t_wall_total): the NLP records carry each call's wall time
+    return {"ipopt_evals_s": {name: dict(v) for name, v in solvers.eval_s.items()}}
 
 
 # a gate (the factor a gated pair's product carries) at or below this leaves its selector without effect on

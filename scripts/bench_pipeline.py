@@ -28,7 +28,7 @@ also capler75, capler100 and capler_x2.8, capler_x2.9, capler_x3.1 (N = 125, the
 capler_set, all seven Capler tasks (CAPLER_SET: one task's iteration count is a draw, docs/benchmarks.md).
 
     python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
-        [--variants NAME ...] [--nlp 1|2] [--codegen] [--full] [--full-only] [--solve JSON ...] [--race] [--out DIR] [--json]
+        [--variants NAME ...] [--nlp 1|2] [--step-form mass_matrix|explicit] [--codegen] [--full] [--full-only] [--solve JSON ...] [--race] [--out DIR] [--json]
 
 --quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
 """
@@ -57,7 +57,8 @@ from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_opti
                               solve_options_from_dict, task_rho_schedule, variable_scale)
 from planner.errors import InputError
 from planner.model import load_robot
-from planner.problem import build_problem
+from planner.discretization import StepForm
+from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
 from planner.result import race_arms_text, write_atomically
 from planner.task import Horizon, load_task, parse_task
@@ -94,6 +95,11 @@ VARIANTS = {
     "mu_globalization_never_monotone": {"adaptive_mu_globalization": "never-monotone-mode"},
     # quasi-Newton Hessian (session 11): no Hessian evaluations, a KKT matrix without the Hessian's fill
     "limited_memory": {"hessian_approximation": "limited-memory"},
+    # SPRAL's SSIDS, linked into the CasADi wheel's IPOPT beside MUMPS (session 21): as IPOPT sets it up, and
+    # without its matching-based scaling with smaller supernodes (the fastest of seven settings tried)
+    "spral": {"linear_solver": "spral"},
+    "spral_lean": {"linear_solver": "spral", "spral_scaling": "none", "spral_scaling_1": "none", "spral_scaling_2": "none",
+                   "spral_scaling_3": "none", "spral_nemin": 4},
 }
 
 
@@ -205,11 +211,13 @@ def median_record(runs: list[dict]) -> dict:
 
 
 def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[str], codegen: dict | None,
-             full: list[tuple[dict, SolveOptions]], log, nlp_index: int = 1, raced: bool = False) -> dict:
+             full: list[tuple[dict, SolveOptions]], log, nlp_index: int = 1, raced: bool = False,
+             problem_options: ProblemOptions = ProblemOptions()) -> dict:
     robot, task = CASES[name](quick)
     t0 = time.perf_counter()
-    problem = build_problem(robot, task)
-    rec = {"case": name, "N": task.horizon.N, "h": task.horizon.h, "n_variables": problem.nx, "n_constraints": problem.ng,
+    problem = build_problem(robot, task, problem_options)
+    rec = {"case": name, "N": task.horizon.N, "h": task.horizon.h, "step_form": problem_options.step_form.value,
+           "n_variables": problem.nx, "n_constraints": problem.ng,
            "build_s": time.perf_counter() - t0, "iters": iters, "nlp": nlp_index}
     options = SolveOptions(max_iter=iters)
     if nlp_index == 2 and variants:
@@ -334,8 +342,11 @@ def main(argv: list[str] | None = None) -> int:
                              "e.g. '{\"warm_ipopt\": {\"alpha_for_y\": \"min\"}}'")
     parser.add_argument("--race", action="store_true",
                         help="race each end-to-end solve against the second arm of planner.race.default_arms on two CPUs, as `planner plan` does")
+    parser.add_argument("--step-form", choices=[f.value for f in StepForm], default=StepForm.MASS_MATRIX.value,
+                        help="ProblemOptions.step_form of every case (default mass_matrix, the package's)")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
+    problem_options = ProblemOptions(step_form=StepForm(args.step_form))
     cases = args.cases or (["hop"] if args.quick else ["capler50", "capler125", "hop"])
     cases = [c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))]
     variants = [] if args.full_only else ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
@@ -358,7 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
     heap_kept = keep_freed_memory()
     load_before, start = os.getloadavg(), time.perf_counter()
-    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race) for c in cases]
+    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race, problem_options)
+               for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),

@@ -47,6 +47,18 @@ def test_point_mass_hop_converges(hop):
     assert [r.rho for r in homotopy] == schedule[: len(homotopy)] and [r.label for r in records[-2:]] == ["polish", "reoptimize"]
 
 
+def test_eval_timings_cover_every_ipopt_of_the_solve(hop):
+    """timings["ipopt_evals_s"] sums the NLP callbacks' wall time per IPOPT over the whole solve: it names the
+    homotopy's, the projection's and the schedule's IPOPTs (the re-scaling before the re-optimization does not
+    drop the earlier ones; the hop's warm NLPs share the cold IPOPT, their options being the same), and their
+    evaluation time is positive and below the solve's IPOPT time."""
+    _, res, records = hop
+    evals = res.timings["ipopt_evals_s"]
+    assert set(evals) == {"tf_ocp_cold", "tf_ocp_projection", "tf_ocp_schedule"}
+    total = sum(sum(v.values()) for v in evals.values())
+    assert 0.0 < total < res.timings["ipopt_s"]
+
+
 # The later NLPs (rho 1e5, 1e6) move an already complementary point by ~1e-5 (IPOPT's restart from
 # mu = 0.1 leaves it and comes back); both polishes project onto the same active set.
 SAME_PLAN_TOL = 1e-4  # [m, m/s, s] largest difference of the NLP states

@@ -9,6 +9,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -513,6 +514,36 @@ def test_bench_skips_quick_run(tmp_path, capsys):
     assert records["frictionless"]["on"]["scene"]["frictionless"] == ["point"]
     assert records["never_touching"]["on"]["scene"]["never_touching"] == ["knee"]
     assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2
+
+
+def test_probe_smoothing_quick_run(tmp_path, capsys):
+    """--quick --json: one record per smoothing scale with the documented fields, the same in results.json; the
+    smoothed NLP holds every selector at its logistic of the switching function (the rewritten stationarity rows
+    vanish at a point built that way) with the multipliers and the l_inf slack fixed at 0. No convergence
+    assertion: --quick is a smoke run."""
+    from scripts import probe_smoothing
+
+    assert probe_smoothing.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "results.json").read_text())
+    assert [r["eps_scale"] for r in rec["nlps"]] == [1.0, 0.1] and rec["N"] == 6
+    for r in rec["nlps"]:
+        assert set(r) == {"eps_scale", "iterations", "status", "wall_s", "control_cost", "terminal_error", "base_x_end"}
+    robot, task = probe_smoothing.capler_case(6)
+    problem = build_problem(robot, task)
+    nlp, _ = probe_smoothing.smoothed_nlp(problem)
+    x, lbx, ubx = probe_smoothing.smoothed_bounds(problem, problem.x0)
+    fixed = lbx == ubx
+    assert np.all(x[fixed] == 0) and fixed[problem.var_blocks["lambda0"]].all() and fixed[problem.var_blocks["s_c"]].all()
+    rows = problem.g_blocks["stationarity"].ravel()
+    sigma = problem.var_blocks["sigma"].ravel()
+    eps = np.array([probe_smoothing.EPS[s.function] for s in problem.system.switches])
+    p = np.concatenate([problem.params(0.0, 1.0), eps])
+    g = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
+    x[sigma] = 0.5  # selectors off their logistic: the rows are nonzero somewhere
+    assert np.abs(np.asarray(g(x, p)).ravel()[rows]).max() > 1e-3
+    x[sigma] -= np.asarray(g(x, p)).ravel()[rows]  # h depends on the states and forces, not on sigma: one step sets them
+    assert np.abs(np.asarray(g(x, p)).ravel()[rows]).max() <= 1e-12
 
 
 # --- scripts/bench_biped_walk.py -----------------------------------------------------------------------
