@@ -40,7 +40,7 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
         p.add_argument("--no-plots", action="store_true",
                        help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
-    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (a racing plan's two arms interleave theirs; --no-race gives one log)")
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (in a racing plan each line starts with its arm's name, [default] or [alternate])")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
 
 

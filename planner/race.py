@@ -19,6 +19,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import sys
 import time
 import traceback
 from dataclasses import replace
@@ -77,7 +78,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     pipes, procs = [], []
     for i in range(n):
         reader, writer = ctx.Pipe(duplex=False)  # one pipe per arm: killing an arm cannot corrupt another's channel
-        proc = ctx.Process(target=_arm, args=(problem, arms[i][1], writer), name=f"planner-race-{names[i]}", daemon=True)
+        proc = ctx.Process(target=_arm, args=(problem, arms[i][1], writer, names[i]), name=f"planner-race-{names[i]}", daemon=True)
         proc.start()
         writer.close()
         pipes.append(reader)
@@ -124,9 +125,13 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     return replace(result, stats=stats, extra=dict(result.extra, race=table))
 
 
-def _arm(problem: Problem, options: SolveOptions, conn) -> None:
-    """One arm, in its own process: solve, sending each NLP record, then the result (or the error)."""
+def _arm(problem: Problem, options: SolveOptions, conn, name: str = "arm") -> None:
+    """One arm, in its own process: solve, sending each NLP record, then the result (or the error). With
+    print_level > 0 every line of IPOPT's log (CasADi writes it to sys.stdout) starts with "[name] ", so that
+    the arms' logs, which share the terminal, can be told apart."""
     _die_with_parent()
+    if options.print_level > 0:
+        sys.stdout = _Labelled(sys.stdout, f"[{name}] ")
     try:
         result = solve(problem, options, lambda rec: conn.send(("progress", rec)))
         conn.send(("done", result))
@@ -134,6 +139,35 @@ def _arm(problem: Problem, options: SolveOptions, conn) -> None:
         conn.send(("error", (_portable(exc), traceback.format_exc())))
     finally:
         conn.close()
+        if isinstance(sys.stdout, _Labelled):
+            sys.stdout.finish()
+
+
+class _Labelled:
+    """A text stream that writes each complete line to `stream` with `label` in front, one write per line, so
+    that two processes' lines do not mix within a line; a partial line waits for its end (or for `finish`)."""
+
+    def __init__(self, stream, label: str):
+        self.stream, self.label, self.partial = stream, label, ""
+
+    def write(self, text: str) -> int:
+        *lines, self.partial = (self.partial + text).split("\n")
+        for line in lines:  # flushed line by line: a stream's own buffer may spill in the middle of a line
+            self.stream.write(f"{self.label}{line}\n")
+            self.stream.flush()
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def finish(self) -> None:
+        """Write the partial line, if any, as a line of its own."""
+        if self.partial:
+            self.write("\n")
+        self.flush()
+
+    def __getattr__(self, name):  # encoding, isatty, fileno, ...: the stream's own
+        return getattr(self.stream, name)
 
 
 def _portable(exc: Exception) -> Exception:

@@ -57,6 +57,36 @@ def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_
     assert f"race of default {table['default']['outcome']}" in result.stats.message
 
 
+def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, capfd):
+    """With print_level > 0 the arms share the terminal: every line they print starts with "[default] " or
+    "[alternate] ", both arms' IPOPT logs are there (their iteration tables), and the winner's plan is that arm's
+    quiet plan bit for bit (printing does not change the arithmetic)."""
+    result = R.race(hop_problem, R.default_arms(H.SolveOptions(print_level=5)), processes=2)
+    lines = [line for line in capfd.readouterr().out.splitlines() if line]
+    labels = {f"[{name}] " for name in one_by_one}
+    assert lines and all(line[: line.find("] ") + 2] in labels for line in lines), [x for x in lines if not x.startswith("[")][:3]
+    for label in labels:
+        assert any(line.startswith(label) and "iter    objective" in line for line in lines), label
+    (won,) = [row["arm"] for row in result.extra["race"] if row["outcome"] == "won"]
+    assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
+
+
+def test_labelled_stream_writes_whole_lines_only():
+    """_Labelled buffers a partial line until its end, labels each line once, and finish() ends a last partial
+    line; other attributes are the stream's."""
+    import io
+
+    out = io.StringIO()
+    stream = R._Labelled(out, "[a] ")
+    stream.write("one\ntw")
+    assert out.getvalue() == "[a] one\n"
+    stream.write("o\n\nthree")
+    stream.flush()
+    assert out.getvalue() == "[a] one\n[a] two\n[a] \n"
+    stream.finish()
+    assert out.getvalue().endswith("[a] three\n") and stream.getvalue() == out.getvalue()
+
+
 def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
     """With processes = 1 the race is the first arm's plain solve (no fork, no race table)."""
     result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=1)
