@@ -502,7 +502,7 @@ class _Solvers:
         self.nlp = self._probed({"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g})
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
         self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
-        self.options, self.cache, self.names, self.setup_time_s = options, {}, {"projection": "projection"}, 0.0
+        self.options, self.cache, self.setup_time_s = options, {}, 0.0
         self.eval_s: dict[str, dict[str, float]] = {}  # IPOPT's name -> callback -> wall s, summed over all its calls
         self.problem = problem
         self._derivs = None
@@ -619,7 +619,6 @@ class _Solvers:
                 # 693 / 2129 / 934 iterations instead of 472 / 1535 / 839 to a plan of cost 125.5 instead of 99.4)
                 opts.update(self.derivatives(scaled))
             self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.scaled_nlp if scaled else self.nlp, opts)
-            self.names[key] = name
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]
 

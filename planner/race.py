@@ -125,7 +125,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     return replace(result, stats=stats, extra=dict(result.extra, race=table))
 
 
-def _arm(problem: Problem, options: SolveOptions, conn, name: str = "arm") -> None:
+def _arm(problem: Problem, options: SolveOptions, conn, name: str) -> None:
     """One arm, in its own process: solve, sending each NLP record, then the result (or the error). With
     print_level > 0 every line of IPOPT's log (CasADi writes it to sys.stdout) starts with "[name] ", so that
     the arms' logs, which share the terminal, can be told apart."""

@@ -37,9 +37,9 @@ ROOT = Path(__file__).resolve().parent.parent
 EPS = {"n^T v": 0.1, "c(q)": 0.01, "phi": 5.0, "t^T v": 0.1}
 
 
-def smoothed_nlp(problem) -> tuple[dict, ca.SX]:
-    """The problem's NLP with sigma = logistic(h / eps) in place of the stationarity rows: ({x, p, f, g}, eps symbol
-    (n_sigma,)); p = (problem.p, eps). The multipliers stay variables (bound to 0 by `smoothed_bounds`)."""
+def smoothed_nlp(problem) -> dict:
+    """The problem's NLP {x, p, f, g} with sigma = logistic(h / eps) in place of the stationarity rows; p = (problem.p,
+    eps (n_sigma,)). The multipliers stay variables (bound to 0 by `smoothed_bounds`)."""
     x = problem.x
     lam = ca.vertcat(x[problem.var_blocks["lambda0"].ravel()], x[problem.var_blocks["lambda1"].ravel()])
     rows = problem.g_blocks["stationarity"].ravel()
@@ -48,7 +48,7 @@ def smoothed_nlp(problem) -> tuple[dict, ca.SX]:
     g = ca.SX(problem.g)
     g[rows] = x[problem.var_blocks["sigma"].ravel()] - 0.5 * (1 + ca.tanh(h / (2 * ca.repmat(eps, problem.N, 1))))
     f = problem.f - problem.objective_parts["selectors"](x, problem.p)
-    return {"x": x, "p": ca.vertcat(problem.p, eps), "f": f, "g": g}, eps
+    return {"x": x, "p": ca.vertcat(problem.p, eps), "f": f, "g": g}
 
 
 def smoothed_bounds(problem, start: np.ndarray):
@@ -81,7 +81,7 @@ def probe(N: int, start: str, scales: list[float], terminal_weight: float, holes
     """One start, the NLPs over `scales`; returns the record (rows per NLP)."""
     robot, task = capler_case(N)
     problem = build_problem(robot, task)
-    nlp, _ = smoothed_nlp(problem)
+    nlp = smoothed_nlp(problem)
     opts = ipopt_options(SolveOptions(max_iter=max_iter), False)
     t0 = time.perf_counter()
     solver = ca.nlpsol("smoothed", "ipopt", nlp, opts)

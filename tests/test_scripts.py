@@ -531,7 +531,7 @@ def test_probe_smoothing_quick_run(tmp_path, capsys):
         assert set(r) == {"eps_scale", "iterations", "status", "wall_s", "control_cost", "terminal_error", "base_x_end"}
     robot, task = probe_smoothing.capler_case(6)
     problem = build_problem(robot, task)
-    nlp, _ = probe_smoothing.smoothed_nlp(problem)
+    nlp = probe_smoothing.smoothed_nlp(problem)
     x, lbx, ubx = probe_smoothing.smoothed_bounds(problem, problem.x0)
     fixed = lbx == ubx
     assert np.all(x[fixed] == 0) and fixed[problem.var_blocks["lambda0"]].all() and fixed[problem.var_blocks["s_c"]].all()
