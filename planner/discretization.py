@@ -147,12 +147,19 @@ class ImplicitEulerStep:
     condition (theta(h / a) = theta(h) for a > 0; it rescales the multipliers, not the solution).
     form: StepForm (EXPLICIT by default; MASS_MATRIX adds the block "forces" to w and the
     equality block "contact_forces"). velocity_switch: SwitchVelocity (POINT by default, the paper's).
+    lift_products: True (the paper's lifting) makes every product of selectors a variable of the
+    theta block with its bilinear lifting row; False keeps them as products of the selectors inside
+    the expressions (theta then holds the factors only, and the lifting block their rows), so a step
+    has len(lifted) variables and rows fewer, the same solutions, and the rows that used a product
+    get higher-degree terms instead.
     """
 
     def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT,
-                 velocity_switch: SwitchVelocity = SwitchVelocity.POINT):
+                 velocity_switch: SwitchVelocity = SwitchVelocity.POINT, lift_products: bool = True):
         if rho_f < 0:
             raise ValueError(f"rho_f must be >= 0, got {rho_f}")
+        if not isinstance(lift_products, bool):
+            raise ValueError(f"lift_products must be True or False, got {lift_products!r}")
         if not isinstance(velocity_switch, SwitchVelocity):
             raise ValueError(f"velocity_switch must be one of {[m.value for m in SwitchVelocity]}, got {velocity_switch!r}")
         self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
@@ -176,6 +183,8 @@ class ImplicitEulerStep:
                 for k in range(2, len(m) + 1):
                     lifted.add(m[:k])
         self.lifted = tuple(sorted(lifted, key=lambda m: (len(m), m)))
+        self.lift_products = lift_products
+        self.theta_lifted = self.lifted if lift_products else ()  # the products that are variables of theta
         self.monomials = ((),) + tuple((i,) for i in range(n_var)) + self.lifted
         index = {m: j for j, m in enumerate(self.monomials)}
         self._index = index
@@ -192,12 +201,12 @@ class ImplicitEulerStep:
         self.factor_matrix = matrix([f.definition for f in factors])  # factor_d = row d . z
         self.switch_matrix = matrix(system.constraint_switches)  # s (n_lambda,) = S z
         # theta: the factors, then the lifted products (z = (1, sigma, theta) in monomial order)
-        self.n_theta = len(factors) + len(self.lifted)
+        self.n_theta = len(factors) + len(self.theta_lifted)
         self.nw = 3 * n + self.n_theta + nz
         names = [s.name for s in system.switches] + [f.name for f in factors]
-        self.theta_names = tuple(names[n:] + ["*".join(names[i] for i in m) for m in self.lifted])
+        self.theta_names = tuple(names[n:] + ["*".join(names[i] for i in m) for m in self.theta_lifted])
         upper = [1.0] * n + [f.upper for f in factors]
-        theta_upper = [f.upper for f in factors] + [float(np.prod([upper[i] for i in m])) for m in self.lifted]
+        theta_upper = [f.upper for f in factors] + [float(np.prod([upper[i] for i in m])) for m in self.theta_lifted]
         names = names[:n]
         sizes = {"sigma": n, "theta": self.n_theta, "lambda0": n, "lambda1": n, "forces": nz}
         self.w_blocks, start = {}, 0
@@ -219,10 +228,22 @@ class ImplicitEulerStep:
         """Algebraic variables (nw,) from numeric selectors and multipliers (n_sigma,) each; theta = the
         factors and the products; forces (nz,) default zeros."""
         x = self.system.variables(np.asarray(sigma, float)) if self.system.factors else np.asarray(sigma, float)
-        theta = list(x[self.system.n_sigma :]) + [np.prod([x[i] for i in m]) for m in self.lifted]
+        theta = list(x[self.system.n_sigma :]) + [np.prod([x[i] for i in m]) for m in self.theta_lifted]
         nz = self.w_blocks["forces"].stop - self.w_blocks["forces"].start if "forces" in self.w_blocks else 0
         forces = np.zeros(nz) if forces is None else np.asarray(forces, float).ravel()
         return np.concatenate([sigma, theta, lam0, lam1, forces]).astype(float)
+
+    def monomials_of(self, w):
+        """The monomial vector z (n_monomials,) = (1, sigma, factors, lifted products) of the algebraic
+        variables w (nw,), in self.monomials order: numeric (numpy) for a numeric w, else symbolic. Without
+        lift_products the products are formed here from the selectors and factors."""
+        sigma, theta = w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]
+        numeric = isinstance(w, np.ndarray)
+        z = [1.0] + [sigma[i] for i in range(sigma.shape[0])] + [theta[d] for d in range(theta.shape[0])]
+        if not self.lift_products:
+            for m in self.lifted:  # sorted by degree: every prefix is already in z
+                z.append(z[self._index[m[:-1]]] * z[self._index[(m[-1],)]])
+        return np.array(z, dtype=float) if numeric else ca.vertcat(*z)
 
     def forces_at(self, y, u, sigma=None) -> np.ndarray:
         """The algebraic force variables (nz,) that solve their equations at numeric y, u: MASS_MATRIX
@@ -317,7 +338,7 @@ class ImplicitEulerStep:
         w = sym(f"w{tag}", self.nw)
         sigma, theta = w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]
         lam0, lam1 = w[self.w_blocks["lambda0"]], w[self.w_blocks["lambda1"]]
-        z = ca.vertcat(1, sigma, theta)  # the monomials, in self.monomials order
+        z = self.monomials_of(w)
         coef = ca.mtimes(ca.DM(self.C), z)
         lam = None
         if sys_.n_lambda:  # several contacts: the unit-force fields get R lambda (R = the f_ODE coefficient)
@@ -362,7 +383,7 @@ class ImplicitEulerStep:
         index = {m: j for j, m in enumerate(self.monomials)}
         n = sys_.n_sigma
         factors = [theta[d] - ca.mtimes(ca.DM(self.factor_matrix[d : d + 1]), z) for d in range(len(sys_.factors))]
-        lifting = factors + [z[index[m]] - z[index[m[:-1]]] * (sigma[m[-1]] if m[-1] < n else z[index[(m[-1],)]]) for m in self.lifted]
+        lifting = factors + [z[index[m]] - z[index[m[:-1]]] * (sigma[m[-1]] if m[-1] < n else z[index[(m[-1],)]]) for m in self.theta_lifted]
         g = ca.vertcat(dynamics, stationarity, *lifting, *extra)
         ny = sys_.ny
         g_blocks = {"dynamics": slice(0, ny), "stationarity": slice(ny, ny + n), "lifting": slice(ny + n, ny + n + self.n_theta)}
@@ -381,8 +402,7 @@ class ImplicitEulerStep:
     def coefficients(self, w) -> np.ndarray:
         """Numeric field coefficients P_j (n_fields,) of a solved step from its algebraic variables w (nw,)."""
         w = np.asarray(w, dtype=float).ravel()
-        z = np.concatenate([[1.0], w[self.w_blocks["sigma"]], w[self.w_blocks["theta"]]])
-        coef = self.C @ z
+        coef = self.C @ self.monomials_of(w)
         if self.system.n_lambda:
             coef = coef + self._force_map() @ (coef[0] * w[self.w_blocks["forces"]][self.lam_slice])
         return coef

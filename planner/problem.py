@@ -137,6 +137,10 @@ class ProblemOptions:
       is gated (and reported) with the gate of its selector's stage: a selector switched off by the
       gates may change sign inside an element (e.g. alpha, n^T v, at a flight's apex).
     fesd: FESDOptions (n_s, n_fe, rho_h) of the FESD stages; ignored with IMPLICIT_EULER.
+    lift_products: ImplicitEulerStep's lift_products: True (default) makes the products of selectors
+      variables with bilinear lifting rows and bounds (the paper's Sec. 5.1); False substitutes them
+      (Capler: 4 variables and rows fewer per step, IPOPT iterations ~12 % cheaper, but over the
+      seven-task set as many iterations and costlier plans; docs/benchmarks.md, session 22).
     scene_analysis: build only what the scene needs (planner.scene: no tangential machinery for
       mu = 0, no contact machinery for touches = false, no holes out of reach); False builds it all,
       the reference the skips are measured against (scripts/bench_skips.py).
@@ -156,8 +160,11 @@ class ProblemOptions:
     scene_analysis: bool = True
     discretization: Discretization = Discretization.IMPLICIT_EULER
     fesd: FESDOptions = FESDOptions()
+    lift_products: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.lift_products, bool):
+            raise InputError(f"ProblemOptions.lift_products = {self.lift_products!r} is not allowed; it must be True or False")
         if not isinstance(self.discretization, Discretization):
             raise InputError(f"ProblemOptions.discretization = {self.discretization!r} is not allowed; it must be one of "
                              f"{[d.value for d in Discretization]}")
@@ -304,7 +311,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         if name not in known:
             raise InputError(f"ProblemOptions.switch_scale names {name!r}; the switching functions are {sorted(known)}")
     switch_scale = np.array([scale_of.get(s.function, 1.0) for s in system.switches])
-    builder = ImplicitEulerStep(system, plan.rho_f, switch_scale, form=options.step_form, velocity_switch=options.velocity_switch)
+    builder = ImplicitEulerStep(system, plan.rho_f, switch_scale, form=options.step_form, velocity_switch=options.velocity_switch,
+                                lift_products=options.lift_products)
     nq, nv, nu, ny, nw, n_sig = system.nq, system.nv, system.nu, system.ny, builder.nw, system.n_sigma
     N, h = hz.N, hz.h
     timed = hz.physical_time is not None
@@ -508,7 +516,7 @@ def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X
     the force row s_i = (1 - beta_i)(1 - gamma_i); docs/formulation.md, "Periodic walking")."""
     names = [s.name for s in system.switches]
     n_fac = len(system.factors)  # theta = (factors, lifted products); no factors with one contact
-    mono = {m: n_fac + j for j, m in enumerate(builder.lifted)}
+    mono = {m: n_fac + j for j, m in enumerate(builder.theta_lifted)}
     out = []
     for k in range(N):
         sig, th = var_blocks["sigma"][k], var_blocks["theta"][k]
@@ -552,8 +560,7 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
             if (ct.point, i) in skips.dropped_holes:
                 continue
             hole_exprs.append(((pos[0] - e.x) / e.a) ** 2 + ((pos[2] - e.z) / e.b) ** 2 - hole_scale**2)
-    z = ca.vertcat(1, ws[builder.w_blocks["sigma"]], ws[builder.w_blocks["theta"]])
-    coef = ca.mtimes(ca.DM(builder.C), z)  # P_j(sigma) per field, linear in the lifted variables
+    coef = ca.mtimes(ca.DM(builder.C), builder.monomials_of(ws))  # P_j(sigma) per field, linear in the lifted variables
     field_names = [f.name for f in system.fields]
     cone = []
     if options.friction_cone and len(contacts) > 1:
@@ -737,7 +744,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     if options.gating:
         # the gates of every stage (its lambda0 gates then its lambda1 gates, as _gates), and of every
         # pair the gate of its selector's stage: a switched-off selector need not switch on a boundary
-        stage_vb = {b: var_blocks[b].reshape(-1, var_blocks[b].shape[-1]) for b in ("sigma", "theta")}
+        stage_vb = {b: var_blocks[b].reshape(N * n_fe * n_s, var_blocks[b].shape[-1]) for b in ("sigma", "theta")}
         stage_gates = _gates(system, builder, stage_vb, X, N * n_fe * n_s)
         gate_of = {int(sig.ravel()[m * n + i]): stage_gates[m * 2 * n + i] for m in range(N * n_fe * n_s) for i in range(n)}
         pair_gates = ca.vertcat(*[gate_of[pr.b] for pr in pairs])

@@ -28,7 +28,7 @@ also capler75, capler100 and capler_x2.8, capler_x2.9, capler_x3.1 (N = 125, the
 capler_set, all seven Capler tasks (CAPLER_SET: one task's iteration count is a draw, docs/benchmarks.md).
 
     python -m scripts.bench_pipeline [--quick] [--cases NAME ...] [--iters K] [--repeats R]
-        [--variants NAME ...] [--nlp 1|2] [--step-form mass_matrix|explicit] [--codegen] [--full] [--full-only] [--solve JSON ...] [--race] [--out DIR] [--json]
+        [--variants NAME ...] [--nlp 1|2] [--step-form mass_matrix|explicit] [--no-lift] [--codegen] [--full] [--full-only] [--solve JSON ...] [--race] [--out DIR] [--json]
 
 --quick (the CI smoke run): the hop with N = 6, 10 iterations, one repeat.
 """
@@ -217,6 +217,7 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
     t0 = time.perf_counter()
     problem = build_problem(robot, task, problem_options)
     rec = {"case": name, "N": task.horizon.N, "h": task.horizon.h, "step_form": problem_options.step_form.value,
+           "lift_products": problem_options.lift_products,
            "n_variables": problem.nx, "n_constraints": problem.ng,
            "build_s": time.perf_counter() - t0, "iters": iters, "nlp": nlp_index}
     options = SolveOptions(max_iter=iters)
@@ -344,9 +345,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="race each end-to-end solve against the second arm of planner.race.default_arms on two CPUs, as `planner plan` does")
     parser.add_argument("--step-form", choices=[f.value for f in StepForm], default=StepForm.MASS_MATRIX.value,
                         help="ProblemOptions.step_form of every case (default mass_matrix, the package's)")
+    parser.add_argument("--no-lift", action="store_true",
+                        help="ProblemOptions.lift_products = False: the products of selectors substituted, not lifted variables")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
-    problem_options = ProblemOptions(step_form=StepForm(args.step_form))
+    problem_options = ProblemOptions(step_form=StepForm(args.step_form), lift_products=not args.no_lift)
     cases = args.cases or (["hop"] if args.quick else ["capler50", "capler125", "hop"])
     cases = [c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))]
     variants = [] if args.full_only else ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner.discretization import G_BLOCKS, W_BLOCKS, ImplicitEulerStep
+from planner.discretization import G_BLOCKS, W_BLOCKS, ImplicitEulerStep, StepForm
 from planner.dynamics import Dynamics
 from planner.model import load_robot
 from planner.task import Contact
@@ -61,6 +61,37 @@ def test_lifted_step_equals_unlifted_field(robot, mu, eps):
     F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(sigma)])(y1, uu), dtype=float).ravel()
     np.testing.assert_allclose(gv[st.g_blocks["dynamics"]], y1 - y0 - 0.02 * 1.3 * F, atol=EVAL_TOL * 1e3)
     np.testing.assert_allclose(gv[st.g_blocks["lifting"]], 0.0, atol=EVAL_TOL)
+
+
+@pytest.mark.parametrize("contacts,form", [(("foot",), StepForm.EXPLICIT), (("foot",), StepForm.MASS_MATRIX),
+                                           (("foot", "knee"), StepForm.MASS_MATRIX)])
+def test_substituted_products_give_the_lifted_step(contacts, form):
+    """lift_products=False drops the lifted products' variables and lifting rows (the factors of several
+    contacts stay), and every other row equals the lifted step's at the same selectors (random seeded
+    point, theta consistent): the same step with fewer variables."""
+    s = TimeFreezingSystem(Dynamics(load_robot("capler")), [Contact(p, mu=0.8) for p in contacts])
+    lifted, plain = ImplicitEulerStep(s, form=form), ImplicitEulerStep(s, form=form, lift_products=False)
+    yk, yn, u, sp = symbols(s)
+    a, b = lifted.build(yk, yn, u, sp, 0.02), plain.build(yk, yn, u, sp, 0.02)
+    n_prod = len(lifted.lifted)
+    assert n_prod > 0 and plain.nw == lifted.nw - n_prod and b.g.shape[0] == a.g.shape[0] - n_prod
+    assert b.g_blocks["lifting"].stop - b.g_blocks["lifting"].start == len(s.factors)
+    rng = np.random.default_rng(1)
+    sigma, lam0, lam1 = rng.uniform(size=(3, s.n_sigma))
+    fb = lifted.w_blocks.get("forces")
+    forces = rng.normal(size=fb.stop - fb.start) if fb else None
+    wa, wb = lifted.w_from(sigma, lam0, lam1, forces), plain.w_from(sigma, lam0, lam1, forces)
+    y0, y1, uu = rng.normal(size=s.ny), rng.normal(size=s.ny), rng.normal(size=s.nu)
+    y1[1] = abs(y1[1]) + 0.5  # the base above the foot
+    ga = np.asarray(ca.Function("g", [yk, yn, u, sp, a.w], [a.g])(y0, y1, uu, 1.3, wa), float).ravel()
+    gb = np.asarray(ca.Function("g", [yk, yn, u, sp, b.w], [b.g])(y0, y1, uu, 1.3, wb), float).ravel()
+    for name in b.g_blocks:  # lifting: the factors' rows come first in both
+        n_rows = b.g_blocks[name].stop - b.g_blocks[name].start
+        np.testing.assert_allclose(gb[b.g_blocks[name]], ga[a.g_blocks[name]][:n_rows], rtol=EVAL_TOL * 1e3, atol=EVAL_TOL * 1e3,
+                                   err_msg=name)
+    np.testing.assert_allclose(plain.coefficients(wb), lifted.coefficients(wa), atol=EVAL_TOL)
+    with pytest.raises(ValueError):
+        ImplicitEulerStep(s, lift_products="no")
 
 
 def test_guess_solves_the_step_lp_kkt():

@@ -79,6 +79,35 @@ def test_mass_matrix_and_explicit_forms_agree_at_a_point():
     assert b.builder.nw > a.builder.nw and "contact_forces" in b.g_blocks and "contact_forces" not in a.g_blocks
 
 
+def test_substituted_products_give_the_same_nlp(capler_small):
+    """ProblemOptions(lift_products=False) drops the lifted products' variables and lifting rows (4 per
+    Capler step), and at a random point (seeded, products consistent) the objective and every other
+    constraint block (gates, friction and impact cones included) equal the lifted NLP's."""
+    import casadi as ca
+
+    robot, task, a = capler_small
+    b = build_problem(robot, task, ProblemOptions(lift_products=False))
+    n_prod = len(a.builder.lifted)
+    assert (a.nx - b.nx, a.ng - b.ng) == (10 * n_prod, 10 * n_prod) and b.var_blocks["theta"].shape == (10, 0)
+    rng = np.random.default_rng(2)
+    x = rng.uniform(np.maximum(a.lbx, -2.0), np.minimum(a.ubx, 2.0))
+    sig, th = a.var_blocks["sigma"], a.var_blocks["theta"]
+    for k in range(10):
+        for j, m in enumerate(a.builder.lifted):
+            x[th[k, j]] = np.prod(x[sig[k, list(m)]])
+    index = {name: i for i, name in enumerate(a.var_names)}
+    xb = x[[index[name] for name in b.var_names]]
+    p = a.params(1e3)
+    fa, ga = (np.asarray(v, float).ravel() for v in ca.Function("a", [a.x, a.p], [a.f, a.g])(x, p))
+    fb, gb = (np.asarray(v, float).ravel() for v in ca.Function("b", [b.x, b.p], [b.f, b.g])(xb, p))
+    np.testing.assert_allclose(fb, fa, rtol=1e-12)
+    for name, rows in b.g_blocks.items():
+        if name != "lifting":
+            np.testing.assert_allclose(gb[rows.ravel()], ga[a.g_blocks[name].ravel()], rtol=1e-10, atol=1e-10, err_msg=name)
+    with pytest.raises(InputError, match="lift_products"):
+        ProblemOptions(lift_products="no")
+
+
 def test_physical_time_adds_speed_and_constraint():
     """horizon.physical_time adds s_k >= 1 per stage and t_N = T."""
     robot = load_robot(f"{ROBOTS}/point_mass.xml")

@@ -646,6 +646,18 @@ def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
     assert "gcc not found" in bench.compile_nlp(None, tmp_path / "cache", ["-O1"])["skipped"]
 
 
+def test_bench_pipeline_no_lift_builds_the_substituted_nlp(tmp_path, capsys):
+    """--no-lift: the cases are built with ProblemOptions(lift_products=False), recorded as such, with the hop's 4
+    lifted products per step gone from the variables and rows (N = 6 quick hop: 24 each)."""
+    bench = _load("bench_pipeline")
+    runs = {}
+    for flag in ([], ["--no-lift"]):
+        assert bench.main(["--quick", "--json", "--variants", "baseline", "--out", str(tmp_path)] + flag) == 0
+        (runs[bool(flag)],) = json.loads(capsys.readouterr().out)["records"]
+    assert runs[False]["lift_products"] and not runs[True]["lift_products"]
+    assert runs[False]["n_variables"] - runs[True]["n_variables"] == 24 == runs[False]["n_constraints"] - runs[True]["n_constraints"]
+
+
 def test_bench_pipeline_full_only_takes_solve_options(tmp_path, capsys):
     """--full-only --solve JSON: only the end-to-end solve runs, once per JSON object, with those SolveOptions fields (here
     warm_ipopt max_cpu_time ~0, so NLP 2 on stop with IPOPT's CPU-time status and NLP 1 does not); a field
