@@ -138,13 +138,14 @@ def nlp1_arguments(problem, options: SolveOptions) -> dict:
     return {"x0": problem.x0, "p": p, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": lbg, "ubg": ubg}
 
 
-def nlp2_setup(problem) -> tuple[dict, dict]:
-    """NLP 1 solved as planner.homotopy.solve solves it (default options), then the NLP that solve hands
-    IPOPT for NLP 2 (x / D with D from NLP 1's solution when the task scales its variables) and its
-    arguments (the second rho of the schedule, holes and hard terminal on, from NLP 1's point)."""
+def nlp2_setup(problem, x1=None) -> tuple[dict, dict]:
+    """NLP 1 solved as planner.homotopy.solve solves it (default options; or its solution x1 (nx,) given), then
+    the NLP that solve hands IPOPT for NLP 2 (x / D with D from NLP 1's solution when the task scales its
+    variables) and its arguments (the second rho of the schedule, holes and hard terminal on, from NLP 1's point)."""
     options = SolveOptions()
     solvers = _Solvers(problem, options)
-    x1 = np.asarray(solvers.get(False)(**nlp1_arguments(problem, options))["x"], float).ravel()
+    if x1 is None:
+        x1 = np.asarray(solvers.get(False)(**nlp1_arguments(problem, options))["x"], float).ravel()
     scaled = problem.task.plan.homotopy.scale_variables
     D = variable_scale(problem, x1) if scaled else np.ones(problem.nx)
     solvers.set_scale(D)

@@ -516,6 +516,41 @@ def test_bench_skips_quick_run(tmp_path, capsys):
     assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2
 
 
+def test_probe_steps_quick_run(tmp_path, capsys):
+    """--quick --json: a record per NLP (1 and 2 of the hop) with the documented fields, the same in results.json; the
+    NLPs are the homotopy's own (as many iterations as solve()'s NLPs 1 and 2), and no more steps are cut than taken."""
+    from scripts import probe_steps
+
+    robot, task = probe_steps.CASES["hop"](True)
+    homotopy = H.solve(build_problem(robot, task)).nlps
+    assert probe_steps.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "results.json").read_text()) and rec["case"] == "hop"
+    assert [r["nlp"] for r in rec["records"]] == ["NLP 1", "NLP 2"]
+    assert [r["iterations"] for r in rec["records"]] == [n.iterations for n in homotopy[:2]]
+    for r in rec["records"]:
+        assert set(r) == {"nlp", "iterations", "status", "regularized", "median_lg_delta_w", "median_alpha_pr", "full_steps",
+                          "steps_cut", "variables", "rows"}
+        assert 0 <= r["steps_cut"] <= r["iterations"] and r["regularized"] <= r["iterations"]
+        assert all(n <= r["steps_cut"] for _, _, n in r["variables"] + r["rows"])
+
+
+def test_probe_steps_finds_the_variable_left_at_one_percent():
+    """cut_steps: a step that leaves a variable at 1 % of its distance to a finite bound (the fraction-to-the-boundary
+    rule) is reported with that bound's side; halving a distance, an infinite bound, or a variable that starts on its
+    bound are not; distances are to the bounds as IPOPT relaxes them."""
+    from scripts.probe_steps import cut_steps
+
+    lower, upper = np.array([0.0, 0.0, -np.inf, 0.0]), np.array([1.0, np.inf, 5.0, 1.0])
+    X = np.array([[0.5, 2.0, 4.0, 0.0],
+                  [0.005, 1.0, 4.99, 0.0],   # x0 left at 1 % of 0.5 above 0; x2 at 1 % of 1 below 5; x1 halved
+                  [0.9995, 1.0, 4.99, 0.5]])  # x0 at 0.1 % below 1 (from 0.995); x3 leaves its bound
+    assert cut_steps(X, lower, upper) == [[(0, "lb"), (2, "ub")], [(0, "ub")]]
+    # IPOPT relaxes the bounds (bound_relax_factor): a step to just below a bound is inside the relaxed one
+    below = np.array([[1.0], [-5e-9]])
+    assert cut_steps(below, np.zeros(1), np.ones(1)) == [[]] and cut_steps(below, np.zeros(1), np.ones(1), 1e-8) == [[(0, "lb")]]
+
+
 def test_probe_smoothing_quick_run(tmp_path, capsys):
     """--quick --json: one record per smoothing scale with the documented fields, the same in results.json; the
     smoothed NLP holds every selector at its logistic of the switching function (the rewritten stationarity rows
