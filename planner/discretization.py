@@ -200,7 +200,7 @@ class ImplicitEulerStep:
         self.C = matrix([system.coefficients[f.name] for f in system.fields])
         self.factor_matrix = matrix([f.definition for f in factors])  # factor_d = row d . z
         self.switch_matrix = matrix(system.constraint_switches)  # s (n_lambda,) = S z
-        # theta: the factors, then the lifted products (z = (1, sigma, theta) in monomial order)
+        # theta: the factors, then the lifted products (monomials_of: z = (1, sigma, theta) in monomial order)
         self.n_theta = len(factors) + len(self.theta_lifted)
         self.nw = 3 * n + self.n_theta + nz
         names = [s.name for s in system.switches] + [f.name for f in factors]

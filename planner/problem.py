@@ -560,7 +560,7 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
             if (ct.point, i) in skips.dropped_holes:
                 continue
             hole_exprs.append(((pos[0] - e.x) / e.a) ** 2 + ((pos[2] - e.z) / e.b) ** 2 - hole_scale**2)
-    coef = ca.mtimes(ca.DM(builder.C), builder.monomials_of(ws))  # P_j(sigma) per field, linear in the lifted variables
+    coef = ca.mtimes(ca.DM(builder.C), builder.monomials_of(ws))  # P_j(sigma) per field, linear in the monomials
     field_names = [f.name for f in system.fields]
     cone = []
     if options.friction_cone and len(contacts) > 1:
