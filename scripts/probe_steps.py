@@ -97,8 +97,9 @@ def summary(problem, label: str, cb: Iterates, args: dict, stats: dict, top: int
     inequality = lbg != ubg
     var_cuts = cut_steps(np.array(cb.x), np.asarray(args["lbx"], float), np.asarray(args["ubx"], float), relax)
     row_cuts = cut_steps(np.array(cb.g), np.where(inequality, lbg, -np.inf), np.where(inequality, ubg, np.inf), relax)
-    variables = collections.Counter((var_kind[j], side) for cut in var_cuts for j, side in cut)
-    rows = collections.Counter((row_kind[j], side) for cut in row_cuts for j, side in cut)
+    # per kind (a variable's name without its step index, a row's block) and side: the steps it cut, once per step
+    variables = collections.Counter(kind for cut in var_cuts for kind in {(var_kind[j], side) for j, side in cut})
+    rows = collections.Counter(kind for cut in row_cuts for kind in {(row_kind[j], side) for j, side in cut})
     it = stats.get("iterations", {})
     reg = np.asarray(it.get("regularization_size", [])[1:], float)
     alpha = np.asarray(it.get("alpha_pr", [])[1:], float)
