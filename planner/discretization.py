@@ -380,10 +380,9 @@ class ImplicitEulerStep:
             correction = (dgap - ca.mtimes(grads(y_next[:nq]), dq)) / (h * s_k)  # rows of n^T v only
             hval = hval + (correction if gap_weight is None else gap_weight * correction)
         stationarity = hval / ca.DM(self.switch_scale) - lam1 + lam0
-        index = {m: j for j, m in enumerate(self.monomials)}
-        n = sys_.n_sigma
+        index, n = self._index, sys_.n_sigma
         factors = [theta[d] - ca.mtimes(ca.DM(self.factor_matrix[d : d + 1]), z) for d in range(len(sys_.factors))]
-        lifting = factors + [z[index[m]] - z[index[m[:-1]]] * (sigma[m[-1]] if m[-1] < n else z[index[(m[-1],)]]) for m in self.theta_lifted]
+        lifting = factors + [z[index[m]] - z[index[m[:-1]]] * z[index[(m[-1],)]] for m in self.theta_lifted]
         g = ca.vertcat(dynamics, stationarity, *lifting, *extra)
         ny = sys_.ny
         g_blocks = {"dynamics": slice(0, ny), "stationarity": slice(ny, ny + n), "lifting": slice(ny + n, ny + n + self.n_theta)}
