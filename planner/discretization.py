@@ -283,8 +283,8 @@ class ImplicitEulerStep:
         """Several contacts: lambda (n_lambda,) [N] solving the switched rows at numeric y, u and the
         selectors sigma (n_sigma,): the index-reduced forces of the points with s_i = 1, 0 for s_i = 0."""
         sys_ = self.system
-        zero = np.zeros(sys_.n_sigma)
-        s = _matvec(self.switch_matrix, self.monomials_of(self.w_from(sigma, zero, zero)))
+        n = sys_.n_sigma
+        s = _matvec(self.switch_matrix, self.monomials_of(self.w_from(sigma, np.zeros(n), np.zeros(n))))
         zero = np.zeros(sys_.n_lambda)
         b = np.asarray(sys_.constraint_fn(y, u, zero), float).ravel()  # J f_v + dJ/dt v
         G = np.column_stack([np.asarray(sys_.constraint_fn(y, u, e), float).ravel() - b for e in np.eye(sys_.n_lambda)])
