@@ -203,7 +203,7 @@ class Pair:
 class Problem:
     """The transcribed OCP. Everything needed to solve, inspect and post-process it.
 
-    x (nx,) SX decision variables, p (6,) SX parameters (Problem.params), f objective, g (ng,)
+    x (nx,) SX decision variables, p (7,) SX parameters (Problem.params), f objective, g (ng,)
     constraints with lbg <= g <= ubg; lbx, ubx, x0 (nx,) bounds and the hint-free initial guess.
     var_names (nx,); var_blocks: name -> int index array into x: "u" (N, nu), "s" (N, 1) if
     present, "y" (N, ny) (states y_1 .. y_N), "w" (N, nw) and its parts "sigma", "theta",
@@ -260,12 +260,13 @@ class Problem:
         return hashlib.sha256("\n".join(self.var_names).encode()).hexdigest()[:16]
 
     def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
-               terminal_weight: float = 0.0, rho_l1: float = 0.0) -> np.ndarray:
-        """The parameter vector p (6,): penalty rho, hole scale r, auxiliary gain scales (only with
+               terminal_weight: float = 0.0, rho_l1: float = 0.0, rho_f_scale: float = 1.0) -> np.ndarray:
+        """The parameter vector p (7,): penalty rho, hole scale r, auxiliary gain scales (only with
         ProblemOptions.aux_continuation), soft-terminal weight (objective + w ||terminal residual||^2;
-        the solver relaxes the hard terminal rows when it uses w > 0), and with Penalty.LINF an extra
-        l1 weight rho_l1 on the sum of the (gated) products (0: the pure l_inf penalty)."""
-        return np.array([rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1], dtype=float)
+        the solver relaxes the hard terminal rows when it uses w > 0), with Penalty.LINF an extra
+        l1 weight rho_l1 on the sum of the (gated) products (0: the pure l_inf penalty), and a factor on
+        the task's rho_f (the selectors' regularizer rho_f ||sigma - sigma*||^2; 1: the task's own)."""
+        return np.array([rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1, rho_f_scale], dtype=float)
 
     def complementarity_residual(self, x) -> float:
         """max over all pairs of a * b at x, in unscaled units (the switching functions' own)."""
@@ -350,8 +351,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
     an_scale, at_scale, term_w = ca.SX.sym("an_scale"), ca.SX.sym("at_scale"), ca.SX.sym("terminal_weight")
-    rho_l1 = ca.SX.sym("rho_l1")
-    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1)
+    rho_l1, rf_scale = ca.SX.sym("rho_l1"), ca.SX.sym("rho_f_scale")
+    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale)
     field_scale = None
     if options.aux_continuation:
         field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
@@ -445,6 +446,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             clock_cost += (Rk * (1 - Rk)) ** 2
         clock_cost = clock_w * clock_cost
         f = f + clock_cost
+    f = f + (rf_scale - 1) * selector_cost  # Problem.params' rho_f_scale; at 1 it adds an exact 0: the same f, bit for bit
     names = [f"{nm}_0" for nm in system.state_names] if periodic else []
     for k in range(N):
         names += [f"u[{i}]_{k}" for i in range(nu)]
@@ -657,8 +659,9 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
         var_blocks["y0"] = np.arange(ny)
 
     rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
-    an_scale, at_scale, term_w, rho_l1 = (ca.SX.sym(nm) for nm in ("an_scale", "at_scale", "terminal_weight", "rho_l1"))
-    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1)
+    an_scale, at_scale, term_w, rho_l1, rf_scale = (ca.SX.sym(nm) for nm in ("an_scale", "at_scale", "terminal_weight", "rho_l1",
+                                                                             "rho_f_scale"))
+    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale)
     field_scale = None
     if options.aux_continuation:
         field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
@@ -774,6 +777,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     else:
         penalty = rho * ca.sum1(pen_prods)
     f = control_cost + selector_cost + equilibration + penalty + term_w * ca.dot(term_res, term_res)
+    f = f + (rf_scale - 1) * selector_cost
 
     # --- the hint-free initial guess: y_0 at every stage, equal element lengths ----------------------
     w_guess = builder.guess(y0, np.zeros(nu))

@@ -119,7 +119,9 @@ def test_active_set_bounds_fix_one_side():
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
                                          ({"mumps_ordering": "amd"}, "mumps_ordering"),
                                          ({"retry_terminal_weight": 0.0}, "retry_terminal_weight"),
-                                         ({"early_stop_comp": 0.0}, "early_stop_comp")])
+                                         ({"early_stop_comp": 0.0}, "early_stop_comp"),
+                                         ({"rho_f_schedule": ()}, "rho_f_schedule"), ({"rho_f_schedule": (10.0, 0.0)}, "rho_f_schedule"),
+                                         ({"rho_f_schedule": [10.0]}, "rho_f_schedule")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
@@ -473,3 +475,34 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
     for run in (capped, moved_impacts):
         assert run.nlps[0].label == "schedule" and run.nlps[1].label == "homotopy 1"
         assert run.stats.converged and run.stats.message.startswith("ok (active-set polished")
+
+
+def test_rho_f_schedule_weighs_the_regularizer_in_the_homotopy_only():
+    """SolveOptions.rho_f_schedule multiplies the task's rho_f in the homotopy's NLPs (the last factor repeats) and in
+    no other NLP: on the hop with factor 10, every homotopy NLP's objective at its own point is the task's objective
+    there plus 9 times the selectors' regularizer, while the polish's and the re-optimization's are the task's (rho 0,
+    factor 1)."""
+    robot = load_robot("robots/point_mass.xml")
+    prob = build_problem(robot, hop_task(N=20))
+    seen = []
+    real_run = H._run
+
+    def spy(problem, solvers, x0, lam_x, lam_g, p, *args, **kwargs):
+        x, lx, lg, rec = real_run(problem, solvers, x0, lam_x, lam_g, p, *args, **kwargs)
+        seen.append((rec.label, np.asarray(p, float)[-problem.p.numel():], x, rec.objective))
+        return x, lx, lg, rec
+
+    H._run = spy
+    try:
+        res = H.solve(prob, H.SolveOptions(rho_f_schedule=(10.0,)))
+    finally:
+        H._run = real_run
+    assert res.stats.converged
+    f, sel = H._nlp_fn(prob, "f"), prob.objective_parts["selectors"]
+    homotopy = [(p, x, obj) for label, p, x, obj in seen if label.startswith("homotopy")]
+    assert len(homotopy) >= 2 and all(p[-1] == 10.0 for p, _, _ in homotopy)
+    for p, x, obj in homotopy:
+        task_p = p.copy()
+        task_p[-1] = 1.0
+        assert obj == pytest.approx(float(f(x, task_p)) + 9.0 * float(sel(x, task_p)), rel=1e-9, abs=1e-9)
+    assert all(p[-1] == 1.0 for label, p, _, _ in seen if not label.startswith("homotopy"))

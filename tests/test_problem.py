@@ -108,6 +108,23 @@ def test_substituted_products_give_the_same_nlp(capler_small):
         ProblemOptions(lift_products="no")
 
 
+def test_rho_f_scale_multiplies_the_selector_regularizer(capler_small):
+    """Problem.params' rho_f_scale s gives the objective f + (s - 1) rho_f ||sigma - sigma*||^2 (the "selectors" part),
+    and at s = 1 exactly the task's objective, at a seeded random point."""
+    import casadi as ca
+
+    _, _, prob = capler_small
+    rng = np.random.default_rng(3)
+    x = rng.uniform(np.maximum(prob.lbx, -2.0), np.minimum(prob.ubx, 2.0))
+    f = ca.Function("f", [prob.x, prob.p], [prob.f])
+    p1, p10 = prob.params(1e3, 1.0), prob.params(1e3, 1.0, rho_f_scale=10.0)
+    selectors = float(prob.objective_parts["selectors"](x, p1))
+    assert selectors > 0
+    assert float(f(x, p10)) == pytest.approx(float(f(x, p1)) + 9.0 * selectors, rel=1e-12)
+    parts = sum(float(prob.objective_parts[name](x, p1)) for name in ("control", "selectors"))
+    assert float(f(x, prob.params(0.0, 1.0))) == pytest.approx(parts, rel=1e-12)  # rho 0, no soft terminal: no other term
+
+
 def test_physical_time_adds_speed_and_constraint():
     """horizon.physical_time adds s_k >= 1 per stage and t_N = T."""
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
