@@ -340,18 +340,22 @@ class SolveOptions:
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
             (0 < self.frozen_tol_several < 1, "frozen_tol_several", self.frozen_tol_several, "in (0, 1)"),
             (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
-            (self.rho_f_schedule is None or (isinstance(self.rho_f_schedule, tuple) and len(self.rho_f_schedule) >= 1 and all(
-                isinstance(r, (int, float)) and not isinstance(r, bool) and r > 0 for r in self.rho_f_schedule)),
-             "rho_f_schedule", self.rho_f_schedule, "None or a non-empty tuple of factors > 0"),
+            (self.rho_f_schedule is None or _positive_tuple(self.rho_f_schedule), "rho_f_schedule", self.rho_f_schedule,
+             "None or a non-empty tuple of factors > 0"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
-            (isinstance(self.fesd_rho_schedule, tuple) and len(self.fesd_rho_schedule) >= 1
-             and all(isinstance(r, (int, float)) and r > 0 for r in self.fesd_rho_schedule),
-             "fesd_rho_schedule", self.fesd_rho_schedule, "a non-empty tuple of penalties > 0"),
+            (_positive_tuple(self.fesd_rho_schedule), "fesd_rho_schedule", self.fesd_rho_schedule,
+             "a non-empty tuple of penalties > 0"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+def _positive_tuple(values) -> bool:
+    """Whether values is a non-empty tuple of numbers > 0 (bools are not numbers here)."""
+    return isinstance(values, tuple) and len(values) >= 1 and all(
+        isinstance(r, (int, float)) and not isinstance(r, bool) and r > 0 for r in values)
 
 
 def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> SolveOptions:
