@@ -110,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked by IPOPT (SolveOptions.ipopt)")
     p.add_argument("--warm-ipopt", action="append", default=[], metavar="NAME=VALUE",
                    help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
+    p.add_argument("--solve", metavar="JSON",
+                   help="SolveOptions fields as a JSON object, over the flags above, e.g. --solve '{\"rho_f_schedule\": [10]}' "
+                        "(enums by value, lists for tuples; an unknown field or value is an error; planner.homotopy.SolveOptions)")
     p.add_argument("--no-race", action="store_true",
                    help="solve with the default variant only (deterministic). Without it a hint-free implicit-Euler plan "
                         "races a second variant (multipliers carried between NLPs, the inertia correction started from its "
@@ -271,15 +274,28 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
     return out
 
 
+def _json_object(flag: str, text: str) -> dict:
+    """text parsed as a JSON object, else an InputError naming the flag."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{flag} {text!r} is not JSON ({exc.msg}); e.g. {flag} '{{\"rho_f_schedule\": [10]}}'") from None
+    if not isinstance(value, dict):
+        raise InputError(f"{flag} {text!r}: expected a JSON object of SolveOptions fields, got {type(value).__name__}")
+    return value
+
+
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
-    from .homotopy import FESDStart, SolveOptions, solve
+    from .homotopy import FESDStart, SolveOptions, solve, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
 
     discretization, fesd = _discretization(args)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
     solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
                                  warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
+    if args.solve is not None:
+        solve_options = solve_options_from_dict(_json_object("--solve", args.solve), solve_options)
     fesd_start = _choice("--fesd-start", args.fesd_start, FESDStart)
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule

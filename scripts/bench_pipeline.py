@@ -79,6 +79,7 @@ VARIANTS = {
     "mumps_pivtol_1e-8": {"mumps_pivtol": 1e-8},
     "mumps_no_scaling": {"mumps_scaling": 0, "mumps_permuting_scaling": 0},
     "mumps_mem_200": {"mumps_mem_percent": 200},
+    "mumps_mem_50": {"mumps_mem_percent": 50},  # IPOPT's default is 1000: with keep_freed_memory the same CPU (session 24)
     "slack_based_scaling": {"linear_system_scaling": "slack-based"},
     "fixed_relax_bounds": {"fixed_variable_treatment": "relax_bounds"},
     "perturb_dec_0.6": {"perturb_dec_fact": 0.6},

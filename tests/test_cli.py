@@ -37,6 +37,11 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),
         (["plan", "point_mass", "--warm-ipopt", "tol=1e-3"], "SolveOptions.tol owns"),
         (["plan", "point_mass", "--ipopt", "alpha_for_y"], "expected NAME=VALUE"),
+        (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
+        (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object"),
+        (["plan", "point_mass", "--solve", '{"rho_f_schedul": [10]}'], "SolveOptions has no field 'rho_f_schedul'"),
+        (["plan", "point_mass", "--solve", '{"holes": "sometimes"}'], "must be one of"),
+        (["plan", "point_mass", "--solve", '{"rho_f_schedule": [0]}'], "SolveOptions.rho_f_schedule"),
     ],
 )
 def test_user_errors_are_one_line_exit_2(argv, fragment, capsys):
@@ -209,6 +214,19 @@ def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["n_steps"] == 8 and summary["h"] == 0.125
     _one_line_exit_2(capsys, argv[:-1] + ["0"], "--steps must be >= 1")
+
+
+def test_plan_solve_options_from_json(tmp_path, capsys):
+    """`plan --solve JSON` sets SolveOptions fields over the flags: the summary's solve options carry them (a list as
+    the tuple, an enum by its value) beside the --ipopt option, which the JSON did not name."""
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TOML.format(x=0.5))
+    argv = ["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "--json", "--no-race",
+            "--ipopt", "alpha_for_y=primal", "--solve", '{"rho_f_schedule": [10], "holes": "enforced", "reoptimize": false}']
+    assert main(argv) == 0
+    solve = json.loads(capsys.readouterr().out)["options"]["solve"]
+    assert solve["rho_f_schedule"] == [10] and solve["holes"] == "enforced" and solve["reoptimize"] is False
+    assert ["alpha_for_y", "primal"] in solve["ipopt"]
 
 
 HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
