@@ -42,6 +42,7 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"rho_f_schedul": [10]}'], "SolveOptions has no field 'rho_f_schedul'"),
         (["plan", "point_mass", "--solve", '{"holes": "sometimes"}'], "must be one of"),
         (["plan", "point_mass", "--solve", '{"rho_f_schedule": [0]}'], "SolveOptions.rho_f_schedule"),
+        (["plan", "point_mass", "--solve", '{"tol": "small"}'], "SolveOptions.tol = 'small' is not allowed"),
     ],
 )
 def test_user_errors_are_one_line_exit_2(argv, fragment, capsys):

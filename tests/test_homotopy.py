@@ -121,7 +121,11 @@ def test_active_set_bounds_fix_one_side():
                                          ({"retry_terminal_weight": 0.0}, "retry_terminal_weight"),
                                          ({"early_stop_comp": 0.0}, "early_stop_comp"),
                                          ({"rho_f_schedule": ()}, "rho_f_schedule"), ({"rho_f_schedule": (10.0, 0.0)}, "rho_f_schedule"),
-                                         ({"rho_f_schedule": [10.0]}, "rho_f_schedule")])
+                                         ({"rho_f_schedule": [10.0]}, "rho_f_schedule"),
+                                         ({"tol": "small"}, "tol = 'small' is not allowed; it must be a number"),
+                                         ({"max_iter": 1.5}, "max_iter = 1.5 is not allowed; it must be an integer"),
+                                         ({"reoptimize": "yes"}, "reoptimize"), ({"linear_solver": 27}, "linear_solver"),
+                                         ({"rho_min": "none"}, "rho_min")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
