@@ -274,20 +274,9 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
     return out
 
 
-def _json_object(flag: str, text: str) -> dict:
-    """text parsed as a JSON object, else an InputError naming the flag."""
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{flag} {text!r} is not JSON ({exc.msg}); e.g. {flag} '{{\"rho_f_schedule\": [10]}}'") from None
-    if not isinstance(value, dict):
-        raise InputError(f"{flag} {text!r}: expected a JSON object of SolveOptions fields, got {type(value).__name__}")
-    return value
-
-
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
-    from .homotopy import FESDStart, SolveOptions, solve, solve_options_from_dict
+    from .homotopy import FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
 
     discretization, fesd = _discretization(args)
@@ -295,7 +284,10 @@ def _cmd_plan(args) -> int:
     solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
                                  warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
     if args.solve is not None:
-        solve_options = solve_options_from_dict(_json_object("--solve", args.solve), solve_options)
+        try:
+            solve_options = solve_options_from_dict(solve_fields_from_json(args.solve), solve_options)
+        except InputError as exc:
+            raise InputError(f"--solve: {exc}") from None
     fesd_start = _choice("--fesd-start", args.fesd_start, FESDStart)
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import time
 from dataclasses import dataclass, fields, is_dataclass, replace
 from enum import Enum
@@ -379,6 +380,18 @@ def _positive_tuple(values) -> bool:
     """Whether values is a non-empty tuple of numbers > 0 (bools are not numbers here)."""
     return isinstance(values, tuple) and len(values) >= 1 and all(
         isinstance(r, (int, float)) and not isinstance(r, bool) and r > 0 for r in values)
+
+
+def solve_fields_from_json(text: str) -> dict:
+    """The SolveOptions fields of a JSON object (for solve_options_from_dict), e.g. '{"rho_f_schedule": [10]}'; text
+    that is not JSON or not an object is an InputError."""
+    try:
+        values = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{text!r} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
+    if not isinstance(values, dict):
+        raise InputError(f"{text!r}: expected a JSON object of SolveOptions fields, got {type(values).__name__}")
+    return values
 
 
 def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> SolveOptions:

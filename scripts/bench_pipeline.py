@@ -54,7 +54,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_options, keep_freed_memory, solve,
-                              solve_options_from_dict, task_rho_schedule, variable_scale)
+                              solve_fields_from_json, solve_options_from_dict, task_rho_schedule, variable_scale)
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.discretization import StepForm
@@ -358,10 +358,10 @@ def main(argv: list[str] | None = None) -> int:
     full = []
     for text in args.solve if (args.full or args.full_only) else []:
         try:
-            given = json.loads(text)
+            given = solve_fields_from_json(text)
             full.append((given, solve_options_from_dict(given)))
-        except (json.JSONDecodeError, InputError, AttributeError) as e:
-            parser.error(f"--solve {text}: {e}")
+        except InputError as e:
+            parser.error(f"--solve: {e}")
     iters = args.iters or (10 if args.quick else 150)
     repeats = args.repeats or (1 if args.quick else 3)
     codegen = {"cache": args.cache, "flags": [f for f in args.codegen_flags]} if args.codegen else None
