@@ -34,3 +34,27 @@ class TaskError(InputError):
 
 class SolveError(PlannerError):
     """The numerical solve or the validation failed on valid input."""
+
+
+def check_field_types(options) -> None:
+    """Each bool, int, float and str field of the dataclass `options` holds a value of its default's type (an int
+    for a float, and None where the annotation allows it): an InputError naming the field and the type, not a
+    TypeError from a range check later (values from JSON: `planner plan --solve`)."""
+    from dataclasses import fields
+
+    for f in fields(options):
+        default, value = f.default, getattr(options, f.name)
+        if value is None and "None" in str(f.type):
+            continue
+        if isinstance(default, bool):
+            ok, kind = isinstance(value, bool), "true or false"
+        elif isinstance(default, int):
+            ok, kind = isinstance(value, int) and not isinstance(value, bool), "an integer"
+        elif isinstance(default, float):
+            ok, kind = isinstance(value, (int, float)) and not isinstance(value, bool), "a number"
+        elif isinstance(default, str):
+            ok, kind = isinstance(value, str), "a string"
+        else:
+            continue
+        if not ok:
+            raise InputError(f"{type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kind}")

@@ -37,7 +37,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, check_field_types
 from .problem import Problem
 from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -315,7 +315,7 @@ class SolveOptions:
     rho_f_schedule: tuple[float, ...] | None = None
 
     def __post_init__(self):
-        _check_scalar_types(self)
+        check_field_types(self)
         for key in ("ipopt", "warm_ipopt"):
             object.__setattr__(self, key, _ipopt_pairs(key, getattr(self, key), warm=key == "warm_ipopt"))
         for key, enum in ENUM_FIELDS.items():
@@ -352,28 +352,6 @@ class SolveOptions:
         for ok, key, value, allowed in checks:
             if not ok:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
-
-
-def _check_scalar_types(options: SolveOptions) -> None:
-    """Each bool, int, float and str field of options holds a value of its default's type (an int for a float, and
-    None where the annotation allows it, too): an InputError naming the field, not a TypeError from a range check
-    (values from JSON, `planner plan --solve`)."""
-    for f in fields(options):
-        default, value = f.default, getattr(options, f.name)
-        if value is None and "None" in str(f.type):
-            continue
-        if isinstance(default, bool):
-            ok, kind = isinstance(value, bool), "true or false"
-        elif isinstance(default, int):
-            ok, kind = isinstance(value, int) and not isinstance(value, bool), "an integer"
-        elif isinstance(default, float):
-            ok, kind = isinstance(value, (int, float)) and not isinstance(value, bool), "a number"
-        elif isinstance(default, str):
-            ok, kind = isinstance(value, str), "a string"
-        else:
-            continue
-        if not ok:
-            raise InputError(f"SolveOptions.{f.name} = {value!r} is not allowed; it must be {kind}")
 
 
 def _positive_tuple(values) -> bool:

@@ -73,7 +73,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics
-from .errors import InputError
+from .errors import InputError, check_field_types
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -163,8 +163,7 @@ class ProblemOptions:
     lift_products: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.lift_products, bool):
-            raise InputError(f"ProblemOptions.lift_products = {self.lift_products!r} is not allowed; it must be True or False")
+        check_field_types(self)  # lift_products, scene_analysis, the cones' flags, clock_weight
         if not isinstance(self.discretization, Discretization):
             raise InputError(f"ProblemOptions.discretization = {self.discretization!r} is not allowed; it must be one of "
                              f"{[d.value for d in Discretization]}")
@@ -173,8 +172,6 @@ class ProblemOptions:
         if self.discretization is Discretization.FESD:
             if self.clock_weight != 0:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")
-        if not isinstance(self.scene_analysis, bool):
-            raise InputError(f"ProblemOptions.scene_analysis = {self.scene_analysis!r} is not allowed; it must be True or False")
         allowed = [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED]  # COLLOCATED: planner simulate only (untried in the OCP)
         if self.velocity_switch not in allowed:
             raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in allowed]}")

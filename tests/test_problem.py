@@ -138,7 +138,8 @@ def test_physical_time_adds_speed_and_constraint():
 
 
 def test_bad_inputs():
-    """A task without [plan], an unknown switch-scale name, a wrong enum are InputErrors."""
+    """A task without [plan], an unknown switch-scale name, a wrong enum, a value of the wrong type are InputErrors
+    naming the field."""
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
     no_plan = load_task(f"{ROBOTS}/point_mass.toml")
     with pytest.raises(InputError, match="no \\[plan\\]"):
@@ -149,6 +150,10 @@ def test_bad_inputs():
         ProblemOptions(switch_scale=(("phi", -1.0),))
     with pytest.raises(InputError, match="penalty"):
         ProblemOptions(penalty="l1")
+    with pytest.raises(InputError, match="ProblemOptions.clock_weight = 'x' is not allowed; it must be a number"):
+        ProblemOptions(clock_weight="x")
+    with pytest.raises(InputError, match="ProblemOptions.friction_cone = 1 is not allowed; it must be true or false"):
+        ProblemOptions(friction_cone=1)
 
 
 def test_impact_cone_only_where_a_t_is_within_mu_a_n():
