@@ -37,24 +37,22 @@ class SolveError(PlannerError):
 
 
 def check_field_types(options) -> None:
-    """Each bool, int, float and str field of the dataclass `options` holds a value of its default's type (an int
-    for a float, and None where the annotation allows it): an InputError naming the field and the type, not a
-    TypeError from a range check later (values from JSON: `planner plan --solve`)."""
+    """Each field of the dataclass `options` annotated bool, int, float or str (or that or None) holds a value of that
+    type (an int for a float): an InputError naming the field and the type, not a TypeError from a range check
+    later (values from JSON: `planner plan --solve`)."""
     from dataclasses import fields
 
+    kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
-        default, value = f.default, getattr(options, f.name)
-        if value is None and "None" in str(f.type):
+        names = [t.strip() for t in str(f.type).split("|")]
+        value = getattr(options, f.name)
+        if names[0] not in kinds or (value is None and "None" in names):
             continue
-        if isinstance(default, bool):
-            ok, kind = isinstance(value, bool), "true or false"
-        elif isinstance(default, int):
-            ok, kind = isinstance(value, int) and not isinstance(value, bool), "an integer"
-        elif isinstance(default, float):
-            ok, kind = isinstance(value, (int, float)) and not isinstance(value, bool), "a number"
-        elif isinstance(default, str):
-            ok, kind = isinstance(value, str), "a string"
+        if names[0] == "bool":
+            ok = isinstance(value, bool)
+        elif names[0] == "str":
+            ok = isinstance(value, str)
         else:
-            continue
+            ok = isinstance(value, int if names[0] == "int" else (int, float)) and not isinstance(value, bool)
         if not ok:
-            raise InputError(f"{type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kind}")
+            raise InputError(f"{type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kinds[names[0]]}")

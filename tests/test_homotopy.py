@@ -125,7 +125,7 @@ def test_active_set_bounds_fix_one_side():
                                          ({"tol": "small"}, "tol = 'small' is not allowed; it must be a number"),
                                          ({"max_iter": 1.5}, "max_iter = 1.5 is not allowed; it must be an integer"),
                                          ({"reoptimize": "yes"}, "reoptimize"), ({"linear_solver": 27}, "linear_solver"),
-                                         ({"rho_min": "none"}, "rho_min")])
+                                         ({"rho_min": "none"}, "rho_min"), ({"warm_mu_init": "x"}, "warm_mu_init = 'x' is not allowed")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=key):
