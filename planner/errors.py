@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import fields
 
 
 class PlannerError(Exception):
@@ -40,8 +41,6 @@ def check_field_types(options) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str (or that or None) holds a value of that
     type (an int for a float): an InputError naming the field and the type, not a TypeError from a range check
     later (values from JSON: `planner plan --solve`)."""
-    from dataclasses import fields
-
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]

@@ -381,7 +381,7 @@ def _traj_arrays(tr) -> dict:
 def run_task(spec: dict) -> dict:
     """Plan, validate and classify one generated task; returns its JSON-able record. Exceptions are
     labelled with their stage and left to planner.batch, which makes them a crashed record."""
-    from planner.homotopy import SolveOptions, solve
+    from planner.homotopy import solve, solve_options_from_dict
     from planner.problem import build_problem
     from planner.replay import validate_trajectory
     from planner.task import parse_task
@@ -401,7 +401,7 @@ def run_task(spec: dict) -> dict:
             raise NonFinite("non-finite numbers in the built problem: " + "; ".join(found))
 
     with stage("solve"):
-        options = dataclasses.replace(SolveOptions(), **_solve_overrides(spec["solve_options"]))
+        options = solve_options_from_dict(spec["solve_options"])
 
         def progress(nlp):  # each NLP's numbers, as the homotopy goes
             for name in ("objective", "complementarity_residual", "terminal_error"):
@@ -451,13 +451,6 @@ def run_task(spec: dict) -> dict:
         rec["message"] = "; ".join(val.failures) or "validation failed"
     rec["times"]["total_s"] = time.perf_counter() - t0
     return rec
-
-
-def _solve_overrides(d: dict) -> dict:
-    out = dict(d)
-    if out.get("rho_schedule") is not None:
-        out["rho_schedule"] = tuple(out["rho_schedule"])
-    return out
 
 
 def finish(spec: dict, result) -> dict:
