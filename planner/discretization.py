@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .contact import plane_axes
-from .errors import InputError
+from .errors import InputError, check_field_types
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
@@ -507,6 +507,7 @@ class FESDOptions:
     rho_h: float = 1.0
 
     def __post_init__(self):
+        check_field_types(self)
         checks = [(self.n_s in (1, 2, 3), "n_s", self.n_s, "1, 2 or 3"),
                   (isinstance(self.n_fe, int) and self.n_fe >= 1, "n_fe", self.n_fe, "an integer >= 1"),
                   (self.rho_h >= 0, "rho_h", self.rho_h, ">= 0")]

@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics
-from .errors import InputError, SolveError, TaskError, UnknownNameError
+from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import write_files
@@ -596,6 +596,7 @@ class WalkGains:
     speed_integral: float = 0.0  # [rad per rad/s] the same on the sum of the errors of all steps so far; 0, 0: none
 
     def __post_init__(self):
+        check_field_types(self)
         if not isinstance(self.control, WalkControl):
             raise UnknownNameError("walk control", str(self.control), [c.value for c in WalkControl])
         if self.kp < 0 or self.kd < 0 or self.bandwidth <= 0 or self.ground_gap < 0 or self.sample_every < 1 \

@@ -368,7 +368,8 @@ def solve_fields_from_json(text: str) -> dict:
     except json.JSONDecodeError as exc:
         raise InputError(f"{text!r} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
     if not isinstance(values, dict):
-        raise InputError(f"{text!r}: expected a JSON object of SolveOptions fields, got {type(values).__name__}")
+        kind = {list: "an array", str: "a string", bool: "a boolean", type(None): "null"}.get(type(values), "a number")
+        raise InputError(f"{text!r}: expected a JSON object of SolveOptions fields, got {kind}")
     return values
 
 

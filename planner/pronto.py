@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .errors import InputError, SolveError
+from .errors import InputError, SolveError, check_field_types
 
 ROUNDOFF = 1e-13  # relative round-off of a cost evaluation: ~N = 1e2 terms of relative error 1e-16, with margin
 
@@ -58,6 +58,7 @@ class DiscreteOCP:
     N: int
 
     def __post_init__(self):
+        check_field_types(self)
         if self.N < 1:
             raise InputError(f"DiscreteOCP.N = {self.N} must be >= 1")
 
@@ -97,6 +98,7 @@ class ProntoOptions:
     newton: bool = True  # False: always the quasi-Newton LQ (first-order dynamics terms only)
 
     def __post_init__(self):
+        check_field_types(self)
         if self.max_iterations < 1:
             raise InputError(f"pronto.max_iterations = {self.max_iterations} must be >= 1")
         if not (self.tolerance > 0 and 0 < self.armijo_c < 0.5 and 0 < self.armijo_beta < 1 and self.min_step > 0):

@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError
+from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
 from .model import Robot, RobotFormat, load_robot
 from .result import locate_input, read_summary, read_trajectory, write_atomically
 from .task import Task, load_task
@@ -101,6 +101,7 @@ class ContactSettings:
     sphere_radius: float = 1e-3  # [m] collision sphere put at each contact site
 
     def __post_init__(self):
+        check_field_types(self)
         _check(self.timestep > 0, "contact.timestep", self.timestep, "> 0")
         _check(self.cone in ("elliptic", "pyramidal"), "contact.cone", self.cone, "'elliptic' or 'pyramidal'")
         _check(self.impratio >= 1, "contact.impratio", self.impratio, ">= 1")
@@ -138,6 +139,7 @@ class TrackingGains:
     kd: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        check_field_types(self)
         _check(self.frequency_hz > 0, "gains.frequency_hz", self.frequency_hz, "> 0")
         _check(self.damping_ratio >= 0, "gains.damping_ratio", self.damping_ratio, ">= 0")
 
@@ -184,6 +186,7 @@ class ValidationOptions:
     window_stride_s: float = WINDOW_STRIDE_S
 
     def __post_init__(self):
+        check_field_types(self)
         _check(self.window_s > 0, "window_s", self.window_s, "> 0")
         _check(self.window_stride_s > 0, "window_stride_s", self.window_stride_s, "> 0")
         if not isinstance(self.controller, TrackingController):

@@ -29,7 +29,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics
-from .errors import InputError
+from .errors import InputError, check_field_types
 from .model import Robot
 from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
 from .task import Task
@@ -86,6 +86,7 @@ class SimulateOptions:
     velocity_switch: SwitchVelocity | None = None
 
     def __post_init__(self):
+        check_field_types(self)
         if not isinstance(self.strategy, Strategy):
             raise InputError(f"strategy = {self.strategy!r} is not allowed; it must be one of {[s.value for s in Strategy]}")
         if not isinstance(self.discretization, Discretization):

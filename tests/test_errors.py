@@ -1,0 +1,60 @@
+"""planner.errors: check_field_types, the type check every options dataclass runs before its range checks."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+from planner.discretization import FESDOptions
+from planner.errors import InputError, PlannerError, check_field_types
+from planner.gait import WalkGains
+from planner.homotopy import SolveOptions
+from planner.problem import ProblemOptions
+from planner.pronto import ProntoOptions
+from planner.replay import ContactSettings, TrackingGains, ValidationOptions
+from planner.simulate import SimulateOptions
+
+
+@dataclass(frozen=True)
+class _Typed:
+    flag: bool = True
+    count: int = 1
+    scale: float = 1.0
+    name: str = "a"
+    limit: float | None = None
+    items: tuple[float, ...] = ()
+
+    def __post_init__(self):
+        check_field_types(self)
+
+
+@pytest.mark.parametrize("kwargs, ok", [
+    ({}, True), ({"scale": 2}, True), ({"limit": None}, True), ({"limit": 3}, True), ({"items": ("not checked",)}, True),
+    ({"flag": 1}, False), ({"count": 1.0}, False), ({"count": True}, False), ({"scale": "1"}, False), ({"scale": False}, False),
+    ({"name": 1}, False), ({"limit": "x"}, False),
+])
+def test_check_field_types(kwargs, ok):
+    """bool, int, float, str (or that or None) fields hold that type, an int standing for a float but a bool for
+    neither; None passes only where the annotation allows it; other annotations (tuples) are left to the class."""
+    if ok:
+        _Typed(**kwargs)
+        return
+    with pytest.raises(InputError) as err:
+        _Typed(**kwargs)
+    field = next(iter(kwargs))
+    assert f"_Typed.{field} = {kwargs[field]!r} is not allowed" in str(err.value)
+    assert isinstance(err.value, PlannerError)
+
+
+@pytest.mark.parametrize("cls, field, value", [
+    (SolveOptions, "tol", "small"), (ProblemOptions, "clock_weight", "x"), (SimulateOptions, "max_iter", 10.5),
+    (FESDOptions, "rho_h", "1"), (WalkGains, "sample_every", 4.0), (ProntoOptions, "newton", "yes"),
+    (ContactSettings, "cone", 1), (TrackingGains, "frequency_hz", None), (ValidationOptions, "window_s", "1"),
+])
+def test_options_check_their_types(cls, field, value):
+    """Each options dataclass rejects a value of the wrong type with an InputError naming its field (not a TypeError
+    from a range check); its defaults pass."""
+    kwargs = {"feedback_q": (1.0,), "feedback_r": (1.0,)} if cls is ProntoOptions else {}
+    cls(**kwargs)
+    with pytest.raises(InputError, match=rf"{cls.__name__}\.{field} = "):
+        cls(**kwargs, **{field: value})
