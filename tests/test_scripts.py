@@ -581,6 +581,45 @@ def test_probe_smoothing_quick_run(tmp_path, capsys):
     assert np.abs(np.asarray(g(x, p)).ravel()[rows]).max() <= 1e-12
 
 
+# --- scripts/probe_multiphase.py ------------------------------------------------------------------------
+
+# the per-step solves meet IPOPT's tol (1e-8) on their equality rows; only a step's complementarity may fail
+STEP_ROW_TOL = 1e-8
+# IPOPT relaxes each bound by bound_relax_factor (1e-8) relative to it: 6e-7 N m at Capler's 60 N m
+U_BOUND_TOL = 1e-6
+
+
+def test_probe_multiphase_quick_run(tmp_path, capsys):
+    """--quick --json: the documented record, the same in results.json; the pd start is the time-freezing NLP's own
+    steps, so packed into the NLP's layout it satisfies every step row (dynamics, stationarity, lifting, forces) of
+    the N = 10 problem; so does the track start, whose controls stay in their bounds; the interpolated start runs its
+    clock with tau and holds its controls in their bounds."""
+    from scripts import probe_multiphase as pm
+
+    assert pm.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "results.json").read_text())
+    assert rec["N"] == 10 and rec["start"] == "pd" and "solve" not in rec
+    assert set(rec["hop_ocp"]) == {"iterations", "status", "wall_s", "cost", "footholds"} and len(rec["hop_ocp"]["footholds"]) == 3
+    assert set(rec["start_state"]) == {"step_iterations", "steps_failed", "wall_s", "base_x_end", "clock_end", "violations"}
+    for block in ("dynamics", "stationarity", "lifting", "contact_forces"):
+        assert rec["start_state"]["violations"][block] <= STEP_ROW_TOL, block
+    robot, task = pm.capler_case(10)
+    plan = pm.hop_ocp(robot, task, [1.0], 2.3, (3, 3), 30)
+    problem = build_problem(robot, task)
+    x, info = pm.interpolated_start(problem, plan)
+    Y = x[problem.var_blocks["y"]]
+    np.testing.assert_allclose(Y[:, -1], problem.h * np.arange(1, problem.N + 1), rtol=0, atol=1e-12)
+    u = x[problem.var_blocks["u"]]
+    assert np.all(u >= problem.lbx[problem.var_blocks["u"]]) and np.all(u <= problem.ubx[problem.var_blocks["u"]])
+    assert info == {"step_iterations": 0, "steps_failed": 0}
+    x, info = pm.stepwise_start(problem, plan, "track")  # u is each step's variable: in its bounds, the step rows met
+    u = x[problem.var_blocks["u"]]
+    assert np.all(u >= problem.lbx[problem.var_blocks["u"]] - U_BOUND_TOL) and np.all(u <= problem.ubx[problem.var_blocks["u"]] + U_BOUND_TOL)
+    viol = pm.violations(problem, x)
+    assert max(viol[b] for b in ("dynamics", "stationarity", "lifting", "contact_forces")) <= STEP_ROW_TOL
+
+
 # --- scripts/bench_biped_walk.py -----------------------------------------------------------------------
 
 def test_bench_biped_walk_quick_run(tmp_path, capsys):
