@@ -48,7 +48,7 @@ from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
 HIP, KNEE = 2, 3  # Capler's joint coordinates in q = (x_B, z_B, phi_hip, phi_knee)
-STEP_LENGTH = (0.005, 0.1)  # [s] bounds of a phase's step: below, a stance cannot hold its push; above, the grid is too coarse
+STEP_LENGTH = (0.005, 0.25)  # [s] bounds of a phase's step: below, a stance cannot hold its push; above, the grid is too coarse
 FOOTHOLD_MARGIN = 0.02  # [m] a foothold's distance from a hole's edge
 
 
@@ -79,7 +79,7 @@ def hop_ocp(robot, task, landings, T: float, nodes: tuple[int, int], max_iter: i
     for i, phase in enumerate(phases):
         n, dt = nodes[0] if phase == "stance" else nodes[1], dts[i]
         stance += phase == "stance"
-        opti.subject_to(opti.bounded(*STEP_LENGTH, dt))
+        opti.subject_to(opti.bounded(STEP_LENGTH[0], dt, STEP_LENGTH[1]))
         duration += n * dt
         for j in range(n):
             qn, vn, u = opti.variable(nq), opti.variable(nv), opti.variable(nu)
