@@ -509,7 +509,7 @@ class FESDOptions:
     def __post_init__(self):
         check_field_types(self)
         checks = [(self.n_s in (1, 2, 3), "n_s", self.n_s, "1, 2 or 3"),
-                  (isinstance(self.n_fe, int) and self.n_fe >= 1, "n_fe", self.n_fe, "an integer >= 1"),
+                  (self.n_fe >= 1, "n_fe", self.n_fe, ">= 1"),
                   (self.rho_h >= 0, "rho_h", self.rho_h, ">= 0")]
         for ok, key, value, allowed in checks:
             if not ok:
