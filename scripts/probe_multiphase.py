@@ -21,7 +21,8 @@ Starts on the task's grid (`--start`), each followed by the time-freezing solve 
           step's objective, the friction and impact cones, above-ground rows and holes imposed per step; then as pd.
 Per run: the hop OCP's iterations, status, cost and footholds; the start's wall time, per-step IPOPT iterations,
 the base's final x [m] and clock [s] (the target is x = 3 m; tau_f = 2.5 s), the largest violation of each
-constraint block of the time-freezing NLP at the start; the solve's verdict, iterations, wall time and control cost.
+constraint block of the time-freezing NLP and of its bounds at the start (planner.homotopy.constraint_violation);
+the solve's verdict, iterations, wall time and control cost.
 Writes OUT/results.json.
 
     python -m scripts.probe_multiphase --landings 0.85 1.85 --T 2.3 --start pd
@@ -40,7 +41,7 @@ import casadi as ca
 import numpy as np
 
 from planner.dynamics import Dynamics
-from planner.homotopy import SolveOptions, replan_options, solve
+from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
 from planner.result import write_atomically
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
@@ -227,13 +228,6 @@ STARTS = {"interp": interpolated_start, "pd": lambda pb, plan: stepwise_start(pb
           "track": lambda pb, plan: stepwise_start(pb, plan, "track")}
 
 
-def violations(problem, x) -> dict[str, float]:
-    """The largest violation of each constraint block of the time-freezing NLP at x (holes at full size)."""
-    g = np.asarray(ca.Function("g", [problem.x, problem.p], [problem.g])(x, problem.params(1.0))).ravel()
-    viol = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
-    return {name: float(np.max(viol[np.asarray(rows).ravel()], initial=0.0)) for name, rows in problem.g_blocks.items()}
-
-
 def probe(N: int, landings, T: float, nodes, start: str, max_iter: int, run_solve: bool) -> dict:
     robot, task = capler_case(N)
     plan = hop_ocp(robot, task, landings, T, nodes, max_iter)
@@ -244,7 +238,7 @@ def probe(N: int, landings, T: float, nodes, start: str, max_iter: int, run_solv
     x, info = STARTS[start](problem, plan)
     y_end = x[problem.var_blocks["y"][-1]]
     rec["start_state"] = info | {"wall_s": time.perf_counter() - t0, "base_x_end": float(y_end[0]), "clock_end": float(y_end[-1]),
-                                 "violations": violations(problem, x)}
+                                 "violations": constraint_violation(problem, x)}
     if run_solve:
         options = SolveOptions() if start == "interp" else replace(replan_options(), keep_schedule=True)
         result = solve(replace(problem, x0=x), options)

@@ -616,7 +616,7 @@ def test_probe_multiphase_quick_run(tmp_path, capsys):
     x, info = pm.stepwise_start(problem, plan, "track")  # u is each step's variable: in its bounds, the step rows met
     u = x[problem.var_blocks["u"]]
     assert np.all(u >= problem.lbx[problem.var_blocks["u"]] - U_BOUND_TOL) and np.all(u <= problem.ubx[problem.var_blocks["u"]] + U_BOUND_TOL)
-    viol = pm.violations(problem, x)
+    viol = pm.constraint_violation(problem, x)
     assert max(viol[b] for b in ("dynamics", "stationarity", "lifting", "contact_forces")) <= STEP_ROW_TOL
 
 
