@@ -37,6 +37,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from .derivatives import nlp_derivatives
 from .errors import InputError, check_field_types
 from .problem import Problem
 from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
@@ -87,6 +88,14 @@ class Regularization(Enum):
     FROM_LAST = "from_last"  # start from the last delta / 3 (skips the first factorization; see _Solvers)
 
 
+class Derivation(Enum):
+    """How the homotopy's NLPs get their gradient, Jacobian and Hessian (the projection and the held schedule
+    take the same; a replan derives step by step either way)."""
+
+    WHOLE_GRAPH = "whole_graph"  # CasADi over the whole NLP (~3 s of a default Capler solve's setup): the documented paths
+    STEPWISE = "stepwise"  # planner.derivatives, also wrapped for the scaled NLPs: ~1 s; equal to rounding, another path
+
+
 class MumpsOrdering(Enum):
     """MUMPS's fill-reducing ordering of IPOPT's KKT matrix (IPOPT's mumps_pivot_order: the integer)."""
 
@@ -131,7 +140,7 @@ class Polish(Enum):
 # the SolveOptions fields that take an Enum (solve_options_from_dict reads them by value)
 ENUM_FIELDS = {"mu_strategy": MuStrategy, "holes": HoleSchedule, "polish": Polish, "warm_start": WarmStart,
                "mumps_ordering": MumpsOrdering, "variable_scaling": VariableScaling, "regularization": Regularization,
-               "fesd_start": FESDStart}
+               "fesd_start": FESDStart, "derivation": Derivation}
 
 
 @dataclass(frozen=True)
@@ -264,6 +273,10 @@ class SolveOptions:
     polish, the held-schedule NLPs and so `reoptimize` use the task's own rho_f. A speed-for-cost trade: (10,) took 44 %
     fewer IPOPT iterations over seven Capler tasks (default task 1731 against 2348, a quarter less wall) to plans 87 %
     dearer with fewer hops; (10, 10, 1) and (100,) less (docs/benchmarks.md, session 23).
+    derivation: Derivation. WHOLE_GRAPH (default): CasADi derives every homotopy NLP over its whole graph. STEPWISE:
+    planner.derivatives' step-by-step derivatives for every NLP (the scaled ones wrapped around them), the solvers
+    created in ~1 s instead of ~4 s on the default Capler task, the values equal to rounding, which takes the
+    homotopy on another path (docs/benchmarks.md, session 26).
     """
 
     tol: float = 1e-8
@@ -313,6 +326,7 @@ class SolveOptions:
     schedule_max_iter: int = 200
     reoptimize: bool = True
     rho_f_schedule: tuple[float, ...] | None = None
+    derivation: Derivation = Derivation.WHOLE_GRAPH
 
     def __post_init__(self):
         check_field_types(self)
@@ -532,7 +546,7 @@ class _Solvers:
         self.options, self.cache, self.setup_time_s = options, {}, 0.0
         self.eval_s: dict[str, dict[str, float]] = {}  # IPOPT's name -> callback -> wall s, summed over all its calls
         self.problem = problem
-        self._derivs = None
+        self._derivs, self._derivs_stepwise = None, False
 
     def set_scale(self, D: np.ndarray) -> None:
         """From now on the warm (later-NLP) solvers see x = D xs (VariableScaling.FIRST_NLP)."""
@@ -556,19 +570,20 @@ class _Solvers:
     def _probed(self, nlp: dict) -> dict:
         return dict(nlp, x=ca.vertcat(nlp["x"], ca.SX.sym("probe", self.n_probe))) if self.n_probe else nlp
 
-    def derivatives(self, scaled: bool = False, projection: bool = False) -> dict:
-        """nlpsol's options grad_f, jac_g and hess_lag for one IPOPT (all but the scaled homotopy NLPs, see get).
-        CasADi derives them from the unscaled NLP once per problem (deriving the Hessian is most of the ~2 s of
-        creating an IPOPT on the default Capler task); a solver that sees xs = x / D gets them scaled around those
-        (D grad f, J diag(D), diag(D) H diag(D)), the projection with its distance's terms added, so those IPOPTs
-        are created in a fraction of that."""
-        if self._derivs is None:
-            nlp = self.nlp
-            oracle = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]], ["x", "p"], ["f", "g"])
-            self._derivs = {"grad_f": oracle.factory("nlp_grad_f", ["x", "p"], ["f", "grad:f:x"]),
-                            "jac_g": oracle.factory("nlp_jac_g", ["x", "p"], ["g", "jac:g:x"]),
-                            "hess_lag": oracle.factory("nlp_hess_l", ["x", "p", "lam:f", "lam:g"], ["triu:hess:gamma:x:x"],
-                                                       {"gamma": ["f", "g"]})}
+    def derivatives(self, scaled: bool = False, projection: bool = False, homotopy: bool = False) -> dict:
+        """nlpsol's options grad_f, jac_g and hess_lag for one IPOPT (all but the scaled homotopy NLPs, see get),
+        derived from the unscaled NLP once per problem. homotopy (the homotopy's unscaled NLPs), unless
+        SolveOptions.derivation is STEPWISE: CasADi's derivation over the whole graph (1.5 s on the default Capler
+        task), whose rounding the documented homotopy paths follow
+        (planner.derivatives' equal values to rounding took the default task on another path: 2766 iterations to
+        cost 113.1 instead of 2348 to 88.35); the projection and the held schedule take those when they exist, else
+        the step-by-step derivation (0.2 s: a replan's setup). A solver that sees xs = x / D gets them scaled
+        around those (D grad f, J diag(D), diag(D) H diag(D)), the projection with its distance's terms added, so
+        those IPOPTs are created in a fraction of that."""
+        stepwise = not homotopy or self.options.derivation is Derivation.STEPWISE
+        if self._derivs is None or (self._derivs_stepwise and not stepwise):
+            self._derivs_stepwise = stepwise
+            self._derivs = nlp_derivatives(self.problem, self.n_probe, stepwise=stepwise)
         d = self._derivs
         if not (scaled or projection):
             return dict(d)
@@ -640,11 +655,12 @@ class _Solvers:
         if key not in self.cache:
             t0 = time.perf_counter()
             name = "schedule" if schedule else ("loose_" if loose and self.options.intermediate_tol is not None else "") + ("warm" if warm else "cold")
-            if schedule or not scaled:
-                # the scaled homotopy NLPs keep CasADi's derivation of the substituted NLP: the wrapped derivatives equal
-                # it to rounding, and that rounding took the default Capler task's homotopy on another path (472 / 1391 /
-                # 693 / 2129 / 934 iterations instead of 472 / 1535 / 839 to a plan of cost 125.5 instead of 99.4)
-                opts.update(self.derivatives(scaled))
+            if schedule or not scaled or self.options.derivation is Derivation.STEPWISE:
+                # the scaled homotopy NLPs keep CasADi's derivation of the substituted NLP unless Derivation.STEPWISE: the
+                # wrapped derivatives equal it to rounding, and that rounding took the default Capler task's homotopy on
+                # another path (472 / 1391 / 693 / 2129 / 934 iterations instead of 472 / 1535 / 839 to a plan of cost
+                # 125.5 instead of 99.4)
+                opts.update(self.derivatives(scaled, homotopy=not schedule))
             self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.scaled_nlp if scaled else self.nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]

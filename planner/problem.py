@@ -196,6 +196,23 @@ class Pair:
     name: str
 
 
+@dataclass(frozen=True, eq=False)
+class Stages:
+    """The implicit-Euler steps of a Problem as one Function called at every k (planner.derivatives derives
+    it once, at the size of a step, and maps it over the N steps).
+
+    fn(z (nz,), p) -> (g (m,), cost): the step's rows and its selector cost, z = (y_k, u_k, [s_k], y_{k+1}, w_k).
+    z_index (N, nz): index of each z entry in (x, y_0): values >= nx are y_0's constants (y_0 = Problem.y0).
+    rows (N, m): the rows of g that step k's rows are. cost_weight: index into p of the factor on the costs
+    (f = f_rest + p[cost_weight] sum_k cost_k). f_rest: the objective without the steps' costs (SX of x, p)."""
+
+    fn: ca.Function
+    z_index: np.ndarray
+    rows: np.ndarray
+    cost_weight: int
+    f_rest: ca.SX
+
+
 @dataclass(eq=False)
 class Problem:
     """The transcribed OCP. Everything needed to solve, inspect and post-process it.
@@ -240,6 +257,7 @@ class Problem:
     notes: dict = field(default_factory=dict)
     skips: Skips = field(default_factory=Skips)  # what the scene analysis left out, with reasons
     fesd: FESDInterval | None = None  # the FESD stages' builder (ProblemOptions.discretization FESD), else None
+    stages: Stages | None = None  # the steps as one mapped Function (implicit Euler), else None
 
     @property
     def nx(self) -> int:
@@ -378,18 +396,25 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     control_cost, selector_cost = 0, 0
     pairs: list[Pair] = []
     prods = []
+    # one step built once on symbols and called at every k: its derivatives can be derived at the size of a step
+    # (Stages); a call replays the step's operations, so g and f are the expressions a build per step gives
+    z_y, z_u, z_y1 = ca.SX.sym("y", ny), ca.SX.sym("u", nu), ca.SX.sym("y_next", ny)
+    z_s = ca.SX.sym("s") if timed else 1.0
+    step = builder.build(z_y, z_y1, z_u, z_s, h, field_scale=field_scale)
+    z = ca.vertcat(z_y, z_u, *([z_s] if timed else []), z_y1, step.w)
+    step_fn = ca.Function("step", [z, P], [step.g, step.objective], ["z", "p"], ["g", "cost"])
     y_prev = ca.SX.sym("y_0", ny) if periodic else ca.DM(y0)
     x_parts = [y_prev] if periodic else []
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
         sk = ca.SX.sym(f"s_{k}") if timed else 1.0
         yk = ca.SX.sym(f"y_{k + 1}", ny)
-        step = builder.build(y_prev, yk, uk, sk, h, tag=f"_{k}", field_scale=field_scale)
-        wk = step.w
+        wk = ca.SX.sym(f"w_{k}", nw)
+        gk, cost_k = step_fn(ca.vertcat(y_prev, uk, *([sk] if timed else []), yk, wk), P)
         x_parts += [uk] + ([sk] if timed else []) + [yk, wk]
         for name in step_blocks:
-            g_parts[name].append(step.g[step.g_blocks[name]])
-        selector_cost += step.objective
+            g_parts[name].append(gk[step.g_blocks[name]])
+        selector_cost += cost_k
         control_cost += h * ca.dot(uk, uk)
         if path_fn["above_ground"] is not None:
             g_parts["above_ground"].append(path_fn["above_ground"](yk))
@@ -444,6 +469,14 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         clock_cost = clock_w * clock_cost
         f = f + clock_cost
     f = f + (rf_scale - 1) * selector_cost  # Problem.params' rho_f_scale; at 1 it adds an exact 0: the same f, bit for bit
+    y_before = [var_blocks["y0"] if periodic else nx + np.arange(ny), *var_blocks["y"][:-1]]  # y_k of step k
+    z_index = np.array([np.concatenate([y_before[k], var_blocks["u"][k], *([var_blocks["s"][k]] if timed else []),
+                                        var_blocks["y"][k], var_blocks["w"][k]]) for k in range(N)])
+    step_rows = np.empty((N, step.g.numel()), dtype=int)
+    for name in step_blocks:
+        step_rows[:, step.g_blocks[name]] = rows.blocks[name]
+    stages = Stages(step_fn, z_index, step_rows, P.numel() - 1,  # rho_f_scale: P's last entry
+                    control_cost + penalty + term_w * ca.dot(term_res, term_res) + clock_cost)
     names = [f"{nm}_0" for nm in system.state_names] if periodic else []
     for k in range(N):
         names += [f"u[{i}]_{k}" for i in range(nu)]
@@ -477,7 +510,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                    x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(),
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.blocks, pairs=tuple(pairs),
                    pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
-                   notes=notes, skips=skips)
+                   notes=notes, skips=skips, stages=stages)
 
 
 def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_lo, q_hi, nq: int, nv: int) -> None:

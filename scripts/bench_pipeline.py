@@ -1,6 +1,7 @@
 """Speed of the pipeline (issue 9): where the time of a solve goes, and what the variants change.
 
-For each case: the build (build_problem) [s], the creation of the cold IPOPT (nlpsol: the SX
+For each case: the build (build_problem) [s], the derivation of the NLP's derivatives over the whole graph
+and step by step (planner.derivatives, SolveOptions.derivation) [s], the creation of the cold IPOPT (nlpsol: the SX
 derivatives) [s], and a fixed-iteration run of the homotopy's NLP 1 (the hint-free start, the first
 rho of the schedule, holes relaxed, soft terminal: exactly what planner.homotopy.solve runs first;
 with --nlp 2 the homotopy's NLP 2 instead, from NLP 1's solution, in the variables solve gives it)
@@ -55,6 +56,7 @@ from matplotlib.figure import Figure
 
 from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_options, keep_freed_memory, solve,
                               solve_fields_from_json, solve_options_from_dict, task_rho_schedule, variable_scale)
+from planner.derivatives import nlp_derivatives
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.discretization import StepForm
@@ -222,6 +224,11 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
            "lift_products": problem_options.lift_products,
            "n_variables": problem.nx, "n_constraints": problem.ng,
            "build_s": time.perf_counter() - t0, "iters": iters, "nlp": nlp_index}
+    for stepwise in (False, True):  # the NLP's derivatives as the IPOPTs get them (SolveOptions.derivation)
+        t0 = time.perf_counter()
+        nlp_derivatives(problem, stepwise=stepwise)
+        rec[f"derivation_{'stepwise' if stepwise else 'whole_graph'}_s"] = time.perf_counter() - t0
+    log(name, "derivation", {k: round(v, 3) for k, v in rec.items() if k.startswith("derivation_")})
     options = SolveOptions(max_iter=iters)
     if nlp_index == 2 and variants:
         nlp, args = nlp2_setup(problem)
@@ -270,8 +277,11 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
 
 
 def table(records) -> str:
-    lines = ["| case | variant | iterations | objective | CPU ms/it | evals ms/it (f, g, grad_f, jac_g, hess_l) | rest ms/it | wall ms/it | create s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    derived = [r for r in records if "derivation_stepwise_s" in r]
+    lines = ["| case | derivatives: whole graph, step by step [s] |", "|---|---|", *(
+        f"| {r['case']} | {r['derivation_whole_graph_s']:.2f}, {r['derivation_stepwise_s']:.2f} |" for r in derived), ""] if derived else []
+    lines += ["| case | variant | iterations | objective | CPU ms/it | evals ms/it (f, g, grad_f, jac_g, hess_l) | rest ms/it | wall ms/it | create s |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in records:
         for v, m in r["variants"].items():
             ev = m["eval_cpu_ms_per_iter"]

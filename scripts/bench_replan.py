@@ -5,10 +5,11 @@ then replans copies of the task with one number changed, each twice: the penalty
 the replan that first holds the start's contact schedule (`--init --keep-schedule`). The number is the
 target's first coordinate (`plan.target_q[0]`, Capler's x [m]) or, for a periodic task, the step
 (`plan.periodic.step` [m]). Per run: exit code, converged, the NLPs (label, IPOPT iterations), solve time
-[s], control cost, impact times [s], and with --validate the MuJoCo verdict (a walk's steps walked).
+[s] and its IPOPT setup [s], control cost, impact times [s], and with --validate the MuJoCo verdict (a walk's steps walked).
 Writes OUT/results.json and prints a Markdown table.
 
-    python -m scripts.bench_replan capler --values 2.8 2.9 2.95 3.1 [--init DIR] [--validate] [--out DIR] [--json]
+    python -m scripts.bench_replan capler --values 2.8 2.9 2.95 3.1 [--init DIR] [--variants keep_schedule] [--validate]
+        [--out DIR] [--json]
     python -m scripts.bench_replan biped --values 0.22 0.24 0.26 0.27 0.28 0.3 --validate
     python -m scripts.bench_replan --quick --json     # CI smoke run: the point-mass hop, N = 20
 
@@ -49,7 +50,8 @@ def record(out: Path, code: int) -> dict:
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
-            "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
+            "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"],
+            "solver_setup_s": s["timings"]["solver_setup_s"], "control_cost": s["control_cost"],
             "impact_times_s": [i["time"] for i in s["impacts"]], "validation_passed": v.get("passed"),
             "steps_walked": v.get("steps_walked")}
 
@@ -60,14 +62,15 @@ def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) ->
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] | cost | impacts [s] | MuJoCo |",
+    lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] (IPOPT setup) | cost | impacts [s] | MuJoCo |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         nlps = ", ".join(f"{label} {its}" for label, its in r["nlps"])
         mujoco = ("not run" if r["validation_passed"] is None else
                   f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else ""))
         impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
-        lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | {nlps} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+        lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | {nlps} | {r['ipopt_iterations']} | "
+                     f"{r['solve_time_s']:.2f} ({r['solver_setup_s']:.2f}) | "
                      f"{r['control_cost']:.2f} | {impacts} | {mujoco} |")
     return "\n".join(lines)
 
@@ -77,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("robot", nargs="?", default="capler", help="a robot in robots/ with its default task (default capler)")
     parser.add_argument("--values", type=float, nargs="+", help="the moved number's values (target x or step [m])")
     parser.add_argument("--init", type=Path, metavar="DIR", help="the start plan (default: plan the default task hint-free first)")
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
+                        help="the replans to run per value (default both)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "replan")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
@@ -101,8 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     for value in values:
         task = args.out / f"task_{value:g}.toml"
         task.write_text(moved_task(base_text, value))
-        for variant, extra in VARIANTS.items():
-            run = plan(robot, task, args.out / f"{variant}_{value:g}", ["--init", str(start), *extra], args.validate)
+        for variant in args.variants:
+            run = plan(robot, task, args.out / f"{variant}_{value:g}", ["--init", str(start), *VARIANTS[variant]], args.validate)
             rows.append({"value": value, "variant": variant, **run})
     write_atomically(args.out / "results.json", json.dumps({"robot": robot, "start": str(start), "quick": args.quick, "runs": rows}, indent=1) + "\n")
     print(json.dumps(rows, indent=1) if args.json else table(rows))

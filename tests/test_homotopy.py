@@ -367,6 +367,19 @@ def test_shared_derivatives_are_the_derivatives_of_each_ipopts_own_nlp(mode):
                                            atol=SCALED_NLP_TOL, err_msg=f"{name} scaled={scaled} projection={projection}")
 
 
+@pytest.mark.parametrize("derivation", list(H.Derivation))
+def test_derivation_routes_the_homotopy_and_the_replan(derivation):
+    """SolveOptions.derivation picks the homotopy NLPs' derivatives: WHOLE_GRAPH CasADi's over the whole SX graph
+    (SX Functions), STEPWISE planner.derivatives' mapped ones (MX); the held schedule and the projection take
+    whatever exists, and with nothing derived yet (a replan) the step-by-step ones."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=5))
+    solvers = H._Solvers(prob, H.SolveOptions(derivation=derivation))
+    assert solvers.derivatives()["hess_lag"].is_a("MXFunction")  # nothing derived yet: a replan's held schedule
+    homotopy = solvers.derivatives(homotopy=True)["hess_lag"]
+    assert homotopy.is_a("MXFunction") == (derivation is H.Derivation.STEPWISE)
+    assert solvers.derivatives()["hess_lag"] is homotopy  # the projection and the held schedule reuse them
+
+
 def test_regularization_from_last_skips_the_unregularized_try():
     """Regularization.FROM_LAST: IPOPT regularizes the Hessian in every iteration after its degeneracy
     test (it starts each factorization from the last delta instead of trying delta = 0 first), while with
