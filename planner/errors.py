@@ -37,10 +37,11 @@ class SolveError(PlannerError):
     """The numerical solve or the validation failed on valid input."""
 
 
-def check_field_types(options) -> None:
+def check_field_types(options, owner: str | None = None) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str (or that or None) holds a value of that
     type (an int for a float): an InputError naming the field and the type, not a TypeError from a range check
-    later (values from JSON: `planner plan --solve`)."""
+    later (values from JSON: `planner plan --solve`). owner: how the message names the dataclass, as its own range
+    checks do (e.g. "contact" for ValidationOptions.contact); default its class name."""
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]
@@ -54,4 +55,4 @@ def check_field_types(options) -> None:
         else:
             ok = isinstance(value, int if names[0] == "int" else (int, float)) and not isinstance(value, bool)
         if not ok:
-            raise InputError(f"{type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kinds[names[0]]}")
+            raise InputError(f"{owner or type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kinds[names[0]]}")

@@ -101,7 +101,7 @@ class ContactSettings:
     sphere_radius: float = 1e-3  # [m] collision sphere put at each contact site
 
     def __post_init__(self):
-        check_field_types(self)
+        check_field_types(self, "contact")
         _check(self.timestep > 0, "contact.timestep", self.timestep, "> 0")
         _check(self.cone in ("elliptic", "pyramidal"), "contact.cone", self.cone, "'elliptic' or 'pyramidal'")
         _check(self.impratio >= 1, "contact.impratio", self.impratio, ">= 1")
@@ -139,7 +139,7 @@ class TrackingGains:
     kd: tuple[float, ...] | None = None
 
     def __post_init__(self):
-        check_field_types(self)
+        check_field_types(self, "gains")
         _check(self.frequency_hz > 0, "gains.frequency_hz", self.frequency_hz, "> 0")
         _check(self.damping_ratio >= 0, "gains.damping_ratio", self.damping_ratio, ">= 0")
 

@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from planner.cli import main as planner_main
-from planner.result import write_atomically
+from scripts._report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -105,9 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     if not all(0 < s < 2 for s in args.step):
         parser.error(f"--step {args.step}: give lengths in (0, 2) m (the legs are 1 m long)")
     rows = [run(lower, step, args.out, args.quick) for step in args.step for lower in lowers]
-    write_atomically(args.out / "results.json", json.dumps({"task": str(TASK), "quick": args.quick, "runs": rows}, indent=1) + "\n")
-    print(json.dumps(rows, indent=1) if args.json else table(rows))
-    return 0
+    return report(args.out, {"task": str(TASK), "quick": args.quick, "runs": rows}, table(rows), args.json, printed=rows)
 
 
 if __name__ == "__main__":

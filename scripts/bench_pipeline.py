@@ -62,8 +62,9 @@ from planner.model import load_robot
 from planner.discretization import StepForm
 from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
-from planner.result import race_arms_text, write_atomically
+from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
+from scripts._report import report
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -394,11 +395,9 @@ def main(argv: list[str] | None = None) -> int:
                            "load_average_after": os.getloadavg()},
                "variants": {v: VARIANTS[v] for v in variants}, "records": records}
     args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     if any(r["variants"] for r in records):
         plot(records, args.out / "pipeline.png")
-    print(json.dumps(results, indent=1, default=str) if args.json else table(records))
-    return 0
+    return report(args.out, results, table(records), args.json)
 
 
 if __name__ == "__main__":

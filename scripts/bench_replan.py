@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from planner.cli import main as planner_main
-from planner.result import write_atomically
+from scripts._report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -109,9 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         for variant in args.variants:
             run = plan(robot, task, args.out / f"{variant}_{value:g}", ["--init", str(start), *VARIANTS[variant]], args.validate)
             rows.append({"value": value, "variant": variant, **run})
-    write_atomically(args.out / "results.json", json.dumps({"robot": robot, "start": str(start), "quick": args.quick, "runs": rows}, indent=1) + "\n")
-    print(json.dumps(rows, indent=1) if args.json else table(rows))
-    return 0
+    return report(args.out, {"robot": robot, "start": str(start), "quick": args.quick, "runs": rows}, table(rows), args.json, printed=rows)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,6 @@ Cases (planner.scene):
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -40,8 +39,8 @@ from planner.dynamics import Dynamics
 from planner.homotopy import solve
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
-from planner.result import write_atomically
 from planner.task import load_task, parse_task
+from scripts._report import report
 
 DEFAULT_OUT = Path("results/bench/skips")
 GRID_POINTS = 401  # common physical-time grid of the q comparison
@@ -158,10 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     results = {"command": "python -m scripts.bench_skips " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start, "cpu_count": os.cpu_count(),
                "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "load_average": os.getloadavg(), "records": records}
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "results.json", json.dumps(results, indent=1) + "\n")
-    print(json.dumps(results, indent=1) if args.json else table(records))
-    return 0
+    return report(args.out, results, table(records), args.json)
 
 
 if __name__ == "__main__":

@@ -31,7 +31,6 @@ Writes OUT/results.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace
@@ -43,8 +42,8 @@ import numpy as np
 from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
-from planner.result import write_atomically
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
+from scripts._report import report
 from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -280,10 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.T <= 0 or min(args.nodes) < 1:
         parser.error(f"--T must be > 0 and --nodes >= 1, got {args.T}, {args.nodes}")
     rec = probe(args.N, sorted(args.landings), args.T, tuple(args.nodes), args.start, args.max_iter, not args.no_solve)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "results.json", json.dumps(rec, indent=1))
-    print(json.dumps(rec, indent=1) if args.json else table(rec))
-    return 0
+    return report(args.out, rec, table(rec), args.json)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ its mean speed with a running clock, `nlp1` the homotopy's NLP 1 point (rho = 10
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -28,8 +27,8 @@ import numpy as np
 
 from planner.homotopy import SolveOptions, _Solvers, _terminal_rows, ipopt_options, terminal_error
 from planner.problem import build_problem
-from planner.result import write_atomically
 from scripts.bench_pipeline import capler_case, nlp1_arguments
+from scripts._report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 # smoothing width per switching function at scale 1: a tenth of Capler's speeds, a centimetre of gap, and for phi
@@ -132,10 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(s <= 0 for s in args.eps_scales):
         parser.error(f"--eps-scales must be > 0, got {args.eps_scales}")
     rec = probe(args.N, args.start, args.eps_scales, args.terminal_weight, not args.no_holes, args.max_iter)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "results.json", json.dumps(rec, indent=1))
-    print(json.dumps(rec, indent=1) if args.json else table(rec))
-    return 0
+    return report(args.out, rec, table(rec), args.json)
 
 
 if __name__ == "__main__":

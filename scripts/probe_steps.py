@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import re
 import sys
 from pathlib import Path
@@ -27,8 +26,8 @@ import numpy as np
 
 from planner.homotopy import SolveOptions, ipopt_options
 from planner.problem import ProblemOptions, build_problem
-from planner.result import write_atomically
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
+from scripts._report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
@@ -158,10 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     records = probe(problem, args.nlps, args.top)
     results = {"command": "python -m scripts.probe_steps " + " ".join(argv if argv is not None else sys.argv[1:]), "case": case,
                "lift_products": not args.no_lift, "cut_ratio": CUT_RATIO, "records": records}
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "results.json", json.dumps(results, indent=1) + "\n")
-    print(json.dumps(results, indent=1) if args.json else table(records))
-    return 0
+    return report(args.out, results, table(records), args.json)
 
 
 if __name__ == "__main__":
