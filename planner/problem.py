@@ -1,6 +1,7 @@
 """The time-freezing optimal control problem (paper Sec. 7, eq. 29) as one inspectable NLP.
 
-Direct transcription with N regularized implicit-Euler steps (planner.discretization). Stage k
+Direct transcription with N regularized implicit-Euler steps (planner.discretization), the step built
+once on symbols and called at every k (Problem.stages, which planner.derivatives derives once). Stage k
 (k = 0 .. N-1) owns, in this order, the variables
 
     u_k (nu,)      control, constant over the step [N m or N]
@@ -79,6 +80,9 @@ from .model import Robot
 from .scene import Skips, analyze_scene
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem
+
+
+PARAMETERS = ("rho", "hole_scale", "an_scale", "at_scale", "terminal_weight", "rho_l1", "rho_f_scale")  # p, in Problem.params' order
 
 
 class Penalty(Enum):
@@ -364,10 +368,9 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if periodic:
         var_blocks["y0"] = np.arange(ny)
 
-    rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
-    an_scale, at_scale, term_w = ca.SX.sym("an_scale"), ca.SX.sym("at_scale"), ca.SX.sym("terminal_weight")
-    rho_l1, rf_scale = ca.SX.sym("rho_l1"), ca.SX.sym("rho_f_scale")
-    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale)
+    params = [ca.SX.sym(name) for name in PARAMETERS]
+    rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale = params
+    P = ca.vertcat(*params)
     field_scale = None
     if options.aux_continuation:
         field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
@@ -475,7 +478,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     step_rows = np.empty((N, step.g.numel()), dtype=int)
     for name in step_blocks:
         step_rows[:, step.g_blocks[name]] = rows.blocks[name]
-    stages = Stages(step_fn, z_index, step_rows, P.numel() - 1,  # rho_f_scale: P's last entry
+    stages = Stages(step_fn, z_index, step_rows, PARAMETERS.index("rho_f_scale"),
                     control_cost + penalty + term_w * ca.dot(term_res, term_res) + clock_cost)
     names = [f"{nm}_0" for nm in system.state_names] if periodic else []
     for k in range(N):
@@ -688,10 +691,9 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     if periodic:
         var_blocks["y0"] = np.arange(ny)
 
-    rho, hole_scale = ca.SX.sym("rho"), ca.SX.sym("hole_scale")
-    an_scale, at_scale, term_w, rho_l1, rf_scale = (ca.SX.sym(nm) for nm in ("an_scale", "at_scale", "terminal_weight", "rho_l1",
-                                                                             "rho_f_scale"))
-    P = ca.vertcat(rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale)
+    params = [ca.SX.sym(name) for name in PARAMETERS]
+    rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale = params
+    P = ca.vertcat(*params)
     field_scale = None
     if options.aux_continuation:
         field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
