@@ -11,7 +11,8 @@ from planner.derivatives import nlp_derivatives
 from planner.discretization import Discretization
 from planner.model import load_robot
 from planner.problem import Penalty, ProblemOptions, build_problem
-from planner.task import Horizon, load_task, parse_task
+from planner.task import Horizon, load_task
+from test_problem import hop_task
 
 # the same terms summed in another order: a few ulps of the largest entry (Capler's Hessian reaches ~1e3)
 DERIV_RTOL = 1e-12
@@ -19,11 +20,10 @@ DERIV_ATOL = 1e-10
 
 
 def _task(robot_name: str, **horizon):
-    if robot_name == "point_mass":
-        return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
-                           "horizon": {"tau_f": 1.0, "N": 4, **horizon}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
-    task = load_task(f"robots/{robot_name}.toml")
-    return dataclasses.replace(task, horizon=Horizon(tau_f=0.2, N=4, **horizon))
+    """The robot's task on N = 4 steps (the point mass: test_problem's hop)."""
+    task = hop_task() if robot_name == "point_mass" else load_task(f"robots/{robot_name}.toml")
+    tau_f = 1.0 if robot_name == "point_mass" else 0.2
+    return dataclasses.replace(task, horizon=Horizon(tau_f=tau_f, N=4, **horizon))
 
 
 CASES = {  # every piece of Problem.stages: y_0 constant or free, s_k, the step's parameters, f_rest's terms, penalties
