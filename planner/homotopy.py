@@ -262,6 +262,8 @@ class SolveOptions:
     replan: 375-4410) at its cost or lower; the biped's step 0.25 -> 0.22 ... 0.27 m in 15-30
     iterations (penalty replan: 234-2815) at twice its cost: the penalty replan also lengthens the
     period.
+    schedule_only: with keep_schedule, stop after the held-schedule NLP: when it is not accepted the result is
+    not converged (x0 stays the point) instead of the homotopy running. planner.replan's walk uses it.
     reoptimize: after an accepted polish, solve the task's own cost once more with the polished plan's
     contact schedule held (the keep_schedule NLP, from the polished plan); its plan replaces the polished
     one when accepted as the polish is and cheaper (the task's NLP objective). The projection polish only
@@ -324,6 +326,7 @@ class SolveOptions:
     ipopt: tuple[tuple[str, object], ...] = ()
     warm_ipopt: tuple[tuple[str, object], ...] = ()
     keep_schedule: bool = False
+    schedule_only: bool = False
     schedule_max_iter: int = 200
     reoptimize: bool = True
     rho_f_schedule: tuple[float, ...] | None = None
@@ -363,6 +366,7 @@ class SolveOptions:
              self.retry_terminal_weight, "> 0 or None"),
             (_positive_tuple(self.fesd_rho_schedule), "fesd_rho_schedule", self.fesd_rho_schedule,
              "a non-empty tuple of penalties > 0"),
+            (self.keep_schedule or not self.schedule_only, "schedule_only", self.schedule_only, "False unless keep_schedule is True"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -699,7 +703,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         solvers.set_scale(variable_scale(problem, x, stages=True))
         solvers.scale_cold = True
     held = _keep_schedule(problem, solvers, options, x, records, progress) if options.keep_schedule else None
-    for i, rho in enumerate(rhos if held is None else []):
+    for i, rho in enumerate(rhos if held is None and not options.schedule_only else []):
         scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
         soft = i < options.soft_terminal_nlps
         lbg, ubg = problem.lbg, problem.ubg
@@ -1112,8 +1116,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
     homotopy = [r for r in records if r.label.startswith("homotopy")]  # polishing stages are accepted only on success
-    last = next(r for r in reversed(records) if r.label == source) if polished else homotopy[-1]
+    last = next(r for r in reversed(records) if r.label == source) if polished else (homotopy or records)[-1]
     reasons = []
+    if not (polished or homotopy):  # SolveOptions.schedule_only: x is the start, not a plan of this task
+        reasons.append("the held-schedule NLP was not accepted")
     if not last.success:
         reasons.append(f"IPOPT did not converge in {last.label} ({last.status})")
     if comp > options.comp_tol:

@@ -456,6 +456,35 @@ def parse_task(data: dict, source: str = "") -> Task:
     return Task(**{**{f.name: getattr(task, f.name) for f in fields(Task)}, "source": source})
 
 
+def tasks_between(start: Task, end: Task, s: float) -> Task | None:
+    """The task a fraction s in [0, 1] of the way from `start` to `end`: every number (float) linear between
+    the two, everything else (names, integers such as N, flags, the number of holes or contacts, an infinite
+    bound) equal in both; None when they differ in anything but finite numbers. The source is end's. A replan
+    walks the task from its start plan's task to the new one through these (planner.replan)."""
+    try:
+        return _between(start, end, float(s), "")
+    except _Apart:
+        return None
+
+
+class _Apart(Exception):
+    """Two tasks differ in something that is not a number."""
+
+
+def _between(a, b, s: float, key: str):
+    if key == "source":
+        return b
+    if is_dataclass(a) and type(a) is type(b):
+        return type(a)(**{f.name: _between(getattr(a, f.name), getattr(b, f.name), s, f.name) for f in fields(a)})
+    if isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b):
+        return tuple(_between(x, y, s, key) for x, y in zip(a, b))
+    if type(a) is float and type(b) is float and a != b and math.isfinite(a) and math.isfinite(b):
+        return b if s == 1.0 else a + s * (b - a)  # s = 1: end's numbers exactly
+    if type(a) is type(b) and a == b:
+        return a
+    raise _Apart(key)
+
+
 def default_task_path(robot_path: Path) -> Path:
     """The task beside the robot file: robots/capler.xml -> robots/capler.toml."""
     return robot_path.with_suffix(".toml")

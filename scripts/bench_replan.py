@@ -2,7 +2,8 @@
 
 For a robot in robots/ this plans its default task hint-free once (or takes `--init DIR`, a plan of it),
 then replans copies of the task with one number changed, each twice: the penalty replan (`--init`) and
-the replan that first holds the start's contact schedule (`--init --keep-schedule`). The number is the
+the replan that first holds the start's contact schedule (`--init --keep-schedule`, walked through the tasks
+between when that is refused: planner.replan; its NLPs "walk s" and "retime s: ..."). The number is the
 target's first coordinate (`plan.target_q[0]`, Capler's x [m]) or, for a periodic task, the step
 (`plan.periodic.step` [m]). Per run: exit code, converged, the NLPs (label, IPOPT iterations), solve time
 [s] and its IPOPT setup [s], control cost, impact times [s], and with --validate the MuJoCo verdict (a walk's steps walked).

@@ -1,15 +1,18 @@
 """Task files: every default task loads, and every kind of bad key or value is named in the error."""
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from planner.errors import TaskError, UnknownNameError
 from planner.model import load_robot
-from planner.task import load_task, parse_task
+from planner.task import load_task, parse_task, tasks_between
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+ROUNDING = 1e-15  # a + s (b - a) of numbers ~1 in double precision
 MINIMAL = {"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10}}
 
 
@@ -173,3 +176,29 @@ def test_periodic_robot_dependent_errors():
     bounds = [{"joint": "torso", "lower": 0.1, "upper": 0.2}]
     with pytest.raises(TaskError, match=r"initial.q\[2\] = 0.0 \(torso\) is outside the joint bounds"):
         parse_task(_periodic(joint_bounds=bounds)).check_against(robot)
+
+
+def test_tasks_between_moves_every_number_and_nothing_else():
+    """tasks_between(a, b, s): each float of the task (a target coordinate, a hole's x, a contact's mu, the
+    horizon's tau_f) is a + s (b - a), s = 0 and 1 give a's and b's numbers exactly, and the source is b's. Tasks
+    that differ in an integer (N), a name, the number of holes or between an infinite and a finite bound have no
+    tasks between them (None); equal infinite bounds stay."""
+    a = load_task(ROBOTS / "capler.toml")
+    plan = a.plan
+    b = replace(a, source="moved.toml", horizon=replace(a.horizon, tau_f=3.0),
+                contacts=(replace(a.contacts[0], mu=0.4),),
+                plan=replace(plan, target_q=(3.1,) + plan.target_q[1:], holes=(replace(plan.holes[0], x=0.7),) + plan.holes[1:]))
+    mid = tasks_between(a, b, 0.25)
+    assert mid.plan.target_q == (3.025,) + plan.target_q[1:]
+    assert (mid.plan.holes[0].x, mid.horizon.tau_f, mid.contacts[0].mu) == pytest.approx((0.55, 2.625, 0.7), abs=ROUNDING)
+    assert mid.plan.holes[1:] == plan.holes[1:] and mid.initial == a.initial and mid.horizon.N == a.horizon.N
+    assert mid.source == "moved.toml"
+    assert tasks_between(a, b, 0.0) == replace(a, source="moved.toml") and tasks_between(a, b, 1.0) == b
+    assert tasks_between(a, replace(b, horizon=replace(b.horizon, N=50)), 0.5) is None
+    assert tasks_between(a, replace(b, contacts=(replace(b.contacts[0], point="knee"),)), 0.5) is None
+    assert tasks_between(a, replace(b, plan=replace(b.plan, holes=b.plan.holes[:2])), 0.5) is None
+    bounded = load_task(ROBOTS / "biped.toml")  # plan.velocity_bounds: lower 0.3, upper inf
+    assert bounded.plan.velocity_bounds[0].upper == math.inf
+    assert tasks_between(bounded, bounded, 0.5) == bounded
+    finite = replace(bounded.plan.velocity_bounds[0], upper=5.0)
+    assert tasks_between(bounded, replace(bounded, plan=replace(bounded.plan, velocity_bounds=(finite,))), 0.5) is None

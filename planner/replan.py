@@ -1,0 +1,112 @@
+"""Replanning from a plan with its contact schedule held, walked from the plan's task to the new one.
+
+`planner plan --init DIR --keep-schedule` starts the new task's NLP from DIR's plan. The held-schedule NLP
+(SolveOptions.keep_schedule: one smooth NLP, the plan's impacts on their steps) converges in tens of
+iterations when the task moved a little, and stops at its iteration cap when it moved more: Capler's target
+3.0 -> 3.1 m, after which the penalty replan took 146 s. Through a task halfway between (tasks_between: every
+number of the task file linear from DIR's task to the new one), each held-schedule NLP starts next to its
+answer: 3.0 -> 3.05 -> 3.1 m in 99 + 58 iterations (docs/benchmarks.md, "Replanning", session 27).
+
+The walk halves its step after a held schedule that is refused and doubles it after one that is accepted.
+Where it stalls (MAX_REFUSALS, MIN_STEP) the schedule has to change: the penalty replan (which may move the
+impacts) runs for the refused task from the walk's last plan (RETIME_MAX_ITER iterations per NLP), and the walk
+goes on from its plan (at most MAX_RETIMINGS times). When that fails too, the penalty replan runs from DIR's plan,
+as without the walk.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+from .homotopy import SolveOptions, solve
+from .problem import Problem, build_problem
+from .result import PlanResult
+from .task import Task, tasks_between
+
+FIRST_STEP = 0.5  # the walk's first task is halfway: the whole way was just tried
+MIN_STEP = 0.125  # the walk stalls below this step: each refused held schedule costs up to schedule_max_iter iterations
+MAX_REFUSALS = 3  # refused held schedules between stalls
+MAX_RETIMINGS = 2  # penalty replans inside the walk (Capler 3.0 -> 3.3 m needed one)
+# IPOPT iterations per NLP of a re-timing: the ones that converged took 112-469 (Capler, the biped), one that failed
+# took 3000, 3000, 3000 and 2103 in its four NLPs (Capler 3.1 -> 3.15 m, 300 s) before the penalty replan from DIR's plan
+RETIME_MAX_ITER = 600
+
+
+def replan(problem: Problem, options: SolveOptions, start_task: Task | None = None, progress=None) -> PlanResult:
+    """The plan of problem.task from problem.x0, a plan of start_task with the same Problem.signature.
+
+    First the held-schedule NLP for problem.task (options with keep_schedule and schedule_only). If it is
+    refused and start_task is given: the walk through tasks_between(start_task, problem.task, s), s = 0.5, ...,
+    1 (its held-schedule NLPs labelled "walk s", its penalty replans "retime s: <NLP>"). If there is no walk or it
+    fails: the penalty replan from problem.x0 (`solve` with options as given, keep_schedule off). The result's
+    nlps, iterations, solve time and timings cover every NLP run; extra["walk"] lists the fractions of the way
+    each accepted step of the walk reached. progress(record) as in `solve`.
+    """
+    start = time.perf_counter()
+    held = replace(options, keep_schedule=True, schedule_only=True)
+    penalty = replace(options, keep_schedule=False, schedule_only=False)
+    parts = [solve(problem, held, progress)]
+    result = parts[-1]
+    if not result.stats.converged and start_task is not None:
+        walked = _walk(problem, held, penalty, start_task, parts, progress)
+        if walked is not None:
+            return _totals(walked, parts, time.perf_counter() - start)
+    if not result.stats.converged:
+        result = solve(problem, penalty, progress)
+        parts.append(result)
+    return _totals(result, parts, time.perf_counter() - start)
+
+
+def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_task: Task, parts: list[PlanResult],
+          progress) -> PlanResult | None:
+    """The walk from problem.x0 (every solve's result appended to parts): the result at problem.task, or None."""
+    s, step, refusals, retimings, x = 0.0, FIRST_STEP, 0, 0, problem.x0
+    while True:
+        t = min(1.0, s + step)
+        task = tasks_between(start_task, problem.task, t)
+        if task is None:
+            return None
+        pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
+        if pb.signature != problem.signature:  # e.g. mu from 0: the tangential variables appear
+            return None
+        result = _labelled(pb, x, held, f"walk {t:.3g}", (s, t), parts, progress)
+        if not result.stats.converged:
+            refusals, step = refusals + 1, step / 2
+            if refusals <= MAX_REFUSALS and step >= MIN_STEP:
+                continue
+            if retimings == MAX_RETIMINGS:
+                return None
+            retimings += 1
+            retime = replace(penalty, max_iter=min(penalty.max_iter, RETIME_MAX_ITER))
+            result = _labelled(pb, x, retime, f"retime {t:.3g}: ", (s, t), parts, progress)
+            if not result.stats.converged:
+                return None
+            refusals, step = 0, FIRST_STEP  # then the rest of the way at once
+        if t == 1.0:
+            return result
+        s, x, step = t, result.extra["_x"], min(2 * step, 1.0 - t)  # not past the task: a refusal there halves the rest
+
+
+def _labelled(problem: Problem, x0, options: SolveOptions, label: str, walk: tuple[float, float], parts: list[PlanResult],
+              progress) -> PlanResult:
+    """solve from x0, its records' labels replaced by label (one ending in ": " is a prefix), extra["walk"] = (from, to)."""
+    def named(rec):
+        return replace(rec, label=label + rec.label if label.endswith(": ") else label)
+
+    result = solve(replace(problem, x0=x0), options, None if progress is None else lambda rec: progress(named(rec)))
+    result = replace(result, nlps=tuple(named(r) for r in result.nlps), extra={**result.extra, "walk": walk})
+    parts.append(result)
+    return result
+
+
+def _totals(result: PlanResult, parts: list[PlanResult], wall: float) -> PlanResult:
+    """result with every NLP of the replan (parts, in order) in its records, iterations, solve time and timings
+    (the numbers of every part's timings summed); extra["walk"]: where each accepted step of the walk reached,
+    when the walk made the plan."""
+    records = [r for part in parts for r in part.nlps]
+    stats = replace(result.stats, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records))
+    timings = {k: sum(p.timings.get(k, 0.0) for p in parts) if isinstance(v, float) else v for k, v in result.timings.items()}
+    extra = {k: v for k, v in result.extra.items() if k != "walk"}
+    if "walk" in result.extra:
+        extra["walk"] = [p.extra["walk"][1] for p in parts if "walk" in p.extra and p.stats.converged]
+    return replace(result, nlps=tuple(records), stats=stats, timings=timings, extra=extra)

@@ -1,0 +1,112 @@
+"""planner.replan: a replan that holds the start plan's contact schedule, walked through the tasks between."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import planner.homotopy as H
+from planner.errors import InputError
+from planner.model import load_robot
+from planner.problem import build_problem
+import planner.replan as R
+from planner.replan import replan
+from test_problem import hop_task
+
+TERMINAL_TOL = 1e-6  # SolveOptions.terminal_tol, the verdict's
+# How far the held schedule reaches in these tests [m]: a held-schedule NLP whose target is further than this from
+# where its start ends is refused, as Capler's 3.0 -> 3.1 m is (the point-mass hop's own NLP reaches further)
+BASIN = 0.06
+
+
+@pytest.fixture(scope="module")
+def hop_plan():
+    """The point-mass hop to x = 0.5 m (N = 20), planned hint-free: (problem, its plan's NLP point)."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=20))
+    res = H.solve(prob, H.SolveOptions())
+    assert res.stats.converged, res.stats.message
+    return prob, res.extra["_x"]
+
+
+@pytest.fixture
+def basin(monkeypatch):
+    """The held schedule refused beyond BASIN of its start's end."""
+    real = H._keep_schedule
+
+    def held(problem, solvers, options, x0, records, progress):
+        x = real(problem, solvers, options, x0, records, progress)
+        end = problem.split(x0)["Y"][-1][0]
+        return x if abs(problem.task.plan.target_q[0] - end) <= BASIN else None
+
+    monkeypatch.setattr(H, "_keep_schedule", held)
+
+
+def _moved(prob, x0, target_x: float):
+    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(target_x, 0.0)))
+    return dataclasses.replace(build_problem(prob.robot, task), x0=x0)
+
+
+def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
+    """The hop moved 0.5 -> 0.6 m with a held schedule that reaches 0.06 m: the direct one is refused, the walk's
+    task halfway (0.55 m) and then the task itself are accepted. The result is the task's converged, exactly
+    complementary plan at its target; its records are the three NLPs in order, and its iterations their sum."""
+    prob, x0 = hop_plan
+    seen = []
+    res = replan(_moved(prob, x0, 0.6), H.replan_options(), prob.task, progress=seen.append)
+    assert res.stats.converged, res.stats.message
+    assert [r.label for r in res.nlps] == [r.label for r in seen] == ["schedule", "walk 0.5", "walk 1"]
+    assert res.extra["walk"] == [0.5, 1.0]
+    assert res.stats.complementarity_residual == 0.0 and res.terminal_error <= TERMINAL_TOL
+    assert res.trajectory.q[-1, 0] == pytest.approx(0.6, abs=TERMINAL_TOL)
+    assert (res.stats.n_nlp, res.stats.ipopt_iterations) == (3, sum(r.iterations for r in res.nlps))
+    assert res.timings["ipopt_s"] == pytest.approx(sum(r.time_s for r in res.nlps))
+
+
+def _steps(res) -> list[str]:
+    """The replan's stages in order: each held schedule's label, each re-timing once ("retime t")."""
+    heads = [r.label.split(":")[0] for r in res.nlps]
+    return [h for i, h in enumerate(heads) if i == 0 or h != heads[i - 1] or h.startswith("walk")]
+
+
+def test_a_stalled_walk_retimes_with_the_penalty_replan(hop_plan, basin):
+    """0.5 -> 0.8 m with that held schedule: the walk halves its step after each refusal and doubles it after each
+    acceptance (0.5, 0.25 refused, 0.125 accepted, 0.375 refused, 0.25 accepted, 0.5 refused); after MAX_REFUSALS + 1
+    refusals the penalty replan takes the refused task (0.5) from the walk's last plan, and the walk goes on from
+    its plan, the rest of the way at once, until a second stall is re-timed at the task itself. The plan
+    converges at 0.8 m."""
+    prob, x0 = hop_plan
+    res = replan(_moved(prob, x0, 0.8), H.replan_options(), prob.task)
+    assert _steps(res) == ["schedule", "walk 0.5", "walk 0.25", "walk 0.125", "walk 0.375", "walk 0.25", "walk 0.5", "retime 0.5",
+                           "walk 1", "walk 0.75", "walk 0.625", "walk 0.875", "walk 0.75", "walk 1", "retime 1"]
+    assert res.extra["walk"] == [0.125, 0.25, 0.5, 0.625, 0.75, 1.0]
+    assert res.stats.converged and res.terminal_error <= TERMINAL_TOL
+    assert res.trajectory.q[-1, 0] == pytest.approx(0.8, abs=TERMINAL_TOL)
+
+
+def test_without_a_walk_the_penalty_replan_starts_from_the_plan(hop_plan, basin, monkeypatch):
+    """When the walk may not re-time (MAX_RETIMINGS = 0) its first stall ends it, and the penalty replan runs from
+    the start plan: the same plan as a replan without the start's task (no walk at all)."""
+    prob, x0 = hop_plan
+    monkeypatch.setattr(R, "MAX_RETIMINGS", 0)
+    moved = _moved(prob, x0, 0.8)
+    res = replan(moved, H.replan_options(), prob.task)
+    assert _steps(res)[:8] == ["schedule", "walk 0.5", "walk 0.25", "walk 0.125", "walk 0.375", "walk 0.25", "walk 0.5", "homotopy 1"]
+    assert "walk" not in res.extra and res.stats.converged
+    plain = replan(moved, H.replan_options())
+    assert _steps(plain)[:2] == ["schedule", "homotopy 1"]
+    np.testing.assert_array_equal(plain.extra["_x"], res.extra["_x"])
+
+
+def test_schedule_only_stops_after_the_held_schedule(hop_plan):
+    """SolveOptions.schedule_only: a refused held schedule (IPOPT capped at one iteration) ends the solve, not
+    converged, with the start as its point; without keep_schedule the option is refused."""
+    prob, x0 = hop_plan
+    moved = _moved(prob, x0, 0.6)
+    options = dataclasses.replace(H.replan_options(), keep_schedule=True, schedule_only=True, schedule_max_iter=1)
+    res = H.solve(moved, options)
+    assert [r.label for r in res.nlps] == ["schedule"] and not res.stats.converged
+    assert "held-schedule NLP was not accepted" in res.stats.message
+    np.testing.assert_array_equal(res.extra["_x"], H.ungate(moved, x0) if "gates" in moved.notes else x0)
+    with pytest.raises(InputError, match="schedule_only"):
+        H.SolveOptions(schedule_only=True)
