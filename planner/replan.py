@@ -69,7 +69,7 @@ def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_tas
         pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
         if pb.signature != problem.signature:  # e.g. mu from 0: the tangential variables appear
             return None
-        result = _labelled(pb, x, held, f"walk {t:.3g}", (s, t), parts, progress)
+        result = _labelled(pb, x, held, lambda label, t=t: f"walk {t:.3g}", (s, t), parts, progress)
         if not result.stats.converged:
             refusals, step = refusals + 1, step / 2
             if refusals <= MAX_REFUSALS and step >= MIN_STEP:
@@ -78,7 +78,7 @@ def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_tas
                 return None
             retimings += 1
             retime = replace(penalty, max_iter=min(penalty.max_iter, RETIME_MAX_ITER))
-            result = _labelled(pb, x, retime, f"retime {t:.3g}: ", (s, t), parts, progress)
+            result = _labelled(pb, x, retime, lambda label, t=t: f"retime {t:.3g}: {label}", (s, t), parts, progress)
             if not result.stats.converged:
                 return None
             refusals, step = 0, FIRST_STEP  # then the rest of the way at once
@@ -87,11 +87,11 @@ def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_tas
         s, x, step = t, result.extra["_x"], min(2 * step, 1.0 - t)  # not past the task: a refusal there halves the rest
 
 
-def _labelled(problem: Problem, x0, options: SolveOptions, label: str, walk: tuple[float, float], parts: list[PlanResult],
+def _labelled(problem: Problem, x0, options: SolveOptions, rename, walk: tuple[float, float], parts: list[PlanResult],
               progress) -> PlanResult:
-    """solve from x0, its records' labels replaced by label (one ending in ": " is a prefix), extra["walk"] = (from, to)."""
+    """solve from x0, each record labelled rename(its label), extra["walk"] = (from, to) fractions of the way."""
     def named(rec):
-        return replace(rec, label=label + rec.label if label.endswith(": ") else label)
+        return replace(rec, label=rename(rec.label))
 
     result = solve(replace(problem, x0=x0), options, None if progress is None else lambda rec: progress(named(rec)))
     result = replace(result, nlps=tuple(named(r) for r in result.nlps), extra={**result.extra, "walk": walk})
