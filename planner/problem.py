@@ -82,6 +82,7 @@ from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 
+HOLE_EDGE_TOL = 1e-9  # a point on a hole's edge (metric 1, e.g. a target at its rim) is outside
 PARAMETERS = ("rho", "hole_scale", "an_scale", "at_scale", "terminal_weight", "rho_l1", "rho_f_scale")  # p, in Problem.params' order
 
 
@@ -344,6 +345,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     for c, gap in zip(contacts, gap0):
         if gap < -1e-9:
             raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground")
+    _check_target_outside_holes(dyn, contacts, plan)
 
     if options.discretization is Discretization.FESD:
         return _build_fesd(robot, task, options, dyn, skips, contacts, system, builder, switch_scale, y0, start)
@@ -916,6 +918,22 @@ class _Rows:
 
     def ub(self) -> np.ndarray:
         return np.concatenate(self.hi)
+
+
+def _check_target_outside_holes(dyn: Dynamics, contacts, plan) -> None:
+    """InputError when plan.target_q (nq,) [m, rad] puts a contact point inside one of the plan's holes: the last
+    node is held both at the target and out of the holes, so no plan exists (Capler's target x = 2.6 m stands
+    its foot in the third hole; the solve only found that out by failing, in 224 s). The initial state is not
+    checked: the holes' rows start at node 1, so a point may leave a hole in the first step."""
+    if plan.target_q is None:
+        return
+    for c in contacts:
+        p = np.asarray(dyn.point_position(c.point)(np.array(plan.target_q, float)), float).ravel()
+        for i, e in enumerate(plan.holes):
+            if ((p[0] - e.x) / e.a) ** 2 + ((p[2] - e.z) / e.b) ** 2 < 1.0 - HOLE_EDGE_TOL:
+                raise InputError(f"plan.target_q puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, inside "
+                                 f"plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no plan can end "
+                                 "there: move the target or the hole")
 
 
 def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X, var_blocks, y0) -> ca.SX:

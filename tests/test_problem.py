@@ -206,3 +206,21 @@ def test_velocity_bounds_rows_are_the_joint_rate_sums():
     np.testing.assert_array_equal(prob.ubg[rows], np.tile([np.inf, 2.0], (5, 1)))
     fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
     assert fesd.g_blocks["velocity_bounds"].shape == (4, 4) and fesd.g_blocks["velocity_bounds_y0"].shape == (1, 2)
+
+
+@pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
+def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
+    """A task whose target puts a contact point inside a hole (Capler's base at x = 2.6 m stands the foot in the
+    third hole, 2.25 .. 2.75 m) has no plan: build_problem says which point and hole. A target on the hole's rim
+    (x = 2.75 m) is outside and builds."""
+    from planner.discretization import Discretization
+
+    robot, task, _ = capler_small
+    options = ProblemOptions(discretization=Discretization(discretization))
+
+    def at(x: float):
+        return dataclasses.replace(task, plan=dataclasses.replace(task.plan, target_q=(x,) + task.plan.target_q[1:]))
+
+    with pytest.raises(InputError, match=r"plan.target_q puts contact point 'foot' .* inside plan.holes\[2\]"):
+        build_problem(robot, at(2.6), options)
+    build_problem(robot, at(2.75), options)
