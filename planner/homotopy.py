@@ -753,6 +753,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     result = _result(problem, options, x, records, source, time.perf_counter() - start, timings)
     result.extra["_x"] = x  # the NLP solution (trajectory.npz's nlp_x, for planner plan --init; not in the summary)
     result.extra["_signature"] = problem.signature
+    result.extra["_task"] = problem.task  # trajectory.npz's task_json
     # the task's cost at the returned plan (the projection polish's own objective is a distance)
     result.extra["control_cost"] = float(problem.objective_parts["control"](x, problem.params(0.0, 1.0)))
     result.extra["scene"] = problem.skips.to_json()  # what the scene analysis left out, and why (summary.json)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .task import task_to_json
 
 
 @dataclass(frozen=True, eq=False)
@@ -380,6 +381,8 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
         arrays.update(forces=tr.forces, force_names=np.array(tr.force_names, dtype=str))
     if "_x" in result.extra and "_signature" in result.extra:  # a plan: its NLP point, to start a replan from
         arrays.update(nlp_x=np.asarray(result.extra["_x"], float), nlp_signature=np.array(result.extra["_signature"]))
+    if "_task" in result.extra:  # the task the plan solved, as solved (--steps applied), for a replan's walk from it
+        arrays["task_json"] = np.array(task_to_json(result.extra["_task"]))
     sampled = tr.contact_force_samples()
     if sampled is not None:
         arrays.update(lambda_n=sampled[0], lambda_t=sampled[1])

@@ -7,11 +7,12 @@ Keys are documented in docs/tasks.md.
 """
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 
 import numpy as np
@@ -454,6 +455,14 @@ def parse_task(data: dict, source: str = "") -> Task:
     """Build a Task from a TOML-like dict (the same rules as `load_task`)."""
     task = _build(Task, {**data}, "", exclude={"source"})
     return Task(**{**{f.name: getattr(task, f.name) for f in fields(Task)}, "source": source})
+
+
+def task_to_json(task: Task) -> str:
+    """The task as JSON text that parse_task(json.loads(text)) reads back equal (but for its source): a plan
+    keeps the task it solved beside it (trajectory.npz's task_json), for a replan's walk from it."""
+    data = asdict(task)
+    del data["source"]
+    return json.dumps(data)
 
 
 def tasks_between(start: Task, end: Task, s: float) -> Task | None:

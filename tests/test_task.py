@@ -1,6 +1,7 @@
 """Task files: every default task loads, and every kind of bad key or value is named in the error."""
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -9,7 +10,7 @@ import pytest
 
 from planner.errors import TaskError, UnknownNameError
 from planner.model import load_robot
-from planner.task import load_task, parse_task, tasks_between
+from planner.task import load_task, parse_task, task_to_json, tasks_between
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 ROUNDING = 1e-15  # a + s (b - a) of numbers ~1 in double precision
@@ -202,3 +203,11 @@ def test_tasks_between_moves_every_number_and_nothing_else():
     assert tasks_between(bounded, bounded, 0.5) == bounded
     finite = replace(bounded.plan.velocity_bounds[0], upper=5.0)
     assert tasks_between(bounded, replace(bounded, plan=replace(bounded.plan, velocity_bounds=(finite,))), 0.5) is None
+
+
+@pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
+def test_task_to_json_reads_back_equal(toml):
+    """task_to_json's text (what a plan keeps beside it for a replan's walk) parses back to the same task: every
+    default task, with their infinite bounds and optional tables."""
+    task = load_task(toml)
+    assert parse_task(json.loads(task_to_json(task)), source=task.source) == task
