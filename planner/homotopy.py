@@ -264,6 +264,13 @@ class SolveOptions:
     period.
     schedule_only: with keep_schedule, stop after the held-schedule NLP: when it is not accepted the result is
     not converged (x0 stays the point) instead of the homotopy running. planner.replan's walk uses it.
+    schedule_new_impacts: with keep_schedule, also accept a held-schedule point with impacts x0 does not have (at
+    the selectors x0 leaves strictly inside (0, 1), which are not held): the plan is as converged, complementary
+    and feasible, its schedule one or two taps richer. Measured (docs/benchmarks.md, "Replanning", session 28):
+    Capler's target 3.0 -> 3.2 ... 3.4 m in one NLP of 36-135 iterations (1.2-2.9 s of solve, costs within 1 % of
+    the walk's, MuJoCo tracking as close) instead of a walk with a re-timing (25-60 s); on the biped it accepts a
+    stance-foot impact at the period's start and gaits 1.7-3x dearer, two of three not walkable in MuJoCo, so it is
+    off by default.
     reoptimize: after an accepted polish, solve the task's own cost once more with the polished plan's
     contact schedule held (the keep_schedule NLP, from the polished plan); its plan replaces the polished
     one when accepted as the polish is and cheaper (the task's NLP objective). The projection polish only
@@ -327,6 +334,7 @@ class SolveOptions:
     warm_ipopt: tuple[tuple[str, object], ...] = ()
     keep_schedule: bool = False
     schedule_only: bool = False
+    schedule_new_impacts: bool = False
     schedule_max_iter: int = 200
     reoptimize: bool = True
     rho_f_schedule: tuple[float, ...] | None = None
@@ -367,6 +375,8 @@ class SolveOptions:
             (_positive_tuple(self.fesd_rho_schedule), "fesd_rho_schedule", self.fesd_rho_schedule,
              "a non-empty tuple of penalties > 0"),
             (self.keep_schedule or not self.schedule_only, "schedule_only", self.schedule_only, "False unless keep_schedule is True"),
+            (self.keep_schedule or not self.schedule_new_impacts, "schedule_new_impacts", self.schedule_new_impacts,
+             "False unless keep_schedule is True"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -477,8 +487,13 @@ REPLAN_BOUND_PUSH = 1e-8
 # needs a constraint regularization in every iteration: perturb_always_cd asks for it at once instead of after
 # a failed factorization (same iterates, 50 instead of 70 ms per iteration). IPOPT's default acceptable_iter (15)
 # then spent 13 iterations creeping from its acceptable level 1e-6 towards tol at a fixed mu (every Capler target).
+# IPOPT's filter line search cut nearly every step of this NLP 5-7 times (Capler 3.0 -> 3.1 m: steps of 0.005-0.014
+# for 200 iterations, refused at the cap): from next to its answer the full Newton step is the right one, so every
+# trial step is taken (3.1 m: 26 iterations; 3.05 m: 22 instead of 99). A start too far away then fails in tens of
+# iterations instead of at the cap, and the walk (planner.replan) halves its step (docs/benchmarks.md, "Replanning",
+# session 28).
 SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9, "bound_frac": 1e-9, "perturb_always_cd": "yes",
-                  "acceptable_iter": 2}
+                  "acceptable_iter": 2, "accept_every_trial_step": "yes"}
 # The NLPs whose barrier starts at mu = 1e-9 (the held-schedule NLP of keep_schedule and reoptimize, the projection
 # polish): MUMPS's permuting scaling (its weighted matching, IPOPT's default 7) cost two thirds of an iteration
 # there. Without it, Capler's schedule NLP (target 3.0 -> 2.9 m) took 35 instead of 39 iterations at 15 instead of
@@ -853,8 +868,8 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     if "gates" in problem.notes:
         x0 = ungate(problem, x0)
     x = _held(problem, solvers, options, x0, records, progress, "schedule")
-    if x is None:
-        return None
+    if x is None or options.schedule_new_impacts:
+        return x
     # a selector strictly inside (0, 1) at x0 is not held: the biped's step 0.25 -> 0.28 m made its first step a
     # frozen impact of the stance foot that the start does not have. The schedule is kept if every impact overlaps
     # one of the start's at the same point: one may end a step later (Capler at 3.1 m: steps 95-98 -> 95-99), and one

@@ -2,10 +2,12 @@
 
 `planner plan --init DIR --keep-schedule` starts the new task's NLP from DIR's plan. The held-schedule NLP
 (SolveOptions.keep_schedule: one smooth NLP, the plan's impacts on their steps) converges in tens of
-iterations when the task moved a little, and stops at its iteration cap when it moved more: Capler's target
-3.0 -> 3.1 m, after which the penalty replan took 146 s. Through a task halfway between (tasks_between: every
-number of the task file linear from DIR's task to the new one), each held-schedule NLP starts next to its
-answer: 3.0 -> 3.05 -> 3.1 m in 99 + 58 iterations (docs/benchmarks.md, "Replanning", session 27).
+iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26), and is refused when it moved more:
+it does not converge, or its plan adds an impact (3.0 -> 3.2 m: a tap inside a stance), after which the
+penalty replan from DIR's plan did not converge. Through tasks between (tasks_between: every number of the
+task file linear from DIR's task to the new one), each held-schedule NLP starts next to its answer, and where
+the schedule must change a re-timing changes it there: 3.2 m in 25 s (docs/benchmarks.md, "Replanning",
+sessions 27 and 28).
 
 The walk halves its step after a held schedule that is refused and doubles it after one that is accepted.
 Where it stalls (MAX_REFUSALS, MIN_STEP) the schedule has to change: the penalty replan (which may move the
@@ -24,7 +26,7 @@ from .result import PlanResult
 from .task import Task, tasks_between
 
 FIRST_STEP = 0.5  # the walk's first task is halfway: the whole way was just tried
-MIN_STEP = 0.125  # the walk stalls below this step: each refused held schedule costs up to schedule_max_iter iterations
+MIN_STEP = 0.125  # the walk stalls below this step: each refused held schedule costs up to schedule_max_iter iterations (20-135 on Capler)
 MAX_REFUSALS = 3  # refused held schedules between stalls
 MAX_RETIMINGS = 2  # penalty replans inside the walk (Capler 3.0 -> 3.3 m needed one)
 # IPOPT iterations per NLP of a re-timing: the ones that converged took 112-469 (Capler, the biped), one that failed
@@ -44,7 +46,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     """
     start = time.perf_counter()
     held = replace(options, keep_schedule=True, schedule_only=True)
-    penalty = replace(options, keep_schedule=False, schedule_only=False)
+    penalty = replace(options, keep_schedule=False, schedule_only=False, schedule_new_impacts=False)
     parts = [solve(problem, held, progress)]
     result = parts[-1]
     if not result.stats.converged and start_task is not None:

@@ -240,9 +240,10 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: it converges
     with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name
     DIR); with --keep-schedule in the one NLP that holds DIR's contact schedule. DIR keeps the task its plan
-    solved (trajectory.npz's task_json, what the replan walks from), so the replan needs no task file of it. A
-    DIR without a plan's NLP point (a simulation), a plan on another grid (--steps), FESD and --keep-schedule
-    without --init are exit 2, one line each."""
+    solved (trajectory.npz's task_json, what the replan walks from), so the replan needs no task file of it;
+    --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's NLP point (a simulation),
+    a plan on another grid (--steps), FESD, --keep-schedule without --init and --allow-new-impacts without
+    --keep-schedule are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
     first = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "hop"), "--no-validate", "--json"]
@@ -265,11 +266,13 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     with np.load(tmp_path / "hop" / "trajectory.npz") as npz:  # the task the start plan solved, kept beside it
         assert parse_task(json.loads(str(npz["task_json"])), source=str(tmp_path / "hop.toml")) == load_task(tmp_path / "hop.toml")
     (tmp_path / "hop.toml").rename(tmp_path / "gone.toml")  # the walk's start task comes from DIR, not the file
-    assert main([a if a != str(tmp_path / "kept") else str(tmp_path / "kept2") for a in kept]) == 0
+    assert main([a if a != str(tmp_path / "kept") else str(tmp_path / "kept2") for a in kept] + ["--allow-new-impacts"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["converged"] and "no walk" not in err
+    assert json.loads(out)["options"]["solve"]["schedule_new_impacts"] is True
     (tmp_path / "gone.toml").rename(tmp_path / "hop.toml")
     _one_line_exit_2(capsys, first + ["--keep-schedule"], "--keep-schedule needs --init DIR")
+    _one_line_exit_2(capsys, argv + ["--allow-new-impacts"], "--allow-new-impacts needs --keep-schedule")
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")

@@ -494,6 +494,27 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
         assert run.stats.converged and run.stats.message.startswith("ok (active-set polished")
 
 
+def test_schedule_new_impacts_lifts_only_the_new_impact_refusal(hop, monkeypatch):
+    """With schedule_new_impacts the held-schedule point that has an impact the start has not is accepted (the one
+    "schedule" NLP, converged, exactly complementary, at the target) where without it the penalty replan runs; a
+    point IPOPT did not converge to (one iteration) is still refused. The option needs keep_schedule."""
+    prob, res, _ = hop
+    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
+    moved = dataclasses.replace(build_problem(prob.robot, task), x0=res.extra["_x"])
+    options = dataclasses.replace(H.replan_options(), keep_schedule=True, schedule_only=True)
+    start = H.ungate(moved, moved.x0) if "gates" in moved.notes else moved.x0
+    monkeypatch.setattr(H, "_impact_steps", lambda problem, x, options: [("point", 38, 39)] + ([] if np.array_equal(x, start) else [("point", 30, 31)]))
+    assert not H.solve(moved, options).stats.converged
+    tapped = H.solve(moved, dataclasses.replace(options, schedule_new_impacts=True))
+    assert [r.label for r in tapped.nlps] == ["schedule"] and tapped.stats.converged, tapped.stats.message
+    assert tapped.stats.complementarity_residual == 0.0 and tapped.terminal_error <= TERMINAL_TOL
+    assert tapped.trajectory.q[-1, 0] == pytest.approx(REPLAN_TARGET_X, abs=TERMINAL_TOL)
+    capped = H.solve(moved, dataclasses.replace(options, schedule_new_impacts=True, schedule_max_iter=1))
+    assert not capped.stats.converged
+    with pytest.raises(InputError, match="schedule_new_impacts"):
+        H.SolveOptions(schedule_new_impacts=True)
+
+
 def test_rho_f_schedule_weighs_the_regularizer_in_the_homotopy_only():
     """SolveOptions.rho_f_schedule multiplies the task's rho_f in the homotopy's NLPs (the last factor repeats) and in
     no other NLP: on the hop with factor 10, every homotopy NLP's objective at its own point is the task's objective

@@ -86,7 +86,8 @@ def test_a_stalled_walk_retimes_with_the_penalty_replan(hop_plan, basin):
 
 def test_without_a_walk_the_penalty_replan_starts_from_the_plan(hop_plan, basin, monkeypatch):
     """When the walk may not re-time (MAX_RETIMINGS = 0) its first stall ends it, and the penalty replan runs from
-    the start plan: the same plan as a replan without the start's task (no walk at all)."""
+    the start plan: the same plan as a replan without the start's task (no walk at all), and as one whose held
+    schedule may add impacts (schedule_new_impacts: the penalty replan runs without it)."""
     prob, x0 = hop_plan
     monkeypatch.setattr(R, "MAX_RETIMINGS", 0)
     moved = _moved(prob, x0, 0.8)
@@ -96,6 +97,9 @@ def test_without_a_walk_the_penalty_replan_starts_from_the_plan(hop_plan, basin,
     plain = replan(moved, H.replan_options())
     assert _steps(plain)[:2] == ["schedule", "homotopy 1"]
     np.testing.assert_array_equal(plain.extra["_x"], res.extra["_x"])
+    tapped = replan(moved, dataclasses.replace(H.replan_options(), keep_schedule=True, schedule_new_impacts=True))
+    assert _steps(tapped) == _steps(plain)
+    np.testing.assert_array_equal(tapped.extra["_x"], plain.extra["_x"])
 
 
 def test_schedule_only_stops_after_the_held_schedule(hop_plan):
