@@ -3,13 +3,14 @@
 For a robot in robots/ this plans its default task hint-free once (or takes `--init DIR`, a plan of it),
 then replans copies of the task with one number changed, each twice: the penalty replan (`--init`) and
 the replan that first holds the start's contact schedule (`--init --keep-schedule`, walked through the tasks
-between when that is refused: planner.replan; its NLPs "walk s" and "retime s: ..."). The number is the
+between when that is refused: planner.replan; its NLPs "walk s" and "retime s: ..."), and on request the
+one that also accepts a held schedule that adds impacts (`--variants new_impacts`). The number is the
 target's first coordinate (`plan.target_q[0]`, Capler's x [m]) or, for a periodic task, the step
 (`plan.periodic.step` [m]). Per run: exit code, converged, the NLPs (label, IPOPT iterations), solve time
 [s] and its IPOPT setup [s], control cost, impact times [s], and with --validate the MuJoCo verdict (a walk's steps walked).
 Writes OUT/results.json and prints a Markdown table.
 
-    python -m scripts.bench_replan capler --values 2.8 2.9 2.95 3.1 [--init DIR] [--variants keep_schedule] [--validate]
+    python -m scripts.bench_replan capler --values 2.8 2.9 2.95 3.1 [--init DIR] [--variants keep_schedule new_impacts] [--validate]
         [--out DIR] [--json]
     python -m scripts.bench_replan biped --values 0.22 0.24 0.26 0.27 0.28 0.3 --validate
     python -m scripts.bench_replan --quick --json     # CI smoke run: the point-mass hop, N = 20
@@ -32,7 +33,8 @@ TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
 STEP_LINE = re.compile(r"^(step = )([^\s#]+)", re.MULTILINE)
 QUICK_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
               '[horizon]\ntau_f = 1.0\nN = 20\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
-VARIANTS = {"replan": [], "keep_schedule": ["--keep-schedule"]}
+VARIANTS = {"replan": [], "keep_schedule": ["--keep-schedule"], "new_impacts": ["--keep-schedule", "--allow-new-impacts"]}
+DEFAULT_VARIANTS = ["replan", "keep_schedule"]
 
 
 def moved_task(text: str, value: float) -> str:
@@ -81,8 +83,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("robot", nargs="?", default="capler", help="a robot in robots/ with its default task (default capler)")
     parser.add_argument("--values", type=float, nargs="+", help="the moved number's values (target x or step [m])")
     parser.add_argument("--init", type=Path, metavar="DIR", help="the start plan (default: plan the default task hint-free first)")
-    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
-                        help="the replans to run per value (default both)")
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=DEFAULT_VARIANTS,
+                        help="the replans to run per value (default replan and keep_schedule; new_impacts: "
+                             "--keep-schedule --allow-new-impacts)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "replan")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
