@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 import planner.homotopy as H
+import planner.replan as R
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
-import planner.replan as R
 from planner.replan import replan
+
 from test_problem import hop_task
 
 TERMINAL_TOL = 1e-6  # SolveOptions.terminal_tol, the verdict's
