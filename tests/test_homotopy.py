@@ -429,14 +429,25 @@ REPLAN_SHARE = 1 / 3
 REPLAN_TARGET_X = 0.55  # [m] the hop's target moved by 5 cm
 
 
+def _an_impact_added(monkeypatch, moved):
+    """Every point but moved's start (the point the schedule is read from) reads as having one impact more."""
+    start = H.ungate(moved, moved.x0) if "gates" in moved.notes else moved.x0
+    monkeypatch.setattr(H, "_impact_steps", lambda problem, x, options: [("point", 38, 39)] + ([] if np.array_equal(x, start) else [("point", 30, 31)]))
+
+
+def _moved_hop(prob):
+    """The hop's problem with its target at REPLAN_TARGET_X (same grid and options)."""
+    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
+    return build_problem(prob.robot, task)
+
+
 def test_replan_from_a_nearby_plan_converges_in_a_fraction_of_the_iterations(hop):
     """The hop's plan starts the same hop to x = 0.55 m (same signature: only the target changed) with
     replan_options: one NLP at REPLAN_RHO and the polish converge to a complementary plan at the new
     target, in fewer than REPLAN_SHARE of the hint-free solve's iterations. A problem on another grid
     has another signature."""
     prob, res, _ = hop
-    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
-    moved = build_problem(prob.robot, task)
+    moved = _moved_hop(prob)
     assert moved.signature == prob.signature
     assert build_problem(prob.robot, hop_task(N=20)).signature != prob.signature
     warm = H.solve(dataclasses.replace(moved, x0=res.extra["_x"]), H.replan_options())
@@ -477,8 +488,7 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
     accepted (IPOPT stopped after one iteration, or the plan has an impact the start has not) the penalty replan runs
     from the same start and converges as without it."""
     prob, res, _ = hop
-    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
-    moved = dataclasses.replace(build_problem(prob.robot, task), x0=res.extra["_x"])
+    moved = dataclasses.replace(_moved_hop(prob), x0=res.extra["_x"])
     options = dataclasses.replace(H.replan_options(), keep_schedule=True)
     held = H.solve(moved, options)
     assert [r.label for r in held.nlps] == ["schedule"] and held.stats.converged and held.polished, held.stats.message
@@ -486,8 +496,7 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
     assert H._impact_steps(moved, held.extra["_x"], options) == H._impact_steps(prob, res.extra["_x"], options)
     assert held.stats.ipopt_iterations < H.solve(moved, H.replan_options()).stats.ipopt_iterations
     capped = H.solve(moved, dataclasses.replace(options, schedule_max_iter=1))
-    start = H.ungate(moved, moved.x0) if "gates" in moved.notes else moved.x0  # the point the schedule is read from
-    monkeypatch.setattr(H, "_impact_steps", lambda problem, x, options: [("point", 38, 39)] + ([] if np.array_equal(x, start) else [("point", 30, 31)]))
+    _an_impact_added(monkeypatch, moved)
     moved_impacts = H.solve(moved, options)
     for run in (capped, moved_impacts):
         assert run.nlps[0].label == "schedule" and run.nlps[1].label == "homotopy 1"
@@ -499,11 +508,9 @@ def test_schedule_new_impacts_lifts_only_the_new_impact_refusal(hop, monkeypatch
     "schedule" NLP, converged, exactly complementary, at the target) where without it the penalty replan runs; a
     point IPOPT did not converge to (one iteration) is still refused. The option needs keep_schedule."""
     prob, res, _ = hop
-    task = dataclasses.replace(prob.task, plan=dataclasses.replace(prob.task.plan, target_q=(REPLAN_TARGET_X, 0.0)))
-    moved = dataclasses.replace(build_problem(prob.robot, task), x0=res.extra["_x"])
+    moved = dataclasses.replace(_moved_hop(prob), x0=res.extra["_x"])
     options = dataclasses.replace(H.replan_options(), keep_schedule=True, schedule_only=True)
-    start = H.ungate(moved, moved.x0) if "gates" in moved.notes else moved.x0
-    monkeypatch.setattr(H, "_impact_steps", lambda problem, x, options: [("point", 38, 39)] + ([] if np.array_equal(x, start) else [("point", 30, 31)]))
+    _an_impact_added(monkeypatch, moved)
     assert not H.solve(moved, options).stats.converged
     tapped = H.solve(moved, dataclasses.replace(options, schedule_new_impacts=True))
     assert [r.label for r in tapped.nlps] == ["schedule"] and tapped.stats.converged, tapped.stats.message
