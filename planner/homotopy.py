@@ -151,7 +151,8 @@ class SolveOptions:
     the default Capler task stopped at 3000 on its way to hopping, and allowed to converge, at 3958,
     the path led NLP 4 astray; with variable_scaling it converges in 1535: docs/formulation.md round 6);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
-    "mumps"); mu_strategy: IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
+    "mumps" and "spral"; SPRAL took 2-8x MUMPS's time per iteration, docs/benchmarks.md); mu_strategy:
+    IPOPT's barrier update; mu_init: first barrier parameter of NLP 1;
     warm_start: WarmStart: PRIMAL (default) restarts IPOPT's multipliers and barrier at every NLP
     from the previous NLP's x; PRIMAL_DUAL also passes the multipliers. Measured: PRIMAL_DUAL gave
     the full Capler task a lower cost (91 vs 109) but led the biped walk into a worse local

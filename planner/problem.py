@@ -370,13 +370,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if periodic:
         var_blocks["y0"] = np.arange(ny)
 
-    params = [ca.SX.sym(name) for name in PARAMETERS]
-    rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale = params
-    P = ca.vertcat(*params)
-    field_scale = None
-    if options.aux_continuation:
-        field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
-                                   for f in system.fields])
+    params, P, field_scale = _parameters(system, options)
+    rho, hole_scale, _, _, term_w, rho_l1, rf_scale = params
 
     u_lo, u_hi = (robot.u_lower, robot.u_upper) if plan.u_bound is None else (np.full(nu, -plan.u_bound), np.full(nu, plan.u_bound))
     q_lo, q_hi = task.q_bounds(robot)
@@ -580,6 +575,18 @@ def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X
     return ca.vertcat(*out)
 
 
+def _parameters(system, options: ProblemOptions) -> tuple[list, ca.SX, ca.SX | None]:
+    """The NLP's parameters as SX symbols (PARAMETERS' order), stacked into p, and the auxiliary fields' scale
+    (a_n fields by an_scale, a_t fields by at_scale, the others 1; None without options.aux_continuation)."""
+    params = [ca.SX.sym(name) for name in PARAMETERS]
+    an_scale, at_scale = params[PARAMETERS.index("an_scale")], params[PARAMETERS.index("at_scale")]
+    field_scale = None
+    if options.aux_continuation:
+        field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
+                                   for f in system.fields])
+    return params, ca.vertcat(*params), field_scale
+
+
 def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn: Dynamics, task: Task, contacts, skips: Skips,
                     options: ProblemOptions, hole_scale):
     """The path constraints as Functions of one point's (y, u, w) (module docstring): a dict name ->
@@ -693,13 +700,8 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     if periodic:
         var_blocks["y0"] = np.arange(ny)
 
-    params = [ca.SX.sym(name) for name in PARAMETERS]
-    rho, hole_scale, an_scale, at_scale, term_w, rho_l1, rf_scale = params
-    P = ca.vertcat(*params)
-    field_scale = None
-    if options.aux_continuation:
-        field_scale = ca.vertcat(*[an_scale if f.name.startswith("a_n[") else at_scale if f.name.startswith("a_t[") else 1
-                                   for f in system.fields])
+    params, P, field_scale = _parameters(system, options)
+    rho, hole_scale, _, _, term_w, rho_l1, rf_scale = params
     path_fn, _, _, _ = _path_functions(system, builder, dyn, task, contacts, skips, options, hole_scale)
 
     # --- stages ------------------------------------------------------------------------------------
