@@ -90,13 +90,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "slower). Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
                    help="with --init: first re-optimize with DIR's contact schedule held (its impacts on the same steps, one "
-                        "smooth NLP, ~1 s of solve for a small move); if that is refused, walk there through tasks between "
-                        "DIR's task and this one, every number of the task file moved part of the way (Capler's target "
-                        "3.0 -> 3.2 m: 25 s instead of not converging); if the walk stalls, the --init replan. Fast, but keeps DIR's "
+                        "smooth NLP, ~1 s of solve for a small move, Capler's target 3.0 -> 3.4 m in ~4 s); if that is refused, walk there "
+                        "through tasks between DIR's task and this one, every number of the task file moved part of the way (the "
+                        "biped's step 0.25 -> 0.30 m: ~10 s); if the walk stalls, the --init replan. Fast, but keeps DIR's "
                         "timing, where the --init replan may find a cheaper one")
     p.add_argument("--allow-new-impacts", action="store_true",
-                   help="with --keep-schedule: also accept a held schedule that adds impacts DIR's plan does not have "
-                        "(SolveOptions.schedule_new_impacts; Capler's target 3.0 -> 3.2 m in ~1 s instead of a walk; on the "
+                   help="with --keep-schedule: also accept a held schedule that adds impacts DIR's plan does not have, of any "
+                        "impulse (SolveOptions.schedule_new_impacts; without it only taps below 5%% of DIR's largest impulse; on the "
                         "biped it takes dearer gaits)")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "

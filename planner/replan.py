@@ -2,12 +2,13 @@
 
 `planner plan --init DIR --keep-schedule` starts the new task's NLP from DIR's plan. The held-schedule NLP
 (SolveOptions.keep_schedule: one smooth NLP, the plan's impacts on their steps) converges in tens of
-iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26), and is refused when it moved more:
-it does not converge, or its plan adds an impact (3.0 -> 3.2 m: a tap inside a stance), after which the
-penalty replan from DIR's plan did not converge. Through tasks between (tasks_between: every number of the
-task file linear from DIR's task to the new one), each held-schedule NLP starts next to its answer, and where
-the schedule must change a re-timing changes it there: 3.2 m in 25 s (docs/benchmarks.md, "Replanning",
-sessions 27 and 28).
+iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26; 3.4 m: 135), and is refused when it
+moved more: it does not converge, or its plan adds an impact (the biped's step 0.25 -> 0.28 m: the stance foot's at
+the period's start; taps below homotopy.NEW_IMPACT_SHARE are not refused), after which the penalty replan from DIR's
+plan may not converge. Through tasks between (tasks_between: every number of the task file linear from DIR's task
+to the new one), each held-schedule NLP starts next to its answer, and where the schedule must change a re-timing
+changes it there: the biped's step 0.28-0.32 m in 6-13 s, Capler's target 3.2 m in 25 s before taps were accepted
+(docs/benchmarks.md, "Replanning", sessions 27-29).
 
 The walk halves its step after a held schedule that is refused and doubles it after one that is accepted.
 Where it stalls (MAX_REFUSALS, MIN_STEP) the schedule has to change: the penalty replan (which may move the
