@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -55,8 +56,10 @@ def record(out: Path, code: int) -> dict:
     return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
             "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"],
             "solver_setup_s": s["timings"]["solver_setup_s"], "control_cost": s["control_cost"],
-            "impact_times_s": [i["time"] for i in s["impacts"]], "validation_passed": v.get("passed"),
-            "steps_walked": v.get("steps_walked")}
+            "impact_times_s": [i["time"] for i in s["impacts"]],
+            "impact_impulses_Ns": [math.hypot(i["impulse"], i["impulse_tangential"]) for i in s["impacts"]],
+            "validation_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
+            "window_mean_m": (v.get("windows") or {}).get("mean_m")}
 
 
 def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) -> dict:
@@ -65,13 +68,14 @@ def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) ->
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] (IPOPT setup) | cost | impacts [s] | MuJoCo |",
+    lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] (IPOPT setup) | cost | impacts: time [s] / impulse [N s] | MuJoCo |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         nlps = ", ".join(f"{label} {its}" for label, its in r["nlps"])
         mujoco = ("not run" if r["validation_passed"] is None else
-                  f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else ""))
-        impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
+                  f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else "")
+                  + (f", windows {1e3 * r['window_mean_m']:.2f} mm" if r["window_mean_m"] is not None else ""))
+        impacts = ", ".join(f"{t:.3f}/{j:.3g}" for t, j in zip(r["impact_times_s"], r["impact_impulses_Ns"])) or "none"
         lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | {nlps} | {r['ipopt_iterations']} | "
                      f"{r['solve_time_s']:.2f} ({r['solver_setup_s']:.2f}) | "
                      f"{r['control_cost']:.2f} | {impacts} | {mujoco} |")
