@@ -495,7 +495,7 @@ REPLAN_BOUND_PUSH = 1e-8
 # session 28).
 # A held-schedule plan's impact that the start has not is a tap, not a new contact event, when its impulse is below
 # this share of the start's largest: Capler's held schedule refused every target beyond 3.1 m (and hole 2 moved
-# 0.2 m) only for taps of 0.05-0.19 N s (0.2-0.8 % of its 24.6 N s landing; one step 1-1.5 % frozen, where the start
+# 0.2 m) only for taps of 0.07-0.19 N s (0.3-0.8 % of its 24.6 N s landing; one step 1-1.5 % frozen, where the start
 # froze 0-1 %), and the plans with them are as cheap and track MuJoCo as closely as the walk's (docs/benchmarks.md,
 # "Replanning", sessions 28-29); the biped's refused new impacts are full ones (4.0 N s, its only impact 4.0 N s).
 NEW_IMPACT_SHARE = 0.05
