@@ -40,7 +40,7 @@ import numpy as np
 from .derivatives import nlp_derivatives
 from .errors import InputError, check_field_types
 from .problem import Problem
-from .result import COLLAPSED, FROZEN_TOL, NlpRecord, PlanResult, SolveStats, hops_of
+from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
@@ -255,7 +255,7 @@ class SolveOptions:
     start x0 held (active_set_bounds of x0: every complementarity pair's side that is zero at x0 stays
     zero), one smooth NLP of at most schedule_max_iter IPOPT iterations (SCHEDULE_IPOPT). Accepted as
     the polish is (converged, constraints and terminal kept) and only if it has no new impact (each of
-    its impacts overlaps one of x0's at the same contact point, or is a tap: an impulse below NEW_IMPACT_SHARE of
+    its impacts overlaps one of x0's at the same contact point, or is a tap: an impulse below result.TAP_SHARE of
     x0's largest, session 29: Capler's target 3.0 -> 3.2 ... 3.4 m in 36-135 iterations, 1.5-3.8 s of solve,
     instead of a walk of 25-60 s); then no homotopy runs, else the
     homotopy runs from x0 as without it. For a start that is a converged plan of a nearby task
@@ -493,12 +493,6 @@ REPLAN_BOUND_PUSH = 1e-8
 # trial step is taken (3.1 m: 26 iterations; 3.05 m: 22 instead of 99). A start too far away then fails in tens of
 # iterations instead of at the cap, and the walk (planner.replan) halves its step (docs/benchmarks.md, "Replanning",
 # session 28).
-# A held-schedule plan's impact that the start has not is a tap, not a new contact event, when its impulse is below
-# this share of the start's largest: Capler's held schedule refused every target beyond 3.1 m (and hole 2 moved
-# 0.2 m) only for taps of 0.07-0.19 N s (0.3-0.8 % of its 24.6 N s landing; one step 1-1.5 % frozen, where the start
-# froze 0-1 %), and the plans with them are as cheap and track MuJoCo as closely as the walk's (docs/benchmarks.md,
-# "Replanning", sessions 28-29); the biped's refused new impacts are full ones (4.0 N s, its only impact 4.0 N s).
-NEW_IMPACT_SHARE = 0.05
 SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9, "bound_frac": 1e-9, "perturb_always_cd": "yes",
                   "acceptable_iter": 2, "accept_every_trial_step": "yes"}
 # The NLPs whose barrier starts at mu = 1e-9 (the held-schedule NLP of keep_schedule and reoptimize, the projection
@@ -881,11 +875,13 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     # frozen impact of the stance foot that the start does not have. The schedule is kept if every impact overlaps
     # one of the start's at the same point: one may end a step later (Capler at 3.1 m: steps 95-98 -> 95-99), and one
     # may go (the N = 20 hop's start has steps 6-10 partly frozen, a stance the held schedule runs unfrozen), or is
-    # a tap (NEW_IMPACT_SHARE)
+    # a tap: below result.TAP_SHARE of the start's largest impulse. Capler's held schedule refused every target beyond
+    # 3.1 m (and hole 2 moved 0.2 m) only for taps (0.3-0.8 % of its landing), whose plans are as cheap and track
+    # MuJoCo as closely as the walk's; the biped's refused new impacts are full ones (4.0 N s, as its only impact)
     old = _impacts(problem, x0, options)
     largest = max((j for *_, j in old), default=0.0)
     new = [(c, a, b) for c, a, b, j in _impacts(problem, x, options)
-           if not any(c == c0 and a < b0 and a0 < b for c0, a0, b0, _ in old) and j >= NEW_IMPACT_SHARE * largest]
+           if not any(c == c0 and a < b0 and a0 < b for c0, a0, b0, _ in old) and j >= TAP_SHARE * largest]
     return None if new else x
 
 
@@ -893,7 +889,7 @@ def _impacts(problem: Problem, x, options) -> list[tuple[str, int, int, float]]:
     """The plan's impacts at NLP point x as (contact point, first step, last step + 1, impulse [N s]: the norm of
     its normal and tangential parts)."""
     traj, _, _ = plan_trajectory(problem, problem.split(x), _frozen_tol(problem, options))
-    return [(i.contact, round(i.tau_start / problem.h), round(i.tau_end / problem.h), float(np.hypot(i.impulse, i.impulse_tangential)))
+    return [(i.contact, round(i.tau_start / problem.h), round(i.tau_end / problem.h), i.impulse_norm)
             for i in traj.impacts]
 
 

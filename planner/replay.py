@@ -399,6 +399,7 @@ class ImpactMatch:
     planned_time_s: float
     mujoco_time_s: float | None
     difference_s: float | None  # mujoco - planned
+    tap: bool = False  # below result.TAP_SHARE of the plan's largest impulse: listed, not matched (MuJoCo sees no onset)
 
 
 @dataclass(frozen=True)
@@ -521,7 +522,8 @@ class Validation:
     def report(self) -> str:
         """A few human-readable lines for the command line."""
         k, tr, ol, th = self.kinematic, self.tracking, self.open_loop, self.thresholds
-        dts = ", ".join(f"{m.point}@{m.planned_time_s:.3f}s: " + ("none" if m.difference_s is None else f"{m.difference_s * 1e3:+.1f} ms")
+        dts = ", ".join(f"{m.point}@{m.planned_time_s:.3f}s: "
+                        + ("tap" if m.tap else "none" if m.difference_s is None else f"{m.difference_s * 1e3:+.1f} ms")
                         for m in tr.impacts) or "no planned impacts"
         lines = [
             f"MuJoCo validation of {self.robot}: {'PASSED' if self.passed else 'FAILED'}",
@@ -568,17 +570,19 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         from .gait import validate_walk
 
         return validate_walk(robot, task, check_trajectory(robot, traj))
-    contacts = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
-    return validate_trajectory(robot, task, traj, options, impact_points=contacts)
+    contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
+    return validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps)
 
 
 def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray],
                         options: ValidationOptions | None = None,
-                        impact_points: Sequence[str | None] | None = None) -> Validation:
+                        impact_points: Sequence[str | None] | None = None,
+                        impact_taps: Sequence[bool] | None = None) -> Validation:
     """Replay a physical-time trajectory (contract arrays t, q, v, u, impact_times) in MuJoCo.
 
     impact_points (I,): the contact point of each planned impact; None (or a None entry) means the
-    point whose gap is smallest at the impact time.
+    point whose gap is smallest at the impact time. impact_taps (I,): which planned impacts are taps
+    (Trajectory.taps), listed but not matched against MuJoCo's impacts; None: none.
     """
     options = options or ValidationOptions()
     scene = build_scene(robot, task, options.contact, detect_within_m=options.contact_gap_tol_m)
@@ -587,7 +591,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     t, q = arrays["t"], arrays["q"]
 
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m)
-    planned = _planned_impacts(scene, arrays, impact_points)
+    planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
     tracking = _replay(scene, reference, gains, planned, options, options.controller)
@@ -666,13 +670,15 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
     return out
 
 
-def _impact_points(summary: dict, task: Task, n_impacts: int) -> list[str | None] | None:
-    """The point of each planned impact from summary['impacts'] when it matches impact_times."""
+def _impact_points(summary: dict, task: Task, n_impacts: int) -> tuple[list[str | None] | None, list[bool] | None]:
+    """The point of each planned impact and whether it is a tap, from summary['impacts'] when it matches
+    impact_times (a summary written before taps were marked has none)."""
     impacts = summary.get("impacts")
     if not isinstance(impacts, list) or len(impacts) != n_impacts:
-        return None
+        return None, None
     names = [c.point for c in task.contacts]
     points: list[str | None] = []
+    taps = [isinstance(item, dict) and item.get("tap") is True for item in impacts]
     for item in impacts:
         contact = item.get("contact") if isinstance(item, dict) else None
         if isinstance(contact, str) and contact in names:
@@ -681,7 +687,7 @@ def _impact_points(summary: dict, task: Task, n_impacts: int) -> list[str | None
             points.append(names[contact])
         else:
             points.append(None)
-    return points
+    return points, taps
 
 
 # ==================================================================================================
@@ -833,7 +839,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
     return rec
 
 
-def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned: list[tuple[str, float]],
+def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned: list[tuple[str, float, bool]],
             options: ValidationOptions, controller: TrackingController = TrackingController.JOINT_PD) -> RolloutReport:
     """Tracking replay (gains given) or open-loop replay (gains None) of the reference."""
     started = _time.perf_counter()
@@ -993,9 +999,9 @@ def detect_impacts(times: np.ndarray, active: np.ndarray, points: Sequence[str],
     return sorted(out, key=lambda item: item[1])
 
 
-def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray],
-                     points: Sequence[str | None] | None) -> list[tuple[str, float]]:
-    """(point, time) of each planned impact; an unknown point is the lowest one at that time."""
+def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray], points: Sequence[str | None] | None,
+                     taps: Sequence[bool] | None = None) -> list[tuple[str, float, bool]]:
+    """(point, time, tap) of each planned impact; an unknown point is the lowest one at that time."""
     t, q = arrays["t"], arrays["q"]
     model, data = scene.model, mujoco.MjData(scene.model)
     out = []
@@ -1006,16 +1012,16 @@ def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray],
             data.qpos[:] = q[k]
             mujoco.mj_kinematics(model, data)
             point = scene.points[int(np.argmin(data.site_xpos[list(scene.site_ids), 2]))] if scene.points else "?"
-        out.append((point, float(when)))
+        out.append((point, float(when), bool(taps[i]) if taps is not None and i < len(taps) else False))
     return out
 
 
-def _match_impacts(planned: list[tuple[str, float]], mujoco_impacts: list[tuple[str, float]]) -> list[ImpactMatch]:
+def _match_impacts(planned: list[tuple[str, float, bool]], mujoco_impacts: list[tuple[str, float]]) -> list[ImpactMatch]:
     matches = []
-    for point, when in planned:
+    for point, when, tap in planned:
         candidates = [x for p, x in mujoco_impacts if p == point]
-        if not candidates:
-            matches.append(ImpactMatch(point, when, None, None))
+        if tap or not candidates:
+            matches.append(ImpactMatch(point, when, None, None, tap=tap))
             continue
         nearest = min(candidates, key=lambda x: abs(x - when))
         matches.append(ImpactMatch(point, when, nearest, nearest - when))

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
 from pathlib import Path
@@ -57,7 +56,7 @@ def record(out: Path, code: int) -> dict:
             "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"],
             "solver_setup_s": s["timings"]["solver_setup_s"], "control_cost": s["control_cost"],
             "impact_times_s": [i["time"] for i in s["impacts"]],
-            "impact_impulses_Ns": [math.hypot(i["impulse"], i["impulse_tangential"]) for i in s["impacts"]],
+            "impact_impulses_Ns": [i["impulse_norm"] for i in s["impacts"]],
             "validation_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
             "window_mean_m": (v.get("windows") or {}).get("mean_m")}
 

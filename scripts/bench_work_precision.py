@@ -591,7 +591,8 @@ def ocp_records(case: OcpCase, repeat: int, log) -> list[dict]:
                "n_impacts": len(tr.impacts), "hops": len(result.hops)}
         errors = {"penetration_m": penetration(dyn, task, tr.y), "terminal_error": result.terminal_error}
         if len(tr.t) > 1:
-            validation = replay.validate_trajectory(robot, task, plan_arrays(tr), impact_points=[imp.contact for imp in tr.impacts])
+            validation = replay.validate_trajectory(robot, task, plan_arrays(tr), impact_points=[imp.contact for imp in tr.impacts],
+                                                     impact_taps=tr.taps)
             errors["tracking_error_m"] = validation.max_tracking_error_m
             errors["tracking_window_mean_m"] = validation.windows.mean_m  # restarted every 25 ms for 0.1 s
             errors["tracking_point_error_m"] = max(validation.tracking.max_foot_error_m.values(), default=None)

@@ -12,6 +12,7 @@ from planner import homotopy as H
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
+from planner.result import TAP_SHARE
 
 from test_problem import hop_task
 
@@ -427,7 +428,7 @@ def test_velocity_bound_caps_the_hop_and_is_active(hop):
 # against round-off in the path, still far below any hint-free solve of these tasks.
 REPLAN_SHARE = 1 / 3
 REPLAN_TARGET_X = 0.55  # [m] the hop's target moved by 5 cm
-TAP_SHARE = 0.01  # an added impact's impulse against the start's largest: Capler's taps were 0.003-0.008
+CAPLER_TAP = 0.01  # an added impact's impulse against the start's largest: Capler's taps were 0.003-0.008
 
 
 def _an_impact_added(monkeypatch, moved, share: float = 1.0):
@@ -505,11 +506,11 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
         assert run.stats.converged and run.stats.message.startswith("ok (active-set polished")
 
 
-@pytest.mark.parametrize("share, accepted", [(TAP_SHARE, True), (H.NEW_IMPACT_SHARE, False)])
+@pytest.mark.parametrize("share, accepted", [(CAPLER_TAP, True), (TAP_SHARE, False)])
 def test_a_tap_does_not_refuse_the_held_schedule(hop, monkeypatch, share, accepted):
-    """A held-schedule point whose one impact more than the start has an impulse below NEW_IMPACT_SHARE of the start's
+    """A held-schedule point whose one impact more than the start has an impulse below result.TAP_SHARE of the start's
     largest (a tap: Capler's were 0.3-0.8 %) is accepted as if it had none (the one "schedule" NLP); one at
-    NEW_IMPACT_SHARE is a new impact and refused (the schedule only: not converged)."""
+    TAP_SHARE is a new impact and refused (the schedule only: not converged)."""
     prob, res, _ = hop
     moved = dataclasses.replace(_moved_hop(prob), x0=res.extra["_x"])
     _an_impact_added(monkeypatch, moved, share)

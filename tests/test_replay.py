@@ -289,6 +289,32 @@ def test_foot_under_ground_fails(ground_truth, capler):
     assert any("penetration" in f for f in result.failures)
 
 
+TAP_AT_S = 0.4  # [s] a planned tap while the dropped Capler stands (MuJoCo's one impact is its landing)
+
+
+@pytest.mark.parametrize("tap", [True, False])
+def test_a_tap_is_listed_not_matched(ground_truth, capler, tmp_path, tap):
+    """A planned impact that summary.json marks as a tap (result.TAP_SHARE) is listed in the validation without a
+    MuJoCo impact and leaves the largest impact time difference the landing's (0); unmarked, the same impact is
+    matched to the landing, TAP_AT_S before it."""
+    traj, _ = ground_truth
+    landing = float(traj["impact_times"][0])
+    out = _write_result(tmp_path / "tap", {**traj, "impact_times": np.array([landing, TAP_AT_S])}, capler[0].path,
+                        ROBOTS_DIR / "capler.toml", ["foot", "foot"])
+    summary = json.loads((out / "summary.json").read_text())
+    summary["impacts"][1]["tap"] = tap
+    (out / "summary.json").write_text(json.dumps(summary))
+    result = replay.validate(out)
+    impacts = result.tracking.impacts
+    assert [m.tap for m in impacts] == [False, tap]
+    assert impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
+    if tap:
+        assert impacts[1].mujoco_time_s is None and impacts[1].difference_s is None
+        assert "foot@0.400s: tap" in result.report() and result.tracking.max_abs_impact_time_difference_s == 0.0
+    else:
+        assert impacts[1].difference_s == pytest.approx(landing - TAP_AT_S, abs=1e-12)
+
+
 def test_analytic_point_mass_plan_with_impact_samples(point_mass):
     """A plan in the contract format with a repeated-time impact sample (pre- and post-impact
     velocity): the frictionless drop is tracked within a millimetre, MuJoCo's impact is within one

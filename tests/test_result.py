@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from planner.model import load_robot
-from planner.result import SimulationResult, SolveStats, Trajectory, recover, write_atomically, write_results
+from planner.result import TAP_SHARE, SimulationResult, SolveStats, Trajectory, recover, tap_flags, write_atomically, write_results
 from planner.simulate import simulate
 from planner.task import parse_task
 
@@ -104,9 +104,19 @@ def test_write_results_follows_the_contract(tmp_path):
     assert summary["command"] == "simulate" and summary["converged"] is True and summary["robot"].endswith("point_mass.xml")
     assert summary["terminal_error"] is None
     assert set(summary["impacts"][0]) >= {"time", "contact", "impulse"}
-    assert summary["impacts"][0]["contact"] == "point"
+    assert summary["impacts"][0]["contact"] == "point" and summary["impacts"][0]["tap"] is False  # the only impact
+    imp = result.trajectory.impacts[0]
+    assert summary["impacts"][0]["impulse_norm"] == pytest.approx(np.hypot(imp.impulse, imp.impulse_tangential), abs=EXACT)
     assert summary["physical_duration_s"] == pytest.approx(result.trajectory.physical_duration)
     assert "impact" in result.report()
+
+
+def test_taps_are_impacts_below_a_share_of_the_largest():
+    """tap_flags marks an impulse norm below TAP_SHARE of the plan's largest (Capler's main-job plan: a 24.6 N s
+    landing, a 2.0 N s hop, 0.1 N s taps), not one at the share, never the largest, and nothing when every impulse is
+    zero."""
+    assert tap_flags([24.6, 2.0, 0.1, TAP_SHARE * 24.6]).tolist() == [False, False, True, False]
+    assert tap_flags([]).tolist() == [] and tap_flags([0.0, 0.0]).tolist() == [False, False]
 
 
 def test_write_results_replaces_atomically(tmp_path):
