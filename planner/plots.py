@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError
-from .result import write_atomically
+from .result import TAP_SHARE, write_atomically
 from .view import Result, load_result
 
 MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
@@ -222,13 +222,14 @@ def _foot_path(res: Result):
         line, = ax.plot(paths[p][:, 0], paths[p][:, 2], linewidth=1.6, zorder=3, label=f"{p} path")
         ax.plot(*paths[p][0, [0, 2]], "o", color=line.get_color(), markersize=5, zorder=4)
         ax.plot(*paths[p][-1, [0, 2]], "s", color=line.get_color(), markersize=5, zorder=4)
-    labelled = False
-    for t_imp, hit in res.impacts():
-        k = int(np.clip(np.searchsorted(res.t, t_imp), 0, len(res.t) - 1))
-        for p in hit:
-            ax.plot(paths[p][k, 0], paths[p][k, 2], "x", color="tab:red", markersize=9, markeredgewidth=2,
-                    zorder=5, label=None if labelled else "impact")
-            labelled = True
+    for taps, style, label in ((False, dict(marker="x", color="tab:red", markersize=9, markeredgewidth=2), "impact"),
+                               (True, dict(marker=".", color="tab:gray", markersize=7), f"tap (impulse < {TAP_SHARE:.0%} of the largest)")):
+        labelled = False
+        for t_imp, hit in res.impacts(taps):
+            k = int(np.clip(np.searchsorted(res.t, t_imp), 0, len(res.t) - 1))
+            for p in hit:
+                ax.plot(paths[p][k, 0], paths[p][k, 2], linestyle="none", zorder=5, label=None if labelled else label, **style)
+                labelled = True
     ax.set_xlim(x_lo, x_hi)
     ax.set_ylim(z_lo, z_hi)
     ax.set_aspect("equal")

@@ -92,12 +92,13 @@ class Result:
         """Names of the task's contact points (robot points)."""
         return tuple(c.point for c in self.task.contacts) if self.task is not None else ()
 
-    def impacts(self) -> list[tuple[float, tuple[str, ...]]]:
-        """(time [s], contact points) per impact: from summary.json, else `impact_times` with every contact."""
-        out = [(float(imp["time"]), self._hit(imp.get("contact"))) for imp in self.summary.get("impacts") or []]
-        if not out:
-            out = [(float(ti), self.contact_points) for ti in self.impact_times]
-        return out
+    def impacts(self, taps: bool = False) -> list[tuple[float, tuple[str, ...]]]:
+        """(time [s], contact points) per impact that is not a tap (taps=True: per tap, summary.json's "tap",
+        result.TAP_SHARE): from summary.json, else `impact_times` with every contact (and no taps)."""
+        given = self.summary.get("impacts") or []
+        if not given:
+            return [] if taps else [(float(ti), self.contact_points) for ti in self.impact_times]
+        return [(float(imp["time"]), self._hit(imp.get("contact"))) for imp in given if (imp.get("tap") is True) == taps]
 
     def frozen_intervals(self) -> list[tuple[float, float, tuple[str, ...]]]:
         """(tau_start, tau_end [s], contact points) of each frozen interval of numerical time.

@@ -113,6 +113,19 @@ def test_load_result_reads_the_contract(result_dir):
     assert res.impacts() == [(T_IMPACT, ("foot",))]
 
 
+def test_taps_are_apart_from_the_impacts(result_dir):
+    """An impact summary.json marks as a tap (result.TAP_SHARE) is not an impact to flash or mark with a cross; it is
+    among the taps. A summary without tap flags has none (the old files)."""
+    summary = json.loads((result_dir / "summary.json").read_text())
+    summary["impacts"].append({"time": T_END / 2, "contact": "foot", "impulse": 0.1, "tap": True})
+    (result_dir / "summary.json").write_text(json.dumps(summary))
+    res = view.load_result(result_dir)
+    assert res.impacts() == [(T_IMPACT, ("foot",))] and res.impacts(taps=True) == [(T_END / 2, ("foot",))]
+    del summary["impacts"][1]["tap"]
+    (result_dir / "summary.json").write_text(json.dumps(summary))
+    assert view.load_result(result_dir).impacts(taps=True) == []
+
+
 def test_frozen_intervals_from_the_clock_or_from_the_summary(result_dir):
     """Without tau_start/tau_end in summary.json, the frozen interval is where the clock stops; with
     them (as planner.result writes), they are used. Extra arrays (string names) are ignored."""
