@@ -53,7 +53,7 @@ class Impact:
 
 
 # An impact whose impulse norm is below this share of the plan's largest is a tap: one step frozen just past
-# FROZEN_TOL where a stance corrects its contact velocity, not a landing. Capler's main-job plan has three (0.10-0.17
+# FROZEN_TOL where a stance corrects its contact velocity, not a landing. Capler's main-job plan has three (0.10-0.16
 # N s against its 24.6 N s landing, 0.4-0.7 %) and its smallest landing is 8 % (2.0 N s); MuJoCo sees no contact
 # onset at a tap, so validation lists taps without matching them (docs/validation.md). The held schedule accepts
 # an added tap (homotopy, docs/benchmarks.md "Replanning", session 29).
