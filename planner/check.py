@@ -1,11 +1,12 @@
-"""`check-model`: the CasADi dynamics against Pinocchio's numeric algorithms (and MuJoCo for MJCF).
+"""`check-model`: the CasADi dynamics against Pinocchio's numeric algorithms and MuJoCo.
 
 At seeded random states (q uniform within the joint limits where both are finite, else in
 [-1, 1], quaternions and unit complex numbers normalized; v uniform in [-1, 1]) it compares
 M(q) with `pin.crba`, h(q, v) with `pin.rnea(q, v, 0)`, every named point's placement with
 `data.oMf`, its frame Jacobian with `pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)` and its
-drift dJ/dt v with the classical acceleration at zero joint acceleration. For an MJCF file it
-also compares M, h and the site positions with MuJoCo's compiled model of the same file.
+drift dJ/dt v with the classical acceleration at zero joint acceleration. It also compares M, h
+and the named points' positions with MuJoCo's compiled model of the same file (a URDF file as
+planner.model.mujoco_spec gives it to MuJoCo: a site at every link).
 """
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import Dynamics
-from .errors import InputError
-from .model import Robot, RobotFormat
+from .errors import InputError, RobotFileError
+from .model import Robot, mujoco_spec
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -61,8 +62,8 @@ class ModelCheck:
     max_err_frames: float  # of point positions [m] and rotation-matrix entries
     max_err_jacobians: float  # of frame-Jacobian entries (linear and angular rows)
     max_err_drift: float  # of dJ/dt v [m/s^2]
-    mujoco: MujocoCheck | None  # None for URDF or when skipped (see mujoco_skipped)
-    mujoco_skipped: str | None  # why an MJCF file was not compared with MuJoCo
+    mujoco: MujocoCheck | None  # None when skipped (see mujoco_skipped)
+    mujoco_skipped: str | None  # why the file was not compared with MuJoCo
     timing: Timing
 
     @property
@@ -91,7 +92,7 @@ class ModelCheck:
         if self.mujoco is not None:
             mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias), ("sites", self.mujoco.max_err_sites)))
         else:
-            mujoco = f"skipped: {self.mujoco_skipped}" if self.mujoco_skipped else "not compared (URDF)"
+            mujoco = f"skipped: {self.mujoco_skipped}"
         return "\n".join(
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
@@ -115,7 +116,7 @@ def random_state(model: pin.Model, rng: np.random.Generator) -> tuple[np.ndarray
 
 
 def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | None = None) -> ModelCheck:
-    """Compare the CasADi dynamics with Pinocchio (and MuJoCo for MJCF) at `samples` random states.
+    """Compare the CasADi dynamics with Pinocchio and MuJoCo at `samples` random states.
 
     point: the named point whose Jacobian is timed; default the first point with "foot" in its
     name, else the last named point. Raises UnknownNameError for an unknown point.
@@ -139,9 +140,7 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     rng = np.random.default_rng(seed)
     states = [random_state(robot.model, rng) for _ in range(samples)]
     errors = _pinocchio_errors(robot, dyn, states)
-    mujoco_check, skipped = (None, None)
-    if robot.format is RobotFormat.MJCF:
-        mujoco_check, skipped = _mujoco_errors(robot, dyn, states)
+    mujoco_check, skipped = _mujoco_errors(robot, dyn, states)
 
     q, v = states[0]
     jacobian = dyn.point_jacobian(point)
@@ -194,7 +193,7 @@ def _pinocchio_errors(robot: Robot, dyn: Dynamics, states) -> dict[str, float]:
 
 
 def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | None, str | None]:
-    """CasADi vs MuJoCo on the same MJCF file, or (None, reason) when the coordinates differ.
+    """CasADi vs MuJoCo on the same robot file, or (None, reason) when the coordinates differ.
 
     Only hinge and slide joints are compared: there qpos and qvel are Pinocchio's q and v in the
     same depth-first order. A free joint's qpos holds a wxyz quaternion and its linear velocity is
@@ -204,7 +203,12 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     """
     import mujoco
 
-    mj = mujoco.MjModel.from_xml_path(str(robot.path))
+    try:
+        mj = mujoco_spec(robot, robot.points).compile()
+    except RobotFileError as exc:  # e.g. a URDF with a free flyer only Pinocchio adds (floating=True)
+        return None, str(exc)
+    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find
+        return None, f"MuJoCo cannot compile {robot.path}: {str(exc).strip().splitlines()[0]}"
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
     if other:

@@ -12,6 +12,7 @@ import io
 import os
 import sys
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -217,6 +218,54 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), float(mj.actuator_gear[i, 0]), float(lo), float(hi)))
     return tuple(actuators), dof_names
+
+
+# A URDF link with a joint but no mass (the carriage of a planar base made of two prismatic joints) is fine for
+# Pinocchio, but MuJoCo refuses a moving body without mass and inertia: it gets this much (and MASSLESS_LINK_INERTIA
+# [kg m^2]). Every link below the carriage moves with its joint, so the carriage's mass only adds to the mass matrix
+# entries that already hold the whole robot's (Capler: 1e-12 of 6.3 kg).
+MASSLESS_LINK_KG = 1e-12
+MASSLESS_LINK_INERTIA = 1e-12
+
+
+def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
+    """The robot file as MuJoCo reads it, as an editable mujoco.MjSpec (the file is untouched).
+
+    MJCF: the file. URDF: MuJoCo's URDF parser without the mesh geoms, plus what MJCF states and URDF
+    does not: a site named after each link in `sites` at the link's origin, a joint motor per
+    `robot.actuators` entry (its gear and control range, so MuJoCo's nu is the planner's), and
+    MASSLESS_LINK_KG on each link that has a joint but no mass. Raises RobotFileError when MuJoCo cannot read the file or orders its
+    joints differently from Pinocchio, UnknownNameError for a site that names no link.
+    """
+    import mujoco
+
+    try:
+        spec = mujoco.MjSpec.from_file(str(robot.path))
+    except ValueError as exc:
+        raise RobotFileError(f"MuJoCo cannot read {robot.path}: {str(exc).strip().splitlines()[0]}") from None
+    if robot.format is RobotFormat.MJCF:
+        return spec
+    # MuJoCo loads a mesh when it compiles (a URDF's package:// paths are not files); the planner models no link's
+    # geometry and takes inertias from <inertial> only, so meshes go and links without <inertial> stay massless
+    for geom in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]:
+        spec.delete(geom)
+    for mesh in list(spec.meshes):
+        spec.delete(mesh)
+    links = [b.name for b in spec.bodies if b.name != "world"]
+    for name in dict.fromkeys(sites):
+        if name not in links:
+            raise UnknownNameError("URDF link", name, links)
+        spec.body(name).add_site(name=name, pos=[0.0, 0.0, 0.0])
+    for body in spec.bodies:
+        if body.joints and body.mass == 0.0:
+            body.mass, body.inertia = MASSLESS_LINK_KG, [MASSLESS_LINK_INERTIA] * 3
+    for a in robot.actuators:
+        spec.add_actuator(name=a.name, target=a.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[a.gear, 0, 0, 0, 0, 0],
+                          ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))
+    names = tuple(j.name for j in spec.joints)
+    if names != robot.dof_names:
+        raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}")
+    return spec
 
 
 def _parser_message(exc: Exception) -> str:

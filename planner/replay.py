@@ -1,7 +1,7 @@
 """MuJoCo replay of a planned trajectory: the independent judge of whether a plan is physically meaningful.
 
 The plan comes from Pinocchio's model of a robot file and the time-freezing contact model; MuJoCo
-reads the SAME file (MJCF only) and replays the physical-time trajectory three ways:
+reads the SAME file (MJCF, or URDF through planner.model.mujoco_spec) and replays the physical-time trajectory three ways:
 
 1. **kinematic** -- qpos is set sample by sample. Reports how far each contact point is below the
    ground (the pass/fail penetration) and whether MuJoCo's collision detection finds a contact at
@@ -36,7 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
-from .model import Robot, RobotFormat, load_robot
+from .model import MASSLESS_LINK_KG, Robot, load_robot, mujoco_spec
 from .result import locate_input, read_summary, read_trajectory, write_atomically
 from .task import Task, load_task
 
@@ -258,15 +258,15 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
       `settings.solref(restitution)`, `settings.solimp`; margin 0 and gap `detect_within_m`, so a
       contact is reported (but carries no force) from `detect_within_m` above the ground.
     - options: timestep, cone, impratio, noslip iterations from `settings`; semi-implicit Euler.
-    Raises InputError for a URDF robot, an unknown site, a free/ball joint or a tilted ground.
+    A URDF file is read by MuJoCo's own URDF parser and given what MJCF states and URDF does not
+    (planner.model.mujoco_spec): a site at each task contact link's origin, a motor per actuated
+    joint as the planner reads them, and model.MASSLESS_LINK_KG on a moving link without mass.
+    Raises InputError for an unknown site (link), a free/ball joint or a tilted ground.
     """
     settings = settings or ContactSettings()
-    if robot.format is not RobotFormat.MJCF:
-        raise InputError(f"MuJoCo validation needs an MJCF robot file; {robot.path} is {robot.format.value.upper()}"
-                         " (convert it to MJCF, or plan with --no-validate)")
+    spec = mujoco_spec(robot, [c.point for c in task.contacts])
     try:
-        original = mujoco.MjModel.from_xml_path(str(robot.path))
-        spec = mujoco.MjSpec.from_file(str(robot.path))
+        original = spec.compile()  # a URDF's fixed links are fused into their parents here, sites and all
     except ValueError as exc:
         raise RobotFileError(f"MuJoCo cannot compile {robot.path}: {str(exc).strip().splitlines()[0]}") from None
     for j in range(original.njnt):
@@ -342,7 +342,9 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
 
     trn = model.actuator_trnid[:, 0]
     limited = model.actuator_ctrllimited.astype(bool)
-    base_body = int(model.jnt_bodyid[0])
+    # the first body that moves and has mass (a URDF's carriage link has only model.MASSLESS_LINK_KG)
+    jointed = [int(b) for b in model.jnt_bodyid]
+    base_body = next((b for b in jointed if model.body_mass[b] > MASSLESS_LINK_KG), jointed[0])
     return Scene(
         model=model, robot=robot, task=task, settings=settings,
         points=tuple(c.point for c in task.contacts),

@@ -25,27 +25,36 @@ TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacob
 
 @pytest.mark.parametrize("name", ["capler.xml", "capler.urdf", "biped.xml", "point_mass.xml"])
 def test_project_robots_pass(name):
-    """check-model passes on every robot in robots/, with MuJoCo compared for MJCF and skipped for URDF."""
+    """check-model passes on every robot in robots/, MuJoCo compared for MJCF and URDF alike (the URDF as
+    planner.model.mujoco_spec gives it to MuJoCo: sites at its links, its carriage MASSLESS_LINK_KG)."""
     result = check_model(load_robot(ROBOTS_DIR / name), samples=SAMPLES)
     assert result.passed and result.backend in ("symbolic", "pinocchio.casadi")
     assert all(err <= TOL_CHECK for err in result.max_errors.values()), result.max_errors
-    if name.endswith(".xml"):
-        assert result.mujoco is not None and result.mujoco_skipped is None
-    else:
-        assert result.mujoco is None and result.mujoco_skipped is None
+    assert result.mujoco is not None and result.mujoco_skipped is None
+
+
+@pytest.mark.parametrize("name", ["ur5", "panda"])
+def test_third_party_urdf_matches_mujoco(erd_robot, name):
+    """A fixed-base URDF of example-robot-data (meshes by package:// path, which planner.model.mujoco_spec drops) is
+    compared with MuJoCo's own reading of the file and passes: M, h and every link's position."""
+    result = check_model(erd_robot(name), samples=SAMPLES)
+    assert result.mujoco is not None and result.passed, result.mujoco_skipped
 
 
 def test_solo12_passes_and_is_timed(erd_robot):
-    """A free-flyer quadruped passes; the Jacobian timed is the first foot's."""
+    """A free-flyer quadruped passes; the Jacobian timed is the first foot's. MuJoCo is skipped with a reason (its URDF
+    has no free joint: Pinocchio adds it)."""
     result = check_model(erd_robot("solo12"), samples=SAMPLES)
-    assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is None
+    assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is None and result.mujoco_skipped
     assert result.timing.point == "FL_FOOT"
 
 
 def test_json_contract():
-    """to_json() is JSON-serializable and has exactly the contract's keys; mujoco is an object for
-    MJCF and null for URDF; numbers are plain floats."""
-    for name, has_mujoco in (("capler.xml", True), ("capler.urdf", False)):
+    """to_json() is JSON-serializable and has exactly the contract's keys; mujoco is an object where MuJoCo was
+    compared (both files) and null where it was skipped (the URDF with a free flyer); numbers are plain floats."""
+    floating = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).to_json()
+    assert floating["mujoco"] is None and "MuJoCo" in floating["mujoco_skipped"]
+    for name, has_mujoco in (("capler.xml", True), ("capler.urdf", True)):
         out = check_model(load_robot(ROBOTS_DIR / name), samples=2).to_json()
         assert json.loads(json.dumps(out)) == out
         assert set(out) == JSON_KEYS and set(out["timing"]) == TIMING_KEYS
@@ -141,7 +150,8 @@ def test_report_text():
     lines = text.splitlines()
     assert lines[0].startswith("check-model capler (mjcf, nq=4, nv=4") and "PASSED" in lines[0]
     assert "vs Pinocchio: mass" in text and "vs MuJoCo:    mass" in text and "J(foot)" in text
-    assert "not compared (URDF)" in check_model(load_robot(ROBOTS_DIR / "capler.urdf"), samples=1).report()
+    assert "vs MuJoCo:    mass" in check_model(load_robot(ROBOTS_DIR / "capler.urdf"), samples=1).report()
+    assert "vs MuJoCo:    skipped: " in check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).report()
 
 
 def test_result_is_frozen():

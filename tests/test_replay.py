@@ -43,6 +43,9 @@ RESTITUTION_TOL = 0.05
 # A trajectory recorded from MuJoCo with the validation's own settings, sampled every step,
 # is replayed bit for bit: the PD term is exactly zero.
 GROUND_TRUTH_TOL_M = 1e-9
+# The same recording replayed with capler.urdf: its carriage link carries model.MASSLESS_LINK_KG = 1e-12 kg of the
+# robot's 6.3 kg and MuJoCo's URDF parser builds another body tree (measured 7e-16 m, windows 5e-14 m)
+URDF_TWIN_TOL_M = 1e-9
 # Sampled every 8 steps (2 ms zero-order hold), the reference is linear between samples; the
 # PD corrects the interpolation error (measured 0.08 mm).
 DECIMATED_TOL_M = 5e-4
@@ -346,12 +349,28 @@ def _zeros(robot, P=3):
             "u": np.zeros((P, robot.nu)), "impact_times": np.zeros(0)}
 
 
-def test_urdf_robot_is_unsupported(capler):
-    """A URDF robot cannot be replayed in MuJoCo: InputError naming the format."""
-    _, task = capler
+def test_urdf_twin_replays_the_mjcf_rollout(ground_truth, tmp_path):
+    """capler.urdf, read by MuJoCo's URDF parser and given sites, motors and the carriage's model.MASSLESS_LINK_KG, is the
+    MJCF file's robot: the drop recorded with capler.xml, validated from a result directory that names the URDF,
+    replays to URDF_TWIN_TOL_M with the impact at the same time; its base is the link "base" (not the carriage),
+    its motors those of the file's effort limits."""
+    traj, _ = ground_truth
+    out = _write_result(tmp_path / "urdf", traj, ROBOTS_DIR / "capler.urdf", ROBOTS_DIR / "capler.toml", list(traj["impact_points"]))
+    result = replay.validate(out)
+    assert result.passed, result.failures
+    assert result.max_tracking_error_m <= URDF_TWIN_TOL_M and result.windows.worst_m <= URDF_TWIN_TOL_M
+    assert result.tracking.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
+    scene = replay.build_scene(load_robot(ROBOTS_DIR / "capler.urdf"), load_task(ROBOTS_DIR / "capler.toml"))
+    assert scene.base_name == "base" and scene.points == ("foot",)
+    np.testing.assert_array_equal(scene.ctrl_upper, [60.0, 60.0])
+    np.testing.assert_array_equal(scene.ctrl_lower, [-60.0, -60.0])
+
+
+def test_urdf_contact_point_that_is_not_a_link(capler):
+    """A URDF contact point Pinocchio knows (the joint frame "hip") that is no link: UnknownNameError listing links."""
     robot = load_robot(ROBOTS_DIR / "capler.urdf")
-    with pytest.raises(InputError, match="MJCF"):
-        replay.validate_trajectory(robot, task, _zeros(robot))
+    with pytest.raises(UnknownNameError, match="foot"):
+        replay.build_scene(robot, _task("hip", q0=(0.0, 0.4, 0.0, 0.0)))
 
 
 def test_contact_point_that_is_not_a_site(capler):
