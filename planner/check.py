@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError
-from .model import Robot, mujoco_spec
+from .model import Robot, mujoco_failure, mujoco_spec
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -208,7 +208,7 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     except RobotFileError as exc:  # e.g. a URDF with a free flyer only Pinocchio adds (floating=True)
         return None, str(exc)
     except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find
-        return None, f"MuJoCo cannot compile {robot.path}: {str(exc).strip().splitlines()[0]}"
+        return None, mujoco_failure(robot.path, exc)
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
     if other:

@@ -203,7 +203,7 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     try:
         mj = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
-        raise RobotFileError(f"MuJoCo cannot compile {path}: {str(exc).strip().splitlines()[0]}") from None
+        raise RobotFileError(mujoco_failure(path, exc)) from None
     if mj.nv != model.nv:
         raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv}")
     # Pinocchio's MJCF parser ignores <option gravity>; the file's value is MuJoCo's.
@@ -234,15 +234,16 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
     MJCF: the file. URDF: MuJoCo's URDF parser without the mesh geoms, plus what MJCF states and URDF
     does not: a site named after each link in `sites` at the link's origin, a joint motor per
     `robot.actuators` entry (its gear and control range, so MuJoCo's nu is the planner's), and
-    MASSLESS_LINK_KG on each link that has a joint but no mass. Raises RobotFileError when MuJoCo cannot read the file or orders its
-    joints differently from Pinocchio, UnknownNameError for a site that names no link.
+    MASSLESS_LINK_KG on each link that has a joint but no mass. Raises RobotFileError when MuJoCo
+    cannot read the file or orders its joints differently from Pinocchio, UnknownNameError for a
+    site that names no link.
     """
     import mujoco
 
     try:
         spec = mujoco.MjSpec.from_file(str(robot.path))
     except ValueError as exc:
-        raise RobotFileError(f"MuJoCo cannot read {robot.path}: {str(exc).strip().splitlines()[0]}") from None
+        raise RobotFileError(mujoco_failure(robot.path, exc, "read")) from None
     if robot.format is RobotFormat.MJCF:
         return spec
     # MuJoCo loads a mesh when it compiles (a URDF's package:// paths are not files); the planner models no link's
@@ -266,6 +267,11 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
     if names != robot.dof_names:
         raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}")
     return spec
+
+
+def mujoco_failure(path, exc: Exception, step: str = "compile") -> str:
+    """`MuJoCo cannot STEP PATH: ` and the first line of MuJoCo's error text (its ValueError)."""
+    return f"MuJoCo cannot {step} {path}: {str(exc).strip().splitlines()[0]}"
 
 
 def _parser_message(exc: Exception) -> str:

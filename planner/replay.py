@@ -1,7 +1,8 @@
 """MuJoCo replay of a planned trajectory: the independent judge of whether a plan is physically meaningful.
 
 The plan comes from Pinocchio's model of a robot file and the time-freezing contact model; MuJoCo
-reads the SAME file (MJCF, or URDF through planner.model.mujoco_spec) and replays the physical-time trajectory three ways:
+reads the SAME file (MJCF, or URDF through planner.model.mujoco_spec) and replays the physical-time
+trajectory three ways:
 
 1. **kinematic** -- qpos is set sample by sample. Reports how far each contact point is below the
    ground (the pass/fail penetration) and whether MuJoCo's collision detection finds a contact at
@@ -36,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
-from .model import MASSLESS_LINK_KG, Robot, load_robot, mujoco_spec
+from .model import MASSLESS_LINK_KG, Robot, load_robot, mujoco_failure, mujoco_spec
 from .result import locate_input, read_summary, read_trajectory, write_atomically
 from .task import Task, load_task
 
@@ -268,7 +269,7 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     try:
         original = spec.compile()  # a URDF's fixed links are fused into their parents here, sites and all
     except ValueError as exc:
-        raise RobotFileError(f"MuJoCo cannot compile {robot.path}: {str(exc).strip().splitlines()[0]}") from None
+        raise RobotFileError(mujoco_failure(robot.path, exc)) from None
     for j in range(original.njnt):
         kind = _UNSUPPORTED_JOINTS.get(mujoco.mjtJoint(original.jnt_type[j]))
         if kind is not None:
