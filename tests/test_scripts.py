@@ -797,3 +797,38 @@ def test_bench_pipeline_nlp2_is_the_homotopys_nlp2(tmp_path, capsys):
     assert rec["nlp"] == 2 and base["status"] == nlp2.status == "Solve_Succeeded"
     assert base["iterations"] == nlp2.iterations
     assert base["objective"] == pytest.approx(nlp2.objective, rel=SAME_OBJECTIVE_REL)
+
+
+# --- scripts/probe_positions.py -------------------------------------------------------------------------
+
+# the simulator's steps meet IPOPT's tol (1e-8) and the complementarity tolerance; a ballistic flight's error under
+# the trapezoidal rule is round-off plus those, implicit Euler's is g h t / 2 (~3e-2 m here)
+FLIGHT_TOL_M = 1e-6
+
+
+def test_probe_positions_flight_is_exact_with_the_trapezoid(tmp_path, capsys):
+    """The rule's ground truth: the frictionless point mass thrown from (0, 1) m at (1, 0) m/s falls as z = 1 - g t^2 / 2
+    at every step before its impact (0.45 s) with the trapezoidal positions, to the solver's tolerance, where implicit
+    Euler is off by g h t / 2; outside the block the step is implicit Euler again. And --quick --json writes its records,
+    both rules at both steps, the same in results.json."""
+    from planner.model import load_robot
+    from planner.simulate import simulate
+    from planner.task import parse_task
+    from scripts import probe_positions as pp
+
+    robot = load_robot("point_mass")
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.0, "a_n": 100.0}], "initial": {"q": [0.0, 1.0], "v": [1.0, 0.0]},
+                       "horizon": {"tau_f": 0.4, "N": 20}})
+
+    def fall_error(tr):
+        return float(np.max(np.abs(tr.q[:, 1] - (1.0 - 0.5 * 9.81 * tr.t**2))))
+
+    with pp.trapezoid_positions():
+        assert fall_error(simulate(robot, task).trajectory) <= FLIGHT_TOL_M
+    plain = fall_error(simulate(robot, task).trajectory)
+    assert plain == pytest.approx(0.5 * 9.81 * 0.02 * 0.4, rel=1e-3)  # g h t / 2 at the last step
+    assert pp.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "results.json").read_text())
+    assert [(r["rule"], r["h"]) for r in rec["records"]] == [("implicit_euler", 0.04), ("implicit_euler", 0.02),
+                                                             ("trapezoid r^2", 0.04), ("trapezoid r^2", 0.02)]
