@@ -33,6 +33,7 @@ from pathlib import Path
 import casadi as ca
 
 from planner.discretization import ImplicitEulerStep
+from planner.errors import InputError
 from scripts import bench_work_precision as wp
 from scripts._report import report
 
@@ -51,10 +52,12 @@ def trapezoid_positions(power: float = 2.0):
         if dy is not None:
             return step
         nq, nv = self.system.nq, self.system.nv
+        if nq != nv:  # q' = r v row by row only without a free flyer's quaternion
+            raise InputError(f"the trapezoidal positions need nq = nv, got nq = {nq}, nv = {nv}")
         rows = step.g[step.g_blocks["dynamics"]]
         dt = (y_next[-1] - y_k[-1]) - rows[-1]  # the clock row is t+ - t - h s r: its h s r
         rate = dt / (h * s_k)
-        shift = dt * rate**power * (y_k[nq : nq + nv] - y_next[nq : nq + nv]) / 2  # nv = nq here (checked in tests)
+        shift = dt * rate**power * (y_k[nq : nq + nv] - y_next[nq : nq + nv]) / 2
         return dataclasses.replace(step, g=ca.vertcat(step.g[:nq] - shift, step.g[nq:]))
 
     ImplicitEulerStep.build = build
