@@ -165,10 +165,13 @@ def interpolated_start(problem, plan) -> tuple[np.ndarray, dict]:
     return pack(problem, Y, W, U), {"step_iterations": 0, "steps_failed": 0}
 
 
-def stepwise_start(problem, plan, mode: str, kp=(200.0, 200.0), kd=(5.0, 5.0)) -> tuple[np.ndarray, dict]:
+def stepwise_start(problem, plan, mode: str, kp=(200.0, 200.0), kd=(5.0, 5.0), at=None, first=None) -> tuple[np.ndarray, dict]:
     """Module docstring, starts pd and track: the time-freezing steps solved one at a time. A step whose penalty
     homotopy does not reach the simulator's complementarity tolerance from any of its starts keeps its last iterate
-    (counted in steps_failed)."""
+    (counted in steps_failed). at(k, clock) -> (u_ff (nu,), q_ref (nq,), v_ref (nv,)), the reference of step k from
+    the state whose clock is `clock` [s]; default: the plan read at clock + h (scripts/probe_replay.py reads a
+    time-freezing plan by its step index instead). first(k): a start of step k's solve (its unknowns and the slack) to
+    try before the others, or None."""
     system, builder, task = problem.system, problem.builder, problem.task
     ny, nu, nw, nq, nv, h, N = system.ny, system.nu, builder.nw, system.nq, system.nv, problem.h, problem.N
     y_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny)
@@ -201,18 +204,25 @@ def stepwise_start(problem, plan, mode: str, kp=(200.0, 200.0), kd=(5.0, 5.0)) -
     options = SimulateOptions()
     solver = ca.nlpsol(f"{mode}_step", "ipopt", nlp, _ipopt_options(options))
     applied = ca.Function("u", [unknowns, ca.vertcat(y_k, u_ff_s, ref)], [u])
-    u_ff, q_ref, v_ref = reference(plan)
+    if at is None:
+        u_ff, q_ref, v_ref = reference(plan)
+
+        def at(k, clock):
+            t = min(clock + h, plan["t"][-1])
+            return u_ff(t), q_ref(t), v_ref(t)
     Y, W, U = np.zeros((N + 1, ny)), np.zeros((N, nw)), np.zeros((N, nu))
     Y[0] = problem.y0
     total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "", "restarted_steps": 0}
     failed, w_prev = 0, None
     for k in range(N):
-        t = min(Y[k, -1] + h, plan["t"][-1])
-        p = np.concatenate([Y[k], u_ff(t), q_ref(t), v_ref(t)])
-        fresh = builder.guess(Y[k], u_ff(t))
-        tail = [] if mode == "pd" else [np.clip(u_ff(t), u_lo, u_hi)]
+        u_k, q_k, v_k = at(k, Y[k, -1])
+        p = np.concatenate([Y[k], u_k, q_k, v_k])
+        fresh = builder.guess(Y[k], u_k)
+        tail = [] if mode == "pd" else [np.clip(u_k, u_lo, u_hi)]
         starts = [(np.concatenate([Y[k], w, *tail, [0.0]]), replace(options, rho0=rho0))
                   for rho0 in (options.rho0, options.restart_rho0, 1e-3) for w in ((fresh,) if w_prev is None else (w_prev, fresh))]
+        if first is not None:
+            starts.insert(0, (first(k), options))
         x = _first_converged(solver, comp_fn, iter(starts), p, (lbx, ubx, lbg, ubg), options, total, f"step {k}")
         if x is None:
             failed += 1

@@ -832,3 +832,38 @@ def test_probe_positions_flight_is_exact_with_the_trapezoid(tmp_path, capsys):
     assert rec == json.loads((tmp_path / "results.json").read_text())
     assert [(r["rule"], r["h"]) for r in rec["records"]] == [("implicit_euler", 0.04), ("implicit_euler", 0.02),
                                                              ("trapezoid r^2", 0.04), ("trapezoid r^2", 0.02)]
+
+
+# --- scripts/probe_replay.py ----------------------------------------------------------------------------
+
+# the simulator's steps converge to IPOPT's tol 1e-8; a replay that follows its own rollout differs by round-off
+REPLAY_TOL = 1e-6
+
+
+def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
+    """A 'plan' that is the simulator's own rollout (Capler, N = 10, joint PD on a swinging knee reference) is a
+    solution of every step, so the replay by step index stays on it (no departure, deviation at round-off) and that
+    plan's steps solve the simulator's step NLP (rows at the solver's tolerance, complementarity rows >= 0); read one
+    step late (the reference of step k + 1) the PD no longer vanishes at the plan's states and the replay leaves it."""
+    from scripts import probe_multiphase as pm
+    from scripts import probe_replay as pr
+    from scripts.bench_pipeline import capler_case
+
+    problem = build_problem(*capler_case(10))
+    nq, nv, nu = problem.system.nq, problem.system.nv, problem.system.nu
+    q0 = problem.y0[:nq]
+
+    def swing(k, clock):
+        return np.zeros(nu), q0 + np.array([0.0, 0.0, 0.0, 0.3 * math.sin(0.6 * (k + 1))]), np.zeros(nv)
+
+    x, info = pm.stepwise_start(problem, None, "pd", at=swing)
+    assert info["steps_failed"] == 0
+    rec = pr.replay(problem, x, 200.0, 5.0, plan_first=False)
+    assert rec["departure"] is None and rec["max_deviation"] <= REPLAY_TOL and rec["steps_failed"] == 0
+    vb = problem.var_blocks
+    Y, W, U = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]], x[vb["u"]]
+    res = pr.step_residual(problem, 3, Y, W, U)
+    assert res["equality_max"] <= 1e-7 and res["complementarity_min"] >= -1e-9
+    late = x.copy()
+    late[vb["y"][:-1]] = x[vb["y"][1:]]  # step k's reference becomes the state after step k + 1
+    assert pr.replay(problem, late, 200.0, 5.0, plan_first=False)["max_deviation"] > 10 * REPLAY_TOL

@@ -1,0 +1,116 @@
+"""Does the time-freezing simulator reproduce a plan from the plan's own controls? (issue 9, session 31)
+
+The route to the speed goal that docs/solve-research.md names starts the OCP from a motion built by stepping the
+time-freezing dynamics (a rollout), so it matters whether a rollout can follow a plan at all. This probe replays a
+Capler plan (a `planner plan` result directory) on its own grid: step k is solved by the simulator's step NLP
+(`planner.simulate`'s penalty homotopy, as scripts/probe_multiphase.py's pd start) from the rollout's state with the
+plan's control U_k plus a joint PD towards the plan's next state (hip and knee; at the plan's own states the PD adds
+nothing, so the plan is a solution of every step). Reported: the first step where the rollout leaves the plan (state
+difference above --tol), the plan's and the rollout's selectors (alpha, beta, gamma, zeta) there, how well the plan's
+own step solves the simulator's step NLP there (largest equality row, smallest complementarity row), and where the
+rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution.
+
+    python -m scripts.probe_replay DIR              # DIR: e.g. `planner plan capler --out DIR`
+    python -m scripts.probe_replay DIR --plan-first
+Writes OUT/results.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from planner.model import load_robot
+from planner.problem import build_problem
+from planner.result import locate_input, read_start, read_summary, read_trajectory
+from planner.simulate import SimulateOptions, _penalized_nlp
+from planner.task import parse_task
+from scripts import probe_multiphase as pm
+from scripts._report import report
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
+
+
+def plan_problem(out_dir: Path):
+    """(problem, x) of the plan in out_dir: the task as kept in its trajectory.npz, the robot its summary.json names."""
+    arrays = read_trajectory(out_dir, ("task_json",))
+    task = parse_task(json.loads(str(arrays["task_json"])), source=f"{out_dir}/trajectory.npz")
+    robot = load_robot(locate_input(read_summary(out_dir)["robot"], out_dir, "robot"))
+    problem = build_problem(robot, task)
+    return problem, read_start(out_dir, problem.signature, problem.nx)
+
+
+def step_residual(problem, k: int, Y: np.ndarray, W: np.ndarray, U: np.ndarray) -> dict:
+    """The plan's step k (Y (N + 1, ny), W (N, nw), U (N, nu)) in the simulator's step NLP (controls U_k, no PD):
+    the largest equality row and the smallest complementarity row (>= 0 when its pairs are complementary)."""
+    ny = problem.system.ny
+    y_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny)
+    step = problem.builder.build(y_k, y_next, ca.DM(U[k]), 1.0, problem.h)
+    nlp, _, n_eq, _ = _penalized_nlp(ca.vertcat(y_next, step.w), [step], y_k)
+    g = np.asarray(ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])(np.concatenate([Y[k + 1], W[k], [0.0]]),
+                                                                       np.concatenate([Y[k], [1.0]]))).ravel()
+    return {"equality_max": float(np.max(np.abs(g[:n_eq]))), "complementarity_min": float(np.min(g[n_eq:]))}
+
+
+def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, tol: float = DEPARTURE_TOL) -> dict:
+    """The record of the module docstring for the plan x_plan (nx,) of problem."""
+    vb, nq, nv = problem.var_blocks, problem.system.nq, problem.system.nv
+    U, W = x_plan[vb["u"]], x_plan[vb["w"]]
+    Y = np.vstack([problem.y0, x_plan[vb["y"]]])
+
+    def at(k, clock):
+        return U[k], Y[k + 1, :nq], Y[k + 1, nq : nq + nv]
+
+    def first(k):  # the plan's own solution of step k
+        return np.concatenate([Y[k + 1], W[k], [0.0]])
+
+    x, info = pm.stepwise_start(problem, None, "pd", kp=(kp, kp), kd=(kd, kd), at=at, first=first if plan_first else None)
+    Yr, Wr = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]]
+    dev = np.max(np.abs(Yr[:, : nq + nv] - Y[:, : nq + nv]), axis=1)  # per node
+    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "tol": tol, "steps_failed": info["steps_failed"],
+           "max_deviation": float(dev.max()), "end_base_error_m": (Yr[-1, :2] - Y[-1, :2]).tolist(), "departure": None}
+    if dev.max() > tol:
+        k = int(np.argmax(dev > tol)) - 1  # the step whose end state left the plan
+        n_sel = problem.system.n_sigma
+        rec["departure"] = {"step": k, "clock_s": float(Y[k, -1]), "deviation": float(dev[k + 1]),
+                            "plan_selectors": W[k, :n_sel].tolist(), "rollout_selectors": Wr[k, :n_sel].tolist(),
+                            "plan_step_in_simulator": step_residual(problem, k, Y, W, U)}
+    return rec
+
+
+def table(rec: dict) -> str:
+    lines = [f"replay of {rec.get('plan', 'the plan')} (N = {rec['N']}, PD kp {rec['kp']:g} kd {rec['kd']:g}, plan first: "
+             f"{rec['plan_first']}): {rec['steps_failed']} steps failed, largest deviation {rec['max_deviation']:.3g}, "
+             f"end base error {np.round(rec['end_base_error_m'], 4).tolist()} m"]
+    d = rec["departure"]
+    if d is None:
+        lines.append(f"  the rollout stays within {rec['tol']:g} of the plan")
+    else:
+        r = d["plan_step_in_simulator"]
+        lines += [f"  leaves the plan at step {d['step']} (clock {d['clock_s']:.4f} s, deviation {d['deviation']:.3g})",
+                  f"  selectors there: plan {np.round(d['plan_selectors'], 3).tolist()}, rollout {np.round(d['rollout_selectors'], 3).tolist()}",
+                  f"  the plan's step in the simulator's NLP: equality rows {r['equality_max']:.1e}, complementarity rows >= {r['complementarity_min']:.1e}"]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("plan", type=Path, help="a `planner plan` result directory of Capler (hip and knee PD)")
+    parser.add_argument("--kp", type=float, default=200.0, help="joint PD stiffness [N m/rad]")
+    parser.add_argument("--kd", type=float, default=5.0, help="joint PD damping [N m s/rad]")
+    parser.add_argument("--plan-first", action="store_true", help="start each step's solve at the plan's own solution")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_replay")
+    parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
+    args = parser.parse_args(argv)
+    problem, x = plan_problem(args.plan)
+    rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first)}
+    return report(args.out, rec, table(rec), args.json)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
