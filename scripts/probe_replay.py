@@ -8,10 +8,11 @@ plan's control U_k plus a joint PD towards the plan's next state (hip and knee; 
 nothing, so the plan is a solution of every step). Reported: the first step where the rollout leaves the plan (state
 difference above --tol), the plan's and the rollout's selectors (alpha, beta, gamma, zeta) there, how well the plan's
 own step solves the simulator's step NLP there (largest equality row, smallest complementarity row), and where the
-rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution.
+rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution (with
+--first-rho0 R its penalty homotopy from R).
 
     python -m scripts.probe_replay DIR              # DIR: e.g. `planner plan capler --out DIR`
-    python -m scripts.probe_replay DIR --plan-first
+    python -m scripts.probe_replay DIR --plan-first [--first-rho0 1e4]
 Writes OUT/results.json.
 """
 from __future__ import annotations
@@ -57,8 +58,10 @@ def step_residual(problem, k: int, Y: np.ndarray, W: np.ndarray, U: np.ndarray) 
     return {"equality_max": float(np.max(np.abs(g[:n_eq]))), "complementarity_min": float(np.min(g[n_eq:]))}
 
 
-def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, tol: float = DEPARTURE_TOL) -> dict:
-    """The record of the module docstring for the plan x_plan (nx,) of problem."""
+def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, tol: float = DEPARTURE_TOL,
+           first_rho0: float | None = None) -> dict:
+    """The record of the module docstring for the plan x_plan (nx,) of problem; first_rho0: the penalty the
+    plan-first start's homotopy begins with (None: the simulator's)."""
     vb, nq, nv = problem.var_blocks, problem.system.nq, problem.system.nv
     U, W = x_plan[vb["u"]], x_plan[vb["w"]]
     Y = np.vstack([problem.y0, x_plan[vb["y"]]])
@@ -69,10 +72,11 @@ def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, 
     def first(k):  # the plan's own solution of step k
         return np.concatenate([Y[k + 1], W[k], [0.0]])
 
-    x, info = pm.stepwise_start(problem, None, "pd", kp=(kp, kp), kd=(kd, kd), at=at, first=first if plan_first else None)
+    x, info = pm.stepwise_start(problem, None, "pd", kp=(kp, kp), kd=(kd, kd), at=at, first=first if plan_first else None,
+                                first_rho0=first_rho0)
     Yr, Wr = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]]
     dev = np.max(np.abs(Yr[:, : nq + nv] - Y[:, : nq + nv]), axis=1)  # per node
-    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "tol": tol, "steps_failed": info["steps_failed"],
+    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "first_rho0": first_rho0, "tol": tol, "steps_failed": info["steps_failed"],
            "max_deviation": float(dev.max()), "end_base_error_m": (Yr[-1, :2] - Y[-1, :2]).tolist(), "departure": None}
     if dev.max() > tol:
         k = int(np.argmax(dev > tol)) - 1  # the step whose end state left the plan
@@ -104,11 +108,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kp", type=float, default=200.0, help="joint PD stiffness [N m/rad]")
     parser.add_argument("--kd", type=float, default=5.0, help="joint PD damping [N m s/rad]")
     parser.add_argument("--plan-first", action="store_true", help="start each step's solve at the plan's own solution")
+    parser.add_argument("--first-rho0", type=float, help="with --plan-first: the penalty its homotopy starts from (default the "
+                        "simulator's; 1e4 keeps the plan's solution where a weak penalty lets the regularizer move it)")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_replay")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
+    if args.first_rho0 is not None and (not args.plan_first or args.first_rho0 <= 0):
+        parser.error("--first-rho0 needs --plan-first and a value > 0")
     problem, x = plan_problem(args.plan)
-    rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first)}
+    rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first, first_rho0=args.first_rho0)}
     return report(args.out, rec, table(rec), args.json)
 
 

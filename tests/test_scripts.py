@@ -867,3 +867,5 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     late = x.copy()
     late[vb["y"][:-1]] = x[vb["y"][1:]]  # step k's reference becomes the state after step k + 1
     assert pr.replay(problem, late, 200.0, 5.0, plan_first=False)["max_deviation"] > 10 * REPLAY_TOL
+    with pytest.raises(SystemExit):  # a user error before any work: --first-rho0 only shapes the plan-first start
+        pr.main([str(tmp_path), "--first-rho0", "1e4"])
