@@ -6,7 +6,7 @@ Capler plan (a `planner plan` result directory) on its own grid: step k is solve
 (`planner.simulate`'s penalty homotopy, as scripts/probe_multiphase.py's pd start) from the rollout's state with the
 plan's control U_k plus a joint PD towards the plan's next state (hip and knee; at the plan's own states the PD adds
 nothing, so the plan is a solution of every step). Reported: the first step where the rollout leaves the plan (state
-difference above --tol), the plan's and the rollout's selectors (alpha, beta, gamma, zeta) there, how well the plan's
+difference above DEPARTURE_TOL), the plan's and the rollout's selectors (alpha, beta, gamma, zeta) there, how well the plan's
 own step solves the simulator's step NLP there (largest equality row, smallest complementarity row), and where the
 rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution (with
 --first-rho0 R its penalty homotopy from R).
@@ -28,7 +28,7 @@ import numpy as np
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.result import locate_input, read_start, read_summary, read_trajectory
-from planner.simulate import SimulateOptions, _penalized_nlp
+from planner.simulate import _penalized_nlp
 from planner.task import parse_task
 from scripts import probe_multiphase as pm
 from scripts._report import report
@@ -76,8 +76,9 @@ def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, 
                                 first_rho0=first_rho0)
     Yr, Wr = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]]
     dev = np.max(np.abs(Yr[:, : nq + nv] - Y[:, : nq + nv]), axis=1)  # per node
-    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "first_rho0": first_rho0, "tol": tol, "steps_failed": info["steps_failed"],
-           "max_deviation": float(dev.max()), "end_base_error_m": (Yr[-1, :2] - Y[-1, :2]).tolist(), "departure": None}
+    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "first_rho0": first_rho0, "tol": tol,
+           "steps_failed": info["steps_failed"], "max_deviation": float(dev.max()),
+           "end_base_error_m": (Yr[-1, :2] - Y[-1, :2]).tolist(), "departure": None}
     if dev.max() > tol:
         k = int(np.argmax(dev > tol)) - 1  # the step whose end state left the plan
         n_sel = problem.system.n_sigma
