@@ -171,8 +171,9 @@ def stepwise_start(problem, plan, mode: str, kp=(200.0, 200.0), kd=(5.0, 5.0), a
     homotopy does not reach the simulator's complementarity tolerance from any of its starts keeps its last iterate
     (counted in steps_failed). at(k, clock) -> (u_ff (nu,), q_ref (nq,), v_ref (nv,)), the reference of step k from
     the state whose clock is `clock` [s]; default: the plan read at clock + h (scripts/probe_replay.py reads a
-    time-freezing plan by its step index instead). first(k): a start of step k's solve (its unknowns and the slack) to
-    try before the others, or None; its penalty homotopy from first_rho0 (default the simulator's rho0)."""
+    time-freezing plan by its step index instead). first(k, y_k, u_ff): a start of step k's solve from the state y_k
+    (ny,) with the feed-forward u_ff (nu,) (its unknowns and the slack) to try before the others, or None; its penalty
+    homotopy from first_rho0 (default the simulator's rho0)."""
     system, builder, task = problem.system, problem.builder, problem.task
     ny, nu, nw, nq, nv, h, N = system.ny, system.nu, builder.nw, system.nq, system.nv, problem.h, problem.N
     y_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny)
@@ -223,7 +224,7 @@ def stepwise_start(problem, plan, mode: str, kp=(200.0, 200.0), kd=(5.0, 5.0), a
         starts = [(np.concatenate([Y[k], w, *tail, [0.0]]), replace(options, rho0=rho0))
                   for rho0 in (options.rho0, options.restart_rho0, 1e-3) for w in ((fresh,) if w_prev is None else (w_prev, fresh))]
         if first is not None:
-            starts.insert(0, (first(k), options if first_rho0 is None else replace(options, rho0=first_rho0)))
+            starts.insert(0, (first(k, Y[k], u_k), options if first_rho0 is None else replace(options, rho0=first_rho0)))
         x = _first_converged(solver, comp_fn, iter(starts), p, (lbx, ubx, lbg, ubg), options, total, f"step {k}")
         if x is None:
             failed += 1

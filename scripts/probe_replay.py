@@ -8,11 +8,13 @@ plan's control U_k plus a joint PD towards the plan's next state (hip and knee; 
 nothing, so the plan is a solution of every step). Reported: the first step where the rollout leaves the plan (state
 difference above DEPARTURE_TOL), the plan's and the rollout's selectors (alpha, beta, gamma, zeta) there, how well the plan's
 own step solves the simulator's step NLP there (largest equality row, smallest complementarity row), and where the
-rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution (with
---first-rho0 R its penalty homotopy from R).
+rollout ends against the plan. --plan-first starts each step's solve at the plan's own solution; --liftoff-first at a
+free-flight prediction (explicit Euler under gravity, selectors guessed there), a branch rule that needs no plan;
+--first-rho0 R starts either one's penalty homotopy at R.
 
     python -m scripts.probe_replay DIR              # DIR: e.g. `planner plan capler --out DIR`
     python -m scripts.probe_replay DIR --plan-first [--first-rho0 1e4]
+    python -m scripts.probe_replay DIR --liftoff-first --first-rho0 1e4
 Writes OUT/results.json.
 """
 from __future__ import annotations
@@ -35,6 +37,7 @@ from scripts._report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
+BASE_Z, GRAVITY = 1, 9.81  # Capler's base height in q [m] and gravity [m/s^2] (robots/capler.xml)
 
 
 def plan_problem(out_dir: Path):
@@ -59,9 +62,11 @@ def step_residual(problem, k: int, Y: np.ndarray, W: np.ndarray, U: np.ndarray) 
 
 
 def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, tol: float = DEPARTURE_TOL,
-           first_rho0: float | None = None) -> dict:
+           first_rho0: float | None = None, liftoff_first: bool = False) -> dict:
     """The record of the module docstring for the plan x_plan (nx,) of problem; first_rho0: the penalty the
-    plan-first start's homotopy begins with (None: the simulator's)."""
+    plan-first or lift-off-first start's homotopy begins with (None: the simulator's)."""
+    if plan_first and liftoff_first:
+        raise ValueError("plan_first and liftoff_first are two rules for the same first start: choose one")
     vb, nq, nv = problem.var_blocks, problem.system.nq, problem.system.nv
     U, W = x_plan[vb["u"]], x_plan[vb["w"]]
     Y = np.vstack([problem.y0, x_plan[vb["y"]]])
@@ -69,14 +74,21 @@ def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, 
     def at(k, clock):
         return U[k], Y[k + 1, :nq], Y[k + 1, nq : nq + nv]
 
-    def first(k):  # the plan's own solution of step k
+    def plan_start(k, y_k, u_ff):  # the plan's own solution of step k
         return np.concatenate([Y[k + 1], W[k], [0.0]])
 
-    x, info = pm.stepwise_start(problem, None, "pd", kp=(kp, kp), kd=(kd, kd), at=at, first=first if plan_first else None,
-                                first_rho0=first_rho0)
+    def liftoff_start(k, y_k, u_ff):  # free flight for one step: the base falls, the joints keep their speed
+        y = y_k.copy()
+        y[nq + BASE_Z] -= GRAVITY * problem.h
+        y[:nq] += problem.h * y[nq : nq + nv]
+        y[-1] += problem.h
+        return np.concatenate([y, problem.builder.guess(y, u_ff), [0.0]])
+
+    first = plan_start if plan_first else liftoff_start if liftoff_first else None
+    x, info = pm.stepwise_start(problem, None, "pd", kp=(kp, kp), kd=(kd, kd), at=at, first=first, first_rho0=first_rho0)
     Yr, Wr = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]]
     dev = np.max(np.abs(Yr[:, : nq + nv] - Y[:, : nq + nv]), axis=1)  # per node
-    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "first_rho0": first_rho0, "tol": tol,
+    rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "liftoff_first": liftoff_first, "first_rho0": first_rho0, "tol": tol,
            "steps_failed": info["steps_failed"], "max_deviation": float(dev.max()),
            "end_base_error_m": (Yr[-1, :2] - Y[-1, :2]).tolist(), "departure": None}
     if dev.max() > tol:
@@ -90,7 +102,7 @@ def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, 
 
 def table(rec: dict) -> str:
     lines = [f"replay of {rec.get('plan', 'the plan')} (N = {rec['N']}, PD kp {rec['kp']:g} kd {rec['kd']:g}, plan first: "
-             f"{rec['plan_first']}): {rec['steps_failed']} steps failed, largest deviation {rec['max_deviation']:.3g}, "
+             f"{rec['plan_first']}, lift-off first: {rec['liftoff_first']}): {rec['steps_failed']} steps failed, largest deviation {rec['max_deviation']:.3g}, "
              f"end base error {np.round(rec['end_base_error_m'], 4).tolist()} m"]
     d = rec["departure"]
     if d is None:
@@ -109,15 +121,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kp", type=float, default=200.0, help="joint PD stiffness [N m/rad]")
     parser.add_argument("--kd", type=float, default=5.0, help="joint PD damping [N m s/rad]")
     parser.add_argument("--plan-first", action="store_true", help="start each step's solve at the plan's own solution")
-    parser.add_argument("--first-rho0", type=float, help="with --plan-first: the penalty its homotopy starts from (default the "
-                        "simulator's; 1e4 keeps the plan's solution where a weak penalty lets the regularizer move it)")
+    parser.add_argument("--liftoff-first", action="store_true", help="start each step's solve at a free-flight prediction")
+    parser.add_argument("--first-rho0", type=float, help="with --plan-first or --liftoff-first: the penalty that start's homotopy "
+                        "begins with (default the simulator's; 1e4 keeps the start's branch where a weak penalty lets the regularizer move it)")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_replay")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
-    if args.first_rho0 is not None and (not args.plan_first or args.first_rho0 <= 0):
-        parser.error("--first-rho0 needs --plan-first and a value > 0")
+    if args.plan_first and args.liftoff_first:
+        parser.error("--plan-first and --liftoff-first are two rules for the same first start: choose one")
+    if args.first_rho0 is not None and (not (args.plan_first or args.liftoff_first) or args.first_rho0 <= 0):
+        parser.error("--first-rho0 needs --plan-first or --liftoff-first and a value > 0")
     problem, x = plan_problem(args.plan)
-    rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first, first_rho0=args.first_rho0)}
+    rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first, first_rho0=args.first_rho0,
+                                                liftoff_first=args.liftoff_first)}
     return report(args.out, rec, table(rec), args.json)
 
 

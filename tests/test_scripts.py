@@ -844,7 +844,8 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     """A 'plan' that is the simulator's own rollout (Capler, N = 10, joint PD on a swinging knee reference) is a
     solution of every step, so the replay by step index stays on it (no departure, deviation at round-off) and that
     plan's steps solve the simulator's step NLP (rows at the solver's tolerance, complementarity rows >= 0); read one
-    step late (the reference of step k + 1) the PD no longer vanishes at the plan's states and the replay leaves it."""
+    step late (the reference of step k + 1) the PD no longer vanishes at the plan's states and the replay leaves it.
+    The lift-off-first rule follows it too, and the two first-start rules exclude each other."""
     from planner.simulate import SimulateOptions
     from scripts import probe_multiphase as pm
     from scripts import probe_replay as pr
@@ -868,5 +869,12 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     late = x.copy()
     late[vb["y"][:-1]] = x[vb["y"][1:]]  # step k's reference becomes the state after step k + 1
     assert pr.replay(problem, late, 200.0, 5.0, plan_first=False)["max_deviation"] > 10 * REPLAY_TOL
-    with pytest.raises(SystemExit):  # a user error before any work: --first-rho0 only shapes the plan-first start
-        pr.main([str(tmp_path), "--first-rho0", "1e4"])
+    # the lift-off-first rule tries a free-flight start first; standing, no step has a flight solution, so the
+    # replay takes the same branches as the rollout
+    rec = pr.replay(problem, x, 200.0, 5.0, plan_first=False, liftoff_first=True)
+    assert rec["departure"] is None and rec["max_deviation"] <= REPLAY_TOL
+    with pytest.raises(ValueError):
+        pr.replay(problem, x, 200.0, 5.0, plan_first=True, liftoff_first=True)
+    for argv in (["--first-rho0", "1e4"], ["--plan-first", "--liftoff-first"]):  # user errors, before any work
+        with pytest.raises(SystemExit):
+            pr.main([str(tmp_path), *argv])
