@@ -862,9 +862,8 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     assert info["steps_failed"] == 0
     rec = pr.replay(problem, x, 200.0, 5.0, plan_first=False)
     assert rec["departure"] is None and rec["max_deviation"] <= REPLAY_TOL and rec["steps_failed"] == 0
-    vb = problem.var_blocks
-    Y, W, U = np.vstack([problem.y0, x[vb["y"]]]), x[vb["w"]], x[vb["u"]]
-    res = pr.step_residual(problem, 3, Y, W, U)
+    vb, rollout = problem.var_blocks, problem.split(x)
+    res = pr.step_residual(problem, 3, rollout["Y"], rollout["W"], rollout["U"])
     assert res["equality_max"] <= STEP_ROW_TOL and res["complementarity_min"] >= -SimulateOptions().comp_tol  # products within it
     late = x.copy()
     late[vb["y"][:-1]] = x[vb["y"][1:]]  # step k's reference becomes the state after step k + 1
