@@ -251,12 +251,17 @@ def probe(N: int, landings, T: float, nodes, start: str, max_iter: int, run_solv
     rec["start_state"] = info | {"wall_s": time.perf_counter() - t0, "base_x_end": float(y_end[0]), "clock_end": float(y_end[-1]),
                                  "violations": constraint_violation(problem, x)}
     if run_solve:
-        options = SolveOptions() if start == "interp" else replace(replan_options(), keep_schedule=True)
-        result = solve(replace(problem, x0=x), options)
-        rec["solve"] = {"converged": result.stats.converged, "iterations": result.stats.ipopt_iterations, "wall_s": result.stats.solve_time_s,
-                        "control_cost": result.summary().get("control_cost"),
-                        "nlps": [[r.label, r.iterations, r.status] for r in result.nlps]}
+        rec["solve"] = solve_from(problem, x, held=start != "interp")
     return rec
+
+
+def solve_from(problem, x: np.ndarray, held: bool) -> dict:
+    """The OCP solved from the start x (nx,): the held-schedule replan (`--keep-schedule`) or the hint-free homotopy."""
+    options = replace(replan_options(), keep_schedule=True) if held else SolveOptions()
+    result = solve(replace(problem, x0=x), options)
+    return {"held": held, "converged": result.stats.converged, "iterations": result.stats.ipopt_iterations,
+            "wall_s": result.stats.solve_time_s, "control_cost": result.summary().get("control_cost"),
+            "nlps": [[r.label, r.iterations, r.status] for r in result.nlps]}
 
 
 def table(rec: dict) -> str:

@@ -838,6 +838,8 @@ def test_probe_positions_flight_is_exact_with_the_trapezoid(tmp_path, capsys):
 
 # the simulator's steps converge to IPOPT's tol 1e-8; a replay that follows its own rollout differs by round-off
 REPLAY_TOL = 1e-6
+BY_CLOCK_TOL = 0.02  # [m] base; the rollout's steps advance its clock within 2e-4 s of h = 0.25 s (measured 1.0e-2 m)
+FROZEN_STANCE_MIN = 1.0  # a frozen standing step leaves products of order a_n h (measured 7.5-16 at N = 10); 1 is far above comp_tol
 
 
 def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
@@ -845,6 +847,8 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     solution of every step, so the replay by step index stays on it (no departure, deviation at round-off) and that
     plan's steps solve the simulator's step NLP (rows at the solver's tolerance, complementarity rows >= 0); read one
     step late (the reference of step k + 1) the PD no longer vanishes at the plan's states and the replay leaves it.
+    Its step 3 with the clock advance fixed is exact at its own advance and not at 0; it has no landing, and one
+    node lifted 0.1 m makes the next one a landing. Read by its own clock the replay stays within BY_CLOCK_TOL of it.
     The lift-off-first rule follows it too, and the two first-start rules exclude each other."""
     from planner.simulate import SimulateOptions
     from scripts import probe_multiphase as pm
@@ -865,6 +869,16 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     vb, rollout = problem.var_blocks, problem.split(x)
     res = pr.step_residual(problem, 3, rollout["Y"], rollout["W"], rollout["U"])
     assert res["equality_max"] <= STEP_ROW_TOL and res["complementarity_min"] >= -SimulateOptions().comp_tol  # products within it
+    # the step with its clock advance fixed: exact at its own advance, far from it at 0 (standing cannot be frozen: no
+    # impact to absorb); clock_family warm-starts every advance from the step's own solution
+    Y, W, U = rollout["Y"], rollout["W"], rollout["U"]
+    own = Y[4, -1] - Y[3, -1]
+    rows = pr.clock_family(problem, 3, Y[3], U, np.concatenate([Y[4], W[3]]), [own, 0.0])
+    assert rows[0]["complementarity"] <= SimulateOptions().comp_tol and rows[1]["complementarity"] > FROZEN_STANCE_MIN
+    assert pr.landings(problem, Y, W, U) == []  # standing: no node above the ground
+    lifted = Y.copy()
+    lifted[2, 1] += 0.1  # the base (and the foot) 0.1 m up at node 2, down again at node 3: a landing at node 3
+    assert [ld["node"] for ld in pr.landings(problem, lifted, W, U)] == [3]
     late = x.copy()
     late[vb["y"][:-1]] = x[vb["y"][1:]]  # step k's reference becomes the state after step k + 1
     assert pr.replay(problem, late, 200.0, 5.0, plan_first=False)["max_deviation"] > 10 * REPLAY_TOL
@@ -872,8 +886,11 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     # replay takes the same branches as the rollout
     rec = pr.replay(problem, x, 200.0, 5.0, plan_first=False, liftoff_first=True)
     assert rec["departure"] is None and rec["max_deviation"] <= REPLAY_TOL
+    # read by the rollout's own clock the reference is interpolated between nodes whose clocks are not exactly k h
+    rec = pr.replay(problem, x, 200.0, 5.0, plan_first=False, by_clock=True)
+    assert rec["by_clock"] and rec["max_deviation"] <= BY_CLOCK_TOL
     with pytest.raises(ValueError):
         pr.replay(problem, x, 200.0, 5.0, plan_first=True, liftoff_first=True)
-    for argv in (["--first-rho0", "1e4"], ["--plan-first", "--liftoff-first"]):  # user errors, before any work
+    for argv in (["--first-rho0", "1e4"], ["--plan-first", "--liftoff-first"], ["--family", "-1"], ["--by-clock", "--plan-first"]):  # user errors
         with pytest.raises(SystemExit):
             pr.main([str(tmp_path), *argv])
