@@ -56,13 +56,23 @@ def plan_problem(out_dir: Path):
     return problem, read_start(out_dir, problem.signature, problem.nx)
 
 
+def step_nlp(problem, u_k: np.ndarray, clock_advance: bool = False):
+    """The simulator's step NLP under the fixed control u_k (nu,), no PD: unknowns (y_next, w, s_c), parameters
+    (y_k, [c,] rho); with clock_advance a last row y_next's clock - y_k's - c (to be held at 0). Returns (nlp, comp_fn,
+    number of equalities, number of complementarity rows, the step's lbw and ubw)."""
+    ny = problem.system.ny
+    y_k, y_next, c = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny), ca.SX.sym("c")
+    step = problem.builder.build(y_k, y_next, ca.DM(u_k), 1.0, problem.h)
+    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(ca.vertcat(y_next, step.w), [step], ca.vertcat(y_k, c) if clock_advance else y_k)
+    if clock_advance:
+        nlp["g"] = ca.vertcat(nlp["g"], y_next[-1] - y_k[-1] - c)
+    return nlp, comp_fn, n_eq, n_comp, (step.lbw, step.ubw)
+
+
 def step_residual(problem, k: int, Y: np.ndarray, W: np.ndarray, U: np.ndarray) -> dict:
     """The plan's step k (Y (N + 1, ny), W (N, nw), U (N, nu)) in the simulator's step NLP (controls U_k, no PD):
     the largest equality row and the smallest complementarity row (>= 0 when its pairs are complementary)."""
-    ny = problem.system.ny
-    y_k, y_next = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny)
-    step = problem.builder.build(y_k, y_next, ca.DM(U[k]), 1.0, problem.h)
-    nlp, _, n_eq, _ = _penalized_nlp(ca.vertcat(y_next, step.w), [step], y_k)
+    nlp, _, n_eq, _, _ = step_nlp(problem, U[k])
     g = np.asarray(ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])(np.concatenate([Y[k + 1], W[k], [0.0]]),
                                                                        np.concatenate([Y[k], [1.0]]))).ravel()
     return {"equality_max": float(np.max(np.abs(g[:n_eq]))), "complementarity_min": float(np.min(g[n_eq:]))}
@@ -86,12 +96,9 @@ def clock_family(problem, k: int, y_k: np.ndarray, U: np.ndarray, start: np.ndar
     warm-started from the last, the first from start: (y_next, w) of a solution of the step) and the selectors.
     Products at the simulator's tolerance for a whole interval of advances: the step has a family of solutions."""
     ny, ns = problem.system.ny, problem.system.n_sigma
-    y_s, y_next, c = ca.SX.sym("y_k", ny), ca.SX.sym("y_next", ny), ca.SX.sym("c")
-    step = problem.builder.build(y_s, y_next, ca.DM(U[k]), 1.0, problem.h)
-    nlp, comp_fn, n_eq, n_comp = _penalized_nlp(ca.vertcat(y_next, step.w), [step], ca.vertcat(y_s, c))
-    nlp["g"] = ca.vertcat(nlp["g"], y_next[-1] - y_s[-1] - c)
+    nlp, comp_fn, n_eq, n_comp, (lbw, ubw) = step_nlp(problem, U[k], clock_advance=True)
     solver = ca.nlpsol("family", "ipopt", nlp, _ipopt_options(SimulateOptions()))
-    bounds = {"lbx": np.concatenate([np.full(ny, -np.inf), step.lbw, [0.0]]), "ubx": np.concatenate([np.full(ny, np.inf), step.ubw, [np.inf]]),
+    bounds = {"lbx": np.concatenate([np.full(ny, -np.inf), lbw, [0.0]]), "ubx": np.concatenate([np.full(ny, np.inf), ubw, [np.inf]]),
               "lbg": np.zeros(n_eq + n_comp + 1), "ubg": np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf), [0.0]])}
     rows = []
     for a in advances:
