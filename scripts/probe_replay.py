@@ -151,8 +151,10 @@ def replay(problem, x_plan: np.ndarray, kp: float, kd: float, plan_first: bool, 
                                 first=first, first_rho0=first_rho0)
     rollout = problem.split(x)
     Yr, Wr = rollout["Y"], rollout["W"]
-    if by_clock:  # the base (x, z) [m] against the plan at the rollout's clock
-        dev = np.array([max(abs(np.interp(y[-1], Y[:, -1], Y[:, i]) - y[i]) for i in (0, BASE_Z)) for y in Yr])
+    if by_clock:  # the base (x, z) [m] against the plan at the rollout's clock, read as the reference was
+        q_at = pm.reference(physical)[1]
+        base = [0, BASE_Z]
+        dev = np.array([np.max(np.abs(q_at(y[-1])[base] - y[base])) for y in Yr])
     else:
         dev = np.max(np.abs(Yr[:, : nq + nv] - Y[:, : nq + nv]), axis=1)  # per node
     rec = {"N": problem.N, "kp": kp, "kd": kd, "plan_first": plan_first, "liftoff_first": liftoff_first, "first_rho0": first_rho0, "tol": tol,
