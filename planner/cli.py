@@ -356,18 +356,13 @@ def _cmd_plan(args) -> int:
 
 
 def _start_task(args):
-    """The task the --init plan solved, for the replan's walk from it (planner.replan): as kept in its
-    trajectory.npz, else (a plan written before session 27) the file its summary.json names, with --steps as
-    given now; None, with a note on stderr, when neither can be read: the replan then does not walk."""
-    from .result import locate_input, read_summary, read_trajectory
-    from .task import load_task, parse_task
+    """The task the --init plan solved, for the replan's walk from it (planner.replan): result.read_task, with
+    --steps as given now; None, with a note on stderr, when it cannot be read: the replan then does not walk."""
+    from .result import read_task
 
     try:
-        arrays = read_trajectory(args.init)
-        if "task_json" in arrays:
-            return parse_task(json.loads(str(arrays["task_json"])), source=f"{args.init}/trajectory.npz")
-        task = load_task(locate_input(read_summary(args.init)["task"], args.init, "task"))
-    except (InputError, ValueError) as exc:  # ValueError: task_json that is not JSON
+        task = read_task(args.init)
+    except InputError as exc:
         _progress(args, f"  (no walk from the start's task: {exc})")
         return None
     return task if args.steps is None else replace(task, horizon=replace(task.horizon, N=args.steps))

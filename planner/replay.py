@@ -37,9 +37,9 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
-from .model import MASSLESS_LINK_KG, Robot, load_robot, mujoco_failure, mujoco_spec
-from .result import locate_input, read_summary, read_trajectory, write_atomically
-from .task import Task, load_task
+from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
+from .result import read_robot, read_summary, read_task, read_trajectory, write_atomically
+from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
 MAX_TRACKING_ERROR_M = 0.01  # base position error over the tracking replay [m] (issue 5)
@@ -559,16 +559,17 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     or for a periodic plan (task plan.periodic) a planner.gait.WalkValidation: its step walked
     gait.WALK_VALIDATION_STEPS times with the phase-indexed controller (`options` do not apply).
 
-    The robot and task files are the ones named in summary.json (a relative path is tried from the
-    working directory, then from `out_dir`). Missing or garbled files raise InputError.
+    The robot is the file named in summary.json (a relative path is tried from the working directory,
+    then from `out_dir`), the task the one the plan solved (result.read_task: trajectory.npz's copy, else
+    the file summary.json names). Missing or garbled files raise InputError.
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"result directory not found: {out_dir}")
     summary = read_summary(out_dir)
-    robot = load_robot(locate_input(summary["robot"], out_dir, "robot"))
-    task = load_task(locate_input(summary["task"], out_dir, "task"))
+    robot = read_robot(out_dir, summary)
     traj = read_trajectory(out_dir)
+    task = read_task(out_dir, traj)
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
 

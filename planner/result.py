@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .task import task_to_json
+from .task import Task, load_task, parse_task, task_to_json
 
 
 @dataclass(frozen=True, eq=False)
@@ -505,6 +505,29 @@ def read_start(out_dir: Path, signature: str, nx: int) -> np.ndarray:
     if not np.all(np.isfinite(x)):
         raise InputError(f"the NLP point in {Path(out_dir) / 'trajectory.npz'} is not finite")
     return x
+
+
+def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None) -> Task:
+    """The task a result solved: trajectory.npz's task_json (`planner plan` keeps it, --steps included), else
+    (a result without it) the task file its summary.json names. arrays: out_dir's trajectory arrays when
+    already read. InputError when neither can be read."""
+    arrays = read_trajectory(out_dir) if arrays is None else arrays
+    if "task_json" not in arrays:
+        return load_task(locate_input(read_summary(out_dir)["task"], out_dir, "task"))
+    try:
+        data = json.loads(str(arrays["task_json"]))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: task_json is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: task_json must hold a JSON object, got {type(data).__name__}")
+    return parse_task(data, source=f"{Path(out_dir) / 'trajectory.npz'}")
+
+
+def read_robot(out_dir: Path, summary: dict):
+    """The robot (planner.model.Robot) of a result: the file its summary.json names (locate_input)."""
+    from .model import load_robot
+
+    return load_robot(locate_input(summary["robot"], out_dir, "robot"))
 
 
 def locate_input(name: str, out_dir: Path, what: str) -> Path:

@@ -29,8 +29,8 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, PlannerError
-from .model import Robot, RobotFormat, load_robot
-from .result import locate_input, read_summary, read_trajectory, write_atomically
+from .model import Robot, RobotFormat
+from .result import read_robot, read_summary, read_task, read_trajectory, write_atomically
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -137,8 +137,6 @@ class Result:
 
 def load_result(out_dir) -> Result:
     """Read a result directory (the contract in design.md). Raises InputError naming what is wrong."""
-    from .task import load_task
-
     directory = Path(out_dir)
     if not directory.is_dir():
         raise InputError(f"result directory not found: {directory}")
@@ -150,10 +148,10 @@ def load_result(out_dir) -> Result:
     required, optional = ("tau", "y", "t", "q", "v", "u", "impact_times"), ("lambda_n", "lambda_t")
     raw = read_trajectory(directory, required)  # writers may add non-numeric arrays: keep the numeric ones
     arrays = {k: np.asarray(raw[k], dtype=float) for k in required + optional if k in raw}
-    robot = load_robot(locate_input(summary["robot"], directory, "robot"))
+    robot = read_robot(directory, summary)
     if summary.get("task") is not None and not isinstance(summary["task"], str):
         raise InputError(f"{summary_path}: task must be a file path, got {summary['task']!r}")
-    task = load_task(locate_input(summary["task"], directory, "task")) if summary.get("task") else None
+    task = read_task(directory, raw) if "task_json" in raw or summary.get("task") else None
 
     impacts = summary.get("impacts") or []
     if not isinstance(impacts, list) or not all(

@@ -23,7 +23,6 @@ Writes OUT/results.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -31,11 +30,9 @@ import casadi as ca
 import numpy as np
 
 from planner.homotopy import constraint_violation
-from planner.model import load_robot
 from planner.problem import build_problem
-from planner.result import locate_input, read_start, read_summary, read_trajectory
+from planner.result import read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
-from planner.task import parse_task
 from scripts import probe_multiphase as pm
 from scripts._report import report
 
@@ -49,10 +46,7 @@ BASE_Z, GRAVITY = 1, 9.81  # Capler's base height in q [m] and gravity [m/s^2] (
 
 def plan_problem(out_dir: Path):
     """(problem, x) of the plan in out_dir: the task as kept in its trajectory.npz, the robot its summary.json names."""
-    arrays = read_trajectory(out_dir, ("task_json",))
-    task = parse_task(json.loads(str(arrays["task_json"])), source=f"{out_dir}/trajectory.npz")
-    robot = load_robot(locate_input(read_summary(out_dir)["robot"], out_dir, "robot"))
-    problem = build_problem(robot, task)
+    problem = build_problem(read_robot(out_dir, read_summary(out_dir)), read_task(out_dir, read_trajectory(out_dir, ("task_json",))))
     return problem, read_start(out_dir, problem.signature, problem.nx)
 
 

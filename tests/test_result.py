@@ -2,14 +2,18 @@
 from __future__ import annotations
 
 import json
+import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from planner.model import load_robot
-from planner.result import TAP_SHARE, SimulationResult, SolveStats, Trajectory, recover, tap_flags, write_atomically, write_results
+from planner.errors import InputError
+from planner.model import load_robot, resolve_robot_path
+from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, read_robot, read_summary, read_task, recover, tap_flags,
+                            write_atomically, write_results)
 from planner.simulate import simulate
-from planner.task import parse_task
+from planner.task import default_task_path, load_task, parse_task, task_to_json
 
 EXACT = 1e-12  # hand-made data: sums of a few floats
 
@@ -109,6 +113,25 @@ def test_write_results_follows_the_contract(tmp_path):
     assert summary["impacts"][0]["impulse_norm"] == pytest.approx(np.hypot(imp.impulse, imp.impulse_tangential), abs=EXACT)
     assert summary["physical_duration_s"] == pytest.approx(result.trajectory.physical_duration)
     assert "impact" in result.report()
+
+
+def test_read_task_is_the_task_the_plan_solved(tmp_path):
+    """read_task returns trajectory.npz's task_json (the task solved, here with another N, as `--steps` makes it)
+    over the task file summary.json names; without the copy, that file; a copy that is not a JSON object is an
+    InputError naming task_json. read_robot loads the robot summary.json names."""
+    task_file = tmp_path / "task.toml"
+    shutil.copy(default_task_path(resolve_robot_path("point_mass")), task_file)
+    on_file = load_task(task_file)
+    solved = replace(on_file, horizon=replace(on_file.horizon, N=on_file.horizon.N + 3))
+    (tmp_path / "summary.json").write_text(json.dumps({"robot": "point_mass", "task": str(task_file)}))
+    for kept, expected in ((task_to_json(solved), solved.horizon.N), (None, on_file.horizon.N)):
+        np.savez(tmp_path / "trajectory.npz", t=np.zeros(1), **({} if kept is None else {"task_json": np.array(kept)}))
+        assert read_task(tmp_path).horizon.N == expected
+    for garbled in ("{", "[1, 2]"):
+        np.savez(tmp_path / "trajectory.npz", task_json=np.array(garbled))
+        with pytest.raises(InputError, match="task_json"):
+            read_task(tmp_path)
+    assert read_robot(tmp_path, read_summary(tmp_path)).nq == load_robot("point_mass").nq
 
 
 def test_taps_are_impacts_below_a_share_of_the_largest():

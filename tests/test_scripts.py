@@ -620,6 +620,31 @@ def test_probe_multiphase_quick_run(tmp_path, capsys):
     assert max(viol[b] for b in ("dynamics", "stationarity", "lifting", "contact_forces")) <= STEP_ROW_TOL
 
 
+# the held replan stops at IPOPT's acceptable level (tol 1e-6) from the plan's own point: the cost moves below 1e-6 of it
+# (measured 7e-8 on the hop at N = 10); the homotopy returns to the same plan (measured to 1e-15)
+SAME_PLAN_COST_REL = 1e-6
+
+
+def test_solve_from_a_plan_returns_to_it():
+    """probe_multiphase.solve_from from a converged plan's own NLP point: the held-schedule replan converges to that
+    plan in fewer iterations than the plan took, as one 'schedule' NLP; the hint-free homotopy from it converges too,
+    to the same plan (point-mass hop, N = 10, 1-2 s)."""
+    from scripts import probe_multiphase as pm
+    from scripts.bench_pipeline import hop_case
+
+    problem = build_problem(*hop_case(10))
+    plan = H.solve(problem, H.SolveOptions())
+    assert plan.stats.converged
+    cost = plan.summary()["control_cost"]
+    held = pm.solve_from(problem, plan.extra["_x"], held=True)
+    assert held["converged"] and held["iterations"] < plan.stats.ipopt_iterations
+    assert [label for label, _, _ in held["nlps"]] == ["schedule"]
+    assert held["control_cost"] == pytest.approx(cost, rel=SAME_PLAN_COST_REL)
+    homotopy = pm.solve_from(problem, plan.extra["_x"], held=False)
+    assert homotopy["converged"] and homotopy["nlps"][0][0] == "homotopy 1"
+    assert homotopy["control_cost"] == pytest.approx(cost, rel=SAME_PLAN_COST_REL)
+
+
 # --- scripts/bench_biped_walk.py -----------------------------------------------------------------------
 
 def test_bench_biped_walk_quick_run(tmp_path, capsys):
