@@ -535,6 +535,32 @@ def test_probe_steps_quick_run(tmp_path, capsys):
         assert all(n <= r["steps_cut"] for _, _, n in r["variables"] + r["rows"])
 
 
+def test_probe_early_stop_quick_run(tmp_path, capsys):
+    """--quick --json: the records as printed and in results.json; the probe's NLP 2 is the alternate arm's own (as
+    many iterations as solve() takes in it), its checkpoint is that NLP's iterate 5, the held schedule from the NLP's
+    end is accepted (the hop converges) and its modes differ from themselves nowhere; selector_modes reads every
+    selector of the converged plan as at 0, at 1 or inside; a malformed --at is a usage error."""
+    from planner.race import default_arms
+    from scripts import probe_early_stop as pes
+
+    problem = build_problem(*pes.CASES["hop"](True))
+    alternate = dict(default_arms(H.SolveOptions()))["alternate"]
+    plan = H.solve(problem, alternate)
+    assert pes.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "results.json").read_text()) and rec["arm"] == "alternate"
+    capped, end = rec["records"]
+    assert (capped["nlp"], capped["at"], capped["nlp_iterations"]) == (2, 5, 5)
+    assert end["at"] is None and end["nlp_iterations"] == plan.nlps[1].iterations
+    assert end["accepted"] and end["modes_differing"] == 0 and end["control_cost"] > 0
+    modes = pes.selector_modes(problem, plan.extra["_x"])
+    assert modes.shape == problem.var_blocks["sigma"].shape and set(np.unique(modes)) <= set(pes.MODES.values())
+    assert pes.parse_at(["3:40,20"]) == {3: [20, 40]}
+    for bad in (["0:5"], ["2:"], ["2:x"]):
+        with pytest.raises(SystemExit):
+            pes.main(["--at", *bad, "--out", str(tmp_path)])
+
+
 def test_probe_steps_finds_the_variable_left_at_one_percent():
     """cut_steps: a step that leaves a variable at 1 % of its distance to a finite bound (the fraction-to-the-boundary
     rule) is reported with that bound's side; halving a distance, an infinite bound, or a variable that starts on its
