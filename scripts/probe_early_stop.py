@@ -56,6 +56,8 @@ def selector_modes(problem, x) -> np.ndarray:
 def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[dict]:
     """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end."""
     H.keep_freed_memory()
+    # the held NLPs get their own solvers: each scales by its start's magnitudes, which would replace the scale the
+    # homotopy's warm NLPs see
     solvers, held_solvers = H._Solvers(problem, options), H._Solvers(problem, options)
     rhos = H.task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)
     term_rows, control = H._terminal_rows(problem), problem.objective_parts["control"]
@@ -68,7 +70,7 @@ def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[di
             lbg[term_rows], ubg[term_rows] = -np.inf, np.inf
         scale = 0.0 if options.holes is H.HoleSchedule.RELAXED_FIRST and i == 0 and len(rhos) > 1 else 1.0
         p = problem.params(rhos[i], scale, terminal_weight=options.soft_terminal_weight if soft else 0.0)
-        solvers.options = options if cap is None else replace(options, max_iter=cap)
+        solvers.options = options if cap is None else replace(options, max_iter=cap)  # solvers.get keeps one IPOPT per option set
         return H._run(problem, solvers, x, lam_x, lam_g, p, problem.lbx, problem.ubx, f"homotopy {i + 1}", lbg, ubg,
                       loose=i < len(rhos) - 1)
 
