@@ -569,7 +569,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     summary = read_summary(out_dir)
     robot = read_robot(out_dir, summary)
     traj = read_trajectory(out_dir)
-    task = read_task(out_dir, traj)
+    task = read_task(out_dir, traj, summary)
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
 

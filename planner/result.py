@@ -507,13 +507,14 @@ def read_start(out_dir: Path, signature: str, nx: int) -> np.ndarray:
     return x
 
 
-def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None) -> Task:
+def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None, summary: dict | None = None) -> Task:
     """The task a result solved: trajectory.npz's task_json (`planner plan` keeps it, --steps included), else
-    (a result without it) the task file its summary.json names. arrays: out_dir's trajectory arrays when
-    already read. InputError when neither can be read."""
+    (a result without it) the task file its summary.json names. arrays, summary: out_dir's trajectory arrays
+    and summary when already read. InputError when neither can be read."""
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "task_json" not in arrays:
-        return load_task(locate_input(read_summary(out_dir)["task"], out_dir, "task"))
+        summary = read_summary(out_dir) if summary is None else summary
+        return load_task(locate_input(summary["task"], out_dir, "task"))
     try:
         data = json.loads(str(arrays["task_json"]))
     except json.JSONDecodeError as exc:

@@ -151,7 +151,7 @@ def load_result(out_dir) -> Result:
     robot = read_robot(directory, summary)
     if summary.get("task") is not None and not isinstance(summary["task"], str):
         raise InputError(f"{summary_path}: task must be a file path, got {summary['task']!r}")
-    task = read_task(directory, raw) if "task_json" in raw or summary.get("task") else None
+    task = read_task(directory, raw, summary) if "task_json" in raw or summary.get("task") else None
 
     impacts = summary.get("impacts") or []
     if not isinstance(impacts, list) or not all(
