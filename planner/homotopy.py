@@ -853,13 +853,18 @@ def _held(problem, solvers, options, x0, records, progress, label):
     return x if _accepted(problem, options, x, rec) else None
 
 
-def _reoptimize(problem, solvers, options, x0, records, progress):
-    """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None."""
+def _held_scaled(problem, solvers, options, x0, records, progress, label):
+    """_held from x0 (ungated), the variables scaled by x0's own magnitudes as the replan's schedule NLP is
+    (VariableScaling.START): (x0 ungated, the accepted point or None)."""
     if "gates" in problem.notes:
         x0 = ungate(problem, x0)
-    # scaled by the plan's own magnitudes, as the replan's schedule NLP is (VariableScaling.START)
     solvers.set_scale(variable_scale(problem, x0, stages=True))
-    x = _held(problem, solvers, options, x0, records, progress, "reoptimize")
+    return x0, _held(problem, solvers, options, x0, records, progress, label)
+
+
+def _reoptimize(problem, solvers, options, x0, records, progress):
+    """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None."""
+    x0, x = _held_scaled(problem, solvers, options, x0, records, progress, "reoptimize")
     f, p = _nlp_fn(problem, "f"), problem.params(0.0, 1.0)
     return x if x is not None and float(f(x, p)) < float(f(x0, p)) else None
 

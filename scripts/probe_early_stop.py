@@ -54,10 +54,13 @@ def selector_modes(problem, x) -> np.ndarray:
 
 
 def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[dict]:
-    """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end."""
+    """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end. The NLPs' parameters are
+    solve()'s for options without the per-NLP schedules (an, at, l1, rho_f: those of both race arms)."""
+    if any((options.an_schedule, options.at_schedule, options.l1_schedule, options.rho_f_schedule)):
+        raise ValueError("probe_early_stop builds the homotopy's NLPs without the per-NLP schedules (an, at, l1, rho_f)")
     H.keep_freed_memory()
-    # the held NLPs get their own solvers: each scales by its start's magnitudes, which would replace the scale the
-    # homotopy's warm NLPs see
+    # the held NLPs get their own solvers: each scales by its start's magnitudes (_held_scaled), which would replace
+    # the scale the homotopy's warm NLPs see
     solvers, held_solvers = H._Solvers(problem, options), H._Solvers(problem, options)
     rhos = H.task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)
     term_rows, control = H._terminal_rows(problem), problem.objective_parts["control"]
@@ -76,9 +79,7 @@ def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[di
 
     def held(x, rec) -> dict:
         records = []
-        x0 = H.ungate(problem, x) if "gates" in problem.notes else x
-        held_solvers.set_scale(H.variable_scale(problem, x0, stages=True))
-        xh = H._held(problem, held_solvers, options, x0, records, None, "held")
+        _, xh = H._held_scaled(problem, held_solvers, options, x, records, None, "held")
         out = {"complementarity": rec.complementarity_residual, "nlp_iterations": rec.iterations,
                "held_iterations": records[-1].iterations, "held_status": records[-1].status, "accepted": xh is not None}
         if xh is not None:
