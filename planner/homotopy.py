@@ -687,6 +687,49 @@ class _Solvers:
         return self.cache[key]
 
 
+def homotopy_rhos(problem: Problem, options: SolveOptions) -> list[float]:
+    """The homotopy's penalties rho, one per NLP: options.rho_schedule, else the task's schedule as
+    options.rho_min / rho_max / rho_refine change it (task_rho_schedule)."""
+    if options.rho_schedule:
+        return [float(r) for r in options.rho_schedule]
+    return task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)
+
+
+@dataclass(frozen=True)
+class HomotopyNlp:
+    """NLP i of the homotopy as solve() hands it to IPOPT (with problem.lbx, problem.ubx)."""
+    label: str  # "homotopy {i + 1}"
+    p: np.ndarray  # (7,) the parameters (Problem.params)
+    lbg: np.ndarray  # (ng,) the row bounds: the terminal rows free while the terminal is soft
+    ubg: np.ndarray  # (ng,)
+    soft: bool  # the terminal is a penalty in the objective, not rows
+    hole_scale: float  # 0: the holes relaxed (HoleSchedule.RELAXED_FIRST's first NLP), 1: enforced
+    loose: bool  # not the last NLP: solved to the looser tolerances of _run
+
+
+def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[float] | None = None) -> HomotopyNlp:
+    """NLP i (0-based) of solve()'s homotopy over `rhos` (default homotopy_rhos): its penalty, the
+    holes relaxed or enforced, the terminal soft or hard, and the per-NLP schedules of `options`
+    (an_schedule, at_schedule, l1_schedule, rho_f_schedule; a schedule shorter than the homotopy keeps
+    its last value)."""
+    rhos = homotopy_rhos(problem, options) if rhos is None else rhos
+
+    def sched(values, default):
+        return default if not values else float(values[min(i, len(values) - 1)])
+
+    hole_scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and len(rhos) > 1) else 1.0
+    soft = i < options.soft_terminal_nlps
+    lbg, ubg = problem.lbg, problem.ubg
+    if soft:
+        rows = _terminal_rows(problem)
+        lbg, ubg = lbg.copy(), ubg.copy()
+        lbg[rows], ubg[rows] = -np.inf, np.inf
+    p = problem.params(rhos[i], hole_scale, sched(options.an_schedule, 1.0), sched(options.at_schedule, 1.0),
+                       options.soft_terminal_weight if soft else 0.0, sched(options.l1_schedule, 0.0),
+                       sched(options.rho_f_schedule, 1.0))
+    return HomotopyNlp(f"homotopy {i + 1}", p, lbg, ubg, soft, hole_scale, loose=i < len(rhos) - 1)
+
+
 def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Progress | None = None) -> PlanResult:
     """Run the homotopy (and the polishing NLP) on `problem`; returns a PlanResult.
 
@@ -707,38 +750,23 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     records: list[NlpRecord] = []
     starts = []  # (x, lam_x, lam_g, label) of the last homotopy NLPs, the latest first
     timings = {"build_s": problem.build_time_s}
-    rhos = list(options.rho_schedule) if options.rho_schedule else task_rho_schedule(hom, options.rho_min, options.rho_max, options.rho_refine)
-    n_nlp = len(rhos)
-
-    def sched(values, i):
-        return 1.0 if not values else float(values[min(i, len(values) - 1)])
-
-    term_rows = _terminal_rows(problem)
+    rhos = homotopy_rhos(problem, options)
     scaling = options.variable_scaling or (VariableScaling.FIRST_NLP if hom.scale_variables else VariableScaling.NONE)
     if scaling is VariableScaling.START:
         solvers.set_scale(variable_scale(problem, x, stages=True))
         solvers.scale_cold = True
     held = _keep_schedule(problem, solvers, options, x, records, progress) if options.keep_schedule else None
-    for i, rho in enumerate(rhos if held is None and not options.schedule_only else []):
-        scale = 0.0 if (options.holes is HoleSchedule.RELAXED_FIRST and i == 0 and n_nlp > 1) else 1.0
-        soft = i < options.soft_terminal_nlps
-        lbg, ubg = problem.lbg, problem.ubg
-        if soft:
-            lbg, ubg = lbg.copy(), ubg.copy()
-            lbg[term_rows], ubg[term_rows] = -np.inf, np.inf
-        p = problem.params(rho, scale, sched(options.an_schedule, i), sched(options.at_schedule, i),
-                           options.soft_terminal_weight if soft else 0.0,
-                           float(options.l1_schedule[min(i, len(options.l1_schedule) - 1)]) if options.l1_schedule else 0.0,
-                           sched(options.rho_f_schedule, i))
-        x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, p, problem.lbx, problem.ubx, f"homotopy {i + 1}", lbg, ubg,
-                                    loose=i < n_nlp - 1)
+    for i in range(len(rhos) if held is None and not options.schedule_only else 0):
+        nlp = homotopy_nlp(problem, options, i, rhos)
+        x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, nlp.p, problem.lbx, problem.ubx, nlp.label, nlp.lbg, nlp.ubg,
+                                    loose=nlp.loose)
         records.append(rec)
         if progress:
             progress(rec)
         if i == 0 and scaling is VariableScaling.FIRST_NLP:
             solvers.set_scale(variable_scale(problem, x))
         starts = ([(x, lam_x, lam_g, rec.label)] + starts)[: options.polish_starts]
-        if (options.early_stop_comp is not None and not soft and scale == 1.0 and rec.success
+        if (options.early_stop_comp is not None and not nlp.soft and nlp.hole_scale == 1.0 and rec.success
                 and rec.complementarity_residual <= options.early_stop_comp):
             break  # a larger rho cannot improve a point whose products are already ~0: IPOPT would only wander off and back
     homotopy_ok = all(r.success for r in records if r.label.startswith("homotopy"))

@@ -54,8 +54,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from planner.homotopy import (SolveOptions, _Solvers, _terminal_rows, ipopt_options, keep_freed_memory, solve,
-                              solve_fields_from_json, solve_options_from_dict, task_rho_schedule, variable_scale)
+from planner.homotopy import (SolveOptions, _Solvers, homotopy_nlp, ipopt_options, keep_freed_memory, solve,
+                              solve_fields_from_json, solve_options_from_dict, variable_scale)
 from planner.derivatives import nlp_derivatives
 from planner.errors import InputError
 from planner.model import load_robot
@@ -138,12 +138,8 @@ CAPLER_SET = ("capler125", "capler100", "capler75", "capler50", "capler_x2.8", "
 
 def nlp1_arguments(problem, options: SolveOptions) -> dict:
     """The arguments planner.homotopy.solve gives NLP 1 (default options: holes relaxed, soft terminal)."""
-    rho = task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)[0]
-    lbg, ubg = problem.lbg.copy(), problem.ubg.copy()
-    rows = _terminal_rows(problem)
-    lbg[rows], ubg[rows] = -np.inf, np.inf
-    p = problem.params(rho, 0.0, terminal_weight=options.soft_terminal_weight)
-    return {"x0": problem.x0, "p": p, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": lbg, "ubg": ubg}
+    nlp = homotopy_nlp(problem, options, 0)
+    return {"x0": problem.x0, "p": nlp.p, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": nlp.lbg, "ubg": nlp.ubg}
 
 
 def nlp2_setup(problem, x1=None) -> tuple[dict, dict]:
@@ -157,9 +153,8 @@ def nlp2_setup(problem, x1=None) -> tuple[dict, dict]:
     scaled = problem.task.plan.homotopy.scale_variables
     D = variable_scale(problem, x1) if scaled else np.ones(problem.nx)
     solvers.set_scale(D)
-    rho = task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)[1]
-    args = {"x0": x1 / D, "p": problem.params(rho, 1.0), "lbx": problem.lbx / D, "ubx": problem.ubx / D,
-            "lbg": problem.lbg, "ubg": problem.ubg}
+    nlp = homotopy_nlp(problem, options, 1)
+    args = {"x0": x1 / D, "p": nlp.p, "lbx": problem.lbx / D, "ubx": problem.ubx / D, "lbg": nlp.lbg, "ubg": nlp.ubg}
     return solvers.scaled_nlp, args
 
 

@@ -54,28 +54,21 @@ def selector_modes(problem, x) -> np.ndarray:
 
 
 def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[dict]:
-    """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end. The NLPs' parameters are
-    solve()'s for options without the per-NLP schedules (an, at, l1, rho_f: those of both race arms)."""
-    if any((options.an_schedule, options.at_schedule, options.l1_schedule, options.rho_f_schedule)):
-        raise ValueError("probe_early_stop builds the homotopy's NLPs without the per-NLP schedules (an, at, l1, rho_f)")
+    """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end; the NLPs are solve()'s
+    (planner.homotopy.homotopy_nlp)."""
     H.keep_freed_memory()
     # the held NLPs get their own solvers: each scales by its start's magnitudes (_held_scaled), which would replace
     # the scale the homotopy's warm NLPs see
     solvers, held_solvers = H._Solvers(problem, options), H._Solvers(problem, options)
-    rhos = H.task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)
-    term_rows, control = H._terminal_rows(problem), problem.objective_parts["control"]
+    rhos = H.homotopy_rhos(problem, options)
+    control = problem.objective_parts["control"]
     scaled = problem.task.plan.homotopy.scale_variables
 
     def run(i, x, lam_x, lam_g, cap=None):
-        soft = i < options.soft_terminal_nlps
-        lbg, ubg = problem.lbg.copy(), problem.ubg.copy()
-        if soft:
-            lbg[term_rows], ubg[term_rows] = -np.inf, np.inf
-        scale = 0.0 if options.holes is H.HoleSchedule.RELAXED_FIRST and i == 0 and len(rhos) > 1 else 1.0
-        p = problem.params(rhos[i], scale, terminal_weight=options.soft_terminal_weight if soft else 0.0)
+        nlp = H.homotopy_nlp(problem, options, i, rhos)
         solvers.options = options if cap is None else replace(options, max_iter=cap)  # solvers.get keeps one IPOPT per option set
-        return H._run(problem, solvers, x, lam_x, lam_g, p, problem.lbx, problem.ubx, f"homotopy {i + 1}", lbg, ubg,
-                      loose=i < len(rhos) - 1)
+        return H._run(problem, solvers, x, lam_x, lam_g, nlp.p, problem.lbx, problem.ubx, nlp.label, nlp.lbg, nlp.ubg,
+                      loose=nlp.loose)
 
     def held(x, rec) -> dict:
         records = []

@@ -303,6 +303,37 @@ def test_task_rho_schedule():
     assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
 
 
+def test_homotopy_nlp_is_what_solve_hands_ipopt():
+    """homotopy_nlp(problem, options, i) is NLP i as solve() runs it: the same parameters, row bounds and tolerance
+    on the hop with two soft-terminal NLPs and per-NLP schedules shorter than the homotopy (the last value kept);
+    the terminal rows are free exactly in the soft NLPs, the holes scaled 0 only in the first, the last NLP tight."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=20))
+    options = H.SolveOptions(soft_terminal_nlps=2, l1_schedule=(0.5, 0.0), rho_f_schedule=(10.0, 2.0), polish=H.Polish.NONE,
+                             early_stop_comp=None)
+    seen = {}
+    real_run = H._run
+
+    def spy(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, **kwargs):
+        seen[label] = (np.asarray(p, float).copy(), lbg, ubg, kwargs.get("loose", False))
+        return real_run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg, ubg, **kwargs)
+
+    H._run = spy
+    try:
+        H.solve(prob, options)
+    finally:
+        H._run = real_run
+    rhos = H.homotopy_rhos(prob, options)
+    rows = H._terminal_rows(prob)
+    assert len(seen) == len(rhos) >= 3
+    for i, rho in enumerate(rhos):
+        nlp = H.homotopy_nlp(prob, options, i)
+        p, lbg, ubg, loose = seen[nlp.label]
+        assert np.array_equal(p, nlp.p) and np.array_equal(lbg, nlp.lbg) and np.array_equal(ubg, nlp.ubg) and loose == nlp.loose
+        assert p[0] == rho and p[5] == (0.5 if i == 0 else 0.0) and p[6] == (10.0 if i == 0 else 2.0)
+        assert nlp.soft == (i < 2) and np.all(np.isinf(nlp.lbg[rows])) == nlp.soft and (p[4] > 0) == nlp.soft
+        assert nlp.hole_scale == (0.0 if i == 0 else 1.0) and nlp.loose == (i < len(rhos) - 1)
+
+
 def test_keep_freed_memory_serves_large_blocks_from_the_heap():
     """After keep_freed_memory() glibc serves a 64 MiB block (the size class of MUMPS's factor
     storage) from the heap, not from a fresh mmap: mallinfo2's mmapped bytes do not grow."""

@@ -539,8 +539,8 @@ def test_probe_early_stop_quick_run(tmp_path, capsys):
     """--quick --json: the records as printed and in results.json; the probe's NLP 2 is the alternate arm's own (as
     many iterations as solve() takes in it), its checkpoint is that NLP's iterate 5, the held schedule from the NLP's
     end is accepted (the hop converges) and its modes differ from themselves nowhere; selector_modes reads every
-    selector of the converged plan as at 0, at 1 or inside; a malformed --at is a usage error, and options with per-NLP
-    schedules, whose NLPs it would not build as solve() does, are refused."""
+    selector of the converged plan as at 0, at 1 or inside; a malformed --at is a usage error; with a per-NLP
+    schedule (the regularizer's factor) the probe's NLP 2 is still solve()'s (homotopy_nlp builds both)."""
     from dataclasses import replace
 
     from planner.race import default_arms
@@ -559,8 +559,9 @@ def test_probe_early_stop_quick_run(tmp_path, capsys):
     modes = pes.selector_modes(problem, plan.extra["_x"])
     assert modes.shape == problem.var_blocks["sigma"].shape and set(np.unique(modes)) <= set(pes.MODES.values())
     assert pes.parse_at(["3:40,20"]) == {3: [20, 40]}
-    with pytest.raises(ValueError, match="schedules"):  # NLPs it would not build as solve() does
-        pes.probe(problem, replace(alternate, rho_f_schedule=(10.0,)), {2: [5]})
+    weighted = replace(alternate, rho_f_schedule=(10.0, 1.0))
+    end_weighted = pes.probe(problem, weighted, {2: []})[-1]
+    assert end_weighted["nlp_iterations"] == H.solve(problem, weighted).nlps[1].iterations != end["nlp_iterations"]
     for bad in (["0:5"], ["2:"], ["2:x"]):
         with pytest.raises(SystemExit):
             pes.main(["--at", *bad, "--out", str(tmp_path)])
