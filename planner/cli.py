@@ -7,9 +7,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
+import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -38,7 +41,7 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
         p.add_argument("--out", type=Path, help="directory that receives the results")
     if plots:
         p.add_argument("--no-plots", action="store_true",
-                       help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan; `planner view` still works)")
+                       help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan unless it validates: they are then drawn meanwhile; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
     verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (in a racing plan each line starts with its arm's name, [default] or [alternate])")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
@@ -216,24 +219,70 @@ def _load_inputs(args):
     return robot, task, out
 
 
-def _write(args, result, out: Path) -> Path:
+def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Callable[[], None]]:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
-    good earlier result in `out` is never overwritten."""
-    from .plots import plot_results
+    good earlier result in `out` is never overwritten. Returns that directory and a call that waits
+    for the plots: background draws them in a child process meanwhile (the caller validates, on the
+    other CPU), else they are drawn before this returns."""
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
     if args.no_plots:
-        return target
+        return target, lambda: None
+    if not background:
+        _plotted(args, result.stats.converged, _draw(target))
+        return target, lambda: None
+    ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
+    reader, writer = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
+    child.start()
+    writer.close()
+
+    def finish() -> None:
+        try:
+            kind, message = reader.recv()
+        except EOFError:
+            kind, message = "error", "the plotting process ended without a word"
+        child.join()
+        if kind == "error":
+            raise PlannerError(f"the plots of {target} failed: {message}")
+        _plotted(args, result.stats.converged, message)
+
+    return target, finish
+
+
+def _draw(target: Path) -> str | None:
+    """Draw the plots of `target`: None, or why they could not be drawn (an InputError's message)."""
+    from .plots import plot_results
+
     try:
         plot_results(target)
     except InputError as exc:
-        if result.stats.converged:
-            raise
-        # a failed solve's iterate need not be a physical trajectory (e.g. its clock may run back)
-        _progress(args, f"plots skipped for the failed run: {exc}")
-    return target
+        return str(exc)
+    return None
+
+
+def _draw_into(target: Path, conn) -> None:
+    """_draw in a child process: ("drawn", what it returns) goes back through `conn`, or ("error", one line).
+    Ctrl-C is the parent's to handle: it waits for the plots, then reports the interruption."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        conn.send(("drawn", _draw(target)))
+    except Exception as exc:  # an unexpected failure reaches the parent as one line, not as the child's traceback
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def _plotted(args, converged: bool, message: str | None) -> None:
+    """A plot failure is the user's error for a converged result; a failed solve's iterate need not be a
+    physical trajectory (e.g. its clock may run back), so its plots are only skipped, with a note."""
+    if message is None:
+        return
+    if converged:
+        raise InputError(message)
+    _progress(args, f"plots skipped for the failed run: {message}")
 
 
 def _choice(flag: str, value: str, enum):
@@ -258,7 +307,7 @@ def _cmd_simulate(args) -> int:
     options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
-    target = _write(args, result, out)
+    target, _ = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
     _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}")
     return EXIT_OK if result.stats.converged else EXIT_FAILED
@@ -338,19 +387,23 @@ def _cmd_plan(args) -> int:
         result = race(problem, default_arms(solve_options), progress=progress)
     if args.init is not None:
         result.options["init"] = str(args.init)  # summary.json says which plan this one started from
-    target = _write(args, result, out)
+    validating = not args.no_validate and result.trajectory.t.size > 1
+    target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
     if args.init is not None and not ok:  # e.g. Capler's target moved 0.3 m: the start's contacts no longer fit
         text += f"\nthe replan from {args.init} did not converge: the change may be too large for that start; plan without --init"
-    if not args.no_validate and result.trajectory.t.size > 1:
-        from .replay import validate, write_validation
+    try:
+        if validating:
+            from .replay import validate, write_validation
 
-        validation = validate(target)
-        write_validation(target, validation)
-        summary["validation"] = validation.to_json()
-        ok = ok and validation.passed
-        text += f"\n{validation.report()}"
+            validation = validate(target)
+            write_validation(target, validation)
+            summary["validation"] = validation.to_json()
+            ok = ok and validation.passed
+            text += f"\n{validation.report()}"
+    finally:
+        plots_drawn()
     _emit(args, summary, text)
     return EXIT_OK if ok else EXIT_FAILED
 

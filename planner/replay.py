@@ -30,6 +30,7 @@ import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from enum import Enum
+from functools import cached_property
 from pathlib import Path
 
 import mujoco
@@ -234,14 +235,23 @@ class Scene:
         dist, active = np.full(n, np.inf), np.zeros(n, dtype=bool)
         if data.ncon == 0:
             return dist, active
-        contacts = data.contact
-        geoms, dists, excluded = contacts.geom, contacts.dist, contacts.exclude
-        for c, gid in enumerate(self.geom_ids):
-            mine = (geoms[:, 0] == gid) | (geoms[:, 1] == gid)
-            if mine.any():
-                dist[c] = dists[mine].min()
-                active[c] = bool((excluded[mine] == 0).any())
+        point_of = self._point_of_geom
+        # one contact at a time: called at every MuJoCo step, where the arrays of a whole-contact-list
+        # numpy expression cost twice as much as this loop over the one or two contacts there are
+        for i in range(data.ncon):
+            contact = data.contact[i]
+            g0, g1 = contact.geom
+            c = point_of.get(g0, point_of.get(g1))  # each collision pair is (ground, one contact sphere)
+            if c is None:
+                continue
+            dist[c] = min(dist[c], contact.dist)
+            active[c] |= contact.exclude == 0
         return dist, active
+
+    @cached_property
+    def _point_of_geom(self) -> dict[int, int]:
+        """Contact point index (task order) of each collision sphere's geom id."""
+        return {int(g): c for c, g in enumerate(self.geom_ids)}
 
 
 def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = None,
@@ -824,28 +834,31 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                    base=np.zeros((steps + 1, 3)), sites=np.zeros((steps + 1, C, 3)),
                    active=np.zeros((steps + 1, C), dtype=bool), depth=np.zeros((steps + 1, C)),
                    ctrl=np.zeros((steps, model.nu)), diverged=False)
+    dist = np.zeros((steps + 1, C))
+    lower, upper, base = scene.ctrl_lower, scene.ctrl_upper, scene.base_body
     for k in range(steps + 1):
         rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
         if k < steps:
             u = command(k, data)
             rec.ctrl[k] = u
-            data.ctrl[:] = np.clip(u, scene.ctrl_lower, scene.ctrl_upper)
+            data.ctrl[:] = np.minimum(np.maximum(u, lower), upper)  # np.clip, at half its call cost
             mujoco.mj_step(model, data)
         else:
             mujoco.mj_forward(model, data)
-        rec.base[k] = data.xpos[scene.base_body]
+        rec.base[k] = data.xpos[base]
         rec.sites[k] = data.site_xpos[site_ids]
-        dist, rec.active[k] = scene.contact_state(data)
-        if k == 0:
-            rec.touching0 = np.isfinite(dist)  # detected: within the pair's gap of the ground
-        rec.depth[k] = np.maximum(-np.where(np.isfinite(dist), dist, 0.0), 0.0)
+        dist[k], rec.active[k] = scene.contact_state(data)
+    rec.touching0 = np.isfinite(dist[0])  # detected: within the pair's gap of the ground
+    rec.depth[:] = np.maximum(-np.where(np.isfinite(dist), dist, 0.0), 0.0)
     rec.diverged = any(data.warning[w].number > 0 for w in _BAD_STATE_WARNINGS)
     return rec
 
 
 def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned: list[tuple[str, float, bool]],
-            options: ValidationOptions, controller: TrackingController = TrackingController.JOINT_PD) -> RolloutReport:
-    """Tracking replay (gains given) or open-loop replay (gains None) of the reference."""
+            options: ValidationOptions, controller: TrackingController = TrackingController.JOINT_PD,
+            positions: tuple[np.ndarray, np.ndarray] | None = None) -> RolloutReport:
+    """Tracking replay (gains given) or open-loop replay (gains None) of the reference. positions: the
+    reference's base (n+1, 3) and contact sites (n+1, C, 3) when the caller has them (_planned_positions)."""
     started = _time.perf_counter()
     if gains is None:
         def command(k, data):
@@ -862,7 +875,7 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
             return ref.u[k] + tau / scene.gear
 
     run = _simulate(scene, ref.q[0], ref.v[0], ref.steps, ref.times[0], command)
-    base_ref, sites_ref = _planned_positions(scene, ref.q)
+    base_ref, sites_ref = positions if positions is not None else _planned_positions(scene, ref.q)
     base_err = np.linalg.norm(run.base - base_ref, axis=1)
     foot_err = np.linalg.norm(run.sites - sites_ref, axis=2)
     if run.diverged:
@@ -898,8 +911,11 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     per = max(1, int(round(options.window_s / ref.dt)))
     stride = max(1, int(round(options.window_stride_s / ref.dt)))
     starts, errors, diverged = [], [], False
+    base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
     for first in range(0, max(1, ref.steps - per // 2), stride):
-        run = _replay(scene, ref.window(first, min(first + per, ref.steps)), gains, [], options, options.controller)
+        last = min(first + per, ref.steps)
+        run = _replay(scene, ref.window(first, last), gains, [], options, options.controller,
+                      positions=(base[first:last + 1], sites[first:last + 1]))
         starts.append(float(ref.times[first]))
         errors.append(run.max_base_error_m)
         diverged |= run.diverged

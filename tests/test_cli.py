@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from planner.cli import main
+from planner.errors import InputError
 from planner.task import load_task, parse_task
 
 
@@ -163,6 +164,47 @@ def test_missing_default_task(tmp_path, capsys):
     robot = tmp_path / "lonely.xml"
     robot.write_text((Path(__file__).resolve().parent.parent / "robots" / "point_mass.xml").read_text())
     _one_line_exit_2(capsys, ["simulate", str(robot)], "no task file beside")
+
+
+HOP_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+            '[horizon]\ntau_f = 1.0\nN = 10\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+
+
+def test_plan_draws_its_plots_while_it_validates(tmp_path, capsys):
+    """A validated plan draws its plots in a child process meanwhile: summary.json holds the validation and the
+    PNGs are byte for byte those that planner.plots draws in this process from the same result."""
+    from planner.plots import plot_results
+
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    out = tmp_path / "out"
+    code = main(["plan", "point_mass", "--task", str(task), "--out", str(out), "--json", "--no-race"])
+    summary = json.loads(capsys.readouterr().out)
+    assert code in (0, 1) and summary["converged"] and "validation" in summary
+    again = tmp_path / "again"
+    again.mkdir()
+    for name in ("trajectory.npz", "summary.json"):
+        (again / name).write_bytes((out / name).read_bytes())
+    drawn = plot_results(again)
+    assert drawn and all((out / p.name).read_bytes() == p.read_bytes() for p in drawn)
+
+
+@pytest.mark.parametrize("error, code, fragment", [(InputError("cannot draw this"), 2, "cannot draw this"),
+                                                   (RuntimeError("boom"), 1, "RuntimeError: boom")])
+def test_a_plot_failure_in_the_child_is_one_line(tmp_path, capsys, monkeypatch, error, code, fragment):
+    """A converged plan whose plots fail in the drawing child (validation on) reports it as the in-process
+    drawing would: a user error (InputError) exits 2, anything else exits 1, each one line without a traceback."""
+    import planner.plots
+
+    def broken(out_dir):
+        raise error
+
+    monkeypatch.setattr(planner.plots, "plot_results", broken)  # the forked child inherits the patch
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "-q", "--no-race"]) == code
+    err = capsys.readouterr().err.strip()
+    assert fragment in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
 
 def test_failed_plan_keeps_earlier_results(tmp_path, capsys):

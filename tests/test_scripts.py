@@ -736,6 +736,7 @@ def test_bench_replan_quick_run(tmp_path, capsys):
         for key in ("exit_code", "converged", "nlps", "ipopt_iterations", "solve_time_s", "control_cost", "impact_times_s",
                     "validation_passed", "steps_walked"):
             assert key in r, key
+        assert r["command_s"] >= r["solve_time_s"]  # the command holds its solve
     assert runs[0]["nlps"][0][0] == "homotopy 1" and runs[1]["nlps"][0][0] == "schedule"
     hop = tomllib.loads(bench.QUICK_TASK)
     moved = tomllib.loads(bench.moved_task(bench.QUICK_TASK, 0.6))
