@@ -952,3 +952,52 @@ def test_probe_replay_follows_a_rollout_of_the_simulator(tmp_path):
     for argv in (["--first-rho0", "1e4"], ["--plan-first", "--liftoff-first"], ["--family", "-1"], ["--by-clock", "--plan-first"]):  # user errors
         with pytest.raises(SystemExit):
             pr.main([str(tmp_path), *argv])
+
+
+LQR_DYNAMICS_TOL = 1e-8  # [m/s^2] MuJoCo's own accelerations and ours differ by round-off only
+
+
+def test_probe_lqr_models_mujoco_and_keeps_the_validation_baseline(tmp_path, capsys):
+    """probe_lqr: its unconstrained accelerations are MuJoCo's (contacts off) at a random Capler state, its impact
+    map leaves the pinned foot at rest, its joint-PD baseline is the validation's tracking replay on the same plan
+    (the same largest base error), and --quick --json writes the documented record as printed."""
+    import mujoco
+
+    from planner import replay as R
+    from planner.cli import main as planner_main
+
+    probe = _load("probe_lqr")
+    rng = np.random.default_rng(0)
+    plan = tmp_path / "hop"
+    task = tmp_path / "hop.toml"
+    task.write_text(probe.QUICK_TASK)
+    assert planner_main(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-plots", "-q"]) == 0
+    rec = probe.probe(plan, 1e4, 1e2, 1.0, 1.0, 20, 1e-6)
+    assert rec["joint_pd"]["max_base_error_m"] == R.validate(plan).tracking.max_base_error_m
+
+    robot_dir = Path(__file__).resolve().parent.parent / "robots"
+    from planner.model import load_robot
+    from planner.task import load_task
+
+    scene = R.build_scene(load_robot(robot_dir / "capler.xml"), load_task(robot_dir / "capler.toml"))
+    model = probe._Model(scene)
+    q = np.array([0.3, 0.35, 0.4, -0.6]) + 0.05 * rng.standard_normal(4)
+    v, u = rng.standard_normal(4), 5 * rng.standard_normal(2)  # inside the motors' +-60 N m
+    off = mujoco.MjData(scene.model)
+    flags = scene.model.opt.disableflags
+    scene.model.opt.disableflags = flags | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    try:
+        off.qpos[:], off.qvel[:], off.ctrl[:] = q, v, u
+        mujoco.mj_forward(scene.model, off)
+    finally:
+        scene.model.opt.disableflags = flags
+    assert np.max(np.abs(model.accel(q, v, u, []) - off.qacc)) < LQR_DYNAMICS_TOL
+    G = model.impact_map(q, [0])
+    foot = model._jacobian(model.data, [0])
+    assert np.max(np.abs(foot @ (G[4:, 4:] @ v))) < LQR_DYNAMICS_TOL
+
+    assert probe.main(["--quick", "--json", "--out", str(tmp_path / "out")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out == json.loads((tmp_path / "out" / "results.json").read_text())
+    for name in ("lqr", "joint_pd"):
+        assert {"max_base_error_m", "base_error_up_to_m", "saturation", "mujoco_impacts_s"} <= set(out[name])
