@@ -6,6 +6,7 @@ Exit codes: 0 success; 1 the solve or the validation failed (diagnostics still w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import multiprocessing
 import os
@@ -393,17 +394,20 @@ def _cmd_plan(args) -> int:
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
     if args.init is not None and not ok:  # e.g. Capler's target moved 0.3 m: the start's contacts no longer fit
         text += f"\nthe replan from {args.init} did not converge: the change may be too large for that start; plan without --init"
-    try:
-        if validating:
-            from .replay import validate, write_validation
+    if validating:
+        from .replay import validate, write_validation
 
+        try:
             validation = validate(target)
-            write_validation(target, validation)
-            summary["validation"] = validation.to_json()
-            ok = ok and validation.passed
-            text += f"\n{validation.report()}"
-    finally:
-        plots_drawn()
+        except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done
+            with contextlib.suppress(PlannerError):
+                plots_drawn()
+            raise
+        write_validation(target, validation)
+        summary["validation"] = validation.to_json()
+        ok = ok and validation.passed
+        text += f"\n{validation.report()}"
+    plots_drawn()
     _emit(args, summary, text)
     return EXIT_OK if ok else EXIT_FAILED
 

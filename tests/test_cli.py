@@ -207,6 +207,26 @@ def test_a_plot_failure_in_the_child_is_one_line(tmp_path, capsys, monkeypatch, 
     assert fragment in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
 
+def test_ctrl_c_during_validation_is_reported_over_a_plot_failure(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while MuJoCo validates is reported as the interruption (exit 130, one line) even when the plots
+    drawn meanwhile fail: the plots' error does not replace it."""
+    import planner.plots
+    import planner.replay
+
+    def broken(out_dir):
+        raise InputError("cannot draw this")
+
+    def interrupted(out_dir, options=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(planner.plots, "plot_results", broken)
+    monkeypatch.setattr(planner.replay, "validate", interrupted)
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "-q", "--no-race"]) == 130
+    assert capsys.readouterr().err.strip() == "planner plan: interrupted"
+
+
 def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     """An infeasible plan (target 50 m away with |u| <= 1 N in 0.2 s) exits 1, writes its diagnostics
     under DIR/failed, and leaves the results already in DIR byte for byte intact."""
