@@ -107,9 +107,9 @@ class _Model:
         if not points:
             return np.linalg.solve(M, rhs)
         J = self._jacobian(self.data, points)
-        self.moved.qpos[:] = q
-        mujoco.mj_integratePos(self.model, self.moved.qpos, v, FD_STEP)
-        self._kinematics(self.moved, self.moved.qpos.copy())
+        ahead = np.array(q, dtype=float)
+        mujoco.mj_integratePos(self.model, ahead, v, FD_STEP)  # the posture FD_STEP later along v
+        self._kinematics(self.moved, ahead)
         dJv = (self._jacobian(self.moved, points) - J) @ v / FD_STEP
         S = len(J)
         kkt = np.block([[M, -J.T], [J, np.zeros((S, S))]])
