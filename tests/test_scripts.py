@@ -1001,3 +1001,98 @@ def test_probe_lqr_models_mujoco_and_keeps_the_validation_baseline(tmp_path, cap
     assert out == json.loads((tmp_path / "out" / "results.json").read_text())
     for name in ("lqr", "joint_pd"):
         assert {"max_base_error_m", "base_error_up_to_m", "saturation", "mujoco_impacts_s"} <= set(out[name])
+
+
+SECANT_FORCE_TOL = 1e-9  # [N] the patched CasADi rows against Pinocchio's numeric Jacobians: round-off only
+ENERGY_TOL = 1e-9  # [J] the point mass's implicit-Euler energy identity: round-off only
+DROP_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.2]\nv = [0.5, 0.0]\n'
+             '[horizon]\ntau_f = 1.0\nN = 10\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+
+
+def test_probe_impacts_secant_impulses_act_along_the_secant_gradients():
+    """probe_impacts.secant_impulses: on a Capler step whose posture moves, the patched step's velocity rows differ
+    from the plain step's by exactly -h s [c_n a_n (nbar - n(q_{k+1})) + c_t a_t (tbar - t(q_{k+1}))], with the
+    paper's Sec. 6 coefficients c_n = (1 - beta)(1 - 2 alpha + alpha gamma), c_t = (1 - beta)(1 - 2 zeta) and nbar,
+    tbar the foot's height and x gradients averaged over the segment by 3-point Gauss-Legendre from Pinocchio's
+    numeric Jacobians; every other row is unchanged, and after the block the step is the plain one again."""
+    import pinocchio as pin
+
+    from scripts.bench_pipeline import capler_case
+
+    probe = _load("probe_impacts")
+    problem = build_problem(*capler_case(10))
+    builder, system = problem.builder, problem.system
+    ny, nq, nv, nu, h, s = system.ny, system.nq, system.nv, system.nu, problem.h, 1.3
+    yk, y1, u = ca.SX.sym("yk", ny), ca.SX.sym("y1", ny), ca.SX.sym("u", nu)
+
+    def rows():
+        step = builder.build(yk, y1, u, s, h)
+        return ca.Function("g", [yk, y1, u, step.w], [step.g])
+
+    plain = rows()
+    with probe.secant_impulses():
+        patched = rows()
+    after = rows()
+    rng = np.random.default_rng(0)
+    q0 = np.array([0.3, 0.35, 0.4, -0.6])
+    q1 = q0 + np.array([0.02, -0.01, 0.25, -0.3])
+    args = (np.concatenate([q0, rng.standard_normal(nv), [0.5]]), np.concatenate([q1, rng.standard_normal(nv), [0.51]]),
+            rng.standard_normal(nu))
+    alpha, beta, gamma, zeta = 0.3, 0.2, 0.1, 0.3
+    w = builder.w_from([alpha, beta, gamma, zeta], np.zeros(4), np.zeros(4))
+    diff = np.asarray(patched(*args, w) - plain(*args, w)).ravel()
+
+    model = system.dyn.robot.model
+    data, frame = model.createData(), system.dyn.robot.frame_id("foot")
+
+    def jacobian(q):
+        return pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)[:3]
+
+    nodes = (0.5 - math.sqrt(15) / 10, 0.5, 0.5 + math.sqrt(15) / 10)
+    weights = (5 / 18, 4 / 9, 5 / 18)
+    bar = sum(wt * jacobian(q0 + c * (q1 - q0)) for c, wt in zip(nodes, weights))
+    contact = system.contacts[0]
+    c_n, c_t = (1 - beta) * (1 - 2 * alpha + alpha * gamma), (1 - beta) * (1 - 2 * zeta)
+    expected = -h * s * (c_n * contact.a_n * (bar[2] - jacobian(q1)[2]) + c_t * contact.a_t * (bar[0] - jacobian(q1)[0]))
+    assert np.max(np.abs(diff[nq : nq + nv] - expected)) < SECANT_FORCE_TOL
+    assert np.max(np.abs(expected)) > 1.0  # a posture that moves 0.3 rad: the secant is not the end point
+    assert np.max(np.abs(np.delete(diff, np.s_[nq : nq + nv]))) == 0.0
+    assert np.max(np.abs(np.asarray(after(*args, w) - plain(*args, w)))) == 0.0
+
+
+def test_probe_impacts_balances_a_point_mass_landing(tmp_path, capsys):
+    """probe_impacts on a planned point-mass drop: the contact point's velocities are the mass's own (J = I), the
+    kinetic energies are m |v|^2 / 2 with the file's mass, and in every step of a frozen run without a DAE share
+    (alpha = 0) the balance's rest is implicit Euler's exact loss -m |v_{k+1} - v_k|^2 / 2 (M constant); the landing
+    loses energy; --json writes the record as printed."""
+    from planner.cli import main as planner_main
+    from scripts.probe_replay import plan_problem
+
+    probe = _load("probe_impacts")
+    plan, task = tmp_path / "drop", tmp_path / "drop.toml"
+    task.write_text(DROP_TASK)
+    assert planner_main(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-plots", "-q"]) == 0
+    capsys.readouterr()
+    assert probe.main([str(plan), "--json", "--out", str(tmp_path / "out")]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec == json.loads((tmp_path / "out" / "results.json").read_text())
+    problem, x = plan_problem(plan)
+    parts = problem.split(x)
+    Y, W = parts["Y"], parts["W"]
+    mass = float(np.asarray(problem.system.dyn.mass(np.zeros(2)))[0, 0])
+    summary = json.loads((plan / "summary.json").read_text())
+    alpha = problem.builder.w_blocks["sigma"].start  # alpha[point] is the first selector
+    checked = 0
+    assert rec["impacts"] and len(rec["impacts"]) == len(summary["impacts"])
+    for r, imp in zip(rec["impacts"], summary["impacts"]):
+        for v, n, t, e in zip((imp["v_pre"], imp["v_post"]), r["normal_velocity"], r["tangential_velocity"], r["kinetic_energy"]):
+            assert (t, n) == pytest.approx(tuple(v), abs=1e-12)
+            assert e == pytest.approx(0.5 * mass * float(np.dot(v, v)), rel=1e-12)
+        for st in r["steps"]:
+            k = st["step"]
+            if W[k, alpha] < 1e-8:
+                assert st["rest"] == pytest.approx(-0.5 * mass * float(np.sum((Y[k + 1, 2:4] - Y[k, 2:4]) ** 2)), abs=ENERGY_TOL)
+                checked += 1
+    assert checked >= 1
+    first = rec["impacts"][0]
+    assert first["normal_velocity"][0] < 0 and first["kinetic_energy"][1] < first["kinetic_energy"][0]
