@@ -522,6 +522,13 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
                    bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
 
 
+def _distance(x, x_ref):
+    """The projection polish's objective |x - x_ref|^2 and its gradient 2 (x - x_ref) (x, x_ref (n,), SX or MX): the
+    NLP's f and the derivative functions handed to its IPOPT are both built from this."""
+    d = x - x_ref
+    return ca.dot(d, d), 2 * d
+
+
 def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dict:
     """CasADi nlpsol options for IPOPT (a cold solver for NLP 1, a warm one for the rest: with
     WarmStart.PRIMAL_DUAL it starts from the multipliers passed in; loose: an intermediate homotopy
@@ -621,9 +628,9 @@ class _Solvers:
         g, J = d["jac_g"](x, p_nlp)
         H = d["hess_lag"](x, p_nlp, 0.0 if projection else lf, lg)
         gf, J, H = D[:nv] * gf[:nv], ca.mtimes(J[:, :nv], Dm), ca.mtimes(ca.mtimes(Dm, H[:nv, :nv]), Dm)
-        if projection:  # f = |xs - x_ref|^2
-            dist = xs - p[: pb.nx]
-            f, gf, H = ca.dot(dist, dist), 2 * dist, H + 2 * lf * ca.MX.eye(nv)
+        if projection:
+            f, gf = _distance(xs, p[: pb.nx])
+            H = H + 2 * lf * ca.MX.eye(nv)
         return {"grad_f": ca.Function("nlp_grad_f", [xs, p], [f, gf], ["x", "p"], ["f", "grad_f_x"]),
                 "jac_g": ca.Function("nlp_jac_g", [xs, p], [g, J], ["x", "p"], ["g", "jac_g_x"]),
                 "hess_lag": ca.Function("nlp_hess_l", [xs, p, lf, lg], [H], ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])}
@@ -646,8 +653,7 @@ class _Solvers:
             scaled = self.sees_scale(False, projection=True)
             base = self.scaled_nlp if scaled else self.nlp
             x = base["x"][: pb.nx]  # without the probe: the projection is a Newton projection, unregularized
-            d = x - xref
-            nlp = {"x": x, "p": ca.vertcat(xref, pb.p), "f": ca.dot(d, d), "g": base["g"]}
+            nlp = {"x": x, "p": ca.vertcat(xref, pb.p), "f": _distance(x, xref)[0], "g": base["g"]}
             opts = ipopt_options(self.options, False)
             # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised

@@ -491,11 +491,12 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     return arrays
 
 
-def read_start(out_dir: Path, signature: str, nx: int) -> np.ndarray:
+def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """The NLP point (nx,) that a plan stored in out_dir/trajectory.npz, to start a problem whose
     Problem.signature is `signature` from it; InputError when out_dir holds no plan's point or one of
-    other variables (another N, contact set, discretization or formulation)."""
-    arrays = read_trajectory(out_dir)
+    other variables (another N, contact set, discretization or formulation). arrays: out_dir's trajectory
+    arrays when already read."""
+    arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
     x = np.asarray(arrays["nlp_x"], float)

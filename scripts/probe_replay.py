@@ -46,8 +46,9 @@ BASE_Z, GRAVITY = 1, 9.81  # Capler's base height in q [m] and gravity [m/s^2] (
 
 def plan_problem(out_dir: Path):
     """(problem, x) of the plan in out_dir: the task as kept in its trajectory.npz, the robot its summary.json names."""
-    problem = build_problem(read_robot(out_dir, read_summary(out_dir)), read_task(out_dir, read_trajectory(out_dir, ("task_json",))))
-    return problem, read_start(out_dir, problem.signature, problem.nx)
+    arrays = read_trajectory(out_dir, ("task_json",))
+    problem = build_problem(read_robot(out_dir, read_summary(out_dir)), read_task(out_dir, arrays))
+    return problem, read_start(out_dir, problem.signature, problem.nx, arrays)
 
 
 def step_nlp(problem, u_k: np.ndarray, clock_advance: bool = False):
@@ -73,15 +74,16 @@ def step_residual(problem, k: int, Y: np.ndarray, W: np.ndarray, U: np.ndarray) 
 
 
 def landings(problem, Y: np.ndarray, W: np.ndarray, U: np.ndarray) -> list[dict]:
-    """The plan's landings (Y (N + 1, ny), W (N, nw), U (N, nu)): nodes k whose first contact's gap [m] is below
-    LANDED_GAP after a node above it, with the gap there, and the selectors and clock advance [s] of the steps k - 1
-    (into the node) and k (out of it). A whole flight step (selectors 0, 1, 0, 1, advance h) ending at a gap of ~0 is a
-    landing at the node; a step with beta < 1 enters the ground inside the step."""
-    gaps = [float(np.asarray(problem.system.gap_fn(Y[k], U[min(k, len(U) - 1)])).ravel()[0]) for k in range(len(Y))]
-    ns = problem.system.n_sigma
-    return [{"node": k, "gap_m": gaps[k], "into": {"selectors": W[k - 1, :ns].tolist(), "advance_s": float(Y[k, -1] - Y[k - 1, -1])},
+    """The plan's landings (Y (N + 1, ny), W (N, nw), U (N, nu)), in node order: nodes k where a contact's gap [m] is
+    below LANDED_GAP after a node above it, with the contact, the gap there, and the selectors and clock advance [s] of
+    the steps k - 1 (into the node) and k (out of it). A whole flight step (selectors 0, 1, 0, 1, advance h) ending at a
+    gap of ~0 is a landing at the node; a step with beta < 1 enters the ground inside the step."""
+    gaps = np.array([np.asarray(problem.system.gap_fn(Y[k], U[min(k, len(U) - 1)])).ravel() for k in range(len(Y))])
+    ns, labels = problem.system.n_sigma, problem.system.labels
+    return [{"node": k, "contact": labels[c], "gap_m": float(gaps[k, c]),
+             "into": {"selectors": W[k - 1, :ns].tolist(), "advance_s": float(Y[k, -1] - Y[k - 1, -1])},
              "out": {"selectors": W[k, :ns].tolist(), "advance_s": float(Y[k + 1, -1] - Y[k, -1])}}
-            for k in range(1, len(Y) - 1) if gaps[k - 1] > LANDED_GAP >= gaps[k]]
+            for k in range(1, len(Y) - 1) for c in range(gaps.shape[1]) if gaps[k - 1, c] > LANDED_GAP >= gaps[k, c]]
 
 
 def clock_family(problem, k: int, y_k: np.ndarray, U: np.ndarray, start: np.ndarray, advances) -> list[dict]:
@@ -191,7 +193,7 @@ def table(rec: dict) -> str:
                   f"  selectors there: plan {np.round(d['plan_selectors'], 3).tolist()}, rollout {np.round(d['rollout_selectors'], 3).tolist()}",
                   f"  the plan's step in the simulator's NLP: equality rows {r['equality_max']:.1e}, complementarity rows >= {r['complementarity_min']:.1e}"]
     for ld in rec.get("landings", []):
-        lines.append(f"  plan lands at node {ld['node']} (gap {ld['gap_m']:+.1e} m): step in {np.round(ld['into']['selectors'], 3).tolist()} "
+        lines.append(f"  plan lands at node {ld['node']} ({ld['contact']}, gap {ld['gap_m']:+.1e} m): step in {np.round(ld['into']['selectors'], 3).tolist()} "
                      f"{ld['into']['advance_s'] * 1e3:.2f} ms, step out {np.round(ld['out']['selectors'], 3).tolist()} {ld['out']['advance_s'] * 1e3:.2f} ms")
     if "solve" in rec:
         sv = rec["solve"]

@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 from planner import homotopy as H
+from planner.model import load_robot
 from planner.problem import build_problem
+from planner.task import load_task
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -116,7 +118,6 @@ def test_exact_flight_of_an_exact_parabola(bench):
     from types import SimpleNamespace
 
     from planner.dynamics import Dynamics
-    from planner.model import load_robot
 
     robot = load_robot("point_mass")
     dyn, task = Dynamics(robot), bench.point_mass_hop_task(20)
@@ -166,7 +167,6 @@ def stress():
 def test_stress_generator_is_seeded(stress):
     """A seed gives the same task list every time, a family's tasks do not depend on the other families
     run, another seed gives other tasks, and every generated task is a valid task for its robot."""
-    from planner.model import load_robot
     from planner.task import parse_task
 
     a = stress.generate(3, per_family=2, robot="point_mass", N=20)
@@ -402,7 +402,6 @@ def test_bench_nosnoc_model_and_hint(bench_nosnoc):
     # the same robot as robots/capler.xml: mass matrix, bias forces and foot against Pinocchio
     import pinocchio as pin
 
-    from planner.model import load_robot
 
     robot = load_robot(b.ROBOT_FILE)
     assert robot.dof_names == ("base_x", "base_z", "hip", "knee")
@@ -869,7 +868,6 @@ def test_probe_positions_flight_is_exact_with_the_trapezoid(tmp_path, capsys):
     at every step before its impact (0.45 s) with the trapezoidal positions, to the solver's tolerance, where implicit
     Euler is off by g h t / 2; outside the block the step is implicit Euler again. And --quick --json writes its records,
     both rules at both steps, the same in results.json."""
-    from planner.model import load_robot
     from planner.simulate import simulate
     from planner.task import parse_task
     from scripts import probe_positions as pp
@@ -976,9 +974,6 @@ def test_probe_lqr_models_mujoco_and_keeps_the_validation_baseline(tmp_path, cap
     assert rec["joint_pd"]["max_base_error_m"] == R.validate(plan).tracking.max_base_error_m
 
     robot_dir = Path(__file__).resolve().parent.parent / "robots"
-    from planner.model import load_robot
-    from planner.task import load_task
-
     scene = R.build_scene(load_robot(robot_dir / "capler.xml"), load_task(robot_dir / "capler.toml"))
     model = probe._Model(scene)
     q = np.array([0.3, 0.35, 0.4, -0.6]) + 0.05 * rng.standard_normal(4)
@@ -1096,3 +1091,18 @@ def test_probe_impacts_balances_a_point_mass_landing(tmp_path, capsys):
     assert checked >= 1
     first = rec["impacts"][0]
     assert first["normal_velocity"][0] < 0 and first["kinetic_energy"][1] < first["kinetic_energy"][0]
+
+
+def test_probe_replay_landings_reads_every_contact():
+    """probe_replay.landings on the biped's standing start (two feet on the ground): lifted 0.1 m at node 2, both feet
+    land at node 3, each listed with its contact point; the standing nodes list none."""
+    from scripts import probe_replay as pr
+
+    robot_dir = Path(__file__).resolve().parent.parent / "robots"
+    problem = build_problem(load_robot(robot_dir / "biped.xml"), load_task(robot_dir / "biped.toml"))
+    N = problem.N
+    Y = np.tile(problem.y0, (N + 1, 1))
+    W, U = np.zeros((N, problem.builder.nw)), np.zeros((N, problem.system.nu))
+    assert pr.landings(problem, Y, W, U) == []
+    Y[2, 1] += 0.1  # the hip's z, and both feet with it
+    assert [(ld["node"], ld["contact"]) for ld in pr.landings(problem, Y, W, U)] == [(3, "foot_1"), (3, "foot_2")]
