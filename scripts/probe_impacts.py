@@ -116,7 +116,7 @@ def probe(out_dir: Path) -> dict:
         dke, motors, gravity = kinetic(q1, v1) - kinetic(q0, v0), float((B @ U[k]) @ (q1 - q0)), potential(q0) - potential(q1)
         # the step's auxiliary impulses (normal, tangential per contact) [N s] and their work on v_{k+1}
         impulses = np.asarray(sys_.impulse_fn(Y[k + 1], U[k])) @ problem.builder.coefficients(W[k]) * h * S[k]
-        auxiliary = sum(impulses[2 * c + j] * point_velocity(label, q1, v1)[j] for c, label in enumerate(sys_.labels) for j in (0, 1))
+        auxiliary = sum(float(np.dot(impulses[2 * c : 2 * c + 2], point_velocity(label, q1, v1))) for c, label in enumerate(sys_.labels))
         return {"step": k, "clock_rate": float((Y[k + 1, -1] - Y[k, -1]) / (h * S[k])), "dke": dke, "motors": motors,
                 "gravity": gravity, "auxiliary": float(auxiliary), "rest": dke - motors - gravity - float(auxiliary),
                 "impulse": impulses.tolist()}
