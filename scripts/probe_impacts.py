@@ -34,6 +34,7 @@ import contextlib
 import dataclasses
 import sys
 from pathlib import Path
+from unittest import mock
 
 import casadi as ca
 import numpy as np
@@ -79,11 +80,8 @@ def secant_impulses():
         g = ca.vertcat(step.g[:nq], step.g[nq : nq + nv] - h * s_k * force, step.g[nq + nv :])
         return dataclasses.replace(step, g=g)
 
-    ImplicitEulerStep.build = build
-    try:
+    with mock.patch.object(ImplicitEulerStep, "build", build):
         yield
-    finally:
-        ImplicitEulerStep.build = plain
 
 
 def probe(out_dir: Path) -> dict:

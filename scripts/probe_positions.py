@@ -29,6 +29,7 @@ import contextlib
 import dataclasses
 import sys
 from pathlib import Path
+from unittest import mock
 
 import casadi as ca
 
@@ -60,11 +61,8 @@ def trapezoid_positions(power: float = 2.0):
         shift = dt * rate**power * (y_k[nq : nq + nv] - y_next[nq : nq + nv]) / 2
         return dataclasses.replace(step, g=ca.vertcat(step.g[:nq] - shift, step.g[nq:]))
 
-    ImplicitEulerStep.build = build
-    try:
+    with mock.patch.object(ImplicitEulerStep, "build", build):
         yield
-    finally:
-        ImplicitEulerStep.build = plain
 
 
 def simulate_records(quick: bool, power: float, cases: tuple[str, ...]) -> list[dict]:
