@@ -10,10 +10,10 @@ auxiliary the work of the step's auxiliary impulses P on the contact point's vel
 v_{k+1}), rest that of the contact forces of the DAE fields plus implicit Euler's own loss, -dv^T M dv / 2 with M
 constant (the point mass, where a step without a DAE share has exactly that rest).
 
-What it found on Capler's main-job plan (docs/validation.md, session 35): four of its six impacts are push-offs lumped
-into an impact, partly frozen steps (R 0.35-0.64) in which the motors do 5-15 J while the auxiliary impulse, at
-n(q_{k+1}) on an end velocity whose point already rises (the secant normal velocity nbar^T v_{k+1} is 0 there, so alpha
-is free), does up to +14 J of work; the recovery then reports post-impact normal velocities of +1.5 to +6.6 m/s and
+What it found on Capler's main-job plan (docs/validation.md, session 35): four of its six impacts have a push-off
+lumped into the impact (three right after a landing, one inside a stance), partly frozen steps (R 0.35-0.64) in which
+the motors do 5-15 J while the auxiliary impulse, at n(q_{k+1}) on an end velocity whose point already rises (the
+secant normal velocity nbar^T v_{k+1} is 0 there, so alpha is free), does up to +14 J of work; the recovery then reports post-impact normal velocities of +1.5 to +6.6 m/s and
 more kinetic energy after the "impact" than before. The recovery's v_post lumps every auxiliary increment of the
 frozen run, the support of its running part included: the point-mass drop's landing reads +0.89 m/s after impact while
 the plan's states rest on the ground.
