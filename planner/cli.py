@@ -371,15 +371,16 @@ def _cmd_plan(args) -> int:
     problem = build_problem(robot, task, problem_options)
     if args.init is not None:
         from .homotopy import replan_options
-        from .result import read_start
+        from .result import read_start, read_trajectory
 
-        problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx))
+        start_arrays = read_trajectory(args.init)
+        problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
         solve_options = replace(replan_options(solve_options), keep_schedule=args.keep_schedule,
                                 schedule_new_impacts=args.allow_new_impacts)
     if args.keep_schedule:
         from .replan import replan
 
-        result = replan(problem, solve_options, _start_task(args), progress=progress)
+        result = replan(problem, solve_options, _start_task(args, start_arrays), progress=progress)
     elif args.no_race or args.init is not None or discretization is not Discretization.IMPLICIT_EULER:
         result = solve(problem, solve_options, progress=progress)
     else:  # the hint-free homotopy's iteration count is a draw: two draws on two CPUs (docs/benchmarks.md)
@@ -412,13 +413,14 @@ def _cmd_plan(args) -> int:
     return EXIT_OK if ok else EXIT_FAILED
 
 
-def _start_task(args):
-    """The task the --init plan solved, for the replan's walk from it (planner.replan): result.read_task, with
-    --steps as given now; None, with a note on stderr, when it cannot be read: the replan then does not walk."""
+def _start_task(args, arrays: dict):
+    """The task the --init plan solved, for the replan's walk from it (planner.replan): result.read_task from the
+    plan's trajectory arrays, with --steps as given now; None, with a note on stderr, when it cannot be read: the
+    replan then does not walk."""
     from .result import read_task
 
     try:
-        task = read_task(args.init)
+        task = read_task(args.init, arrays)
     except InputError as exc:
         _progress(args, f"  (no walk from the start's task: {exc})")
         return None

@@ -2,9 +2,9 @@
 
 Recovery (paper Thm. 10, eq. 22) from a discretized time-freezing trajectory: a step is *frozen*
 (partly or wholly) when its clock advanced less than h s. Samples of running steps are physical
-samples at their clock time. A maximal run of frozen steps is one impact at one physical time
-(the clock value inside the run): it contributes a pre-impact and a post-impact sample at that
-time. The post-impact velocity is the pre-impact one plus the sum of the auxiliary fields'
+samples at their clock time. A run of frozen steps (its first, the fully frozen ones after it, and at
+most one more: see `recover`) is one impact at one physical time (the clock value inside the run):
+it contributes a pre-impact and a post-impact sample at that time. The post-impact velocity is the pre-impact one plus the sum of the auxiliary fields'
 velocity increments over the run; the pre-impact velocity is the state after the run's first
 step minus that step's auxiliary increment (the step may also hold some free flight). The
 impulse is the integral of the auxiliary force over the run, sum h s P_j a_j (eq. 22).
@@ -330,8 +330,11 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
     u_steps (K-1, nu) control, dt_steps (K-1,) numerical-time length h s [s], dv_aux (K-1, nv)
     velocity increment of the auxiliary fields, impulses (K-1, n_contacts, 2) normal and tangential
-    impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s; a run of
-    frozen steps is an impact when the numerical time it froze, sum(h s - clock advance), is at least
+    impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s, fully frozen
+    when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
+    frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
+    clock runs again); a frozen step after a partly frozen one that is not the run's first starts the
+    next run. A run is an impact when the numerical time it froze, sum(h s - clock advance), is at least
     frozen_tol times the longest step (so a FESD element a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
     the largest (the largest first; one contact: always one Impact), all with the interval's time,
@@ -348,6 +351,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     dt_steps = np.asarray(dt_steps, float)
     # a FESD element collapsed to length ~0 (no switch to pin it) advances nothing and is no impact
     frozen = (advance < (1.0 - frozen_tol) * dt_steps) & (dt_steps > COLLAPSED * np.max(dt_steps, initial=0.0))
+    fully = advance < frozen_tol * dt_steps  # the clock (nearly) stood still over the whole step
     min_frozen = frozen_tol * np.max(dt_steps, initial=0.0)  # [s] of numerical time
     nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
     u0 = u_steps[0] if n_steps else np.zeros(nu)
@@ -360,7 +364,12 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             k += 1
             continue
         a = b = k
-        while b + 1 < n_steps and frozen[b + 1]:
+        # the impact goes on into the next frozen step only if it was still on at step b's end: after the run's
+        # first step (the clock may run before the impact, a landing inside the step) and after a fully frozen
+        # step. A later partly frozen step ran the clock after the impact, so its end is a physical sample and a
+        # frozen step after it is the next impact: lumping it in made v_post the sum of every auxiliary increment
+        # (support over the running parts too), a velocity the plan never has (docs/validation.md, session 36)
+        while b + 1 < n_steps and frozen[b + 1] and (b == a or fully[b]):
             b += 1
         if np.sum(dt_steps[a : b + 1] - advance[a : b + 1]) < min_frozen:
             # a FESD sliver: an element of ~1e-8 s between two switches leaks its clock like a frozen one

@@ -88,7 +88,7 @@ def probe(out_dir: Path) -> dict:
     """The records of the plan in out_dir (module docstring): per impact its point's velocities [m/s], kinetic
     energies [J] and its steps' energy balance [J]."""
     summary = read_summary(out_dir)
-    problem, x = plan_problem(out_dir)  # implicit Euler: a FESD plan's point does not fit it (InputError)
+    problem, x = plan_problem(out_dir, summary)  # implicit Euler: a FESD plan's point does not fit it (InputError)
     parts = problem.split(x)
     Y, U, W, S, h = parts["Y"], parts["U"], parts["W"], parts["S"], problem.h
     sys_ = problem.system

@@ -44,10 +44,12 @@ LANDED_GAP = 1e-4  # [m] a node this near the ground has landed (flight nodes ar
 BASE_Z, GRAVITY = 1, 9.81  # Capler's base height in q [m] and gravity [m/s^2] (robots/capler.xml)
 
 
-def plan_problem(out_dir: Path):
-    """(problem, x) of the plan in out_dir: the task as kept in its trajectory.npz, the robot its summary.json names."""
+def plan_problem(out_dir: Path, summary: dict | None = None):
+    """(problem, x) of the plan in out_dir: the task as kept in its trajectory.npz, the robot its summary.json
+    names (summary: that file's contents when already read)."""
     arrays = read_trajectory(out_dir, ("task_json",))
-    problem = build_problem(read_robot(out_dir, read_summary(out_dir)), read_task(out_dir, arrays))
+    summary = read_summary(out_dir) if summary is None else summary
+    problem = build_problem(read_robot(out_dir, summary), read_task(out_dir, arrays))
     return problem, read_start(out_dir, problem.signature, problem.nx, arrays)
 
 

@@ -57,6 +57,27 @@ def test_recover_one_impact():
     assert q.shape == (7, 1)
 
 
+def test_recover_splits_a_run_where_the_clock_ran_after_the_impact():
+    """Four partly frozen steps in a row (clock +0.04, +0.05, +0.06, +0.07 of h = 0.1) are two impacts, not one:
+    a run takes its first step, the fully frozen ones after it and at most one more, because after a later partly
+    frozen step the clock has run past the impact. Each impact has its own run's impulse and pre = post - its
+    run's auxiliary increments; the node where the clock ran between them (v = 0.2 at t = 0.19) is a physical
+    sample. Lumped into one run, the post-impact velocity would add the second run's increments to the first
+    impact, a velocity that no node of the plan has."""
+    clock = [0.0, 0.1, 0.14, 0.19, 0.25, 0.32, 0.42, 0.52]
+    v = [-1.0, -2.0, -0.5, 0.2, -0.3, 0.1, 0.1, 0.1]
+    y = np.column_stack([np.zeros(8), v, clock])
+    dv = np.array([[0.0], [1.5], [0.8], [0.9], [0.6], [0.0], [0.0]])
+    imp = dv.reshape(7, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    t, _, vs, _, impacts = recover(0.1 * np.arange(8), y, np.zeros((7, 1)), np.full(7, 0.1), dv, imp, 1, 1, ("foot",))
+    assert [im.time for im in impacts] == pytest.approx([0.14, 0.25], abs=EXACT)
+    assert [(im.tau_start, im.tau_end) for im in impacts] == [pytest.approx((0.1, 0.3)), pytest.approx((0.3, 0.5))]
+    assert [im.impulse for im in impacts] == pytest.approx([1.5 + 0.8, 0.9 + 0.6], abs=EXACT)
+    assert [(im.v_pre[0], im.v_post[0]) for im in impacts] == [pytest.approx((-2.0, 0.3)), pytest.approx((-1.2, 0.3))]
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.14, 0.14, 0.19, 0.25, 0.25, 0.32, 0.42, 0.52], atol=EXACT)
+    np.testing.assert_allclose(vs[:, 0], [-1.0, -2.0, -2.0, 0.3, 0.2, -1.2, 0.3, 0.1, 0.1, 0.1], atol=EXACT)
+
+
 def test_recover_never_goes_back_in_time():
     """An impact that starts with a clock 2e-10 s behind the previous sample (an NLP solver's bound
     relaxation: the clock rate of a frozen step at -1e-8) is placed at the previous sample's time:
