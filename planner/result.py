@@ -4,10 +4,11 @@ Recovery (paper Thm. 10, eq. 22) from a discretized time-freezing trajectory: a 
 (partly or wholly) when its clock advanced less than h s. Samples of running steps are physical
 samples at their clock time. A run of frozen steps (its first, the fully frozen ones after it, and at
 most one more: see `recover`) is one impact at one physical time (the clock value inside the run):
-it contributes a pre-impact and a post-impact sample at that time. The post-impact velocity is the pre-impact one plus the sum of the auxiliary fields'
-velocity increments over the run; the pre-impact velocity is the state after the run's first
-step minus that step's auxiliary increment (the step may also hold some free flight). The
-impulse is the integral of the auxiliary force over the run, sum h s P_j a_j (eq. 22).
+it contributes a pre-impact and a post-impact sample at that time. The post-impact velocity is the
+pre-impact one plus the sum of the auxiliary fields' velocity increments over the run; the
+pre-impact velocity is the state after the run's first step minus that step's auxiliary increment
+(the step may also hold some free flight). The impulse is the integral of the auxiliary force over
+the run, sum h s P_j a_j (eq. 22).
 
 File contract (shared/design.md): DIR/trajectory.npz with tau, y, t, q, v, u, impact_times (and
 more), DIR/summary.json with command, robot, task, converged, solve_time_s, n_nlp,
@@ -53,10 +54,12 @@ class Impact:
 
 
 # An impact whose impulse norm is below this share of the plan's largest is a tap: one step frozen just past
-# FROZEN_TOL where a stance corrects its contact velocity, not a landing. Capler's main-job plan has three (0.10-0.16
-# N s against its 24.6 N s landing, 0.4-0.7 %) and its smallest landing is 8 % (2.0 N s); MuJoCo sees no contact
-# onset at a tap, so validation lists taps without matching them (docs/validation.md). The held schedule accepts
-# an added tap (homotopy, docs/benchmarks.md "Replanning", session 29).
+# FROZEN_TOL where a stance corrects its contact velocity, not a landing. Capler's main-job plan has three such
+# (0.10-0.16 N s against its 24.6 N s landing, 0.4-0.7 %) and, since a run ends where the clock ran after its
+# impact (session 36), a fourth: the first two steps of the run that lumped a landing with a push-off (0.65 N s,
+# 2.7 %; the push-off's 2.8 N s is the next impact). Its smallest other impact is 8 % (2.0 N s). MuJoCo sees no
+# contact onset at a tap, so validation lists taps without matching them (docs/validation.md). The held schedule
+# accepts an added tap (homotopy, docs/benchmarks.md "Replanning", session 29).
 TAP_SHARE = 0.05
 
 
