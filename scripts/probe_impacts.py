@@ -14,9 +14,11 @@ What it found on Capler's main-job plan (docs/validation.md, session 35): four o
 lumped into the impact (three right after a landing, one inside a stance), partly frozen steps (R 0.35-0.64) in which
 the motors do 5-15 J while the auxiliary impulse, at n(q_{k+1}) on an end velocity whose point already rises (the
 secant normal velocity nbar^T v_{k+1} is 0 there, so alpha is free), does up to +14 J of work; the recovery then
-reports post-impact normal velocities of +1.5 to +6.6 m/s and more kinetic energy after the "impact" than before. The
-recovery's v_post lumps every auxiliary increment of the frozen run, the support of its running part included: the
-point-mass drop's landing reads +0.89 m/s after impact while the plan's states rest on the ground.
+reported post-impact normal velocities of +1.5 to +6.6 m/s and more kinetic energy after the "impact" than before,
+because its v_post lumped every auxiliary increment of the frozen run, the support of its running parts included.
+Since session 36 a run ends where the clock ran after its impact (result.recover): the same plan has 11 impacts and
+post-impact normal velocities up to +1.78 m/s. A run of two partly frozen steps is still one impact, so the
+point-mass drop's landing still reads +0.89 m/s after impact while the plan's states rest on the ground.
 
 --plan runs `planner plan ARGS` with a variant of the step, not kept: the auxiliary fields act along the step's secant
 normal and tangent (the averaged gradients SwitchVelocity.SECANT already uses in alpha's and zeta's switching
