@@ -20,6 +20,7 @@ import json
 import os
 import tempfile
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -114,10 +115,12 @@ class Trajectory:
     def impact_times(self) -> np.ndarray:
         return np.array([imp.time for imp in self.impacts], dtype=float)
 
-    @property
+    @cached_property  # read by the summary, the report, the plots and the validation's matching
     def taps(self) -> np.ndarray:
-        """(I,) bool: which impacts are taps (TAP_SHARE)."""
-        return tap_flags([imp.impulse_norm for imp in self.impacts])
+        """(I,) bool, read-only: which impacts are taps (TAP_SHARE)."""
+        flags = tap_flags([imp.impulse_norm for imp in self.impacts])
+        flags.flags.writeable = False  # computed once per trajectory, so no caller may change it for the next
+        return flags
 
     @property
     def physical_duration(self) -> float:

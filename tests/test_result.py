@@ -109,7 +109,8 @@ def small_result() -> SimulationResult:
 
 def test_write_results_follows_the_contract(tmp_path):
     """trajectory.npz and summary.json carry the contract's keys with consistent shapes, the impacts
-    as objects with time, contact, impulse; no temporary file is left behind."""
+    as objects with time, contact, impulse; no temporary file is left behind. Trajectory.taps is computed once
+    and read-only."""
     result = small_result()
     out = tmp_path / "out"
     write_results(result, out)
@@ -134,6 +135,10 @@ def test_write_results_follows_the_contract(tmp_path):
     assert summary["impacts"][0]["impulse_norm"] == pytest.approx(np.hypot(imp.impulse, imp.impulse_tangential), abs=EXACT)
     assert summary["physical_duration_s"] == pytest.approx(result.trajectory.physical_duration)
     assert "impact" in result.report()
+    taps = result.trajectory.taps  # computed once per trajectory, so read-only for every reader after the first
+    assert taps is result.trajectory.taps and taps.tolist() == [False]
+    with pytest.raises(ValueError):
+        taps[0] = True
 
 
 def test_read_task_is_the_task_the_plan_solved(tmp_path):
