@@ -412,7 +412,7 @@ class ImpactMatch:
     planned_time_s: float
     mujoco_time_s: float | None
     difference_s: float | None  # mujoco - planned
-    tap: bool = False  # below result.TAP_SHARE of the plan's largest impulse: listed, not matched (MuJoCo sees no onset)
+    tap: bool = False  # below result.TAP_SHARE of the plan's largest impulse: the whole replay lists it without a match
 
 
 @dataclass(frozen=True)
@@ -453,6 +453,11 @@ class WindowReport:
     starts_s: tuple[float, ...]  # (W,) [s]
     max_base_error_m: tuple[float, ...]  # (W,) [m]
     diverged: bool
+    # each planned impact against the MuJoCo impacts of the window that started stride_s to 2 stride_s before it
+    # (the first window for an impact that early): the impact's time error from the plan's state, which the whole
+    # replay's matching (RolloutReport.impacts) cannot give once its errors have grown over the hops before
+    impacts: tuple[ImpactMatch, ...] = ()
+    max_abs_impact_time_difference_s: float | None = None
 
     @property
     def mean_m(self) -> float:
@@ -472,6 +477,12 @@ class WindowReport:
 
     def summary(self) -> dict:
         return {"mean_m": self.mean_m, "median_m": self.median_m, "p90_m": self.p90_m, "worst_m": self.worst_m}
+
+
+def _impacts_text(matches: Sequence[ImpactMatch]) -> str:
+    return ", ".join(f"{m.point}@{m.planned_time_s:.3f}s: " + ("tap " if m.tap and m.difference_s is not None else "")
+                     + (("tap" if m.tap else "none") if m.difference_s is None else f"{m.difference_s * 1e3:+.1f} ms")
+                     for m in matches) or "no planned impacts"
 
 
 @dataclass(frozen=True)
@@ -535,9 +546,6 @@ class Validation:
     def report(self) -> str:
         """A few human-readable lines for the command line."""
         k, tr, ol, th = self.kinematic, self.tracking, self.open_loop, self.thresholds
-        dts = ", ".join(f"{m.point}@{m.planned_time_s:.3f}s: "
-                        + ("tap" if m.tap else "none" if m.difference_s is None else f"{m.difference_s * 1e3:+.1f} ms")
-                        for m in tr.impacts) or "no planned impacts"
         lines = [
             f"MuJoCo validation of {self.robot}: {'PASSED' if self.passed else 'FAILED'}",
             f"  kinematic: max penetration {k.max_penetration_m * 1e3:.3f} mm (limit {th.max_penetration_m * 1e3:.1f} mm); "
@@ -547,12 +555,15 @@ class Validation:
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); feet max "
             + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items())
             + f"; saturation {tr.saturation_fraction:.1%}",
-            f"  impacts (MuJoCo - plan): {dts}",
+            f"  impacts (MuJoCo - plan): {_impacts_text(tr.impacts)}",
         ]
         if self.windows is not None:
             w = self.windows
             lines.append(f"  tracking in {len(w.starts_s)} windows of {w.window_s:g} s from the plan: base error "
                          f"mean {w.mean_m * 1e3:.2f} mm, median {w.median_m * 1e3:.2f} mm, worst {w.worst_m * 1e3:.2f} mm")
+            if w.impacts:
+                lines.append(f"  impacts in the windows (MuJoCo - plan, from the plan's state {w.stride_s * 1e3:g}-"
+                             f"{2 * w.stride_s * 1e3:g} ms before): {_impacts_text(w.impacts)}")
         lines += [
             f"  open loop: base within {th.open_loop_band_m * 1e2:.0f} cm for {ol.time_within_band_s:.3f} of {ol.duration_s:.3f} s",
         ]
@@ -596,7 +607,8 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
 
     impact_points (I,): the contact point of each planned impact; None (or a None entry) means the
     point whose gap is smallest at the impact time. impact_taps (I,): which planned impacts are taps
-    (Trajectory.taps), listed but not matched against MuJoCo's impacts; None: none.
+    (Trajectory.taps), listed but not matched against the whole replay's MuJoCo impacts (the windows match them
+    too); None: none.
     """
     options = options or ValidationOptions()
     scene = build_scene(robot, task, options.contact, detect_within_m=options.contact_gap_tol_m)
@@ -609,7 +621,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
     tracking = _replay(scene, reference, gains, planned, options, options.controller)
-    windows = _windows(scene, reference, gains, options)
+    windows = _windows(scene, reference, gains, options, planned)
     open_loop = _replay(scene, reference, None, planned, options)
 
     failures = []
@@ -902,15 +914,18 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
     )
 
 
-def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: ValidationOptions) -> WindowReport:
+def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: ValidationOptions,
+             planned: list[tuple[str, float, bool]] = ()) -> WindowReport:
     """The tracking replay restarted from the reference in overlapping windows (WindowReport).
 
-    A window shorter than half of window_s at the end of the plan is not started. Only the base error
-    is kept, so the windows match no impacts.
+    A window shorter than half of window_s at the end of the plan is not started. Each planned impact
+    (point, time [s], tap), taps too, is matched to the nearest MuJoCo impact of its point in the window
+    that started window_stride_s to twice that before it (the first window if none did), among those to
+    which it is the nearest planned impact.
     """
     per = max(1, int(round(options.window_s / ref.dt)))
     stride = max(1, int(round(options.window_stride_s / ref.dt)))
-    starts, errors, diverged = [], [], False
+    starts, errors, onsets, diverged = [], [], [], False
     base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
     for first in range(0, max(1, ref.steps - per // 2), stride):
         last = min(first + per, ref.steps)
@@ -918,8 +933,22 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
                       positions=(base[first:last + 1], sites[first:last + 1]))
         starts.append(float(ref.times[first]))
         errors.append(run.max_base_error_m)
+        onsets.append(run.mujoco_impacts)
         diverged |= run.diverged
-    return WindowReport(options.window_s, options.window_stride_s, tuple(starts), tuple(errors), diverged)
+    lead = stride * ref.dt
+    # started at least one stride before the impact, so MuJoCo, not the restart, decides when the point lands
+    chosen = [max(0, int(np.searchsorted(starts, when - lead + 1e-9 * ref.dt, side="right")) - 1) for _, when, _ in planned]
+    def owner(point: str, x: float) -> float:
+        return min((w for p, w, _ in planned if p == point), key=lambda w: abs(w - x))
+
+    # an onset is matched only to the planned impact nearest to it: a push-off just after a landing (Capler's main
+    # job: 1.222 s after 1.189 s) would otherwise take the landing's onset as its own. Taps are matched too: from the
+    # plan's state a tap in a stance finds no onset, and a light landing below TAP_SHARE (main job: 1.086 s) its own
+    matches = [_match_impacts([item], [(p, x) for p, x in onsets[j] if p == item[0] and owner(p, x) == item[1]], taps=True)[0]
+               for item, j in zip(planned, chosen)]
+    diffs = [abs(m.difference_s) for m in matches if m.difference_s is not None]
+    return WindowReport(options.window_s, options.window_stride_s, tuple(starts), tuple(errors), diverged,
+                        tuple(matches), max(diffs) if diffs else None)
 
 
 class _StanceRetarget:
@@ -1036,15 +1065,17 @@ def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray], points: Seq
     return out
 
 
-def _match_impacts(planned: list[tuple[str, float, bool]], mujoco_impacts: list[tuple[str, float]]) -> list[ImpactMatch]:
+def _match_impacts(planned: list[tuple[str, float, bool]], mujoco_impacts: list[tuple[str, float]],
+                   taps: bool = False) -> list[ImpactMatch]:
+    """Each planned (point, time [s], tap) against the nearest MuJoCo impact of its point; taps only if `taps`."""
     matches = []
     for point, when, tap in planned:
         candidates = [x for p, x in mujoco_impacts if p == point]
-        if tap or not candidates:
+        if (tap and not taps) or not candidates:
             matches.append(ImpactMatch(point, when, None, None, tap=tap))
             continue
         nearest = min(candidates, key=lambda x: abs(x - when))
-        matches.append(ImpactMatch(point, when, nearest, nearest - when))
+        matches.append(ImpactMatch(point, when, nearest, nearest - when, tap=tap))
     return matches
 
 

@@ -232,6 +232,7 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
     windows = result.windows  # each window restarts from a MuJoCo state of the same run
     assert len(windows.starts_s) == math.ceil((0.6 - windows.window_s / 2) / windows.stride_s)
     assert windows.worst_m <= GROUND_TRUTH_TOL_M and not windows.diverged
+    assert [m.difference_s for m in windows.impacts] == [pytest.approx(0.0, abs=1e-12)]
 
     summary = json.loads(replay.write_validation(out, result).read_text())
     block = summary["validation"]
@@ -316,6 +317,43 @@ def test_a_tap_is_listed_not_matched(ground_truth, capler, tmp_path, tap):
         assert "foot@0.400s: tap" in result.report() and result.tracking.max_abs_impact_time_difference_s == 0.0
     else:
         assert impacts[1].difference_s == pytest.approx(landing - TAP_AT_S, abs=1e-12)
+    # restarted from the standing plan's state shortly before it, MuJoCo sees no impact at TAP_AT_S either way
+    assert [m.tap for m in result.windows.impacts] == [False, tap] and result.windows.impacts[1].difference_s is None
+    assert result.windows.max_abs_impact_time_difference_s == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_landing_marked_tap_is_matched_in_the_windows(ground_truth, capler, tmp_path):
+    """A landing whose impulse falls below TAP_SHARE (the main job's light landing at 1.086 s) is listed without a
+    match in the whole replay but matched in the windows, where MuJoCo starts from the plan's state before it: its
+    onset there is the landing's (difference 0), reported as "tap +0.0 ms"."""
+    traj, _ = ground_truth
+    out = _write_result(tmp_path / "light", traj, capler[0].path, ROBOTS_DIR / "capler.toml", ["foot"])
+    summary = json.loads((out / "summary.json").read_text())
+    summary["impacts"][0]["tap"] = True
+    (out / "summary.json").write_text(json.dumps(summary))
+    result = replay.validate(out)
+    assert result.tracking.impacts[0].tap and result.tracking.impacts[0].difference_s is None
+    assert result.windows.impacts[0].tap and result.windows.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
+    assert "tap +0.0 ms" in result.report()
+
+
+PUSH_OFF_AFTER_S = 0.015  # [s] a planned impact this long after the landing: its window starts before the landing
+
+
+def test_a_window_gives_its_onset_to_the_nearest_planned_impact(ground_truth, capler, tmp_path):
+    """An onset in a window is matched only to the planned impact nearest to it: a second planned impact
+    PUSH_OFF_AFTER_S after the landing (as Capler's push-offs after landings), whose window holds the landing's onset,
+    gets none in the windows and the landing keeps its zero difference; the whole replay's nearest-onset matching
+    gives both the landing's onset."""
+    traj, _ = ground_truth
+    landing = float(traj["impact_times"][0])
+    out = _write_result(tmp_path / "push", {**traj, "impact_times": np.array([landing, landing + PUSH_OFF_AFTER_S])},
+                        capler[0].path, ROBOTS_DIR / "capler.toml", ["foot", "foot"])
+    result = replay.validate(out)
+    assert [m.mujoco_time_s for m in result.tracking.impacts] == [pytest.approx(landing, abs=1e-12)] * 2
+    windowed = result.windows.impacts
+    assert windowed[0].difference_s == pytest.approx(0.0, abs=1e-12) and windowed[1].mujoco_time_s is None
+    assert "impacts in the windows" in result.report() and f"foot@{landing + PUSH_OFF_AFTER_S:.3f}s: none" in result.report()
 
 
 def test_analytic_point_mass_plan_with_impact_samples(point_mass):
@@ -336,6 +374,7 @@ def test_analytic_point_mass_plan_with_impact_samples(point_mass):
     assert result.passed, result.failures
     assert result.max_tracking_error_m <= ANALYTIC_PLAN_TOL_M
     assert abs(result.tracking.impacts[0].difference_s) <= IMPACT_TIME_TOL_S
+    assert abs(result.windows.impacts[0].difference_s) <= IMPACT_TIME_TOL_S
     assert result.open_loop.time_within_band_s == pytest.approx(result.open_loop.duration_s)
     assert result.max_penetration_m == 0.0
 
