@@ -915,7 +915,7 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
 
 
 def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: ValidationOptions,
-             planned: list[tuple[str, float, bool]] = ()) -> WindowReport:
+             planned: Sequence[tuple[str, float, bool]] = ()) -> WindowReport:
     """The tracking replay restarted from the reference in overlapping windows (WindowReport).
 
     A window shorter than half of window_s at the end of the plan is not started. Each planned impact
@@ -938,7 +938,9 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     lead = stride * ref.dt
     # started at least one stride before the impact, so MuJoCo, not the restart, decides when the point lands
     chosen = [max(0, int(np.searchsorted(starts, when - lead + 1e-9 * ref.dt, side="right")) - 1) for _, when, _ in planned]
+
     def owner(point: str, x: float) -> float:
+        """The planned impact time [s] of `point` nearest to MuJoCo's onset at x [s]."""
         return min((w for p, w, _ in planned if p == point), key=lambda w: abs(w - x))
 
     # an onset is matched only to the planned impact nearest to it: a push-off just after a landing (Capler's main
