@@ -437,13 +437,20 @@ def run_task(spec: dict) -> dict:
 
     with stage("validation"):
         t2 = time.perf_counter()
-        val = validate_trajectory(robot, task, _traj_arrays(result.trajectory))
+        tr = result.trajectory
+        val = validate_trajectory(robot, task, _traj_arrays(tr), impact_points=[imp.contact for imp in tr.impacts],
+                                  impact_taps=tr.taps)
         rec["times"]["validation_s"] = time.perf_counter() - t2
         numbers = {"max_tracking_error_m": val.max_tracking_error_m, "final_tracking_error_m": val.final_tracking_error_m,
                    "max_penetration_m": val.max_penetration_m}
         found = [f for f in (_nonfinite(k, v) for k, v in numbers.items()) if f]
         rec["nonfinite"] += [{"stage": "validation", "what": f} for f in found]
-        rec["validation"] = {**numbers, "passed": bool(val.passed), "failures": list(val.failures)}
+        # the windows (restarted from the plan, docs/validation.md) are information, as in `planner validate`
+        w = val.windows
+        rec["validation"] = {**numbers, "passed": bool(val.passed), "failures": list(val.failures),
+                             "window_mean_m": w.mean_m, "window_worst_m": w.worst_m,
+                             "window_impacts_landed": [sum(m.difference_s is not None for m in w.impacts), len(w.impacts)],
+                             "window_impact_time_error_s": w.max_abs_impact_time_difference_s}
         if found and val.passed:
             raise NonFinite("the validation passed with " + "; ".join(found))
     rec["outcome"] = CONVERGED_VALID if val.passed else CONVERGED_INVALID
@@ -499,6 +506,17 @@ def summarize(records: list[dict]) -> dict:
             "crashed": [{"id": r["id"], "stage": r["stage"], "error": r["message"]} for r in records if r["outcome"] == CRASHED]}
 
 
+def _windows_cell(rec: dict) -> str:
+    """A validated record's windowed MuJoCo numbers (run_task's "validation"), else empty."""
+    v = rec.get("validation") or {}
+    if v.get("window_mean_m") is None:
+        return ""
+    landed, planned = v["window_impacts_landed"]
+    dt = v["window_impact_time_error_s"]
+    return (f"{v['window_mean_m'] * 1e3:.1f} / {v['window_worst_m'] * 1e3:.1f}, {landed} of {planned}"
+            + ("" if dt is None else f", {dt * 1e3:.1f}"))
+
+
 def markdown(summary: dict, records: list[dict], header: str) -> str:
     cols = ("tasks", CONVERGED_VALID, CONVERGED_INVALID, DIAGNOSED, CRASHED, "nonfinite", "unexpected", "median_time_s")
     names = ("tasks", "converged, valid", "converged, invalid in MuJoCo", "not converged, diagnosed", "crashed",
@@ -514,12 +532,13 @@ def markdown(summary: dict, records: list[dict], header: str) -> str:
     pct = "" if r["feasible_valid_pct"] is None else f" ({r['feasible_valid_pct']:.1f} %)"
     lines += ["", f"Feasible tasks (all but the expected infeasible): {r['feasible_valid']} of {r['feasible']} converged and "
               f"valid{pct}; expected infeasible: {r['infeasible_diagnosed']} of {r['infeasible']} diagnosed."]
-    lines += ["", "| task | outcome | stage | message |", "|---|---|---|---|"]
+    lines += ["", "| task | outcome | stage | message | MuJoCo windows: mean / worst [mm], impacts landed, worst \\|Δt\\| [ms] |",
+              "|---|---|---|---|---|"]
     for r in records:
         if r["outcome"] != CONVERGED_VALID:
             msg = (r.get("message") or "").replace("|", "\\|").replace("\n", " ")
             expect = " (expected infeasible)" if r["expect"] == "infeasible" else ""
-            lines.append(f"| {r['id']} | {r['outcome']}{expect} | {r.get('stage') or ''} | {msg[:200]} |")
+            lines.append(f"| {r['id']} | {r['outcome']}{expect} | {r.get('stage') or ''} | {msg[:200]} | {_windows_cell(r)} |")
     if summary["nonfinite_by_stage"]:
         lines += ["", "NaN/Inf seen, by stage: " + ", ".join(f"{k} {v}" for k, v in summary["nonfinite_by_stage"].items())]
     return "\n".join(lines) + "\n"

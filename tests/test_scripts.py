@@ -239,7 +239,7 @@ def test_stress_initial_state_families(stress):
 def test_stress_reduced_run(stress, tmp_path, capsys):
     """Every family on the point mass (1 task each, N = 20, <= 300 IPOPT iterations per NLP) in two local
     processes: no crash, each outcome one of the four classes, the out-of-reach target diagnosed, the
-    files written."""
+    files written; a validated task records its windowed MuJoCo numbers (docs/validation.md)."""
     code = stress.main(["--robot", "point_mass", "--per-family", "1", "--N", "20", "--max-iter", "300", "--workers", "2",
                         "--seed", "0", "--out", str(tmp_path), "--json"])
     summary = json.loads(capsys.readouterr().out)
@@ -254,6 +254,8 @@ def test_stress_reduced_run(stress, tmp_path, capsys):
             assert r["message"], r["id"]
         if r["outcome"] != stress.DIAGNOSED:
             assert "validation" in r and r["validation"]["passed"] == (r["outcome"] == stress.CONVERGED_VALID)
+            landed, planned = r["validation"]["window_impacts_landed"]  # every impact timed in the windows
+            assert planned == r["impacts"] and 0 <= landed <= planned and r["validation"]["window_mean_m"] >= 0
     infeasible = [r for r in records if r["expect"] == "infeasible"]
     assert {r["family"] for r in infeasible} == {"infeasible"}  # torque-00: 5.3 N, above 3.27 N: it may slide
     assert all(r["outcome"] == stress.DIAGNOSED and not r["unexpected"] for r in infeasible), infeasible
@@ -261,7 +263,7 @@ def test_stress_reduced_run(stress, tmp_path, capsys):
     assert sum(summary["total"][o] for o in stress.OUTCOMES) == len(records)
     assert len((tmp_path / "records.jsonl").read_text().splitlines()) == len(records)
     md = (tmp_path / "summary.md").read_text()
-    assert "| **all** | 14 |" in md and "init_grazing" in md
+    assert "| **all** | 14 |" in md and "init_grazing" in md and "MuJoCo windows" in md
 
 
 def _one(stress):
