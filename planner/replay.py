@@ -919,9 +919,8 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     """The tracking replay restarted from the reference in overlapping windows (WindowReport).
 
     A window shorter than half of window_s at the end of the plan is not started. Each planned impact
-    (point, time [s], tap), taps too, is matched to the nearest MuJoCo impact of its point in the window
-    that started window_stride_s to twice that before it (the first window if none did), among those to
-    which it is the nearest planned impact.
+    (point, time [s], tap), taps too, is matched (_match_impacts) to the MuJoCo impacts of the window that
+    started window_stride_s to twice that before it (the first window if none did).
     """
     per = max(1, int(round(options.window_s / ref.dt)))
     stride = max(1, int(round(options.window_stride_s / ref.dt)))
@@ -938,16 +937,9 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     lead = stride * ref.dt
     # started at least one stride before the impact, so MuJoCo, not the restart, decides when the point lands
     chosen = [max(0, int(np.searchsorted(starts, when - lead + 1e-9 * ref.dt, side="right")) - 1) for _, when, _ in planned]
-
-    def owner(point: str, x: float) -> float:
-        """The planned impact time [s] of `point` nearest to MuJoCo's onset at x [s]."""
-        return min((w for p, w, _ in planned if p == point), key=lambda w: abs(w - x))
-
-    # an onset is matched only to the planned impact nearest to it: a push-off just after a landing (Capler's main
-    # job: 1.222 s after 1.189 s) would otherwise take the landing's onset as its own. Taps are matched too: from the
-    # plan's state a tap in a stance finds no onset, and a light landing below TAP_SHARE (main job: 1.086 s) its own
-    matches = [_match_impacts([item], [(p, x) for p, x in onsets[j] if p == item[0] and owner(p, x) == item[1]], taps=True)[0]
-               for item, j in zip(planned, chosen)]
+    # taps are matched too: from the plan's state a tap in a stance finds no onset, and a light landing below
+    # TAP_SHARE (main job: 1.086 s) its own
+    matches = [_match_impacts(planned, list(onsets[j]), taps=True)[i] for i, j in enumerate(chosen)]
     diffs = [abs(m.difference_s) for m in matches if m.difference_s is not None]
     return WindowReport(options.window_s, options.window_stride_s, tuple(starts), tuple(errors), diverged,
                         tuple(matches), max(diffs) if diffs else None)
@@ -1067,13 +1059,21 @@ def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray], points: Seq
     return out
 
 
-def _match_impacts(planned: list[tuple[str, float, bool]], mujoco_impacts: list[tuple[str, float]],
+def _match_impacts(planned: Sequence[tuple[str, float, bool]], mujoco_impacts: Sequence[tuple[str, float]],
                    taps: bool = False) -> list[ImpactMatch]:
-    """Each planned (point, time [s], tap) against the nearest MuJoCo impact of its point; taps only if `taps`."""
+    """Each planned (point, time [s], tap) against the nearest MuJoCo impact of its point among those to which it
+    is the nearest planned impact; taps are matched (and claim MuJoCo impacts) only if `taps`."""
+    eligible = [(p, w) for p, w, tap in planned if taps or not tap]
+
+    def claims(point: str, when: float, x: float) -> bool:
+        # a MuJoCo impact goes to one planned impact: a push-off planned just after a landing (the main job's 1.222 s
+        # after 1.189 s) would otherwise take the landing's onset as its own
+        return min((w for p, w in eligible if p == point), key=lambda w: abs(w - x)) == when
+
     matches = []
     for point, when, tap in planned:
-        candidates = [x for p, x in mujoco_impacts if p == point]
-        if (tap and not taps) or not candidates:
+        candidates = [] if tap and not taps else [x for p, x in mujoco_impacts if p == point and claims(point, when, x)]
+        if not candidates:
             matches.append(ImpactMatch(point, when, None, None, tap=tap))
             continue
         nearest = min(candidates, key=lambda x: abs(x - when))

@@ -293,33 +293,31 @@ def test_foot_under_ground_fails(ground_truth, capler):
     assert any("penetration" in f for f in result.failures)
 
 
-TAP_AT_S = 0.4  # [s] a planned tap while the dropped Capler stands (MuJoCo's one impact is its landing)
+LATE_S, EARLY_S = 0.03, 0.01  # [s] a planned landing this late, and a planned impact this early, around MuJoCo's
 
 
 @pytest.mark.parametrize("tap", [True, False])
 def test_a_tap_is_listed_not_matched(ground_truth, capler, tmp_path, tap):
-    """A planned impact that summary.json marks as a tap (result.TAP_SHARE) is listed in the validation without a
-    MuJoCo impact and leaves the largest impact time difference the landing's (0); unmarked, the same impact is
-    matched to the landing, TAP_AT_S before it."""
+    """A MuJoCo impact goes to the one planned impact nearest to it, and a tap (summary.json's mark, result.TAP_SHARE)
+    takes none in the whole replay: with a landing planned LATE_S after MuJoCo's and a tap EARLY_S before it, the
+    landing gets MuJoCo's impact (-LATE_S) and the tap is listed as such; unmarked, the nearer impact takes it
+    (+EARLY_S) and the landing finds none."""
     traj, _ = ground_truth
     landing = float(traj["impact_times"][0])
-    out = _write_result(tmp_path / "tap", {**traj, "impact_times": np.array([landing, TAP_AT_S])}, capler[0].path,
-                        ROBOTS_DIR / "capler.toml", ["foot", "foot"])
+    out = _write_result(tmp_path / "tap", {**traj, "impact_times": np.array([landing + LATE_S, landing - EARLY_S])},
+                        capler[0].path, ROBOTS_DIR / "capler.toml", ["foot", "foot"])
     summary = json.loads((out / "summary.json").read_text())
     summary["impacts"][1]["tap"] = tap
     (out / "summary.json").write_text(json.dumps(summary))
     result = replay.validate(out)
     impacts = result.tracking.impacts
-    assert [m.tap for m in impacts] == [False, tap]
-    assert impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
+    assert [m.tap for m in impacts] == [False, tap] and [m.tap for m in result.windows.impacts] == [False, tap]
     if tap:
-        assert impacts[1].mujoco_time_s is None and impacts[1].difference_s is None
-        assert "foot@0.400s: tap" in result.report() and result.tracking.max_abs_impact_time_difference_s == 0.0
+        assert impacts[0].difference_s == pytest.approx(-LATE_S, abs=1e-12) and impacts[1].difference_s is None
+        assert f"foot@{landing - EARLY_S:.3f}s: tap" in result.report()
+        assert result.tracking.max_abs_impact_time_difference_s == pytest.approx(LATE_S, abs=1e-12)
     else:
-        assert impacts[1].difference_s == pytest.approx(landing - TAP_AT_S, abs=1e-12)
-    # restarted from the standing plan's state shortly before it, MuJoCo sees no impact at TAP_AT_S either way
-    assert [m.tap for m in result.windows.impacts] == [False, tap] and result.windows.impacts[1].difference_s is None
-    assert result.windows.max_abs_impact_time_difference_s == pytest.approx(0.0, abs=1e-12)
+        assert impacts[0].difference_s is None and impacts[1].difference_s == pytest.approx(EARLY_S, abs=1e-12)
 
 
 def test_a_landing_marked_tap_is_matched_in_the_windows(ground_truth, capler, tmp_path):
@@ -343,14 +341,13 @@ PUSH_OFF_AFTER_S = 0.015  # [s] a planned impact this long after the landing: it
 def test_a_window_gives_its_onset_to_the_nearest_planned_impact(ground_truth, capler, tmp_path):
     """An onset in a window is matched only to the planned impact nearest to it: a second planned impact
     PUSH_OFF_AFTER_S after the landing (as Capler's push-offs after landings), whose window holds the landing's onset,
-    gets none in the windows and the landing keeps its zero difference; the whole replay's nearest-onset matching
-    gives both the landing's onset."""
+    gets none in the windows and in the whole replay, and the landing keeps its zero difference."""
     traj, _ = ground_truth
     landing = float(traj["impact_times"][0])
     out = _write_result(tmp_path / "push", {**traj, "impact_times": np.array([landing, landing + PUSH_OFF_AFTER_S])},
                         capler[0].path, ROBOTS_DIR / "capler.toml", ["foot", "foot"])
     result = replay.validate(out)
-    assert [m.mujoco_time_s for m in result.tracking.impacts] == [pytest.approx(landing, abs=1e-12)] * 2
+    assert [m.mujoco_time_s for m in result.tracking.impacts] == [pytest.approx(landing, abs=1e-12), None]
     windowed = result.windows.impacts
     assert windowed[0].difference_s == pytest.approx(0.0, abs=1e-12) and windowed[1].mujoco_time_s is None
     assert "impacts in the windows" in result.report() and f"foot@{landing + PUSH_OFF_AFTER_S:.3f}s: none" in result.report()
