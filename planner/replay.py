@@ -475,6 +475,11 @@ class WindowReport:
     def worst_m(self) -> float:
         return max(self.max_base_error_m, default=0.0)
 
+    @property
+    def landed(self) -> int:
+        """How many planned impacts MuJoCo landed in their windows (the others: none, a push-off or a stance tap)."""
+        return sum(m.difference_s is not None for m in self.impacts)
+
     def summary(self) -> dict:
         return {"mean_m": self.mean_m, "median_m": self.median_m, "p90_m": self.p90_m, "worst_m": self.worst_m}
 

@@ -597,9 +597,9 @@ def ocp_records(case: OcpCase, repeat: int, log) -> list[dict]:
             errors["tracking_window_mean_m"] = validation.windows.mean_m  # restarted every 25 ms for 0.1 s
             # each impact against MuJoCo's onset in the window started 25-50 ms before it; "none" (a push-off in a
             # stance, a tap) is not an error of the impact's time, so the share MuJoCo sees as a landing goes beside it
-            windowed = validation.windows.impacts
-            errors["window_impact_time_error_s"] = validation.windows.max_abs_impact_time_difference_s
-            rec["window_impacts_landed"] = [sum(m.difference_s is not None for m in windowed), len(windowed)]
+            windows = validation.windows
+            errors["window_impact_time_error_s"] = windows.max_abs_impact_time_difference_s
+            rec["window_impacts_landed"] = [windows.landed, len(windows.impacts)]
             errors["tracking_point_error_m"] = max(validation.tracking.max_foot_error_m.values(), default=None)
             rec["tracking_diverged"] = validation.tracking.diverged
             scene = replay.build_scene(robot, task)

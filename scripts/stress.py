@@ -449,7 +449,7 @@ def run_task(spec: dict) -> dict:
         w = val.windows
         rec["validation"] = {**numbers, "passed": bool(val.passed), "failures": list(val.failures),
                              "window_mean_m": w.mean_m, "window_worst_m": w.worst_m,
-                             "window_impacts_landed": [sum(m.difference_s is not None for m in w.impacts), len(w.impacts)],
+                             "window_impacts_landed": [w.landed, len(w.impacts)],
                              "window_impact_time_error_s": w.max_abs_impact_time_difference_s}
         if found and val.passed:
             raise NonFinite("the validation passed with " + "; ".join(found))
