@@ -27,7 +27,7 @@ v_{k+1} = 0) and removes energy where it acts: dissipative by construction. Step
 
     python -m scripts.probe_impacts DIR                          # the plan in DIR (needs its nlp_x)
     python -m scripts.probe_impacts --plan capler --out DIR --no-validate   # the hint-free plan with the variant
-Writes OUT/results.json (default DIR/probe_impacts).
+Writes OUT/results.json (default results/probe/impacts, as the other probes: the plan's directory stays as written).
 """
 from __future__ import annotations
 
@@ -48,6 +48,9 @@ from planner.errors import InputError
 from planner.result import read_summary
 from scripts._report import report
 from scripts.probe_replay import plan_problem
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_OUT = ROOT / "results" / "probe" / "impacts"
 
 
 @contextlib.contextmanager
@@ -153,7 +156,7 @@ def table(rec: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("plan_dir", type=Path, nargs="?", help="a plan's result directory")
-    parser.add_argument("--out", type=Path, help="where results.json goes (default PLAN_DIR/probe_impacts)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"where results.json goes (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print the records as JSON instead of the table")
     parser.add_argument("--plan", nargs=argparse.REMAINDER, metavar="ARGS",
                         help="run `planner plan ARGS` with the secant impulses instead (last option)")
@@ -166,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.plan_dir is None:
         parser.error("give a plan's result directory, or --plan ARGS")
     rec = probe(args.plan_dir)
-    return report(args.out or args.plan_dir / "probe_impacts", rec, table(rec), args.json)
+    return report(args.out, rec, table(rec), args.json)
 
 
 if __name__ == "__main__":
