@@ -481,7 +481,8 @@ class WindowReport:
         return sum(m.difference_s is not None for m in self.impacts)
 
     def summary(self) -> dict:
-        return {"mean_m": self.mean_m, "median_m": self.median_m, "p90_m": self.p90_m, "worst_m": self.worst_m}
+        return {"mean_m": self.mean_m, "median_m": self.median_m, "p90_m": self.p90_m, "worst_m": self.worst_m,
+                "impacts_landed": self.landed}
 
 
 def _impacts_text(matches: Sequence[ImpactMatch]) -> str:

@@ -239,6 +239,7 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
     for key in ("passed", "mode", "max_tracking_error_m", "final_tracking_error_m", "max_penetration_m", "thresholds"):
         assert key in block
     assert block["windows"]["worst_m"] == windows.worst_m and len(block["windows"]["max_base_error_m"]) == len(windows.starts_s)
+    assert block["windows"]["impacts_landed"] == 1 and block["windows"]["impacts"][0]["difference_s"] == pytest.approx(0.0, abs=1e-12)
     assert block["thresholds"]["max_tracking_error_m"] == replay.MAX_TRACKING_ERROR_M == 0.01
     assert block["thresholds"]["max_penetration_m"] == replay.MAX_PENETRATION_M == 0.002
     json.dumps(block, allow_nan=False)  # strict JSON
