@@ -321,6 +321,21 @@ def test_a_tap_is_listed_not_matched(ground_truth, capler, tmp_path, tap):
         assert impacts[0].difference_s is None and impacts[1].difference_s == pytest.approx(EARLY_S, abs=1e-12)
 
 
+STANCE_AT_S = 0.4  # [s] a planned impact while the dropped Capler stands (MuJoCo's one impact is its landing)
+
+
+def test_an_impact_planned_in_a_stance_finds_no_landing_in_its_window(ground_truth, capler, tmp_path):
+    """Restarted from the standing plan's state shortly before STANCE_AT_S, MuJoCo keeps the foot on the ground: the
+    windows list that planned impact as none (the landing keeps its zero difference) and count one landing."""
+    traj, _ = ground_truth
+    landing = float(traj["impact_times"][0])
+    out = _write_result(tmp_path / "stance", {**traj, "impact_times": np.array([landing, STANCE_AT_S])}, capler[0].path,
+                        ROBOTS_DIR / "capler.toml", ["foot", "foot"])
+    windows = replay.validate(out).windows
+    assert windows.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12) and windows.impacts[1].mujoco_time_s is None
+    assert windows.landed == 1
+
+
 def test_a_landing_marked_tap_is_matched_in_the_windows(ground_truth, capler, tmp_path):
     """A landing whose impulse falls below TAP_SHARE (the main job's light landing at 1.086 s) is listed without a
     match in the whole replay but matched in the windows, where MuJoCo starts from the plan's state before it: its
