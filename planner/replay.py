@@ -39,7 +39,7 @@ import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
-from .result import read_robot, read_summary, read_task, read_trajectory, write_atomically
+from .result import Trajectory, read_robot, read_summary, read_task, read_trajectory, write_atomically
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -603,6 +603,14 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         return validate_walk(robot, task, check_trajectory(robot, traj))
     contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
     return validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps)
+
+
+def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: ValidationOptions | None = None) -> Validation:
+    """validate_trajectory of a solved plan's Trajectory, in memory: its physical-time samples, and its impacts'
+    contact points and taps as `validate(DIR)` reads them from summary.json."""
+    arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
+    return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
+                               impact_taps=trajectory.taps)
 
 
 def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray],

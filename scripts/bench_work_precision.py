@@ -407,11 +407,6 @@ def ocp_cases(quick: bool, capler_Ns: tuple[int, ...] | None = None) -> list[Ocp
     return [pm, OcpCase("ocp_capler", "capler", capler_task, tuple(capler_Ns or CAPLER_NS), repeat=False)]
 
 
-def plan_arrays(traj) -> dict:
-    """The contract arrays (t, q, v, u, impact_times) of a plan's trajectory (what `planner validate` reads)."""
-    return {"t": traj.t, "q": traj.q, "v": traj.v, "u": traj.u, "impact_times": traj.impact_times}
-
-
 def control_pieces(t: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The zero-order-hold controls of physical-time samples t (P,), u (P, nu) (u[i] acts on
     [t[i-1], t[i]), planner.result.recover) as pieces: start times (M,) [s] and controls (M, nu).
@@ -591,8 +586,7 @@ def ocp_records(case: OcpCase, repeat: int, log) -> list[dict]:
                "n_impacts": len(tr.impacts), "hops": len(result.hops)}
         errors = {"penetration_m": penetration(dyn, task, tr.y), "terminal_error": result.terminal_error}
         if len(tr.t) > 1:
-            validation = replay.validate_trajectory(robot, task, plan_arrays(tr), impact_points=[imp.contact for imp in tr.impacts],
-                                                     impact_taps=tr.taps)
+            validation = replay.validate_plan(robot, task, tr)
             errors["tracking_error_m"] = validation.max_tracking_error_m
             errors["tracking_window_mean_m"] = validation.windows.mean_m  # restarted every 25 ms for 0.1 s
             # each impact against MuJoCo's onset in the window started 25-50 ms before it; "none" (a push-off in a

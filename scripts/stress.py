@@ -4,7 +4,7 @@ A seed gives a deterministic list of tasks: each FAMILY perturbs one aspect of a
 robots/capler.toml, or a cheap point-mass hop) -- holes, targets and horizons, initial states
 (standing, airborne, exactly at contact, grazing, penetrating by <= 1e-9 m), friction, auxiliary
 gains, grid size N, rho_f, the homotopy, torque bounds, and targets out of reach. Each task is planned
-(build_problem + solve), a converged plan is replayed in MuJoCo (planner.replay.validate_trajectory),
+(build_problem + solve), a converged plan is replayed in MuJoCo (planner.replay.validate_plan),
 and the task gets exactly one OUTCOME:
 
     converged and valid               the solve's verdict is converged and the MuJoCo validation passed
@@ -374,16 +374,12 @@ def check_problem(problem) -> list[str]:
     return [f for f in found if f]
 
 
-def _traj_arrays(tr) -> dict:
-    return {"t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u, "impact_times": tr.impact_times}
-
-
 def run_task(spec: dict) -> dict:
     """Plan, validate and classify one generated task; returns its JSON-able record. Exceptions are
     labelled with their stage and left to planner.batch, which makes them a crashed record."""
     from planner.homotopy import solve, solve_options_from_dict
     from planner.problem import build_problem
-    from planner.replay import validate_trajectory
+    from planner.replay import validate_plan
     from planner.task import parse_task
 
     rec = {k: spec[k] for k in ("id", "family", "index", "seed", "base", "expect", "params")}
@@ -437,9 +433,7 @@ def run_task(spec: dict) -> dict:
 
     with stage("validation"):
         t2 = time.perf_counter()
-        tr = result.trajectory
-        val = validate_trajectory(robot, task, _traj_arrays(tr), impact_points=[imp.contact for imp in tr.impacts],
-                                  impact_taps=tr.taps)
+        val = validate_plan(robot, task, result.trajectory)
         rec["times"]["validation_s"] = time.perf_counter() - t2
         numbers = {"max_tracking_error_m": val.max_tracking_error_m, "final_tracking_error_m": val.final_tracking_error_m,
                    "max_penetration_m": val.max_penetration_m}

@@ -6,6 +6,7 @@ docs/validation.md.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -367,6 +368,30 @@ def test_a_window_gives_its_onset_to_the_nearest_planned_impact(ground_truth, ca
     windowed = result.windows.impacts
     assert windowed[0].difference_s == pytest.approx(0.0, abs=1e-12) and windowed[1].mujoco_time_s is None
     assert "impacts in the windows" in result.report() and f"foot@{landing + PUSH_OFF_AFTER_S:.3f}s: none" in result.report()
+
+
+def test_validate_plan_is_validate_of_the_written_result(point_mass, tmp_path):
+    """replay.validate_plan of a result's Trajectory in memory gives what `planner validate DIR` gives from the files
+    write_results wrote (the same samples, impact points and taps), every number but the replays' wall times."""
+    simulate = pytest.importorskip("planner.simulate")
+    from planner.result import write_results
+
+    task_file = tmp_path / "drop.toml"
+    task_file.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\na_n = 100.0\n[initial]\nq = [0.0, 0.5]\nv = [1.0, 0.0]\n'
+                         '[horizon]\ntau_f = 0.6\nN = 30\n')
+    task = load_task(task_file)
+    result = simulate.simulate(point_mass, task)
+    write_results(dataclasses.replace(result, task=str(task_file)), tmp_path / "drop")
+
+    def numbers(validation):
+        out = validation.to_json()
+        for replay_json in (out["tracking"], out["open_loop"]):
+            replay_json.pop("wall_time_s")
+        return out
+
+    in_memory = numbers(replay.validate_plan(point_mass, task, result.trajectory))
+    assert len(in_memory["tracking"]["impacts"]) == len(result.trajectory.impacts) >= 1
+    assert in_memory == numbers(replay.validate(tmp_path / "drop"))
 
 
 def test_analytic_point_mass_plan_with_impact_samples(point_mass):
