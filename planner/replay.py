@@ -911,7 +911,6 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
     saturated = (run.ctrl < scene.ctrl_lower) | (run.ctrl > scene.ctrl_upper)
     mj_impacts = detect_impacts(run.times, run.active, scene.points, options.min_flight_s, run.touching0)
     matches = _match_impacts(planned, mj_impacts)
-    diffs = [abs(m.difference_s) for m in matches if m.difference_s is not None]
     names = [scene.model.actuator(i).name or f"actuator_{i}" for i in range(scene.model.nu)]
     return RolloutReport(
         duration_s=float(ref.times[-1] - ref.times[0]), steps=ref.steps,
@@ -919,7 +918,7 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
         max_foot_error_m={p: float(foot_err[:, c].max()) for c, p in enumerate(scene.points)},
         final_foot_error_m={p: float(foot_err[-1, c]) for c, p in enumerate(scene.points)},
         mujoco_impacts=tuple((p, float(x)) for p, x in mj_impacts),
-        impacts=tuple(matches), max_abs_impact_time_difference_s=max(diffs) if diffs else None,
+        impacts=tuple(matches), max_abs_impact_time_difference_s=_largest_difference(matches),
         saturation_fraction=float(saturated.mean()) if saturated.size else 0.0,
         saturation_by_actuator={n: float(saturated[:, i].mean()) for i, n in enumerate(names)},
         max_dynamic_penetration_m=float(run.depth.max()) if run.depth.size else 0.0,
@@ -954,9 +953,8 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     # taps are matched too: from the plan's state a tap in a stance finds no onset, and a light landing below
     # TAP_SHARE (main job: 1.086 s) its own
     matches = [_match_impacts(planned, list(onsets[j]), taps=True)[i] for i, j in enumerate(chosen)]
-    diffs = [abs(m.difference_s) for m in matches if m.difference_s is not None]
     return WindowReport(options.window_s, options.window_stride_s, tuple(starts), tuple(errors), diverged,
-                        tuple(matches), max(diffs) if diffs else None)
+                        tuple(matches), _largest_difference(matches))
 
 
 class _StanceRetarget:
@@ -1071,6 +1069,11 @@ def _planned_impacts(scene: Scene, arrays: Mapping[str, np.ndarray], points: Seq
             point = scene.points[int(np.argmin(data.site_xpos[list(scene.site_ids), 2]))] if scene.points else "?"
         out.append((point, float(when), bool(taps[i]) if taps is not None and i < len(taps) else False))
     return out
+
+
+def _largest_difference(matches: Sequence[ImpactMatch]) -> float | None:
+    """The largest |MuJoCo - plan| [s] over the matched impacts; None if none is matched."""
+    return max((abs(m.difference_s) for m in matches if m.difference_s is not None), default=None)
 
 
 def _match_impacts(planned: Sequence[tuple[str, float, bool]], mujoco_impacts: Sequence[tuple[str, float]],
