@@ -4,8 +4,9 @@ A seed gives a deterministic list of tasks: each FAMILY perturbs one aspect of a
 robots/capler.toml, or a cheap point-mass hop) -- holes, targets and horizons, initial states
 (standing, airborne, exactly at contact, grazing, penetrating by <= 1e-9 m), friction, auxiliary
 gains, grid size N, rho_f, the homotopy, torque bounds, and targets out of reach. Each task is planned
-(build_problem + solve), a converged plan is replayed in MuJoCo (planner.replay.validate_plan),
-and the task gets exactly one OUTCOME:
+(build_problem + solve; with --race the race of two solver variants on two CPUs that `planner plan`
+runs, planner.race), a converged plan is replayed in MuJoCo (planner.replay.validate_plan), and the
+task gets exactly one OUTCOME:
 
     converged and valid               the solve's verdict is converged and the MuJoCo validation passed
     converged but invalid in MuJoCo   converged, but the validation failed (its failures are recorded)
@@ -23,7 +24,7 @@ TOML-like dict, its outcome, timings and diagnostics) and OUT/summary.md (the ta
 OUT/records.jsonl gets each record as its task finishes (what a stopped run keeps).
 
     python -m scripts.stress [--robot capler|point_mass] [--families F ...] [--per-family K] [--seed S]
-                             [--N N] [--max-iter M] [--scheduler ADDRESS] [--workers W] [--out DIR] [--json]
+                             [--N N] [--max-iter M] [--race] [--scheduler ADDRESS] [--workers W] [--out DIR] [--json]
 """
 from __future__ import annotations
 
@@ -45,6 +46,7 @@ import numpy as np
 
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
+from planner.race import usable_cpus
 from planner.result import write_atomically
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -379,6 +381,7 @@ def run_task(spec: dict) -> dict:
     labelled with their stage and left to planner.batch, which makes them a crashed record."""
     from planner.homotopy import solve, solve_options_from_dict
     from planner.problem import build_problem
+    from planner.race import default_arms, race
     from planner.replay import validate_plan
     from planner.task import parse_task
 
@@ -406,7 +409,11 @@ def run_task(spec: dict) -> dict:
                     rec["nonfinite"].append({"stage": nlp.label, "what": bad, "status": nlp.status})
 
         t1 = time.perf_counter()
-        result = solve(problem, options, progress=progress)
+        if spec.get("race"):
+            result = race(problem, default_arms(options), progress=progress)
+            rec["race"] = result.extra.get("race")  # the arms: outcome, iterations, wall [s]
+        else:
+            result = solve(problem, options, progress=progress)
         rec["times"]["solve_s"] = time.perf_counter() - t1
     st = result.stats
     rec.update(converged=bool(st.converged), message=st.message, n_nlp=st.n_nlp, ipopt_iterations=st.ipopt_iterations,
@@ -587,8 +594,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--N", type=int, help="override the base task's N (quick runs); the resolution family scales it")
     parser.add_argument("--max-iter", type=int, help="IPOPT iterations per NLP (default: SolveOptions')")
     parser.add_argument("--rho-schedule", type=float, nargs="+", metavar="RHO", help="the homotopy's penalties (default: SolveOptions')")
+    parser.add_argument("--race", action="store_true",
+                        help="solve each task as `planner plan` does: the race of two solver variants, two CPUs per task")
     parser.add_argument("--scheduler", help="address of a Dask distributed scheduler (default: local processes)")
-    parser.add_argument("--workers", type=int, help="local worker processes (default: cpu count; 0 = in this process)")
+    parser.add_argument("--workers", type=int,
+                        help="local worker processes (default: cpu count, with --race half of it; 0 = in this process)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--list", action="store_true", help="print the generated tasks (JSON lines) and exit")
@@ -600,6 +610,8 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"stress: error: {exc}", file=sys.stderr)
         return 2
+    for spec in specs:
+        spec["race"] = args.race
     if args.list:
         for s in specs:
             print(json.dumps(_strict(s)))
@@ -617,9 +629,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{rec['id']:<20} {rec['outcome']}{where}  {(rec.get('message') or '')[:120]}", file=sys.stderr, flush=True)
 
     command = "python -m scripts.stress " + " ".join(argv if argv is not None else sys.argv[1:])
+    workers = args.workers
+    if workers is None and args.race and args.scheduler is None:
+        workers = max(1, usable_cpus() // 2)  # each task's race takes two CPUs
     start = time.perf_counter()
     try:
-        raw = run_batch(run_task, specs, scheduler=args.scheduler, workers=args.workers, progress=log)
+        raw = run_batch(run_task, specs, scheduler=args.scheduler, workers=workers, progress=log)
     except InputError as exc:
         print(f"stress: error: {exc}", file=sys.stderr)
         return 2
@@ -628,7 +643,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - start
     machine = machine_info()
     results = {"command": command, "seed": args.seed, "robot": args.robot, "per_family": args.per_family, "N": args.N,
-               "solve_options": overrides, "scheduler": args.scheduler, "workers": args.workers, "total_wall_time_s": wall,
+               "solve_options": overrides, "race": args.race, "scheduler": args.scheduler, "workers": workers, "total_wall_time_s": wall,
                "machine": machine, "summary": summary, "records": records}
     write_atomically(args.out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
     header = (f"Stress run `{command}` on {machine['date'][:10]}: {len(records)} tasks, base {args.robot}, seed {args.seed}, "

@@ -266,6 +266,28 @@ def test_stress_reduced_run(stress, tmp_path, capsys):
     assert "| **all** | 14 |" in md and "init_grazing" in md and "MuJoCo windows" in md
 
 
+def test_stress_race_solves_each_task_as_planner_plan_does(stress, tmp_path, capsys):
+    """--race: each task is the race of planner.race.default_arms on two CPUs (its record lists both arms, the
+    winner's iterations are the record's), one task per two CPUs unless --workers says otherwise; without it
+    the record has no race."""
+    argv = ["--robot", "point_mass", "--families", "friction", "--per-family", "1", "--N", "20", "--max-iter", "300",
+            "--seed", "0", "--json"]
+    assert stress.main(argv + ["--race", "--out", str(tmp_path / "race")]) == 0
+    capsys.readouterr()
+    results = json.loads((tmp_path / "race" / "results.json").read_text())
+    assert results["race"] is True and results["workers"] == max(1, stress.usable_cpus() // 2)
+    (rec,) = results["records"]
+    assert rec["outcome"] != stress.CRASHED, rec.get("traceback")
+    arms = {a["arm"]: a for a in rec["race"]}
+    assert set(arms) == {"default", "alternate"}
+    won = [a for a in arms.values() if a["outcome"] == "won"]
+    assert len(won) == 1 and won[0]["iterations"] == rec["ipopt_iterations"]
+    assert stress.main(argv + ["--workers", "0", "--out", str(tmp_path / "plain")]) == 0
+    capsys.readouterr()
+    plain = json.loads((tmp_path / "plain" / "results.json").read_text())
+    assert plain["race"] is False and "race" not in plain["records"][0]
+
+
 def _one(stress):
     """A task that converges in ~2 s: the frictionless point-mass hop (friction-00), N = 20."""
     spec = stress.generate(0, ["friction"], 1, "point_mass", N=20, solve_options={"max_iter": 300})[0]
