@@ -46,7 +46,6 @@ import numpy as np
 
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
-from planner.race import usable_cpus
 from planner.result import write_atomically
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -631,6 +630,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m scripts.stress " + " ".join(argv if argv is not None else sys.argv[1:])
     workers = args.workers
     if workers is None and args.race and args.scheduler is None:
+        from planner.race import usable_cpus  # (planner.race loads CasADi: not for --list)
+
         workers = max(1, usable_cpus() // 2)  # each task's race takes two CPUs
     start = time.perf_counter()
     try:

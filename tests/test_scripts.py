@@ -270,12 +270,14 @@ def test_stress_race_solves_each_task_as_planner_plan_does(stress, tmp_path, cap
     """--race: each task is the race of planner.race.default_arms on two CPUs (its record lists both arms, the
     winner's iterations are the record's), one task per two CPUs unless --workers says otherwise; without it
     the record has no race."""
+    from planner.race import usable_cpus
+
     argv = ["--robot", "point_mass", "--families", "friction", "--per-family", "1", "--N", "20", "--max-iter", "300",
             "--seed", "0", "--json"]
     assert stress.main(argv + ["--race", "--out", str(tmp_path / "race")]) == 0
     capsys.readouterr()
     results = json.loads((tmp_path / "race" / "results.json").read_text())
-    assert results["race"] is True and results["workers"] == max(1, stress.usable_cpus() // 2)
+    assert results["race"] is True and results["workers"] == max(1, usable_cpus() // 2)
     (rec,) = results["records"]
     assert rec["outcome"] != stress.CRASHED, rec.get("traceback")
     arms = {a["arm"]: a for a in rec["race"]}
