@@ -1,7 +1,8 @@
 """Speed of the pipeline (issue 9): where the time of a solve goes, and what the variants change.
 
 For each case: the build (build_problem) [s], the derivation of the NLP's derivatives over the whole graph
-and step by step (planner.derivatives, SolveOptions.derivation) [s], the creation of the cold IPOPT (nlpsol: the SX
+and step by step (planner.derivatives, SolveOptions.derivation) [s], the whole graph's read back from CasADi's
+serialization (what a cache of them would cost) [s], the creation of the cold IPOPT (nlpsol: the SX
 derivatives) [s], and a fixed-iteration run of the homotopy's NLP 1 (the hint-free start, the first
 rho of the schedule, holes relaxed, soft terminal: exactly what planner.homotopy.solve runs first;
 with --nlp 2 the homotopy's NLP 2 instead, from NLP 1's solution, in the variables solve gives it)
@@ -226,8 +227,15 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
            "build_s": time.perf_counter() - t0, "iters": iters, "nlp": nlp_index}
     for stepwise in (False, True):  # the NLP's derivatives as the IPOPTs get them (SolveOptions.derivation)
         t0 = time.perf_counter()
-        nlp_derivatives(problem, stepwise=stepwise)
+        derivs = nlp_derivatives(problem, stepwise=stepwise)
         rec[f"derivation_{'stepwise' if stepwise else 'whole_graph'}_s"] = time.perf_counter() - t0
+        if not stepwise:  # what a cache of the derived functions would cost to read back instead
+            blobs = [f.serialize() for f in derivs.values()]
+            t0 = time.perf_counter()
+            for b in blobs:
+                ca.Function.deserialize(b)
+            rec["derivation_deserialize_s"] = time.perf_counter() - t0
+            rec["derivation_serialized_mb"] = sum(len(b) for b in blobs) / 1e6
     log(name, "derivation", {k: round(v, 3) for k, v in rec.items() if k.startswith("derivation_")})
     options = SolveOptions(max_iter=iters)
     if nlp_index == 2 and variants:
@@ -278,8 +286,9 @@ def run_case(name: str, quick: bool, iters: int, repeats: int, variants: list[st
 
 def table(records) -> str:
     derived = [r for r in records if "derivation_stepwise_s" in r]
-    lines = ["| case | derivatives: whole graph, step by step [s] |", "|---|---|", *(
-        f"| {r['case']} | {r['derivation_whole_graph_s']:.2f}, {r['derivation_stepwise_s']:.2f} |" for r in derived), ""] if derived else []
+    lines = ["| case | derivatives: whole graph, step by step, whole graph deserialized [s] |", "|---|---|", *(
+        f"| {r['case']} | {r['derivation_whole_graph_s']:.2f}, {r['derivation_stepwise_s']:.2f}, {r['derivation_deserialize_s']:.2f} "
+        f"({r['derivation_serialized_mb']:.0f} MB) |" for r in derived), ""] if derived else []
     lines += ["| case | variant | iterations | objective | CPU ms/it | evals ms/it (f, g, grad_f, jac_g, hess_l) | rest ms/it | wall ms/it | create s |",
               "|---|---|---|---|---|---|---|---|---|"]
     for r in records:

@@ -780,7 +780,7 @@ def test_bench_replan_quick_run(tmp_path, capsys):
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
 
 def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
-    """--quick --codegen --json: the hop's stages (build, solver creation) and, per variant, the
+    """--quick --codegen --json: the hop's stages (build, derivation and its serialized read-back, solver creation) and, per variant, the
     fixed-iteration NLP 1 split into callbacks and the rest; every variant that keeps the pivoting
     reaches the baseline's iterate (codegen: the same functions compiled). Without gcc the codegen
     variant is skipped with a message, never silently. No timing assertions."""
@@ -793,6 +793,7 @@ def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "out" / "pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     (rec,) = results["records"]
     assert rec["case"] == "hop" and rec["build_s"] > 0 and rec["solver_create_s"] > 0
+    assert rec["derivation_deserialize_s"] > 0 and rec["derivation_serialized_mb"] > 0
     variants = rec["variants"]
     base = variants["baseline"]
     assert base["iterations"] == 10 and set(base["eval_cpu_ms_per_iter"]) == set(bench.CALLBACKS)
