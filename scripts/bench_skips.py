@@ -94,8 +94,16 @@ def variant(robot, task, dyn, analysis: bool) -> tuple[dict, object, object]:
            "ipopt_iterations": res.stats.ipopt_iterations, "n_nlp": res.stats.n_nlp, "converged": res.stats.converged,
            "complementarity": res.stats.complementarity_residual, "terminal_error": res.terminal_error,
            "control_cost": res.extra["control_cost"], "impacts": len(res.trajectory.impacts), "scene": prob.skips.to_json(),
+           # where each contact point went (lowest, highest z [m] over the physical samples): whether a skipped point touched
+           "point_z_range": {c.point: _z_range(dyn, c.point, res.trajectory.q) for c in task.contacts},
            "message": res.stats.message}
     return rec, prob, res
+
+
+def _z_range(dyn, point: str, q: np.ndarray) -> list[float]:
+    """[lowest, highest] height z [m] of `point` over the configurations q (P, nq)."""
+    z = np.asarray(dyn.point_position(point).map(len(q))(np.asarray(q).T))[2]
+    return [float(z.min()), float(z.max())]
 
 
 def solution_difference(a, b) -> dict:

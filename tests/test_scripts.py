@@ -523,9 +523,13 @@ def test_readme_figures_photograph_the_replay(tmp_path):
     assert (tmp_path / "img" / "foot_path.png").is_file() and (tmp_path / "img" / "states.png").is_file()
 
 
+Z_TOL = 1e-6  # [m] the plan's start and terminal rows hold to IPOPT's tolerance (1e-8) and the verdict's 1e-6
+
+
 def test_bench_skips_quick_run(tmp_path, capsys):
     """--quick --json: results.json has one record per skip case with both variants (sizes, iterations,
-    wall time, convergence, the scene record) and the solution differences; the skip has fewer
+    wall time, convergence, the scene record, each contact point's height range: the point mass's from its start
+    height to its target's) and the solution differences; the skip has fewer
     variables or constraints. No timing or convergence assertions: --quick is a smoke run."""
     bench_skips = _load("bench_skips")
     assert bench_skips.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
@@ -541,6 +545,10 @@ def test_bench_skips_quick_run(tmp_path, capsys):
         assert on["n_variables"] + on["n_constraints"] < off["n_variables"] + off["n_constraints"], name
         assert math.isfinite(r["max_physical_q_diff"])
     assert records["frictionless"]["on"]["scene"]["frictionless"] == ["point"]
+    for variant in ("on", "off"):  # the point mass's site is its origin: z = q_z falls from the start's 0.2 m to the target's 0
+        lo, hi = records["frictionless"][variant]["point_z_range"]["point"]
+        assert hi == pytest.approx(0.2, abs=Z_TOL) and abs(lo) <= Z_TOL
+    assert set(records["never_touching"]["on"]["point_z_range"]) == {"foot", "knee"}
     assert records["never_touching"]["on"]["scene"]["never_touching"] == ["knee"]
     assert len(records["dropped_holes"]["on"]["scene"]["dropped_holes"]) == 2
 
