@@ -371,6 +371,24 @@ class SolveOptions:
             (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
             (self.rho_f_schedule is None or _positive_tuple(self.rho_f_schedule), "rho_f_schedule", self.rho_f_schedule,
              "None or a non-empty tuple of factors > 0"),
+            (self.rho_schedule is None or _positive_tuple(self.rho_schedule), "rho_schedule", self.rho_schedule,
+             "None (the task's schedule) or a non-empty tuple of penalties > 0"),
+            (self.rho_min is None or self.rho_min > 0, "rho_min", self.rho_min, "> 0 or None"),
+            (self.rho_max is None or self.rho_max > 0, "rho_max", self.rho_max, "> 0 or None"),
+            (self.rho_min is None or self.rho_max is None or self.rho_min <= self.rho_max, "rho_min", self.rho_min,
+             f"<= rho_max = {self.rho_max!r}"),
+            (self.rho_refine == () or _positive_tuple(self.rho_refine), "rho_refine", self.rho_refine, "a tuple of penalties > 0"),
+            (self.an_schedule is None or _positive_tuple(self.an_schedule), "an_schedule", self.an_schedule,
+             "None or a non-empty tuple of scales > 0"),
+            (self.at_schedule is None or _positive_tuple(self.at_schedule), "at_schedule", self.at_schedule,
+             "None or a non-empty tuple of scales > 0"),
+            (self.l1_schedule is None or _positive_tuple(self.l1_schedule, zero_ok=True), "l1_schedule", self.l1_schedule,
+             "None or a non-empty tuple of weights >= 0"),
+            (self.soft_terminal_nlps >= 0, "soft_terminal_nlps", self.soft_terminal_nlps, ">= 0"),
+            (self.soft_terminal_weight > 0, "soft_terminal_weight", self.soft_terminal_weight, "> 0"),
+            (self.hybrid_ratio > 0, "hybrid_ratio", self.hybrid_ratio, "> 0"),
+            (self.hybrid_rho > 0, "hybrid_rho", self.hybrid_rho, "> 0"),
+            (self.intermediate_tol is None or self.intermediate_tol > 0, "intermediate_tol", self.intermediate_tol, "> 0 or None"),
             (self.retry_terminal_weight is None or self.retry_terminal_weight > 0, "retry_terminal_weight",
              self.retry_terminal_weight, "> 0 or None"),
             (_positive_tuple(self.fesd_rho_schedule), "fesd_rho_schedule", self.fesd_rho_schedule,
@@ -384,10 +402,10 @@ class SolveOptions:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
 
 
-def _positive_tuple(values) -> bool:
-    """Whether values is a non-empty tuple of numbers > 0 (bools are not numbers here)."""
+def _positive_tuple(values, zero_ok: bool = False) -> bool:
+    """Whether values is a non-empty tuple of numbers > 0 (>= 0 with zero_ok; bools are not numbers here)."""
     return isinstance(values, tuple) and len(values) >= 1 and all(
-        isinstance(r, (int, float)) and not isinstance(r, bool) and r > 0 for r in values)
+        isinstance(r, (int, float)) and not isinstance(r, bool) and (r >= 0 if zero_ok else r > 0) for r in values)
 
 
 def solve_fields_from_json(text: str) -> dict:

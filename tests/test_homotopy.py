@@ -126,11 +126,26 @@ def test_active_set_bounds_fix_one_side():
                                          ({"tol": "small"}, "tol = 'small' is not allowed; it must be a number"),
                                          ({"max_iter": 1.5}, "max_iter = 1.5 is not allowed; it must be an integer"),
                                          ({"reoptimize": "yes"}, "reoptimize"), ({"linear_solver": 27}, "linear_solver"),
-                                         ({"rho_min": "none"}, "rho_min"), ({"warm_mu_init": "x"}, "warm_mu_init = 'x' is not allowed")])
+                                         ({"rho_min": "none"}, "rho_min"), ({"warm_mu_init": "x"}, "warm_mu_init = 'x' is not allowed"),
+                                         ({"rho_min": -1.0}, "rho_min = -1.0 is not allowed; it must be > 0"),
+                                         ({"rho_min": 1e7}, "rho_min = 10000000.0 is not allowed; it must be <= rho_max = 1000000.0"),
+                                         ({"rho_max": 0.0}, "rho_max"), ({"rho_schedule": ()}, "rho_schedule"),
+                                         ({"rho_schedule": (100.0, -1.0)}, "rho_schedule"), ({"rho_refine": (0.0,)}, "rho_refine"),
+                                         ({"an_schedule": (0.0,)}, "an_schedule"), ({"at_schedule": ()}, "at_schedule"),
+                                         ({"l1_schedule": (1.0, -0.5)}, "l1_schedule"), ({"soft_terminal_nlps": -1}, "soft_terminal_nlps"),
+                                         ({"soft_terminal_weight": 0.0}, "soft_terminal_weight"), ({"hybrid_ratio": -2.0}, "hybrid_ratio"),
+                                         ({"hybrid_rho": 0.0}, "hybrid_rho"), ({"intermediate_tol": 0.0}, "intermediate_tol")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
-    with pytest.raises(InputError, match=key):
+    with pytest.raises(InputError, match=re.escape(key)):
         H.SolveOptions(**kwargs)
+
+
+def test_edge_options_are_accepted():
+    """The boundary values that mean something are allowed: no soft-terminal NLP, zero l1 weights, no refinement
+    penalties, rho_min = rho_max (one NLP), and the options solve() itself derives (replan, FESD)."""
+    H.SolveOptions(soft_terminal_nlps=0, l1_schedule=(0.0,), rho_refine=(), rho_min=1e3, rho_max=1e3)
+    H.replan_options()
 
 
 def test_locally_infeasible_homotopy_is_retried_with_a_stronger_soft_terminal():
