@@ -71,8 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection)")
-    p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
-    p.add_argument("--elements", type=int, default=4,
+    p.add_argument("--stages", type=int, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
+    p.add_argument("--elements", type=int,
                    help="fesd: finite elements per step, at least one more than the switches in a step "
                         "(default 4: an impact step holds its start, the end of the frozen phase and the landing mode)")
     _add_common(p, plots=True)
@@ -105,13 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
                    help="implicit_euler (default, the paper's) or fesd (finite elements with switch detection; converges on the "
                         "point-mass hop; on Capler with --stages 1 --elements 2, hint-free or through --fesd-start implicit_euler; docs/formulation.md \"FESD in the OCP\")")
-    p.add_argument("--stages", type=int, default=2, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
-    p.add_argument("--elements", type=int, default=3,
+    p.add_argument("--stages", type=int, help="fesd: Radau IIA stages per element, 1-3 (default 2)")
+    p.add_argument("--elements", type=int,
                    help="fesd: finite elements per step (default 3: a landing step holds the touchdown and the ends of the tangential and normal jumps)")
     p.add_argument("--steps", type=int, metavar="N",
                    help="override the task's [horizon] N (same tau_f, so h = tau_f / N): e.g. a coarser grid to compare "
                         "implicit Euler and FESD plans on")
-    p.add_argument("--fesd-start", default="hint_free", metavar="NAME",
+    p.add_argument("--fesd-start", metavar="NAME",
                    help="fesd: hint_free (default: the FESD homotopy from y_0 everywhere, u = 0) or implicit_euler (solve the "
                         "implicit-Euler OCP from its hint-free start, map its plan onto the FESD variables, then FESD NLPs at "
                         "rho 1e4 and 1e5 and the polish; docs/formulation.md \"FESD in the OCP\")")
@@ -294,17 +294,25 @@ def _choice(flag: str, value: str, enum):
     return names[value]
 
 
-def _discretization(args):
-    """(Discretization, FESDOptions) of --discretization, --stages, --elements (InputError naming the valid values)."""
+def _discretization(args, elements: int):
+    """(Discretization, FESDOptions) of --discretization, --stages (default FESDOptions' n_s) and --elements (default
+    `elements`, the command's own). InputError naming the valid values, and for an FESD flag without --discretization
+    fesd (it would be ignored)."""
     from .discretization import Discretization, FESDOptions
 
-    return _choice("--discretization", args.discretization, Discretization), FESDOptions(n_s=args.stages, n_fe=args.elements)
+    discretization = _choice("--discretization", args.discretization, Discretization)
+    given = [flag for flag, value in (("--stages", args.stages), ("--elements", args.elements),
+                                      ("--fesd-start", getattr(args, "fesd_start", None))) if value is not None]
+    if given and discretization is not Discretization.FESD:
+        raise InputError(f"{' and '.join(given)} set{'s' if len(given) == 1 else ''} the FESD discretization; add --discretization fesd")
+    n_s = FESDOptions().n_s if args.stages is None else args.stages
+    return discretization, FESDOptions(n_s=n_s, n_fe=elements if args.elements is None else args.elements)
 
 
 def _cmd_simulate(args) -> int:
     from .simulate import SimulateOptions, simulate
 
-    discretization, fesd = _discretization(args)
+    discretization, fesd = _discretization(args, elements=4)
     options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
@@ -335,7 +343,7 @@ def _cmd_plan(args) -> int:
     from .homotopy import FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
 
-    discretization, fesd = _discretization(args)
+    discretization, fesd = _discretization(args, elements=3)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
     solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
                                  warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
@@ -344,7 +352,7 @@ def _cmd_plan(args) -> int:
             solve_options = solve_options_from_dict(solve_fields_from_json(args.solve), solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
-    fesd_start = _choice("--fesd-start", args.fesd_start, FESDStart)
+    fesd_start = _choice("--fesd-start", args.fesd_start or FESDStart.HINT_FREE.value, FESDStart)
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)

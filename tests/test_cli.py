@@ -252,6 +252,17 @@ def test_plan_rejects_an_unknown_fesd_start(tmp_path, capsys):
                      "hint_free")
 
 
+@pytest.mark.parametrize("argv, flags", [(["plan", "point_mass", "--stages", "3"], "--stages sets"),
+                                         (["plan", "point_mass", "--elements", "2", "--fesd-start", "implicit_euler"],
+                                          "--elements and --fesd-start set"),
+                                         (["simulate", "point_mass", "--elements", "2"], "--elements sets")])
+def test_fesd_flags_without_fesd_are_input_errors(tmp_path, capsys, argv, flags):
+    """An FESD flag without --discretization fesd exits 2 naming the flag and the fix, before any solve (it used to be
+    ignored: `plan capler --stages 3` solved the implicit-Euler plan)."""
+    _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "o")], f"{flags} the FESD discretization; add --discretization fesd")
+    assert not (tmp_path / "o").exists()
+
+
 def test_plan_fesd_from_the_command_line(tmp_path, capsys):
     """`plan --discretization fesd` solves the point-mass hop (no slip, to x = 0.5 m, N = 10) with FESD
     stages and says so in summary.json; n_fe = 0 elements is exit 2, one line naming n_fe."""
