@@ -123,6 +123,8 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     """
     if samples < 1:
         raise InputError(f"samples must be a positive integer, got {samples}")
+    if seed < 0:  # numpy's generators take seeds >= 0 only
+        raise InputError(f"seed must be an integer >= 0, got {seed}")
     if not robot.points:
         raise InputError(f"{robot.path} has no named points (MJCF sites or URDF links) to check")
     if point is None:

@@ -200,6 +200,8 @@ def _cmd_check_model(args) -> int:
 
     if args.samples < 1:
         raise InputError(f"--samples must be >= 1, got {args.samples}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
     result = check_model(load_robot(args.robot, floating=args.floating), samples=args.samples, seed=args.seed)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED

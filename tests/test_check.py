@@ -104,10 +104,13 @@ def test_random_state_normalizes_quaternions(erd_robot):
 
 
 def test_bad_arguments():
-    """samples < 1 and an unknown timing point are input errors; the unknown point's message lists the valid ones."""
+    """samples < 1, a negative seed and an unknown timing point are input errors; the unknown point's message lists the
+    valid ones."""
     robot = load_robot("capler")
     with pytest.raises(InputError, match="samples"):
         check_model(robot, samples=0)
+    with pytest.raises(InputError, match="seed must be an integer >= 0, got -1"):
+        check_model(robot, seed=-1)
     with pytest.raises(UnknownNameError, match="unknown point 'toe'; valid points: base, foot, knee, shank, thigh"):
         check_model(robot, point="toe")
 

@@ -34,6 +34,8 @@ def test_check_model_json_contract():
     [
         (["check-model", "/nonexistent/robot.xml"], "robot file not found"),
         (["check-model", "capler", "--samples", "0"], "--samples must be >= 1"),
+        (["check-model", "capler", "--seed", "-1"], "--seed must be >= 0, got -1"),
+        (["plan", "point_mass", "--solve", '{"rho_min": -1}'], "SolveOptions.rho_min = -1 is not allowed; it must be > 0"),
         (["check-model"], "the following arguments are required: robot"),
         (["fly", "capler"], "invalid choice: 'fly'"),
         (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),
