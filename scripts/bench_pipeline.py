@@ -381,6 +381,9 @@ def main(argv: list[str] | None = None) -> int:
             full.append((given, solve_options_from_dict(given)))
         except InputError as e:
             parser.error(f"--solve: {e}")
+    for flag, value in (("--iters", args.iters), ("--repeats", args.repeats)):
+        if value is not None and value < 1:
+            parser.error(f"{flag} must be >= 1, got {value}")
     iters = args.iters or (10 if args.quick else 150)
     repeats = args.repeats or (1 if args.quick else 3)
     codegen = {"cache": args.cache, "flags": [f for f in args.codegen_flags]} if args.codegen else None

@@ -330,6 +330,8 @@ def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler
         raise InputError(f"--per-family must be >= 1, got {per_family}")
     if N is not None and N < 1:
         raise InputError(f"--N must be >= 1, got {N}")
+    if (solve_options or {}).get("max_iter", 1) < 1:
+        raise InputError(f"--max-iter must be >= 1, got {solve_options['max_iter']}")
     b = base_task(robot)
     specs = []
     for fam in families:

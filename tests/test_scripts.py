@@ -184,6 +184,8 @@ def test_stress_generator_is_seeded(stress):
             parse_task(spec["task"]).check_against(r)
     with pytest.raises(stress.InputError, match="unknown family"):
         stress.generate(0, ["nope"])
+    with pytest.raises(stress.InputError, match="--max-iter must be >= 1, got 0"):
+        stress.generate(0, solve_options={"max_iter": 0})
 
 
 def test_stress_point_mass_impacts_within_the_friction_cone_and_torque_expectations(stress):
@@ -814,6 +816,15 @@ def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
         assert json.loads(capsys.readouterr().out)["records"][0]["codegen"]["cached"]
     monkeypatch.setattr(bench.shutil, "which", lambda name: None)
     assert "gcc not found" in bench.compile_nlp(None, tmp_path / "cache", ["-O1"])["skipped"]
+
+
+@pytest.mark.parametrize("flag", ["--iters", "--repeats"])
+def test_bench_pipeline_rejects_a_count_below_one(capsys, flag):
+    """--iters 0 and --repeats 0 are usage errors (exit 2 naming the flag), not the defaults they used to fall back to."""
+    bench = _load("bench_pipeline")
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--cases", "hop", flag, "0"])
+    assert exc.value.code == 2 and f"{flag} must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_bench_pipeline_no_lift_builds_the_substituted_nlp(tmp_path, capsys):
