@@ -522,6 +522,10 @@ def _build(cls, data, where: str, exclude=frozenset()):
     return cls(**kwargs)
 
 
+# the keys that may be +-inf in a task file: bounds, where inf means unbounded (e.g. velocity_bounds' lower = -inf)
+UNBOUNDED_OK = frozenset({"lower", "upper", "u_bound", "v_bound"})
+
+
 def _convert(tp, value, key: str):
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):
@@ -540,6 +544,8 @@ def _convert(tp, value, key: str):
             raise TaskError(f"{key} must be a number, got {_typename(value)}")
         if math.isnan(value):
             raise TaskError(f"{key} must be a number, got nan")
+        if math.isinf(value) and key.rsplit(".", 1)[-1] not in UNBOUNDED_OK:
+            raise TaskError(f"{key} must be a finite number, got {value}")
         return float(value)
     if tp is bool:
         if not isinstance(value, bool):

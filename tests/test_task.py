@@ -56,10 +56,14 @@ def _with(path: str, value):
         ("ground_height", True, r"ground_height must be a number, got bool"),
         ("contacts", [{"point": "foot", "restitution": 1.5}], r"restitution = 1.5 .* in \[0, 1\]"),
         ("contacts", [{"point": "foot", "friction": 1}], r"unknown key 'contacts\[0\].friction'; valid keys: point, mu"),
+        ("horizon.tau_f", math.inf, r"horizon.tau_f must be a finite number, got inf"),
+        ("initial.q", [0.0, -math.inf], r"initial.q\[1\] must be a finite number, got -inf"),
+        ("contacts", [{"point": "foot", "a_n": math.inf}], r"contacts\[0\].a_n must be a finite number, got inf"),
     ],
 )
 def test_bad_values_are_named(path, value, message):
-    """Unknown keys, wrong types and out-of-range values raise TaskError naming the key and the rule."""
+    """Unknown keys, wrong types and out-of-range values raise TaskError naming the key and the rule; infinity only
+    where it means unbounded (a bound), so an infinite horizon, state or gain is named here, not a failed solve."""
     with pytest.raises(TaskError, match=message):
         parse_task(_with(path, value))
 
@@ -147,6 +151,12 @@ def test_bad_velocity_bounds_are_named(bound, message):
     """plan.velocity_bounds entries: a non-empty set of names and a real (non-empty, not infinite) interval."""
     with pytest.raises(TaskError, match=message):
         parse_task(_periodic(velocity_bounds=[bound]))
+
+
+def test_infinite_bounds_mean_unbounded():
+    """A bound may be written as +-inf (TOML's inf): the task keeps it, as the unbounded default would be."""
+    task = parse_task(_periodic(velocity_bounds=[{"joints": ["torso"], "lower": 0.1, "upper": math.inf}], u_bound=math.inf))
+    assert task.plan.velocity_bounds[0].upper == math.inf and task.plan.u_bound == math.inf
 
 
 def test_velocity_bounds_as_rows():
