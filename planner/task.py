@@ -453,7 +453,7 @@ def load_task(path: str | Path) -> Task:
 
 def parse_task(data: dict, source: str = "") -> Task:
     """Build a Task from a TOML-like dict (the same rules as `load_task`)."""
-    task = _build(Task, {**data}, "", exclude={"source"})
+    task = _build(Task, dict(data) if isinstance(data, dict) else data, "", exclude={"source"})  # not a dict: TaskError
     return Task(**{**{f.name: getattr(task, f.name) for f in fields(Task)}, "source": source})
 
 

@@ -153,6 +153,12 @@ def test_bad_velocity_bounds_are_named(bound, message):
         parse_task(_periodic(velocity_bounds=[bound]))
 
 
+def test_a_task_that_is_not_a_table_is_named():
+    """parse_task of something other than a dict (e.g. a JSON array) is a TaskError, not Python's TypeError."""
+    with pytest.raises(TaskError, match="task must be a table, got list"):
+        parse_task([1, 2])
+
+
 def test_infinite_bounds_mean_unbounded():
     """A bound may be written as +-inf (TOML's inf): the task keeps it, as the unbounded default would be."""
     task = parse_task(_periodic(velocity_bounds=[{"joints": ["torso"], "lower": 0.1, "upper": math.inf}], u_bound=math.inf))
