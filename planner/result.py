@@ -432,8 +432,11 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
 
 
 def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tuple[Path, Path]:
-    """Write DIR/trajectory.npz (arrays) and DIR/summary.json, each atomically (temp file + os.replace)."""
+    """Write DIR/trajectory.npz (arrays) and DIR/summary.json, each atomically (temp file + os.replace). DIR is created
+    if missing; an existing file there is an InputError."""
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"cannot write results to {out}: it is a file, not a directory")
     out.mkdir(parents=True, exist_ok=True)
     npz = out / "trajectory.npz"
     write_atomically(npz, lambda f: np.savez(f, **arrays))

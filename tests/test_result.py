@@ -169,7 +169,8 @@ def test_taps_are_impacts_below_a_share_of_the_largest():
 
 
 def test_write_results_replaces_atomically(tmp_path):
-    """Writing twice replaces the files in place (os.replace), leaving only the two result files."""
+    """Writing twice replaces the files in place (os.replace), leaving only the two result files; a file given as the
+    directory is an InputError and is left as it was."""
     tr = Trajectory(tau=np.zeros(1), y=np.zeros((1, 3)), state_names=("q", "v", "t"), sigma=np.zeros((0, 0)),
                     selector_names=(), t=np.zeros(1), q=np.zeros((1, 1)), v=np.zeros((1, 1)), u=np.zeros((1, 0)))
     result = SimulationResult(robot="r", task="t.toml", trajectory=tr, stats=SolveStats(True, 0.0, 0, 0, 0.0), strategy="stepwise",
@@ -177,6 +178,9 @@ def test_write_results_replaces_atomically(tmp_path):
     write_results(result, tmp_path)
     write_results(result, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+    assert json.loads((tmp_path / "summary.json").read_text())["impacts"] == []
+    with pytest.raises(InputError, match="it is a file, not a directory"):  # a file where the directory should be stays
+        write_results(result, tmp_path / "summary.json")
     assert json.loads((tmp_path / "summary.json").read_text())["impacts"] == []
 
 
