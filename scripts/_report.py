@@ -1,9 +1,12 @@
-"""The common ending of the scripts' main(): OUT/results.json written atomically, then JSON or a table on stdout."""
+"""The common ending of the scripts' main(): OUT/results.json written atomically, then JSON or a table on stdout; and
+run_main, which runs a main() as a command the way `planner` runs its own (a bad input is one line and exit 2)."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
+from planner.errors import PlannerError
 from planner.result import write_atomically
 
 
@@ -14,3 +17,13 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
     write_atomically(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     print(json.dumps(results if printed is None else printed, indent=1, default=str) if as_json else table)
     return 0
+
+
+def run_main(main) -> int:
+    """main()'s exit code; a PlannerError (a bad input: a missing result directory, a bad task value) is printed as one
+    line `SCRIPT: error: ...` on stderr and gives exit code 2, as planner's own commands do, instead of a traceback."""
+    try:
+        return main()
+    except PlannerError as exc:
+        print(f"{Path(sys.argv[0]).stem}: error: {exc}", file=sys.stderr)
+        return 2

@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from planner.cli import main as planner_main
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -109,4 +109,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

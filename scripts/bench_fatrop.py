@@ -32,6 +32,7 @@ from planner.homotopy import SolveOptions, gated_complementarity, ipopt_options,
 from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
+from scripts._report import run_main
 
 
 def measures(problem, x, p, lbg, ubg) -> dict:
@@ -196,4 +197,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_main(main))

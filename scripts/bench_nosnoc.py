@@ -45,6 +45,7 @@ import numpy as np
 
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
+from scripts._report import run_main
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -567,4 +568,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

@@ -65,7 +65,7 @@ from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -412,4 +412,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from planner.cli import main as planner_main
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -124,4 +124,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

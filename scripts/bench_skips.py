@@ -40,7 +40,7 @@ from planner.homotopy import solve
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
 from planner.task import load_task, parse_task
-from scripts._report import report
+from scripts._report import report, run_main
 
 DEFAULT_OUT = Path("results/bench/skips")
 GRID_POINTS = 401  # common physical-time grid of the q comparison
@@ -169,4 +169,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

@@ -25,7 +25,7 @@ from planner import homotopy as H
 from planner.problem import build_problem
 from planner.race import default_arms
 from scripts.bench_pipeline import CASES
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "early_stop"
@@ -134,4 +134,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

@@ -46,7 +46,7 @@ from planner.contact import plane_axes
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from planner.result import read_summary
-from scripts._report import report
+from scripts._report import report, run_main
 from scripts.probe_replay import plan_problem
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -173,4 +173,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

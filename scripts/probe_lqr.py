@@ -33,7 +33,7 @@ import numpy as np
 
 from planner import replay as R
 from planner.result import read_robot, read_summary, read_task, read_trajectory
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
@@ -248,4 +248,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

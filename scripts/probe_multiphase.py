@@ -43,7 +43,7 @@ from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
-from scripts._report import report
+from scripts._report import report, run_main
 from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -300,4 +300,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

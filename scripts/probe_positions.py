@@ -36,7 +36,7 @@ import casadi as ca
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from scripts import bench_work_precision as wp
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = ("pm_drop_frictionless", "pm_drop_noslip", "capler_pd_drop")
@@ -117,4 +117,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

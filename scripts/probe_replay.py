@@ -34,7 +34,7 @@ from planner.problem import build_problem
 from planner.result import read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
@@ -248,4 +248,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

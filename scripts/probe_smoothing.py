@@ -28,7 +28,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, _Solvers, _terminal_rows, ipopt_options, terminal_error
 from planner.problem import build_problem
 from scripts.bench_pipeline import capler_case, nlp1_arguments
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 # smoothing width per switching function at scale 1: a tenth of Capler's speeds, a centimetre of gap, and for phi
@@ -135,4 +135,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

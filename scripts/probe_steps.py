@@ -27,7 +27,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, ipopt_options
 from planner.problem import ProblemOptions, build_problem
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
-from scripts._report import report
+from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
@@ -161,4 +161,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

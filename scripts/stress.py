@@ -47,6 +47,7 @@ import numpy as np
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
+from scripts._report import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -662,4 +663,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main(main))

@@ -6,6 +6,7 @@ import importlib.util
 import json
 import math
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -785,6 +786,21 @@ def test_bench_replan_quick_run(tmp_path, capsys):
     assert moved["plan"]["periodic"].pop("step") == 0.3 and walk["plan"]["periodic"].pop("step") == 0.25 and moved == walk
     with pytest.raises(SystemExit):
         bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
+
+
+# --- scripts/_report.py: run_main ------------------------------------------------------------------------
+
+def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
+    """A script run as a command turns a PlannerError (here: a missing result directory) into one line
+    `SCRIPT: error: ...` on stderr and exit code 2, as planner's CLI does; every script's __main__ block goes through
+    run_main, so none prints a traceback for a bad input."""
+    proc = subprocess.run([sys.executable, "-m", "scripts.probe_impacts", str(tmp_path / "missing")], cwd=SCRIPTS.parent,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.strip().startswith("probe_impacts: error: ")
+    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+    for script in sorted(SCRIPTS.glob("*.py")):
+        if script.name != "_report.py":
+            assert "sys.exit(run_main(main))" in script.read_text().split('if __name__ == "__main__":')[-1], script.name
 
 
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
