@@ -186,7 +186,10 @@ def _run_dask(fn, items: Sequence[Any], scheduler: Any, progress) -> list[Any]:
         raise InputError("a Dask scheduler was given but dask.distributed is not installed; "
                          "install it with: pip install 'dask[distributed]' (or the planner's `batch` extra)") from None
     own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
+    try:
+        client = Client(scheduler) if own else scheduler
+    except (OSError, ValueError) as exc:  # unreachable (distributed's connect timeout) or not an address
+        raise InputError(f"cannot use the Dask scheduler {scheduler!r}: {exc}") from None
     try:
         ref = _FnRef.of(fn)
         futures = client.map(_call, [ref] * len(items), items, pure=False)

@@ -83,6 +83,20 @@ def test_dask_local_cluster_matches_serial():
             _check(run_batch(square_or_raise, ITEMS, scheduler=client))
 
 
+def test_unreachable_scheduler_is_an_input_error(monkeypatch):
+    """A scheduler address Dask cannot connect to is an InputError naming the address (the CLI's one line, exit 2),
+    not distributed's OSError traceback; the connection failure is simulated (a real one waits distributed's 30 s)."""
+    distributed = pytest.importorskip("dask.distributed")
+
+    class Unreachable:
+        def __init__(self, address, **kwargs):
+            raise OSError(f"Timed out trying to connect to {address} after 30 s")
+
+    monkeypatch.setattr(distributed, "Client", Unreachable)
+    with pytest.raises(InputError, match=r"cannot use the Dask scheduler 'tcp://127.0.0.1:1': Timed out"):
+        run_batch(square_or_raise, [1], scheduler="tcp://127.0.0.1:1")
+
+
 def test_missing_dask_says_what_to_install(monkeypatch):
     import builtins
 
