@@ -121,10 +121,13 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     point: the named point whose Jacobian is timed; default the first point with "foot" in its
     name, else the last named point. Raises UnknownNameError for an unknown point.
     """
-    if samples < 1:
-        raise InputError(f"samples must be a positive integer, got {samples}")
-    if seed < 0:  # numpy's generators take seeds >= 0 only
-        raise InputError(f"seed must be an integer >= 0, got {seed}")
+    def integer(value) -> bool:  # not a bool, a float or nan (nan < 1 is False: it slipped through)
+        return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+    if not integer(samples) or samples < 1:
+        raise InputError(f"samples must be a positive integer, got {samples!r}")
+    if not integer(seed) or seed < 0:  # numpy's generators take seeds >= 0 only
+        raise InputError(f"seed must be an integer >= 0, got {seed!r}")
     if not robot.points:
         raise InputError(f"{robot.path} has no named points (MJCF sites or URDF links) to check")
     if point is None:

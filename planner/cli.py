@@ -34,17 +34,26 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False) -> None:
+def _path(text: str) -> Path:
+    """A path argument; an empty one (an unset shell variable) would be the working directory: refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path is not allowed (an unset shell variable?)")
+    return Path(text)
+
+
+def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False,
+                verbose: bool = False) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     if task:
-        p.add_argument("--task", type=Path, help="task file (default: the .toml beside the robot file)")
+        p.add_argument("--task", type=_path, help="task file (default: the .toml beside the robot file)")
     if out:
-        p.add_argument("--out", type=Path, help="directory that receives the results")
+        p.add_argument("--out", type=_path, help="directory that receives the results")
     if plots:
         p.add_argument("--no-plots", action="store_true",
                        help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan unless it validates: they are then drawn meanwhile; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
-    verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (in a racing plan each line starts with its arm's name, [default] or [alternate])")
+    if verbose:  # only the commands that run IPOPT have more to show
+        verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (in a racing plan each line starts with its arm's name, [default] or [alternate])")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
 
 
@@ -75,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elements", type=int,
                    help="fesd: finite elements per step, at least one more than the switches in a step "
                         "(default 4: an impact step holds its start, the end of the frozen phase and the landing mode)")
-    _add_common(p, plots=True)
+    _add_common(p, plots=True, verbose=True)
     p.set_defaults(run=_cmd_simulate)
 
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
@@ -87,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "  planner plan capler --task capler_closer.toml --init results/capler --keep-schedule --out results/capler_closer")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
-    p.add_argument("--init", type=Path, metavar="DIR",
+    p.add_argument("--init", type=_path, metavar="DIR",
                    help="start from the plan in DIR (a `planner plan` result with the same contacts, N and options) and solve "
                         "one NLP at a high penalty, then polish: a replan after a change of target or bounds that DIR's plan "
                         "nearly meets (Capler's target moved 0.1 m: ~5x faster than hint-free; holes moved under its footholds: "
@@ -128,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "races a second variant (multipliers carried between NLPs, the inertia correction started from its "
                         "last value, MUMPS without its matching) on a second CPU, if there is one, and keeps the first to "
                         "converge (planner.race; two that finish close together may swap between machines)")
-    _add_common(p, plots=True)
+    _add_common(p, plots=True, verbose=True)
     p.set_defaults(run=_cmd_plan)
 
     p = sub.add_parser("gait", help="periodic biped gait by paper 001's embedding, relaxation, Newton and PRONTO",
@@ -142,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, tracking, open loop)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  planner validate results/capler --json")
-    p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("dir", type=_path, help="a result directory written by `planner plan` or `planner simulate`")
     p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
                    help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
     p.add_argument("--window", type=float, default=None, metavar="SECONDS",
@@ -155,8 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner view results/capler                 # live; prints the URL\n"
                               "  planner view results/capler --html hop.html --slow-motion")
-    p.add_argument("dir", type=Path, help="a result directory written by `planner plan` or `planner simulate`")
-    p.add_argument("--html", type=Path, help="write a static page that works offline instead of serving")
+    p.add_argument("dir", type=_path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("--html", type=_path, help="write a static page that works offline instead of serving")
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)
@@ -165,8 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # --json: stdout is the one JSON object; everything else printed there (IPOPT's log with -v, which CasADi
+    # writes to sys.stdout, also from the race's forked arms) goes to stderr
+    args.json_out = sys.stdout
+    quiet_stdout = contextlib.redirect_stdout(sys.stderr) if getattr(args, "json", False) else contextlib.nullcontext()
     try:
-        return args.run(args)
+        with quiet_stdout:
+            return args.run(args)
     except InputError as exc:
         print(f"planner {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -176,6 +190,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
+        print(f"planner {args.command}: failed: out of memory (is horizon.N or --steps far too large?)", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         print(f"planner {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -189,7 +206,7 @@ def _progress(args, line: str) -> None:
 
 def _emit(args, summary: dict, text: str) -> None:
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(summary), file=args.json_out)
     elif not args.quiet:
         print(text)
 
@@ -229,8 +246,12 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     other CPU), else they are drawn before this returns."""
     from .result import write_results
 
+    from .plots import PLOT_FILES
+
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
+    for name in PLOT_FILES:  # an earlier result's plots (--no-plots now, or a plot this robot has not) would mix in
+        (target / name).unlink(missing_ok=True)
     if args.no_plots:
         return target, lambda: None
     if not background:
@@ -331,6 +352,8 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
         name, sep, text = item.partition("=")
         if not sep or not name:
             raise InputError(f"{flag} {item!r}: expected NAME=VALUE, e.g. {flag} alpha_for_y=min")
+        if name in out:  # the last one silently won
+            raise InputError(f"{flag} sets {name!r} twice; give each IPOPT option once")
         for kind in (int, float, str):
             try:
                 out[name] = kind(text)
@@ -378,6 +401,10 @@ def _cmd_plan(args) -> int:
         _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "
                         f"{rec.complementarity_residual:.1e}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  {rec.status}")
 
+    if not args.no_validate:  # what the validation cannot model (a tilted plane, a ball joint) is said before the solve
+        from .replay import build_scene
+
+        build_scene(robot, task)
     problem = build_problem(robot, task, problem_options)
     if args.init is not None:
         from .homotopy import replan_options
@@ -456,6 +483,8 @@ def _cmd_validate(args) -> int:
 
     if not args.dir.is_dir():
         raise InputError(f"result directory not found: {args.dir}")
+    if not os.access(args.dir, os.W_OK | os.X_OK):  # before the replays: the verdict is written into DIR/summary.json
+        raise InputError(f"result directory {args.dir} is not writable: the validation is stored in its summary.json")
     windowed = {} if args.window is None else {"window_s": args.window}
     result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))
     write_validation(args.dir, result)
@@ -481,15 +510,16 @@ def _cmd_view(args) -> int:
 
 
 def prepare_out_dir(path: Path) -> Path:
-    """Create the output directory, or say in one line why it cannot be used."""
+    """Check that the output directory can be used, or say in one line why not. It is created when the results are
+    written (result.write_files), so a later input error leaves no empty directory behind."""
     if path.exists() and not path.is_dir():
         raise InputError(f"--out {path} is a file, not a directory")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create output directory {path}: {exc.strerror}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise InputError(f"output directory {path} is not writable")
+    existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
+    if not existing.is_dir():
+        raise InputError(f"cannot create output directory {path}: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"output directory {path} is not writable" if existing == path else
+                         f"cannot create output directory {path}: {existing} is not writable")
     return path
 
 

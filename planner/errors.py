@@ -37,22 +37,34 @@ class SolveError(PlannerError):
     """The numerical solve or the validation failed on valid input."""
 
 
-def check_field_types(options, owner: str | None = None) -> None:
-    """Each field of the dataclass `options` annotated bool, int, float or str (or that or None) holds a value of that
-    type (an int for a float): an InputError naming the field and the type, not a TypeError from a range check
-    later (values from JSON: `planner plan --solve`). owner: how the message names the dataclass, as its own range
-    checks do (e.g. "contact" for ValidationOptions.contact); default its class name."""
+def check_field_types(options, owner: str | None = None, unbounded: Iterable[str] = (), error: type = InputError) -> None:
+    """Each field of the dataclass `options` annotated bool, int, float or str, or a tuple of one of them (or that or
+    None), holds values of that type (an int for a float), and a float is a number, not nan, and finite unless its
+    field is in `unbounded` (a bound, where inf means none): an `error` naming the field and what is allowed, not a
+    TypeError or a silent nan from a range check later (values from JSON: `planner plan --solve`; `x > 0` is False
+    for nan but True for inf). owner: how the message names the dataclass, as its own range checks do (e.g.
+    "contact" for ValidationOptions.contact, "" for none); default its class name."""
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]
         value = getattr(options, f.name)
-        if names[0] not in kinds or (value is None and "None" in names):
+        many = names[0].startswith("tuple[") and names[0].endswith(", ...]")
+        kind = names[0][len("tuple["):-len(", ...]")] if many else names[0]
+        if kind not in kinds or (value is None and "None" in names):
             continue
-        if names[0] == "bool":
-            ok = isinstance(value, bool)
-        elif names[0] == "str":
-            ok = isinstance(value, str)
+        items = value if many and isinstance(value, (tuple, list)) else (value,)
+        inf_ok = f.name in unbounded
+        if many and not isinstance(value, (tuple, list)):
+            ok = False
+        elif kind == "bool":
+            ok = all(isinstance(v, bool) for v in items)
+        elif kind == "str":
+            ok = all(isinstance(v, str) for v in items)
         else:
-            ok = isinstance(value, int if names[0] == "int" else (int, float)) and not isinstance(value, bool)
+            ok = all(isinstance(v, int if kind == "int" else (int, float)) and not isinstance(v, bool) for v in items)
+            ok = ok and (kind == "int" or all(v == v and (inf_ok or abs(v) != float("inf")) for v in items))
         if not ok:
-            raise InputError(f"{owner or type(options).__name__}.{f.name} = {value!r} is not allowed; it must be {kinds[names[0]]}")
+            what = kinds[kind] if kind != "float" else ("a number, not nan" if inf_ok else "a finite number")
+            label = type(options).__name__ if owner is None else owner
+            raise error(f"{label + '.' if label else ''}{f.name} = {value!r} is not allowed; it must be "
+                        + (f"a tuple of which each is {what}" if many else what))

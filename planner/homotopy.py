@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import time
 from dataclasses import dataclass, fields, is_dataclass, replace
 from enum import Enum
@@ -361,6 +362,7 @@ class SolveOptions:
             (self.warm_mu_init is None or self.warm_mu_init > 0, "warm_mu_init", self.warm_mu_init, "> 0 or None"),
             (0 < self.bound_push < 0.5, "bound_push", self.bound_push, "in (0, 0.5)"),
             (0 < self.bound_frac <= 0.5, "bound_frac", self.bound_frac, "in (0, 0.5]"),
+            (self.linear_solver in LINEAR_SOLVERS, "linear_solver", self.linear_solver, f"one of {list(LINEAR_SOLVERS)}"),
             (self.nlp_scaling_method in ("gradient-based", "none", "equilibration-based"), "nlp_scaling_method",
              self.nlp_scaling_method, "gradient-based, equilibration-based or none"),
             (self.comp_tol > 0, "comp_tol", self.comp_tol, "> 0"),
@@ -400,6 +402,11 @@ class SolveOptions:
         for ok, key, value, allowed in checks:
             if not ok:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+# IPOPT's linear solvers: the CasADi wheel ships mumps and spral; the others need their library (HSL, Pardiso, WSMP),
+# else IPOPT stops with Invalid_Option (an InputError from solve)
+LINEAR_SOLVERS = ("mumps", "spral", "ma27", "ma57", "ma77", "ma86", "ma97", "pardiso", "pardisomkl", "wsmp")
 
 
 def _positive_tuple(values, zero_ok: bool = False) -> bool:
@@ -452,8 +459,11 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
     except (TypeError, ValueError):
         raise InputError(f"SolveOptions.{field} = {given!r} is not allowed; it must be a dict of IPOPT options") from None
     for name, value in pairs:
-        if not isinstance(name, str) or isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; names are strings, values numbers or strings")
+        # IPOPT's own range check lets nan through (constr_viol_tol = nan "converged" every NLP)
+        if (not isinstance(name, str) or isinstance(value, bool) or not isinstance(value, (int, float, str))
+                or (isinstance(value, float) and not math.isfinite(value))):
+            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; names are strings, values finite "
+                             "numbers or strings")
         owner = "warm_mu_init" if (warm and name == "mu_init") else IPOPT_OWNED.get(name)
         if owner:
             raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that instead")
@@ -818,7 +828,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     timings["ipopt_s"] = sum(r.time_s for r in records)
     stats_t = _ipopt_timing(solvers)
     timings.update(stats_t)
-    result = _result(problem, options, x, records, source, time.perf_counter() - start, timings)
+    # the homotopy's own point (no polish) is within IPOPT's default bound relaxation, 1e-8 of each scaled variable
+    relaxed = 1e-8 * solvers.scale if source is None and solvers.scale is not None else None
+    result = _result(problem, options, x, records, source, time.perf_counter() - start, timings, relaxed)
     result.extra["_x"] = x  # the NLP solution (trajectory.npz's nlp_x, for planner plan --init; not in the summary)
     result.extra["_signature"] = problem.signature
     result.extra["_task"] = problem.task  # trajectory.npz's task_json
@@ -1037,6 +1049,9 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
+    if st.get("return_status") == "Invalid_Option":  # e.g. an HSL solver without its library: no iterate, no counts
+        raise InputError(f"IPOPT rejected its options in {label} (Invalid_Option): is linear_solver "
+                         f"{solvers.options.linear_solver!r} installed? The CasADi wheel ships 'mumps' and 'spral'")
     solvers.add_evals(solver.name(), st)
     if n_probe:
         sol = dict(sol, x=sol["x"][: problem.nx], lam_x=sol["lam_x"][: problem.nx])
@@ -1184,13 +1199,23 @@ def constraint_violation(problem: Problem, x, hole_scale: float = 1.0) -> dict[s
     return out
 
 
+def _within_relaxation(problem: Problem, x, relaxed: np.ndarray, tol: float) -> bool:
+    """Whether x breaks no bound by more than relaxed (nx,) times max(1, |bound|) plus tol: IPOPT's bound_relax_factor."""
+    x = np.asarray(x, float).ravel()
+    lo = problem.lbx - relaxed * np.maximum(1.0, np.abs(np.nan_to_num(problem.lbx, posinf=0.0, neginf=0.0)))
+    hi = problem.ubx + relaxed * np.maximum(1.0, np.abs(np.nan_to_num(problem.ubx, posinf=0.0, neginf=0.0)))
+    return bool(np.all(x >= lo - tol) and np.all(x <= hi + tol))
+
+
 def _feasible(problem, x, options) -> bool:
     viol = constraint_violation(problem, x)
     return max(viol.values()) <= options.constraint_tol
 
 
-def _result(problem: Problem, options: SolveOptions, x, records, source: str | None, wall, timings) -> PlanResult:
-    """source: the label of the polishing NLP whose point x is (None: x is the homotopy's last point)."""
+def _result(problem: Problem, options: SolveOptions, x, records, source: str | None, wall, timings,
+            relaxed: np.ndarray | None = None) -> PlanResult:
+    """source: the label of the polishing NLP whose point x is (None: x is the homotopy's last point). relaxed (nx,):
+    by how much IPOPT relaxed each variable's bounds for x (the message says when a bound's violation is that)."""
     polished = source is not None
     traj, W, nodes = plan_trajectory(problem, problem.split(x), _frozen_tol(problem, options))
     comp = problem.complementarity_residual(x)
@@ -1210,6 +1235,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     worst = max(viol, key=viol.get)
     if viol[worst] > options.constraint_tol:
         reasons.append(f"constraint {worst} violated by {viol[worst]:.3g}")
+        if worst == "bounds" and relaxed is not None and _within_relaxation(problem, x, relaxed, options.constraint_tol):
+            # a multiplier of size D ~1e5 at -1e-3: the scaled NLP's tolerance, kept by the default path (tightening
+            # it made neither race arm converge on the default Capler task, docs/benchmarks.md session 40)
+            reasons[-1] += " (within IPOPT's bound relaxation of the scaled variables, 1e-8 each)"
     capped = [r.label for r in homotopy if not r.success and r is not last]
     converged = not reasons
     how = {"schedule": " (the start's contact schedule kept)",

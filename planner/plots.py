@@ -20,6 +20,9 @@ DPI = 110
 IMPACT_STYLE = dict(color="tab:red", linestyle="--", linewidth=0.9, alpha=0.8)
 
 
+PLOT_FILES = ("states.png", "torques.png", "contact_forces.png", "clock.png", "foot_path.png")  # all plot_results may write
+
+
 def plot_results(out_dir) -> list[Path]:
     """Write the result plots of `out_dir` into it and return their paths.
 

@@ -554,7 +554,7 @@ def _gates(system: TimeFreezingSystem, builder: ImplicitEulerStep, var_blocks, X
         sig, th = var_blocks["sigma"][k], var_blocks["theta"][k]
         stage = []
         for i, sw in enumerate(system.switches):
-            model = system.models[[c.point for c in system.contacts].index(sw.contact)]
+            model = system.models[system.labels.index(sw.contact)]
             kind = sw.name.split("[")[0]
             if model is ContactModel.ELASTIC or kind not in ("alpha", "gamma", "zeta"):
                 stage.append(1)

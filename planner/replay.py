@@ -144,6 +144,9 @@ class TrackingGains:
         check_field_types(self, "gains")
         _check(self.frequency_hz > 0, "gains.frequency_hz", self.frequency_hz, "> 0")
         _check(self.damping_ratio >= 0, "gains.damping_ratio", self.damping_ratio, ">= 0")
+        for key in ("kp", "kd"):  # a negative gain pushes away from the plan
+            values = getattr(self, key)
+            _check(values is None or all(v >= 0 for v in values), f"gains.{key}", values, "None or gains >= 0")
 
 
 class TrackingController(Enum):
@@ -189,6 +192,11 @@ class ValidationOptions:
 
     def __post_init__(self):
         check_field_types(self)
+        for key, cls in (("contact", ContactSettings), ("gains", TrackingGains)):
+            _check(isinstance(getattr(self, key), cls), key, getattr(self, key), f"a {cls.__name__}")
+        for key in ("max_tracking_error_m", "max_penetration_m", "open_loop_band_m", "contact_gap_tol_m"):
+            _check(getattr(self, key) > 0, key, getattr(self, key), "> 0")
+        _check(self.min_flight_s >= 0, "min_flight_s", self.min_flight_s, ">= 0")
         _check(self.window_s > 0, "window_s", self.window_s, "> 0")
         _check(self.window_stride_s > 0, "window_stride_s", self.window_stride_s, "> 0")
         if not isinstance(self.controller, TrackingController):
@@ -565,7 +573,10 @@ class Validation:
         ]
         if self.windows is not None:
             w = self.windows
-            lines.append(f"  tracking in {len(w.starts_s)} windows of {w.window_s:g} s from the plan: base error "
+            # a window longer than the plan is clipped to it
+            span = (f"{len(w.starts_s)} windows of {w.window_s:g} s" if w.window_s < ol.duration_s else
+                    f"1 window, the whole {ol.duration_s:.3g} s plan (window {w.window_s:g} s),")
+            lines.append(f"  tracking in {span} from the plan: base error "
                          f"mean {w.mean_m * 1e3:.2f} mm, median {w.median_m * 1e3:.2f} mm, worst {w.worst_m * 1e3:.2f} mm")
             if w.impacts:
                 lines.append(f"  impacts in the windows (MuJoCo - plan, from the plan's state {w.stride_s * 1e3:g}-"
@@ -593,7 +604,11 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"result directory not found: {out_dir}")
-    summary = read_summary(out_dir)
+    summary = read_summary(out_dir, require=("robot",))  # the task: trajectory.npz's copy, else summary.json's path
+    if summary.get("command") == "gait":
+        # its samples relabel the legs at every impact (q jumps), which no tracking replay follows
+        raise InputError(f"{out_dir} is a result of `planner gait`, which validates its walk in MuJoCo itself (summary.json's "
+                         "\"walking\"; `planner gait` without --no-validate); `planner validate` replays plans and simulations")
     robot = read_robot(out_dir, summary)
     traj = read_trajectory(out_dir)
     task = read_task(out_dir, traj, summary)
@@ -664,7 +679,7 @@ def write_validation(out_dir: str | Path, validation: Validation) -> Path:
     Written to a temporary file and renamed, so a reader never sees half a summary.
     """
     path = Path(out_dir) / "summary.json"
-    summary = read_summary(Path(out_dir))
+    summary = read_summary(Path(out_dir), require=())
     summary["validation"] = validation.to_json()
     write_atomically(path, json.dumps(summary, indent=2) + "\n")
     return path
@@ -935,6 +950,8 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     (point, time [s], tap), taps too, is matched (_match_impacts) to the MuJoCo impacts of the window that
     started window_stride_s to twice that before it (the first window if none did).
     """
+    for key in ("window_s", "window_stride_s"):  # shorter, a window ran one sample and was reported at its asked length
+        _check(getattr(options, key) >= ref.dt, key, getattr(options, key), f">= the replay's sample step {ref.dt:g} s")
     per = max(1, int(round(options.window_s / ref.dt)))
     stride = max(1, int(round(options.window_stride_s / ref.dt)))
     starts, errors, onsets, diverged = [], [], [], False

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
@@ -43,6 +43,9 @@ class Impact:
     tau_start: float  # numerical time where the frozen interval starts [s]
     tau_end: float  # numerical time where it ends [s]
 
+    def __post_init__(self):
+        _read_only(self)
+
     @property
     def impulse_norm(self) -> float:
         """|(normal, tangential)| [N s]: the size TAP_SHARE compares."""
@@ -62,6 +65,17 @@ class Impact:
 # contact onset at a tap, so validation lists taps without matching them (docs/validation.md). The held schedule
 # accepts an added tap (homotopy, docs/benchmarks.md "Replanning", session 29).
 TAP_SHARE = 0.05
+
+
+def _read_only(obj) -> None:
+    """Store each array field of a frozen dataclass as a read-only view: a result is frozen through its arrays too
+    (`trajectory.t[0] = 1` raised no error and changed physical_duration); the caller's own arrays stay writable."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, np.ndarray):
+            view = value.view()
+            view.flags.writeable = False
+            object.__setattr__(obj, f.name, view)
 
 
 def tap_flags(impulse_norms) -> np.ndarray:
@@ -98,6 +112,9 @@ class Trajectory:
     forces: np.ndarray | None = None  # several contacts: (K-1, n_lambda) contact forces of each step [N]
     force_names: tuple[str, ...] = ()  # lambda_n[point], lambda_t[point], ...
     contact_force: np.ndarray | None = None  # (K-1, n_contacts, 2) persistent-contact force of each step [N]
+
+    def __post_init__(self):
+        _read_only(self)
 
     def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
@@ -166,7 +183,7 @@ class SimulationResult:
             "rho_f": self.rho_f,
             "n_steps": len(self.trajectory.tau) - 1,
             "message": self.stats.message,
-            **self.extra,
+            **{k: v for k, v in self.extra.items() if not k.startswith("_")},
         }
 
 
@@ -423,7 +440,7 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
         arrays.update(forces=tr.forces, force_names=np.array(tr.force_names, dtype=str))
     if "_x" in result.extra and "_signature" in result.extra:  # a plan: its NLP point, to start a replan from
         arrays.update(nlp_x=np.asarray(result.extra["_x"], float), nlp_signature=np.array(result.extra["_signature"]))
-    if "_task" in result.extra:  # the task the plan solved, as solved (--steps applied), for a replan's walk from it
+    if "_task" in result.extra:  # the task as solved (--steps applied): a replan's walk and validate(DIR) read it
         arrays["task_json"] = np.array(task_to_json(result.extra["_task"]))
     sampled = tr.contact_force_samples()
     if sampled is not None:
@@ -437,7 +454,10 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"cannot write results to {out}: it is a file, not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a parent that is a file, no permission, a read-only file system
+        raise InputError(f"cannot create output directory {out}: {exc.strerror}") from None
     npz = out / "trajectory.npz"
     write_atomically(npz, lambda f: np.savez(f, **arrays))
     path = out / "summary.json"
@@ -457,18 +477,28 @@ def _json_default(obj):
 def write_atomically(path: str | os.PathLike, write) -> None:
     """Write path through a temp file in the same directory, then os.replace: readers never see half a
     file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
-    or bytes is written as it is (str as UTF-8)."""
+    or bytes is written as it is (str as UTF-8). The file gets the mode a plain open() would give (0666 less the
+    umask), not mkstemp's private 0600. An OSError (no permission, a read-only directory) is an InputError naming
+    the path."""
     path = Path(path)
     if isinstance(write, (str, bytes)):
         data = write.encode() if isinstance(write, str) else write
         write = lambda f: f.write(data)  # noqa: E731
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror}") from None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as f:
             write(f)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
 
 
@@ -532,7 +562,10 @@ def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None, summar
     and summary when already read. InputError when neither can be read."""
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "task_json" not in arrays:
-        summary = read_summary(out_dir) if summary is None else summary
+        summary = read_summary(out_dir, require=()) if summary is None else summary
+        if not isinstance(summary.get("task"), str) or not summary["task"]:
+            raise InputError(f"{Path(out_dir) / 'summary.json'} has no 'task' path (a string) and trajectory.npz no "
+                             "task_json; one of them is needed to rebuild the scene")
         return load_task(locate_input(summary["task"], out_dir, "task"))
     try:
         data = json.loads(str(arrays["task_json"]))

@@ -187,7 +187,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     converged = stats["comp"] <= options.comp_tol and stats["ok"]
     solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
-    extra = {} if law is None else {"pd": _pd_summary(robot, task, law, U)}
+    # the task as simulated (one built in code has no file; one on disk may change), for validate(DIR)
+    extra = {"_task": task} if law is None else {"pd": _pd_summary(robot, task, law, U), "_task": task}
     if options.discretization is Discretization.FESD:
         extra["discretization"] = {"name": "fesd", "n_s": options.fesd.n_s, "n_fe": options.fesd.n_fe, "rho_h": options.fesd.rho_h,
                                    "velocity_switch": builder.velocity_switch.value}

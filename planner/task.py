@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import TaskError, UnknownNameError
+from .errors import TaskError, UnknownNameError, check_field_types
 
 
 @dataclass(frozen=True)
@@ -39,11 +39,13 @@ class Contact:
     # machinery, only the path constraint gap >= 0 (planner.scene)
 
     def __post_init__(self):
+        _typed(self, "contacts")
         _require(len(self.normal) == 3, "contacts.normal", list(self.normal), "3 numbers (x, y, z)")
-        norm = math.sqrt(sum(x * x for x in self.normal))
+        norm = math.hypot(*self.normal)  # neither overflows (1e200) nor underflows (1e-200) as a sum of squares does
         _require(norm > 0 and self.normal[1] == 0.0, "contacts.normal", list(self.normal),
                  "a nonzero vector in the x-z plane (y = 0)")
-        object.__setattr__(self, "normal", tuple(float(x) / norm for x in self.normal))
+        if abs(norm - 1.0) > 4e-16:  # a unit normal to rounding is kept: a task read back from its JSON equals itself
+            object.__setattr__(self, "normal", tuple(float(x) / norm for x in self.normal))
         _require(self.mu >= 0, "contacts.mu", self.mu, ">= 0")
         _require(0.0 <= self.restitution <= 1.0, "contacts.restitution", self.restitution, "in [0, 1]")
         _require(self.a_n > 0, "contacts.a_n", self.a_n, "> 0")
@@ -57,6 +59,9 @@ class Initial:
     q: tuple[float, ...]
     v: tuple[float, ...] | None = None  # zeros when omitted
 
+    def __post_init__(self):
+        _typed(self, "initial")
+
 
 @dataclass(frozen=True)
 class Horizon:
@@ -67,6 +72,7 @@ class Horizon:
     physical_time: float | None = None  # T [s]: adds speed of time s >= 1 with t(tau_f) = T
 
     def __post_init__(self):
+        _typed(self, "horizon")
         _require(self.tau_f > 0, "horizon.tau_f", self.tau_f, "> 0")
         _require(self.N >= 1, "horizon.N", self.N, ">= 1")
         if self.physical_time is not None:
@@ -87,6 +93,7 @@ class Ellipse:
     z: float = 0.0
 
     def __post_init__(self):
+        _typed(self, "plan.holes")
         _require(self.a > 0, "plan.holes.a", self.a, "> 0")
         _require(self.b > 0, "plan.holes.b", self.b, "> 0")
 
@@ -103,9 +110,14 @@ class Homotopy:
     scale_variables: bool = False
 
     def __post_init__(self):
+        _typed(self, "plan.homotopy")
         _require(self.rho0 > 0, "plan.homotopy.rho0", self.rho0, "> 0")
         _require(self.kappa > 1, "plan.homotopy.kappa", self.kappa, "> 1")
         _require(self.n_nlp >= 1, "plan.homotopy.n_nlp", self.n_nlp, ">= 1")
+        # rho0 kappa^(n_nlp - 1) overflowed to inf (a nan solve) or raised OverflowError
+        last = math.log10(self.rho0) + (self.n_nlp - 1) * math.log10(self.kappa)
+        _require(last <= 300, "plan.homotopy", {"rho0": self.rho0, "kappa": self.kappa, "n_nlp": self.n_nlp},
+                 "a schedule whose last penalty rho0 kappa^(n_nlp - 1) is at most 1e300")
 
 
 @dataclass(frozen=True)
@@ -117,6 +129,7 @@ class JointBound:
     upper: float = math.inf
 
     def __post_init__(self):
+        _typed(self, "plan.joint_bounds")
         _require(self.lower <= self.upper, f"plan.joint_bounds.{self.joint}.lower", self.lower, f"<= upper ({self.upper})")
 
 
@@ -132,6 +145,7 @@ class VelocityBound:
     upper: float = math.inf
 
     def __post_init__(self):
+        _typed(self, "plan.velocity_bounds")
         _require(len(self.joints) > 0 and len(set(self.joints)) == len(self.joints), "plan.velocity_bounds.joints",
                  list(self.joints), "one or more different joint names")
         _require(self.lower <= self.upper, "plan.velocity_bounds.lower", self.lower, f"<= upper ({self.upper})")
@@ -153,6 +167,7 @@ class Periodic:
     v_bound: float | None = None  # |v_i(0)| <= v_bound on the free initial velocity; none: free
 
     def __post_init__(self):
+        _typed(self, "plan.periodic")
         _require(math.isfinite(self.step), "plan.periodic.step", self.step, "a finite number")
         seen = []
         for i, pair in enumerate(self.swap):
@@ -182,6 +197,9 @@ class Plan:
     periodic: Periodic | None = None  # one step of a periodic gait instead of a target
 
     def __post_init__(self):
+        _typed(self, "plan")
+        joints = [b.joint for b in self.joint_bounds]
+        _require(len(set(joints)) == len(joints), "plan.joint_bounds", joints, "one entry per joint (the last one won)")
         if self.periodic is None and self.target_q is None:
             raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
         if self.periodic is not None:
@@ -201,6 +219,7 @@ class ControlChange:
     u: tuple[float, ...]
 
     def __post_init__(self):
+        _typed(self, "simulate.schedule")
         _require(self.t >= 0, "simulate.schedule.t", self.t, ">= 0")
 
 
@@ -220,6 +239,7 @@ class JointPD:
     q_ref: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        _typed(self, "simulate.pd")
         n = len(self.joints)
         _require(n >= 1, "simulate.pd.joints", list(self.joints), "at least one joint name")
         _require(len(set(self.joints)) == n, "simulate.pd.joints", list(self.joints), "without repeated names")
@@ -243,6 +263,7 @@ class Simulate:
     pd: JointPD | None = None  # joint PD feedback added to u (none when omitted)
 
     def __post_init__(self):
+        _typed(self, "simulate")
         _require(self.rho_f >= 0, "simulate.rho_f", self.rho_f, ">= 0")
         times = [c.t for c in self.schedule]
         _require(times == sorted(times), "simulate.schedule", times, "sorted by increasing t")
@@ -277,6 +298,7 @@ class GaitContinuation:
     max_outer: int = 60  # outer loops (PRONTO solves) over both steps
 
     def __post_init__(self):
+        _typed(self, "gait.continuation")
         _require(self.rho_emb > 0, "gait.continuation.rho_emb", self.rho_emb, "> 0")
         _require(self.rho_f > 0, "gait.continuation.rho_f", self.rho_f, "> 0")
         _require(self.factor > 1, "gait.continuation.factor", self.factor, "> 1")
@@ -299,6 +321,7 @@ class GaitPronto:
     feedback_r: tuple[float, ...] = (0.01, 0.01)
 
     def __post_init__(self):
+        _typed(self, "gait.pronto")
         _require(self.max_iterations >= 1, "gait.pronto.max_iterations", self.max_iterations, ">= 1")
         _require(self.tolerance > 0, "gait.pronto.tolerance", self.tolerance, "> 0")
         _require(len(self.feedback_q) == 6 and min(self.feedback_q) >= 0, "gait.pronto.feedback_q", list(self.feedback_q), "6 numbers >= 0")
@@ -325,6 +348,7 @@ class Gait:
     pronto: GaitPronto = field(default_factory=GaitPronto)
 
     def __post_init__(self):
+        _typed(self, "gait")
         _require(len(self.x0) == 6, "gait.x0", list(self.x0), "6 numbers (theta1, theta2, theta3, and their rates)")
         _require(len(self.q_weights) == 6 and min(self.q_weights) >= 0, "gait.q_weights", list(self.q_weights), "6 numbers >= 0")
         _require(len(self.r_weights) == 2 and min(self.r_weights) > 0, "gait.r_weights", list(self.r_weights), "2 numbers > 0")
@@ -346,6 +370,13 @@ class Task:
     simulate: Simulate = field(default_factory=Simulate)
     gait: Gait | None = None  # a periodic gait for `planner gait` (docs/tasks.md)
     source: str = ""  # path of the file it came from, for messages; not a TOML key
+
+    def __post_init__(self):
+        _typed(self, "")
+        planes = [(c.point, c.normal) for c in self.contacts]
+        # a point may touch several planes (a corner), but the same plane twice doubles its contact forces
+        _require(len(set(planes)) == len(planes), "contacts", [f"{p} {list(n)}" for p, n in planes],
+                 "one entry per point and plane (a point repeats only with another normal, a corner)")
 
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits."""
@@ -376,9 +407,11 @@ class Task:
         if self.plan.target_v is not None:
             _length("plan.target_v", self.plan.target_v, robot.nv)
         lower, upper = self.q_bounds(robot)
-        for i, (qi, lo, hi) in enumerate(zip(self.plan.target_q, lower, upper)):
-            if not lo <= qi <= hi:
-                raise TaskError(f"plan.target_q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
+        for key, q in (("initial.q", self.initial.q), ("plan.target_q", self.plan.target_q)):
+            # the plan's first node is bounded too: a start outside jumped onto the bound in one step
+            for i, (qi, lo, hi) in enumerate(zip(q, lower, upper)):
+                if not lo <= qi <= hi:
+                    raise TaskError(f"{key}[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
 
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with
@@ -445,9 +478,11 @@ def load_task(path: str | Path) -> Task:
     if not path.is_file():
         raise TaskError(f"task file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise TaskError(f"cannot read task file {path}: {exc.strerror}") from None
     return parse_task(data, source=str(path))
 
 
@@ -568,6 +603,20 @@ def _typename(value) -> str:
 
 def _join(where: str, key: str) -> str:
     return f"{where}.{key}" if where else key
+
+
+def _typed(obj, section: str) -> None:
+    """The reader's type rules for a dataclass built in code too: numbers, not nan, finite but for bounds; an int
+    given for a float (or a list for a tuple) is stored as the reader stores it, so both tasks are equal."""
+    check_field_types(obj, section, unbounded=UNBOUNDED_OK, error=TaskError)
+    for f in fields(obj):
+        value, kind = getattr(obj, f.name), str(f.type).split("|")[0].strip()
+        if kind == "float" and isinstance(value, int):
+            object.__setattr__(obj, f.name, float(value))
+        elif kind.startswith("tuple[") and isinstance(value, list):
+            object.__setattr__(obj, f.name, tuple(float(v) if kind == "tuple[float, ...]" else v for v in value))
+        elif kind == "tuple[float, ...]" and value is not None:
+            object.__setattr__(obj, f.name, tuple(float(v) for v in value))
 
 
 def _require(ok: bool, key: str, value, allowed: str) -> None:

@@ -104,13 +104,18 @@ def test_random_state_normalizes_quaternions(erd_robot):
 
 
 def test_bad_arguments():
-    """samples < 1, a negative seed and an unknown timing point are input errors; the unknown point's message lists the
-    valid ones."""
+    """samples < 1 or not an integer (nan, 2.5, a bool), a negative or non-integer seed and an unknown timing point are
+    input errors; the unknown point's message lists the valid ones."""
     robot = load_robot("capler")
     with pytest.raises(InputError, match="samples"):
         check_model(robot, samples=0)
     with pytest.raises(InputError, match="seed must be an integer >= 0, got -1"):
         check_model(robot, seed=-1)
+    for samples in (float("nan"), 2.5, True):  # nan < 1 is False: it reached numpy as a TypeError
+        with pytest.raises(InputError, match="samples must be a positive integer"):
+            check_model(robot, samples=samples)
+    with pytest.raises(InputError, match="seed must be an integer >= 0, got 1.5"):
+        check_model(robot, seed=1.5)
     with pytest.raises(UnknownNameError, match="unknown point 'toe'; valid points: base, foot, knee, shank, thigh"):
         check_model(robot, point="toe")
 

@@ -41,6 +41,10 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),
         (["plan", "point_mass", "--warm-ipopt", "tol=1e-3"], "SolveOptions.tol owns"),
         (["plan", "point_mass", "--ipopt", "alpha_for_y"], "expected NAME=VALUE"),
+        (["plan", "point_mass", "--ipopt", "mu_min=1e-9", "--ipopt", "mu_min=1e-8"], "sets 'mu_min' twice"),
+        (["plan", "point_mass", "--ipopt", "constr_viol_tol=nan"], "values finite numbers or strings"),
+        (["plan", "point_mass", "--solve", '{"rho_max": Infinity}'], "rho_max = inf"),  # the schedule's loop never ended
+        (["validate", "results", "-v"], "unrecognized arguments: -v"),  # validate runs no IPOPT: nothing more to show
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
         (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object of SolveOptions fields, got an array"),
         (["plan", "point_mass", "--solve", "3"], "expected a JSON object of SolveOptions fields, got a number"),
@@ -103,8 +107,11 @@ def test_simulate_writes_the_contract(tmp_path, capsys):
 
 
 def test_no_plots_writes_the_contract_without_pngs(tmp_path, capsys):
-    """`simulate --no-plots` (as `plan --no-plots`) writes trajectory.npz and summary.json and no PNG at all."""
+    """`simulate --no-plots` (as `plan --no-plots`) writes trajectory.npz and summary.json and no PNG at all; the plots
+    of an earlier result in that directory are removed, not left beside the new result."""
     out = tmp_path / "out"
+    out.mkdir()
+    (out / "states.png").write_bytes(b"an earlier result's plot")
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--no-plots", "-q"]) == 0
     names = {p.name for p in out.iterdir()}
     assert {"trajectory.npz", "summary.json"} <= names and not any(n.endswith(".png") for n in names), names
@@ -159,6 +166,31 @@ def test_unwritable_output_directory(tmp_path, capsys):
     """An output directory that cannot be created (even by root: /proc refuses) is exit 2, one line."""
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", "/proc/planner-out"],
                      "cannot create output directory")
+
+
+def test_input_errors_leave_no_output_directory(tmp_path, capsys):
+    """An input error found after the arguments are read (a task without [plan]; a tilted plane the validation cannot
+    model, said before the solve) is exit 2 in one line and creates no --out directory; an empty --out (an unset
+    shell variable) is refused instead of writing into the working directory."""
+    out = tmp_path / "new" / "out"
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--task", _task(tmp_path), "--out", str(out)], "has no [plan] table")
+    tilted = tmp_path / "tilted.toml"
+    tilted.write_text(HOP_TASK.replace('mu = 0.5\n', 'mu = 0.5\nnormal = [0.1, 0.0, 1.0]\n'))
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--task", str(tilted), "--out", str(out)], "touch a tilted plane")
+    assert not (tmp_path / "new").exists()
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error, one line (planner.cli._Parser)
+        main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", ""])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and "an empty path is not allowed" in err and len(err.splitlines()) == 1
+
+
+def test_validate_refuses_a_directory_it_cannot_write_before_replaying(tmp_path, capsys, monkeypatch):
+    """`validate DIR` stores its verdict in DIR/summary.json: a DIR it may not write is exit 2 in one line before any
+    replay (it ran the whole replay, then raised PermissionError). Root may write anywhere, so os.access is faked."""
+    import planner.cli
+
+    monkeypatch.setattr(planner.cli.os, "access", lambda path, mode: False)
+    _one_line_exit_2(capsys, ["validate", str(tmp_path)], "is not writable")
 
 
 def test_missing_default_task(tmp_path, capsys):
@@ -292,6 +324,18 @@ def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["n_steps"] == 8 and summary["h"] == 0.125
     _one_line_exit_2(capsys, argv[:-1] + ["0"], "--steps must be >= 1")
+
+
+def test_verbose_json_keeps_stdout_one_json_object(tmp_path):
+    """`plan -v --json` (raced: both arms' IPOPT logs) prints IPOPT's log to stderr and only the summary to stdout,
+    which parses as one JSON object (the log came first on stdout)."""
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TOML.format(x=0.5))
+    proc = run("plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "-v", "--json",
+               "--steps", "8")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout)["n_steps"] == 8
+    assert "EXIT: Optimal Solution Found" in proc.stderr or "Number of Iterations" in proc.stderr
 
 
 def test_plan_solve_options_from_json(tmp_path, capsys):

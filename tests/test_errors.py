@@ -23,19 +23,30 @@ class _Typed:
     name: str = "a"
     limit: float | None = None
     items: tuple[float, ...] = ()
+    bound: float = 0.0  # may be infinite
+    names: tuple[str, ...] = ()
 
     def __post_init__(self):
-        check_field_types(self)
+        check_field_types(self, unbounded={"bound"})
+
+
+NAN, INF = float("nan"), float("inf")
 
 
 @pytest.mark.parametrize("kwargs, ok", [
-    ({}, True), ({"scale": 2}, True), ({"limit": None}, True), ({"limit": 3}, True), ({"items": ("not checked",)}, True),
+    ({}, True), ({"scale": 2}, True), ({"limit": None}, True), ({"limit": 3}, True), ({"items": (1, 2.5)}, True),
+    ({"bound": -INF}, True), ({"names": ("a", "b")}, True),
     ({"flag": 1}, False), ({"count": 1.0}, False), ({"count": True}, False), ({"scale": "1"}, False), ({"scale": False}, False),
-    ({"name": 1}, False), ({"limit": "x"}, False),
+    ({"name": 1}, False), ({"limit": "x"}, False), ({"items": ("x",)}, False), ({"items": 1.0}, False),
+    ({"items": (1.0, True)}, False), ({"names": ("a", 1)}, False),
+    ({"scale": NAN}, False), ({"scale": INF}, False), ({"limit": -INF}, False), ({"items": (1.0, NAN)}, False),
+    ({"items": (INF,)}, False), ({"bound": NAN}, False),
 ])
 def test_check_field_types(kwargs, ok):
-    """bool, int, float, str (or that or None) fields hold that type, an int standing for a float but a bool for
-    neither; None passes only where the annotation allows it; other annotations (tuples) are left to the class."""
+    """bool, int, float, str fields (or that or None, or tuples of one of them) hold that type, an int standing for
+    a float but a bool for neither; None passes only where the annotation allows it; a float is never nan (it would
+    pass every `x > 0` range check as False-y comparisons do not raise) and finite unless the field is declared
+    unbounded."""
     if ok:
         _Typed(**kwargs)
         return

@@ -123,7 +123,10 @@ def test_active_set_bounds_fix_one_side():
                                          ({"early_stop_comp": 0.0}, "early_stop_comp"),
                                          ({"rho_f_schedule": ()}, "rho_f_schedule"), ({"rho_f_schedule": (10.0, 0.0)}, "rho_f_schedule"),
                                          ({"rho_f_schedule": [10.0]}, "rho_f_schedule"),
-                                         ({"tol": "small"}, "tol = 'small' is not allowed; it must be a number"),
+                                         ({"tol": "small"}, "tol = 'small' is not allowed; it must be a finite number"),
+                                         ({"tol": float("inf")}, "tol = inf is not allowed; it must be a finite number"),
+                                         ({"rho_max": float("inf")}, "rho_max = inf"),  # the schedule's loop never ended
+                                         ({"rho_schedule": (1.0, float("inf"))}, "rho_schedule = "),
                                          ({"max_iter": 1.5}, "max_iter = 1.5 is not allowed; it must be an integer"),
                                          ({"reoptimize": "yes"}, "reoptimize"), ({"linear_solver": 27}, "linear_solver"),
                                          ({"rho_min": "none"}, "rho_min"), ({"warm_mu_init": "x"}, "warm_mu_init = 'x' is not allowed"),
@@ -228,13 +231,26 @@ def test_mumps_ordering_is_passed_to_ipopt():
         H.SolveOptions(mumps_ordering="nested")
 
 
+def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
+    """linear_solver must be one of IPOPT's names; one whose library is not installed (HSL's ma27: the CasADi wheel
+    ships none) is an InputError naming it as soon as IPOPT refuses it, not a result built from IPOPT's unset
+    iteration counts and a nan objective."""
+    with pytest.raises(InputError, match="linear_solver = 'foo' is not allowed"):
+        H.SolveOptions(linear_solver="foo")
+    prob = hop[0]
+    with pytest.raises(InputError, match="linear_solver 'ma27' installed"):
+        H.solve(prob, H.SolveOptions(linear_solver="ma27"))
+
+
 @pytest.mark.parametrize("kwargs, fragment", [
     ({"ipopt": {"no_such_option": 1}}, "No such IPOPT option: no_such_option"),
     ({"ipopt": {"alpha_for_y": "sideways"}}, "Valid: primal, bound-mult, min"),
     ({"warm_ipopt": {"max_cpu_time": -1.0}}, "Range: 0 <"),
     ({"ipopt": {"tol": 1e-3}}, "SolveOptions.tol owns"),
     ({"warm_ipopt": {"mu_init": 1e-3}}, "SolveOptions.warm_mu_init owns"),
-    ({"ipopt": {"print_user_options": True}}, "values numbers or strings"),
+    ({"ipopt": {"print_user_options": True}}, "values finite numbers or strings"),
+    ({"ipopt": {"constr_viol_tol": float("nan")}}, "values finite numbers or strings"),
+    ({"warm_ipopt": {"obj_scaling_factor": float("inf")}}, "values finite numbers or strings"),
     ({"ipopt": ["alpha_for_y"]}, "must be a dict of IPOPT options"),
 ])
 def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment):
@@ -612,3 +628,19 @@ def test_rho_f_schedule_weighs_the_regularizer_in_the_homotopy_only():
         task_p[-1] = 1.0
         assert obj == pytest.approx(float(f(x, task_p)) + 9.0 * float(sel(x, task_p)), rel=1e-9, abs=1e-9)
     assert all(p[-1] == 1.0 for label, p, _, _ in seen if not label.startswith("homotopy"))
+
+
+def test_a_bound_broken_within_ipopts_relaxation_is_said_so(hop):
+    """IPOPT relaxes each bound by 1e-8 of its (scaled) variable: a multiplier scaled by D = 1e5 may end at -1e-3 in
+    x. _within_relaxation tells that from a real violation (the failed solve's message then says so): the same
+    -1e-3 with D = 1 is beyond the relaxation, and so is -2e-3 with D = 1e5."""
+    prob = hop[0]
+    i = int(np.flatnonzero(prob.lbx == 0.0)[0])  # a variable bounded below by 0 (a multiplier or a selector)
+    x = np.clip(prob.x0.copy(), prob.lbx, prob.ubx)
+    relaxed = np.full(prob.nx, 1e-8)
+    x[i] = -1e-3
+    assert not H._within_relaxation(prob, x, relaxed, tol=1e-6)
+    relaxed[i] = 1e-8 * 1e5
+    assert H._within_relaxation(prob, x, relaxed, tol=1e-6)
+    x[i] = -2e-3
+    assert not H._within_relaxation(prob, x, relaxed, tol=1e-6)

@@ -150,7 +150,7 @@ def test_bad_inputs():
         ProblemOptions(switch_scale=(("phi", -1.0),))
     with pytest.raises(InputError, match="penalty"):
         ProblemOptions(penalty="l1")
-    with pytest.raises(InputError, match="ProblemOptions.clock_weight = 'x' is not allowed; it must be a number"):
+    with pytest.raises(InputError, match="ProblemOptions.clock_weight = 'x' is not allowed; it must be a finite number"):
         ProblemOptions(clock_weight="x")
     with pytest.raises(InputError, match="ProblemOptions.friction_cone = 1 is not allowed; it must be true or false"):
         ProblemOptions(friction_cone=1)
@@ -224,3 +224,15 @@ def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'foot' .* inside plan.holes\[2\]"):
         build_problem(robot, at(2.6), options)
     build_problem(robot, at(2.75), options)
+
+
+def test_a_corner_plan_builds_with_each_contacts_own_gates():
+    """A point listed twice with two normals (a corner: the ground and a wall) builds an OCP whose pairs carry
+    both contacts' labels (point#1, point#2); the gates look each selector's contact up by that label (they looked
+    up the point's name and raised ValueError)."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [1.0, 0.0, 0.0]}],
+                       "initial": {"q": [0.1, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10},
+                       "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    prob = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), task)
+    for label in ("point#1", "point#2"):
+        assert any(f"[alpha[{label}]]" in pair.name for pair in prob.pairs)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -247,13 +249,16 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
 
 
 def test_cli_window_option(ground_truth, capsys):
-    """`planner validate DIR --window S` sets the window length in the JSON it prints; a window of
-    zero is a user error (exit 2, one line naming the option)."""
+    """`planner validate DIR --window S` sets the window length in the JSON it prints; a window longer
+    than the 0.6 s plan is reported as one window of the whole plan; a window of zero is a user error
+    (exit 2, one line naming the option)."""
     from planner.cli import main
 
     _, out = ground_truth
     assert main(["validate", str(out), "--window", "0.2", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["windows"]["window_s"] == 0.2
+    assert main(["validate", str(out), "--window", "100"]) == 0
+    assert "tracking in 1 window, the whole 0.6 s plan (window 100 s)," in capsys.readouterr().out
     assert main(["validate", str(out), "--window", "0"]) == 2
     assert "window_s" in capsys.readouterr().err
 
@@ -392,6 +397,37 @@ def test_validate_plan_is_validate_of_the_written_result(point_mass, tmp_path):
     in_memory = numbers(replay.validate_plan(point_mass, task, result.trajectory))
     assert len(in_memory["tracking"]["impacts"]) == len(result.trajectory.impacts) >= 1
     assert in_memory == numbers(replay.validate(tmp_path / "drop"))
+
+
+def test_validate_refuses_a_gait_result(ground_truth, tmp_path):
+    """A `planner gait` result (summary command "gait": its samples relabel the legs at each impact) is an InputError
+    pointing at the gait's own MuJoCo walk, not a FAILED tracking verdict of metres."""
+    _, out = ground_truth
+    gait = tmp_path / "gait"
+    shutil.copytree(out, gait)
+    summary = json.loads((gait / "summary.json").read_text())
+    (gait / "summary.json").write_text(json.dumps(dict(summary, command="gait")))
+    with pytest.raises(InputError, match="result of `planner gait`"):
+        replay.validate(gait)
+
+
+def test_validate_reads_the_simulated_task_not_a_file(point_mass, tmp_path, monkeypatch):
+    """A simulation of a task built in code (no task file; the ground 0.2 m low) is validated by `validate(DIR)`
+    against that task, from any working directory: the result keeps the task it simulated (trajectory.npz's
+    task_json), so the verdict equals validate_plan's with the task in memory."""
+    simulate = pytest.importorskip("planner.simulate")
+    from planner.result import write_results
+    from planner.task import parse_task
+
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5, "a_n": 100.0}], "ground_height": -0.2,
+                       "initial": {"q": [0.0, 0.3], "v": [1.0, 0.0]}, "horizon": {"tau_f": 0.6, "N": 30}})
+    result = simulate.simulate(point_mass, task)
+    assert result.task == "" and len(result.trajectory.impacts) >= 1
+    write_results(result, tmp_path / "low")
+    monkeypatch.chdir(tmp_path / "low")  # another working directory than the one it was written from
+    from_files = replay.validate(tmp_path / "low")
+    assert from_files.passed, from_files.failures
+    assert from_files.kinematic.max_penetration_m == replay.validate_plan(point_mass, task, result.trajectory).kinematic.max_penetration_m
 
 
 def test_analytic_point_mass_plan_with_impact_samples(point_mass):
@@ -613,6 +649,39 @@ def test_window_options_are_checked():
         replay.ValidationOptions(window_s=0.0)
     with pytest.raises(InputError, match="window_stride_s"):
         replay.ValidationOptions(window_stride_s=-0.1)
+
+
+NAN = float("nan")
+
+
+@pytest.mark.parametrize("build, key", [
+    (lambda: replay.ValidationOptions(contact_gap_tol_m=NAN), "contact_gap_tol_m"),  # nan made the check pass
+    (lambda: replay.ValidationOptions(max_tracking_error_m=-0.01), "max_tracking_error_m"),
+    (lambda: replay.ValidationOptions(min_flight_s=-1.0), "min_flight_s"),
+    (lambda: replay.ValidationOptions(window_s=float("inf")), "window_s"),  # OverflowError in the windows
+    (lambda: replay.ValidationOptions(contact={"timestep": 1}), "contact"),  # AttributeError in the replay
+    (lambda: replay.ValidationOptions(gains=None), "gains"),
+    (lambda: replay.ContactSettings(solimp=(NAN,) * 5), "solimp"),
+    (lambda: replay.ContactSettings(timestep=float("inf")), "timestep"),
+    (lambda: replay.TrackingGains(kp=(NAN, 1.0), kd=(1.0, 1.0)), "kp"),
+    (lambda: replay.TrackingGains(kp=(-1.0, 1.0), kd=(1.0, 1.0)), "kp"),
+])
+def test_validation_options_refuse_what_would_fake_a_verdict(build, key):
+    """nan, infinite or negative tolerances and gains, and nested options of the wrong kind are InputErrors naming the
+    option: with them the validation passed on nan comparisons, ran a PD pushing away from the plan, or raised
+    AttributeError or OverflowError mid-replay."""
+    with pytest.raises(InputError, match=re.escape(key)):
+        build()
+
+
+def test_a_window_below_the_sample_step_is_refused(ground_truth, capsys):
+    """A window shorter than the replay's sample step is an InputError (it ran one sample per window while the
+    report named the asked length); the CLI says so in one line, exit 2."""
+    from planner.cli import main
+
+    _, out = ground_truth
+    assert main(["validate", str(out), "--window", "1e-9"]) == 2
+    assert "window_s = 1e-09 is not allowed" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("controller", list(replay.TrackingController))

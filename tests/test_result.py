@@ -199,6 +199,47 @@ def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
 
 
+def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_path):
+    """A result file is readable by others as a plain open() would make it (0666 less the umask, not mkstemp's
+    0600); a directory that cannot hold it (here: below a file) is an InputError naming the path, from
+    write_atomically and from write_results alike, with no temporary file left."""
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = tmp_path / "summary.json"
+        write_atomically(path, "{}\n")
+        assert path.stat().st_mode & 0o777 == 0o644
+    finally:
+        os.umask(umask)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(InputError, match="cannot write .*a_file/x.json"):
+        write_atomically(blocker / "x.json", "{}")
+    robot = load_robot("point_mass")
+    task = load_task(default_task_path(robot.path))
+    result = simulate(robot, replace(task, horizon=replace(task.horizon, N=5)))
+    with pytest.raises(InputError, match="cannot create output directory"):
+        write_results(result, blocker / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "summary.json"]
+
+
+def test_a_result_is_frozen_through_its_arrays(tmp_path):
+    """A Trajectory's and an Impact's arrays are read-only views (writing raises ValueError), so a result cannot be
+    changed in place (`trajectory.t[0] = 123` changed physical_duration); the arrays the caller built stay writable."""
+    robot = load_robot("point_mass")
+    result = simulate(robot, load_task(default_task_path(robot.path)))
+    tr = result.trajectory
+    assert tr.impacts
+    for array in (tr.t, tr.q, tr.tau, tr.y, tr.impacts[0].v_post):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 123.0
+    own = np.zeros(3)
+    impact = replace(tr.impacts[0], q=own)
+    own[0] = 1.0
+    assert impact.q[0] == 1.0 and not impact.q.flags.writeable
+
+
 def test_recover_ignores_a_frozen_sliver_of_numerical_time():
     """A FESD element 1e-4 of the longest (above result.COLLAPSED) whose clock leaks (advance 2e-11 s)
     is frozen by the per-step test, but a frozen run that stops the clock for less than frozen_tol of

@@ -2,6 +2,7 @@
 fields. No timing assertions: the machine is shared, wall times are only recorded."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -328,8 +329,9 @@ def test_stress_nan_in_recovery_is_never_silent(stress, monkeypatch):
 
     def nan_q(*args, **kwargs):
         traj = real(*args, **kwargs)
-        traj.q[2, 0] = np.nan
-        return traj
+        q = traj.q.copy()  # a Trajectory's arrays are read-only
+        q[2, 0] = np.nan
+        return dataclasses.replace(traj, q=q)
 
     monkeypatch.setattr(planner.homotopy, "step_trajectory", nan_q)
     spec = _one(stress)

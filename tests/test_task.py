@@ -10,7 +10,8 @@ import pytest
 
 from planner.errors import TaskError, UnknownNameError
 from planner.model import load_robot
-from planner.task import load_task, parse_task, task_to_json, tasks_between
+from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, load_task, parse_task, task_to_json,
+                          tasks_between)
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 ROUNDING = 1e-15  # a + s (b - a) of numbers ~1 in double precision
@@ -59,6 +60,13 @@ def _with(path: str, value):
         ("horizon.tau_f", math.inf, r"horizon.tau_f must be a finite number, got inf"),
         ("initial.q", [0.0, -math.inf], r"initial.q\[1\] must be a finite number, got -inf"),
         ("contacts", [{"point": "foot", "a_n": math.inf}], r"contacts\[0\].a_n must be a finite number, got inf"),
+        ("contacts", [{"point": "foot"}, {"point": "foot", "normal": [0.0, 0.0, 2.0]}],
+         r"contacts = .* one entry per point and plane"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": -1.0}, {"joint": "hip"}]},
+         r"plan.joint_bounds = \['hip', 'hip'\] .* one entry per joint"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1e200, "n_nlp": 3}},
+         r"plan.homotopy = .* last penalty .* at most 1e300"),  # kappa**i raised OverflowError in the solve
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"n_nlp": 1000}}, r"at most 1e300"),
     ],
 )
 def test_bad_values_are_named(path, value, message):
@@ -78,6 +86,9 @@ def test_robot_dependent_errors():
     outside = _with("plan", {"target_q": [3.0, 0.4, 2.0, 0.0]})
     with pytest.raises(TaskError, match=r"target_q\[2\] = 2.0 \(hip\) is outside the joint limits"):
         parse_task(outside).check_against(capler)
+    start_outside = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "base_x", "lower": 0.2}]})
+    with pytest.raises(TaskError, match=r"initial.q\[0\] = 0.0 \(base_x\) is outside the joint limits \[0.2, inf\]"):
+        parse_task(start_outside).check_against(capler)
     inverted = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.0}]})
     with pytest.raises(TaskError, match="lower = 1.0 .* <= upper"):
         parse_task(inverted)
@@ -227,3 +238,45 @@ def test_task_to_json_reads_back_equal(toml):
     default task, with their infinite bounds and optional tables."""
     task = load_task(toml)
     assert parse_task(json.loads(task_to_json(task)), source=task.source) == task
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: Contact(point="foot", mu="0.8"), r"contacts.mu = '0.8' .* a finite number"),
+    (lambda: Contact(point="foot", touches="no"), r"contacts.touches = 'no' .* true or false"),
+    (lambda: Horizon(tau_f=1.5, N=15.5), r"horizon.N = 15.5 .* an integer"),
+    (lambda: Horizon(tau_f=math.inf, N=10), r"horizon.tau_f = inf .* a finite number"),
+    (lambda: Initial(q=(math.nan, 1.0)), r"initial.q = \(nan, 1.0\) .* each is a finite number"),
+    (lambda: Ellipse(x=math.nan, a=0.25, b=0.1), r"plan.holes.x = nan"),
+    (lambda: Homotopy(n_nlp=2.5), r"plan.homotopy.n_nlp = 2.5"),
+    (lambda: GaitPronto(feedback_r=(1.0, math.nan)), r"gait.pronto.feedback_r = \(1.0, nan\)"),  # min() skipped a later nan
+])
+def test_dataclasses_built_in_code_follow_the_readers_rules(build, message):
+    """A task dataclass built in Python is checked as the TOML reader checks its key: types, nan anywhere in a
+    tuple, and infinity outside bounds are TaskErrors naming the key, not a TypeError or a failed solve later."""
+    with pytest.raises(TaskError, match=message):
+        build()
+
+
+ULP_TOL = 2.3e-16  # two units in the last place of 0.707: a division's rounding, not a normalization error
+
+
+def test_contact_normals_are_unit_and_read_back_equal():
+    """A normal is normalized without overflow or underflow of its squares (1e200 and 1e-200 give the same unit
+    vector as (1, 0, 1)), an int given for a float is stored as a float, and a task with a tilted normal reads back
+    from its JSON equal to itself."""
+    unit = Contact(point="foot", normal=(1.0, 0.0, 1.0)).normal
+    assert unit == pytest.approx((math.sqrt(0.5), 0.0, math.sqrt(0.5)), abs=ULP_TOL)
+    for scale in (1e200, 1e-200):
+        assert Contact(point="foot", normal=(scale, 0.0, scale)).normal == pytest.approx(unit, abs=ULP_TOL)
+    assert Contact(point="foot", normal=(0.3, 0, 1)) == Contact(point="foot", normal=(0.3, 0.0, 1.0))
+    task = load_task(ROBOTS / "point_mass.toml")
+    tilted = replace(task, contacts=(replace(task.contacts[0], normal=(0.3, 0.0, 1.0)),))
+    assert parse_task(json.loads(task_to_json(tilted)), source=tilted.source) == tilted
+
+
+def test_a_task_file_that_is_not_utf8_is_named(tmp_path):
+    """TOML is UTF-8: a binary task file is a TaskError naming the file, not a UnicodeDecodeError."""
+    path = tmp_path / "binary.toml"
+    path.write_bytes(b"\xff\xfe[horizon]\n")
+    with pytest.raises(TaskError, match=r"binary.toml: not valid TOML"):
+        load_task(path)

@@ -113,6 +113,16 @@ def test_load_result_reads_the_contract(result_dir):
     assert res.impacts() == [(T_IMPACT, ("foot",))]
 
 
+def test_a_repeated_numerical_time_is_shown_as_two_frames(result_dir):
+    """A result whose tau repeats a value (`planner gait` writes tau = t, an impact's two samples at one time) loads:
+    the repeat becomes a frame 1 ns later, so tau increases and the rest of the grid is unchanged to 1 ns."""
+    original = view.load_result(result_dir).tau
+    _changed(result_dir, "tau", lambda tau: np.concatenate([tau[:10], tau[9:-1]]))
+    tau = view.load_result(result_dir).tau
+    assert np.all(np.diff(tau) > 0) and tau[10] == pytest.approx(original[9] + 1e-9, abs=1e-15)
+    assert np.max(np.abs(tau[11:] - original[10:-1])) <= 1.1e-9
+
+
 def test_taps_are_apart_from_the_impacts(result_dir):
     """An impact summary.json marks as a tap (result.TAP_SHARE) is not an impact to flash or mark with a cross; it is
     among the taps. A summary without tap flags has none (the old files)."""
@@ -148,11 +158,19 @@ def _drop_key(d: Path, key: str) -> None:
     np.savez(d / "trajectory.npz", **arrays)
 
 
-def _bad_q(d: Path) -> None:
+def _changed(d: Path, key: str, change) -> None:
     with np.load(d / "trajectory.npz") as npz:
         arrays = {k: npz[k] for k in npz.files}
-    arrays["q"] = arrays["q"][:, :3]
+    arrays[key] = change(arrays[key])
     np.savez(d / "trajectory.npz", **arrays)
+
+
+def _bad_q(d: Path) -> None:
+    _changed(d, "q", lambda q: q[:, :3])
+
+
+def _nan_q(d: Path) -> None:
+    _changed(d, "q", lambda q: np.where(np.arange(q.size).reshape(q.shape) == 1, np.nan, q))
 
 
 @pytest.mark.parametrize("damage, message", [
@@ -160,6 +178,8 @@ def _bad_q(d: Path) -> None:
     (lambda d: (d / "trajectory.npz").unlink(), "trajectory.npz is missing"),
     (lambda d: _drop_key(d, "tau"), "lacks tau"),
     (_bad_q, "q must be (P, nq)"),
+    (_nan_q, "q is not finite"),  # numpy's LinAlgError came out of the drawing
+    (lambda d: _changed(d, "impact_times", lambda t: np.array(["soon"] * t.size)), "impact_times must hold numbers"),
     (lambda d: (d / "summary.json").write_text(json.dumps({"robot": "/nowhere/r.xml"})), "was not found"),
 ])
 def test_load_result_rejects_a_bad_directory_in_one_line(result_dir, damage, message):
