@@ -31,6 +31,7 @@ class MujocoCheck:
     max_err_mass: float
     max_err_bias: float
     max_err_sites: float  # site positions [m], sites matched to named points by name
+    missing_sites: tuple[str, ...] = ()  # MuJoCo sites Pinocchio's reading lacks (e.g. inside a <frame>): a failure
 
 
 @dataclass(frozen=True)
@@ -71,16 +72,18 @@ class ModelCheck:
         """Every compared quantity's max abs difference, MuJoCo's prefixed with `mujoco_`."""
         errors = {k: getattr(self, k) for k in ("max_err_mass", "max_err_bias", "max_err_frames", "max_err_jacobians", "max_err_drift")}
         if self.mujoco is not None:
-            errors.update({f"mujoco_{k}": v for k, v in asdict(self.mujoco).items()})
+            errors.update({f"mujoco_{k}": v for k, v in asdict(self.mujoco).items() if k.startswith("max_err_")})
         return errors
 
     @property
     def passed(self) -> bool:
-        """Every difference <= TOLERANCE (a NaN fails)."""
-        return all(err <= TOLERANCE for err in self.max_errors.values())
+        """Every difference <= TOLERANCE (a NaN fails), and every MuJoCo site is one of Pinocchio's points."""
+        return all(err <= TOLERANCE for err in self.max_errors.values()) and not (self.mujoco and self.mujoco.missing_sites)
 
     def to_json(self) -> dict:
         out = asdict(self)
+        if out["mujoco"] is not None:
+            out["mujoco"]["missing_sites"] = list(out["mujoco"]["missing_sites"])  # as JSON reads it back
         out["passed"] = self.passed
         out["tolerance"] = TOLERANCE
         return out
@@ -91,6 +94,9 @@ class ModelCheck:
         pinocchio = "  ".join(f"{k} {getattr(self, f'max_err_{k}'):.1e}" for k in ("mass", "bias", "frames", "jacobians", "drift"))
         if self.mujoco is not None:
             mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias), ("sites", self.mujoco.max_err_sites)))
+            if self.mujoco.missing_sites:
+                mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
+                           "(Pinocchio's MJCF parser skips a site inside a <frame>)")
         else:
             mujoco = f"skipped: {self.mujoco_skipped}"
         return "\n".join(
@@ -221,7 +227,9 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):
         return None, f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
     data = mujoco.MjData(mj)
-    sites = [(s, name) for s in range(mj.nsite) if (name := mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) in robot.points]
+    names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
+    sites = [(s, name) for s, name in enumerate(names) if name in robot.points]
+    missing = tuple(name for name in names if name and name not in robot.points)
     err: dict[str, list[float]] = {"max_err_mass": [0.0], "max_err_bias": [0.0], "max_err_sites": [0.0]}
     M = np.zeros((mj.nv, mj.nv))
     for q, v in states:
@@ -231,7 +239,7 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
         err["max_err_mass"].append(_err(dyn.mass(q), M))
         err["max_err_bias"].append(_err(dyn.bias(q, v), data.qfrc_bias))
         err["max_err_sites"] += [_err(dyn.point_position(name)(q), data.site_xpos[s]) for s, name in sites]
-    return MujocoCheck(**{k: float(np.max(e)) for k, e in err.items()}), None
+    return MujocoCheck(**{k: float(np.max(e)) for k, e in err.items()}, missing_sites=missing), None
 
 
 def _mean_us(call) -> float:

@@ -42,10 +42,10 @@ def _path(text: str) -> Path:
 
 
 def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False,
-                verbose: bool = False) -> None:
+                verbose: bool = False, task_help: str = "task file (default: the .toml beside the robot file)") -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     if task:
-        p.add_argument("--task", type=_path, help="task file (default: the .toml beside the robot file)")
+        p.add_argument("--task", type=_path, help=task_help)
     if out:
         p.add_argument("--out", type=_path, help="directory that receives the results")
     if plots:
@@ -145,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="example:\n  planner gait robots/biped.xml --task robots/biped_gait1.toml --out results/gait1")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo walking replay")
-    _add_common(p)
+    _add_common(p, task_help="task file with a [gait] table (required, e.g. robots/biped_gait1.toml)")
     p.set_defaults(run=_cmd_gait)
 
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, tracking, open loop)",
@@ -345,6 +345,11 @@ def _cmd_simulate(args) -> int:
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
+# SolveOptions fields that `plan`'s flags own: --solve may not set them
+FLAG_OWNED = {"keep_schedule": "--keep-schedule", "schedule_new_impacts": "--allow-new-impacts",
+              "schedule_only": "--keep-schedule"}
+
+
 def _ipopt_args(flag: str, items: list[str]) -> dict:
     """NAME=VALUE strings as IPOPT options: VALUE an int, a float or else a string (IPOPT checks it)."""
     out = {}
@@ -374,7 +379,12 @@ def _cmd_plan(args) -> int:
                                  warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
     if args.solve is not None:
         try:
-            solve_options = solve_options_from_dict(solve_fields_from_json(args.solve), solve_options)
+            fields = solve_fields_from_json(args.solve)
+            owned = sorted(set(fields) & set(FLAG_OWNED))  # a replan's flags set them after --solve: the JSON was lost
+            if owned:
+                raise InputError(f"{', '.join(owned)} {'is' if len(owned) == 1 else 'are'} set by "
+                                 f"{', '.join(sorted({FLAG_OWNED[k] for k in owned}))} (with --init DIR), not by --solve")
+            solve_options = solve_options_from_dict(fields, solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
     fesd_start = _choice("--fesd-start", args.fesd_start or FESDStart.HINT_FREE.value, FESDStart)

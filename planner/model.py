@@ -52,6 +52,9 @@ class Robot:
     points: tuple[str, ...]  # named points: MJCF sites, URDF links and frames
     dof_names: tuple[str, ...]  # one joint name per velocity index (nv,)
     sha256: str
+    # the file's passive joint forces ("joint 'hip': damping 5"), which the planner's dynamics do not model:
+    # simulate and plan refuse the robot (Task.check_against); check-model compares the rigid-body terms only
+    passive: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -102,6 +105,23 @@ class Robot:
         if point not in self.points:
             raise UnknownNameError("point", point, self.points)
         return _point_frames(self.model)[point]
+
+    def moves_out_of_plane(self, point: str, samples: int = 3, tol: float = 1e-9) -> bool:
+        """Whether the named point can move along the world's y axis: its translational Jacobian's y row is nonzero
+        at one of `samples` seeded configurations (joint values in [-1, 1] [rad or m], clipped to the limits). The
+        planner's contacts are planar (normal and tangent in the x-z plane), so such a point would slide along y
+        without friction."""
+        model, frame = self.model, self.frame_id(point)
+        data = model.createData()
+        rng = np.random.default_rng(0)
+        for _ in range(samples):
+            q = pin.neutral(model)
+            if model.nq == model.nv:
+                q = np.clip(rng.uniform(-1.0, 1.0, model.nq), self.q_lower, self.q_upper)
+            J = pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            if np.max(np.abs(np.asarray(J).reshape(6, -1)[1]), initial=0.0) > tol:  # (6,) for one DoF
+                return True
+        return False
 
     def dof_index(self, joint: str) -> int:
         """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names."""
@@ -156,7 +176,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}") from None
-    actuators, dof_names = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
+    actuators, dof_names, passive = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
     return Robot(
         path=path,
         format=fmt,
@@ -165,21 +185,26 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         points=tuple(_point_frames(model)),
         dof_names=dof_names,
         sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        passive=passive,
     )
 
 
 def _point_frames(model: pin.Model) -> dict[str, int]:
-    """Named points: operational frames (MJCF sites) and bodies (URDF links), the universe excluded."""
-    kinds = (pin.FrameType.OP_FRAME, pin.FrameType.BODY)
-    points: dict[str, int] = {}
+    """Named points: operational frames (MJCF sites) and bodies (URDF links), the universe excluded. A site and a
+    body of the same name are the site (docs/tasks.md: a contact point is an MJCF site; the body's frame had won)."""
+    points: dict[str, int] = {}  # in the frames' order
     for fid, frame in enumerate(model.frames):
-        if frame.type in kinds and frame.name not in ("universe", "world") and frame.name not in points:
+        if frame.type not in (pin.FrameType.OP_FRAME, pin.FrameType.BODY) or frame.name in ("universe", "world"):
+            continue
+        if frame.name not in points or (frame.type == pin.FrameType.OP_FRAME
+                                        and model.frames[points[frame.name]].type != pin.FrameType.OP_FRAME):
             points[frame.name] = fid
     return points
 
 
-def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...]]:
-    """URDF: every 1-DoF joint with a positive, finite effort limit is a motor with gear 1."""
+def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
+    """URDF: every 1-DoF joint with a positive, finite effort limit is a motor with gear 1; the joints' <dynamics>
+    damping and friction are the passive terms (Robot.passive)."""
     actuators, dof_names = [], []
     for jid in range(1, model.njoints):
         joint, jname = model.joints[jid], model.names[jid]
@@ -189,11 +214,13 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...]]
         effort = float(model.effortLimit[joint.idx_v])
         if 0.0 < effort < np.inf:
             actuators.append(Actuator(jname, joint.idx_v, 1.0, -effort, effort))
-    return tuple(actuators), tuple(dof_names)
+    passive = _passive_terms(dof_names, (("damping", model.damping), ("friction", model.friction)))
+    return tuple(actuators), tuple(dof_names), passive
 
 
-def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...]]:
-    """MJCF: joint motors and joint names read from MuJoCo's compiled model of the same file.
+def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
+    """MJCF: joint motors, joint names and passive joint terms (Robot.passive) read from MuJoCo's compiled model of
+    the same file; Pinocchio's joint limits made to agree with MuJoCo's (_unlimit).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -205,19 +232,58 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     except ValueError as exc:
         raise RobotFileError(mujoco_failure(path, exc)) from None
     if mj.nv != model.nv:
-        raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv}")
+        raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv} (a body or joint inside a <frame>, "
+                             "or an <include>, is not read by Pinocchio's MJCF parser)")
+    if mj.neq:  # Pinocchio's model has no such coupling: the planner's motion would break it
+        raise RobotFileError(f"{path}: {mj.neq} <equality> constraint(s); the planner models kinematic trees without "
+                             "equality constraints")
     # Pinocchio's MJCF parser ignores <option gravity>; the file's value is MuJoCo's.
     model.gravity = pin.Motion(np.array(mj.opt.gravity, dtype=float), np.zeros(3))
     dof_names = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, int(mj.dof_jntid[i])) or f"dof_{i}" for i in range(mj.nv))
     actuators = []
     for i in range(mj.nu):
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
         if mj.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:
             raise RobotFileError(f"{path}: actuator {i} does not act on a joint; only joint motors are supported")
+        # a <position>, <velocity> or <general> actuator is a servo or has dynamics: its force is not gear * ctrl
+        if (mj.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE or mj.actuator_biastype[i] != mujoco.mjtBias.mjBIAS_NONE
+                or mj.actuator_gaintype[i] != mujoco.mjtGain.mjGAIN_FIXED or mj.actuator_gainprm[i, 0] != 1.0):
+            raise RobotFileError(f"{path}: actuator {name!r} is not a plain motor (force = gear * ctrl): position, velocity "
+                                 "and general actuators (gain, bias or dynamics) are not supported; use <motor>")
         jnt = mj.actuator_trnid[i, 0]
-        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
+        gear = float(mj.actuator_gear[i, 0])
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
-        actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), float(mj.actuator_gear[i, 0]), float(lo), float(hi)))
-    return tuple(actuators), dof_names
+        if mj.actuator_forcelimited[i]:  # MuJoCo clamps gear * ctrl to forcerange: the control bounds are that too
+            flo, fhi = sorted(np.asarray(mj.actuator_forcerange[i], float) / gear)
+            lo, hi = max(lo, flo), min(hi, fhi)
+        actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
+    _unlimit(model, mj, mujoco)
+    first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
+    passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
+                                         ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
+    return tuple(actuators), dof_names, passive
+
+
+def _unlimit(model: pin.Model, mj, mujoco) -> None:
+    """Joints MuJoCo reads as unlimited (limited="false", or no range) get no position limits in Pinocchio's model
+    either: Pinocchio's MJCF parser keeps a range the file declares unlimited."""
+    lower, upper = np.array(model.lowerPositionLimit, float), np.array(model.upperPositionLimit, float)  # copies
+    for j in range(mj.njnt):
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j)
+        if mj.jnt_limited[j] or int(mj.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            continue
+        if not name or not model.existJointName(name):
+            continue
+        i = model.joints[model.getJointId(name)].idx_q
+        lower[i], upper[i] = -np.inf, np.inf
+    model.lowerPositionLimit, model.upperPositionLimit = lower, upper
+
+
+def _passive_terms(dof_names, per_dof) -> tuple[str, ...]:
+    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" (none: ()). per_dof:
+    (label, (nv,) values) pairs."""
+    return tuple(f"joint {dof_names[i]!r}: {label} {float(values[i]):g}"
+                 for label, values in per_dof for i in range(len(dof_names)) if values[i] != 0.0)
 
 
 # A URDF link with a joint but no mass (the carriage of a planar base made of two prismatic joints) is fine for

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import TaskError, UnknownNameError, check_field_types
+from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types
 
 
 @dataclass(frozen=True)
@@ -379,10 +379,17 @@ class Task:
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
 
     def check_against(self, robot) -> None:
-        """Robot-dependent validation: names exist, lengths match, targets are inside the limits."""
+        """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
+        is what the planner models (no passive joint forces, contact points in the x-z plane)."""
+        if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
+            raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have no passive joint "
+                                 "forces (damping, stiffness, friction); remove them from the robot file to simulate or plan")
         for c in self.contacts:
             if c.point not in robot.points:
                 raise UnknownNameError("contact point", c.point, robot.points)
+            if robot.moves_out_of_plane(c.point):
+                raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
+                                "friction in the x-z plane), so it would slide along y without friction")
         _length("initial.q", self.initial.q, robot.nq)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)

@@ -27,3 +27,6 @@ def run_main(main) -> int:
     except PlannerError as exc:
         print(f"{Path(sys.argv[0]).stem}: error: {exc}", file=sys.stderr)
         return 2
+    except (FileExistsError, NotADirectoryError, PermissionError) as exc:  # e.g. --out naming a file
+        print(f"{Path(sys.argv[0]).stem}: error: cannot use {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2

@@ -333,6 +333,12 @@ def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler
         raise InputError(f"--N must be >= 1, got {N}")
     if (solve_options or {}).get("max_iter", 1) < 1:
         raise InputError(f"--max-iter must be >= 1, got {solve_options['max_iter']}")
+    if seed < 0:  # numpy's generators take seeds >= 0 only
+        raise InputError(f"--seed must be >= 0, got {seed}")
+    if solve_options:  # before any task runs: a bad value was recorded as every task's crash
+        from planner.homotopy import solve_options_from_dict
+
+        solve_options_from_dict(solve_options)
     b = base_task(robot)
     specs = []
     for fam in families:

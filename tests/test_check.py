@@ -61,7 +61,8 @@ def test_json_contract():
         assert (out["robot"], out["format"], out["nq"], out["nv"]) == ("capler", name.split(".")[1].replace("xml", "mjcf"), 4, 4)
         assert out["passed"] is True and out["tolerance"] == TOLERANCE
         if has_mujoco:
-            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites"}
+            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "missing_sites"}
+            assert out["mujoco"]["missing_sites"] == []
         else:
             assert out["mujoco"] is None
         assert all(type(out[k]) is float for k in JSON_KEYS if k.startswith("max_err"))
@@ -170,3 +171,18 @@ def test_result_is_frozen():
         result.passed = False
     with pytest.raises(AttributeError):
         result.max_err_mass = 1.0
+
+
+FRAMED_SITE = """<mujoco><worldbody><body name="base"><joint name="z" type="slide" axis="0 0 1"/>
+<inertial pos="0 0 0" mass="1" diaginertia="0.1 0.1 0.1"/>
+<frame pos="0 0 -0.1"><site name="foot"/></frame><site name="top" pos="0 0 0.1"/></body></worldbody></mujoco>"""
+
+
+def test_a_site_pinocchio_does_not_read_fails_the_check(tmp_path):
+    """A MuJoCo site that Pinocchio's MJCF reading lacks (one inside a <frame>) fails check-model and is named, instead
+    of passing on the sites both know and failing later as an unknown contact point."""
+    path = tmp_path / "framed.xml"
+    path.write_text(FRAMED_SITE)
+    result = check_model(load_robot(path), samples=2)
+    assert result.mujoco is not None and result.mujoco.missing_sites == ("foot",)
+    assert not result.passed and "missing in Pinocchio's reading: foot" in result.report()

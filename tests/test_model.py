@@ -43,3 +43,72 @@ def test_unknown_joint_lists_names():
     """An unknown joint name raises UnknownNameError listing the robot's joints."""
     with pytest.raises(UnknownNameError, match="base_x, base_z, hip, knee"):
         load_robot("capler").dof_index("ankle")
+
+
+def _hopper(tmp_path, hip: str = "", actuator: str = '<motor name="m" joint="hip" ctrlrange="-20 20"/>', extra: str = "",
+            foot: str = '<site name="foot" pos="0 0 -0.3"/>', base: str = 'axis="0 0 1"'):
+    """A planar hopper (slide x, z; hinge hip about y) with the given hip attributes, actuator and extra sections."""
+    path = tmp_path / "hopper.xml"
+    path.write_text(f"""<mujoco><compiler angle="radian"/><worldbody><body name="base"><joint name="x" type="slide" axis="1 0 0"/>
+<joint name="z" type="slide" {base}/><inertial pos="0 0 0" mass="2" diaginertia="0.01 0.01 0.01"/>
+<body name="leg"><joint name="hip" type="hinge" axis="0 1 0" range="-1 1" {hip}/>
+<inertial pos="0 0 -0.15" mass="0.5" diaginertia="0.004 0.004 0.004"/>{foot}</body></body></worldbody>
+<actuator>{actuator}</actuator>{extra}</mujoco>""")
+    return path
+
+
+@pytest.mark.parametrize("actuator", ['<position name="p" joint="hip" kp="100" ctrlrange="-1 1"/>',
+                                      '<velocity name="v" joint="hip" kv="10"/>',
+                                      '<general name="g" joint="hip" gainprm="7"/>'])
+def test_servo_actuators_are_refused(tmp_path, actuator):
+    """Position, velocity and general actuators are no plain motors (force = gear * ctrl): refused, named, instead of
+    being read as a 1 N m motor."""
+    with pytest.raises(RobotFileError, match="is not a plain motor"):
+        load_robot(_hopper(tmp_path, actuator=actuator))
+
+
+def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
+    """A motor's forcerange bounds its control (force / gear); a joint declared limited="false" has no position limits
+    though it states a range (Pinocchio's parser kept the range); an <equality> is refused."""
+    robot = load_robot(_hopper(tmp_path, actuator='<motor name="m" joint="hip" gear="2" forcerange="-5 5" ctrlrange="-20 20"/>'))
+    assert (robot.actuators[0].lower, robot.actuators[0].upper) == (-2.5, 2.5)
+    robot = load_robot(_hopper(tmp_path, hip='limited="false"'))
+    assert robot.q_lower[2] == -np.inf and robot.q_upper[2] == np.inf
+    assert load_robot(_hopper(tmp_path)).q_upper[2] == 1.0
+    with pytest.raises(RobotFileError, match="<equality>"):
+        load_robot(_hopper(tmp_path, extra='<equality><joint joint1="hip" joint2="x"/></equality>'))
+
+
+@pytest.mark.parametrize("hip, term", [('damping="5"', "damping 5"), ('stiffness="50"', "stiffness 50"),
+                                       ('frictionloss="2"', "frictionloss 2")])
+def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
+    """Joint damping, stiffness and friction loss are recorded (Robot.passive) and refused by a task's check, which
+    simulate and plan run: the planner's dynamics have none, MuJoCo's replay would."""
+    from planner.errors import RobotFileError as Refused
+    from planner.task import parse_task
+
+    robot = load_robot(_hopper(tmp_path, hip=hip))
+    assert robot.passive == (f"joint 'hip': {term}",)
+    task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
+    with pytest.raises(Refused, match=f"hip': {term}: the planner's dynamics have no passive joint forces"):
+        task.check_against(robot)
+
+
+def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checked(tmp_path):
+    """A contact point is a site: with a body of the same name the site's frame is used (the body's was). A point
+    that can move along y (here a base sliding along y) is refused by the task's check: the contacts are planar."""
+    from planner.errors import TaskError
+    from planner.task import parse_task
+
+    robot = load_robot(_hopper(tmp_path, foot='<body name="foot" pos="0 0 -0.25"><inertial pos="0 0 0" mass="0.1" '
+                                              'diaginertia="1e-4 1e-4 1e-4"/><site name="foot" pos="0 0 -0.05"/></body>'))
+    data = robot.model.createData()
+    import pinocchio as pin
+
+    pin.framesForwardKinematics(robot.model, data, np.zeros(robot.nq))
+    assert data.oMf[robot.frame_id("foot")].translation[2] == pytest.approx(-0.3)
+    task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
+    task.check_against(robot)
+    sideways = load_robot(_hopper(tmp_path, base='axis="0 1 0"'))
+    with pytest.raises(TaskError, match="contact point 'foot' can move along y"):
+        task.check_against(sideways)

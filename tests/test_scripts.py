@@ -805,6 +805,24 @@ def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
             assert "sys.exit(run_main(main))" in script.read_text().split('if __name__ == "__main__":')[-1], script.name
 
 
+@pytest.mark.parametrize("argv, fragment", [
+    (["scripts.stress", "--robot", "point_mass", "--seed", "-1"], "stress: error: --seed must be >= 0"),  # numpy's traceback
+    (["scripts.stress", "--robot", "point_mass", "--rho-schedule", "nan"], "SolveOptions.rho_schedule"),  # every task crashed
+    (["scripts.bench_pipeline", "--quick", "--solve", '{"bogus": 1}'], "add --full or --full-only"),  # silently ignored
+    (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "bench_replan: error: cannot use"),
+])
+def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
+    """Inputs that a script used to record as every task's crash, ignore, or end in a traceback on (an --out that is
+    a file) are refused up front: exit 2, the reason on stderr's last line (argparse's usage line may precede it),
+    no traceback."""
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    argv = [a.replace("{file}", str(a_file)) for a in argv] + ([] if "--out" in argv else ["--out", str(tmp_path / "out")])
+    proc = subprocess.run([sys.executable, "-m", *argv], cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and fragment in err.splitlines()[-1] and "Traceback" not in err, err
+
+
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
 
 def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
