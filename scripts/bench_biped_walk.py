@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from planner.cli import main as planner_main
+from planner.errors import InputError
 from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,7 +41,7 @@ def task_text(lower: str, step: float = DEFAULT_STEP) -> str:
     text = TASK.read_text()
     for name, pattern in (("velocity_bounds", BOUND_LINE), ("step", STEP_LINE), ("q", GUESS_LINE)):
         if len(pattern.findall(text)) != 1:
-            raise SystemExit(f"{TASK} needs exactly one '{name} = ...' line to vary")
+            raise InputError(f"{TASK} needs exactly one '{name} = ...' line to vary")
     line = "" if lower == "none" else f'velocity_bounds = [{{ joints = ["torso", "hinge_1"], lower = {float(lower)} }}]'
     text = BOUND_LINE.sub(line, text)
     if step != DEFAULT_STEP:
@@ -60,6 +61,8 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     plan = run_dir / "plan"
     if not (plan / "summary.json").is_file():  # a solve that did not converge writes to OUT/failed
         plan = plan / "failed"
+    if not (plan / "summary.json").is_file():  # exit 2: e.g. a step whose guess breaks the task's joint bounds
+        raise InputError(f"planner plan refused the task of step {step:g} m, lower {lower} (exit {code}; its error is above)")
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     walk = v.get("walking") or {}
@@ -95,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
+    if args.quick and args.lower != parser.get_default("lower"):  # --quick runs its own bound: the given ones were dropped
+        parser.error("--quick runs the default bound 0.3 rad/s: give no --lower with it")
     lowers = ["0.3"] if args.quick else args.lower
     for lower in lowers:  # a typo fails here, before any solve
         try:

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 import time
 from pathlib import Path
 
 from planner.cli import main as planner_main
+from planner.errors import InputError
 from scripts._report import report, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,7 +44,7 @@ def moved_task(text: str, value: float) -> str:
     """The task file's text with its moved number (the periodic step, else the target's first coordinate) set."""
     name, pattern = ("step", STEP_LINE) if STEP_LINE.search(text) else ("target_q", TARGET_LINE)
     if len(pattern.findall(text)) != 1:
-        raise SystemExit(f"the task needs exactly one '{name} = ...' line to move")
+        raise InputError(f"the task needs exactly one '{name} = ...' line to move")
     return pattern.sub(lambda m: m.group(1) + repr(float(value)), text)
 
 
@@ -50,7 +52,7 @@ def record(out: Path, code: int) -> dict:
     """What a `planner plan` run wrote to `out` (OUT/failed when it did not converge)."""
     plan = out if (out / "summary.json").is_file() else out / "failed"
     if not (plan / "summary.json").is_file():  # exit 2: the input was refused, nothing was planned
-        raise SystemExit(f"planner plan exited {code} without a result in {out}")
+        raise InputError(f"planner plan exited {code} without a result in {out} (its error is above)")
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
@@ -98,14 +100,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
     if args.quick:
+        if args.values or args.robot != "capler":  # --quick has its own robot and value: the given ones were dropped
+            parser.error("--quick plans the point-mass hop to 0.52 m: give no robot or --values with it")
         robot, values, base_text = "point_mass", [0.52], QUICK_TASK
     else:
         if not args.values:
             parser.error("--values is required (the moved target x or step [m])")
-        robot, values, base_text = args.robot, args.values, (ROOT / "robots" / f"{args.robot}.toml").read_text()
+        if not all(math.isfinite(v) for v in args.values):
+            parser.error(f"--values must be finite numbers, got {args.values}")
+        task_file = ROOT / "robots" / f"{args.robot}.toml"
+        if not task_file.is_file():
+            known = sorted(p.stem for p in (ROOT / "robots").glob("*.toml"))
+            raise InputError(f"no default task robots/{args.robot}.toml; robots with one: {', '.join(known)}")
+        robot, values, base_text = args.robot, args.values, task_file.read_text()
     moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
+    args.out.mkdir(parents=True, exist_ok=True)
     base_task = args.out / "base.toml"
     base_task.write_text(base_text)
     start = args.init

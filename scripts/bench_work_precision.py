@@ -828,6 +828,10 @@ def main(argv: list[str] | None = None) -> int:
     suite_cases = CASE_NAMES if args.suite == "simulate" else OCP_CASE_NAMES
     if args.cases and not set(args.cases) <= set(suite_cases):
         parser.error(f"--cases of suite {args.suite}: {', '.join(suite_cases)}")
+    if args.quick and args.suite == "ocp" and (args.capler_N or set(args.cases or ()) - {"ocp_pm_hop"}):
+        # the quick ocp suite is the point mass only: Capler's cases and grids were dropped, and an empty results.json
+        # written over the last one
+        parser.error("--quick with --suite ocp runs the point-mass hop only: give no Capler --cases or --capler-N with it")
     out = args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP)
 
     def log(rec):  # progress on stderr: stdout keeps the table or the JSON

@@ -29,6 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner.errors import InputError
 from planner.homotopy import constraint_violation
 from planner.problem import build_problem
 from planner.result import read_robot, read_start, read_summary, read_task, read_trajectory
@@ -239,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.family is not None and args.family < 0:
         parser.error(f"--family must be a step index >= 0, got {args.family}")
     problem, x = plan_problem(args.plan)
+    if problem.robot.dof_names != ("base_x", "base_z", "hip", "knee"):  # its PD and starts index Capler's hip and knee
+        raise InputError(f"{args.plan} holds a plan of {problem.robot.name!r} (joints {', '.join(problem.robot.dof_names)}); "
+                         "this probe reads plans of Capler (joints base_x, base_z, hip, knee)")
     if args.family is not None and args.family >= problem.N:
         parser.error(f"--family must be a step index < N = {problem.N}, got {args.family}")
     rec = {"plan": str(args.plan), **replay(problem, x, args.kp, args.kd, args.plan_first, first_rho0=args.first_rho0,

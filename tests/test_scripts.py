@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from planner import homotopy as H
+from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.task import load_task
@@ -786,7 +787,7 @@ def test_bench_replan_quick_run(tmp_path, capsys):
     biped = (bench.ROOT / "robots" / "biped.toml").read_text()
     walk, moved = tomllib.loads(biped), tomllib.loads(bench.moved_task(biped, 0.3))
     assert moved["plan"]["periodic"].pop("step") == 0.3 and walk["plan"]["periodic"].pop("step") == 0.25 and moved == walk
-    with pytest.raises(SystemExit):
+    with pytest.raises(InputError, match="exactly one 'target_q = ...' line"):
         bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
 
 
@@ -810,6 +811,12 @@ def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
     (["scripts.stress", "--robot", "point_mass", "--rho-schedule", "nan"], "SolveOptions.rho_schedule"),  # every task crashed
     (["scripts.bench_pipeline", "--quick", "--solve", '{"bogus": 1}'], "add --full or --full-only"),  # silently ignored
     (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "bench_replan: error: cannot use"),
+    (["scripts.bench_replan", "nosuch", "--values", "1"], "no default task robots/nosuch.toml"),  # a traceback
+    (["scripts.bench_replan", "point_mass", "--values", "1"], "exactly one 'target_q = ...' line"),  # exit 1
+    (["scripts.bench_replan", "biped", "--quick", "--values", "0.9"], "give no robot or --values with it"),  # dropped
+    (["scripts.bench_biped_walk", "--quick", "--lower", "fast"], "give no --lower with it"),  # dropped
+    (["scripts.bench_biped_walk", "--quick", "--step", "1.9"], "refused the task of step 1.9 m"),  # FileNotFoundError
+    (["scripts.bench_work_precision", "--suite", "ocp", "--quick", "--cases", "ocp_capler"], "runs the point-mass hop only"),
 ])
 def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     """Inputs that a script used to record as every task's crash, ignore, or end in a traceback on (an --out that is
@@ -821,6 +828,22 @@ def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     proc = subprocess.run([sys.executable, "-m", *argv], cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
     err = proc.stderr.strip()
     assert proc.returncode == 2 and fragment in err.splitlines()[-1] and "Traceback" not in err, err
+
+
+def test_probe_replay_refuses_a_plan_of_another_robot(tmp_path):
+    """probe_replay indexes Capler's hip and knee: a point-mass plan is refused in one line, exit 2 (it raised a
+    CasADi slice error; a biped plan gave numbers of the wrong joints)."""
+    from planner.cli import main as planner_main
+
+    task = tmp_path / "hop.toml"
+    task.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                    '[horizon]\ntau_f = 1.0\nN = 8\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+    assert planner_main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "hop"), "--no-validate", "-q",
+                         "--no-race", "--no-plots"]) == 0
+    proc = subprocess.run([sys.executable, "-m", "scripts.probe_replay", str(tmp_path / "hop"), "--out", str(tmp_path / "p")],
+                          cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and "this probe reads plans of Capler" in err and len(err.splitlines()) == 1, err
 
 
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
