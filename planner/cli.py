@@ -512,6 +512,11 @@ def _cmd_view(args) -> int:
     url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
     _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
     sys.stdout.flush()
+
+    def stop(signum, frame):  # SIGTERM ends as Ctrl-C does: meshcat stops its server at exit (atexit), a kill skipped it
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
     try:
         while True:
             time.sleep(3600)

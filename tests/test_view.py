@@ -378,6 +378,58 @@ def test_live_view_serves_the_scene_to_a_browser(result_dir, tmp_path, capsys):
         proc.wait(timeout=10)
 
 
+SERVER_START_S = 60  # [s] meshcat's server starts in ~1 s; a command that prints nothing by then is a failure, not a hang
+
+
+def test_live_view_stops_its_server_on_sigterm(result_dir):
+    """`planner view DIR` started its own meshcat server; a SIGTERM ends the command with exit 0 as Ctrl-C does, and
+    the server process it started is gone (it stayed behind, listening on its port)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "view", str(result_dir)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    children = []
+    try:
+        import select
+
+        assert select.select([proc.stdout], [], [], SERVER_START_S)[0], "no URL printed"
+        assert proc.stdout.readline().startswith("meshcat replay: ")
+        children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
+        assert children  # the meshcat server
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        deadline = time.time() + 10
+        while time.time() < deadline and any(_alive(c) for c in children):
+            time.sleep(0.1)
+        assert not any(_alive(c) for c in children)
+    finally:
+        proc.kill()
+        proc.wait()
+        for child in children:  # a failed check leaves no server behind
+            if _alive(child):
+                os.kill(child, signal.SIGKILL)
+
+
+def _parent(pid: int) -> int | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("PPid:"))
+    except (OSError, StopIteration, ValueError):
+        return None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return not any(line.startswith("State:") and "Z" in line.split()[1] for line in f)
+    except OSError:
+        return False
+
+
 def test_serve_fails_in_one_line_when_no_server_answers(result_dir, monkeypatch):
     """A zmq_url with no meshcat server behind it is a PlannerError, not a hang."""
     from planner.errors import PlannerError
