@@ -620,10 +620,10 @@ def _typed(obj, section: str) -> None:
         value, kind = getattr(obj, f.name), str(f.type).split("|")[0].strip()
         if kind == "float" and isinstance(value, int):
             object.__setattr__(obj, f.name, float(value))
-        elif kind.startswith("tuple[") and isinstance(value, list):
-            object.__setattr__(obj, f.name, tuple(float(v) if kind == "tuple[float, ...]" else v for v in value))
         elif kind == "tuple[float, ...]" and value is not None:
             object.__setattr__(obj, f.name, tuple(float(v) for v in value))
+        elif kind.startswith("tuple[") and isinstance(value, list):
+            object.__setattr__(obj, f.name, tuple(value))
 
 
 def _require(ok: bool, key: str, value, allowed: str) -> None:

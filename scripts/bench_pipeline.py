@@ -375,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = [c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))]
     variants = [] if args.full_only else ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
     full = []
-    if (args.solve != ["{}"] or args.race) and not (args.full or args.full_only):  # they apply to the full solves only
+    if (args.solve != parser.get_default("solve") or args.race) and not (args.full or args.full_only):  # they apply to the full solves only
         parser.error("--solve and --race apply to the full solves: add --full or --full-only")
     for text in args.solve if (args.full or args.full_only) else []:
         try:
