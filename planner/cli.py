@@ -509,15 +509,15 @@ def _cmd_view(args) -> int:
         page = view.render_html(args.dir, args.html, slow_motion=args.slow_motion)
         _emit(args, {"command": "view", "html": str(page)}, f"wrote {page}")
         return EXIT_OK
-    url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
-    _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
-    sys.stdout.flush()
-
     def stop(signum, frame):  # SIGTERM ends as Ctrl-C does: meshcat stops its server at exit (atexit), a kill skipped it
         raise KeyboardInterrupt
 
+    # before the server starts and the URL is printed: a SIGTERM right after the URL (CI's test) killed the command
     signal.signal(signal.SIGTERM, stop)
-    try:
+    url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
+    try:  # a stop once the URL is out is the normal end
+        _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
+        sys.stdout.flush()
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
