@@ -10,6 +10,7 @@ import contextlib
 import json
 import multiprocessing
 import os
+import shutil
 import signal
 import sys
 import time
@@ -27,7 +28,7 @@ EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
 FESD_RHO_MAX = 1e5
 
 
-class _Parser(argparse.ArgumentParser):
+class UsageParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line and exit code 2."""
 
     def error(self, message):
@@ -58,9 +59,9 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="planner", description=__doc__.splitlines()[0],
+    parser = UsageParser(prog="planner", description=__doc__.splitlines()[0],
                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
 
     p = sub.add_parser("check-model", help="compare the CasADi dynamics with Pinocchio and MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -241,7 +242,7 @@ def _load_inputs(args):
 
 def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Callable[[], None]]:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
-    good earlier result in `out` is never overwritten. Returns that directory and a call that waits
+    good earlier result in `out` is never overwritten (and a converged run removes an earlier failure's `out/failed`). Returns that directory and a call that waits
     for the plots: background draws them in a child process meanwhile (the caller validates, on the
     other CPU), else they are drawn before this returns."""
     from .result import write_results
@@ -250,6 +251,9 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
+    stale = out / "failed"
+    if result.stats.converged and (stale / "summary.json").is_file():  # an earlier failure's diagnostics, now outdated
+        shutil.rmtree(stale)
     for name in PLOT_FILES:  # an earlier result's plots (--no-plots now, or a plot this robot has not) would mix in
         (target / name).unlink(missing_ok=True)
     if args.no_plots:

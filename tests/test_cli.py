@@ -181,7 +181,7 @@ def test_input_errors_leave_no_output_directory(tmp_path, capsys):
     tilted.write_text(HOP_TASK.replace('mu = 0.5\n', 'mu = 0.5\nnormal = [0.1, 0.0, 1.0]\n'))
     _one_line_exit_2(capsys, ["plan", "point_mass", "--task", str(tilted), "--out", str(out)], "touch a tilted plane")
     assert not (tmp_path / "new").exists()
-    with pytest.raises(SystemExit) as exc:  # argparse's usage error, one line (planner.cli._Parser)
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error, one line (planner.cli.UsageParser)
         main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", ""])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and "an empty path is not allowed" in err and len(err.splitlines()) == 1
@@ -281,6 +281,26 @@ def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     for name, data in earlier.items():
         assert (out / name).read_bytes() == data
     assert json.loads((out / "failed" / "summary.json").read_text())["converged"] is False
+
+
+def test_converged_plan_removes_an_earlier_failure(tmp_path, capsys):
+    """A converged plan into DIR removes the diagnostics an earlier failed plan left in DIR/failed (they no longer
+    describe DIR), and keeps a DIR/failed that holds no planner result (not planner's to delete)."""
+    far, hop = tmp_path / "far.toml", tmp_path / "hop.toml"
+    far.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                   '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')
+    hop.write_text(HOP_TASK)
+    out, other = tmp_path / "out", tmp_path / "other"
+    assert main(["plan", "point_mass", "--task", str(far), "--out", str(out), "--no-validate", "-q", "--no-plots"]) == 1
+    assert (out / "failed" / "summary.json").is_file()
+    (other / "failed").mkdir(parents=True)
+    (other / "failed" / "notes.txt").write_text("mine")
+    for directory in (out, other):
+        assert main(["plan", "point_mass", "--task", str(hop), "--out", str(directory), "--no-validate", "-q",
+                     "--no-plots", "--no-race"]) == 0
+        assert json.loads((directory / "summary.json").read_text())["converged"] is True
+    assert not (out / "failed").exists()
+    assert (other / "failed" / "notes.txt").read_text() == "mine"
 
 
 def test_plan_rejects_an_unknown_fesd_start(tmp_path, capsys):
