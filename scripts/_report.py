@@ -1,11 +1,13 @@
 """The common ending of the scripts' main(): OUT/results.json written atomically, then JSON or a table on stdout; and
-run_main, which runs a main() as a command the way `planner` runs its own (a bad input is one line and exit 2)."""
+run_main, which runs a main() as a command the way `planner` runs its own (a bad input is one line and exit 2), and
+script_parser, the argument parser that reports a usage error the same way."""
 from __future__ import annotations
 
 import json
 import sys
 from pathlib import Path
 
+from planner.cli import UsageParser
 from planner.errors import PlannerError
 from planner.result import write_atomically
 
@@ -17,6 +19,12 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
     write_atomically(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     print(json.dumps(results if printed is None else printed, indent=1, default=str) if as_json else table)
     return 0
+
+
+def script_parser(doc: str, **kwargs) -> UsageParser:
+    """The script's argument parser, described by the first paragraph of its docstring `doc`: a usage error is one line
+    and exit code 2, as in `planner`."""
+    return UsageParser(description=doc.split("\n\n")[0], **kwargs)
 
 
 def run_main(main) -> int:

@@ -16,7 +16,6 @@ deterministic on one machine; the walls depend on its load.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import re
@@ -25,7 +24,7 @@ from pathlib import Path
 
 from planner.cli import main as planner_main
 from planner.errors import InputError
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -89,7 +88,7 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--lower", nargs="+", default=["none", "0.1", "0.2", "0.3", "0.4", "0.5"],
                         help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
     parser.add_argument("--step", type=float, nargs="+", default=[DEFAULT_STEP],

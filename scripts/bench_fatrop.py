@@ -18,7 +18,6 @@ markdown table (and FATROP's own log, which CasADi writes to stdout); --out writ
 --verbose prints both solvers' iteration logs. docs/benchmarks.md, "FATROP"."""
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -32,7 +31,7 @@ from planner.homotopy import SolveOptions, gated_complementarity, ipopt_options,
 from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
-from scripts._report import run_main
+from scripts._report import run_main, script_parser
 
 
 def measures(problem, x, p, lbg, ubg) -> dict:
@@ -100,7 +99,7 @@ def parse_options(pairs) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = script_parser(__doc__)
     ap.add_argument("--N", type=int, default=125)
     ap.add_argument("--case", choices=["capler", "hop"], default="capler", help="robots/capler.toml (tau_f 2.5 s, N steps) or the point-mass hop")
     ap.add_argument("--penalty", choices=["linf", "l1"], default="linf", help="ProblemOptions.penalty (l1: no slack s_c, no penalty rows)")

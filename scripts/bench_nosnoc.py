@@ -45,7 +45,7 @@ import numpy as np
 
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
-from scripts._report import run_main
+from scripts._report import run_main, script_parser
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -481,7 +481,7 @@ def _nosnoc_version(nosnoc) -> str | None:
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="coarse grid (N = 25, no holes) for every solver")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")

@@ -36,7 +36,6 @@ capler_set, all seven Capler tasks (CAPLER_SET: one task's iteration count is a 
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import hashlib
@@ -65,7 +64,7 @@ from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -344,7 +343,7 @@ def plot(records, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6, 10 iterations, 1 repeat")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES) + ["capler_set"],

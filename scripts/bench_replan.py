@@ -19,7 +19,6 @@ Iterations are deterministic on one machine; the walls depend on its load.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import re
@@ -29,7 +28,7 @@ from pathlib import Path
 
 from planner.cli import main as planner_main
 from planner.errors import InputError
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -88,7 +87,7 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("robot", nargs="?", default="capler", help="a robot in robots/ with its default task (default capler)")
     parser.add_argument("--values", type=float, nargs="+", help="the moved number's values (target x or step [m])")
     parser.add_argument("--init", type=Path, metavar="DIR", help="the start plan (default: plan the default task hint-free first)")

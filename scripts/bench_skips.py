@@ -25,7 +25,6 @@ Cases (planner.scene):
 """
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import sys
@@ -40,7 +39,7 @@ from planner.homotopy import solve
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
 from planner.task import load_task, parse_task
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 DEFAULT_OUT = Path("results/bench/skips")
 GRID_POINTS = 401  # common physical-time grid of the q comparison
@@ -148,7 +147,7 @@ def table(records) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, short horizons")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), help="run only these cases (default: all)")

@@ -42,7 +42,6 @@ numbers; the runs are deterministic (no random numbers).
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import json
@@ -73,7 +72,7 @@ from planner.problem import build_problem
 from planner.result import write_atomically
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
-from scripts._report import run_main
+from scripts._report import run_main, script_parser
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
@@ -811,7 +810,7 @@ def _strict(obj):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--out", type=Path, help=f"output directory (default {DEFAULT_OUT}, suite ocp: {DEFAULT_OUT_OCP})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons (ocp: the point mass only)")
     parser.add_argument("--json", action="store_true", help="print the summary (orders, machine, files) as JSON")

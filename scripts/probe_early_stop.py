@@ -14,7 +14,6 @@ accept it, the plan's control cost and impacts, and in how many selectors the po
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -25,7 +24,7 @@ from planner import homotopy as H
 from planner.problem import build_problem
 from planner.race import default_arms
 from scripts.bench_pipeline import CASES
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "early_stop"
@@ -110,7 +109,7 @@ def table(records) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--case", choices=sorted(CASES), default="capler125", help="the task (bench_pipeline's cases; default capler125)")
     parser.add_argument("--arm", choices=("default", "alternate"), default="alternate",
                         help="the race arm's SolveOptions (planner.race.default_arms; default alternate, the main job's winner)")

@@ -46,7 +46,7 @@ from planner.contact import plane_axes
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from planner.result import read_summary
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 from scripts.probe_replay import plan_problem
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -154,7 +154,7 @@ def table(rec: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("plan_dir", type=Path, nargs="?", help="a plan's result directory")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"where results.json goes (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print the records as JSON instead of the table")

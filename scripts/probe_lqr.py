@@ -23,7 +23,6 @@ Writes OUT/results.json.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -33,7 +32,7 @@ import numpy as np
 
 from planner import replay as R
 from planner.result import read_robot, read_summary, read_task, read_trajectory
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
@@ -217,7 +216,7 @@ def table(rec: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("plan", nargs="?", type=Path, help="a `planner plan` result directory")
     parser.add_argument("--q", type=float, default=1e4, help="position weight (default 1e4)")
     parser.add_argument("--v", type=float, default=1e2, help="velocity weight (default 1e2)")

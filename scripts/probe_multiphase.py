@@ -30,7 +30,6 @@ Writes OUT/results.json.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import replace
@@ -43,7 +42,7 @@ from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -279,7 +278,7 @@ def table(rec: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--landings", type=float, nargs="*", default=[0.85, 1.85], help="intermediate footholds' guesses [m]")
     parser.add_argument("--T", type=float, default=2.3, help="the hop plan's duration [s] (the time-freezing plans' clocks end at 2.3-2.5 s)")
     parser.add_argument("--nodes", type=int, nargs=2, default=[8, 8], metavar=("STANCE", "FLIGHT"))

@@ -36,7 +36,7 @@ import casadi as ca
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from scripts import bench_work_precision as wp
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = ("pm_drop_frictionless", "pm_drop_noslip", "capler_pd_drop")
@@ -96,7 +96,7 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--power", type=float, default=2.0, help="p of the weight r^p (0: the plain trapezoid)")
     parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_positions")

@@ -22,7 +22,6 @@ Writes OUT/results.json.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from planner.problem import build_problem
 from planner.result import read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
@@ -214,7 +213,7 @@ def table(rec: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("plan", type=Path, help="a `planner plan` result directory of Capler (hip and knee PD)")
     parser.add_argument("--kp", type=float, default=200.0, help="joint PD stiffness [N m/rad]")
     parser.add_argument("--kd", type=float, default=5.0, help="joint PD damping [N m s/rad]")

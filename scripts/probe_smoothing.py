@@ -17,7 +17,6 @@ its mean speed with a running clock, `nlp1` the homotopy's NLP 1 point (rho = 10
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -28,7 +27,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, _Solvers, _terminal_rows, ipopt_options, terminal_error
 from planner.problem import build_problem
 from scripts.bench_pipeline import capler_case, nlp1_arguments
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 # smoothing width per switching function at scale 1: a tenth of Capler's speeds, a centimetre of gap, and for phi
@@ -115,7 +114,7 @@ def table(rec: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--start", choices=("paper", "line", "nlp1"), default="paper")
     parser.add_argument("--eps-scales", type=float, nargs="+", default=[10.0, 3.0, 1.0, 0.3, 0.1])
     parser.add_argument("--terminal-weight", type=float, default=0.0, help="soft terminal weight (default 0: the hard terminal rows)")

@@ -15,7 +15,6 @@ most often. Writes OUT/results.json.
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import re
 import sys
@@ -27,7 +26,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, ipopt_options
 from planner.problem import ProblemOptions, build_problem
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
-from scripts._report import report, run_main
+from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
@@ -142,7 +141,7 @@ def table(records) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--case", choices=sorted(CASES), default="capler125", help="the task (bench_pipeline's cases; default capler125)")
     parser.add_argument("--nlps", type=int, choices=(1, 2), default=2, help="NLP 1, or NLPs 1 and 2 (default)")
     parser.add_argument("--no-lift", action="store_true", help="ProblemOptions.lift_products = False")

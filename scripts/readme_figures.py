@@ -15,7 +15,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from scripts._report import run_main
+from scripts._report import run_main, script_parser
 
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
@@ -26,7 +26,7 @@ CHROMIUM_FLAGS = [
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = script_parser(__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("result", type=Path, help="a result directory of planner plan / simulate")
     ap.add_argument("--out", type=Path, default=Path("docs/img"), help="where the pictures go [docs/img]")
     ap.add_argument("--at", type=float, default=1.5, help="seconds of animation before the screenshot [1.5]")

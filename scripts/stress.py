@@ -28,7 +28,6 @@ OUT/records.jsonl gets each record as its task finishes (what a stopped run keep
 """
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import datetime
@@ -47,7 +46,7 @@ import numpy as np
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
-from scripts._report import run_main
+from scripts._report import run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -594,7 +593,7 @@ def _strict(obj):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = script_parser(__doc__)
     parser.add_argument("--robot", choices=sorted(BASES), default="capler", help="base task (default capler)")
     parser.add_argument("--families", nargs="+", metavar="F", help=f"families to run (default all: {', '.join(FAMILIES)})")
     parser.add_argument("--per-family", type=int, default=2, help="tasks per family (default 2)")

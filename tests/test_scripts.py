@@ -803,7 +803,18 @@ def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
     for script in sorted(SCRIPTS.glob("*.py")):
         if script.name != "_report.py":
-            assert "sys.exit(run_main(main))" in script.read_text().split('if __name__ == "__main__":')[-1], script.name
+            text = script.read_text()
+            assert "sys.exit(run_main(main))" in text.split('if __name__ == "__main__":')[-1], script.name
+            assert "script_parser(__doc__" in text and "ArgumentParser(" not in text, script.name
+
+
+def test_a_scripts_usage_error_is_one_line_and_exit_2():
+    """A script's usage error (an unknown flag) is one line naming the flag and pointing at --help, exit 2, as planner's
+    own parser does (argparse printed the usage line too)."""
+    proc = subprocess.run([sys.executable, "-m", "scripts.bench_skips", "--bogus"], cwd=SCRIPTS.parent,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip() == "bench_skips.py: error: unrecognized arguments: --bogus (see --help)"
 
 
 @pytest.mark.parametrize("argv, fragment", [
@@ -820,14 +831,14 @@ def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
 ])
 def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     """Inputs that a script used to record as every task's crash, ignore, or end in a traceback on (an --out that is
-    a file) are refused up front: exit 2, the reason on stderr's last line (argparse's usage line may precede it),
-    no traceback."""
+    a file) are refused up front: exit 2, the reason on stderr's last line (a refused `planner plan` run's own error may
+    precede it), no usage text, no traceback."""
     a_file = tmp_path / "a_file"
     a_file.write_text("")
     argv = [a.replace("{file}", str(a_file)) for a in argv] + ([] if "--out" in argv else ["--out", str(tmp_path / "out")])
     proc = subprocess.run([sys.executable, "-m", *argv], cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
     err = proc.stderr.strip()
-    assert proc.returncode == 2 and fragment in err.splitlines()[-1] and "Traceback" not in err, err
+    assert proc.returncode == 2 and fragment in err.splitlines()[-1] and "usage:" not in err and "Traceback" not in err, err
 
 
 def test_probe_replay_refuses_a_plan_of_another_robot(tmp_path):
