@@ -341,10 +341,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     v0 = np.zeros(nv) if task.initial.v is None else np.array(task.initial.v, float)
     y0 = system.initial_state(np.array(task.initial.q, float), v0)
-    gap0 = np.asarray(system.gap_fn(y0, np.zeros(nu)), float).ravel()
-    for c, gap in zip(contacts, gap0):
-        if gap < -1e-9:
-            raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.6g} m below the ground")
+    states = {"initial.q": y0}
+    if plan.target_q is not None:  # the terminal row holds q_N there, where the gap rows forbid it: no plan exists
+        states["plan.target_q"] = system.initial_state(np.array(plan.target_q, float), np.zeros(nv))
+    for key, y in states.items():
+        for c, gap in zip(contacts, np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel()):
+            if gap < -1e-9:
+                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m below the ground")
     _check_target_outside_holes(dyn, contacts, plan)
 
     if options.discretization is Discretization.FESD:

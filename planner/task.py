@@ -20,6 +20,11 @@ import numpy as np
 from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types
 
 
+# more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
+# for ever instead of saying so
+MAX_STEPS = 10**7
+
+
 @dataclass(frozen=True)
 class Contact:
     """A named point of the robot that may touch a plane: by default the ground z = ground_height.
@@ -74,7 +79,7 @@ class Horizon:
     def __post_init__(self):
         _typed(self, "horizon")
         _require(self.tau_f > 0, "horizon.tau_f", self.tau_f, "> 0")
-        _require(self.N >= 1, "horizon.N", self.N, ">= 1")
+        _require(1 <= self.N <= MAX_STEPS, "horizon.N", self.N, f"in [1, {MAX_STEPS}]")
         if self.physical_time is not None:
             _require(0 < self.physical_time <= self.tau_f, "horizon.physical_time", self.physical_time, "in (0, tau_f]")
 
@@ -512,6 +517,8 @@ def tasks_between(start: Task, end: Task, s: float) -> Task | None:
     the two, everything else (names, integers such as N, flags, the number of holes or contacts, an infinite
     bound) equal in both; None when they differ in anything but finite numbers. The source is end's. A replan
     walks the task from its start plan's task to the new one through these (planner.replan)."""
+    _require(isinstance(s, (int, float)) and not isinstance(s, bool) and 0 <= s <= 1, "tasks_between's s", s,
+             "a number in [0, 1] (0: start, 1: end)")
     try:
         return _between(start, end, float(s), "")
     except _Apart:
@@ -613,11 +620,29 @@ def _join(where: str, key: str) -> str:
 
 
 def _typed(obj, section: str) -> None:
-    """The reader's type rules for a dataclass built in code too: numbers, not nan, finite but for bounds; an int
-    given for a float (or a list for a tuple) is stored as the reader stores it, so both tasks are equal."""
+    """The reader's type rules for a dataclass built in code too: numbers, not nan, finite but for bounds; a nested
+    table is its dataclass (a Homotopy, a tuple of Contact); an int given for a float (or a list for a tuple) is stored
+    as the reader stores it, so both tasks are equal."""
     check_field_types(obj, section, unbounded=UNBOUNDED_OK, error=TaskError)
     for f in fields(obj):
         value, kind = getattr(obj, f.name), str(f.type).split("|")[0].strip()
+        key = _join(section, f.name)
+        item = kind[len("tuple["):-len(", ...]")] if kind.startswith("tuple[") and kind.endswith(", ...]") else None
+        table = globals().get(item if item else kind)
+        if value is None and "None" in str(f.type) or not (isinstance(table, type) and is_dataclass(table)
+                                                             or item == "tuple[str, ...]"):
+            pass
+        elif not item:
+            _require(isinstance(value, table), key, value, f"{'an' if kind[0] in 'AEIOU' else 'a'} {kind} (the [{key}] table)")
+        elif item == "tuple[str, ...]":  # pairs of names: Periodic.swap
+            _require(isinstance(value, (tuple, list)) and all(
+                isinstance(p, (tuple, list)) and all(isinstance(n, str) for n in p) for p in value),
+                key, value, 'a list of lists of names, e.g. [["hinge_1", "hinge_2"]]')
+            object.__setattr__(obj, f.name, tuple(tuple(p) for p in value))
+            continue
+        else:
+            _require(isinstance(value, (tuple, list)) and all(isinstance(v, table) for v in value), key, value,
+                     f"a tuple of {item} (the [[{key}]] tables)")
         if kind == "float" and isinstance(value, int):
             object.__setattr__(obj, f.name, float(value))
         elif kind == "tuple[float, ...]" and value is not None:

@@ -226,6 +226,22 @@ def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     build_problem(robot, at(2.75), options)
 
 
+@pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
+def test_a_target_below_the_ground_is_an_input_error(discretization):
+    """A target that puts a contact point below the ground (the point mass at z = -1 m) has no plan, as an initial
+    state there has none: build_problem says which point and by how much (it built, and the solve failed)."""
+    from planner.discretization import Discretization
+
+    def hop(target_z: float):
+        return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                           "horizon": {"tau_f": 1.0, "N": 4}, "plan": {"target_q": [0.5, target_z], "u_bound": 30.0}})
+
+    robot, options = load_robot(f"{ROBOTS}/point_mass.xml"), ProblemOptions(discretization=Discretization(discretization))
+    with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground"):
+        build_problem(robot, hop(-1.0), options)
+    build_problem(robot, hop(0.0), options)
+
+
 def test_a_corner_plan_builds_with_each_contacts_own_gates():
     """A point listed twice with two normals (a corner: the ground and a wall) builds an OCP whose pairs carry
     both contacts' labels (point#1, point#2); the gates look each selector's contact up by that label (they looked

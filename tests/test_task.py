@@ -10,8 +10,8 @@ import pytest
 
 from planner.errors import TaskError, UnknownNameError
 from planner.model import load_robot
-from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, load_task, parse_task, task_to_json,
-                          tasks_between)
+from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, Periodic, Plan, Task, load_task, parse_task,
+                          task_to_json, tasks_between)
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 ROUNDING = 1e-15  # a + s (b - a) of numbers ~1 in double precision
@@ -50,7 +50,7 @@ def _with(path: str, value):
     "path, value, message",
     [
         ("bogus", 1, r"unknown key 'bogus'; valid keys: contacts, initial"),
-        ("horizon.N", 0, r"horizon.N = 0 .* >= 1"),
+        ("horizon.N", 0, r"horizon.N = 0 .* in \[1, 10000000\]"),
         ("horizon.tau_f", -1.0, r"horizon.tau_f = -1.0 .* > 0"),
         ("horizon.N", 2.5, r"horizon.N must be an integer, got float"),
         ("initial.q", "up", r"initial.q must be an array, got str"),
@@ -67,6 +67,7 @@ def _with(path: str, value):
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1e200, "n_nlp": 3}},
          r"plan.homotopy = .* last penalty .* at most 1e300"),  # kappa**i raised OverflowError in the solve
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"n_nlp": 1000}}, r"at most 1e300"),
+        ("horizon", {"tau_f": 2.5, "N": 10**9}, r"horizon.N = 1000000000 .* in \[1, 10000000\]"),  # built for ever
     ],
 )
 def test_bad_values_are_named(path, value, message):
@@ -230,6 +231,9 @@ def test_tasks_between_moves_every_number_and_nothing_else():
     assert tasks_between(bounded, bounded, 0.5) == bounded
     finite = replace(bounded.plan.velocity_bounds[0], upper=5.0)
     assert tasks_between(bounded, replace(bounded, plan=replace(bounded.plan, velocity_bounds=(finite,))), 0.5) is None
+    for s in (5.0, -0.1, math.nan, "0.5"):  # 5 extrapolated; nan was reported as a task value
+        with pytest.raises(TaskError, match=r"tasks_between's s = .* a number in \[0, 1\]"):
+            tasks_between(a, b, s)
 
 
 @pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
@@ -249,15 +253,33 @@ def test_task_to_json_reads_back_equal(toml):
     (lambda: Ellipse(x=math.nan, a=0.25, b=0.1), r"plan.holes.x = nan"),
     (lambda: Homotopy(n_nlp=2.5), r"plan.homotopy.n_nlp = 2.5"),
     (lambda: GaitPronto(feedback_r=(1.0, math.nan)), r"gait.pronto.feedback_r = \(1.0, nan\)"),  # min() skipped a later nan
+    # nested tables of the wrong kind: AttributeErrors in build_problem or solve, or silently accepted
+    (lambda: Plan(target_q=(0.0, 0.0), homotopy={"rho0": 1.0}), r"plan.homotopy = .* must be a Homotopy"),
+    (lambda: Plan(target_q=(0.0, 0.0), holes=Ellipse(x=0.5, a=0.25, b=0.1)), r"plan.holes = .* a tuple of Ellipse"),
+    (lambda: Plan(target_q=(0.0, 0.0), joint_bounds=("x",)), r"plan.joint_bounds = \('x',\) .* a tuple of JointBound"),
+    (lambda: Plan(target_q=(0.0, 0.0), periodic="x"), r"plan.periodic = 'x' .* a Periodic"),
+    (lambda: Periodic(step=0.1, swap=("xz",)), r"plan.periodic.swap = \('xz',\) .* a list of lists of names"),  # read as (x, z)
+    (lambda: Task(contacts=Contact(point="p"), initial=Initial(q=(0.0,)), horizon=Horizon(tau_f=1.0, N=3)),
+     r"contacts = Contact\(.* a tuple of Contact"),
+    (lambda: Task(contacts=(Contact(point="p"),), initial=Initial(q=(0.0,)), horizon=Horizon(tau_f=1.0, N=3), simulate=None),
+     r"simulate = None .* a Simulate"),
 ])
 def test_dataclasses_built_in_code_follow_the_readers_rules(build, message):
     """A task dataclass built in Python is checked as the TOML reader checks its key: types, nan anywhere in a
-    tuple, and infinity outside bounds are TaskErrors naming the key, not a TypeError or a failed solve later."""
+    tuple, infinity outside bounds, and a nested table that is not its dataclass are TaskErrors naming the key, not a
+    TypeError, an AttributeError or a failed solve later."""
     with pytest.raises(TaskError, match=message):
         build()
 
 
 ULP_TOL = 2.3e-16  # two units in the last place of 0.707: a division's rounding, not a normalization error
+
+
+def test_periodic_swap_pairs_built_in_code_are_tuples():
+    """Periodic.swap given as lists of lists is stored as the reader stores it (tuples of tuples): equal to the read
+    task and hashable, as a frozen dataclass should be (the inner lists made hash() raise)."""
+    built = Periodic(step=0.1, swap=[["hinge_1", "hinge_2"]])
+    assert built.swap == (("hinge_1", "hinge_2"),) and hash(built) == hash(Periodic(step=0.1, swap=(("hinge_1", "hinge_2"),)))
 
 
 def test_contact_normals_are_unit_and_read_back_equal():
