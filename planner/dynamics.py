@@ -30,7 +30,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError
+from .errors import InputError, expect
 from .model import Robot
 
 try:  # Pinocchio built with CasADi scalars (conda, robotpkg); the pip wheels lack it
@@ -88,6 +88,18 @@ class _Link:
         zero = np.zeros(3)
         rows = (self.axis, zero) if self.kind == "prismatic" else (zero, self.axis)
         return np.concatenate(rows).reshape(6, 1)
+
+
+def dynamics_for(robot: Robot, dynamics: Dynamics | None = None) -> Dynamics:
+    """`dynamics` (built once, reused) after checking that it was built from the robot's file contents, else the
+    robot's own Dynamics: another robot's mass would be planned with silently."""
+    if dynamics is None:
+        return Dynamics(robot)
+    expect(dynamics, Dynamics, "dynamics")
+    if dynamics.robot.sha256 != robot.sha256:
+        raise InputError(f"dynamics were built from {dynamics.robot.path}, not from the robot {robot.path}; build them "
+                         "with Dynamics(robot) or leave dynamics out")
+    return dynamics
 
 
 class Dynamics:

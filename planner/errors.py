@@ -37,6 +37,14 @@ class SolveError(PlannerError):
     """The numerical solve or the validation failed on valid input."""
 
 
+def expect(value, kind: type | tuple[type, ...], what: str) -> None:
+    """InputError naming `what` when `value` is not a `kind` (an API call given a path for a Robot, a SolveOptions for a
+    ProblemOptions): the user's slip named at the call, not an AttributeError from deep inside."""
+    if not isinstance(value, kind):
+        names = " or ".join("None" if k is type(None) else k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
+        raise InputError(f"{what} must be a {names}, got {type(value).__name__} {value!r:.60}")
+
+
 def check_field_types(options, owner: str | None = None, unbounded: Iterable[str] = (), error: type = InputError) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str, or a tuple of one of them (or that or
     None), holds values of that type (an int for a float), and a float is a number, not nan, and finite unless its

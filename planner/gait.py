@@ -33,12 +33,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .dynamics import Dynamics
-from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types
+from .dynamics import Dynamics, dynamics_for
+from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import write_files
-from .task import GaitContinuation, GaitPronto, Task
+from .result import ArraysReadOnly, write_files
+from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
 RELABEL = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -111,7 +111,8 @@ class PinnedBiped:
 
     def __init__(self, robot: Robot, dynamics: Dynamics | None = None, layout: BipedLayout | None = None):
         self.robot = robot
-        self.dyn = dynamics or Dynamics(robot)
+        expect(robot, Robot, "PinnedBiped's robot")
+        self.dyn = dynamics_for(robot, dynamics)
         self.layout = lay = layout or find_layout(robot)
         th, thd = ca.SX.sym("theta", 3), ca.SX.sym("dtheta", 3)
         # angles of the floating model: torso = theta3, hinge_i = theta_i - theta3
@@ -203,8 +204,8 @@ class DesiredInput(Enum):
     ZERO = "zero"
 
 
-@dataclass(frozen=True)
-class GaitSpec:
+@dataclass(frozen=True, eq=False)  # arrays: equal by identity, hashable
+class GaitSpec(ArraysReadOnly):
     """The numbers of one gait OCP (from a task's [gait] table and horizon).
 
     T [s] period, N grid steps (RK4, zero-order-hold inputs), x0 (6,) initial pinned state,
@@ -222,13 +223,18 @@ class GaitSpec:
     continuation: GaitContinuation
     pronto: GaitPronto
 
+    def __post_init__(self):
+        if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 1 <= self.N <= MAX_STEPS):
+            raise InputError(f"GaitSpec.N = {self.N!r} is not allowed; it must be an integer in [1, {MAX_STEPS}]")
+        super().__post_init__()
+
     @classmethod
     def from_task(cls, task: Task, N: int | None = None) -> GaitSpec:
         """From a task with a [gait] table; N overrides horizon.N (e.g. a coarser grid in CI)."""
         g = task.gait
         if g is None:
             raise TaskError(f"{task.source or 'the task'} has no [gait] table; `planner gait` needs one (docs/tasks.md)")
-        return cls(T=task.horizon.tau_f, N=N or task.horizon.N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
+        return cls(T=task.horizon.tau_f, N=task.horizon.N if N is None else N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
                    Q=np.array(g.q_weights, float), R=np.array(g.r_weights, float),
                    desired_input=DesiredInput(g.desired_input), continuation=g.continuation, pronto=g.pronto)
 
@@ -597,12 +603,19 @@ class WalkGains:
 
     def __post_init__(self):
         check_field_types(self)
-        if not isinstance(self.control, WalkControl):
-            raise UnknownNameError("walk control", str(self.control), [c.value for c in WalkControl])
-        if self.kp < 0 or self.kd < 0 or self.bandwidth <= 0 or self.ground_gap < 0 or self.sample_every < 1 \
-                or self.speed_gain < 0 or self.speed_integral < 0:
-            raise InputError("walk gains: kp, kd, ground_gap, speed_gain, speed_integral >= 0, bandwidth > 0, "
-                             "sample_every >= 1")
+        if not isinstance(self.control, WalkControl):  # its value ("phase") too, as ValidationOptions.controller
+            names = [c.value for c in WalkControl]
+            if self.control not in names:
+                raise UnknownNameError("walk control", str(self.control), names)
+            object.__setattr__(self, "control", WalkControl(self.control))
+        for name, ok, allowed in (("kp", self.kp >= 0, ">= 0"), ("kd", self.kd >= 0, ">= 0"),
+                                  ("bandwidth", self.bandwidth > 0, "> 0"), ("ground_gap", self.ground_gap >= 0, ">= 0"),
+                                  ("sample_every", self.sample_every >= 1, ">= 1"),
+                                  ("stance_margin", self.stance_margin >= 0, ">= 0"),
+                                  ("speed_gain", self.speed_gain >= 0, ">= 0"),
+                                  ("speed_integral", self.speed_integral >= 0, ">= 0")):
+            if not ok:
+                raise InputError(f"WalkGains.{name} = {getattr(self, name)!r} is not allowed; it must be {allowed}")
 
 
 class PhaseReference:
@@ -879,6 +892,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     from .model import load_robot
     from .task import load_task
 
+    expect(robot, (Robot, str, os.PathLike), "run_gait's robot")
+    expect(task, (Task, str, os.PathLike), "run_gait's task")
     robot = robot if isinstance(robot, Robot) else load_robot(robot)
     task = task if isinstance(task, Task) else load_task(task)
     task.check_against(robot)

@@ -39,8 +39,8 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types
-from .problem import Problem
+from .errors import InputError, check_field_types, expect
+from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 
@@ -418,6 +418,7 @@ def _positive_tuple(values, zero_ok: bool = False) -> bool:
 def solve_fields_from_json(text: str) -> dict:
     """The SolveOptions fields of a JSON object (for solve_options_from_dict), e.g. '{"rho_f_schedule": [10]}'; text
     that is not JSON or not an object is an InputError."""
+    expect(text, str, "solve_fields_from_json's text")
     try:
         values = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -431,12 +432,14 @@ def solve_fields_from_json(text: str) -> dict:
 def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> SolveOptions:
     """`base` (default SolveOptions()) with the fields in `values` (e.g. parsed JSON): Enum fields by their
     value ("monotone"), lists as tuples, ipopt / warm_ipopt as dicts. Unknown fields and values are InputErrors."""
+    expect(values, dict, "solve_options_from_dict's values")
+    expect(base, (SolveOptions, type(None)), "solve_options_from_dict's base")
     names = [f.name for f in fields(SolveOptions)]
     out = {}
     for key, value in values.items():
         if key not in names:
             raise InputError(f"SolveOptions has no field {key!r}; the fields are {names}")
-        if key in ENUM_FIELDS and value is not None:
+        if key in ENUM_FIELDS and value is not None and not isinstance(value, ENUM_FIELDS[key]):
             allowed = [e.value for e in ENUM_FIELDS[key]]
             if value not in allowed:
                 raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be one of {allowed}")
@@ -543,6 +546,7 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local optimum next to
     the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
     (planner plan --keep-schedule) the task's cost with the plan's contact schedule held comes first."""
+    expect(options, (SolveOptions, type(None)), "replan_options' options")
     return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0,
                    early_stop_comp=REPLAN_STOP_COMP,
                    holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
@@ -747,6 +751,8 @@ def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[flo
     (an_schedule, at_schedule, l1_schedule, rho_f_schedule; a schedule shorter than the homotopy keeps
     its last value)."""
     rhos = homotopy_rhos(problem, options) if rhos is None else rhos
+    if not (isinstance(i, int) and 0 <= i < len(rhos)):
+        raise InputError(f"homotopy_nlp's i = {i!r} is not allowed; the homotopy has NLPs 0 .. {len(rhos) - 1}")
 
     def sched(values, default):
         return default if not values else float(values[min(i, len(values) - 1)])
@@ -771,6 +777,15 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     residual, IPOPT iterations, wall time, IPOPT status). A failed solve is not an exception: the
     result has stats.converged = False and a message saying what failed.
     """
+    expect(problem, Problem, "solve's problem")
+    expect(options, SolveOptions, "solve's options")
+    problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
+    for name in ("an_schedule", "at_schedule"):  # the problem has no a_n, a_t parameters to scale: silently ignored
+        if getattr(options, name) is not None and not problem.options.aux_continuation:
+            raise InputError(f"SolveOptions.{name} needs a problem built with ProblemOptions(aux_continuation=True)")
+    if options.l1_schedule is not None and problem.options.penalty is not Penalty.LINF:
+        raise InputError("SolveOptions.l1_schedule adds an l1 sum to Penalty.LINF's slack; the problem's penalty is "
+                         f"{problem.options.penalty.value} (leave l1_schedule out)")
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
@@ -1002,7 +1017,7 @@ def variable_scale(problem: Problem, x, stages: bool = False) -> np.ndarray:
     of the stage blocks u, y, w (one column per variable kind: a joint's angle, a contact force, a
     selector, ...) the largest |value| over the stages at x, at least 1; 1 for every other variable
     (speeds of time, the slack, a periodic y0)."""
-    x = np.asarray(x, float).ravel()
+    x = problem.point(x)
     D = np.ones(problem.nx)
     for name in ("u", "y", "w") + (("Y",) if stages and "Y" in problem.var_blocks else ()):  # START: FESD's every stage state too
         rows = problem.var_blocks[name]
@@ -1089,7 +1104,7 @@ def ungate(problem: Problem, x, tol: float = GATE_OFF) -> np.ndarray:
     act on F there), reset that selector and its multipliers to theta(h) of the step's own switching
     value h = lambda1 - lambda0 (stationarity) and recompute the lifted products. The state trajectory
     and every equality constraint stay as they are; only irrelevant algebraic variables change."""
-    x = np.array(x, float).ravel()
+    x = problem.point(x).copy()
     gates = np.asarray(problem.notes["gates"](x), float).ravel()
     b = problem.builder
     n = problem.system.n_sigma
@@ -1117,7 +1132,7 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
     the l_inf slack to 0, and x clipped into them. Returns (lbx, ubx, x). With `ratio`, a selector's
     pairs are fixed only when clearly separated (the kept side >= ratio x the fixed side, or both
     multipliers below 1e-8 for an interior selector); the others stay free (Polish.HYBRID)."""
-    x = np.asarray(x, float).ravel()
+    x = problem.point(x)
     lbx, ubx = problem.lbx.copy(), problem.ubx.copy()
     sig, l0, l1 = (problem.var_blocks[b] for b in ("sigma", "lambda0", "lambda1"))
     fesd_gates = None
@@ -1168,9 +1183,9 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
 
 
 def terminal_error(problem: Problem, x) -> float:
-    """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s]."""
+    """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s] at x (nx,)."""
     g_fn = _nlp_fn(problem, "g")
-    g = np.asarray(g_fn(x, problem.params(0.0, 1.0)), float).ravel()
+    g = np.asarray(g_fn(problem.point(x), problem.params(0.0, 1.0)), float).ravel()
     rows = _terminal_rows(problem)
     return float(np.max(np.abs(g[rows] - problem.lbg[rows])))
 
@@ -1190,18 +1205,18 @@ def _nlp_fn(problem: Problem, name: str):
 
 
 def constraint_violation(problem: Problem, x, hole_scale: float = 1.0) -> dict[str, float]:
-    """Largest violation [constraint units] of each constraint block and of the bounds at x."""
+    """Largest violation [constraint units] of each constraint block and of the bounds at x (nx,)."""
+    x = problem.point(x)
     g = np.asarray(_nlp_fn(problem, "g")(x, problem.params(0.0, hole_scale)), float).ravel()
     viol = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
     out = {name: float(np.max(viol[rows.ravel()], initial=0.0)) for name, rows in problem.g_blocks.items() if name != "penalty"}
-    x = np.asarray(x, float).ravel()
     out["bounds"] = float(np.max(np.maximum(problem.lbx - x, 0.0) + np.maximum(x - problem.ubx, 0.0), initial=0.0))
     return out
 
 
 def _within_relaxation(problem: Problem, x, relaxed: np.ndarray, tol: float) -> bool:
     """Whether x breaks no bound by more than relaxed (nx,) times max(1, |bound|) plus tol: IPOPT's bound_relax_factor."""
-    x = np.asarray(x, float).ravel()
+    x = problem.point(x)
     lo = problem.lbx - relaxed * np.maximum(1.0, np.abs(np.nan_to_num(problem.lbx, posinf=0.0, neginf=0.0)))
     hi = problem.ubx + relaxed * np.maximum(1.0, np.abs(np.nan_to_num(problem.ubx, posinf=0.0, neginf=0.0)))
     return bool(np.all(x >= lo - tol) and np.all(x <= hi + tol))

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import RobotFileError, UnknownNameError
+from .errors import RobotFileError, UnknownNameError, expect
 
 ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
 
@@ -164,6 +164,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
 
     floating: give a URDF robot a free-flyer root joint (an MJCF file declares its own <freejoint/>).
     """
+    expect(spec, (str, os.PathLike), "load_robot's spec (a robot name or file)")
     path = resolve_robot_path(spec)
     fmt = detect_format(path)
     if floating and fmt is RobotFormat.MJCF:

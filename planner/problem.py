@@ -73,8 +73,8 @@ import casadi as ca
 import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
-from .dynamics import Dynamics
-from .errors import InputError, check_field_types
+from .dynamics import Dynamics, dynamics_for
+from .errors import InputError, check_field_types, expect
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -186,9 +186,17 @@ class ProblemOptions:
             raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed; it must be >= 0")
         if not isinstance(self.penalty, Penalty):
             raise InputError(f"ProblemOptions.penalty = {self.penalty!r} is not allowed; it must be one of {[p.value for p in Penalty]}")
-        for name, scale in self.switch_scale:
-            if not isinstance(name, str) or not scale > 0:
-                raise InputError(f"ProblemOptions.switch_scale entry ({name!r}, {scale!r}) is not allowed; it must be (function name, scale > 0)")
+        entries = self.switch_scale if isinstance(self.switch_scale, (tuple, list)) else None
+        for entry in entries if entries is not None else (self.switch_scale,):
+            ok = isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[0], str)
+            scale = entry[1] if ok else None
+            if not (ok and isinstance(scale, (int, float)) and not isinstance(scale, bool) and 0 < scale < float("inf")):
+                raise InputError(f"ProblemOptions.switch_scale entry {entry!r} is not allowed; it must be a pair (function name, "
+                                 "finite scale > 0), e.g. (('phi', 100.0),)")
+        names = [name for name, _ in entries]
+        if len(set(names)) != len(names):
+            raise InputError(f"ProblemOptions.switch_scale names a function twice: {names}")
+        object.__setattr__(self, "switch_scale", tuple((name, float(scale)) for name, scale in entries))
 
 
 @dataclass(frozen=True)
@@ -288,16 +296,24 @@ class Problem:
         the task's rho_f (the selectors' regularizer rho_f ||sigma - sigma*||^2; 1: the task's own)."""
         return np.array([rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1, rho_f_scale], dtype=float)
 
+    def point(self, x) -> np.ndarray:
+        """x as a float vector (nx,); an InputError when it has another size (a point of another problem)."""
+        x = np.asarray(x, dtype=float).ravel()
+        if x.shape != (self.nx,):
+            raise InputError(f"a point of this problem has nx = {self.nx} entries, got {x.size} (a point of another "
+                             "problem? Problem.signature tells problems with the same variables)")
+        return x
+
     def complementarity_residual(self, x) -> float:
-        """max over all pairs of a * b at x, in unscaled units (the switching functions' own)."""
-        return float(np.max(np.abs(np.asarray(self.products(x), dtype=float)), initial=0.0))
+        """max over all pairs of a * b at x (nx,), in unscaled units (the switching functions' own)."""
+        return float(np.max(np.abs(np.asarray(self.products(self.point(x)), dtype=float)), initial=0.0))
 
     def split(self, x) -> dict[str, np.ndarray]:
         """Numeric blocks of x: Y (N+1, ny) with y_0 first, U (N, nu), W (N, nw), S (N,) speeds.
         FESD: W holds each step's last stage (the step's end), and the elements are added: lengths
         "h" (N, n_fe) [s of numerical time], stage states "Ys" (N, n_fe, n_s, ny) and stage
         algebraic variables "Ws" (N, n_fe, n_s, nw)."""
-        x = np.asarray(x, dtype=float).ravel()
+        x = self.point(x)
         y0 = x[self.var_blocks["y0"]] if "y0" in self.var_blocks else self.y0
         Y = np.vstack([y0, x[self.var_blocks["y"]]])
         S = x[self.var_blocks["s"]].ravel() if "s" in self.var_blocks else np.ones(self.N)
@@ -312,13 +328,16 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     """Transcribe the task's OCP (task.plan) for the robot. Raises InputError for a task without a
     plan, without contacts, with an elastic contact, or with an initial state below the ground."""
     start = time.perf_counter()
+    expect(robot, Robot, "build_problem's robot")
+    expect(task, Task, "build_problem's task")
+    expect(options, ProblemOptions, "build_problem's options")
+    dyn = dynamics_for(robot, dynamics)
     if task.plan is None:
         raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
     task.check_against(robot)
     plan, hz = task.plan, task.horizon
-    dyn = dynamics or Dynamics(robot)
     skips = analyze_scene(robot, task, options.scene_analysis)
     contacts = tuple(c for c in task.contacts if c.point not in skips.never_touching)
     if not contacts:

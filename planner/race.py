@@ -25,7 +25,7 @@ import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, PlannerError, SolveError
+from .errors import InputError, PlannerError, SolveError, expect
 from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
@@ -43,6 +43,7 @@ SECOND_ARM_IPOPT = {"mumps_permuting_scaling": 0}
 def default_arms(options: SolveOptions) -> tuple[tuple[str, SolveOptions], ...]:
     """The arms `planner plan` races: `options` itself ("default") and the same with SECOND_ARM and, with MUMPS,
     SECOND_ARM_IPOPT added to options.ipopt ("alternate")."""
+    expect(options, SolveOptions, "default_arms' options")
     ipopt = {**SECOND_ARM_IPOPT, **dict(options.ipopt)} if options.linear_solver == "mumps" else options.ipopt
     return (("default", options), ("alternate", replace(options, ipopt=ipopt, **SECOND_ARM)))
 
@@ -62,14 +63,16 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     and extra["race"] lists them (summary.json): arm, outcome, IPOPT iterations of its finished NLPs,
     wall time [s] at which it finished or was stopped.
     """
+    expect(problem, Problem, "race's problem")
     arms = tuple(arms)
-    if not arms:
-        raise InputError("race needs at least one (name, SolveOptions) arm")
+    if not arms or not all(isinstance(a, tuple) and len(a) == 2 and isinstance(a[0], str) and isinstance(a[1], SolveOptions)
+                            for a in arms):
+        raise InputError(f"race needs one or more (name, SolveOptions) arms, got {arms!r:.80}")
     names = [name for name, _ in arms]
     if len(set(names)) != len(names):
         raise InputError(f"race arm names must differ, got {names}")
-    if processes is not None and processes < 1:
-        raise InputError(f"race processes must be >= 1, got {processes}")
+    if processes is not None and (not isinstance(processes, int) or isinstance(processes, bool) or processes < 1):
+        raise InputError(f"race processes must be an integer >= 1 (or None: the usable CPUs), got {processes!r}")
     n = min(len(arms), usable_cpus() if processes is None else processes)
     if n == 1:
         return solve(problem, arms[0][1], progress)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+from .errors import expect
 from .homotopy import SolveOptions, solve
 from .problem import Problem, build_problem
 from .result import PlanResult
@@ -45,6 +46,9 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     nlps, iterations, solve time and timings cover every NLP run; extra["walk"] lists the fractions of the way
     each accepted step of the walk reached. progress(record) as in `solve`.
     """
+    expect(problem, Problem, "replan's problem")
+    expect(options, SolveOptions, "replan's options")
+    expect(start_task, (Task, type(None)), "replan's start_task")
     start = time.perf_counter()
     held = replace(options, keep_schedule=True, schedule_only=True)
     penalty = replace(options, keep_schedule=False, schedule_only=False, schedule_new_impacts=False)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
 import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -37,7 +38,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError, check_field_types
+from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
 from .result import Trajectory, read_robot, read_summary, read_task, read_trajectory, write_atomically
 from .task import Task
@@ -67,6 +68,9 @@ _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWAR
 # ==================================================================================================
 # options
 # ==================================================================================================
+
+MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
+
 
 @dataclass(frozen=True)
 class ContactSettings:
@@ -110,12 +114,17 @@ class ContactSettings:
         _check(self.noslip_iterations >= 0, "contact.noslip_iterations", self.noslip_iterations, ">= 0")
         _check(self.stiffness_ratio >= 0, "contact.stiffness_ratio", self.stiffness_ratio, ">= 0")
         _check(self.damping_steps >= 1, "contact.damping_steps", self.damping_steps, ">= 1 (faster is unstable)")
-        _check(len(self.solimp) == 5, "contact.solimp", self.solimp, "5 numbers")
+        d0, d1, width, mid, power = self.solimp if len(self.solimp) == 5 else (0.0,) * 5
+        # MuJoCo clamps values outside these ranges without a word, so a validation would run with other settings
+        _check(len(self.solimp) == 5 and MIN_IMP <= min(d0, d1) and max(d0, d1) <= MAX_IMP and width > 0 and 0 < mid < 1
+               and power >= 1, "contact.solimp", self.solimp,
+               f"5 numbers (dmin, dmax in [{MIN_IMP}, {MAX_IMP}], width > 0, midpoint in (0, 1), power >= 1)")
         _check(self.elastic_timeconst_steps >= 2, "contact.elastic_timeconst_steps", self.elastic_timeconst_steps, ">= 2")
         _check(self.sphere_radius > 0, "contact.sphere_radius", self.sphere_radius, "> 0")
 
     def solref(self, restitution: float = 0.0) -> tuple[float, float]:
         """MuJoCo solref of a contact with the given restitution coefficient in [0, 1]."""
+        _check(isinstance(restitution, (int, float)) and 0.0 <= restitution <= 1.0, "restitution", restitution, "in [0, 1]")
         if restitution <= 0.0:
             stiffness = self.stiffness_ratio / self.timestep**2  # [1/s^2]
             damping = 1.0 / (self.damping_steps * self.timestep)  # [1/s]
@@ -601,6 +610,8 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     then from `out_dir`), the task the one the plan solved (result.read_task: trajectory.npz's copy, else
     the file summary.json names). Missing or garbled files raise InputError.
     """
+    expect(out_dir, (str, os.PathLike), "validate's out_dir")
+    expect(options, (ValidationOptions, type(None)), "validate's options")
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"result directory not found: {out_dir}")
@@ -644,6 +655,13 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     task.check_against(robot)
     arrays = check_trajectory(robot, traj)
     t, q = arrays["t"], arrays["q"]
+    n_impacts = len(np.atleast_1d(arrays["impact_times"]))
+    for name, values in (("impact_points", impact_points), ("impact_taps", impact_taps)):
+        if values is not None and len(values) != n_impacts:
+            raise InputError(f"validate_trajectory's {name} has {len(values)} entries; the trajectory has {n_impacts} impacts")
+    for point in impact_points or ():
+        if point is not None and point not in scene.points:  # it stood for the lowest point, silently
+            raise UnknownNameError("contact point", point, scene.points)
 
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)

@@ -25,12 +25,42 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, expect
 from .task import Task, load_task, parse_task, task_to_json
 
 
+def _read_only(obj) -> None:
+    """Store each array field of a frozen dataclass as a read-only view of a read-only copy: a result is frozen through
+    its arrays too (`trajectory.t[0] = 1` raised no error and changed physical_duration), and numpy refuses to make
+    such a view writable again (a view of the caller's array could be); the caller's own arrays stay writable."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, np.ndarray):
+            frozen = np.array(value)
+            frozen.flags.writeable = False
+            object.__setattr__(obj, f.name, frozen.view())
+
+
+class ArraysReadOnly:
+    """Base of the frozen result dataclasses with array fields: read-only after construction, and after pickle or
+    copy.deepcopy too, which restore the fields without __post_init__ (with writable arrays)."""
+
+    def __post_init__(self):
+        _read_only(self)
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        _read_only(self)
+
+
+def tap_flags(impulse_norms) -> np.ndarray:
+    """(I,) bool: which of the impacts with these impulse norms (I,) [N s] are taps (TAP_SHARE)."""
+    norms = np.abs(np.asarray(impulse_norms, float))
+    return norms < TAP_SHARE * norms.max(initial=0.0)
+
+
 @dataclass(frozen=True, eq=False)
-class Impact:
+class Impact(ArraysReadOnly):
     """One recovered impact (one frozen interval)."""
 
     time: float  # physical time [s]
@@ -42,9 +72,6 @@ class Impact:
     v_post: np.ndarray  # post-impact velocity (nv,)
     tau_start: float  # numerical time where the frozen interval starts [s]
     tau_end: float  # numerical time where it ends [s]
-
-    def __post_init__(self):
-        _read_only(self)
 
     @property
     def impulse_norm(self) -> float:
@@ -67,25 +94,8 @@ class Impact:
 TAP_SHARE = 0.05
 
 
-def _read_only(obj) -> None:
-    """Store each array field of a frozen dataclass as a read-only view: a result is frozen through its arrays too
-    (`trajectory.t[0] = 1` raised no error and changed physical_duration); the caller's own arrays stay writable."""
-    for f in fields(obj):
-        value = getattr(obj, f.name)
-        if isinstance(value, np.ndarray):
-            view = value.view()
-            view.flags.writeable = False
-            object.__setattr__(obj, f.name, view)
-
-
-def tap_flags(impulse_norms) -> np.ndarray:
-    """(I,) bool: which of the impacts with these impulse norms (I,) [N s] are taps (TAP_SHARE)."""
-    norms = np.abs(np.asarray(impulse_norms, float))
-    return norms < TAP_SHARE * norms.max(initial=0.0)
-
-
 @dataclass(frozen=True, eq=False)
-class Trajectory:
+class Trajectory(ArraysReadOnly):
     """A time-freezing trajectory in numerical time and its recovery in physical time.
 
     tau (K,) numerical time grid [s]; y (K, ny) states, clock last; state_names (ny,);
@@ -112,9 +122,6 @@ class Trajectory:
     forces: np.ndarray | None = None  # several contacts: (K-1, n_lambda) contact forces of each step [N]
     force_names: tuple[str, ...] = ()  # lambda_n[point], lambda_t[point], ...
     contact_force: np.ndarray | None = None  # (K-1, n_contacts, 2) persistent-contact force of each step [N]
-
-    def __post_init__(self):
-        _read_only(self)
 
     def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
@@ -427,6 +434,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
 
 def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace)."""
+    expect(result, (SimulationResult, PlanResult), "write_results' result")
     tr = result.trajectory
     arrays = {
         "tau": tr.tau, "y": tr.y, "t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u,

@@ -28,8 +28,8 @@ import casadi as ca
 import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
-from .dynamics import Dynamics
-from .errors import InputError, check_field_types
+from .dynamics import Dynamics, dynamics_for
+from .errors import InputError, check_field_types, expect
 from .model import Robot
 from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
 from .task import Task
@@ -158,8 +158,11 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     gives a result with stats.converged = False and stats.message saying where: STEPWISE keeps the
     steps solved before it, HORIZON the last iterate (diagnostics to write, exit code 1).
     """
+    expect(robot, Robot, "simulate's robot")
+    expect(task, Task, "simulate's task")
+    expect(options, SimulateOptions, "simulate's options")
     task.check_against(robot)
-    dyn = dynamics or Dynamics(robot)
+    dyn = dynamics_for(robot, dynamics)
     system = TimeFreezingSystem(dyn, task.contacts, task.ground_height)
     v0 = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v, float)
     y0 = system.initial_state(np.array(task.initial.q, float), v0)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tomllib
 import types
 import typing
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types
+from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect
 
 
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
@@ -486,6 +487,7 @@ class Task:
 
 def load_task(path: str | Path) -> Task:
     """Read and validate a task file. Raises TaskError with the offending key."""
+    expect(path, (str, os.PathLike), "load_task's path")
     path = Path(path)
     if not path.is_file():
         raise TaskError(f"task file not found: {path}")

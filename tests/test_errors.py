@@ -1,4 +1,5 @@
-"""planner.errors: check_field_types, the type check every options dataclass runs before its range checks."""
+"""planner.errors: check_field_types, the type check every options dataclass runs before its range checks, and expect,
+the check of the public functions' arguments."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -6,13 +7,19 @@ from dataclasses import dataclass
 import pytest
 
 from planner.discretization import FESDOptions
+from planner.dynamics import Dynamics
 from planner.errors import InputError, PlannerError, check_field_types
-from planner.gait import WalkGains
-from planner.homotopy import SolveOptions
-from planner.problem import ProblemOptions
+from planner.gait import WalkGains, run_gait
+from planner.homotopy import SolveOptions, solve, solve_options_from_dict
+from planner.model import load_robot
+from planner.problem import ProblemOptions, build_problem
 from planner.pronto import ProntoOptions
-from planner.replay import ContactSettings, TrackingGains, ValidationOptions
-from planner.simulate import SimulateOptions
+from planner.race import race
+from planner.replan import replan
+from planner.replay import ContactSettings, TrackingGains, ValidationOptions, validate
+from planner.result import write_results
+from planner.simulate import SimulateOptions, simulate
+from planner.task import load_task, parse_task
 
 
 @dataclass(frozen=True)
@@ -72,3 +79,60 @@ def test_options_check_their_types(cls, field, value, owner):
     cls(**kwargs)
     with pytest.raises(InputError, match=rf"^{owner}\.{field} = "):
         cls(**kwargs, **{field: value})
+
+
+@pytest.fixture(scope="module")
+def hop():
+    """The point mass, a short hop task and its built Problem (N = 4: built in ~0.1 s)."""
+    robot = load_robot("point_mass")
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 4}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    return robot, task, build_problem(robot, task)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda r, t, p: solve(p, ProblemOptions()), "solve's options must be a SolveOptions"),
+    (lambda r, t, p: build_problem(r, t, SolveOptions()),
+     "build_problem's options must be a ProblemOptions"),
+    (lambda r, t, p: build_problem("point_mass", t), "build_problem's robot must be a Robot"),
+    (lambda r, t, p: simulate(r, "robots/point_mass.toml"), "simulate's task must be a Task"),
+    (lambda r, t, p: validate("results", SolveOptions()),
+     "validate's options must be a ValidationOptions or None"),
+    (lambda r, t, p: replan(p, None, t), "replan's options must be a SolveOptions"),
+    (lambda r, t, p: race(p, [SolveOptions()]), r"race needs one or more \(name, SolveOptions\) arms"),
+    (lambda r, t, p: race(p, [("a", SolveOptions())], processes="2"),
+     "race processes must be an integer >= 1"),
+    (lambda r, t, p: solve_options_from_dict({}, base="x"),
+     "solve_options_from_dict's base must be a SolveOptions or None"),
+    (lambda r, t, p: load_robot(None), "load_robot's spec .* must be a str or PathLike"),
+    (lambda r, t, p: load_task(None), "load_task's path must be a str or PathLike"),
+    (lambda r, t, p: write_results("x", "out"),
+     "write_results' result must be a SimulationResult or PlanResult"),
+    (lambda r, t, p: run_gait(3, t, None), "run_gait's robot must be a Robot or str or PathLike"),
+])
+def test_api_calls_with_an_argument_of_the_wrong_kind_are_input_errors(hop, call, message):
+    """A public function given an argument of the wrong kind (a path for a Robot, a SolveOptions for a ProblemOptions,
+    None for a path) raises an InputError naming the function's argument and what it must be, before any work: they
+    raised AttributeError or TypeError from deep inside."""
+    with pytest.raises(InputError, match=message):
+        call(*hop)
+
+
+def test_dynamics_of_another_robot_are_refused(hop):
+    """build_problem and simulate given dynamics built from another robot file refuse them (another robot's masses
+    were planned with silently, under this robot's name); dynamics built from the same file's contents are reused."""
+    robot, task, problem = hop
+    other = Dynamics(load_robot("capler"))
+    for call in (lambda: build_problem(robot, task, dynamics=other), lambda: simulate(robot, task, dynamics=other)):
+        with pytest.raises(InputError, match=r"dynamics were built from .*capler.xml, not from the robot .*point_mass.xml"):
+            call()
+    assert build_problem(robot, task, dynamics=Dynamics(load_robot("point_mass"))).nx == problem.nx
+
+
+def test_solve_options_from_dict_takes_enum_members_and_values():
+    """An Enum field takes its member as well as its value (Polish.NONE and "none" alike); the member was refused as
+    "not allowed", listing the value it stands for."""
+    from planner.homotopy import Polish
+
+    assert solve_options_from_dict({"polish": Polish.NONE}) == solve_options_from_dict({"polish": "none"})
+    assert solve_options_from_dict({"polish": "none"}).polish is Polish.NONE

@@ -205,14 +205,18 @@ def test_phase_reference_interpolates_the_plan(gaits):
 
 
 def test_walk_gains_are_validated():
-    """An unknown replay control is an UnknownNameError naming the valid modes; a bandwidth <= 0 or a
-    negative speed-loop gain is an InputError."""
+    """An unknown replay control is an UnknownNameError naming the valid modes, and a control's value stands for it
+    ("phase" was refused as unknown while the message listed it); a bandwidth <= 0 or a negative gain is an InputError
+    naming the field and its value (the message listed every rule)."""
+    from planner.gait import WalkControl
+
     with pytest.raises(UnknownNameError, match="phase"):
         WalkGains(control="dance")
-    with pytest.raises(InputError):
+    assert WalkGains(control="hinge_pd").control is WalkControl.HINGE_PD
+    with pytest.raises(InputError, match=r"^WalkGains.bandwidth = 0.0 is not allowed; it must be > 0$"):
         WalkGains(bandwidth=0.0)
-    for key in ("speed_gain", "speed_integral"):
-        with pytest.raises(InputError, match="speed"):
+    for key in ("kp", "kd", "ground_gap", "stance_margin", "speed_gain", "speed_integral"):
+        with pytest.raises(InputError, match=rf"^WalkGains.{key} = -0.1 is not allowed; it must be >= 0$"):
             WalkGains(**{key: -0.1})
 
 
@@ -231,3 +235,18 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
         assert abs(report.impact_times[0] - sol.t[-1]) < 0.02
         assert report.max_hinge_error < WALK_ANGLE_TOL and report.max_torso_error < WALK_ANGLE_TOL
         assert report.max_torque < WALK_TORQUE_MARGIN * np.max(np.abs(sol.u))
+
+
+def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
+    """GaitSpec.from_task's N overrides the horizon's only when given, and must be an integer in [1, MAX_STEPS] (N = 0
+    silently meant the task's 153, 2.5 was accepted); the spec's arrays are read-only and the spec hashes and compares
+    by identity (its arrays made hash() raise TypeError and == raise ValueError)."""
+    task = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    assert GaitSpec.from_task(task).N == task.horizon.N and GaitSpec.from_task(task, 20).N == 20
+    for N in (0, -5, 2.5, "20", True):
+        with pytest.raises(InputError, match=r"GaitSpec.N = .* an integer in \[1, 10000000\]"):
+            GaitSpec.from_task(task, N)
+    spec = GaitSpec.from_task(task)
+    with pytest.raises(ValueError, match="read-only"):
+        spec.x0[0] = 9.0
+    assert spec == spec and spec != GaitSpec.from_task(task) and len({spec, spec}) == 1

@@ -644,3 +644,36 @@ def test_a_bound_broken_within_ipopts_relaxation_is_said_so(hop):
     assert H._within_relaxation(prob, x, relaxed, tol=1e-6)
     x[i] = -2e-3
     assert not H._within_relaxation(prob, x, relaxed, tol=1e-6)
+
+
+def test_schedules_the_problem_cannot_use_are_refused():
+    """an_schedule and at_schedule scale parameters only a problem built with aux_continuation has, and l1_schedule
+    adds to Penalty.LINF's slack: given to another problem they are InputErrors naming the option (they were
+    silently ignored, the default solve's exact iterations)."""
+    from planner.problem import Penalty, ProblemOptions
+
+    robot = load_robot("robots/point_mass.xml")
+    plain = build_problem(robot, hop_task(N=3))
+    for options in (H.SolveOptions(an_schedule=(0.1, 1.0)), H.SolveOptions(at_schedule=(0.5,))):
+        with pytest.raises(InputError, match=r"_schedule needs a problem built with ProblemOptions\(aux_continuation=True\)"):
+            H.solve(plain, options)
+    with pytest.raises(InputError, match="l1_schedule adds an l1 sum to Penalty.LINF's slack; the problem's penalty is l1"):
+        H.solve(build_problem(robot, hop_task(N=3), ProblemOptions(penalty=Penalty.L1)), H.SolveOptions(l1_schedule=(1.0,)))
+
+
+def test_functions_of_a_point_refuse_a_point_of_another_size():
+    """Problem.split, complementarity_residual and the homotopy's functions of x (constraint_violation, terminal_error,
+    ungate, active_set_bounds, variable_scale), and solve with such an x0, refuse an x of another size with an
+    InputError naming nx (CasADi's shape error, IndexError or a silently ignored tail before); homotopy_nlp refuses an
+    NLP index outside its homotopy (-1 gave the last NLP, 99 an IndexError)."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    wrong = np.zeros(prob.nx + 10)
+    calls = [prob.split, prob.complementarity_residual, lambda x: H.constraint_violation(prob, x),
+             lambda x: H.terminal_error(prob, x), lambda x: H.ungate(prob, x), lambda x: H.active_set_bounds(prob, x),
+             lambda x: H.variable_scale(prob, x), lambda x: H.solve(dataclasses.replace(prob, x0=x))]
+    for call in calls:
+        with pytest.raises(InputError, match=rf"a point of this problem has nx = {prob.nx} entries, got {prob.nx + 10}"):
+            call(wrong)
+    for i in (-1, 99):
+        with pytest.raises(InputError, match=rf"homotopy_nlp's i = {i} is not allowed"):
+            H.homotopy_nlp(prob, H.SolveOptions(), i)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -138,16 +139,21 @@ def test_physical_time_adds_speed_and_constraint():
 
 
 def test_bad_inputs():
-    """A task without [plan], an unknown switch-scale name, a wrong enum, a value of the wrong type are InputErrors
-    naming the field."""
+    """A task without [plan], an unknown or malformed switch-scale entry, a wrong enum, a value of the wrong type are
+    InputErrors naming the field."""
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
     no_plan = load_task(f"{ROBOTS}/point_mass.toml")
     with pytest.raises(InputError, match="no \\[plan\\]"):
         build_problem(robot, no_plan)
     with pytest.raises(InputError, match="switch_scale"):
         build_problem(robot, hop_task(N=3), ProblemOptions(switch_scale=(("psi", 2.0),)))
-    with pytest.raises(InputError, match="switch_scale"):
-        ProblemOptions(switch_scale=(("phi", -1.0),))
+    # not pairs of (name, finite scale > 0), or a name twice: ValueErrors and TypeErrors, or the last silently won
+    for bad in ((("phi", -1.0),), (("phi",),), {"phi": 2.0}, "phi", None, (("phi", "2"),), ("ab",), (("phi", math.inf),),
+                (("phi", True),), (("phi", 1.0), ("phi", 2.0))):
+        with pytest.raises(InputError, match="ProblemOptions.switch_scale"):
+            ProblemOptions(switch_scale=bad)
+    as_list = ProblemOptions(switch_scale=[("phi", 2)])  # stored as the tuple form: equal and hashable
+    assert as_list == ProblemOptions(switch_scale=(("phi", 2.0),)) and hash(as_list) == hash(ProblemOptions(switch_scale=(("phi", 2.0),)))
     with pytest.raises(InputError, match="penalty"):
         ProblemOptions(penalty="l1")
     with pytest.raises(InputError, match="ProblemOptions.clock_weight = 'x' is not allowed; it must be a finite number"):

@@ -494,6 +494,19 @@ def test_contact_point_that_is_not_a_site(capler):
         replay.validate_trajectory(robot, task, _zeros(robot))
 
 
+def test_impact_points_name_contact_points_one_per_impact(capler):
+    """validate_trajectory's impact_points must name the task's contact points, one entry per impact (None: the
+    lowest point): an unknown name stood silently for the lowest point, and a list of another length was accepted."""
+    robot, task = capler
+    traj = {**_zeros(robot), "impact_times": np.array([0.05])}
+    with pytest.raises(UnknownNameError, match="unknown contact point 'nope'; valid contact points: foot"):
+        replay.validate_trajectory(robot, task, traj, impact_points=["nope"])
+    with pytest.raises(InputError, match="impact_points has 3 entries; the trajectory has 1 impacts"):
+        replay.validate_trajectory(robot, task, traj, impact_points=["foot", None, "foot"])
+    with pytest.raises(InputError, match="impact_taps has 2 entries"):
+        replay.validate_trajectory(robot, task, traj, impact_taps=[False, True])
+
+
 def test_missing_and_garbled_files(ground_truth, tmp_path):
     """Every broken result directory is an InputError that names the problem."""
     traj, good = ground_truth
@@ -662,6 +675,10 @@ NAN = float("nan")
     (lambda: replay.ValidationOptions(contact={"timestep": 1}), "contact"),  # AttributeError in the replay
     (lambda: replay.ValidationOptions(gains=None), "gains"),
     (lambda: replay.ContactSettings(solimp=(NAN,) * 5), "solimp"),
+    (lambda: replay.ContactSettings(solimp=(5.0,) * 5), "solimp"),  # MuJoCo clamped it silently: the validation passed
+    (lambda: replay.ContactSettings(solimp=(-1.0, -1.0, 0.001, 0.5, 2.0)), "solimp"),
+    (lambda: replay.ContactSettings(solimp=(0.9, 0.95, 0.001, 0.5, 0.5)), "power >= 1"),
+    (lambda: replay.ContactSettings().solref(2.0), "restitution = 2.0"),  # a negative damping ratio
     (lambda: replay.ContactSettings(timestep=float("inf")), "timestep"),
     (lambda: replay.TrackingGains(kp=(NAN, 1.0), kd=(1.0, 1.0)), "kp"),
     (lambda: replay.TrackingGains(kp=(-1.0, 1.0), kd=(1.0, 1.0)), "kp"),

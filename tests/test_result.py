@@ -1,7 +1,9 @@
 """Thm. 10 recovery on a hand-made trajectory, and the result files of the contract."""
 from __future__ import annotations
 
+import copy
 import json
+import pickle
 import shutil
 from dataclasses import replace
 
@@ -225,19 +227,22 @@ def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_p
 
 
 def test_a_result_is_frozen_through_its_arrays(tmp_path):
-    """A Trajectory's and an Impact's arrays are read-only views (writing raises ValueError), so a result cannot be
-    changed in place (`trajectory.t[0] = 123` changed physical_duration); the arrays the caller built stay writable."""
+    """A Trajectory's and an Impact's arrays are read-only (writing raises ValueError), so a result cannot be changed
+    in place (`trajectory.t[0] = 123` changed physical_duration): not after `flags.writeable = True`, nor in a pickled
+    or deep-copied result (they came back writable); the arrays the caller built stay writable and are not shared."""
     robot = load_robot("point_mass")
     result = simulate(robot, load_task(default_task_path(robot.path)))
-    tr = result.trajectory
-    assert tr.impacts
-    for array in (tr.t, tr.q, tr.tau, tr.y, tr.impacts[0].v_post):
-        with pytest.raises(ValueError, match="read-only"):
-            array[0] = 123.0
+    for tr in (result.trajectory, pickle.loads(pickle.dumps(result)).trajectory, copy.deepcopy(result).trajectory):
+        assert tr.impacts
+        for array in (tr.t, tr.q, tr.tau, tr.y, tr.impacts[0].v_post):
+            with pytest.raises(ValueError, match="read-only"):
+                array[0] = 123.0
+            with pytest.raises(ValueError, match="WRITEABLE"):
+                array.flags.writeable = True
     own = np.zeros(3)
-    impact = replace(tr.impacts[0], q=own)
+    impact = replace(result.trajectory.impacts[0], q=own)
     own[0] = 1.0
-    assert impact.q[0] == 1.0 and not impact.q.flags.writeable
+    assert impact.q[0] == 0.0 and not impact.q.flags.writeable
 
 
 def test_recover_ignores_a_frozen_sliver_of_numerical_time():
