@@ -55,6 +55,8 @@ class ModelCheck:
     format: str  # "mjcf" or "urdf"
     nq: int
     nv: int
+    dof_names: tuple[str, ...]  # (nv,) the joint of each velocity coordinate: the order of a task's vectors
+    points: tuple[str, ...]  # the named points a task may use (MJCF sites, URDF links and frames)
     backend: str  # "pinocchio.casadi" or "symbolic"
     samples: int
     seed: int
@@ -82,6 +84,7 @@ class ModelCheck:
 
     def to_json(self) -> dict:
         out = asdict(self)
+        out["dof_names"], out["points"] = list(self.dof_names), list(self.points)  # as JSON reads them back
         if out["mujoco"] is not None:
             out["mujoco"]["missing_sites"] = list(out["mujoco"]["missing_sites"])  # as JSON reads it back
         out["passed"] = self.passed
@@ -103,6 +106,7 @@ class ModelCheck:
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
                 f"{self.samples} samples, seed {self.seed}): {'PASSED' if self.passed else 'FAILED'} (tolerance {TOLERANCE:g})",
+                f"  coordinates:  {', '.join(self.dof_names)}; points: {', '.join(self.points)}",
                 f"  vs Pinocchio: {pinocchio}",
                 f"  vs MuJoCo:    {mujoco}",
                 f"  timing:       build {t.build_s * 1e3:.1f} ms (+{t.point_build_s * 1e3:.1f} ms for {t.point}); "
@@ -169,6 +173,8 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
         format=robot.format.value,
         nq=robot.nq,
         nv=robot.nv,
+        dof_names=robot.dof_names,
+        points=robot.points,
         backend=dyn.backend,
         samples=samples,
         seed=seed,

@@ -175,10 +175,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    # --json: stdout is the one JSON object; everything else printed there (IPOPT's log with -v, which CasADi
-    # writes to sys.stdout, also from the race's forked arms) goes to stderr
-    args.json_out = sys.stdout
-    quiet_stdout = contextlib.redirect_stdout(sys.stderr) if getattr(args, "json", False) else contextlib.nullcontext()
+    # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
+    # which CasADi writes to sys.stdout, also from the race's forked arms) goes to stderr
+    args.stdout = sys.stdout
+    redirect = getattr(args, "json", False) or getattr(args, "verbose", False)
+    quiet_stdout = contextlib.redirect_stdout(sys.stderr) if redirect else contextlib.nullcontext()
     try:
         with quiet_stdout:
             return args.run(args)
@@ -207,9 +208,9 @@ def _progress(args, line: str) -> None:
 
 def _emit(args, summary: dict, text: str) -> None:
     if args.json:
-        print(json.dumps(summary), file=args.json_out)
+        print(json.dumps(summary), file=args.stdout)
     elif not args.quiet:
-        print(text)
+        print(text, file=args.stdout)
 
 
 def _cmd_check_model(args) -> int:
@@ -521,7 +522,7 @@ def _cmd_view(args) -> int:
     url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
     try:  # a stop once the URL is out is the normal end
         _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
-        sys.stdout.flush()
+        args.stdout.flush()
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:

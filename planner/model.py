@@ -131,10 +131,11 @@ class Robot:
 
 
 def resolve_robot_path(spec: str | os.PathLike) -> Path:
-    """A path to a robot file, or the bare name of one in `robots/` (e.g. `capler`)."""
+    """The absolute path of a robot file given by its path, or by the bare name of one in `robots/` (e.g. `capler`):
+    a result's summary.json names it, and `validate` or `view` run from another directory must find it."""
     path = Path(spec)
     if path.is_file():
-        return path
+        return path.absolute()
     if not path.suffix and path.parent == Path("."):
         for ext in (".xml", ".urdf"):
             candidate = ROBOTS_DIR / f"{path.name}{ext}"

@@ -17,7 +17,7 @@ SAMPLES = 5  # random states per check here; the CLI default is 20
 TOL_CHECK = TOLERANCE / 10
 
 JSON_KEYS = {
-    "robot", "format", "nq", "nv", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
+    "robot", "format", "nq", "nv", "dof_names", "points", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
 }
 TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacobian_us", "evaluations"}

@@ -19,14 +19,16 @@ def run(*argv: str) -> subprocess.CompletedProcess:
 
 
 def test_check_model_json_contract():
-    """`check-model --json` prints one JSON object with the contract's keys and exits 0 on a good model."""
+    """`check-model --json` prints one JSON object with the contract's keys, the coordinates in their order and the named
+    points (docs/tasks.md sends users there for both), and exits 0 on a good model."""
     proc = run("check-model", "capler", "--json", "--samples", "3")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
-    for key in ("robot", "format", "nq", "nv", "backend", "max_err_mass", "max_err_bias", "max_err_frames",
+    for key in ("robot", "format", "nq", "nv", "dof_names", "points", "backend", "max_err_mass", "max_err_bias", "max_err_frames",
                 "max_err_jacobians", "mujoco", "passed"):
         assert key in summary
     assert summary["passed"] and summary["mujoco"]["max_err_mass"] < 1e-9
+    assert summary["dof_names"] == ["base_x", "base_z", "hip", "knee"] and "foot" in summary["points"]  # docs/tasks.md's order
 
 
 @pytest.mark.parametrize(
@@ -361,6 +363,19 @@ def test_verbose_json_keeps_stdout_one_json_object(tmp_path):
     assert "EXIT: Optimal Solution Found" in proc.stderr or "Number of Iterations" in proc.stderr
 
 
+@pytest.mark.parametrize("command", ["plan", "simulate"])
+def test_verbose_puts_ipopts_log_on_stderr(tmp_path, command):
+    """`-v` without --json prints IPOPT's log on stderr, as the README says, and keeps stdout to the command's summary
+    (the log went to stdout: 1211 lines before a plan's summary, 8721 before a simulation's)."""
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TOML.format(x=0.5))
+    proc = run(command, "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "-v", "--no-plots",
+               *(["--no-validate", "--steps", "8"] if command == "plan" else []))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Ipopt" not in proc.stdout and "Number of Iterations" in proc.stderr
+    assert "results in" in proc.stdout.strip().splitlines()[-1]
+
+
 def test_plan_solve_options_from_json(tmp_path, capsys):
     """`plan --solve JSON` sets SolveOptions fields over the flags: the summary's solve options carry them (a list as
     the tuple, an enum by its value) beside the --ipopt option, which the JSON did not name."""
@@ -458,3 +473,18 @@ def test_ctrl_c_is_one_line_and_exit_130(tmp_path, capsys, monkeypatch):
     assert main(["plan", "point_mass", "--out", str(tmp_path / "o")]) == 130
     err = capsys.readouterr().err
     assert err.strip() == "planner plan: interrupted"
+
+
+def test_a_result_of_a_relative_robot_path_validates_from_another_directory(tmp_path, monkeypatch, capsys):
+    """A result made from a robot file given by a relative path names it by its absolute path in summary.json, so
+    `validate DIR` and `view DIR --html` work from any working directory (they said the file was not found)."""
+    robots = tmp_path / "work" / "robots"
+    robots.mkdir(parents=True)
+    for name in ("point_mass.xml", "point_mass.toml"):
+        (robots / name).write_text((Path(__file__).resolve().parents[1] / "robots" / name).read_text())
+    monkeypatch.chdir(tmp_path / "work")
+    assert main(["simulate", "robots/point_mass.xml", "--out", "drop", "-q", "--no-plots"]) == 0
+    assert json.loads(Path("drop/summary.json").read_text())["robot"] == str(robots / "point_mass.xml")
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", "work/drop", "-q"]) == 0
+    assert main(["view", "work/drop", "--html", str(tmp_path / "drop.html"), "-q"]) == 0

@@ -161,12 +161,15 @@ def test_arm_errors_that_do_not_pickle_arrive_as_the_nearest_planner_error(hop_p
 
 
 @pytest.mark.parametrize("arms, processes, fragment", [
-    ((), None, "at least one"),
+    ((), None, r"one or more \(name, SolveOptions\) arms"),
+    ((H.SolveOptions(),), None, r"one or more \(name, SolveOptions\) arms"),  # TypeError: cannot unpack
     ((("a", H.SolveOptions()), ("a", H.SolveOptions())), None, "must differ"),
-    ((("a", H.SolveOptions()),), 0, "processes must be >= 1"),
+    ((("a", H.SolveOptions()),), 0, "processes must be an integer >= 1"),
+    ((("a", H.SolveOptions()),), 1.5, "processes must be an integer >= 1"),  # TypeError in min()
 ])
 def test_bad_race_input(hop_problem, arms, processes, fragment):
-    """No arms, two arms of one name, or fewer than one process is an InputError saying which."""
+    """No arms, arms that are not (name, SolveOptions) pairs, two arms of one name, or a process count that is not an
+    integer >= 1 is an InputError saying which."""
     with pytest.raises(InputError, match=fragment):
         R.race(hop_problem, arms, processes=processes)
 
@@ -181,9 +184,14 @@ import multiprocessing as mp, signal, threading, time
 signal.signal(signal.SIGINT, signal.default_int_handler)
 from planner import race as R
 from planner.homotopy import SolveOptions
+from planner.model import load_robot
+from planner.problem import build_problem
+from planner.task import parse_task
+problem = build_problem(load_robot("point_mass"), parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.0]},
+                        "horizon": {"tau_f": 1.0, "N": 2}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}))
 R.solve = lambda problem, options, progress=None: time.sleep(120)
 threading.Thread(target=lambda: (time.sleep(1), print(*[c.pid for c in mp.active_children()], flush=True)), daemon=True).start()
-R.race(None, R.default_arms(SolveOptions()), processes=2)
+R.race(problem, R.default_arms(SolveOptions()), processes=2)
 """
 
 
