@@ -10,7 +10,6 @@ import contextlib
 import json
 import multiprocessing
 import os
-import shutil
 import signal
 import sys
 import time
@@ -192,6 +191,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except OSError as exc:  # a path the system refuses (a name too long, a loop of links) that no check above named
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"planner {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return EXIT_INPUT
     except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
         print(f"planner {args.command}: failed: out of memory (is horizon.N or --steps far too large?)", file=sys.stderr)
         return EXIT_FAILED
@@ -252,9 +255,8 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
-    stale = out / "failed"
-    if result.stats.converged and (stale / "summary.json").is_file():  # an earlier failure's diagnostics, now outdated
-        shutil.rmtree(stale)
+    if result.stats.converged:
+        _remove_failed(out / "failed")
     for name in PLOT_FILES:  # an earlier result's plots (--no-plots now, or a plot this robot has not) would mix in
         (target / name).unlink(missing_ok=True)
     if args.no_plots:
@@ -271,6 +273,9 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     def finish() -> None:
         try:
             kind, message = reader.recv()
+        except KeyboardInterrupt:  # the child ignores Ctrl-C: let it finish its plot files (a kill at exit left a temp file)
+            child.join()
+            raise
         except EOFError:
             kind, message = "error", "the plotting process ended without a word"
         child.join()
@@ -279,6 +284,25 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
         _plotted(args, result.stats.converged, message)
 
     return target, finish
+
+
+def _remove_failed(stale: Path) -> None:
+    """Remove the files an earlier failed run wrote into `stale` (DIR/failed), which no longer describe DIR, and the
+    directory if that empties it; anything else there, or a `stale` that is a symlink or no planner result, stays."""
+    from .plots import PLOT_FILES
+    from .result import read_summary
+
+    if stale.is_symlink() or not (stale / "summary.json").is_file():
+        return
+    try:
+        if "command" not in read_summary(stale, require=()):
+            return
+    except InputError:
+        return
+    for name in ("trajectory.npz", "summary.json", *PLOT_FILES):
+        (stale / name).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):  # not empty: the user's own files stay
+        stale.rmdir()
 
 
 def _draw(target: Path) -> str | None:
@@ -449,14 +473,16 @@ def _cmd_plan(args) -> int:
         text += f"\nthe replan from {args.init} did not converge: the change may be too large for that start; plan without --init"
     if validating:
         from .replay import validate, write_validation
+        from .result import read_summary
 
+        result_id = read_summary(target, require=()).get("result_id")
         try:
             validation = validate(target)
         except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done
             with contextlib.suppress(PlannerError):
                 plots_drawn()
             raise
-        write_validation(target, validation)
+        write_validation(target, validation, result_id)
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
@@ -489,20 +515,25 @@ def _cmd_gait(args) -> int:
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait")
     result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()), validate=not args.no_validate)
     converged = bool(result.summary["converged"])
-    _emit(args, result.summary, f"{result.report()}\n{'converged' if converged else 'FAILED'}: results in {out}")
+    if converged:
+        _remove_failed(out / "failed")
+    target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
+    _emit(args, result.summary, f"{result.report()}\n{'converged' if converged else 'FAILED'}: results in {target}")
     return EXIT_OK if converged else EXIT_FAILED
 
 
 def _cmd_validate(args) -> int:
     from .replay import ValidationOptions, validate, write_validation
+    from .result import read_summary
 
     if not args.dir.is_dir():
         raise InputError(f"result directory not found: {args.dir}")
     if not os.access(args.dir, os.W_OK | os.X_OK):  # before the replays: the verdict is written into DIR/summary.json
         raise InputError(f"result directory {args.dir} is not writable: the validation is stored in its summary.json")
     windowed = {} if args.window is None else {"window_s": args.window}
+    result_id = read_summary(args.dir, require=()).get("result_id")  # a run writing DIR meanwhile: its verdict is not stored
     result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))
-    write_validation(args.dir, result)
+    write_validation(args.dir, result, result_id)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
 

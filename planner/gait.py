@@ -886,7 +886,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     called once per outer loop (OuterLoop.line() is a terminal line). validate: replay the walk in
     MuJoCo (`replay_gait`) and put its report under "walking" in the summary.
     out_dir (None: write nothing) receives trajectory.npz (tau, y, t, q, v, u, impact_times and the
-    pinned gait: gait_t, gait_x, gait_u, gait_xd, gait_ud) and summary.json (command "gait").
+    pinned gait: gait_t, gait_x, gait_u, gait_xd, gait_ud) and summary.json (command "gait"); a gait that did not
+    converge writes them under out_dir/failed instead, so a good earlier result in out_dir stays (as `planner plan`).
     Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
     """
     from .model import load_robot
@@ -939,7 +940,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                   "gait_t": sol.t, "gait_x": sol.x, "gait_u": sol.u, "gait_xd": sol.xd, "gait_ud": sol.ud,
                   "gait_x_embedded": sol.x_emb, "gait_u_embedded": sol.u_emb,
                   "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str)}
-        write_files(out_dir, arrays, summary)
+        write_files(Path(out_dir) if summary["converged"] else Path(out_dir) / "failed", arrays, summary)
     return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)
 
 

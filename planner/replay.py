@@ -40,7 +40,8 @@ import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
-from .result import Trajectory, read_robot, read_summary, read_task, read_trajectory, write_atomically
+from .result import (Trajectory, check_same_result, read_robot, read_summary, read_task, read_trajectory,
+                     write_atomically)
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -621,7 +622,8 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         raise InputError(f"{out_dir} is a result of `planner gait`, which validates its walk in MuJoCo itself (summary.json's "
                          "\"walking\"; `planner gait` without --no-validate); `planner validate` replays plans and simulations")
     robot = read_robot(out_dir, summary)
-    traj = read_trajectory(out_dir)
+    traj = read_trajectory(out_dir, required=REQUIRED_ARRAYS)
+    check_same_result(out_dir, summary, traj)
     task = read_task(out_dir, traj, summary)
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
@@ -691,13 +693,18 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     )
 
 
-def write_validation(out_dir: str | Path, validation: Validation) -> Path:
+def write_validation(out_dir: str | Path, validation: Validation, result_id: str | None = None) -> Path:
     """Store `validation.to_json()` as the `validation` object of out_dir/summary.json.
 
-    Written to a temporary file and renamed, so a reader never sees half a summary.
+    Written to a temporary file and renamed, so a reader never sees half a summary. result_id: the summary's
+    `result_id` when the validation started; if another run has written out_dir since, the verdict is of the earlier
+    result and is not stored (InputError).
     """
     path = Path(out_dir) / "summary.json"
     summary = read_summary(Path(out_dir), require=())
+    if result_id is not None and summary.get("result_id") != result_id:
+        raise InputError(f"{out_dir} was written by another run while it was validated; the verdict (of the earlier "
+                         "result) is not stored: validate it again")
     summary["validation"] = validation.to_json()
     write_atomically(path, json.dumps(summary, indent=2) + "\n")
     return path
@@ -717,6 +724,8 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
         raise InputError(f"trajectory lacks array(s) {', '.join(missing)}; it needs {', '.join(REQUIRED_ARRAYS)}")
     out = {}
     for key in REQUIRED_ARRAYS:
+        if np.iscomplexobj(traj[key]):  # float() would drop the imaginary part with a warning
+            raise InputError(f"trajectory array {key!r} must hold real numbers, got {np.asarray(traj[key]).dtype}")
         try:
             out[key] = np.array(traj[key], dtype=float)
         except (TypeError, ValueError):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import uuid
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
@@ -457,8 +458,9 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
 
 
 def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tuple[Path, Path]:
-    """Write DIR/trajectory.npz (arrays) and DIR/summary.json, each atomically (temp file + os.replace). DIR is created
-    if missing; an existing file there is an InputError."""
+    """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
+    either is renamed, each with the same `result_id` (check_same_result). DIR is created if missing; an existing file
+    there is an InputError."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"cannot write results to {out}: it is a file, not a directory")
@@ -466,12 +468,32 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a parent that is a file, no permission, a read-only file system
         raise InputError(f"cannot create output directory {out}: {exc.strerror}") from None
-    npz = out / "trajectory.npz"
-    write_atomically(npz, lambda f: np.savez(f, **arrays))
-    path = out / "summary.json"
-    text = json.dumps(summary, indent=2, default=_json_default) + "\n"
-    write_atomically(path, text)
+    # one id in both files: a crash between their renames leaves two results' files, which readers then refuse
+    result_id = uuid.uuid4().hex
+    arrays, summary = {**arrays, "result_id": np.array(result_id)}, {**summary, "result_id": result_id}
+    npz, path = out / "trajectory.npz", out / "summary.json"
+    for target in (npz, path):  # its rename would fail after the other's: refused before either file is written
+        if target.is_dir():
+            raise InputError(f"cannot write {target}: it is a directory")
+    staged = []
+    try:  # both written before either replaces a file: a full disk or a bad value leaves the earlier result whole
+        staged.append((_stage(npz, lambda f: np.savez(f, **arrays)), npz))
+        staged.append((_stage(path, json.dumps(summary, indent=2, default=_json_default) + "\n"), path))
+    except BaseException:
+        for tmp, _ in staged:
+            Path(tmp).unlink(missing_ok=True)
+        raise
+    _replace(staged)
     return npz, path
+
+
+def check_same_result(out_dir: str | os.PathLike, summary: dict, arrays: dict) -> None:
+    """InputError when out_dir's summary.json and trajectory.npz (read as `summary`, `arrays`) carry different
+    result ids: files of two results, a run stopped between writing them. Files without ids (older results) pass."""
+    ids = summary.get("result_id"), str(arrays["result_id"]) if "result_id" in arrays else None
+    if None not in ids and ids[0] != ids[1]:
+        raise InputError(f"{out_dir}: summary.json and trajectory.npz are files of two different results (a run stopped "
+                         "between writing them?); run the plan or simulation again")
 
 
 def _json_default(obj):
@@ -488,6 +510,11 @@ def write_atomically(path: str | os.PathLike, write) -> None:
     or bytes is written as it is (str as UTF-8). The file gets the mode a plain open() would give (0666 less the
     umask), not mkstemp's private 0600. An OSError (no permission, a read-only directory) is an InputError naming
     the path."""
+    _replace([(_stage(path, write), Path(path))])
+
+
+def _stage(path: str | os.PathLike, write) -> str:
+    """The temp file beside `path` that write_atomically renames to it, written (write as there); its name."""
     path = Path(path)
     if isinstance(write, (str, bytes)):
         data = write.encode() if isinstance(write, str) else write
@@ -502,12 +529,25 @@ def write_atomically(path: str | os.PathLike, write) -> None:
         os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as f:
             write(f)
-        os.replace(tmp, path)
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
             raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
+    return tmp
+
+
+def _replace(staged: list[tuple[str, Path]]) -> None:
+    """Rename each staged temp file to its path; on an error the temp files not yet renamed are removed."""
+    for i, (tmp, path) in enumerate(staged):
+        try:
+            os.replace(tmp, path)
+        except BaseException as exc:
+            for left, _ in staged[i:]:
+                Path(left).unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+            raise
 
 
 # --- reading a result directory back (replay and view use these) -------------------------------------
@@ -523,6 +563,8 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
         raise InputError(f"cannot read {path}: {exc}") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path} is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path} is nested too deeply to be a result's summary") from None
     if not isinstance(summary, dict):
         raise InputError(f"{path} must hold a JSON object, got {type(summary).__name__}")
     for key in require:
@@ -555,9 +597,15 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
-    x = np.asarray(arrays["nlp_x"], float)
+    try:
+        x = np.asarray(arrays["nlp_x"], float)
+    except (TypeError, ValueError):
+        raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: nlp_x must hold numbers, got {arrays['nlp_x'].dtype}") from None
     if str(arrays["nlp_signature"]) != signature or x.shape != (nx,):
-        raise InputError(f"the plan in {out_dir} has other NLP variables ({x.size} against this problem's {nx}): "
+        which = (f"{x.size} against this problem's {nx}" if x.size != nx else
+                 f"variables {str(arrays['nlp_signature'])[:16]!r} against this problem's {signature!r}" if x.ndim == 1 else
+                 f"an array of shape {x.shape} against this problem's ({nx},)")
+        raise InputError(f"the plan in {out_dir} has other NLP variables ({which}): "
                          "a start needs the same robot contacts, N, discretization and options")
     if not np.all(np.isfinite(x)):
         raise InputError(f"the NLP point in {Path(out_dir) / 'trajectory.npz'} is not finite")
@@ -577,7 +625,7 @@ def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None, summar
         return load_task(locate_input(summary["task"], out_dir, "task"))
     try:
         data = json.loads(str(arrays["task_json"]))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: task_json is not valid JSON: {exc}") from None
     if not isinstance(data, dict):
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: task_json must hold a JSON object, got {type(data).__name__}")

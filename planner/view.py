@@ -30,7 +30,7 @@ import pinocchio as pin
 
 from .errors import InputError, PlannerError
 from .model import Robot, RobotFormat
-from .result import read_robot, read_summary, read_task, read_trajectory, write_atomically
+from .result import ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, write_atomically
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -56,7 +56,7 @@ SERVER_TIMEOUT_S = 5.0  # how long `serve` waits for an existing meshcat server 
 # --- the result directory ----------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
-class Result:
+class Result(ArraysReadOnly):
     """A result directory read back: arrays of `trajectory.npz`, `summary.json`, robot and task.
 
     Shapes: K numerical-time nodes, P physical-time samples (an impact is two samples with the same
@@ -147,8 +147,11 @@ def load_result(out_dir) -> Result:
     summary = read_summary(directory, require=("robot",))  # without a task: no ground, holes or contacts
     required, optional = ("tau", "y", "t", "q", "v", "u", "impact_times"), ("lambda_n", "lambda_t")
     raw = read_trajectory(directory, required)  # writers may add non-numeric arrays: keep the numeric ones
+    check_same_result(directory, summary, raw)
     arrays = {}
     for k in (k for k in required + optional if k in raw):
+        if np.iscomplexobj(raw[k]):  # float() would drop the imaginary part with a warning
+            raise InputError(f"{npz_path}: {k} must hold real numbers, got {raw[k].dtype}")
         try:
             arrays[k] = np.asarray(raw[k], dtype=float)
         except (TypeError, ValueError):

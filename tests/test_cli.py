@@ -286,23 +286,40 @@ def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
 
 
 def test_converged_plan_removes_an_earlier_failure(tmp_path, capsys):
-    """A converged plan into DIR removes the diagnostics an earlier failed plan left in DIR/failed (they no longer
-    describe DIR), and keeps a DIR/failed that holds no planner result (not planner's to delete)."""
+    """A converged plan into DIR removes the files an earlier failed plan left in DIR/failed (they no longer describe
+    DIR) and the directory once empty; it keeps the user's own files there (a whole user directory was deleted), a
+    DIR/failed that holds no planner result, and a DIR/failed that is a symlink (rmtree raised a traceback)."""
     far, hop = tmp_path / "far.toml", tmp_path / "hop.toml"
     far.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
                    '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')
     hop.write_text(HOP_TASK)
-    out, other = tmp_path / "out", tmp_path / "other"
-    assert main(["plan", "point_mass", "--task", str(far), "--out", str(out), "--no-validate", "-q", "--no-plots"]) == 1
-    assert (out / "failed" / "summary.json").is_file()
+    out, mixed, other, linked = (tmp_path / name for name in ("out", "mixed", "other", "linked"))
+    for directory in (out, mixed):
+        assert main(["plan", "point_mass", "--task", str(far), "--out", str(directory), "--no-validate", "-q", "--no-plots"]) == 1
+        assert (directory / "failed" / "summary.json").is_file()
+    (mixed / "failed" / "mine").mkdir()
+    (mixed / "failed" / "mine" / "notes.txt").write_text("mine")
     (other / "failed").mkdir(parents=True)
     (other / "failed" / "notes.txt").write_text("mine")
-    for directory in (out, other):
+    linked.mkdir()
+    (linked / "failed").symlink_to(out / "failed")
+    for directory in (out, mixed, other, linked):
         assert main(["plan", "point_mass", "--task", str(hop), "--out", str(directory), "--no-validate", "-q",
                      "--no-plots", "--no-race"]) == 0
         assert json.loads((directory / "summary.json").read_text())["converged"] is True
-    assert not (out / "failed").exists()
+    assert not (out / "failed").exists() and (linked / "failed").is_symlink()
+    assert sorted(p.name for p in (mixed / "failed").iterdir()) == ["mine"]
+    assert (mixed / "failed" / "mine" / "notes.txt").read_text() == "mine"
     assert (other / "failed" / "notes.txt").read_text() == "mine"
+
+
+def test_a_path_the_system_refuses_is_one_line_and_exit_2(tmp_path, capsys):
+    """A path component longer than the file system allows (255 bytes) is one line and exit 2 in every command that
+    takes a path (an OSError traceback, exit 1, before)."""
+    long_name = str(tmp_path / ("a" * 300))
+    for argv in (["validate", long_name], ["plan", "point_mass", "--out", long_name, "--no-validate"],
+                 ["simulate", "point_mass", "--out", long_name]):
+        _one_line_exit_2(capsys, argv, "File name too long")
 
 
 def test_plan_rejects_an_unknown_fesd_start(tmp_path, capsys):

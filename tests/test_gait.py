@@ -181,6 +181,30 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
     assert res.walk.q.shape[1] == robot.nq
 
 
+def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
+    """A gait that does not converge (one outer loop of one PRONTO iteration) writes its files under DIR/failed and
+    leaves a good gait in DIR byte for byte (it overwrote it, summary and trajectory); `planner gait` exits 1 naming
+    DIR/failed."""
+    from planner.cli import main
+    from planner.task import GaitContinuation, GaitPronto
+
+    task = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    short = dataclasses.replace(task, gait=dataclasses.replace(task.gait, continuation=GaitContinuation(max_outer=1),
+                                                               pronto=GaitPronto(max_iterations=1)))
+    earlier = {"summary.json": b'{"converged": true}', "trajectory.npz": b"a good gait"}
+    for name, data in earlier.items():
+        (tmp_path / name).write_bytes(data)
+    res = run_gait(robot, short, tmp_path, validate=False)
+    assert not res.summary["converged"] and json.loads((tmp_path / "failed" / "summary.json").read_text())["converged"] is False
+    for name, data in earlier.items():
+        assert (tmp_path / name).read_bytes() == data
+    toml = tmp_path / "short.toml"
+    toml.write_text((ROBOTS_DIR / "biped_gait1.toml").read_text() + "\n[gait.continuation]\nmax_outer = 1\n"
+                    "[gait.pronto]\nmax_iterations = 1\n")
+    assert main(["gait", "biped", "--task", str(toml), "--out", str(tmp_path), "--no-validate", "-q"]) == 1
+    assert (tmp_path / "trajectory.npz").read_bytes() == earlier["trajectory.npz"]
+
+
 def test_inconsistent_initial_state_is_a_task_error(tmp_path, robot):
     """A gait task whose [initial] is not the floating image of gait.x0 is rejected with the values to use."""
     task = load_task(ROBOTS_DIR / "biped_gait1.toml")

@@ -550,6 +550,37 @@ def test_missing_and_garbled_files(ground_truth, tmp_path):
     np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "q", "u", "impact_times")}, "v": traj["v"] * np.nan})
     with pytest.raises(InputError, match="NaN"):
         replay.validate(d)
+    d = copy("no_impact_times")  # a KeyError before
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")})
+    with pytest.raises(InputError, match="lacks impact_times"):
+        replay.validate(d)
+    d = copy("complex")  # replayed the real part, with a ComplexWarning
+    np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "v", "u", "impact_times")}, "q": traj["q"] + 1j})
+    with pytest.raises(InputError, match="'q' must hold real numbers"):
+        replay.validate(d)
+    d = copy("two_results")  # the npz of one write beside the summary of another
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u", "impact_times")}, result_id=np.array("a"))
+    (d / "summary.json").write_text(json.dumps({**json.loads((good / "summary.json").read_text()), "result_id": "b"}))
+    with pytest.raises(InputError, match="files of two different results"):
+        replay.validate(d)
+
+
+def test_a_verdict_is_not_stored_into_a_result_written_since(ground_truth, tmp_path):
+    """write_validation with the result_id read when the validation started refuses to store the verdict once another
+    run has written the directory (its summary has another id): the verdict of one result landed in another's
+    summary."""
+    _, good = ground_truth
+    for f in ("summary.json", "trajectory.npz"):
+        (tmp_path / f).write_bytes((good / f).read_bytes())
+    summary = {**json.loads((good / "summary.json").read_text()), "result_id": "new"}
+    summary.pop("validation", None)  # another test may have stored one in the fixture's directory
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    result = replay.validate(tmp_path)
+    with pytest.raises(InputError, match="written by another run while it was validated"):
+        replay.write_validation(tmp_path, result, result_id="old")
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+    replay.write_validation(tmp_path, result, result_id="new")
+    assert json.loads((tmp_path / "summary.json").read_text())["validation"]["passed"] == result.passed
 
 
 # ------------------------------------------------------------------------------------------------

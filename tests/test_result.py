@@ -12,8 +12,8 @@ import pytest
 
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
-from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, read_robot, read_summary, read_task, recover, tap_flags,
-                            write_atomically, write_results)
+from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result, read_robot, read_start,
+                            read_summary, read_task, recover, tap_flags, write_atomically, write_files, write_results)
 from planner.simulate import simulate
 from planner.task import default_task_path, load_task, parse_task, task_to_json
 
@@ -199,6 +199,59 @@ def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
         write_atomically(path, crash)
     assert path.read_text() == '{"good": 1}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+def _tiny_result(n: int = 1) -> SimulationResult:
+    """A SimulationResult of n samples of a 1-DOF trajectory, to write."""
+    tr = Trajectory(tau=np.zeros(n), y=np.zeros((n, 3)), state_names=("q", "v", "t"), sigma=np.zeros((0, 0)),
+                    selector_names=(), t=np.arange(n, dtype=float), q=np.zeros((n, 1)), v=np.zeros((n, 1)), u=np.zeros((n, 0)))
+    return SimulationResult(robot="r", task="t.toml", trajectory=tr, stats=SolveStats(True, 0.0, 0, 0, 0.0), strategy="stepwise",
+                            h=0.1, rho_f=1.0)
+
+
+def test_a_result_is_written_whole_or_not_at_all(tmp_path):
+    """write_files writes both files before it renames either: a summary that cannot be written (a value JSON cannot
+    hold), or a summary.json that is a directory, leaves the earlier trajectory.npz byte for byte and no temp file
+    (the new npz replaced the old one, beside the old summary). Both files carry one result_id."""
+    write_results(_tiny_result(2), tmp_path)
+    npz = (tmp_path / "trajectory.npz").read_bytes()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert str(np.load(tmp_path / "trajectory.npz")["result_id"]) == summary["result_id"]
+    with pytest.raises(TypeError):
+        write_files(tmp_path, {"t": np.zeros(5)}, {"bad": object()})
+    assert (tmp_path / "trajectory.npz").read_bytes() == npz
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+    other = tmp_path / "other"
+    (other / "summary.json").mkdir(parents=True)
+    with pytest.raises(InputError, match="summary.json: it is a directory"):
+        write_results(_tiny_result(3), other)
+    assert not (other / "trajectory.npz").exists()
+
+
+def test_files_of_two_results_are_refused(tmp_path):
+    """check_same_result refuses a summary.json and a trajectory.npz of two different writes (a run stopped between
+    their renames: validate replayed the mix); files of one write, and older files without ids, pass."""
+    for name, n in (("a", 2), ("b", 3)):
+        write_results(_tiny_result(n), tmp_path / name)
+    a, b = (read_summary(tmp_path / name, require=()) for name in ("a", "b"))
+    arrays = {name: dict(np.load(tmp_path / name / "trajectory.npz")) for name in ("a", "b")}
+    check_same_result(tmp_path / "a", a, arrays["a"])
+    check_same_result(tmp_path / "a", {k: v for k, v in a.items() if k != "result_id"}, arrays["b"])
+    with pytest.raises(InputError, match="files of two different results"):
+        check_same_result(tmp_path / "a", a, arrays["b"])
+
+
+def test_broken_result_files_are_input_errors(tmp_path):
+    """A summary.json nested too deeply for Python's JSON reader (RecursionError) and a plan whose nlp_x is not numeric
+    are InputErrors; a start of the same size but other variables says so (it read "291 against 291")."""
+    (tmp_path / "summary.json").write_text('{"robot": "r", "x": ' + "[" * 100000 + "]" * 100000 + "}")
+    with pytest.raises(InputError, match="nested too deeply"):
+        read_summary(tmp_path)
+    arrays = {"nlp_x": np.array(["a", "b"]), "nlp_signature": np.array("sig")}
+    with pytest.raises(InputError, match="nlp_x must hold numbers"):
+        read_start(tmp_path, "sig", 2, arrays)
+    with pytest.raises(InputError, match="variables 'other' against this problem's 'sig'"):
+        read_start(tmp_path, "sig", 2, {"nlp_x": np.zeros(2), "nlp_signature": np.array("other")})
 
 
 def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_path):

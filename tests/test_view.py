@@ -113,6 +113,17 @@ def test_load_result_reads_the_contract(result_dir):
     assert res.impacts() == [(T_IMPACT, ("foot",))]
 
 
+def test_a_loaded_result_is_frozen_through_its_arrays(result_dir):
+    """load_result's Result is read-only through its arrays too, as the planner's own results are (r.q[0] = ... and
+    flags.writeable = True worked)."""
+    res = view.load_result(result_dir)
+    for array in (res.tau, res.q, res.t, res.lambda_n):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 1.0
+        with pytest.raises(ValueError, match="WRITEABLE"):
+            array.flags.writeable = True
+
+
 def test_a_repeated_numerical_time_is_shown_as_two_frames(result_dir):
     """A result whose tau repeats a value (`planner gait` writes tau = t, an impact's two samples at one time) loads:
     the repeat becomes a frame 1 ns later, so tau increases and the rest of the grid is unchanged to 1 ns."""
@@ -181,6 +192,7 @@ def _nan_q(d: Path) -> None:
     (_nan_q, "q is not finite"),  # numpy's LinAlgError came out of the drawing
     (lambda d: _changed(d, "impact_times", lambda t: np.array(["soon"] * t.size)), "impact_times must hold numbers"),
     (lambda d: (d / "summary.json").write_text(json.dumps({"robot": "/nowhere/r.xml"})), "was not found"),
+    (lambda d: _changed(d, "q", lambda q: q + 1j), "q must hold real numbers"),  # drawn from the real part, with a warning
 ])
 def test_load_result_rejects_a_bad_directory_in_one_line(result_dir, damage, message):
     """A broken result directory is an InputError (exit 2 in the CLI) whose one line says what is wrong."""
