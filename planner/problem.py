@@ -366,7 +366,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     for key, y in states.items():
         for c, gap in zip(contacts, np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel()):
             if gap < -1e-9:
-                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m below the ground")
+                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}")
     _check_target_outside_holes(dyn, contacts, plan)
 
     if options.discretization is Discretization.FESD:

@@ -93,7 +93,10 @@ class ContactSettings:
     no-slip, so a valid plan does not slide; frictionless (mu = 0) sliding is exact.
 
     Contacts with restitution > 0 use (timeconst, dampratio) = (elastic_timeconst_steps * timestep,
-    zeta(eps)) with the damping ratio of a linear spring-damper whose exit/entry speed ratio is eps.
+    zeta(eps)) with the damping ratio of a linear spring-damper whose exit/entry speed ratio is eps. Above
+    eps ~0.73 (zeta < 1 / elastic_timeconst_steps) that spring would be stiffer than MuJoCo's step can integrate; it
+    gets the direct form (-k, -b) = (-1 / timestep^2, -2 zeta / timestep) instead: the same zeta at frequency
+    1 / timestep (measured exit/entry 0.79, 0.90, 1.0001 for eps = 0.8, 0.9, 1).
     """
 
     timestep: float = 2.5e-4  # [s]; the one-step penetration at impact is v * timestep
@@ -132,7 +135,12 @@ class ContactSettings:
             return (-stiffness, -damping)
         log_eps = math.log(restitution)
         zeta = -log_eps / math.sqrt(math.pi**2 + log_eps**2)
-        return (self.elastic_timeconst_steps * self.timestep, zeta)
+        timeconst = self.elastic_timeconst_steps * self.timestep
+        if zeta * timeconst >= self.timestep:  # MuJoCo's stiffness 1/(timeconst zeta)^2 is within 1/timestep^2
+            return (timeconst, zeta)
+        # stiffer, MuJoCo's step goes unstable (restitution 0.9 left at 2.8 times the impact speed), and zeta = 0 is no
+        # solref format (MuJoCo's default contact replaced it): the same damping ratio at frequency 1 / timestep
+        return (-1.0 / self.timestep**2, -2.0 * zeta / self.timestep)
 
 
 @dataclass(frozen=True)

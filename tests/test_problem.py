@@ -234,8 +234,9 @@ def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
 
 @pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
 def test_a_target_below_the_ground_is_an_input_error(discretization):
-    """A target that puts a contact point below the ground (the point mass at z = -1 m) has no plan, as an initial
-    state there has none: build_problem says which point and by how much (it built, and the solve failed)."""
+    """A target that puts a contact point below the ground (the point mass at z = -1 m) or behind a wall has no plan,
+    as an initial state there has none: build_problem says which point, by how much and behind which plane (it
+    built, and the solve failed)."""
     from planner.discretization import Discretization
 
     def hop(target_z: float):
@@ -243,9 +244,14 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
                            "horizon": {"tau_f": 1.0, "N": 4}, "plan": {"target_q": [0.5, target_z], "u_bound": 30.0}})
 
     robot, options = load_robot(f"{ROBOTS}/point_mass.xml"), ProblemOptions(discretization=Discretization(discretization))
-    with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground"):
+    with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground \(z = 0\)"):
         build_problem(robot, hop(-1.0), options)
     build_problem(robot, hop(0.0), options)
+    walled = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [-1.0, 0.0, 0.0]}],
+                         "initial": {"q": [-0.5, 0.0]}, "horizon": {"tau_f": 1.0, "N": 4},
+                         "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    with pytest.raises(InputError, match=r"target_q puts contact point 'point' 0.5 m behind its plane \(normal \(-1, 0, 0\)"):
+        build_problem(robot, walled, options)  # it said "below the ground" of a point on the ground, behind a wall
 
 
 def test_a_corner_plan_builds_with_each_contacts_own_gates():

@@ -68,6 +68,8 @@ def _with(path: str, value):
          r"plan.homotopy = .* last penalty .* at most 1e300"),  # kappa**i raised OverflowError in the solve
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"n_nlp": 1000}}, r"at most 1e300"),
         ("horizon", {"tau_f": 2.5, "N": 10**9}, r"horizon.N = 1000000000 .* in \[1, 10000000\]"),  # built for ever
+        ("contacts", [{"point": "foot", "a_n": 1e7}], r"contacts.a_n = 10000000.0 .* in \(0, 1e\+06\]"),  # clock at 1.44x
+        ("contacts", [{"point": "foot", "a_t": 1e9}], r"contacts.a_t = 1000000000.0 .* in \(0, 1e\+06\]"),  # flight sped up
     ],
 )
 def test_bad_values_are_named(path, value, message):
