@@ -70,6 +70,11 @@ _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWAR
 # options
 # ==================================================================================================
 
+# between two samples a contact point may cut a hole's rim (the main job's plan reaches metric 0.80: 1 cm into hole 1,
+# in the air above it); reaching the hole's inner half (metric < 0.25) is going through it (a plan through a 8 cm
+# wide, 100 m tall hole: 6e-9)
+HOLE_PASS_METRIC = 0.25
+HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
 
 
@@ -424,6 +429,12 @@ class KinematicReport:
     contact_mismatches: int  # pairs where the two disagree
     mismatch_times_s: tuple[float, ...]  # the first few
     max_site_disagreement_m: float  # |Pinocchio - MuJoCo| height of the contact points
+    # the contact points' deepest reach into the task's holes along q interpolated linearly between samples (the
+    # tracking reference's path): ((x - xc)/a)^2 + ((z - zc)/b)^2, 1 on the rim; None without holes
+    min_hole_metric: float | None = None
+    hole_point: str | None = None
+    hole_index: int | None = None
+    hole_time_s: float | None = None  # the sample the deepest chord leaves from
 
     @property
     def contacts_agree(self) -> bool:
@@ -582,7 +593,9 @@ class Validation:
             f"MuJoCo validation of {self.robot}: {'PASSED' if self.passed else 'FAILED'}",
             f"  kinematic: max penetration {k.max_penetration_m * 1e3:.3f} mm (limit {th.max_penetration_m * 1e3:.1f} mm); "
             f"contacts agree on {k.samples * len(k.penetration_by_point_m) - k.contact_mismatches}/"
-            f"{k.samples * len(k.penetration_by_point_m)} samples",
+            f"{k.samples * len(k.penetration_by_point_m)} samples"
+            + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
+               f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"),
             f"  tracking ({self.controller.value}): base error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); feet max "
             + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items())
@@ -673,7 +686,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
         if point is not None and point not in scene.points:  # it stood for the lowest point, silently
             raise UnknownNameError("contact point", point, scene.points)
 
-    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m)
+    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
@@ -689,6 +702,10 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if not kinematic.max_penetration_m <= options.max_penetration_m:
         failures.append(f"penetration {kinematic.max_penetration_m:.4g} m of {kinematic.worst_point!r} at "
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
+    if kinematic.min_hole_metric is not None and not kinematic.min_hole_metric >= HOLE_PASS_METRIC:
+        failures.append(f"{kinematic.hole_point!r} passes through plan.holes[{kinematic.hole_index}] between the samples "
+                        f"after t = {kinematic.hole_time_s:.4g} s (ellipse metric {kinematic.min_hole_metric:.3g} < "
+                        f"{HOLE_PASS_METRIC}): the hole is narrower than a step's travel; plan on a finer grid (--steps)")
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -784,9 +801,10 @@ def _impact_points(summary: dict, task: Task, n_impacts: int) -> tuple[list[str 
 # the three replays
 # ==================================================================================================
 
-def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: float) -> KinematicReport:
+def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: float, task: Task | None = None) -> KinematicReport:
     """Set qpos at every sample: penetration (MuJoCo's kinematics) and contact agreement, where the
-    plan's contact is Pinocchio's gap < tol and MuJoCo's is its collision detection within tol."""
+    plan's contact is Pinocchio's gap < tol and MuJoCo's is its collision detection within tol; with the task's
+    holes, how deep its contact points reach into them between the samples (_hole_reach)."""
     model, data = scene.model, mujoco.MjData(scene.model)
     pdata = robot.model.createData()
     frames = [robot.frame_id(p) for p in scene.points]
@@ -814,7 +832,32 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
         contact_mismatches=int(mismatch.sum()),
         mismatch_times_s=tuple(float(x) for x in t[np.nonzero(mismatch.any(axis=1))[0][:10]]),
         max_site_disagreement_m=float(np.abs(height_mj - height_pin).max()) if C else 0.0,
+        **_hole_reach(robot, task, t, q),
     )
+
+
+def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:
+    """The smallest ellipse metric of a contact point in a hole of task.plan along q linear between the samples
+    (HOLE_SUBSAMPLES points a step): the OCP keeps the points out of the holes at its nodes only, so a hole narrower
+    than a step's travel can be crossed between two (a plan went through a 8 cm wide, 100 m tall one). KinematicReport's
+    hole fields; empty without holes."""
+    holes = task.plan.holes if task is not None and task.plan is not None else ()
+    if not holes:
+        return {}
+    data = robot.model.createData()
+    points = list(dict.fromkeys(c.point for c in task.contacts))
+    frames = [robot.frame_id(p) for p in points]
+    worst = (math.inf, None, None, None)
+    fractions = np.linspace(0.0, 1.0, HOLE_SUBSAMPLES + 1)[:-1]
+    for i, s in [(i, s) for i in range(t.size - 1) for s in fractions] + [(t.size - 1, 0.0)]:  # the last sample too
+        pin.framesForwardKinematics(robot.model, data, q[i] if s == 0.0 else (1.0 - s) * q[i] + s * q[i + 1])
+        for point, frame in zip(points, frames):
+            x, _, z = data.oMf[frame].translation
+            for k, e in enumerate(holes):
+                metric = ((x - e.x) / e.a) ** 2 + ((z - e.z) / e.b) ** 2
+                if metric < worst[0]:
+                    worst = (float(metric), point, k, float(t[i]))
+    return dict(zip(("min_hole_metric", "hole_point", "hole_index", "hole_time_s"), worst))
 
 
 class _Reference:

@@ -510,6 +510,26 @@ def test_impact_points_name_contact_points_one_per_impact(capler):
         replay.validate_trajectory(robot, task, traj, impact_taps=[False, True])
 
 
+def test_a_path_through_a_hole_between_samples_fails(point_mass):
+    """The OCP keeps contact points out of the holes at its nodes only: a point that goes through a hole narrower than
+    a step's travel (two samples on either side of an 8 cm wide, 100 m tall hole) fails the validation naming the hole;
+    the same path beside a hole passes that check, and the reach is the chord's smallest ellipse metric."""
+    def through(hole_x: float):
+        task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.02]},
+                           "horizon": {"tau_f": 0.1, "N": 1},
+                           "plan": {"target_q": [0.5, 0.02], "u_bound": 30.0, "holes": [{"x": hole_x, "a": 0.04, "b": 50.0}]}})
+        traj = {"t": np.array([0.0, 0.1]), "q": np.array([[0.0, 0.02], [0.5, 0.02]]), "v": np.array([[5.0, 0.0], [5.0, 0.0]]),
+                "u": np.zeros((2, 2)), "impact_times": np.zeros(0)}
+        return replay.validate_trajectory(point_mass, task, traj)
+
+    crossed = through(0.25)
+    assert crossed.kinematic.min_hole_metric < 1e-3 and crossed.kinematic.hole_index == 0
+    assert any("'point' passes through plan.holes[0] between the samples after t = 0 s" in f for f in crossed.failures)
+    beside = through(2.0)
+    assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
+    assert not any("passes through" in f for f in beside.failures)
+
+
 def test_missing_and_garbled_files(ground_truth, tmp_path):
     """Every broken result directory is an InputError that names the problem."""
     traj, good = ground_truth
