@@ -29,7 +29,7 @@ import math
 import os
 import time as _time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
 from functools import cached_property
 from pathlib import Path
@@ -651,7 +651,12 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
 
         return validate_walk(robot, task, check_trajectory(robot, traj))
     contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
-    return validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps)
+    validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps)
+    if summary.get("converged") is False:  # a replay of the last iterate tracked is no verdict on a motion
+        return replace(validation, passed=False, failures=validation.failures + (
+            f"the {'simulation' if summary.get('command') == 'simulate' else 'plan'} did not converge (summary.json): "
+            "MuJoCo replayed its last iterate",))
+    return validation
 
 
 def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: ValidationOptions | None = None) -> Validation:

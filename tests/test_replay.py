@@ -530,6 +530,19 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     assert not any("passes through" in f for f in beside.failures)
 
 
+def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
+    """validate(DIR) of a result whose summary says it did not converge fails, saying so, even when MuJoCo tracks its
+    last iterate (a plan of one step, terminal error 0.25, was PASSED, exit 0)."""
+    _, good = ground_truth
+    for f in ("summary.json", "trajectory.npz"):
+        (tmp_path / f).write_bytes((good / f).read_bytes())
+    summary = json.loads((good / "summary.json").read_text())
+    (tmp_path / "summary.json").write_text(json.dumps({**summary, "converged": False}))
+    converged, failed = replay.validate(good), replay.validate(tmp_path)
+    assert converged.passed and not failed.passed
+    assert failed.failures == ("the simulation did not converge (summary.json): MuJoCo replayed its last iterate",)
+
+
 def test_missing_and_garbled_files(ground_truth, tmp_path):
     """Every broken result directory is an InputError that names the problem."""
     traj, good = ground_truth
