@@ -178,9 +178,21 @@ class SimulationResult:
     command: str = "simulate"
     extra: dict = field(default_factory=dict)
 
+    @property
+    def ends_in_impact(self) -> bool:
+        """The horizon ends while the last impact is still frozen (its clock never ran again): a simulation has no
+        terminal state to end it, so that impact is unfinished and its impulse and v_post are partial (a 100 kg point
+        mass landing at 4.4 m/s stays frozen for ~2 m |v_n| / a_n = 4.4 s of numerical time at a_n = 200)."""
+        tr = self.trajectory
+        return bool(tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1])
+
     def report(self) -> str:
         """A few human-readable lines for the terminal."""
-        return "\n".join([_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory))
+        lines = [_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory)
+        if self.ends_in_impact:
+            lines.append("  the horizon ends inside the last impact (its clock is still stopped): its impulse and "
+                         "post-impact velocity are partial; lengthen tau_f or raise the contact's a_n")
+        return "\n".join(lines)
 
     def summary(self) -> dict:
         """The summary.json object (contract keys first)."""
@@ -190,6 +202,7 @@ class SimulationResult:
             "h": self.h,
             "rho_f": self.rho_f,
             "n_steps": len(self.trajectory.tau) - 1,
+            "ends_in_impact": self.ends_in_impact,
             "message": self.stats.message,
             **{k: v for k, v in self.extra.items() if not k.startswith("_")},
         }
