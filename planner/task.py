@@ -409,6 +409,7 @@ class Task:
         _length("initial.q", self.initial.q, robot.nq)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
+        robot.check_inertia(self.initial.q)
         if self.simulate.u is not None:
             _length("simulate.u", self.simulate.u, robot.nu)
         for i, change in enumerate(self.simulate.schedule):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from planner.errors import TaskError, UnknownNameError
+from planner.errors import RobotFileError, TaskError, UnknownNameError
 from planner.model import load_robot
 from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, Periodic, Plan, Task, load_task, parse_task,
                           task_to_json, tasks_between)
@@ -106,6 +106,21 @@ def test_plan_needs_actuators(tmp_path):
                        "plan": {"target_q": [1.0]}})
     with pytest.raises(TaskError, match="no actuators"):
         task.check_against(load_robot(xml))
+
+
+def test_a_degree_of_freedom_too_light_to_resolve_is_refused(tmp_path):
+    """A body whose inertia at initial.q is below model.MIN_DOF_INERTIA is refused naming its degrees of freedom (a
+    1e-9 kg point mass simulated as hovering, "converged", and its validation PASSED); 1e-4 kg passes."""
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 1.0]}, "horizon": {"tau_f": 1.0, "N": 5}})
+    source = load_robot("point_mass").path.read_text()
+    for mass, refused in (("1e-9", True), ("1e-4", False)):
+        path = tmp_path / f"pm_{mass}.xml"
+        path.write_text(source.replace('mass="1"', f'mass="{mass}"'))
+        if refused:
+            with pytest.raises(RobotFileError, match=r"lighter than 0.0001 kg \(or kg m\^2\) at initial.q: x \(1e-09\), z \(1e-09\)"):
+                task.check_against(load_robot(path))
+        else:
+            task.check_against(load_robot(path))
 
 
 BIPED_PERIODIC = {"contacts": [{"point": "foot_1", "mu": 1.0}, {"point": "foot_2", "mu": 1.0}],
