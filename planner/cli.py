@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import multiprocessing
 import os
@@ -20,6 +21,8 @@ from pathlib import Path
 from .errors import InputError, PlannerError
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+# OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be): exit 2
+PATH_ERRNOS = {errno.ENAMETOOLONG, errno.ELOOP, errno.ENOTDIR, errno.ENOENT, errno.EISDIR, errno.EACCES, errno.EROFS}
 EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
 # `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
 # point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
@@ -191,10 +194,13 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
-    except OSError as exc:  # a path the system refuses (a name too long, a loop of links) that no check above named
+    except OSError as exc:
         where = f": {exc.filename}" if exc.filename else ""
-        print(f"planner {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
-        return EXIT_INPUT
+        if exc.errno in PATH_ERRNOS and exc.filename:  # a path the system refuses that no check above named
+            print(f"planner {args.command}: error: {exc.strerror}{where}", file=sys.stderr)
+            return EXIT_INPUT
+        print(f"planner {args.command}: failed: {exc.strerror or exc}{where}", file=sys.stderr)  # e.g. a full disk
+        return EXIT_FAILED
     except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
         print(f"planner {args.command}: failed: out of memory (is horizon.N or --steps far too large?)", file=sys.stderr)
         return EXIT_FAILED

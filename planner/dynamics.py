@@ -96,7 +96,8 @@ def dynamics_for(robot: Robot, dynamics: Dynamics | None = None) -> Dynamics:
     if dynamics is None:
         return Dynamics(robot)
     expect(dynamics, Dynamics, "dynamics")
-    if dynamics.robot.sha256 != robot.sha256:
+    mine, theirs = dynamics.robot, robot
+    if (mine.sha256, mine.nq, mine.nv, mine.dof_names) != (theirs.sha256, theirs.nq, theirs.nv, theirs.dof_names):  # --floating
         raise InputError(f"dynamics were built from {dynamics.robot.path}, not from the robot {robot.path}; build them "
                          "with Dynamics(robot) or leave dynamics out")
     return dynamics

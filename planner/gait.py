@@ -1070,7 +1070,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     PLAN_WALK_GAINS (phase control with the stride-to-stride speed loop). The swing foot's contact
     and the landing detection are armed from its last apex: the time-freezing plan lets the knee-less
     swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking")."""
-    from .replay import MAX_PENETRATION_M, _kinematic, build_scene
+    from .replay import MAX_PENETRATION_M, _kinematic, build_scene, hole_failure
 
     model, step = plan_step(robot, task, arrays)
     if not PhaseReference.applies(step.x):
@@ -1081,12 +1081,14 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     height = np.array(model.swing_height.map(len(step.t))(step.x[:, :3].T)).ravel()
     walking = replay_gait(model, step, task, steps, gains or PLAN_WALK_GAINS, arm_index=last_apex(height))
     kin = _kinematic(build_scene(robot, task), robot, np.asarray(arrays["t"], float), np.asarray(arrays["q"], float),
-                     tol=1e-3)
+                     tol=1e-3, task=task)
     failures = []
     if walking.steps_walked < steps:
         failures.append(f"walked {walking.steps_walked} of {steps} steps in MuJoCo")
     if not kin.max_penetration_m <= MAX_PENETRATION_M:
         failures.append(f"penetration {kin.max_penetration_m:.4g} m > {MAX_PENETRATION_M} m")
+    if hole_failure(kin):
+        failures.append(hole_failure(kin))
     lay = model.layout
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),

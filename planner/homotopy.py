@@ -422,7 +422,9 @@ def solve_fields_from_json(text: str) -> dict:
     try:
         values = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{text!r} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
+        raise InputError(f"{text!r:.80} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
+    except RecursionError:
+        raise InputError(f"{text!r:.80} is nested too deeply to be SolveOptions fields") from None
     if not isinstance(values, dict):
         kind = {list: "an array", str: "a string", bool: "a boolean", type(None): "null"}.get(type(values), "a number")
         raise InputError(f"{text!r}: expected a JSON object of SolveOptions fields, got {kind}")
@@ -745,11 +747,22 @@ class HomotopyNlp:
     loose: bool  # not the last NLP: solved to the looser tolerances of _run
 
 
+def _check_schedules(problem: Problem, options: SolveOptions) -> None:
+    """InputError for per-NLP schedules the problem has no parameter for (they were silently ignored)."""
+    for name in ("an_schedule", "at_schedule"):
+        if getattr(options, name) is not None and not problem.options.aux_continuation:
+            raise InputError(f"SolveOptions.{name} needs a problem built with ProblemOptions(aux_continuation=True)")
+    if options.l1_schedule is not None and problem.options.penalty is not Penalty.LINF:
+        raise InputError("SolveOptions.l1_schedule adds an l1 sum to Penalty.LINF's slack; the problem's penalty is "
+                         f"{problem.options.penalty.value} (leave l1_schedule out)")
+
+
 def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[float] | None = None) -> HomotopyNlp:
     """NLP i (0-based) of solve()'s homotopy over `rhos` (default homotopy_rhos): its penalty, the
     holes relaxed or enforced, the terminal soft or hard, and the per-NLP schedules of `options`
     (an_schedule, at_schedule, l1_schedule, rho_f_schedule; a schedule shorter than the homotopy keeps
     its last value)."""
+    _check_schedules(problem, options)
     rhos = homotopy_rhos(problem, options) if rhos is None else rhos
     if not (isinstance(i, int) and 0 <= i < len(rhos)):
         raise InputError(f"homotopy_nlp's i = {i!r} is not allowed; the homotopy has NLPs 0 .. {len(rhos) - 1}")
@@ -780,12 +793,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     expect(problem, Problem, "solve's problem")
     expect(options, SolveOptions, "solve's options")
     problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
-    for name in ("an_schedule", "at_schedule"):  # the problem has no a_n, a_t parameters to scale: silently ignored
-        if getattr(options, name) is not None and not problem.options.aux_continuation:
-            raise InputError(f"SolveOptions.{name} needs a problem built with ProblemOptions(aux_continuation=True)")
-    if options.l1_schedule is not None and problem.options.penalty is not Penalty.LINF:
-        raise InputError("SolveOptions.l1_schedule adds an l1 sum to Penalty.LINF's slack; the problem's penalty is "
-                         f"{problem.options.penalty.value} (leave l1_schedule out)")
+    _check_schedules(problem, options)
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")

@@ -74,7 +74,8 @@ _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWAR
 # in the air above it); reaching the hole's inner half (metric < 0.25) is going through it (a plan through a 8 cm
 # wide, 100 m tall hole: 6e-9)
 HOLE_PASS_METRIC = 0.25
-HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated
+HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated, at least
+HOLE_MAX_SUBSAMPLES = 2000  # and at most (a step's travel of 500 quarter half-axes of the narrowest hole)
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
 
 
@@ -413,6 +414,7 @@ class Thresholds:
     open_loop_band_m: float
     contact_gap_tol_m: float
     min_flight_s: float
+    min_hole_metric: float = HOLE_PASS_METRIC  # a plan's contact points between samples (KinematicReport.min_hole_metric)
 
 
 @dataclass(frozen=True)
@@ -430,11 +432,11 @@ class KinematicReport:
     mismatch_times_s: tuple[float, ...]  # the first few
     max_site_disagreement_m: float  # |Pinocchio - MuJoCo| height of the contact points
     # the contact points' deepest reach into the task's holes along q interpolated linearly between samples (the
-    # tracking reference's path): ((x - xc)/a)^2 + ((z - zc)/b)^2, 1 on the rim; None without holes
+    # tracking reference's path; plans only): ((x - xc)/a)^2 + ((z - zc)/b)^2, 1 on the rim; None without holes
     min_hole_metric: float | None = None
     hole_point: str | None = None
     hole_index: int | None = None
-    hole_time_s: float | None = None  # the sample the deepest chord leaves from
+    hole_time_s: float | None = None  # where on that path [s]
 
     @property
     def contacts_agree(self) -> bool:
@@ -649,9 +651,11 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
 
-        return validate_walk(robot, task, check_trajectory(robot, traj))
-    contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
-    validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps)
+        validation = validate_walk(robot, task, check_trajectory(robot, traj))
+    else:
+        contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
+        validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
+                                         holes=summary.get("command") == "plan")  # a simulation has no holes
     if summary.get("converged") is False:  # a replay of the last iterate tracked is no verdict on a motion
         return replace(validation, passed=False, failures=validation.failures + (
             f"the {'simulation' if summary.get('command') == 'simulate' else 'plan'} did not converge (summary.json): "
@@ -670,9 +674,11 @@ def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: Val
 def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray],
                         options: ValidationOptions | None = None,
                         impact_points: Sequence[str | None] | None = None,
-                        impact_taps: Sequence[bool] | None = None) -> Validation:
+                        impact_taps: Sequence[bool] | None = None, holes: bool = True) -> Validation:
     """Replay a physical-time trajectory (contract arrays t, q, v, u, impact_times) in MuJoCo.
 
+    holes: check that the contact points stay out of task.plan's holes between the samples (a plan's trajectory;
+    `planner simulate` does not model holes).
     impact_points (I,): the contact point of each planned impact; None (or a None entry) means the
     point whose gap is smallest at the impact time. impact_taps (I,): which planned impacts are taps
     (Trajectory.taps), listed but not matched against the whole replay's MuJoCo impacts (the windows match them
@@ -691,7 +697,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
         if point is not None and point not in scene.points:  # it stood for the lowest point, silently
             raise UnknownNameError("contact point", point, scene.points)
 
-    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task)
+    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
@@ -707,10 +713,8 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if not kinematic.max_penetration_m <= options.max_penetration_m:
         failures.append(f"penetration {kinematic.max_penetration_m:.4g} m of {kinematic.worst_point!r} at "
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
-    if kinematic.min_hole_metric is not None and not kinematic.min_hole_metric >= HOLE_PASS_METRIC:
-        failures.append(f"{kinematic.hole_point!r} passes through plan.holes[{kinematic.hole_index}] between the samples "
-                        f"after t = {kinematic.hole_time_s:.4g} s (ellipse metric {kinematic.min_hole_metric:.3g} < "
-                        f"{HOLE_PASS_METRIC}): the hole is narrower than a step's travel; plan on a finer grid (--steps)")
+    if hole_failure(kinematic):
+        failures.append(hole_failure(kinematic))
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -723,16 +727,19 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     )
 
 
-def write_validation(out_dir: str | Path, validation: Validation, result_id: str | None = None) -> Path:
+_UNCHECKED = object()
+
+
+def write_validation(out_dir: str | Path, validation: Validation, result_id=_UNCHECKED) -> Path:
     """Store `validation.to_json()` as the `validation` object of out_dir/summary.json.
 
     Written to a temporary file and renamed, so a reader never sees half a summary. result_id: the summary's
-    `result_id` when the validation started; if another run has written out_dir since, the verdict is of the earlier
-    result and is not stored (InputError).
+    `result_id` (None for a result written without one) when the validation started; if another run has written
+    out_dir since, the verdict is of the earlier result and is not stored (InputError). Not given: not checked.
     """
     path = Path(out_dir) / "summary.json"
     summary = read_summary(Path(out_dir), require=())
-    if result_id is not None and summary.get("result_id") != result_id:
+    if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
         raise InputError(f"{out_dir} was written by another run while it was validated; the verdict (of the earlier "
                          "result) is not stored: validate it again")
     summary["validation"] = validation.to_json()
@@ -842,27 +849,52 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
 
 
 def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:
-    """The smallest ellipse metric of a contact point in a hole of task.plan along q linear between the samples
-    (HOLE_SUBSAMPLES points a step): the OCP keeps the points out of the holes at its nodes only, so a hole narrower
-    than a step's travel can be crossed between two (a plan went through a 8 cm wide, 100 m tall one). KinematicReport's
-    hole fields; empty without holes."""
+    """The smallest ellipse metric a touching contact point reaches in a hole of task.plan along q linear between the
+    samples t (P,), q (P, nq), from the second sample on (the OCP's hole rows start at node 1, and a point starting in
+    a hole may leave it in the first step): the OCP keeps the points out of the holes at its nodes only, so a hole
+    narrower than a step's travel can be crossed between two (a plan went through an 8 cm wide, 100 m tall one).
+    Each step is evaluated at HOLE_SUBSAMPLES points, more where the points travel farther than a quarter of the
+    narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES). KinematicReport's hole fields; empty without holes."""
     holes = task.plan.holes if task is not None and task.plan is not None else ()
-    if not holes:
+    points = list(dict.fromkeys(c.point for c in task.contacts if c.touches)) if holes else []
+    if not points:
         return {}
     data = robot.model.createData()
-    points = list(dict.fromkeys(c.point for c in task.contacts))
     frames = [robot.frame_id(p) for p in points]
+    centers, axes = np.array([[e.x, e.z] for e in holes]), np.array([[e.a, e.b] for e in holes])
+
+    def xz(qi: np.ndarray) -> np.ndarray:  # (points, 2) [m]
+        pin.framesForwardKinematics(robot.model, data, qi)
+        return np.array([data.oMf[f].translation[[0, 2]] for f in frames])
+
+    def metric(positions: np.ndarray) -> np.ndarray:  # (points, holes)
+        return (((positions[:, None, :] - centers[None]) / axes[None]) ** 2).sum(axis=-1)
+
+    start = xz(q[0])
+    inside_at_start = metric(start) < 1.0
     worst = (math.inf, None, None, None)
-    fractions = np.linspace(0.0, 1.0, HOLE_SUBSAMPLES + 1)[:-1]
-    for i, s in [(i, s) for i in range(t.size - 1) for s in fractions] + [(t.size - 1, 0.0)]:  # the last sample too
-        pin.framesForwardKinematics(robot.model, data, q[i] if s == 0.0 else (1.0 - s) * q[i] + s * q[i + 1])
-        for point, frame in zip(points, frames):
-            x, _, z = data.oMf[frame].translation
-            for k, e in enumerate(holes):
-                metric = ((x - e.x) / e.a) ** 2 + ((z - e.z) / e.b) ** 2
-                if metric < worst[0]:
-                    worst = (float(metric), point, k, float(t[i]))
-    return dict(zip(("min_hole_metric", "hole_point", "hole_index", "hole_time_s"), worst))
+    for i in range(t.size - 1):
+        end = xz(q[i + 1])
+        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * np.abs(end - start).max() / axes.min()))))
+        for s in np.linspace(0.0, 1.0, n + 1)[1:]:  # sample i + 1 included, sample i is the previous step's
+            m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
+            if i == 0:
+                m = np.where(inside_at_start, np.inf, m)
+            j = np.unravel_index(int(np.argmin(m)), m.shape)
+            if m[j] < worst[0]:
+                worst = (float(m[j]), points[j[0]], int(j[1]), float(t[i] + s * (t[i + 1] - t[i])))
+        start = end
+    return dict(zip(("min_hole_metric", "hole_point", "hole_index", "hole_time_s"), worst)) if worst[1] else {}
+
+
+def hole_failure(kinematic: KinematicReport) -> str | None:
+    """The validation's failure when a contact point goes through a hole's inner half, else None."""
+    k = kinematic
+    if k.min_hole_metric is None or k.min_hole_metric >= HOLE_PASS_METRIC:
+        return None
+    return (f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse metric "
+            f"{k.min_hole_metric:.3g} < {HOLE_PASS_METRIC}) between the plan's nodes: the hole is narrower than a step's "
+            "travel; plan on a finer grid (--steps)")
 
 
 class _Reference:

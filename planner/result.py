@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import tempfile
+import threading
 import uuid
 from dataclasses import dataclass, field, fields
 from functools import cached_property
@@ -551,16 +553,22 @@ def _stage(path: str | os.PathLike, write) -> str:
 
 
 def _replace(staged: list[tuple[str, Path]]) -> None:
-    """Rename each staged temp file to its path; on an error the temp files not yet renamed are removed."""
-    for i, (tmp, path) in enumerate(staged):
-        try:
-            os.replace(tmp, path)
-        except BaseException as exc:
-            for left, _ in staged[i:]:
-                Path(left).unlink(missing_ok=True)
-            if isinstance(exc, OSError):
+    """Rename each staged temp file to its path; on an error the temp files not yet renamed are removed. Ctrl-C and
+    SIGTERM wait until all are renamed (in the main thread): between two renames they left files of two results."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    try:
+        for i, (tmp, path) in enumerate(staged):
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                for left, _ in staged[i:]:
+                    Path(left).unlink(missing_ok=True)
                 raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
-            raise
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 # --- reading a result directory back (replay and view use these) -------------------------------------

@@ -506,6 +506,8 @@ def load_task(path: str | Path) -> Task:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise TaskError(f"{path}: nested too deeply to be a task") from None
     except OSError as exc:
         raise TaskError(f"cannot read task file {path}: {exc.strerror}") from None
     return parse_task(data, source=str(path))

@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from planner import replay as R
-from planner.result import read_robot, read_summary, read_task, read_trajectory
+from planner.result import check_same_result, read_robot, read_summary, read_task, read_trajectory
 from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,6 +46,7 @@ def load(out_dir: Path):
     """The validation's scene and MuJoCo-grid reference of the plan in out_dir, and the plan's checked arrays."""
     summary = read_summary(out_dir)
     robot, traj = read_robot(out_dir, summary), read_trajectory(out_dir)
+    check_same_result(out_dir, summary, traj)
     task = read_task(out_dir, traj, summary)
     options = R.ValidationOptions()
     scene = R.build_scene(robot, task, options.contact, detect_within_m=options.contact_gap_tol_m)

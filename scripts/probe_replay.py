@@ -31,7 +31,7 @@ import numpy as np
 from planner.errors import InputError
 from planner.homotopy import constraint_violation
 from planner.problem import build_problem
-from planner.result import read_robot, read_start, read_summary, read_task, read_trajectory
+from planner.result import check_same_result, read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
 from scripts._report import report, run_main, script_parser
@@ -49,6 +49,7 @@ def plan_problem(out_dir: Path, summary: dict | None = None):
     names (summary: that file's contents when already read)."""
     arrays = read_trajectory(out_dir, ("task_json",))
     summary = read_summary(out_dir) if summary is None else summary
+    check_same_result(out_dir, summary, arrays)
     problem = build_problem(read_robot(out_dir, summary), read_task(out_dir, arrays))
     return problem, read_start(out_dir, problem.signature, problem.nx, arrays)
 

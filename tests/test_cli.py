@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -302,12 +303,15 @@ def test_converged_plan_removes_an_earlier_failure(tmp_path, capsys):
     (other / "failed").mkdir(parents=True)
     (other / "failed" / "notes.txt").write_text("mine")
     linked.mkdir()
-    (linked / "failed").symlink_to(out / "failed")
+    target = tmp_path / "elsewhere"  # a planner result that a symlink DIR/failed points to: not this DIR's to remove
+    shutil.copytree(mixed / "failed", target, ignore=shutil.ignore_patterns("mine"))
+    (linked / "failed").symlink_to(target)
     for directory in (out, mixed, other, linked):
         assert main(["plan", "point_mass", "--task", str(hop), "--out", str(directory), "--no-validate", "-q",
                      "--no-plots", "--no-race"]) == 0
         assert json.loads((directory / "summary.json").read_text())["converged"] is True
     assert not (out / "failed").exists() and (linked / "failed").is_symlink()
+    assert json.loads((target / "summary.json").read_text())["converged"] is False
     assert sorted(p.name for p in (mixed / "failed").iterdir()) == ["mine"]
     assert (mixed / "failed" / "mine" / "notes.txt").read_text() == "mine"
     assert (other / "failed" / "notes.txt").read_text() == "mine"
@@ -505,3 +509,25 @@ def test_a_result_of_a_relative_robot_path_validates_from_another_directory(tmp_
     monkeypatch.chdir(tmp_path)
     assert main(["validate", "work/drop", "-q"]) == 0
     assert main(["view", "work/drop", "--html", str(tmp_path / "drop.html"), "-q"]) == 0
+
+
+def test_deeply_nested_inputs_and_system_failures_are_one_line(tmp_path, capsys, monkeypatch):
+    """A --solve JSON or a task TOML nested too deeply for Python's parsers is one line and exit 2 (a RecursionError
+    traceback); an OS error that is not about a path the user gave (a full disk) is one line and exit 1, not 2."""
+    import errno
+
+    import planner.cli
+
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--out", str(tmp_path / "o"), "--solve", "[" * 5000 + "]" * 5000],
+                     "nested too deeply")
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", str(deep), "--out", str(tmp_path / "o")], "nested too deeply")
+
+    def full_disk(args):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "o" / "summary.json"))
+
+    monkeypatch.setattr(planner.cli, "_cmd_check_model", full_disk)
+    assert main(["check-model", "point_mass"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("planner check-model: failed: No space left on device") and len(err.splitlines()) == 1

@@ -127,6 +127,11 @@ def test_dynamics_of_another_robot_are_refused(hop):
         with pytest.raises(InputError, match=r"dynamics were built from .*capler.xml, not from the robot .*point_mass.xml"):
             call()
     assert build_problem(robot, task, dynamics=Dynamics(load_robot("point_mass"))).nx == problem.nx
+    fixed, floating = load_robot("robots/capler.urdf"), load_robot("robots/capler.urdf", floating=True)
+    with pytest.raises(InputError, match="dynamics were built from"):  # the same file, read with a free flyer
+        build_problem(fixed, parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]},
+                                         "horizon": {"tau_f": 1.0, "N": 2}, "plan": {"target_q": [0.1, 0.4, 0.0, 0.0]}}),
+                      dynamics=Dynamics(floating))
 
 
 def test_solve_options_from_dict_takes_enum_members_and_values():

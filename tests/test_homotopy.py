@@ -659,6 +659,8 @@ def test_schedules_the_problem_cannot_use_are_refused():
             H.solve(plain, options)
     with pytest.raises(InputError, match="l1_schedule adds an l1 sum to Penalty.LINF's slack; the problem's penalty is l1"):
         H.solve(build_problem(robot, hop_task(N=3), ProblemOptions(penalty=Penalty.L1)), H.SolveOptions(l1_schedule=(1.0,)))
+    with pytest.raises(InputError, match="an_schedule needs"):  # the probes build the homotopy's NLPs without solve
+        H.homotopy_nlp(plain, H.SolveOptions(an_schedule=(0.1,)), 0)
 
 
 def test_functions_of_a_point_refuse_a_point_of_another_size():

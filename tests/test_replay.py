@@ -511,23 +511,28 @@ def test_impact_points_name_contact_points_one_per_impact(capler):
 
 
 def test_a_path_through_a_hole_between_samples_fails(point_mass):
-    """The OCP keeps contact points out of the holes at its nodes only: a point that goes through a hole narrower than
-    a step's travel (two samples on either side of an 8 cm wide, 100 m tall hole) fails the validation naming the hole;
-    the same path beside a hole passes that check, and the reach is the chord's smallest ellipse metric."""
-    def through(hole_x: float):
-        task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.02]},
+    """The OCP keeps contact points out of the holes at its nodes only: a plan's point that goes through a hole
+    narrower than a step's travel (two samples 0.5 m apart on either side of an 8 cm wide, 100 m tall hole, or a 8 mm
+    wide one, which 20 points a step missed) fails the validation naming the hole; the same path beside the hole
+    passes that check (its reach is the path's smallest ellipse metric); a simulation's trajectory (holes=False) and a
+    point that starts inside the hole (the OCP's rows start at node 1) are not checked."""
+    def validation(hole_x: float, a: float = 0.04, start_x: float = 0.0, holes: bool = True):
+        task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [start_x, 0.02]},
                            "horizon": {"tau_f": 0.1, "N": 1},
-                           "plan": {"target_q": [0.5, 0.02], "u_bound": 30.0, "holes": [{"x": hole_x, "a": 0.04, "b": 50.0}]}})
-        traj = {"t": np.array([0.0, 0.1]), "q": np.array([[0.0, 0.02], [0.5, 0.02]]), "v": np.array([[5.0, 0.0], [5.0, 0.0]]),
-                "u": np.zeros((2, 2)), "impact_times": np.zeros(0)}
-        return replay.validate_trajectory(point_mass, task, traj)
+                           "plan": {"target_q": [0.5, 0.02], "u_bound": 30.0, "holes": [{"x": hole_x, "a": a, "b": 50.0}]}})
+        traj = {"t": np.array([0.0, 0.1]), "q": np.array([[start_x, 0.02], [0.5, 0.02]]),
+                "v": np.array([[5.0, 0.0], [5.0, 0.0]]), "u": np.zeros((2, 2)), "impact_times": np.zeros(0)}
+        return replay.validate_trajectory(point_mass, task, traj, holes=holes)
 
-    crossed = through(0.25)
-    assert crossed.kinematic.min_hole_metric < 1e-3 and crossed.kinematic.hole_index == 0
-    assert any("'point' passes through plan.holes[0] between the samples after t = 0 s" in f for f in crossed.failures)
-    beside = through(2.0)
+    for a in (0.04, 0.004):
+        crossed = validation(0.2625, a)
+        assert crossed.kinematic.min_hole_metric < 0.25 and crossed.kinematic.hole_index == 0
+        assert any("'point' goes through plan.holes[0] near t = 0.05" in f for f in crossed.failures), crossed.failures
+    beside = validation(2.0)
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
-    assert not any("passes through" in f for f in beside.failures)
+    assert not any("goes through" in f for f in beside.failures)
+    for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
+        assert not any("goes through" in f for f in unchecked.failures)
 
 
 def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
@@ -612,8 +617,9 @@ def test_a_verdict_is_not_stored_into_a_result_written_since(ground_truth, tmp_p
     summary.pop("validation", None)  # another test may have stored one in the fixture's directory
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     result = replay.validate(tmp_path)
-    with pytest.raises(InputError, match="written by another run while it was validated"):
-        replay.write_validation(tmp_path, result, result_id="old")
+    for started_with in ("old", None):  # None: a result without an id when the validation started
+        with pytest.raises(InputError, match="written by another run while it was validated"):
+            replay.write_validation(tmp_path, result, result_id=started_with)
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     replay.write_validation(tmp_path, result, result_id="new")
     assert json.loads((tmp_path / "summary.json").read_text())["validation"]["passed"] == result.passed

@@ -312,3 +312,25 @@ def test_recover_ignores_a_frozen_sliver_of_numerical_time():
     t, _, _, _, impacts = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))
     assert [im.time for im in impacts] == pytest.approx([0.24], abs=EXACT)
     assert len(t) == 8  # the sliver's end is one more running sample
+
+
+def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch):
+    """A Ctrl-C that arrives while write_files renames its two files is held until both are renamed (it left a new
+    trajectory.npz beside the earlier summary.json: files of two results), then raised."""
+    import os
+    import signal
+
+    write_results(_tiny_result(2), tmp_path)
+    real_replace = os.replace
+
+    def interrupted(src, dst):
+        real_replace(src, dst)
+        os.kill(os.getpid(), signal.SIGINT)  # delivered between the two renames, were it not held
+
+    monkeypatch.setattr(os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_results(_tiny_result(3), tmp_path)
+    monkeypatch.setattr(os, "replace", real_replace)
+    summary, arrays = read_summary(tmp_path, require=()), dict(np.load(tmp_path / "trajectory.npz"))
+    check_same_result(tmp_path, summary, arrays)
+    assert arrays["t"].size == 3 and sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
