@@ -548,6 +548,27 @@ def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
     assert failed.failures == ("the simulation did not converge (summary.json): MuJoCo replayed its last iterate",)
 
 
+def test_a_periodic_plan_that_did_not_converge_does_not_pass(tmp_path, monkeypatch):
+    """A periodic plan's validation (its step walked in MuJoCo) fails too when summary.json says the plan did not
+    converge: the walk's verdict was returned before that check (PASSED, exit 0). The walk itself is stubbed."""
+    import planner.gait
+    from planner.task import load_task, task_to_json
+
+    robot, task = load_robot(ROBOTS_DIR / "biped.xml"), load_task(ROBOTS_DIR / "biped.toml")
+    assert task.plan.periodic is not None
+    P = 3
+    np.savez(tmp_path / "trajectory.npz", t=np.linspace(0.0, 0.1, P), q=np.tile(task.initial.q, (P, 1)),
+             v=np.zeros((P, robot.nv)), u=np.zeros((P, robot.nu)), impact_times=np.zeros(0),
+             task_json=np.array(task_to_json(task)))
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "plan", "robot": str(robot.path), "converged": False}))
+    walked = planner.gait.WalkValidation(passed=True, robot=str(robot.path), stance_foot="foot_1", swing_foot="foot_2",
+                                         period_s=0.1, max_penetration_m=0.0, walking=None, failures=())
+    monkeypatch.setattr(planner.gait, "validate_walk", lambda robot, task, arrays: walked)
+    result = replay.validate(tmp_path)
+    assert not result.passed and result.failures == (
+        "the plan did not converge (summary.json): MuJoCo replayed its last iterate",)
+
+
 def test_missing_and_garbled_files(ground_truth, tmp_path):
     """Every broken result directory is an InputError that names the problem."""
     traj, good = ground_truth
