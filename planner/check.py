@@ -79,8 +79,10 @@ class ModelCheck:
 
     @property
     def passed(self) -> bool:
-        """Every difference <= TOLERANCE (a NaN fails), and every MuJoCo site is one of Pinocchio's points."""
-        return all(err <= TOLERANCE for err in self.max_errors.values()) and not (self.mujoco and self.mujoco.missing_sites)
+        """Every difference <= TOLERANCE (a NaN fails), every MuJoCo site is one of Pinocchio's points, and MuJoCo reads
+        the file as Pinocchio does (a file it cannot compile, or reads with other coordinates, cannot be replayed)."""
+        return (all(err <= TOLERANCE for err in self.max_errors.values()) and not (self.mujoco and self.mujoco.missing_sites)
+                and not (self.mujoco_skipped or "").startswith(MUJOCO_FAILED))
 
     def to_json(self) -> dict:
         out = asdict(self)
@@ -101,7 +103,8 @@ class ModelCheck:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
                            "(Pinocchio's MJCF parser skips a site inside a <frame>)")
         else:
-            mujoco = f"skipped: {self.mujoco_skipped}"
+            failed = self.mujoco_skipped.startswith(MUJOCO_FAILED)
+            mujoco = self.mujoco_skipped if failed else f"skipped: {self.mujoco_skipped}"
         return "\n".join(
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
@@ -209,6 +212,9 @@ def _pinocchio_errors(robot: Robot, dyn: Dynamics, states) -> dict[str, float]:
     return {k: float(np.max(e)) for k, e in err.items()}  # np.max keeps a NaN, which fails the check
 
 
+MUJOCO_FAILED = "FAILED: "  # how mujoco_skipped starts when MuJoCo's reading of the file fails the check
+
+
 def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | None, str | None]:
     """CasADi vs MuJoCo on the same robot file, or (None, reason) when the coordinates differ.
 
@@ -224,14 +230,14 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
         mj = mujoco_spec(robot, robot.points).compile()
     except RobotFileError as exc:  # e.g. a URDF with a free flyer only Pinocchio adds (floating=True)
         return None, str(exc)
-    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find
-        return None, mujoco_failure(robot.path, exc)
+    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
+        return None, MUJOCO_FAILED + mujoco_failure(robot.path, exc)
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
     if other:
         return None, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
-    if (mj.nq, mj.nv) != (robot.nq, robot.nv):
-        return None, f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
+    if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
+        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
     data = mujoco.MjData(mj)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     sites = [(s, name) for s, name in enumerate(names) if name in robot.points]

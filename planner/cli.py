@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import hashlib
 import json
 import multiprocessing
 import os
@@ -456,6 +457,7 @@ def _cmd_plan(args) -> int:
         from .result import read_start, read_trajectory
 
         start_arrays = read_trajectory(args.init)
+        _check_start(args.init, robot, start_arrays)
         problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
         solve_options = replace(replan_options(solve_options), keep_schedule=args.keep_schedule,
                                 schedule_new_impacts=args.allow_new_impacts)
@@ -497,6 +499,26 @@ def _cmd_plan(args) -> int:
     return EXIT_OK if ok else EXIT_FAILED
 
 
+def _check_start(start: Path, robot, arrays: dict) -> None:
+    """InputError unless `start` (--init DIR) holds one converged plan of the robot's file: a failed plan's last
+    iterate (DIR/failed) was held as a contact schedule, and a plan of another file with the same joint and point
+    names (another mass) was accepted, as the NLP variables' names match."""
+    from .result import check_same_result, locate_input, read_summary
+
+    summary = read_summary(start, require=())
+    check_same_result(start, summary, arrays)
+    if summary.get("converged") is False:
+        raise InputError(f"{start} holds a plan that did not converge (summary.json): a replan starts from a converged plan")
+    named = summary.get("robot")
+    try:
+        path = locate_input(named, start, "robot") if isinstance(named, str) else None
+    except InputError:  # moved since: the variables' names are still compared
+        path = None
+    if path is not None and hashlib.sha256(path.read_bytes()).hexdigest() != robot.sha256:
+        raise InputError(f"{start} is a plan of the robot file {named}, whose contents differ from {robot.path}: a replan "
+                         "starts from a plan of the same robot")
+
+
 def _start_task(args, arrays: dict):
     """The task the --init plan solved, for the replan's walk from it (planner.replan): result.read_task from the
     plan's trajectory arrays, with --steps as given now; None, with a note on stderr, when it cannot be read: the
@@ -524,8 +546,10 @@ def _cmd_gait(args) -> int:
     if converged:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
-    _emit(args, result.summary, f"{result.report()}\n{'converged' if converged else 'FAILED'}: results in {target}")
-    return EXIT_OK if converged else EXIT_FAILED
+    walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
+    verdict = "converged" if converged and walked else "converged, but the MuJoCo walk fell" if converged else "FAILED"
+    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}")
+    return EXIT_OK if converged and walked else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 
 
 def _cmd_validate(args) -> int:

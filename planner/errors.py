@@ -5,6 +5,9 @@
 """
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 from collections.abc import Iterable
 from dataclasses import fields
 
@@ -35,6 +38,31 @@ class TaskError(InputError):
 
 class SolveError(PlannerError):
     """The numerical solve or the validation failed on valid input."""
+
+
+@contextlib.contextmanager
+def interruptible():
+    """Around a CasADi solver call: a Ctrl-C during it is raised as KeyboardInterrupt once the call returns. CasADi's
+    IPOPT catches the interrupt, stops with NonIpopt_Exception_Thrown and returns as if the NLP had failed, so the
+    homotopy went on to its next NLP (a --no-race plan interrupted after 1 s wrote a converged plan, exit 0). Where
+    Ctrl-C is ignored (a race's arms) or off the main thread, nothing changes."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield
+        return
+    caught = []
+
+    def note(signum, frame):
+        caught.append(signum)
+        previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def expect(value, kind: type | tuple[type, ...], what: str) -> None:

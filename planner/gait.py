@@ -34,11 +34,11 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect
+from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect, interruptible
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import ArraysReadOnly, write_files
-from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task
+from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
 RELABEL = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -497,7 +497,8 @@ def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = N
                         "ipopt.max_iter": max_iter})
     w0 = np.concatenate([xd.ravel(), ude[:N, :2].ravel()])  # time-major rows = CasADi columns
     start = time.perf_counter()
-    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
+    with interruptible():
+        sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=0, ubg=0)
     elapsed = time.perf_counter() - start
     stats = solver.stats()
     wopt = np.array(sol["x"]).ravel()
@@ -901,6 +902,10 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     spec = GaitSpec.from_task(task)
     g = task.gait
     model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
+    contacts = {c.point for c in task.contacts}
+    for foot in (model.layout.stance_foot, model.layout.swing_foot):  # before the solve: the replay refused it after
+        if foot not in contacts:
+            raise TaskError(f"a gait needs both feet as [[contacts]] (the walk and its MuJoCo replay); {foot!r} is missing")
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:
@@ -914,7 +919,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     force = np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T
     height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
     u_paper = -sol.u
-    near_T = sol.t[:-1] >= sol.t[-1] - 0.1
+    near_T = sol.t[:-1] >= min(sol.t[-1] - 0.1, sol.t[-2])  # the last 100 ms, at least the last step (N <= 15: none)
     summary = {
         "command": "gait", "robot": str(robot.path), "task": task.source,
         "converged": sol.converged, "solve_time_s": sol.solve_time_s,
@@ -939,7 +944,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                   "impact_impulses": np.array([i[2] for i in walk.impacts]),
                   "gait_t": sol.t, "gait_x": sol.x, "gait_u": sol.u, "gait_xd": sol.xd, "gait_ud": sol.ud,
                   "gait_x_embedded": sol.x_emb, "gait_u_embedded": sol.u_emb,
-                  "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str)}
+                  "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str),
+                  "task_json": np.array(task_to_json(task))}  # the task solved: view and validate read it from any directory
         write_files(Path(out_dir) if summary["converged"] else Path(out_dir) / "failed", arrays, summary)
     return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)
 

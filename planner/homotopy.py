@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types, expect
+from .errors import InputError, check_field_types, expect, interruptible
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -1069,7 +1069,8 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
             if key in args:
                 args[key] = np.concatenate([args[key], value])
     t0 = time.perf_counter()
-    sol = solver(**args)
+    with interruptible():
+        sol = solver(**args)
     wall = time.perf_counter() - t0
     st = solver.stats()
     if st.get("return_status") == "Invalid_Option":  # e.g. an HSL solver without its library: no iterate, no counts

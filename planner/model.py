@@ -55,8 +55,8 @@ class Robot:
     points: tuple[str, ...]  # named points: MJCF sites, URDF links and frames
     dof_names: tuple[str, ...]  # one joint name per velocity index (nv,)
     sha256: str
-    # the file's passive joint forces ("joint 'hip': damping 5"), which the planner's dynamics do not model:
-    # simulate and plan refuse the robot (Task.check_against); check-model compares the rigid-body terms only
+    # the file's passive joint forces ("joint 'hip': damping 5") and URDF <mimic> couplings, which the planner's dynamics
+    # do not model: simulate and plan refuse the robot (Task.check_against); check-model compares the rigid-body terms only
     passive: tuple[str, ...] = ()
 
     def check_inertia(self, q) -> None:
@@ -191,7 +191,10 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}") from None
+    _refuse_negative_inertia(path, model)
     actuators, dof_names, passive = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
+    if fmt is RobotFormat.URDF:
+        passive += _urdf_couplings(path)
     return Robot(
         path=path,
         format=fmt,
@@ -215,6 +218,25 @@ def _point_frames(model: pin.Model) -> dict[str, int]:
                                         and model.frames[points[frame.name]].type != pin.FrameType.OP_FRAME):
             points[frame.name] = fid
     return points
+
+
+def _urdf_couplings(path: Path) -> tuple[str, ...]:
+    """A URDF's <mimic> joints as Robot.passive entries: Pinocchio reads such a joint as independent, MuJoCo as an
+    equality constraint (MJCF's <equality> is refused), so simulate and plan refuse them; check-model compares the
+    tree, which both read alike (a gripper's mimic finger)."""
+    return tuple(f"joint {j.get('name', '?')!r}: <mimic> (a coupling MuJoCo makes an equality constraint)"
+                 for j in ET.parse(path).getroot().iter("joint") if j.find("mimic") is not None)
+
+
+def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
+    """RobotFileError naming a body whose mass is negative or whose rotational inertia is not positive semi-definite
+    (a URDF ixx = -1, a mass of -5 kg): its dynamics were garbage (check-model: mass errors of 1e115)."""
+    for jid in range(1, model.njoints):
+        inertia = model.inertias[jid]
+        if not (inertia.mass >= 0.0 and np.all(np.linalg.eigvalsh(inertia.inertia) >= -1e-12)):
+            raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has mass {inertia.mass:g} kg and rotational "
+                                 f"inertia eigenvalues {np.round(np.linalg.eigvalsh(inertia.inertia), 9).tolist()} kg m^2; "
+                                 "masses and inertias must be non-negative")
 
 
 def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
@@ -341,6 +363,7 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
     for body in spec.bodies:
         if body.joints and body.mass == 0.0:
             body.mass, body.inertia = MASSLESS_LINK_KG, [MASSLESS_LINK_INERTIA] * 3
+            body.fullinertia = [np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]  # unset (a URDF's full inertia): MuJoCo refuses both
     for a in robot.actuators:
         spec.add_actuator(name=a.name, target=a.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[a.gear, 0, 0, 0, 0, 0],
                           ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))

@@ -56,6 +56,13 @@ class ArraysReadOnly:
         _read_only(self)
 
 
+def _no_negative_zero(obj, name: str) -> None:
+    """A product's -0.0 (a * b with a = 0 and b < 0) stored as 0.0: it printed as "complementarity -0.0e+00"."""
+    value = getattr(obj, name)
+    if value == 0.0:
+        object.__setattr__(obj, name, 0.0)
+
+
 def tap_flags(impulse_norms) -> np.ndarray:
     """(I,) bool: which of the impacts with these impulse norms (I,) [N s] are taps (TAP_SHARE)."""
     norms = np.abs(np.asarray(impulse_norms, float))
@@ -165,6 +172,9 @@ class SolveStats:
     complementarity_residual: float  # max over all pairs of a * b at the solution
     message: str = ""
 
+    def __post_init__(self):
+        _no_negative_zero(self, "complementarity_residual")
+
 
 @dataclass(frozen=True, eq=False)
 class SimulationResult:
@@ -260,6 +270,9 @@ class NlpRecord:
     status: str  # IPOPT return status
     success: bool
     terminal_error: float  # max |terminal residual| [m, rad (, m/s, rad/s)]
+
+    def __post_init__(self):
+        _no_negative_zero(self, "complementarity_residual")
 
     def to_json(self) -> dict:
         return dict(vars(self))

@@ -29,7 +29,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, expect
+from .errors import InputError, check_field_types, expect, interruptible
 from .model import Robot
 from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
 from .task import Task
@@ -284,7 +284,8 @@ def _solve_homotopy(solver, comp_fn, x0, p_base, lbx, ubx, lbg, ubg, options, la
         args = {"x0": x, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
         if lam_x is not None:
             args.update(lam_x0=lam_x, lam_g0=lam_g)
-        sol = solver(**args)
+        with interruptible():
+            sol = solver(**args)
         st = solver.stats()
         n_nlp += 1
         iterations += int(st.get("iter_count", 0))

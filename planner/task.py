@@ -398,8 +398,9 @@ class Task:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
         is what the planner models (no passive joint forces, contact points in the x-z plane)."""
         if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
-            raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have no passive joint "
-                                 "forces (damping, stiffness, friction); remove them from the robot file to simulate or plan")
+            raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have neither passive joint "
+                                 "forces (damping, stiffness, friction) nor couplings between joints; remove them from the robot "
+                                 "file to simulate or plan")
         for c in self.contacts:
             if c.point not in robot.points:
                 raise UnknownNameError("contact point", c.point, robot.points)

@@ -24,7 +24,7 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
 def script_parser(doc: str, **kwargs) -> UsageParser:
     """The script's argument parser, described by the first paragraph of its docstring `doc`: a usage error is one line
     and exit code 2, as in `planner`."""
-    return UsageParser(description=doc.split("\n\n")[0], **kwargs)
+    return UsageParser(prog=Path(sys.argv[0]).stem, description=doc.split("\n\n")[0], **kwargs)  # run_main's name too
 
 
 def run_main(main) -> int:

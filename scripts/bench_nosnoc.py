@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.cli import prepare_out_dir
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
 from scripts._report import run_main, script_parser
@@ -495,6 +496,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="keep the records of OUT/results.json that this run does not redo (run the variants one at a time)")
     parser.add_argument("--max-iter", type=int, default=4000, help="IPOPT max_iter per NLP (the example's 4000)")
     args = parser.parse_args(argv)
+    prepare_out_dir(args.out)  # before the solves: an --out that is a file was refused only after them
     if args.n_fe < 1 or args.n_s < 1 or args.max_iter < 1:
         parser.error("--n-fe, --n-s and --max-iter must be >= 1")
     return args

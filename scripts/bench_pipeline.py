@@ -54,6 +54,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from planner.cli import prepare_out_dir
 from planner.homotopy import (SolveOptions, _Solvers, homotopy_nlp, ipopt_options, keep_freed_memory, solve,
                               solve_fields_from_json, solve_options_from_dict, variable_scale)
 from planner.derivatives import nlp_derivatives
@@ -369,6 +370,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="ProblemOptions.lift_products = False: the products of selectors substituted, not lifted variables")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
+    prepare_out_dir(args.out)  # before the runs: an --out that is a file was refused only after them
     problem_options = ProblemOptions(step_form=StepForm(args.step_form), lift_products=not args.no_lift)
     cases = args.cases or (["hop"] if args.quick else ["capler50", "capler125", "hop"])
     cases = [c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))]

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -48,10 +49,13 @@ def moved_task(text: str, value: float) -> str:
 
 
 def record(out: Path, code: int) -> dict:
-    """What a `planner plan` run wrote to `out` (OUT/failed when it did not converge)."""
+    """What a `planner plan` run wrote to `out` (OUT/failed when it did not converge); a run that wrote nothing (exit 2:
+    the task was refused, e.g. a target inside a hole) is a row with "refused" true and no numbers."""
     plan = out if (out / "summary.json").is_file() else out / "failed"
-    if not (plan / "summary.json").is_file():  # exit 2: the input was refused, nothing was planned
-        raise InputError(f"planner plan exited {code} without a result in {out} (its error is above)")
+    if not (plan / "summary.json").is_file():
+        return {"exit_code": code, "refused": True, "converged": False, "nlps": [], "ipopt_iterations": None,
+                "solve_time_s": None, "solver_setup_s": None, "control_cost": None, "impact_times_s": [],
+                "impact_impulses_Ns": [], "validation_passed": None, "steps_walked": None, "window_mean_m": None}
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
@@ -66,6 +70,7 @@ def record(out: Path, code: int) -> dict:
 def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) -> dict:
     """One `planner plan` in this process; its record with command_s, the command's wall time [s] (the
     imports paid once per benchmark, before its first run)."""
+    shutil.rmtree(out, ignore_errors=True)  # an earlier run's files there would be read as this run's
     started = time.perf_counter()
     code = planner_main(["plan", robot, "--task", str(task), "--out", str(out), "-q", *extra] + ([] if validate else ["--no-validate"]))
     return dict(record(out, code), command_s=time.perf_counter() - started)
@@ -75,6 +80,10 @@ def table(rows: list[dict]) -> str:
     lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] (IPOPT setup) | command [s] | cost | impacts: time [s] / impulse [N s] | MuJoCo |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        if r.get("refused"):
+            lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | refused (the error above) | | | "
+                         f"{r['command_s']:.2f} | | | |")
+            continue
         nlps = ", ".join(f"{label} {its}" for label, its in r["nlps"])
         mujoco = ("not run" if r["validation_passed"] is None else
                   f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else "")

@@ -34,6 +34,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner.cli import prepare_out_dir
 from planner.dynamics import Dynamics
 from planner.homotopy import solve
 from planner.model import load_robot
@@ -153,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), help="run only these cases (default: all)")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
+    prepare_out_dir(args.out)  # before the runs: an --out that is a file was refused only after them
 
     def log(name, rec):  # progress on stderr: stdout keeps the table or the JSON
         print(f"{name:<15} analysis {'on ' if rec['scene_analysis'] else 'off'}  nx {rec['n_variables']:6d}  ng {rec['n_constraints']:6d}  "

@@ -64,6 +64,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from planner import replay
+from planner.cli import prepare_out_dir
 from planner.discretization import Discretization, FESDOptions
 from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, solve
@@ -831,7 +832,7 @@ def main(argv: list[str] | None = None) -> int:
         # the quick ocp suite is the point mass only: Capler's cases and grids were dropped, and an empty results.json
         # written over the last one
         parser.error("--quick with --suite ocp runs the point-mass hop only: give no Capler --cases or --capler-N with it")
-    out = args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP)
+    out = prepare_out_dir(args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP))  # before the runs
 
     def log(rec):  # progress on stderr: stdout keeps the table or the JSON
         errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["errors"].items() if v is not None)

@@ -31,6 +31,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("docs/img"), help="where the pictures go [docs/img]")
     ap.add_argument("--at", type=float, default=1.5, help="seconds of animation before the screenshot [1.5]")
     args = ap.parse_args(argv)
+    if not 0.0 <= args.at < 1e6:  # nan gave a ValueError traceback
+        ap.error(f"--at must be a number of seconds in [0, 1e6), got {args.at}")
     from planner.view import render_html
 
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")

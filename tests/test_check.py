@@ -186,3 +186,17 @@ def test_a_site_pinocchio_does_not_read_fails_the_check(tmp_path):
     result = check_model(load_robot(path), samples=2)
     assert result.mujoco is not None and result.mujoco.missing_sites == ("foot",)
     assert not result.passed and "missing in Pinocchio's reading: foot" in result.report()
+
+
+def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
+    """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,
+    so check-model fails saying why (it said PASSED, the comparison "skipped"); a free flyer only Pinocchio adds is
+    still a documented skip."""
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    assert urdf.count('<joint name="knee" type="revolute">') == 1
+    path = tmp_path / "continuous.urdf"
+    path.write_text(urdf.replace('<joint name="knee" type="revolute">', '<joint name="knee" type="continuous">'))
+    result = check_model(load_robot(path), samples=1)
+    assert not result.passed and result.mujoco_skipped.startswith("FAILED: MuJoCo has nq, nv = 4, 4 but Pinocchio 5, 4")
+    assert "vs MuJoCo:    FAILED: MuJoCo has nq" in result.report()
+    assert check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).passed

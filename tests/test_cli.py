@@ -420,8 +420,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     DIR); with --keep-schedule in the one NLP that holds DIR's contact schedule. DIR keeps the task its plan
     solved (trajectory.npz's task_json, what the replan walks from), so the replan needs no task file of it;
     --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's NLP point (a simulation),
-    a plan on another grid (--steps), FESD, --keep-schedule without --init and --allow-new-impacts without
-    --keep-schedule are exit 2, one line each."""
+    a plan on another grid (--steps), FESD, --keep-schedule without --init, --allow-new-impacts without
+    --keep-schedule, a plan that did not converge and a plan of another robot file are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
     first = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "hop"), "--no-validate", "--json"]
@@ -456,6 +456,18 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
     _one_line_exit_2(capsys, argv + ["--steps", "10"], "other NLP variables")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
+    # a failed plan's last iterate, and a plan of another robot file whose names match (another mass): accepted before
+    summary = json.loads((tmp_path / "hop" / "summary.json").read_text())
+    failed = tmp_path / "failed_start"
+    shutil.copytree(tmp_path / "hop", failed)
+    (failed / "summary.json").write_text(json.dumps({**summary, "converged": False}))
+    _one_line_exit_2(capsys, argv[:-1] + [str(failed)], "holds a plan that did not converge")
+    heavy_robot = tmp_path / "heavy.xml"
+    heavy_robot.write_text(Path(summary["robot"]).read_text().replace('mass="1"', 'mass="2"'))
+    heavy = tmp_path / "heavy"
+    shutil.copytree(tmp_path / "hop", heavy)
+    (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot)}))
+    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "whose contents differ from")
 
 
 def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatch):
@@ -531,3 +543,29 @@ def test_deeply_nested_inputs_and_system_failures_are_one_line(tmp_path, capsys,
     assert main(["check-model", "point_mass"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("planner check-model: failed: No space left on device") and len(err.splitlines()) == 1
+
+
+def test_ctrl_c_inside_ipopt_stops_the_command(tmp_path):
+    """Ctrl-C while IPOPT runs in this process (here a plan --no-race; a replan from --init runs the same homotopy._run)
+    ends the command with exit 130 and one line, writing no result: CasADi's IPOPT caught it and returned as a failed
+    NLP, so the homotopy went on (a plan interrupted in its second NLP was written as converged, exit 0). The hop on
+    100 steps spends ~13 s in its fourth NLP, where the signal lands (CasADi says it caught it)."""
+    import signal
+    import time
+
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK.replace("N = 10", "N = 100"))
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--task", str(task), "--out",
+                             str(tmp_path / "out"), "--no-validate", "--no-plots", "--no-race"],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    lines = []
+    while not any("homotopy 3" in line for line in lines):  # the progress line of NLP 3: NLP 4 is running
+        lines.append(proc.stderr.readline())
+        assert lines[-1], "".join(lines)
+    time.sleep(1.0)  # into NLP 4's IPOPT, past the homotopy's work between NLPs
+    proc.send_signal(signal.SIGINT)
+    err = "".join(lines) + proc.stderr.read()
+    assert proc.wait(timeout=60) == 130, err
+    assert "KeyboardInterruptException" in err and "homotopy 4" not in err, err
+    assert err.strip().splitlines()[-1] == "planner plan: interrupted" and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

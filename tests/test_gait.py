@@ -12,7 +12,7 @@ from planner.errors import InputError, TaskError, UnknownNameError
 from planner.gait import (GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, replay_gait, run_gait,
                           solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
-from planner.task import load_task
+from planner.task import load_task, parse_task
 
 M_LEG, M_HIP, M_TORSO, R_LEG, L_TORSO, G = 5.0, 15.0, 10.0, 1.0, 0.5, 9.81
 CLOSED_FORM_TOL = 1e-9  # the issue's bound; derivation and closed form differ by round-off only (~1e-14)
@@ -274,3 +274,27 @@ def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
     with pytest.raises(ValueError, match="read-only"):
         spec.x0[0] = 9.0
     assert spec == spec and spec != GaitSpec.from_task(task) and len({spec, spec}) == 1
+
+
+def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_path, capsys):
+    """`planner gait` exits 1 when its MuJoCo walk falls (mu = 0: it converged, printed "converged" and exited 0); a
+    coarse grid (N = 15: no sample in the last 100 ms) writes its result with the task it solved (task_json, which
+    `view` reads from any directory) instead of a ValueError traceback; a task without both feet as contacts is
+    refused before the solve (after it, or not at all with --no-validate)."""
+    from planner.cli import main
+
+    gait1 = (ROBOTS_DIR / "biped_gait1.toml").read_text()
+    assert gait1.count("\nmu = ") == 2 and "\nN = 153\n" in gait1
+    slippery, coarse = tmp_path / "mu0.toml", tmp_path / "n15.toml"
+    slippery.write_text(gait1.replace("\nmu = 1.0", "\nmu = 0.0"))
+    coarse.write_text(gait1.replace("\nN = 153\n", "\nN = 15\n"))
+    assert "\nmu = 0.0" in slippery.read_text()
+    assert main(["gait", "biped", "--task", str(slippery), "--out", str(tmp_path / "fell"), "-q"]) == 1
+    assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "coarse"), "--no-validate", "-q"]) == 0
+    with np.load(tmp_path / "coarse" / "trajectory.npz") as npz:
+        assert load_task(coarse).gait == parse_task(json.loads(str(npz["task_json"]))).gait
+    one_foot = tmp_path / "one_foot.toml"
+    text = gait1.split("[[contacts]]")
+    one_foot.write_text("[[contacts]]".join(text[:2]) + "\n[" + text[2].split("\n[", 1)[1])
+    assert main(["gait", "biped", "--task", str(one_foot), "--out", str(tmp_path / "one"), "--no-validate"]) == 2
+    assert "a gait needs both feet as [[contacts]]" in capsys.readouterr().err

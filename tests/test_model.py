@@ -90,7 +90,7 @@ def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
     robot = load_robot(_hopper(tmp_path, hip=hip))
     assert robot.passive == (f"joint 'hip': {term}",)
     task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
-    with pytest.raises(Refused, match=f"hip': {term}: the planner's dynamics have no passive joint forces"):
+    with pytest.raises(Refused, match=f"hip': {term}: the planner's dynamics have neither passive joint forces"):
         task.check_against(robot)
 
 
@@ -112,3 +112,24 @@ def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checke
     sideways = load_robot(_hopper(tmp_path, base='axis="0 1 0"'))
     with pytest.raises(TaskError, match="contact point 'foot' can move along y"):
         task.check_against(sideways)
+
+
+def test_couplings_and_negative_inertias_are_refused(tmp_path):
+    """A URDF <mimic> joint (Pinocchio: an independent joint; MuJoCo: an equality constraint, so the replay and the
+    plan disagreed and both passed) is refused by simulate and plan (Task.check_against) naming the joint, as passive
+    joint forces are; a body of negative mass or inertia (check-model compared garbage, mass errors of 1e115) is refused
+    when the file is read."""
+    from planner.model import ROBOTS_DIR
+    from planner.task import load_task
+
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    knee_limit = '<limit lower="-1.5707963267948966" upper="1.5707963267948966" effort="60" velocity="100"/>\n  </joint>'
+    assert urdf.count(knee_limit) == 1 and urdf.count('<mass value="0.548"/>') == 1
+    mimic = tmp_path / "mimic.urdf"
+    mimic.write_text(urdf.replace(knee_limit, knee_limit.replace("</joint>", "") + '<mimic joint="hip" multiplier="-1"/>\n  </joint>'))
+    with pytest.raises(RobotFileError, match=r"joint 'knee': <mimic> .* nor couplings between joints"):
+        load_task(ROBOTS_DIR / "capler.toml").check_against(load_robot(mimic))
+    negative = tmp_path / "negative_mass.urdf"
+    negative.write_text(urdf.replace('<mass value="0.548"/>', '<mass value="-0.548"/>'))
+    with pytest.raises(RobotFileError, match=r"mass -0.548 kg"):
+        load_robot(negative)

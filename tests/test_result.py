@@ -314,6 +314,16 @@ def test_recover_ignores_a_frozen_sliver_of_numerical_time():
     assert len(t) == 8  # the sliver's end is one more running sample
 
 
+def test_a_complementarity_of_negative_zero_is_zero():
+    """A complementarity residual of -0.0 (a product a * b with a = 0, b < 0) is stored as 0.0 in NLP records and solve
+    stats: it printed as "complementarity -0.0e+00"."""
+    from planner.result import NlpRecord
+
+    record = NlpRecord("walk 1", 1.0, 1.0, 0.0, -0.0, 3, 0.1, "Solve_Succeeded", True, 0.0)
+    assert f"{record.complementarity_residual:.1e}" == "0.0e+00"
+    assert f"{SolveStats(True, 0.0, 1, 3, -0.0).complementarity_residual:.1e}" == "0.0e+00"
+
+
 def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch):
     """A Ctrl-C that arrives while write_files renames its two files is held until both are renamed (it left a new
     trajectory.npz beside the earlier summary.json: files of two results), then raised."""

@@ -791,6 +791,20 @@ def test_bench_replan_quick_run(tmp_path, capsys):
         bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
 
 
+def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch):
+    """A value whose task planner refuses (exit 2, nothing written: Capler's target 2.7 m stands in a hole) is a row
+    marked refused and the other values still run (the whole benchmark stopped, its finished rows lost); a run's
+    directory is cleared first, so an earlier run's summary.json is not read as a refused run's."""
+    bench = _load("bench_replan")
+    out = tmp_path / "keep_schedule_2.7"
+    out.mkdir()
+    (out / "summary.json").write_text('{"converged": true}')  # an earlier run's
+    monkeypatch.setattr(bench, "planner_main", lambda argv: 2)
+    row = bench.plan("capler", tmp_path / "task.toml", out, [], False)
+    assert row["refused"] and row["exit_code"] == 2 and row["ipopt_iterations"] is None and not out.exists()
+    assert "| 2.7 | keep_schedule | 2 | refused" in bench.table([{"value": 2.7, "variant": "keep_schedule", **row}])
+
+
 # --- scripts/_report.py: run_main ------------------------------------------------------------------------
 
 def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
@@ -814,7 +828,7 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     proc = subprocess.run([sys.executable, "-m", "scripts.bench_skips", "--bogus"], cwd=SCRIPTS.parent,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stdout == ""
-    assert proc.stderr.strip() == "bench_skips.py: error: unrecognized arguments: --bogus (see --help)"
+    assert proc.stderr.strip() == "bench_skips: error: unrecognized arguments: --bogus (see --help)"  # as run_main names it
 
 
 @pytest.mark.parametrize("argv, fragment", [
@@ -828,6 +842,10 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.bench_biped_walk", "--quick", "--lower", "fast"], "give no --lower with it"),  # dropped
     (["scripts.bench_biped_walk", "--quick", "--step", "1.9"], "refused the task of step 1.9 m"),  # FileNotFoundError
     (["scripts.bench_work_precision", "--suite", "ocp", "--quick", "--cases", "ocp_capler"], "runs the point-mass hop only"),
+    (["scripts.readme_figures", "results", "--at", "nan"], "--at must be a number of seconds"),  # a traceback
+    # an --out that is a file: refused after the whole run (70 s of nosnoc's solves)
+    *[([f"scripts.{name}", "--quick", "--out", "{file}"], "is a file, not a directory")
+      for name in ("bench_nosnoc", "bench_pipeline", "bench_skips", "bench_work_precision")],
 ])
 def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     """Inputs that a script used to record as every task's crash, ignore, or end in a traceback on (an --out that is
