@@ -103,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", type=_path, metavar="DIR",
                    help="start from the plan in DIR (a `planner plan` result with the same contacts, N and options) and solve "
                         "one NLP at a high penalty, then polish: a replan after a change of target or bounds that DIR's plan "
-                        "nearly meets (Capler's target moved 0.1 m: ~5x faster than hint-free; holes moved under its footholds: "
-                        "slower). Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
+                        "nearly meets. Measured on Capler's target moved 0.1 m it is now slower than planning hint-free (5878 "
+                        "against 2338 iterations, docs/benchmarks.md session 41): add --keep-schedule (31 iterations). "
+                        "Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
                    help="with --init: first re-optimize with DIR's contact schedule held (its impacts on the same steps, one "
                         "smooth NLP, ~1 s of solve for a small move, Capler's target 3.0 -> 3.4 m in ~4 s); if that is refused, walk there "
@@ -168,7 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner view results/capler                 # live; prints the URL\n"
                               "  planner view results/capler --html hop.html --slow-motion")
-    p.add_argument("dir", type=_path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("dir", type=_path, help="a result directory written by `planner plan`, `planner simulate` or `planner gait`")
     p.add_argument("--html", type=_path, help="write a static page that works offline instead of serving")
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)

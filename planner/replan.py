@@ -2,7 +2,7 @@
 
 `planner plan --init DIR --keep-schedule` starts the new task's NLP from DIR's plan. The held-schedule NLP
 (SolveOptions.keep_schedule: one smooth NLP, the plan's impacts on their steps) converges in tens of
-iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26; 3.4 m: 135), and is refused when it
+iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26; 3.4 m: 131, session 41), and is refused when it
 moved more: it does not converge, or its plan adds an impact (the biped's step 0.25 -> 0.28 m: the stance foot's at
 the period's start; taps below result.TAP_SHARE are not refused), after which the penalty replan from DIR's
 plan may not converge. Through tasks between (tasks_between: every number of the task file linear from DIR's task
