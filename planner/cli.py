@@ -254,9 +254,10 @@ def _load_inputs(args):
 
 def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Callable[[], None]]:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
-    good earlier result in `out` is never overwritten (and a converged run removes an earlier failure's `out/failed`). Returns that directory and a call that waits
-    for the plots: background draws them in a child process meanwhile (the caller validates, on the
-    other CPU), else they are drawn before this returns."""
+    good earlier result in `out` is never overwritten (and a converged run removes an earlier failure's
+    `out/failed`). Returns that directory and a call that waits for the plots: background draws them in
+    a child process meanwhile (the caller validates, on the other CPU), else they are drawn before this
+    returns."""
     from .result import write_results
 
     from .plots import PLOT_FILES
