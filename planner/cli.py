@@ -474,7 +474,7 @@ def _cmd_plan(args) -> int:
 
         result = race(problem, default_arms(solve_options), progress=progress)
     if args.init is not None:
-        result.options["init"] = str(args.init)  # summary.json says which plan this one started from
+        result.options["init"] = str(args.init.absolute())  # summary.json says which plan this one started from
     validating = not args.no_validate and result.trajectory.t.size > 1
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged

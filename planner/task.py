@@ -407,7 +407,7 @@ class Task:
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")
-        _length("initial.q", self.initial.q, robot.nq)
+        _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
         robot.check_inertia(self.initial.q)
@@ -672,6 +672,9 @@ def _require(ok: bool, key: str, value, allowed: str) -> None:
         raise TaskError(f"{key} = {value!r} is not allowed; it must be {allowed}")
 
 
-def _length(key: str, values, n: int) -> None:
+def _length(key: str, values, n: int, robot=None) -> None:
     if len(values) != n:
-        raise TaskError(f"{key} has {len(values)} entries; the robot needs {n}")
+        extra = ("" if robot is None or robot.nq == robot.nv else f" (nq = {robot.nq} positions for nv = {robot.nv} "
+                 "velocities: a free flyer's or a URDF continuous joint's orientation takes more than one number, "
+                 "e.g. cos and sin)")
+        raise TaskError(f"{key} has {len(values)} entries; the robot needs {n}{extra}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -55,6 +56,7 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     run_dir.mkdir(parents=True, exist_ok=True)
     task = run_dir / "task.toml"
     task.write_text(task_text(lower, step))
+    shutil.rmtree(run_dir / "plan", ignore_errors=True)  # an earlier run's summary.json would be read as this run's
     argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
     code = planner_main(argv + (["--steps", "6", "--no-validate"] if quick else []))
     plan = run_dir / "plan"

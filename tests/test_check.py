@@ -200,3 +200,8 @@ def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     assert not result.passed and result.mujoco_skipped.startswith("FAILED: MuJoCo has nq, nv = 4, 4 but Pinocchio 5, 4")
     assert "vs MuJoCo:    FAILED: MuJoCo has nq" in result.report()
     assert check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).passed
+    from planner.errors import TaskError
+    from planner.task import load_task
+
+    with pytest.raises(TaskError, match=r"initial.q has 4 entries; the robot needs 5 \(nq = 5 positions for nv = 4 .* cos and sin"):
+        load_task(ROBOTS_DIR / "capler.toml").check_against(load_robot(path))  # it said only "needs 5"

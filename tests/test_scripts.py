@@ -791,6 +791,18 @@ def test_bench_replan_quick_run(tmp_path, capsys):
         bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
 
 
+def test_bench_biped_walk_does_not_read_an_earlier_runs_result(tmp_path, monkeypatch):
+    """A run whose `planner plan` wrote nothing (exit 2) is refused as such, not recorded from the summary.json an
+    earlier run left in the same directory (a failed rerun recorded the earlier converged plan)."""
+    bench = _load("bench_biped_walk")
+    stale = tmp_path / "lower_0.3" / "plan"
+    stale.mkdir(parents=True)
+    (stale / "summary.json").write_text('{"converged": true}')
+    monkeypatch.setattr(bench, "planner_main", lambda argv: 2)
+    with pytest.raises(InputError, match="refused the task"):
+        bench.run("0.3", bench.DEFAULT_STEP, tmp_path, quick=True)
+
+
 def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch):
     """A value whose task planner refuses (exit 2, nothing written: Capler's target 2.7 m stands in a hole) is a row
     marked refused and the other values still run (the whole benchmark stopped, its finished rows lost); a run's
