@@ -1093,8 +1093,8 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
         failures.append(f"walked {walking.steps_walked} of {steps} steps in MuJoCo")
     if not kin.max_penetration_m <= MAX_PENETRATION_M:
         failures.append(f"penetration {kin.max_penetration_m:.4g} m > {MAX_PENETRATION_M} m")
-    if hole_failure(kin):
-        failures.append(hole_failure(kin))
+    if (through := hole_failure(kin)) is not None:
+        failures.append(through)
     lay = model.layout
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),

@@ -625,7 +625,7 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
         for i, e in enumerate(plan.holes):
             if (ct.point, i) in skips.dropped_holes:
                 continue
-            hole_exprs.append(((pos[0] - e.x) / e.a) ** 2 + ((pos[2] - e.z) / e.b) ** 2 - hole_scale**2)
+            hole_exprs.append(e.metric(pos[0], pos[2]) - hole_scale**2)
     coef = ca.mtimes(ca.DM(builder.C), builder.monomials_of(ws))  # P_j(sigma) per field, linear in the monomials
     field_names = [f.name for f in system.fields]
     cone = []
@@ -954,7 +954,7 @@ def _check_target_outside_holes(dyn: Dynamics, contacts, plan) -> None:
     for c in contacts:
         p = np.asarray(dyn.point_position(c.point)(np.array(plan.target_q, float)), float).ravel()
         for i, e in enumerate(plan.holes):
-            if ((p[0] - e.x) / e.a) ** 2 + ((p[2] - e.z) / e.b) ** 2 < 1.0 - HOLE_EDGE_TOL:
+            if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
                 raise InputError(f"plan.target_q puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, inside "
                                  f"plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no plan can end "
                                  "there: move the target or the hole")

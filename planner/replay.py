@@ -713,8 +713,8 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if not kinematic.max_penetration_m <= options.max_penetration_m:
         failures.append(f"penetration {kinematic.max_penetration_m:.4g} m of {kinematic.worst_point!r} at "
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
-    if hole_failure(kinematic):
-        failures.append(hole_failure(kinematic))
+    if (through := hole_failure(kinematic)) is not None:
+        failures.append(through)
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -861,21 +861,21 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
         return {}
     data = robot.model.createData()
     frames = [robot.frame_id(p) for p in points]
-    centers, axes = np.array([[e.x, e.z] for e in holes]), np.array([[e.a, e.b] for e in holes])
+    finest = min(min(e.a, e.b) for e in holes)
 
     def xz(qi: np.ndarray) -> np.ndarray:  # (points, 2) [m]
         pin.framesForwardKinematics(robot.model, data, qi)
         return np.array([data.oMf[f].translation[[0, 2]] for f in frames])
 
     def metric(positions: np.ndarray) -> np.ndarray:  # (points, holes)
-        return (((positions[:, None, :] - centers[None]) / axes[None]) ** 2).sum(axis=-1)
+        return np.stack([e.metric(positions[:, 0], positions[:, 1]) for e in holes], axis=1)
 
     start = xz(q[0])
     inside_at_start = metric(start) < 1.0
     worst = (math.inf, None, None, None)
     for i in range(t.size - 1):
         end = xz(q[i + 1])
-        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * np.abs(end - start).max() / axes.min()))))
+        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * np.abs(end - start).max() / finest))))
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:  # sample i + 1 included, sample i is the previous step's
             m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
             if i == 0:

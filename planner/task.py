@@ -113,6 +113,11 @@ class Ellipse:
         _require(self.a > 0, "plan.holes.a", self.a, "> 0")
         _require(self.b > 0, "plan.holes.b", self.b, "> 0")
 
+    def metric(self, x, z):
+        """((x - xc)/a)^2 + ((z - zc)/b)^2 of points x, z [m] (floats, arrays or CasADi expressions): 1 on the rim,
+        below 1 inside."""
+        return ((x - self.x) / self.a) ** 2 + ((z - self.z) / self.b) ** 2
+
 
 @dataclass(frozen=True)
 class Homotopy:

@@ -99,7 +99,7 @@ def hop_ocp(robot, task, landings, T: float, nodes: tuple[int, int], max_iter: i
             else:
                 opti.subject_to(p[2] >= task.ground_height)
                 for e in holes:
-                    opti.subject_to(((p[0] - e.x) / e.a) ** 2 + ((p[2] - e.z) / e.b) ** 2 >= 1)
+                    opti.subject_to(e.metric(p[0], p[2]) >= 1)
             opti.subject_to(momentum == 0)
             for pos in above:
                 opti.subject_to(pos(qn)[2] >= task.ground_height)
