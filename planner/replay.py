@@ -40,7 +40,7 @@ import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
-from .result import (Trajectory, check_same_result, read_robot, read_summary, read_task, read_trajectory,
+from .result import (Trajectory, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
                      write_atomically)
 from .task import Task
 
@@ -761,12 +761,7 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
         raise InputError(f"trajectory lacks array(s) {', '.join(missing)}; it needs {', '.join(REQUIRED_ARRAYS)}")
     out = {}
     for key in REQUIRED_ARRAYS:
-        if np.iscomplexobj(traj[key]):  # float() would drop the imaginary part with a warning
-            raise InputError(f"trajectory array {key!r} must hold real numbers, got {np.asarray(traj[key]).dtype}")
-        try:
-            out[key] = np.array(traj[key], dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"trajectory array {key!r} is not numeric") from None
+        out[key] = real_array(traj[key], f"trajectory array {key!r}")
     t = out["t"]
     if t.ndim != 1 or t.size < 2:
         raise InputError(f"trajectory 't' must have shape (P,) with P >= 2, got {t.shape}")

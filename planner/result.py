@@ -56,6 +56,17 @@ class ArraysReadOnly:
         _read_only(self)
 
 
+def real_array(value, what: str) -> np.ndarray:
+    """`value` as a float array (a copy); an InputError naming `what` when it holds complex numbers (float() would
+    drop the imaginary part with a warning) or no numbers (strings)."""
+    if np.iscomplexobj(value):
+        raise InputError(f"{what} must hold real numbers, got {np.asarray(value).dtype}")
+    try:
+        return np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must hold numbers, got {np.asarray(value).dtype}") from None
+
+
 def _no_negative_zero(obj, name: str) -> None:
     """A product's -0.0 (a * b with a = 0 and b < 0) stored as 0.0: it printed as "complementarity -0.0e+00"."""
     value = getattr(obj, name)
@@ -631,10 +642,7 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
-    try:
-        x = np.asarray(arrays["nlp_x"], float)
-    except (TypeError, ValueError):
-        raise InputError(f"{Path(out_dir) / 'trajectory.npz'}: nlp_x must hold numbers, got {arrays['nlp_x'].dtype}") from None
+    x = real_array(arrays["nlp_x"], f"{Path(out_dir) / 'trajectory.npz'}: nlp_x")
     if str(arrays["nlp_signature"]) != signature or x.shape != (nx,):
         which = (f"{x.size} against this problem's {nx}" if x.size != nx else
                  f"variables {str(arrays['nlp_signature'])[:16]!r} against this problem's {signature!r}" if x.ndim == 1 else

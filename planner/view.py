@@ -30,7 +30,8 @@ import pinocchio as pin
 
 from .errors import InputError, PlannerError
 from .model import Robot, RobotFormat
-from .result import ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, write_atomically
+from .result import (ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
+                     write_atomically)
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -150,12 +151,7 @@ def load_result(out_dir) -> Result:
     check_same_result(directory, summary, raw)
     arrays = {}
     for k in (k for k in required + optional if k in raw):
-        if np.iscomplexobj(raw[k]):  # float() would drop the imaginary part with a warning
-            raise InputError(f"{npz_path}: {k} must hold real numbers, got {raw[k].dtype}")
-        try:
-            arrays[k] = np.asarray(raw[k], dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"{npz_path}: {k} must hold numbers, got {raw[k].dtype}") from None
+        arrays[k] = real_array(raw[k], f"{npz_path}: {k}")
         if not np.all(np.isfinite(arrays[k])):
             raise InputError(f"{npz_path}: {k} is not finite (nan or inf)")
     robot = read_robot(directory, summary)
