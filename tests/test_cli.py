@@ -557,7 +557,10 @@ def test_ctrl_c_inside_ipopt_stops_the_command(tmp_path):
     task.write_text(HOP_TASK.replace("N = 10", "N = 100"))
     proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--task", str(task), "--out",
                              str(tmp_path / "out"), "--no-validate", "--no-plots", "--no-race"],
-                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            # Ctrl-C's default, which Python turns into KeyboardInterrupt, also where the suite runs
+                            # with SIGINT ignored (a background job of a script: CI) and the child would inherit that
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     while not any("homotopy 3" in line for line in lines):  # the progress line of NLP 3: NLP 4 is running
         lines.append(proc.stderr.readline())
