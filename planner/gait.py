@@ -741,9 +741,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
         raise InputError(f"walk control {gains.control.value!r} indexes the plan by time and needs a uniform grid; "
                          "use 'phase'")
     pair_of = {p: i for i, p in enumerate(scene.points)}
-    for foot in (lay.stance_foot, lay.swing_foot):
-        if foot not in pair_of:
-            raise TaskError(f"the gait replay needs both feet as [[contacts]]; {foot!r} is missing")
+    _require_feet(lay, scene.points)
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
     state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0}
     height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
@@ -879,6 +877,13 @@ class GaitRunResult:
         return "\n".join(lines)
 
 
+def _require_feet(layout: BipedLayout, contacts) -> None:
+    """TaskError unless both of the layout's feet are among the task's contact points `contacts`."""
+    for foot in (layout.stance_foot, layout.swing_foot):
+        if foot not in contacts:
+            raise TaskError(f"a gait needs both feet as [[contacts]] (the walk and its MuJoCo replay); {foot!r} is missing")
+
+
 def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, out_dir: str | os.PathLike | None,
              progress: Callable[[OuterLoop], None] | None = None, validate: bool = True) -> GaitRunResult:
     """Solve a task's [gait] with paper 001's strategy and write the results contract to out_dir.
@@ -902,10 +907,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     spec = GaitSpec.from_task(task)
     g = task.gait
     model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
-    contacts = {c.point for c in task.contacts}
-    for foot in (model.layout.stance_foot, model.layout.swing_foot):  # before the solve: the replay refused it after
-        if foot not in contacts:
-            raise TaskError(f"a gait needs both feet as [[contacts]] (the walk and its MuJoCo replay); {foot!r} is missing")
+    _require_feet(model.layout, [c.point for c in task.contacts])  # before the solve: the replay refused it after
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:
