@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
-import hashlib
 import json
 import multiprocessing
 import os
@@ -505,6 +504,7 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
     """InputError unless `start` (--init DIR) holds one converged plan of the robot's file: a failed plan's last
     iterate (DIR/failed) was held as a contact schedule, and a plan of another file with the same joint and point
     names (another mass) was accepted, as the NLP variables' names match."""
+    from .model import file_sha256
     from .result import check_same_result, locate_input, read_summary
 
     summary = read_summary(start, require=())
@@ -516,7 +516,7 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
         path = locate_input(named, start, "robot") if isinstance(named, str) else None
     except InputError:  # moved since: the variables' names are still compared
         path = None
-    if path is not None and hashlib.sha256(path.read_bytes()).hexdigest() != robot.sha256:
+    if path is not None and file_sha256(path) != robot.sha256:
         raise InputError(f"{start} is a plan of the robot file {named}, whose contents differ from {robot.path}: a replan "
                          "starts from a plan of the same robot")
 

@@ -202,9 +202,14 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         actuators=actuators,
         points=tuple(_point_frames(model)),
         dof_names=dof_names,
-        sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        sha256=file_sha256(path),
         passive=passive,
     )
+
+
+def file_sha256(path: Path) -> str:
+    """The hex SHA-256 of a file's contents: what tells two robot files apart (Robot.sha256)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _point_frames(model: pin.Model) -> dict[str, int]:
