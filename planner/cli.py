@@ -95,24 +95,25 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
                               "  planner plan point_mass --task hop.toml --no-validate --json\n"
                               "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
-                              "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan\n"
-                              "  planner plan capler --task capler_closer.toml --init results/capler --keep-schedule --out results/capler_closer")
+                              "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--init", type=_path, metavar="DIR",
-                   help="start from the plan in DIR (a `planner plan` result with the same contacts, N and options) and solve "
-                        "one NLP at a high penalty, then polish: a replan after a change of target or bounds that DIR's plan "
-                        "nearly meets. Measured on Capler's target moved 0.1 m it is now slower than planning hint-free (5878 "
-                        "against 2338 iterations, docs/benchmarks.md session 41): add --keep-schedule (31 iterations). "
-                        "Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
+                   help="replan from the plan in DIR (a `planner plan` result with the same contacts, N and options) after a "
+                        "change of target, bounds or holes that DIR's plan nearly meets: first one smooth NLP with DIR's contact "
+                        "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
+                        "solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between DIR's task and "
+                        "this one, every number of the task file moved part of the way (the biped's step 0.25 -> 0.30 m: "
+                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). Keeps DIR's timing. Implicit "
+                        "Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
-                   help="with --init: first re-optimize with DIR's contact schedule held (its impacts on the same steps, one "
-                        "smooth NLP, ~1 s of solve for a small move, Capler's target 3.0 -> 3.4 m in ~4 s); if that is refused, walk there "
-                        "through tasks between DIR's task and this one, every number of the task file moved part of the way (the "
-                        "biped's step 0.25 -> 0.30 m: ~10 s); if the walk stalls, the --init replan. Fast, but keeps DIR's "
-                        "timing, where the --init replan may find a cheaper one")
+                   help="with --init: what --init does by default (the held schedule first); kept so that older commands run")
+    p.add_argument("--penalty-replan", action="store_true",
+                   help="with --init: skip the held schedule and the walk; solve one NLP at a high penalty from DIR's plan, "
+                        "then polish. It may find a cheaper timing than DIR's, but on Capler's target moved 0.1 m it is "
+                        "slower than planning hint-free (5878 against 2338 iterations, docs/benchmarks.md session 41)")
     p.add_argument("--allow-new-impacts", action="store_true",
-                   help="with --keep-schedule: also accept a held schedule that adds impacts DIR's plan does not have, of any "
+                   help="with --init: also accept a held schedule that adds impacts DIR's plan does not have, of any "
                         "impulse (SolveOptions.schedule_new_impacts; without it only taps below 5%% of DIR's largest impulse; on the "
                         "biped it takes dearer gaits)")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
@@ -383,8 +384,8 @@ def _cmd_simulate(args) -> int:
 
 
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
-FLAG_OWNED = {"keep_schedule": "--keep-schedule", "schedule_new_impacts": "--allow-new-impacts",
-              "schedule_only": "--keep-schedule"}
+FLAG_OWNED = {"keep_schedule": "--penalty-replan", "schedule_new_impacts": "--allow-new-impacts",
+              "schedule_only": "--penalty-replan"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:
@@ -434,10 +435,14 @@ def _cmd_plan(args) -> int:
         raise InputError(f"--steps must be >= 1, got {args.steps}")
     if args.init is not None and discretization is not Discretization.IMPLICIT_EULER:
         raise InputError("--init works with --discretization implicit_euler only")
-    if args.keep_schedule and args.init is None:
-        raise InputError("--keep-schedule needs --init DIR: the plan whose contact schedule it keeps")
-    if args.allow_new_impacts and not args.keep_schedule:
-        raise InputError("--allow-new-impacts needs --keep-schedule: it relaxes the held schedule's acceptance")
+    for flag, given in (("--keep-schedule", args.keep_schedule), ("--penalty-replan", args.penalty_replan),
+                        ("--allow-new-impacts", args.allow_new_impacts)):
+        if given and args.init is None:
+            raise InputError(f"{flag} needs --init DIR: the plan to replan from")
+    if args.penalty_replan and (args.keep_schedule or args.allow_new_impacts):
+        raise InputError(f"--penalty-replan skips the held schedule that {'--keep-schedule' if args.keep_schedule else '--allow-new-impacts'} "
+                         "asks for; give one of them")
+    held = args.init is not None and not args.penalty_replan  # --init's default: the held schedule, then the walk
     robot, task, out = _load_inputs(args)
     if task.plan is None:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
@@ -460,9 +465,9 @@ def _cmd_plan(args) -> int:
         start_arrays = read_trajectory(args.init)
         _check_start(args.init, robot, start_arrays)
         problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
-        solve_options = replace(replan_options(solve_options), keep_schedule=args.keep_schedule,
+        solve_options = replace(replan_options(solve_options), keep_schedule=held,
                                 schedule_new_impacts=args.allow_new_impacts)
-    if args.keep_schedule:
+    if held:
         from .replan import replan
 
         result = replan(problem, solve_options, _start_task(args, start_arrays), progress=progress)

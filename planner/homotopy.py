@@ -260,7 +260,7 @@ class SolveOptions:
     x0's largest, session 29: Capler's target 3.0 -> 3.2 ... 3.4 m in 36-135 iterations, 1.5-3.8 s of solve,
     instead of a walk of 25-60 s); then no homotopy runs, else the
     homotopy runs from x0 as without it. For a start that is a converged plan of a nearby task
-    (planner plan --init DIR --keep-schedule): the motion moves, its impacts stay on their steps, so the
+    (planner plan --init DIR, its default): the motion moves, its impacts stay on their steps, so the
     plan is the best one with the old timing, not the best nearby. Measured (docs/benchmarks.md,
     "Replanning", session 12): Capler's target moved -0.2 ... +0.1 m in 38-106 iterations (the penalty
     replan: 375-4410) at its cost or lower; the biped's step 0.25 -> 0.22 ... 0.27 m in 15-30
@@ -547,7 +547,7 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     REPLAN_STOP_COMP), holes and terminal constraint enforced, variables scaled from the start,
     monotone barrier from REPLAN_MU_INIT; then the usual polish. It finds the local optimum next to
     the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
-    (planner plan --keep-schedule) the task's cost with the plan's contact schedule held comes first."""
+    (planner plan --init DIR) the task's cost with the plan's contact schedule held comes first."""
     expect(options, (SolveOptions, type(None)), "replan_options' options")
     return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0,
                    early_stop_comp=REPLAN_STOP_COMP,

@@ -1,6 +1,6 @@
 """Replanning from a plan with its contact schedule held, walked from the plan's task to the new one.
 
-`planner plan --init DIR --keep-schedule` starts the new task's NLP from DIR's plan. The held-schedule NLP
+`planner plan --init DIR` starts the new task's NLP from DIR's plan. The held-schedule NLP
 (SolveOptions.keep_schedule: one smooth NLP, the plan's impacts on their steps) converges in tens of
 iterations when the task moved a little (Capler's target 3.0 -> 3.1 m: 26; 3.4 m: 131, session 41), and is refused when it
 moved more: it does not converge, or its plan adds an impact (the biped's step 0.25 -> 0.28 m: the stance foot's at

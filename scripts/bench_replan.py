@@ -1,8 +1,8 @@
-"""Replanning from a plan (`planner plan --init DIR`), with and without --keep-schedule, as the task moves.
+"""Replanning from a plan (`planner plan --init DIR`), with and without its held schedule, as the task moves.
 
 For a robot in robots/ this plans its default task hint-free once (or takes `--init DIR`, a plan of it),
-then replans copies of the task with one number changed, each twice: the penalty replan (`--init`) and
-the replan that first holds the start's contact schedule (`--init --keep-schedule`, walked through the tasks
+then replans copies of the task with one number changed, each twice: the penalty replan (`--init --penalty-replan`) and
+the replan that first holds the start's contact schedule (`--init`, the default; walked through the tasks
 between when that is refused: planner.replan; its NLPs "walk s" and "retime s: ..."), and on request the
 one that also accepts a held schedule that adds impacts (`--variants new_impacts`). The number is the
 target's first coordinate (`plan.target_q[0]`, Capler's x [m]) or, for a periodic task, the step
@@ -36,7 +36,8 @@ TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
 STEP_LINE = re.compile(r"^(step = )([^\s#]+)", re.MULTILINE)
 QUICK_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
               '[horizon]\ntau_f = 1.0\nN = 20\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
-VARIANTS = {"replan": [], "keep_schedule": ["--keep-schedule"], "new_impacts": ["--keep-schedule", "--allow-new-impacts"]}
+# variant names as in the docs' tables since session 9 ("replan": --init alone before session 42)
+VARIANTS = {"replan": ["--penalty-replan"], "keep_schedule": [], "new_impacts": ["--allow-new-impacts"]}
 DEFAULT_VARIANTS = ["replan", "keep_schedule"]
 
 
@@ -101,8 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--values", type=float, nargs="+", help="the moved number's values (target x or step [m])")
     parser.add_argument("--init", type=Path, metavar="DIR", help="the start plan (default: plan the default task hint-free first)")
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=DEFAULT_VARIANTS,
-                        help="the replans to run per value (default replan and keep_schedule; new_impacts: "
-                             "--keep-schedule --allow-new-impacts)")
+                        help="the replans to run per value (default replan: --penalty-replan, and keep_schedule: --init's "
+                             "default; new_impacts: --allow-new-impacts)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "replan")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")

@@ -16,7 +16,7 @@ Starts on the task's grid (`--start`), each followed by the time-freezing solve 
           ImplicitEulerStep.guess; then the default hint-free homotopy from that point instead of y_0 everywhere.
   pd      the OCP's own implicit-Euler steps solved one at a time (the simulator's penalty homotopy per step), the
           controls u_ff + P (q_ref - q+) - D (v+ - v_ref) at the joints with the reference read at the step's clock;
-          then `planner plan --init --keep-schedule`'s solve (held schedule, else the penalty replan).
+          then `planner plan --init`'s solve (held schedule, else the penalty replan).
   track   the same steps with u free in its bounds and ||(q+, v+) - reference||^2 + 1e-4 ||u - u_ff||^2 in each
           step's objective, the friction and impact cones, above-ground rows and holes imposed per step; then as pd.
 Per run: the hop OCP's iterations, status, cost and footholds; the start's wall time, per-step IPOPT iterations,
@@ -255,7 +255,7 @@ def probe(N: int, landings, T: float, nodes, start: str, max_iter: int, run_solv
 
 
 def solve_from(problem, x: np.ndarray, held: bool) -> dict:
-    """The OCP solved from the start x (nx,): the held-schedule replan (`--keep-schedule`) or the hint-free homotopy."""
+    """The OCP solved from the start x (nx,): the held-schedule replan (`--init`'s default) or the hint-free homotopy."""
     options = replace(replan_options(), keep_schedule=True) if held else SolveOptions()
     result = solve(replace(problem, x0=x), options)
     return {"held": held, "converged": result.stats.converged, "iterations": result.stats.ipopt_iterations,

@@ -49,7 +49,7 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"rho_max": Infinity}'], "rho_max = inf"),  # the schedule's loop never ended
         (["validate", "results", "-v"], "unrecognized arguments: -v"),  # validate runs no IPOPT: nothing more to show
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
-        (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --keep-schedule"),
+        (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --penalty-replan"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
         (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object of SolveOptions fields, got an array"),
@@ -415,13 +415,14 @@ HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
 
 
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
-    """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: it converges
-    with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name
-    DIR); with --keep-schedule in the one NLP that holds DIR's contact schedule. DIR keeps the task its plan
-    solved (trajectory.npz's task_json, what the replan walks from), so the replan needs no task file of it;
-    --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's NLP point (a simulation),
-    a plan on another grid (--steps), FESD, --keep-schedule without --init, --allow-new-impacts without
-    --keep-schedule, a plan that did not converge and a plan of another robot file are exit 2, one line each."""
+    """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: by default in the
+    one NLP that holds DIR's contact schedule (--keep-schedule says the same); with --penalty-replan it converges
+    with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name DIR).
+    DIR keeps the task its plan solved (trajectory.npz's task_json, what the replan walks from), so the replan
+    needs no task file of it; --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's
+    NLP point (a simulation), a plan on another grid (--steps), FESD, --keep-schedule, --penalty-replan or
+    --allow-new-impacts without --init, --penalty-replan with either of the other two, a plan that did not converge
+    and a plan of another robot file are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
     first = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "hop"), "--no-validate", "--json"]
@@ -429,28 +430,31 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     capsys.readouterr()
     argv = ["plan", "point_mass", "--task", str(tmp_path / "closer.toml"), "--out", str(tmp_path / "closer"), "--no-validate", "--json",
             "--init", str(tmp_path / "hop")]
-    assert main(argv) == 0
+    assert main([a if a != str(tmp_path / "closer") else str(tmp_path / "penalty") for a in argv] + ["--penalty-replan"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] and summary["polished"]
     # the NLP at 1e4 ends complementary enough (<= REPLAN_STOP_COMP) to skip the one at 1e6: that NLP, the polish, its re-optimization
     assert summary["options"]["solve"]["rho_schedule"] == [1e4, 1e6]
     assert [n["label"] for n in summary["nlps"]] == ["homotopy 1", "polish", "reoptimize"]
     assert summary["options"]["init"] == str(tmp_path / "hop")
-    kept = [a if a != str(tmp_path / "closer") else str(tmp_path / "kept") for a in argv] + ["--keep-schedule"]
-    assert main(kept) == 0
-    summary = json.loads(capsys.readouterr().out)
-    assert summary["converged"] and [n["label"] for n in summary["nlps"]] == ["schedule"]
-    assert summary["options"]["solve"]["keep_schedule"] is True
+    assert summary["options"]["solve"]["keep_schedule"] is False
+    for out_name, extra in (("closer", []), ("kept", ["--keep-schedule"])):
+        assert main([a if a != str(tmp_path / "closer") else str(tmp_path / out_name) for a in argv] + extra) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["converged"] and [n["label"] for n in summary["nlps"]] == ["schedule"]
+        assert summary["options"]["solve"]["keep_schedule"] is True
     with np.load(tmp_path / "hop" / "trajectory.npz") as npz:  # the task the start plan solved, kept beside it
         assert parse_task(json.loads(str(npz["task_json"])), source=str(tmp_path / "hop.toml")) == load_task(tmp_path / "hop.toml")
     (tmp_path / "hop.toml").rename(tmp_path / "gone.toml")  # the walk's start task comes from DIR, not the file
-    assert main([a if a != str(tmp_path / "kept") else str(tmp_path / "kept2") for a in kept] + ["--allow-new-impacts"]) == 0
+    assert main([a if a != str(tmp_path / "closer") else str(tmp_path / "kept2") for a in argv] + ["--allow-new-impacts"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["converged"] and "no walk" not in err
     assert json.loads(out)["options"]["solve"]["schedule_new_impacts"] is True
     (tmp_path / "gone.toml").rename(tmp_path / "hop.toml")
-    _one_line_exit_2(capsys, first + ["--keep-schedule"], "--keep-schedule needs --init DIR")
-    _one_line_exit_2(capsys, argv + ["--allow-new-impacts"], "--allow-new-impacts needs --keep-schedule")
+    for flag in ("--keep-schedule", "--penalty-replan", "--allow-new-impacts"):
+        _one_line_exit_2(capsys, first + [flag], f"{flag} needs --init DIR")
+    _one_line_exit_2(capsys, argv + ["--penalty-replan", "--keep-schedule"], "--penalty-replan skips the held schedule that --keep-schedule")
+    _one_line_exit_2(capsys, argv + ["--penalty-replan", "--allow-new-impacts"], "that --allow-new-impacts asks for")
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
