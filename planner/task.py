@@ -21,7 +21,7 @@ import numpy as np
 from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect
 
 
-# gains a_n, a_t [1/s^2] above this make the auxiliary fields stiffer than the solves handle: measured, a_n = 1e7 gave
+# gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than the solves handle: measured, a_n = 1e7 gave
 # a converged Capler plan whose clock ran 1.44x numerical time, a_n = 1e9 a point-mass hop running every NLP to its
 # cap for minutes, a_t = 1e9 a free flight gaining 0.2 m/s; the shipped tasks use 200-600
 MAX_AUX_GAIN = 1e6
@@ -42,8 +42,8 @@ class Contact:
     point: str
     mu: float = 0.0  # Coulomb friction coefficient; 0 drops the tangential machinery
     restitution: float = 0.0  # epsilon in [0, 1]: 0 inelastic, > 0 elastic auxiliary ODE (Sec. 4.5)
-    a_n: float = 200.0  # normal auxiliary-ODE gain [1/s^2 scaled]; larger = shorter frozen intervals
-    a_t: float = 600.0  # tangential auxiliary-ODE gain, a_t >> a_n (Sec. 6)
+    a_n: float = 200.0  # normal auxiliary-field gain [N] (elastic: stiffness [1/s^2]); larger = shorter frozen intervals
+    a_t: float = 600.0  # tangential auxiliary-field gain [N], a_t >> a_n (Sec. 6)
     normal: tuple[float, ...] = (0.0, 0.0, 1.0)
     touches: bool = True  # false: the task says this point never touches; planning gives it no contact
     # machinery, only the path constraint gap >= 0 (planner.scene)
