@@ -10,6 +10,7 @@ planner.model.mujoco_spec gives it to MuJoCo: a site at every link).
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import asdict, dataclass
 
@@ -31,7 +32,11 @@ class MujocoCheck:
     max_err_mass: float
     max_err_bias: float
     max_err_sites: float  # site positions [m], sites matched to named points by name
+    max_err_passive: float = 0.0  # MuJoCo's passive forces [N, N m] (the planner's dynamics have none)
     missing_sites: tuple[str, ...] = ()  # MuJoCo sites Pinocchio's reading lacks (e.g. inside a <frame>): a failure
+    # what MuJoCo applies that the planner does not model (flags, gravcomp, tendons, fluid, joint passive terms,
+    # other joint ranges): a failure, as simulate and plan refuse the file
+    differences: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -81,14 +86,16 @@ class ModelCheck:
     def passed(self) -> bool:
         """Every difference <= TOLERANCE (a NaN fails), every MuJoCo site is one of Pinocchio's points, and MuJoCo reads
         the file as Pinocchio does (a file it cannot compile, or reads with other coordinates, cannot be replayed)."""
-        return (all(err <= TOLERANCE for err in self.max_errors.values()) and not (self.mujoco and self.mujoco.missing_sites)
+        return (all(err <= TOLERANCE for err in self.max_errors.values())
+                and not (self.mujoco and (self.mujoco.missing_sites or self.mujoco.differences))
                 and not (self.mujoco_skipped or "").startswith(MUJOCO_FAILED))
 
     def to_json(self) -> dict:
         out = asdict(self)
         out["dof_names"], out["points"] = list(self.dof_names), list(self.points)  # as JSON reads them back
         if out["mujoco"] is not None:
-            out["mujoco"]["missing_sites"] = list(out["mujoco"]["missing_sites"])  # as JSON reads it back
+            for key in ("missing_sites", "differences"):  # as JSON reads them back
+                out["mujoco"][key] = list(out["mujoco"][key])
         out["passed"] = self.passed
         out["tolerance"] = TOLERANCE
         return out
@@ -98,10 +105,13 @@ class ModelCheck:
         t = self.timing
         pinocchio = "  ".join(f"{k} {getattr(self, f'max_err_{k}'):.1e}" for k in ("mass", "bias", "frames", "jacobians", "drift"))
         if self.mujoco is not None:
-            mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias), ("sites", self.mujoco.max_err_sites)))
+            mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias),
+                                                            ("sites", self.mujoco.max_err_sites), ("passive", self.mujoco.max_err_passive)))
             if self.mujoco.missing_sites:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
                            "(Pinocchio's MJCF parser skips a site inside a <frame>)")
+            if self.mujoco.differences:
+                mujoco += f"; MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}"
         else:
             failed = self.mujoco_skipped.startswith(MUJOCO_FAILED)
             mujoco = self.mujoco_skipped if failed else f"skipped: {self.mujoco_skipped}"
@@ -213,6 +223,112 @@ def _pinocchio_errors(robot: Robot, dyn: Dynamics, states) -> dict[str, float]:
 
 
 MUJOCO_FAILED = "FAILED: "  # how mujoco_skipped starts when MuJoCo's reading of the file fails the check
+# MuJoCo settings of a file that change the replay's physics and that the planner does not model ([option] flags): a
+# disabled gravity, contact, constraint or actuation, an enabled contact override (the validation's contact replaced)
+DISABLED_PHYSICS = ("gravity", "contact", "constraint", "actuation")
+ENABLED_PHYSICS = ("override",)
+READING_STATES = 3  # seeded states at which simulate and plan compare the two readings (reading_differences)
+
+
+def _compile(robot: Robot):
+    """(MuJoCo's compiled model of the robot file, None) or (None, why not): a skip, or MUJOCO_FAILED and the reason
+    when MuJoCo's reading cannot be what the planner plans for (other coordinates, another joint order)."""
+    import mujoco
+
+    if robot.floating:
+        return None, "Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads"
+    try:
+        mj = mujoco_spec(robot, robot.points).compile()
+    except RobotFileError as exc:  # MuJoCo cannot read it, or orders (and so reads) the joints otherwise (a URDF planar joint)
+        return None, MUJOCO_FAILED + str(exc)
+    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
+        return None, MUJOCO_FAILED + mujoco_failure(robot.path, exc)
+    kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
+    if other:
+        return None, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
+    if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
+        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
+    return mj, None
+
+
+def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
+    """What MuJoCo applies from the file beyond the rigid-body dynamics and the joint passive terms Robot.passive
+    names: [option] flags, gravity compensation, tendon forces and limits, fluid forces, joint actuator force ranges,
+    and joint limits other than Pinocchio's (the planner's bounds)."""
+    import mujoco
+
+    def name(kind, i):
+        return mujoco.mj_id2name(mj, kind, i) or f"#{i}"
+
+    out = [f"<option><flag {flag}=\"disable\"/>" for flag in DISABLED_PHYSICS
+           if mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))]
+    out += [f"<option><flag {flag}=\"enable\"/>" for flag in ENABLED_PHYSICS
+            if mj.opt.enableflags & int(getattr(mujoco.mjtEnableBit, f"mjENBL_{flag.upper()}"))]
+    out += [f"body {name(mujoco.mjtObj.mjOBJ_BODY, b)!r}: gravcomp {mj.body_gravcomp[b]:g}" for b in range(mj.nbody) if mj.body_gravcomp[b]]
+    for t in range(mj.ntendon):
+        terms = [f"{label} {value:g}" for label, value in (("stiffness", mj.tendon_stiffness[t]), ("damping", mj.tendon_damping[t]),
+                                                           ("frictionloss", mj.tendon_frictionloss[t])) if value]
+        terms += [f"range [{mj.tendon_range[t][0]:g}, {mj.tendon_range[t][1]:g}]"] if mj.tendon_limited[t] else []
+        if terms:
+            out.append(f"tendon {name(mujoco.mjtObj.mjOBJ_TENDON, t)!r}: {', '.join(terms)}")
+    if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):
+        out.append(f"fluid forces (<option> density {mj.opt.density:g}, viscosity {mj.opt.viscosity:g}, wind {np.round(mj.opt.wind, 9).tolist()})")
+    lower, upper = robot.q_lower, robot.q_upper
+    for j in range(mj.njnt):
+        joint, i = name(mujoco.mjtObj.mjOBJ_JOINT, j), int(mj.jnt_qposadr[j])
+        if mj.jnt_actfrclimited[j]:  # MuJoCo clamps the joint's summed actuator force: fine where the motors stay inside
+            drives = [a for a in robot.actuators if a.dof == int(mj.jnt_dofadr[j])]
+            reach = sorted((sum(a.gear * a.lower for a in drives), sum(a.gear * a.upper for a in drives)))
+            lo, hi = (float(x) for x in mj.jnt_actfrcrange[j])
+            if reach[0] < lo - TOLERANCE or reach[1] > hi + TOLERANCE:
+                out.append(f"joint {joint!r}: actuatorfrcrange [{lo:g}, {hi:g}] narrower than its motors' force range "
+                           f"[{reach[0]:g}, {reach[1]:g}]")
+        mujoco_range = tuple(float(x) for x in mj.jnt_range[j]) if mj.jnt_limited[j] else (-np.inf, np.inf)
+        if not np.allclose(mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):
+            out.append(f"joint {joint!r}: range [{mujoco_range[0]:g}, {mujoco_range[1]:g}] in MuJoCo, [{lower[i]:g}, {upper[i]:g}] in Pinocchio")
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=16)
+def reading_differences(robot: Robot) -> tuple[str, ...]:
+    """How MuJoCo, which replays plans and simulations, reads other physics from the robot file than Pinocchio, whose
+    reading the planner's dynamics are: _named_differences, then mass matrix, bias forces, passive forces and named
+    points' positions differing by more than TOLERANCE at READING_STATES seeded states (Pinocchio's numeric
+    algorithms; check-model compares the CasADi functions at more). () when they agree, or when MuJoCo's reading cannot
+    be compared (free or ball joints, a file MuJoCo cannot read: check-model and the validation say so); other
+    coordinates or joint order are a difference. Simulate and plan refuse a robot with any (Task.check_against)."""
+    import mujoco
+
+    mj, skipped = _compile(robot)
+    if mj is None:
+        why = skipped.removeprefix(MUJOCO_FAILED).removeprefix(f"{robot.path}: ")
+        return (why,) if skipped.startswith(MUJOCO_FAILED) and "MuJoCo cannot" not in skipped else ()
+    out = list(_named_differences(robot, mj))
+    model, data, mjdata = robot.model, robot.model.createData(), mujoco.MjData(mj)
+    sites = [(s, mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) for s in range(mj.nsite)]
+    sites = [(s, n) for s, n in sites if n in robot.points]
+    worst = {"mass matrix [kg, kg m, kg m^2]": 0.0, "bias forces [N, N m]": 0.0, "passive forces [N, N m]": 0.0}
+    hints = {"mass matrix [kg, kg m, kg m^2]": " (e.g. masses MuJoCo infers from geoms or rescales: Pinocchio reads the "
+                                               "<inertial> elements only)", "bias forces [N, N m]": "", "passive forces [N, N m]": ""}
+    apart = {}
+    rng = np.random.default_rng(0)
+    M = np.zeros((mj.nv, mj.nv))
+    for _ in range(READING_STATES):
+        q, v = random_state(model, rng)
+        mjdata.qpos[:], mjdata.qvel[:] = q, v
+        mujoco.mj_forward(mj, mjdata)
+        mujoco.mj_fullM(mj, mjdata, M)
+        Mp = pin.crba(model, data, q)
+        worst["mass matrix [kg, kg m, kg m^2]"] = max(worst["mass matrix [kg, kg m, kg m^2]"], _err(np.triu(Mp) + np.triu(Mp, 1).T, M))
+        worst["bias forces [N, N m]"] = max(worst["bias forces [N, N m]"], _err(pin.rnea(model, data, q, v, np.zeros(model.nv)), mjdata.qfrc_bias))
+        worst["passive forces [N, N m]"] = max(worst["passive forces [N, N m]"], float(np.max(np.abs(mjdata.qfrc_passive), initial=0.0)))
+        pin.framesForwardKinematics(model, data, q)
+        for s, point in sites:
+            apart[point] = max(apart.get(point, 0.0), _err(data.oMf[robot.frame_id(point)].translation, mjdata.site_xpos[s]))
+    out += [f"{what} differ by up to {err:.3g}{hints[what]}" for what, err in worst.items() if not err <= TOLERANCE]
+    out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in apart.items() if not err <= TOLERANCE]
+    return tuple(out)
 
 
 def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | None, str | None]:
@@ -222,27 +338,19 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     same depth-first order. A free joint's qpos holds a wxyz quaternion and its linear velocity is
     in the world frame (Pinocchio: xyzw, body frame), a ball joint's likewise; converting M and h
     needs the velocity map and its time derivative, so such files are skipped instead.
-    Sites are matched to named points by name.
+    Sites are matched to named points by name. MuJoCo's passive forces are compared with zero (the planner has none),
+    and what _named_differences finds fails the check.
     """
     import mujoco
 
-    try:
-        mj = mujoco_spec(robot, robot.points).compile()
-    except RobotFileError as exc:  # e.g. a URDF with a free flyer only Pinocchio adds (floating=True)
-        return None, str(exc)
-    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
-        return None, MUJOCO_FAILED + mujoco_failure(robot.path, exc)
-    kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-    other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
-    if other:
-        return None, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
-    if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
-        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
+    mj, skipped = _compile(robot)
+    if mj is None:
+        return None, skipped
     data = mujoco.MjData(mj)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     sites = [(s, name) for s, name in enumerate(names) if name in robot.points]
     missing = tuple(name for name in names if name and name not in robot.points)
-    err: dict[str, list[float]] = {"max_err_mass": [0.0], "max_err_bias": [0.0], "max_err_sites": [0.0]}
+    err: dict[str, list[float]] = {"max_err_mass": [0.0], "max_err_bias": [0.0], "max_err_sites": [0.0], "max_err_passive": [0.0]}
     M = np.zeros((mj.nv, mj.nv))
     for q, v in states:
         data.qpos[:], data.qvel[:] = q, v
@@ -250,8 +358,10 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
         mujoco.mj_fullM(mj, data, M)
         err["max_err_mass"].append(_err(dyn.mass(q), M))
         err["max_err_bias"].append(_err(dyn.bias(q, v), data.qfrc_bias))
+        err["max_err_passive"].append(float(np.max(np.abs(data.qfrc_passive), initial=0.0)))
         err["max_err_sites"] += [_err(dyn.point_position(name)(q), data.site_xpos[s]) for s, name in sites]
-    return MujocoCheck(**{k: float(np.max(e)) for k, e in err.items()}, missing_sites=missing), None
+    return MujocoCheck(**{k: float(np.max(e)) for k, e in err.items()}, missing_sites=missing,
+                       differences=_named_differences(robot, mj) + robot.passive), None
 
 
 def _mean_us(call) -> float:

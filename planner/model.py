@@ -58,6 +58,7 @@ class Robot:
     # the file's passive joint forces ("joint 'hip': damping 5") and URDF <mimic> couplings, which the planner's dynamics
     # do not model: simulate and plan refuse the robot (Task.check_against); check-model compares the rigid-body terms only
     passive: tuple[str, ...] = ()
+    floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -112,6 +113,14 @@ class Robot:
         for j, a in enumerate(self.actuators):
             B[a.dof, j] = a.gear
         return B
+
+    @property
+    def sites(self) -> tuple[str, ...]:
+        """The named points a contact may use: an MJCF file's sites (MuJoCo's replay puts contacts there), every URDF
+        link and frame (planner.model.mujoco_spec adds a site at each)."""
+        if self.format is RobotFormat.URDF:
+            return self.points
+        return tuple(p for p in self.points if self.model.frames[self.frame_id(p)].type == pin.FrameType.OP_FRAME)
 
     def frame_id(self, point: str) -> int:
         """Pinocchio frame index of a named point; UnknownNameError lists the valid names."""
@@ -204,6 +213,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         dof_names=dof_names,
         sha256=file_sha256(path),
         passive=passive,
+        floating=floating,
     )
 
 
@@ -262,7 +272,7 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
     """MJCF: joint motors, joint names and passive joint terms (Robot.passive) read from MuJoCo's compiled model of
-    the same file; Pinocchio's joint limits made to agree with MuJoCo's (_unlimit).
+    the same file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -281,12 +291,17 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                              "equality constraints")
     # Pinocchio's MJCF parser ignores <option gravity>; the file's value is MuJoCo's.
     model.gravity = pin.Motion(np.array(mj.opt.gravity, dtype=float), np.zeros(3))
-    dof_names = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, int(mj.dof_jntid[i])) or f"dof_{i}" for i in range(mj.nv))
+    def dof_name(i: int) -> str:  # a joint of several DoF (free, ball) names them as a URDF's: "root_0", "root_1", ...
+        j = int(mj.dof_jntid[i])
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"dof_{i}"
+        return f"{name}_{i - int(mj.jnt_dofadr[j])}" if np.sum(mj.dof_jntid == j) > 1 else name
+
+    dof_names = tuple(dof_name(i) for i in range(mj.nv))
     actuators = []
     for i in range(mj.nu):
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
         if mj.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:
-            raise RobotFileError(f"{path}: actuator {i} does not act on a joint; only joint motors are supported")
+            raise RobotFileError(f"{path}: actuator {name!r} does not act on a joint; only joint motors are supported")
         # a <position>, <velocity> or <general> actuator is a servo or has dynamics: its force is not gear * ctrl
         if (mj.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE or mj.actuator_biastype[i] != mujoco.mjtBias.mjBIAS_NONE
                 or mj.actuator_gaintype[i] != mujoco.mjtGain.mjGAIN_FIXED or mj.actuator_gainprm[i, 0] != 1.0):
@@ -298,26 +313,30 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         if mj.actuator_forcelimited[i]:  # MuJoCo clamps gear * ctrl to forcerange: the control bounds are that too
             flo, fhi = sorted(np.asarray(mj.actuator_forcerange[i], float) / gear)
             lo, hi = max(lo, flo), min(hi, fhi)
+        if mj.jnt_actfrclimited[jnt] and np.sum(mj.actuator_trnid[:, 0] == jnt) == 1:  # the joint's actuatorfrcrange, likewise
+            flo, fhi = sorted(np.asarray(mj.jnt_actfrcrange[jnt], float) / gear)  # (several motors: check.reading_differences)
+            lo, hi = max(lo, flo), min(hi, fhi)
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
-    _unlimit(model, mj, mujoco)
+    _mujoco_limits(model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
     return tuple(actuators), dof_names, passive
 
 
-def _unlimit(model: pin.Model, mj, mujoco) -> None:
-    """Joints MuJoCo reads as unlimited (limited="false", or no range) get no position limits in Pinocchio's model
-    either: Pinocchio's MJCF parser keeps a range the file declares unlimited."""
+def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:
+    """Pinocchio's hinge and slide joint limits set to MuJoCo's: none where MuJoCo reads the joint as unlimited
+    (limited="false", or no range: Pinocchio's MJCF parser keeps a range the file declares unlimited), MuJoCo's range
+    where it is limited (Pinocchio's parser shifts a hinge's range by its ref)."""
     lower, upper = np.array(model.lowerPositionLimit, float), np.array(model.upperPositionLimit, float)  # copies
     for j in range(mj.njnt):
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j)
-        if mj.jnt_limited[j] or int(mj.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+        if int(mj.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             continue
         if not name or not model.existJointName(name):
             continue
         i = model.joints[model.getJointId(name)].idx_q
-        lower[i], upper[i] = -np.inf, np.inf
+        lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 
 

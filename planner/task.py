@@ -406,9 +406,19 @@ class Task:
             raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have neither passive joint "
                                  "forces (damping, stiffness, friction) nor couplings between joints; remove them from the robot "
                                  "file to simulate or plan")
+        from .check import reading_differences
+
+        differences = reading_differences(robot)
+        if differences:  # the plan or simulation would be for physics the MuJoCo replay (the validation) does not have
+            raise RobotFileError(f"{robot.path}: MuJoCo reads other physics from this file than Pinocchio, whose reading the "
+                                 f"planner's dynamics are: {'; '.join(differences)}; `planner check-model {robot.path}` compares "
+                                 "the two readings")
         for c in self.contacts:
             if c.point not in robot.points:
                 raise UnknownNameError("contact point", c.point, robot.points)
+            if c.point not in robot.sites:  # MuJoCo's replay has no site of that name (validate failed later)
+                raise TaskError(f"contact point {c.point!r} is an MJCF body, not a site; add <site name=\"...\"/> where the "
+                                f"body touches and name it (sites: {', '.join(robot.sites) or 'none'})")
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")

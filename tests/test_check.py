@@ -36,9 +36,18 @@ def test_project_robots_pass(name):
 @pytest.mark.parametrize("name", ["ur5", "panda"])
 def test_third_party_urdf_matches_mujoco(erd_robot, name):
     """A fixed-base URDF of example-robot-data (meshes by package:// path, which planner.model.mujoco_spec drops) is
-    compared with MuJoCo's own reading of the file and passes: M, h and every link's position."""
+    compared with MuJoCo's own reading of the file: M, h and every link's position agree. The UR5 passes; the Panda
+    fails naming what MuJoCo's replay would apply and the planner does not model (its joints' damping, the finger's
+    <mimic>), as simulate and plan refuse it."""
     result = check_model(erd_robot(name), samples=SAMPLES)
-    assert result.mujoco is not None and result.passed, result.mujoco_skipped
+    assert result.mujoco is not None and result.mujoco_skipped is None
+    rigid = {k: v for k, v in result.max_errors.items() if k != "mujoco_max_err_passive"}  # the Panda's damping is not rigid
+    assert all(err <= TOL_CHECK for err in rigid.values()), rigid
+    if name == "ur5":
+        assert result.passed and not result.mujoco.differences
+    else:
+        assert not result.passed and any(d.startswith("joint 'panda_finger_joint2': <mimic>") for d in result.mujoco.differences)
+        assert "MuJoCo applies what the planner does not model: joint 'panda_joint1': damping" in result.report()
 
 
 def test_solo12_passes_and_is_timed(erd_robot):
@@ -61,8 +70,8 @@ def test_json_contract():
         assert (out["robot"], out["format"], out["nq"], out["nv"]) == ("capler", name.split(".")[1].replace("xml", "mjcf"), 4, 4)
         assert out["passed"] is True and out["tolerance"] == TOLERANCE
         if has_mujoco:
-            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "missing_sites"}
-            assert out["mujoco"]["missing_sites"] == []
+            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "max_err_passive", "missing_sites", "differences"}
+            assert out["mujoco"]["missing_sites"] == [] and out["mujoco"]["differences"] == []
         else:
             assert out["mujoco"] is None
         assert all(type(out[k]) is float for k in JSON_KEYS if k.startswith("max_err"))
@@ -190,8 +199,8 @@ def test_a_site_pinocchio_does_not_read_fails_the_check(tmp_path):
 
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,
-    so check-model fails saying why (it said PASSED, the comparison "skipped"); a free flyer only Pinocchio adds is
-    still a documented skip."""
+    so check-model fails saying why (it said PASSED, the comparison "skipped"), and simulate and plan refuse it (they ran
+    on it); a free flyer only Pinocchio adds is still a documented skip."""
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()
     assert urdf.count('<joint name="knee" type="revolute">') == 1
     path = tmp_path / "continuous.urdf"
@@ -200,8 +209,66 @@ def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     assert not result.passed and result.mujoco_skipped.startswith("FAILED: MuJoCo has nq, nv = 4, 4 but Pinocchio 5, 4")
     assert "vs MuJoCo:    FAILED: MuJoCo has nq" in result.report()
     assert check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).passed
-    from planner.errors import TaskError
     from planner.task import load_task
 
-    with pytest.raises(TaskError, match=r"initial.q has 4 entries; the robot needs 5 \(nq = 5 positions for nv = 4 .* cos and sin"):
-        load_task(ROBOTS_DIR / "capler.toml").check_against(load_robot(path))  # it said only "needs 5"
+    with pytest.raises(RobotFileError, match=r"MuJoCo reads other physics .*: MuJoCo has nq, nv = 4, 4 but Pinocchio 5, 4"):
+        load_task(ROBOTS_DIR / "capler.toml").check_against(load_robot(path))  # planned, and simulated, before
+
+
+POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()
+X_JOINT = '<joint name="x" type="slide" axis="1 0 0"/>'
+MASS_BODY = '<body name="mass" pos="0 0 0">'
+OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio="10"/>'
+
+
+@pytest.mark.parametrize("old, new, named", [
+    (MASS_BODY, '<body name="mass" pos="0 0 0" gravcomp="1">', "body 'mass': gravcomp 1"),
+    (OPTION, OPTION + '<option><flag gravity="disable"/></option>', '<option><flag gravity="disable"/>'),
+    (OPTION, OPTION + '<option><flag contact="disable"/></option>', '<option><flag contact="disable"/>'),
+    (OPTION, OPTION + '<option><flag override="enable"/></option>', '<option><flag override="enable"/>'),
+    (OPTION, OPTION + '<option viscosity="20"/>', "fluid forces (<option> density 0, viscosity 20"),
+    ("</worldbody>", '</worldbody><tendon><fixed name="t" stiffness="100"><joint joint="x" coef="1"/></fixed></tendon>',
+     "tendon 't': stiffness 100"),
+    ("</worldbody>", '</worldbody><tendon><fixed name="t" limited="true" range="-1 0.2"><joint joint="x" coef="1"/></fixed>'
+     '</tendon>', "tendon 't': range [-1, 0.2]"),
+    (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "point 'point' is up to 0.3 m apart"),
+    ('<site name="point"', '<body name="load"><geom type="sphere" size="0.02" mass="2"/></body><site name="point"',
+     "mass matrix [kg, kg m, kg m^2] differ by up to 2 (e.g. masses MuJoCo infers from geoms"),
+])
+def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, named):
+    """A robot file MuJoCo reads with physics Pinocchio's reading lacks (gravity compensation, [option] flags, fluid
+    forces, tendon springs and limits, a slide joint's ref, a mass MuJoCo infers from a geom) fails check-model naming
+    it, and simulate and plan refuse it (Task.check_against): each of them had planned, and its MuJoCo validation
+    PASSED, for physics the replay does not have (a gravity-compensated point mass that never falls)."""
+    from planner.check import reading_differences
+    from planner.task import load_task
+
+    assert POINT_MASS.count(old) == 1
+    path = tmp_path / "variant.xml"
+    path.write_text(POINT_MASS.replace(old, new))
+    robot = load_robot(path)
+    assert any(d.startswith(named) for d in reading_differences(robot)), reading_differences(robot)
+    result = check_model(robot, samples=2)
+    numeric = named.startswith(("point", "mass matrix"))  # check-model reports these as its sites and mass errors
+    assert not result.passed and (numeric or named in result.report())
+    with pytest.raises(RobotFileError, match="MuJoCo reads other physics from this file than Pinocchio"):
+        load_task(ROBOTS_DIR / "point_mass.toml").check_against(robot)
+
+
+def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
+    """A URDF planar joint (Pinocchio: x-y about z; MuJoCo: its own three joints) and a URDF <mujoco> block's gravity
+    (MuJoCo applies it, Pinocchio does not) fail check-model and are refused by a task's check; the planar joint's
+    check said PASSED ("skipped"). A revolute joint with <limit> but no lower and upper (Pinocchio: locked at 0;
+    MuJoCo: unlimited) is named."""
+    from planner.check import reading_differences
+
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    gravity = tmp_path / "gravity.urdf"
+    gravity.write_text(urdf.replace("</robot>", '<mujoco><option gravity="0 0 -3"/></mujoco></robot>'))
+    assert any(d.startswith("bias forces") for d in reading_differences(load_robot(gravity)))
+    assert not check_model(load_robot(gravity), samples=1).passed
+    hip = '<limit lower="-1.1780972450961724" upper="1.1780972450961724" effort="60" velocity="100"/>'
+    assert urdf.count(hip) == 1
+    unlimited = tmp_path / "unlimited.urdf"
+    unlimited.write_text(urdf.replace(hip, '<limit effort="60" velocity="100"/>'))
+    assert "joint 'hip': range [-inf, inf] in MuJoCo, [0, 0] in Pinocchio" in reading_differences(load_robot(unlimited))

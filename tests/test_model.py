@@ -133,3 +133,32 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
     negative.write_text(urdf.replace('<mass value="0.548"/>', '<mass value="-0.548"/>'))
     with pytest.raises(RobotFileError, match=r"mass -0.548 kg"):
         load_robot(negative)
+
+
+def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
+    """A hinge's range with a ref is MuJoCo's (Pinocchio's parser shifted it by -ref, refusing targets MuJoCo allows); a
+    joint's actuatorfrcrange bounds its one motor's control as forcerange does (the plan used the motor's +-20 where
+    MuJoCo clamps at +-5); a contact point that is an MJCF body, not a site, is refused by the task's check (the
+    simulation ran, and its validation found no MuJoCo site); a tendon motor is named in its refusal."""
+    from planner.errors import TaskError
+    from planner.task import parse_task
+
+    robot = load_robot(_hopper(tmp_path, hip='ref="0.3"'))
+    assert (robot.q_lower[2], robot.q_upper[2]) == (-1.0, 1.0)
+    robot = load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-5 5"'))
+    assert (robot.actuators[0].lower, robot.actuators[0].upper) == (-5.0, 5.0)
+    task = parse_task({"contacts": [{"point": "leg"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
+    with pytest.raises(TaskError, match=r"contact point 'leg' is an MJCF body, not a site; .*\(sites: foot\)"):
+        task.check_against(robot)
+    with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
+        load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
+                           extra='<tendon><fixed name="t"><joint joint="hip" coef="1"/></fixed></tendon>'))
+
+
+def test_a_joint_of_several_dof_names_each(tmp_path):
+    """An MJCF free joint's six velocity coordinates are root_0 ... root_5 (they were six times "root", so a task's
+    joint names could not tell them apart)."""
+    path = tmp_path / "free.xml"
+    path.write_text('<mujoco><worldbody><body name="b"><freejoint name="root"/><inertial pos="0 0 0" mass="1" '
+                    'diaginertia="1 1 1"/><site name="s"/></body></worldbody></mujoco>')
+    assert load_robot(path).dof_names == tuple(f"root_{i}" for i in range(6))
