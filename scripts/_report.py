@@ -29,9 +29,13 @@ def script_parser(doc: str, **kwargs) -> UsageParser:
 
 def run_main(main) -> int:
     """main()'s exit code; a PlannerError (a bad input: a missing result directory, a bad task value) is printed as one
-    line `SCRIPT: error: ...` on stderr and gives exit code 2, as planner's own commands do, instead of a traceback."""
+    line `SCRIPT: error: ...` on stderr and gives exit code 2, as planner's own commands do, instead of a traceback; a
+    Ctrl-C is `SCRIPT: interrupted` and exit code 130, as `planner`'s."""
     try:
         return main()
+    except KeyboardInterrupt:
+        print(f"{Path(sys.argv[0]).stem}: interrupted", file=sys.stderr)
+        return 130
     except PlannerError as exc:
         print(f"{Path(sys.argv[0]).stem}: error: {exc}", file=sys.stderr)
         return 2

@@ -23,6 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from planner.cli import EXIT_INTERRUPTED
 from planner.cli import main as planner_main
 from planner.errors import InputError
 from scripts._report import report, run_main, script_parser
@@ -59,6 +60,8 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     shutil.rmtree(run_dir / "plan", ignore_errors=True)  # an earlier run's summary.json would be read as this run's
     argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
     code = planner_main(argv + (["--steps", "6", "--no-validate"] if quick else []))
+    if code == EXIT_INTERRUPTED:  # Ctrl-C stops the benchmark (it read as a refused task)
+        raise KeyboardInterrupt
     plan = run_dir / "plan"
     if not (plan / "summary.json").is_file():  # a solve that did not converge writes to OUT/failed
         plan = plan / "failed"

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.cli import prepare_out_dir
+from planner.errors import interruptible
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
 from scripts._report import run_main, script_parser
@@ -280,13 +281,15 @@ def hop_hint(task: CaplerTask, n_points: int, apex_rise: float = 0.2, tuck=(0.5,
 
 
 class _StatusLog:
-    """Wraps nosnoc's CasADi IPOPT solver to keep every NLP's status (nosnoc keeps only the last)."""
+    """Wraps nosnoc's CasADi IPOPT solver to keep every NLP's status (nosnoc keeps only the last) and to stop at a
+    Ctrl-C: IPOPT stops that NLP and nosnoc went on through its homotopy for minutes, then wrote the results."""
 
     def __init__(self, solver):
         self._solver, self.statuses = solver, []
 
     def __call__(self, *args, **kwargs):
-        out = self._solver(*args, **kwargs)
+        with interruptible():
+            out = self._solver(*args, **kwargs)
         self.statuses.append(self._solver.stats()["return_status"])
         return out
 

@@ -27,8 +27,10 @@ import sys
 import time
 from pathlib import Path
 
+from planner.cli import EXIT_INTERRUPTED
 from planner.cli import main as planner_main
 from planner.errors import InputError
+from planner.result import read_trajectory
 from scripts._report import report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -74,6 +76,8 @@ def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) ->
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's files there would be read as this run's
     started = time.perf_counter()
     code = planner_main(["plan", robot, "--task", str(task), "--out", str(out), "-q", *extra] + ([] if validate else ["--no-validate"]))
+    if code == EXIT_INTERRUPTED:  # Ctrl-C stops the benchmark, as it stops `planner plan` (the next run went on)
+        raise KeyboardInterrupt
     return dict(record(out, code), command_s=time.perf_counter() - started)
 
 
@@ -124,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError(f"no default task robots/{args.robot}.toml; robots with one: {', '.join(known)}")
         robot, values, base_text = args.robot, args.values, task_file.read_text()
     moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
+    if args.init is not None:
+        read_trajectory(args.init, ("nlp_x",))  # a start that is no plan fails here, not in every replan (each a refused row)
     args.out.mkdir(parents=True, exist_ok=True)
     base_task = args.out / "base.toml"
     base_task.write_text(base_text)

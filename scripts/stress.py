@@ -21,7 +21,8 @@ validation's numbers -- and every finding is listed with its stage in the task's
 also where the solver itself rejected the point. Tasks run through planner.batch (local processes, or
 a Dask scheduler with --scheduler). Writes OUT/results.json (every task: its generated task as a
 TOML-like dict, its outcome, timings and diagnostics) and OUT/summary.md (the table per family);
-OUT/records.jsonl gets each record as its task finishes (what a stopped run keeps).
+OUT/records.partial.jsonl gets each record as its task finishes (what a stopped run keeps); it becomes
+OUT/records.jsonl when the run is done.
 
     python -m scripts.stress [--robot capler|point_mass] [--families F ...] [--per-family K] [--seed S]
                              [--N N] [--max-iter M] [--race] [--scheduler ADDRESS] [--workers W] [--out DIR] [--json]
@@ -624,8 +625,12 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(_strict(s)))
         return 0
 
+    if args.workers is not None and args.workers < 0:  # before OUT is touched
+        parser.error(f"--workers must be >= 0, got {args.workers}")
     args.out.mkdir(parents=True, exist_ok=True)
-    partial = args.out / "records.jsonl"  # one line per finished task, so a stopped run keeps what it did
+    # one line per finished task, so a stopped run keeps what it did; records.jsonl once the run is done (a stopped
+    # run emptied it beside the previous run's results.json)
+    partial = args.out / "records.partial.jsonl"
     partial.write_text("")
 
     def log(i, result):
@@ -655,6 +660,7 @@ def main(argv: list[str] | None = None) -> int:
                "solve_options": overrides, "race": args.race, "scheduler": args.scheduler, "workers": workers, "total_wall_time_s": wall,
                "machine": machine, "summary": summary, "records": records}
     write_atomically(args.out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
+    os.replace(partial, args.out / "records.jsonl")
     header = (f"Stress run `{command}` on {machine['date'][:10]}: {len(records)} tasks, base {args.robot}, seed {args.seed}, "
               f"{wall:.0f} s wall")
     write_atomically(args.out / "summary.md", markdown(summary, records, header))

@@ -267,6 +267,7 @@ def test_stress_reduced_run(stress, tmp_path, capsys):
     assert summary["total"]["tasks"] == len(records) and summary["total"][stress.CRASHED] == 0
     assert sum(summary["total"][o] for o in stress.OUTCOMES) == len(records)
     assert len((tmp_path / "records.jsonl").read_text().splitlines()) == len(records)
+    assert not (tmp_path / "records.partial.jsonl").exists()  # renamed to records.jsonl once the run is done
     md = (tmp_path / "summary.md").read_text()
     assert "| **all** | 14 |" in md and "init_grazing" in md and "MuJoCo windows" in md
 
