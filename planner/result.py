@@ -578,10 +578,17 @@ def _stage(path: str | os.PathLike, write) -> str:
 
 def _replace(staged: list[tuple[str, Path]]) -> None:
     """Rename each staged temp file to its path; on an error the temp files not yet renamed are removed. Ctrl-C and
-    SIGTERM wait until all are renamed (in the main thread): between two renames they left files of two results."""
-    held = {signal.SIGINT, signal.SIGTERM}
+    SIGTERM wait until all are renamed (in the main thread): between two renames they left files of two results.
+    They are held by handlers that note them, then raised again: a signal mask held only the main thread, so with
+    another thread in the process (a test suite's leftovers, a server) the kernel gave the signal to that one and
+    Python raised it between the renames."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    arrived: list[int] = []
     main = threading.current_thread() is threading.main_thread()
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    previous = {sig: signal.getsignal(sig) for sig in held} if main else {}
+    for sig, handler in previous.items():
+        if handler is not signal.SIG_IGN and handler is not None:  # an ignored signal stays ignored
+            signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
         for i, (tmp, path) in enumerate(staged):
             try:
@@ -591,8 +598,11 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
                     Path(left).unlink(missing_ok=True)
                 raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
-        if main:
-            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        for sig, handler in previous.items():
+            if handler is not signal.SIG_IGN and handler is not None:
+                signal.signal(sig, handler)
+        for sig in dict.fromkeys(arrived):
+            signal.raise_signal(sig)  # now as it would have been: Python's KeyboardInterrupt, the CLI's handler, or death
 
 
 # --- reading a result directory back (replay and view use these) -------------------------------------
