@@ -22,13 +22,16 @@ import datetime
 import json
 import os
 import sys
+from pathlib import Path
 import time
 
 import casadi as ca
 import numpy as np
 
+from planner.errors import InputError
 from planner.homotopy import SolveOptions, gated_complementarity, ipopt_options, task_rho_schedule, terminal_error
 from planner.problem import Penalty, ProblemOptions, build_problem
+from planner.result import write_atomically
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
 from scripts._report import run_main, script_parser
@@ -87,7 +90,9 @@ def parse_options(pairs) -> dict:
     """key=value strings to a dict: true/false to bool, numbers to int or float, the rest as strings."""
     out = {}
     for kv in pairs:
-        k, v = kv.split("=", 1)
+        k, sep, v = kv.partition("=")
+        if not sep or not k:
+            raise InputError(f"option {kv!r}: expected key=value, e.g. max_iter=100")
         if v in ("true", "false"):
             out[k] = v == "true"
             continue
@@ -107,13 +112,15 @@ def main(argv=None) -> int:
     ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution")
     ap.add_argument("--fatrop-opt", nargs="*", default=[], help="key=value FATROP options (numbers parsed)")
     ap.add_argument("--ipopt-opt", nargs="*", default=[], help="key=value IPOPT options for ipopt and ipopt_staged (numbers parsed)")
-    ap.add_argument("--solvers", nargs="+", default=["ipopt", "fatrop"])
+    ap.add_argument("--solvers", nargs="+", choices=["ipopt", "fatrop", "ipopt_staged"], default=["ipopt", "fatrop"])
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--convexify", default=None, help="FATROP: CasADi's convexify_strategy of the Hessian blocks (regularize, eigen-reflect, eigen-clip)")
     ap.add_argument("--drop-free", action="store_true", help="FATROP: leave out the rows with both bounds infinite (NLP 1's soft terminal rows)")
     ap.add_argument("--scale", action="store_true", help="FATROP: IPOPT's gradient-based scaling (objective, rows) computed at x0")
     ap.add_argument("--out", default=None, help="write the JSON record to this file (FATROP prints its log to stdout)")
     a = ap.parse_args(argv)
+    if a.out is not None and not Path(a.out).parent.is_dir():  # found after the whole run before
+        ap.error(f"--out {a.out}: no directory {Path(a.out).parent}")
     robot, task = capler_case(a.N) if a.case == "capler" else hop_case(a.N)
     t0 = time.perf_counter()
     problem = build_problem(robot, task, ProblemOptions(penalty=Penalty(a.penalty)))
@@ -130,62 +137,65 @@ def main(argv=None) -> int:
            "date": datetime.datetime.utcnow().isoformat(timespec="minutes"), "casadi": ca.__version__,
            "load_before": os.getloadavg(), "runs": []}
     log = (lambda *s: print(*s, file=sys.stderr, flush=True))
-    for max_iter in a.max_iter:
-        for name in a.solvers:
-            t0 = time.perf_counter()
-            if name == "ipopt":
-                o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
-                o["ipopt"].update(ip_extra)
-                solver = ca.nlpsol("ipopt_nlp1", "ipopt", {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, o)
-                args = dict(args1)
-            elif name == "fatrop":
-                st1 = st.without_free_rows(args1["lbg"], args1["ubg"]) if a.drop_free else st
-                fo = dict(tolerance=opts.tol, tol_acceptable=opts.acceptable_tol, mu_init=opts.mu_init, bound_push=opts.bound_push,
-                          max_iter=max_iter, print_level=5 if a.verbose else 0)
-                fo.update(fat_extra)
-                df, dg = gradient_scaling(st1, st1.lift(args1["x0"]), args1["p"]) if a.scale else (1.0, np.ones(st1.g.shape[0]))
-                out["scaling"] = {"objective": df, "rows_scaled": int(np.sum(dg < 1)), "row_min": float(np.min(dg))}
-                solver = fatrop_solver("fatrop_nlp1", st1, fo, df, dg, a.convexify)
-                lbg, ubg = st1.bounds(args1["lbg"], args1["ubg"])
-                args = {"x0": st1.lift(args1["x0"]), "p": args1["p"], "lbx": st1.lbx, "ubx": st1.ubx, "lbg": lbg * dg, "ubg": ubg * dg}
-            elif name == "ipopt_staged":  # IPOPT on the staged NLP: separates the reformulation from the solver
-                o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
-                o["ipopt"].update(ip_extra)
-                solver = ca.nlpsol("ipopt_staged_nlp1", "ipopt", st.nlp, o)
-                lbg, ubg = st.bounds(args1["lbg"], args1["ubg"])
-                args = {"x0": st.lift(args1["x0"]), "p": args1["p"], "lbx": st.lbx, "ubx": st.ubx, "lbg": lbg, "ubg": ubg}
-            else:
-                raise SystemExit(f"unknown solver {name!r}: ipopt, fatrop or ipopt_staged")
-            create_s = time.perf_counter() - t0
-            rec, x = run(solver, args)
-            if name != "ipopt":
-                x = st.restrict(x)
-            rec.update(solver=name, nlp=1, max_iter=max_iter, create_s=create_s,
-                       **measures(problem, x, args1["p"], args1["lbg"], args1["ubg"]))
-            log({k: v for k, v in rec.items() if k != "fatrop_stats"})
-            out["runs"].append(rec)
-            if a.warm and name in ("ipopt", "fatrop"):
-                p2 = problem.params(rhos[1], 1.0)
+    try:
+        for max_iter in a.max_iter:
+            for name in a.solvers:
+                t0 = time.perf_counter()
                 if name == "ipopt":
-                    o = ipopt_options(SolveOptions(max_iter=3000, print_level=5 if a.verbose else 0), True)
-                    solver = ca.nlpsol("ipopt_nlp2", "ipopt", {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, o)
-                    args = {"x0": x, "p": p2, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": problem.lbg, "ubg": problem.ubg}
-                else:
-                    fo["max_iter"] = 3000
-                    x0n = st.lift(x)
-                    df, dg = gradient_scaling(st, x0n, p2) if a.scale else (1.0, np.ones(st.g.shape[0]))
-                    solver = fatrop_solver("fatrop_nlp2", st, fo, df, dg, a.convexify)
-                    args = {"x0": x0n, "p": p2, "lbx": st.lbx, "ubx": st.ubx, "lbg": st.lbg * dg, "ubg": st.ubg * dg}
-                rec2, x2 = run(solver, args)
+                    o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
+                    o["ipopt"].update(ip_extra)
+                    solver = ca.nlpsol("ipopt_nlp1", "ipopt", {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, o)
+                    args = dict(args1)
+                elif name == "fatrop":
+                    st1 = st.without_free_rows(args1["lbg"], args1["ubg"]) if a.drop_free else st
+                    fo = dict(tolerance=opts.tol, tol_acceptable=opts.acceptable_tol, mu_init=opts.mu_init, bound_push=opts.bound_push,
+                              max_iter=max_iter, print_level=5 if a.verbose else 0)
+                    fo.update(fat_extra)
+                    df, dg = gradient_scaling(st1, st1.lift(args1["x0"]), args1["p"]) if a.scale else (1.0, np.ones(st1.g.shape[0]))
+                    out["scaling"] = {"objective": df, "rows_scaled": int(np.sum(dg < 1)), "row_min": float(np.min(dg))}
+                    solver = fatrop_solver("fatrop_nlp1", st1, fo, df, dg, a.convexify)
+                    lbg, ubg = st1.bounds(args1["lbg"], args1["ubg"])
+                    args = {"x0": st1.lift(args1["x0"]), "p": args1["p"], "lbx": st1.lbx, "ubx": st1.ubx, "lbg": lbg * dg, "ubg": ubg * dg}
+                elif name == "ipopt_staged":  # IPOPT on the staged NLP: separates the reformulation from the solver
+                    o = ipopt_options(SolveOptions(max_iter=max_iter, print_level=5 if a.verbose else 0), False)
+                    o["ipopt"].update(ip_extra)
+                    solver = ca.nlpsol("ipopt_staged_nlp1", "ipopt", st.nlp, o)
+                    lbg, ubg = st.bounds(args1["lbg"], args1["ubg"])
+                    args = {"x0": st.lift(args1["x0"]), "p": args1["p"], "lbx": st.lbx, "ubx": st.ubx, "lbg": lbg, "ubg": ubg}
+                create_s = time.perf_counter() - t0
+                rec, x = run(solver, args)
                 if name != "ipopt":
-                    x2 = st.restrict(x2)
-                rec2.update(solver=name, nlp=2, rho=rhos[1], **measures(problem, x2, p2, problem.lbg, problem.ubg))
-                log({k: v for k, v in rec2.items() if k != "fatrop_stats"})
-                out["runs"].append(rec2)
+                    x = st.restrict(x)
+                rec.update(solver=name, nlp=1, max_iter=max_iter, create_s=create_s,
+                           **measures(problem, x, args1["p"], args1["lbg"], args1["ubg"]))
+                log({k: v for k, v in rec.items() if k != "fatrop_stats"})
+                out["runs"].append(rec)
+                if a.warm and name in ("ipopt", "fatrop"):
+                    p2 = problem.params(rhos[1], 1.0)
+                    if name == "ipopt":
+                        o = ipopt_options(SolveOptions(max_iter=3000, print_level=5 if a.verbose else 0), True)
+                        solver = ca.nlpsol("ipopt_nlp2", "ipopt", {"x": problem.x, "p": problem.p, "f": problem.f, "g": problem.g}, o)
+                        args = {"x0": x, "p": p2, "lbx": problem.lbx, "ubx": problem.ubx, "lbg": problem.lbg, "ubg": problem.ubg}
+                    else:
+                        fo["max_iter"] = 3000
+                        x0n = st.lift(x)
+                        df, dg = gradient_scaling(st, x0n, p2) if a.scale else (1.0, np.ones(st.g.shape[0]))
+                        solver = fatrop_solver("fatrop_nlp2", st, fo, df, dg, a.convexify)
+                        args = {"x0": x0n, "p": p2, "lbx": st.lbx, "ubx": st.ubx, "lbg": st.lbg * dg, "ubg": st.ubg * dg}
+                    rec2, x2 = run(solver, args)
+                    if name != "ipopt":
+                        x2 = st.restrict(x2)
+                    rec2.update(solver=name, nlp=2, rho=rhos[1], **measures(problem, x2, p2, problem.lbg, problem.ubg))
+                    log({k: v for k, v in rec2.items() if k != "fatrop_stats"})
+                    out["runs"].append(rec2)
+    except RuntimeError as exc:  # an option IPOPT or FATROP does not know (a traceback before)
+        last = str(exc).strip().splitlines()[-1]
+        if "option" not in last.lower():
+            raise
+        raise InputError(f"{last.split(': ', 1)[-1]} (--ipopt-opt, --fatrop-opt)") from None
     out["load_after"] = os.getloadavg()
     if a.out:
-        with open(a.out, "w") as fh:
-            json.dump(out, fh, indent=1)
+        write_atomically(a.out, json.dumps(out, indent=1) + "\n")
     print(f"N = {a.N}: {problem.nx} / {problem.ng} (staged {out['staged_nx']} / {out['staged_ng']}), {out['date']}")
     print("| solver | NLP | max_iter | it. | status | CPU ms/it (evals) | objective | gated prod. | viol. | terminal |")
     for r in out["runs"]:

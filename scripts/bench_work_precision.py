@@ -752,7 +752,7 @@ def plot(records: list[dict], path: Path, panels=PANELS) -> None:
                            and (r["errors"].get(key) or 0) > 0), key=lambda r: -r["h"])  # refinement order
             if not runs:
                 continue
-            color = matplotlib.colormaps["tab10"](i % 10)
+            color = matplotlib.colormaps["tab20"](i % 20)  # 11 lines in the quick run: tab10 gave two the same blue
             style = "--" if variant.startswith("fesd") else "-"  # FESD lines dashed: told apart from implicit Euler at a glance
             ax.plot([r["wall_time_s"] for r in runs], [r["errors"][key] for r in runs], style, color=color,
                     label=case if variant == "default" else f"{case} {variant}")

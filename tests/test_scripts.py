@@ -1269,3 +1269,27 @@ def test_probe_replay_landings_reads_every_contact():
     assert pr.landings(problem, Y, W, U) == []
     Y[2, 1] += 0.1  # the hip's z, and both feet with it
     assert [(ld["node"], ld["contact"]) for ld in pr.landings(problem, Y, W, U)] == [(3, "foot_1"), (3, "foot_2")]
+
+
+# --- scripts/bench_fatrop.py ---------------------------------------------------------------------------
+
+def test_bench_fatrop_smoke_run_and_its_input_errors(tmp_path, capsys):
+    """The point-mass hop at N = 6, three iterations of each solver: --out gets the JSON record with one run per solver
+    and the staged sizes, the table is printed; an unknown solver, an option without "=", an option IPOPT does not know
+    and an --out in a missing directory are one line and exit 2 (they were tracebacks, the last after the whole run).
+    No timing assertions."""
+    bench = _load("bench_fatrop")
+    out = tmp_path / "fatrop.json"
+    assert bench.main(["--case", "hop", "--N", "6", "--max-iter", "3", "--out", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert [r["solver"] for r in record["runs"]] == ["ipopt", "fatrop"] and record["staged_nx"] > record["nx"]
+    assert "| fatrop | 1 | 3 |" in capsys.readouterr().out
+    base = ["--case", "hop", "--N", "6", "--max-iter", "3"]
+    for bad, message in ((["--solvers", "nope"], "invalid choice: 'nope'"), (["--out", str(tmp_path / "missing" / "x.json")], "no directory")):
+        with pytest.raises(SystemExit) as stopped:
+            bench.main(base + bad)
+        assert stopped.value.code == 2 and message in capsys.readouterr().err
+    for bad, message in ((["--fatrop-opt", "nokey"], "expected key=value"),
+                         (["--solvers", "ipopt", "--ipopt-opt", "bogus_option=3"], "No such IPOPT option: bogus_option")):
+        with pytest.raises(InputError, match=message):  # run_main makes it one line and exit 2
+            bench.main(base + bad)
