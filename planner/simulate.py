@@ -203,6 +203,12 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
                             strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
 
 
+def _why(msg: str, comp: float, comp_tol: float) -> str:
+    """Why a step's solve failed: IPOPT's status, and the complementarity residual when it is above comp_tol (a failed
+    IPOPT at a complementary point read "complementarity residual 0 > 1e-09")."""
+    return f"IPOPT {msg}" + (f", complementarity residual {comp:.3g} > {comp_tol:g}" if comp > comp_tol else "")
+
+
 def _velocity_switch(options: SimulateOptions) -> SwitchVelocity:
     """options.velocity_switch, or by default COLLOCATED for FESD with n_s >= 2 stages (used per step
     for the contacts in persistent contact, _persistent_weights) and POINT (the paper's) otherwise.
@@ -413,8 +419,7 @@ def _first_converged(solver, comp_fn, starts, p, bounds, options, total: dict, w
     if ok and comp <= options.comp_tol:
         return x
     total["ok"] = False
-    total["message"] = (f"{where} did not converge: IPOPT {msg}, complementarity residual {comp:.3g} > {options.comp_tol:g} "
-                        f"after {n_nlp} NLPs ({attempt} restarts)")
+    total["message"] = f"{where} did not converge: {_why(msg, comp, options.comp_tol)} after {n_nlp} NLPs ({attempt} restarts)"
     return None
 
 
@@ -525,7 +530,7 @@ def _horizon(system, builder, y0, task, h, N, options, law=None):
         total["comp"], total["ok"], total["message"] = comp, ok, msg
         Y = np.vstack([y0, x[: N * ny].reshape(N, ny)])
         if not (ok and comp <= options.comp_tol):  # the last iterate is the diagnostics
-            total["message"] = f"the horizon NLP did not converge: IPOPT {msg}, complementarity residual {comp:.3g} > {options.comp_tol:g}"
+            total["message"] = f"the horizon NLP did not converge: {_why(msg, comp, options.comp_tol)}"
             break
         clock = Y[:-1, -1]
         x0 = x

@@ -99,6 +99,24 @@ def test_capler_index_reduction_keeps_contact():
         assert abs(t @ a + dj[0]) < IDENTITY_TOL * (1 + np.abs(a).max())
 
 
+def test_tilted_plane_gap_is_the_signed_distance_to_the_plane_through_ground_height():
+    """A plane tilted by theta = 0.4 rad (unit normal s = (-sin theta, 0, cos theta)) through the point (0, 0, g)
+    with ground_height g = 0.25 m: the gap of the point mass at p = (x, 0, z) is s . (p - (0, 0, g)), at seeded
+    random positions; the plane's own point (0, 0, g) has gap 0 (the plane passes through it for every tilt)."""
+    import casadi as ca
+
+    theta, g = 0.4, 0.25
+    surface = (-np.sin(theta), 0.0, np.cos(theta))
+    d = dyn("point_mass")
+    q, v, u = ca.SX.sym("q", 2), ca.SX.sym("v", 2), ca.SX.sym("u", 2)
+    gap = ca.Function("gap", [q], [contact_terms(d, "point", g, q, v, u, surface=surface).gap])
+    assert ev(gap, np.array([0.0, g]))[0] == pytest.approx(0.0, abs=EXACT_TOL)
+    rng = np.random.default_rng(3)
+    for x, z in rng.uniform(-2.0, 2.0, size=(10, 2)):
+        expected = np.dot(surface, np.array([x, 0.0, z]) - np.array([0.0, 0.0, g]))
+        assert ev(gap, np.array([x, z]))[0] == pytest.approx(expected, abs=EXACT_TOL)
+
+
 def test_nq_different_from_nv_is_an_input_error():
     """A robot whose nq != nv (free flyer) is refused with a message naming the cause."""
     fake = SimpleNamespace(nq=7, nv=6, robot=SimpleNamespace(name="floating"))

@@ -111,6 +111,24 @@ def test_guess_solves_the_step_lp_kkt():
     np.testing.assert_allclose(comp, 0.0, atol=EVAL_TOL)
 
 
+def test_guess_puts_the_wanted_selector_where_a_switching_function_is_zero():
+    """Capler's default start (robots/capler.toml: q = (0, 0.4, 0, 0), v = 0, foot exactly on the ground, no-slip)
+    has switching values (n^T v, c, phi, t^T v) = (0, 0, -g, 0) exactly: the guess takes sigma* = (1/2, 0, 1/2) for
+    alpha, beta, zeta (h = 0 is the sliding manifold, where the wanted selectors are the DAE's) and gamma = 0 (h < 0),
+    with both multipliers of a zero h at 0. A selector of 1 there (h >= 0 read as h > 0) starts the hint-free OCP in
+    free flight while the foot stands."""
+    s = system("capler", 0.8)
+    b = ImplicitEulerStep(s)
+    y = s.initial_state(np.array([0.0, 0.4, 0.0, 0.0]), np.zeros(4))
+    u = np.zeros(s.nu)
+    assert [sw.name for sw in s.switches] == ["alpha[foot]", "beta[foot]", "gamma[foot]", "zeta[foot]"]
+    np.testing.assert_array_equal(np.asarray(s.switching_fn(y, u), float).ravel(), [0.0, 0.0, -9.81, 0.0])
+    w = b.guess(y, u)
+    np.testing.assert_array_equal(w[b.w_blocks["sigma"]], [0.5, 0.0, 0.0, 0.5])
+    np.testing.assert_array_equal(w[b.w_blocks["lambda0"]], [0.0, 0.0, 9.81, 0.0])
+    np.testing.assert_array_equal(w[b.w_blocks["lambda1"]], [0.0, 0.0, 0.0, 0.0])
+
+
 def test_objective_is_regularization():
     """Objective = rho_f ||sigma - sigma*||^2 (rho_f = 2.5 at a random sigma)."""
     s = system()

@@ -322,6 +322,33 @@ def test_capler_mjcf_equals_urdf():
         np.testing.assert_allclose(_np(xml.point_position("foot")(q)), _np(urdf.point_position("foot")(q)), rtol=0, atol=TOL_SAME_ROBOT)
 
 
+def test_dynamics_of_another_robot_file_with_the_same_joints_is_refused(tmp_path):
+    """Dynamics passed to simulate or build_problem must come from the robot's own file contents: a copy of
+    capler.xml whose base weighs 1 kg more (same nq, nv and joint names, so only the file's SHA-256 tells them apart)
+    is an InputError naming both files (it simulated and planned the real Capler with the heavier one's mass
+    matrix); an unchanged copy under another name is the same robot and is accepted."""
+    from planner.dynamics import dynamics_for
+    from planner.errors import InputError
+    from planner.problem import build_problem
+    from planner.simulate import simulate
+    from planner.task import load_task
+
+    real = load_robot(ROBOTS_DIR / "capler.xml")
+    text = (ROBOTS_DIR / "capler.xml").read_text()
+    assert text.count('mass="3.975"') == 1
+    (tmp_path / "heavy.xml").write_text(text.replace('mass="3.975"', 'mass="4.975"'))
+    (tmp_path / "same.xml").write_text(text)
+    heavy = Dynamics(load_robot(tmp_path / "heavy.xml"))
+    assert (heavy.robot.nq, heavy.robot.nv, heavy.robot.dof_names) == (real.nq, real.nv, real.dof_names)
+    assert _np(heavy.mass(CAPLER_Q0))[0, 0] == pytest.approx(CAPLER_MASS + 1.0, abs=TOL_SAME_ROBOT)
+    task = load_task(ROBOTS_DIR / "capler.toml")
+    for run in (simulate, build_problem):
+        with pytest.raises(InputError, match=r"dynamics were built from .*heavy.xml, not from the robot .*capler.xml"):
+            run(real, task, dynamics=heavy)
+    same = Dynamics(load_robot(tmp_path / "same.xml"))
+    assert dynamics_for(real, same) is same
+
+
 def test_accurate_far_from_origin():
     """M and h do not depend on the base position: Capler at x, z = 1e3 m equals Capler at 0 to 1e-12."""
     dyn = dynamics(load_robot("capler"))

@@ -14,6 +14,7 @@ from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.task import Horizon, VelocityBound, load_task, parse_task
 
 ROBOTS = "robots"
+SUM_ROUNDING_REL = 1e-12  # one sum of a few squares evaluated by CasADi and by NumPy: rounding only
 
 
 def hop_task(N: int = 40, holes=()):
@@ -136,6 +137,39 @@ def test_physical_time_adds_speed_and_constraint():
     rows = prob.g_blocks["physical_time"].ravel()
     assert np.all(prob.lbg[rows] == 0.8) and np.all(prob.ubg[rows] == 0.8)
     assert prob.var_blocks["s_c"].shape == (1,) and prob.g_blocks["penalty"].shape == (5, 2 * prob.system.n_sigma)
+
+
+def test_target_v_is_the_terminal_velocity():
+    """plan.target_v = (0.3, 0) m/s (point mass): the terminal rows pin y_N's (q, v) to (target_q, target_v), so the
+    v_x row's bounds are exactly 0.3 (an omitted target_v means zeros; a target_v read and dropped ends every plan at
+    rest, silently), and the row evaluates y_N's velocity."""
+    import casadi as ca
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = hop_task(N=3)
+    task = dataclasses.replace(task, plan=dataclasses.replace(task.plan, target_v=(0.3, 0.0)))
+    prob = build_problem(robot, task)
+    rows = prob.g_blocks["terminal"].ravel()
+    assert rows.shape == (2 * robot.nq,)
+    np.testing.assert_array_equal(prob.lbg[rows], [0.5, 0.0, 0.3, 0.0])
+    np.testing.assert_array_equal(prob.ubg[rows], [0.5, 0.0, 0.3, 0.0])
+    x = np.random.default_rng(4).normal(size=prob.nx)
+    g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g[rows.tolist()]])(x, prob.params(1.0)), float).ravel()
+    np.testing.assert_array_equal(g, x[prob.var_blocks["y"][-1, : 2 * robot.nq]])
+
+
+def test_control_cost_is_h_times_the_sum_of_squared_controls():
+    """Objective part "control" = h sum_k |u_k|^2 (the rectangle rule for int |u|^2 dtau), at a seeded random x with
+    h = tau_f / N = 0.2 s: without the factor h the control effort would weigh 1/h times more against the selector
+    regularizer, and change with N."""
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    prob = build_problem(robot, hop_task(N=5))
+    assert prob.h == pytest.approx(0.2, rel=1e-15)
+    x = np.random.default_rng(5).normal(size=prob.nx)
+    U = x[prob.var_blocks["u"]]
+    assert U.shape == (5, robot.nu)
+    control = float(prob.objective_parts["control"](x, prob.params(1.0)))
+    assert control == pytest.approx(prob.h * float(np.sum(U**2)), rel=SUM_ROUNDING_REL)
 
 
 def test_bad_inputs():

@@ -535,6 +535,49 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
         assert not any("goes through" in f for f in unchecked.failures)
 
 
+def _kinematic_with_hole_reach(metric: float | None) -> replay.KinematicReport:
+    """A KinematicReport clean in every respect but the contact points' deepest reach into plan.holes[0]."""
+    return replay.KinematicReport(samples=2, max_penetration_m=0.0, worst_point=None, worst_time_s=None,
+                                  penetration_by_point_m={"point": 0.0}, plan_contact_samples=0, mujoco_contact_samples=0,
+                                  contact_mismatches=0, mismatch_times_s=(), max_site_disagreement_m=0.0,
+                                  min_hole_metric=metric, hole_point=None if metric is None else "point",
+                                  hole_index=None if metric is None else 0, hole_time_s=None if metric is None else 0.05)
+
+
+def test_hole_failure_threshold_is_the_holes_inner_half():
+    """hole_failure fails a path whose contact point reaches ellipse metric 0.1 (well inside the hole's inner half,
+    metric < 1/4: through it, not a rim cut between samples) and names the point, hole, time and metric; a reach of
+    metric 0.5 (between the half-axes' halves and the rim) and a task without holes pass."""
+    through = replay.hole_failure(_kinematic_with_hole_reach(0.1))
+    assert through is not None and through.startswith(
+        "'point' goes through plan.holes[0] near t = 0.05 s (ellipse metric 0.1 < 0.25)"), through
+    assert replay.hole_failure(_kinematic_with_hole_reach(0.5)) is None
+    assert replay.hole_failure(_kinematic_with_hole_reach(None)) is None
+
+
+def test_a_diverged_tracking_replay_fails_the_validation(point_mass, monkeypatch):
+    """A point mass resting on the table (zero controls) validates; when MuJoCo reports that the tracking replay
+    diverged (a bad state it reset, stubbed here) while the base error stays within its threshold, the validation
+    fails and names the divergence: after a reset the tracking error measures a restarted run, not the plan."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}})
+    traj = _zeros(point_mass)
+    calm = replay.validate_trajectory(point_mass, task, traj)
+    assert calm.passed and not calm.tracking.diverged, calm.failures
+    real = replay._replay
+
+    def diverging(scene, ref, gains, planned, options, controller=replay.TrackingController.JOINT_PD, positions=None):
+        report = real(scene, ref, gains, planned, options, controller, positions)
+        whole_tracking = gains is not None and positions is None  # not the open-loop replay nor a window
+        return dataclasses.replace(report, diverged=True) if whole_tracking else report
+
+    monkeypatch.setattr(replay, "_replay", diverging)
+    broken = replay.validate_trajectory(point_mass, task, traj)
+    assert broken.tracking.diverged and broken.max_tracking_error_m <= replay.MAX_TRACKING_ERROR_M
+    assert not broken.passed
+    assert broken.failures == ("MuJoCo diverged during the tracking replay",)
+
+
 def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
     """validate(DIR) of a result whose summary says it did not converge fails, saying so, even when MuJoCo tracks its
     last iterate (a plan of one step, terminal error 0.25, was PASSED, exit 0)."""

@@ -139,6 +139,21 @@ def test_unreachable_holes_are_dropped_and_cannot_be_active(point_mass):
         assert np.all(b[off.g_blocks["holes"][:, 1:].ravel()] > 0)
 
 
+def test_a_hole_straddling_an_edge_of_the_reach_box_is_kept(point_mass):
+    """The point's reach box is x in [-0.1, 0.6] m (joint bounds of holes_task). A hole over x in [-0.17, -0.07] m
+    contains the box's lower edge, and one over [0.55, 0.65] m its upper edge: the point can stand in either at
+    x = -0.1 or 0.6 m, so neither is dropped; holes wholly beyond the edges (x in [-0.3, -0.2], [0.7, 0.8]) are."""
+    holes = [{"x": -0.12, "a": 0.05, "b": 0.05}, {"x": 0.6, "a": 0.05, "b": 0.05},
+             {"x": -0.25, "a": 0.05, "b": 0.05}, {"x": 0.75, "a": 0.05, "b": 0.05}]
+    plan = {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": holes,
+            "joint_bounds": [{"joint": "x", "lower": -0.1, "upper": 0.6}]}
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 2}, "plan": plan})
+    lo, hi = reach_box(point_mass, "point", *task.q_bounds(point_mass))
+    assert (lo[0], hi[0]) == (-0.1, 0.6)
+    assert analyze_scene(point_mass, task).dropped_holes == (("point", 2), ("point", 3))
+
+
 def test_reach_box_holds_every_sampled_position(capler):
     """Capler with bounded base slides: every sampled foot and knee position lies in its reach box;
     unbounded slides (the default task) give an unbounded box in x and z, so no hole is dropped."""

@@ -331,6 +331,70 @@ def test_failed_step_returns_diagnostics():
     assert len(r.trajectory.tau) == 1 and r.summary()["converged"] is False
 
 
+def test_a_step_ipopt_failed_is_not_converged_even_if_complementary(monkeypatch):
+    """A step whose IPOPT run reports failure (stubbed: the real solve's point, flagged as
+    Maximum_Iterations_Exceeded) is not converged even though that point is complementary (residual <= comp_tol):
+    IPOPT's point may violate the dynamics rows, which the complementarity residual does not see. The simulation
+    stops there with converged = False and a message naming the step and IPOPT's status, and not the residual (it
+    read "complementarity residual 0 > 1e-09")."""
+    import planner.simulate as sim
+
+    real = sim._solve_homotopy
+
+    def failing(*args, **kwargs):
+        x, lam, comp, n_nlp, iterations, _, _ = real(*args, **kwargs)
+        return x, lam, comp, n_nlp, iterations, False, "Maximum_Iterations_Exceeded"
+
+    monkeypatch.setattr(sim, "_solve_homotopy", failing)
+    options = SimulateOptions(restarts=False)
+    r = simulate(robot(), task({"a_n": 100.0}, (0.0, 1.0), (1.0, 0.0), 0.02, 2), options, dynamics=dynamics())
+    assert r.stats.complementarity_residual <= options.comp_tol  # the iterate itself is complementary
+    assert r.stats.converged is False
+    assert "step 0" in r.stats.message and "IPOPT Maximum_Iterations_Exceeded" in r.stats.message
+    assert "complementarity residual" not in r.stats.message
+
+
+def test_a_scheduled_control_acts_from_the_step_whose_midpoint_passed_it():
+    """[[simulate.schedule]] is read at each step's physical midpoint t_k + h / 2: with a change at t1 = 2.4 h
+    (point mass in flight, clock rate 1, h = 10 ms) steps 0 and 1 (midpoints 0.5 h, 1.5 h) use the old control and
+    step 2 (midpoint 2.5 h, start 2 h < t1) already the new one, so the change acts from the step nearest t1. The
+    recovered samples carry the control of the step that ends at them; z follows implicit Euler with it."""
+    h, u_old, u_new = 0.01, (0.0, 0.0), (0.0, 20.0)
+    r = run((("a_n", 100.0),), (0.0, 1.0), (0.0, 0.0), 4 * h, 4, schedule=((2.4 * h, u_new),))
+    tr = r.trajectory
+    assert r.h == pytest.approx(h, rel=1e-15) and tr.impacts == ()
+    np.testing.assert_allclose(np.diff(tr.y[:, -1]), h, atol=CLOCK_RATE_TOL * h)
+    np.testing.assert_array_equal(tr.u[1:], [u_old, u_old, u_new, u_new])
+    vz = np.cumsum([0.0] + [h * (u[1] - G) for u in (u_old, u_old, u_new, u_new)])  # implicit Euler: v_{k+1} = v_k + h a
+    np.testing.assert_allclose(tr.v[:, 1], vz, atol=SOLVER_TOL)
+
+
+@pytest.mark.parametrize("second_impulse, contacts_hit", [(0.5, ("a", "b")), (0.05, ("a",))])
+def test_a_contact_takes_part_in_an_impact_from_a_hundredth_of_the_largest_impulse(second_impulse, contacts_hit):
+    """planner.result.recover on a hand-built run of three implicit Euler steps (h = 0.1 s; q, v (2,) each): step 1
+    is a landing (the clock runs 0.05 s of it, then freezes) in which two contacts take normal impulses of 10 N s and
+    `second_impulse`. A contact with at least IMPULSE_SHARE = 1/100 of the largest impulse took part in the impact and
+    gets its own Impact record (0.5 N s: two records, the largest first, both at t = 0.15 s); 0.05 N s is a resting
+    contact's drift correction: one record. Either way the impact is one pair of samples."""
+    from planner.result import recover
+
+    h = 0.1
+    tau = h * np.arange(4)
+    clock = np.array([0.0, h, 1.5 * h, 2.5 * h])  # step 1 runs half its clock: frozen (an impact), not fully
+    y = np.column_stack([np.zeros((4, 4)), clock])
+    y[2:, 3] = 1.0  # v_z after the impact
+    dv_aux = np.zeros((3, 2))
+    dv_aux[1, 1] = 1.0
+    impulses = np.zeros((3, 2, 2))  # (steps, contacts, normal/tangential)
+    impulses[1, :, 0] = (10.0, second_impulse)
+    t, q, v, u, impacts = recover(tau, y, np.zeros((3, 2)), np.full(3, h), dv_aux, impulses, 2, 2, ("a", "b"))
+    assert tuple(imp.contact for imp in impacts) == contacts_hit
+    assert [imp.impulse for imp in impacts] == [10.0, second_impulse][: len(contacts_hit)]
+    assert all(imp.time == 1.5 * h for imp in impacts)
+    np.testing.assert_array_equal(t, [0.0, h, 1.5 * h, 1.5 * h, 2.5 * h])
+    np.testing.assert_array_equal(v[2:4, 1], [0.0, 1.0])  # pre- and post-impact v_z
+
+
 # --- joint PD (simulate.pd) and predictor restarts ------------------------------------------------
 
 PD_KP, PD_KD = 40.0, 3.0  # [N/m, N s/m] on the 1 kg mass: underdamped, so the recursion shows in x(t)

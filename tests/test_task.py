@@ -79,6 +79,30 @@ def test_bad_values_are_named(path, value, message):
         parse_task(_with(path, value))
 
 
+@pytest.mark.parametrize(
+    "path, bad, good, message",
+    [
+        # a_n = 0 switches the impact field off: the frozen interval never ends (the clock stops for good)
+        ("contacts", [{"point": "foot", "a_n": 0.0}], [{"point": "foot", "a_n": 1e-3}],
+         r"contacts.a_n = 0.0 is not allowed; it must be in \(0, 1e\+06\]"),
+        # T > tau_f needs a speed of time s > 1 somewhere, but s >= 1 and t(tau_f) = T is solvable only for T <= tau_f
+        ("horizon", {"tau_f": 1.0, "N": 10, "physical_time": 1.5}, {"tau_f": 1.0, "N": 10, "physical_time": 1.0},
+         r"horizon.physical_time = 1.5 is not allowed; it must be in \(0, tau_f\]"),
+        # kappa = 1 repeats the first penalty n_nlp times: the homotopy never tightens the complementarity
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.0}},
+         {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.5}},
+         r"plan.homotopy.kappa = 1.0 is not allowed; it must be > 1"),
+    ],
+)
+def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, message):
+    """The open ends of three ranges: contacts.a_n in (0, MAX], horizon.physical_time in (0, tau_f] and
+    plan.homotopy.kappa > 1. The edge value raises TaskError naming the key and its range; a value just inside parses
+    (physical_time = tau_f is the closed end: s = 1 throughout)."""
+    with pytest.raises(TaskError, match=message):
+        parse_task(_with(path, bad))
+    parse_task(_with(path, good))
+
+
 def test_robot_dependent_errors():
     """Names and lengths are checked against the robot; targets must lie inside the joint bounds."""
     capler = load_robot("capler")

@@ -54,6 +54,26 @@ def test_wanted_selectors_give_f_dae_f_symbolically(robot):
     assert structurally_zero(s.vector_field(s.wanted) - s.field(f"dae_f[{pt}]"))
 
 
+@pytest.mark.parametrize("robot", ["point_mass", "capler"])
+def test_pull_off_selectors_give_f_ode_and_a_running_clock(robot):
+    """Frictionless pull-off (eq. 20 with alpha = alpha* = 1/2, beta = 0, gamma = 1): f_DF = 2 f_ODE, so
+    F = (1 - alpha) f_A,n + alpha 2 f_ODE = f_ODE + f_A,n / 2, symbolically; its q rows are v and its clock rate is
+    exactly 1 for every gamma in [0, 1] (the DAE and the free ODE both run physical time), so a contact that breaks
+    off while sliding neither freezes nor speeds up the clock. The factor 2 on gamma f_ODE is what keeps t' = 1."""
+    s = system(robot)
+    assert s.models == (ContactModel.FRICTIONLESS,)
+    pt = s.contacts[0].point
+    pull_off = np.array([0.5, 0.0, 1.0])  # (alpha, beta, gamma) in the order of s.switches
+    assert [sw.name for sw in s.switches] == [f"alpha[{pt}]", f"beta[{pt}]", f"gamma[{pt}]"]
+    expected = s.field("ode") + 0.5 * s.field(f"a_n[{pt}]")
+    assert structurally_zero(s.vector_field(pull_off) - expected)
+    assert structurally_zero(s.vector_field(pull_off)[: s.nq] - s.y[s.nq : s.nq + s.nv])  # q' = v, as in flight
+    for gamma in (0.0, 0.5, 1.0):
+        F = s.vector_field(np.array([0.5, 0.0, gamma]))
+        clock = ca.Function("clock", [s.y, s.u], [F[s.ny - 1]])(np.zeros(s.ny), np.zeros(s.nu))
+        assert float(clock) == 1.0, (gamma, float(clock))
+
+
 def capler_on_sigma(s: TimeFreezingSystem, seed: int, no_slip: bool):
     """Random Capler state on Sigma: foot on the ground (shift z_B), n^T v = 0 (and t^T v = 0)."""
     rng = np.random.default_rng(seed)
