@@ -248,7 +248,11 @@ def _compile(robot: Robot):
     if other:
         return None, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
-        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}"
+        model = robot.model
+        unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]
+        why = (f" (joint {', '.join(unbounded)}: a URDF continuous joint, which Pinocchio reads as cos and sin; make it "
+               "revolute with limits)" if unbounded else "")
+        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}{why}"
     return mj, None
 
 

@@ -145,10 +145,11 @@ class Robot:
                 return True
         return False
 
-    def dof_index(self, joint: str) -> int:
-        """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names."""
+    def dof_index(self, joint: str, key: str = "") -> int:
+        """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names (and names `key`, the task
+        key that gave the joint, when given)."""
         if joint not in self.dof_names:
-            raise UnknownNameError("joint", joint, self.dof_names)
+            raise UnknownNameError("joint", joint, self.dof_names, key)
         return self.dof_names.index(joint)
 
 

@@ -375,8 +375,10 @@ class PlanResult:
 
 
 def race_arms_text(arms: list[dict]) -> str:
-    """planner.race's table (PlanResult.extra["race"]) as one line: each arm's outcome, iterations, wall time."""
-    return ", ".join(f"{a['arm']} {a['outcome']} ({a['iterations']} it, {a['wall_s']:.1f} s)" for a in arms)
+    """planner.race's table (PlanResult.extra["race"]) as one line: each arm's outcome, iterations, wall time. A stopped
+    arm's iterations are those of its finished NLPs (a stopped arm in its first NLP read "0 it" after 17 s)."""
+    return ", ".join(f"{a['arm']} {a['outcome']} ({a['iterations']} it{' in finished NLPs' if a['outcome'] == 'stopped' else ''}, "
+                     f"{a['wall_s']:.1f} s)" for a in arms)
 
 
 # Relative clock deficit of a step that counts as frozen (an impact). In persistent contact the

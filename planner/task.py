@@ -413,9 +413,9 @@ class Task:
             raise RobotFileError(f"{robot.path}: MuJoCo reads other physics from this file than Pinocchio, whose reading the "
                                  f"planner's dynamics are: {'; '.join(differences)}; `planner check-model {robot.path}` compares "
                                  "the two readings")
-        for c in self.contacts:
+        for i, c in enumerate(self.contacts):
             if c.point not in robot.points:
-                raise UnknownNameError("contact point", c.point, robot.points)
+                raise UnknownNameError("contact point", c.point, robot.points, f"contacts[{i}].point")
             if c.point not in robot.sites:  # MuJoCo's replay has no site of that name (validate failed later)
                 raise TaskError(f"contact point {c.point!r} is an MJCF body, not a site; add <site name=\"...\"/> where the "
                                 f"body touches and name it (sites: {', '.join(robot.sites) or 'none'})")
@@ -436,9 +436,9 @@ class Task:
             return
         if robot.nu == 0:
             raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with")
-        for p in self.plan.above_ground:
+        for i, p in enumerate(self.plan.above_ground):
             if p not in robot.points:
-                raise UnknownNameError("point", p, robot.points)
+                raise UnknownNameError("point", p, robot.points, f"plan.above_ground[{i}]")
         self.velocity_rows(robot)
         if self.plan.periodic is not None:
             self.periodic_map(robot)
@@ -463,10 +463,10 @@ class Task:
                             f"nq = {robot.nq}, nv = {robot.nv}")
         perm = np.arange(robot.nq)
         for pair in per.swap:
-            i, j = (robot.dof_index(name) for name in pair)
+            i, j = (robot.dof_index(name, "plan.periodic.swap") for name in pair)
             perm[i], perm[j] = j, i
-        along = robot.dof_index(per.along)
-        fixed = np.array([robot.dof_index(name) for name in per.fixed], dtype=int)
+        along = robot.dof_index(per.along, "plan.periodic.along")
+        fixed = np.array([robot.dof_index(name, "plan.periodic.fixed") for name in per.fixed], dtype=int)
         lower, upper = self.q_bounds(robot)
         for i, (qi, lo, hi) in enumerate(zip(self.initial.q, lower, upper)):
             if not lo <= qi <= hi:
@@ -486,7 +486,7 @@ class Task:
                             f"nq = {robot.nq}, nv = {robot.nv}")
         out = []
         for joint in pd.joints:
-            dof = robot.dof_index(joint)
+            dof = robot.dof_index(joint, "simulate.pd.joints")
             drives = [i for i, a in enumerate(robot.actuators) if a.dof == dof]
             if len(drives) != 1:
                 raise TaskError(f"simulate.pd.joints: joint {joint!r} is driven by {len(drives)} actuators; PD needs exactly one "
@@ -500,14 +500,14 @@ class Task:
         bounds = self.plan.velocity_bounds if self.plan else ()
         A = np.zeros((len(bounds), robot.nv))
         for r, b in enumerate(bounds):
-            A[r, [robot.dof_index(name) for name in b.joints]] = 1.0
+            A[r, [robot.dof_index(name, f"plan.velocity_bounds[{r}].joints") for name in b.joints]] = 1.0
         return A, np.array([b.lower for b in bounds]), np.array([b.upper for b in bounds])
 
     def q_bounds(self, robot) -> tuple[np.ndarray, np.ndarray]:
         """Joint position bounds (nq,): the robot file's limits, replaced by plan.joint_bounds."""
         lower, upper = robot.q_lower.copy(), robot.q_upper.copy()
-        for b in self.plan.joint_bounds if self.plan else ():
-            i = robot.dof_index(b.joint)
+        for r, b in enumerate(self.plan.joint_bounds if self.plan else ()):
+            i = robot.dof_index(b.joint, f"plan.joint_bounds[{r}].joint")
             lower[i], upper[i] = b.lower, b.upper
         return lower, upper
 

@@ -208,6 +208,7 @@ def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     result = check_model(load_robot(path), samples=1)
     assert not result.passed and result.mujoco_skipped.startswith("FAILED: MuJoCo has nq, nv = 4, 4 but Pinocchio 5, 4")
     assert "vs MuJoCo:    FAILED: MuJoCo has nq" in result.report()
+    assert "(joint 'knee': a URDF continuous joint, which Pinocchio reads as cos and sin; make it revolute" in result.report()
     assert check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).passed
     from planner.task import load_task
 

@@ -357,3 +357,13 @@ def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch):
     summary, arrays = read_summary(tmp_path, require=()), dict(np.load(tmp_path / "trajectory.npz"))
     check_same_result(tmp_path, summary, arrays)
     assert arrays["t"].size == 3 and sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+
+
+def test_the_race_line_says_a_stopped_arms_count_is_of_finished_nlps():
+    """A stopped arm's iterations are those of its finished NLPs (planner.race counts them as they end), and the line
+    says so: "default stopped (0 it, 17.1 s)" read as an arm that never iterated."""
+    from planner.result import race_arms_text
+
+    line = race_arms_text([{"arm": "default", "outcome": "stopped", "iterations": 0, "wall_s": 17.14},
+                           {"arm": "alternate", "outcome": "won", "iterations": 2338, "wall_s": 17.1}])
+    assert line == "default stopped (0 it in finished NLPs, 17.1 s), alternate won (2338 it, 17.1 s)"

@@ -220,15 +220,20 @@ def test_infinite_bounds_mean_unbounded():
 
 def test_velocity_bounds_as_rows():
     """Each bound is one row of A (0/1 on the named joints' velocity indices) with its lower and upper
-    bound; an unknown joint lists the robot's joints."""
+    bound; an unknown joint names the task key that gave it (it said only "unknown joint 'knee'") and lists the
+    robot's joints, as an unknown joint of plan.joint_bounds and an unknown point of plan.above_ground do."""
     robot = load_robot(ROBOTS / "biped.xml")
     task = parse_task(_periodic(velocity_bounds=[{"joints": ["torso", "hinge_1"], "lower": 0.3},
                                                  {"joints": ["x"], "lower": -1.0, "upper": 2.0}]))
     A, lower, upper = task.velocity_rows(robot)
     assert A.tolist() == [[0, 0, 1, 1, 0], [1, 0, 0, 0, 0]]
     assert lower.tolist() == [0.3, -1.0] and upper.tolist() == [float("inf"), 2.0]
-    with pytest.raises(UnknownNameError, match="valid joints: hinge_1, hinge_2, torso, x, z"):
+    with pytest.raises(UnknownNameError, match=r"^plan.velocity_bounds\[0\].joints: unknown joint 'knee'; valid joints: hinge_1, hinge_2, torso, x, z"):
         parse_task(_periodic(velocity_bounds=[{"joints": ["knee"], "lower": 0.0}])).check_against(robot)
+    with pytest.raises(UnknownNameError, match=r"^plan.joint_bounds\[0\].joint: unknown joint 'knee'"):
+        parse_task(_periodic(joint_bounds=[{"joint": "knee", "lower": 0.0, "upper": 1.0}])).check_against(robot)
+    with pytest.raises(UnknownNameError, match=r"^plan.above_ground\[0\]: unknown point 'knee'; valid points: foot_1"):
+        parse_task(_periodic(above_ground=["knee"])).check_against(robot)
 
 
 def test_plan_without_target_or_periodic():
