@@ -205,13 +205,13 @@ class SimulationResult:
     def ends_in_impact(self) -> bool:
         """The horizon ends while the last impact is still frozen (its clock never ran again): a simulation has no
         terminal state to end it, so that impact is unfinished and its impulse and v_post are partial (a 100 kg point
-        mass landing at 4.4 m/s stays frozen for ~2 m |v_n| / a_n = 4.4 s of numerical time at a_n = 200)."""
+        mass landing at 4.4 m/s stays frozen for ~m |v_n| / a_n = 2.2 s of numerical time at a_n = 200)."""
         tr = self.trajectory
         return bool(tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1])
 
     def report(self) -> str:
         """A few human-readable lines for the terminal."""
-        lines = [_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory)
+        lines = [_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory, task=self.extra.get("_task"))
         if self.ends_in_impact:
             lines.append("  the horizon ends inside the last impact (its clock is still stopped): its impulse and "
                          "post-impact velocity are partial; lengthen tau_f or raise the contact's a_n")
@@ -245,7 +245,8 @@ def _contract_keys(result, terminal_error: float | None) -> dict:
         "complementarity_residual": st.complementarity_residual,
         "terminal_error": terminal_error,
         "physical_duration_s": tr.physical_duration,
-        "impacts": [{**imp.to_json(), "tap": bool(tap)} for imp, tap in zip(tr.impacts, tr.taps)],
+        "impacts": [{**imp.to_json(), "tap": bool(tap), "outside_friction_cone": bool(out)}
+                    for imp, tap, out in zip(tr.impacts, tr.taps, outside_cone(tr, result.extra.get("_task")))],
     }
 
 
@@ -258,13 +259,39 @@ def _headline(result, details: str) -> str:
             f"{st.ipopt_iterations} IPOPT iterations, complementarity {st.complementarity_residual:.1e}")
 
 
-def _trajectory_lines(tr: Trajectory, extra: str = "") -> list[str]:
-    """Terminal lines for the physical duration and each impact."""
-    taps = tr.taps
+# An impact's tangential impulse above mu times its normal one by more than this factor (and CONE_FLOOR_NS) is outside
+# the friction cone: the tangential auxiliary field stops a sliding foot beyond Coulomb, in a plan when a_t > mu a_n
+# (the paper's a_t = 600 against mu a_n = 160 on Capler), in a simulation for any a_t (docs/tasks.md). Rounding stays
+# orders of magnitude below both.
+CONE_SLACK = 1.01
+CONE_FLOOR_NS = 1e-9
+
+
+def outside_cone(tr: Trajectory, task: Task | None) -> np.ndarray:
+    """(I,) bool: which impacts have a tangential impulse outside their contact's friction cone (CONE_SLACK); all
+    False without the task (its mu) or for frictionless contacts."""
+    if task is None:
+        return np.zeros(len(tr.impacts), dtype=bool)
+    from .timefreezing import contact_labels  # (CasADi: not for reading results only)
+
+    mu = dict(zip(contact_labels(task.contacts), (c.mu for c in task.contacts)))
+    return np.array([mu.get(imp.contact, 0.0) > 0.0 and abs(imp.impulse_tangential)
+                     > CONE_SLACK * mu[imp.contact] * max(imp.impulse, 0.0) + CONE_FLOOR_NS for imp in tr.impacts], dtype=bool)
+
+
+def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None) -> list[str]:
+    """Terminal lines for the physical duration and each impact (those outside the friction cone flagged)."""
+    taps, outside = tr.taps, outside_cone(tr, task)
     n_taps = f" ({int(taps.sum())} tap(s): below {TAP_SHARE:.0%} of the largest impulse)" if taps.any() else ""
     lines = [f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s){n_taps}{extra}"]
-    return lines + [f"  {'tap' if tap else 'impact'} at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
-                    f"{imp.impulse_tangential:.4g} N s tangential" for imp, tap in zip(tr.impacts, taps)]
+    lines += [f"  {'tap' if tap else 'impact'} at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
+              f"{imp.impulse_tangential:.4g} N s tangential" + (" (outside the friction cone)" if out else "")
+              for imp, tap, out in zip(tr.impacts, taps, outside)]
+    if outside.any():
+        lines.append(f"  {int(outside.sum())} impact(s) outside the friction cone (|tangential| > mu normal): the tangential "
+                     "auxiliary field stopped sliding beyond Coulomb; `planner plan` keeps impacts inside the cone when "
+                     "a_t <= mu a_n (docs/tasks.md)")
+    return lines
 
 
 @dataclass(frozen=True)
@@ -347,7 +374,7 @@ class PlanResult:
         lines = [_headline(self, "") + f", terminal error {self.terminal_error:.1e})"]
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
-        lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)")
+        lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)", self.extra.get("_task"))
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others

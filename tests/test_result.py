@@ -367,3 +367,26 @@ def test_the_race_line_says_a_stopped_arms_count_is_of_finished_nlps():
     line = race_arms_text([{"arm": "default", "outcome": "stopped", "iterations": 0, "wall_s": 17.14},
                            {"arm": "alternate", "outcome": "won", "iterations": 2338, "wall_s": 17.1}])
     assert line == "default stopped (0 it in finished NLPs, 17.1 s), alternate won (2338 it, 17.1 s)"
+
+
+def test_an_impact_outside_the_friction_cone_is_flagged():
+    """An impact whose tangential impulse exceeds mu times its normal one is flagged in the report and in summary.json
+    (`outside_friction_cone`): a simulation of a point mass thrown along the ground at 5 m/s (mu 0.8, a_t 80, a_n 100)
+    ends its impact with 4.24 N s tangential against 4.39 N s normal, 0.97 of it (docs/tasks.md); with mu = 2 the
+    same impact is inside the cone, and a frictionless contact has none to leave."""
+    import dataclasses
+
+    from planner.model import load_robot
+    from planner.simulate import simulate
+
+    robot = load_robot("point_mass")
+    base = {"initial": {"q": [0.0, 1.0], "v": [5.0, 0.0]}, "horizon": {"tau_f": 0.8, "N": 80}}
+    for mu, outside in ((0.8, True), (2.0, False)):
+        task = parse_task({**base, "contacts": [{"point": "point", "mu": mu, "a_n": 100.0, "a_t": 80.0}]})
+        result = simulate(robot, task)
+        (imp,) = result.trajectory.impacts
+        assert abs(imp.impulse_tangential) / imp.impulse == pytest.approx(0.966, abs=0.01)
+        assert result.summary()["impacts"][0]["outside_friction_cone"] is outside
+        assert ("(outside the friction cone)" in result.report()) is outside
+    frictionless = dataclasses.replace(task, contacts=(dataclasses.replace(task.contacts[0], mu=0.0),))
+    assert simulate(robot, frictionless).summary()["impacts"][0]["outside_friction_cone"] is False
