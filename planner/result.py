@@ -89,7 +89,10 @@ class Impact(ArraysReadOnly):
     impulse: float  # normal impulse int a_n dtau [N s] (eq. 22)
     impulse_tangential: float  # tangential impulse int (1 - 2 zeta) a_t dtau [N s] (0 if frictionless)
     q: np.ndarray  # configuration at the impact (nq,)
-    v_pre: np.ndarray  # pre-impact velocity (nv,)
+    # pre-impact velocity (nv,): implicit Euler's, the landing step's end velocity less its auxiliary increment, so it
+    # holds what the step's smooth part did in its running share (a contact-mode push at the step's end: O(h), e.g. a
+    # falling walker's pitch rate -0.43 rad/s at v_pre where the sample before had 0)
+    v_pre: np.ndarray
     v_post: np.ndarray  # post-impact velocity (nv,)
     tau_start: float  # numerical time where the frozen interval starts [s]
     tau_end: float  # numerical time where it ends [s]
