@@ -4,9 +4,12 @@ At seeded random states (q uniform within the joint limits where both are finite
 [-1, 1], quaternions and unit complex numbers normalized; v uniform in [-1, 1]) it compares
 M(q) with `pin.crba`, h(q, v) with `pin.rnea(q, v, 0)`, every named point's placement with
 `data.oMf`, its frame Jacobian with `pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)` and its
-drift dJ/dt v with the classical acceleration at zero joint acceleration. It also compares M, h
-and the named points' positions with MuJoCo's compiled model of the same file (a URDF file as
-planner.model.mujoco_spec gives it to MuJoCo: a site at every link).
+drift dJ/dt v with the classical acceleration at zero joint acceleration. It also compares M, h,
+the named points' positions and MuJoCo's passive forces (the planner has none) with MuJoCo's compiled
+model of the same file (a URDF file as planner.model.mujoco_spec gives it to MuJoCo: a site at every
+link), and fails naming what MuJoCo applies that the planner does not model (_named_differences).
+`reading_differences` is the same comparison with Pinocchio's numeric reading, which simulate and plan
+run before they start.
 """
 from __future__ import annotations
 
@@ -206,8 +209,7 @@ def _pinocchio_errors(robot: Robot, dyn: Dynamics, states) -> dict[str, float]:
     model, data = robot.model, robot.model.createData()
     err: dict[str, list[float]] = {k: [0.0] for k in ("max_err_mass", "max_err_bias", "max_err_frames", "max_err_jacobians", "max_err_drift")}
     for q, v in states:
-        M = pin.crba(model, data, q)
-        err["max_err_mass"].append(_err(dyn.mass(q), np.triu(M) + np.triu(M, 1).T))  # the upper triangle is Pinocchio's
+        err["max_err_mass"].append(_err(dyn.mass(q), _symmetric(pin.crba(model, data, q))))
         err["max_err_bias"].append(_err(dyn.bias(q, v), pin.rnea(model, data, q, v, np.zeros(model.nv))))
         pin.computeJointJacobians(model, data, q)
         pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
@@ -230,30 +232,40 @@ ENABLED_PHYSICS = ("override",)
 READING_STATES = 3  # seeded states at which simulate and plan compare the two readings (reading_differences)
 
 
+SKIPPED, UNREADABLE, DIFFERENT = "skipped", "unreadable", "different"  # why _compile returns no model
+
+
 def _compile(robot: Robot):
-    """(MuJoCo's compiled model of the robot file, None) or (None, why not): a skip, or MUJOCO_FAILED and the reason
-    when MuJoCo's reading cannot be what the planner plans for (other coordinates, another joint order)."""
+    """(MuJoCo's compiled model of the robot file, None, None), or (None, kind, why): SKIPPED when MuJoCo's coordinates
+    cannot be compared with Pinocchio's (a free or ball joint, Pinocchio's own free flyer), UNREADABLE when MuJoCo
+    cannot read or compile the file (the replay cannot run), DIFFERENT when MuJoCo reads other coordinates or another
+    joint order than the planner plans for."""
     import mujoco
 
     if robot.floating:
-        return None, "Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads"
+        return None, SKIPPED, "Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads"
     try:
-        mj = mujoco_spec(robot, robot.points).compile()
-    except RobotFileError as exc:  # MuJoCo cannot read it, or orders (and so reads) the joints otherwise (a URDF planar joint)
-        return None, MUJOCO_FAILED + str(exc)
+        spec = mujoco_spec(robot, robot.points, check_order=False)
+    except RobotFileError as exc:
+        return None, UNREADABLE, str(exc)
+    if tuple(j.name for j in spec.joints) != robot.dof_names:  # a URDF planar joint: MuJoCo's three, Pinocchio's one
+        return None, DIFFERENT, (f"MuJoCo orders the joints {tuple(j.name for j in spec.joints)}, Pinocchio "
+                                 f"{robot.dof_names}")
+    try:
+        mj = spec.compile()
     except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
-        return None, MUJOCO_FAILED + mujoco_failure(robot.path, exc)
+        return None, UNREADABLE, mujoco_failure(robot.path, exc)
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     other = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}" for j in range(mj.njnt) if int(mj.jnt_type[j]) not in kept]
     if other:
-        return None, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
+        return None, SKIPPED, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
         model = robot.model
         unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]
         why = (f" (joint {', '.join(unbounded)}: a URDF continuous joint, which Pinocchio reads as cos and sin; make it "
                "revolute with limits)" if unbounded else "")
-        return None, MUJOCO_FAILED + f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}{why}"
-    return mj, None
+        return None, DIFFERENT, f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}{why}"
+    return mj, None, None
 
 
 def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
@@ -283,7 +295,8 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
         joint, i = name(mujoco.mjtObj.mjOBJ_JOINT, j), int(mj.jnt_qposadr[j])
         if mj.jnt_actfrclimited[j]:  # MuJoCo clamps the joint's summed actuator force: fine where the motors stay inside
             drives = [a for a in robot.actuators if a.dof == int(mj.jnt_dofadr[j])]
-            reach = sorted((sum(a.gear * a.lower for a in drives), sum(a.gear * a.upper for a in drives)))
+            reach = (sum(min(a.gear * a.lower, a.gear * a.upper) for a in drives),  # a negative gear swaps its ends
+                     sum(max(a.gear * a.lower, a.gear * a.upper) for a in drives))
             lo, hi = (float(x) for x in mj.jnt_actfrcrange[j])
             if reach[0] < lo - TOLERANCE or reach[1] > hi + TOLERANCE:
                 out.append(f"joint {joint!r}: actuatorfrcrange [{lo:g}, {hi:g}] narrower than its motors' force range "
@@ -294,44 +307,68 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     return tuple(out)
 
 
+def _mujoco_gaps(mj, states, mass, bias, position, points) -> dict[str, float]:
+    """Max abs differences at `states` ((q, v) pairs) between MuJoCo's compiled model mj and a reading of the same file
+    given as mass(q) (nv, nv), bias(q, v) (nv,) and position(point, q) (3,) callables: "mass" [kg, kg m, kg m^2],
+    "bias" [N, N m], "passive" (MuJoCo's passive forces, which the planner does not have) [N, N m], and per MuJoCo site
+    named as one of `points`, its position [m] (the dict "sites": name -> difference)."""
+    import mujoco
+
+    data = mujoco.MjData(mj)
+    sites = [(s, mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) for s in range(mj.nsite)]
+    sites = [(s, name) for s, name in sites if name in points]
+    err = {"mass": [0.0], "bias": [0.0], "passive": [0.0]}
+    apart = {name: [0.0] for _, name in sites}
+    M = np.zeros((mj.nv, mj.nv))
+    for q, v in states:
+        data.qpos[:], data.qvel[:] = q, v
+        mujoco.mj_forward(mj, data)
+        mujoco.mj_fullM(mj, data, M)
+        err["mass"].append(_err(mass(q), M))
+        err["bias"].append(_err(bias(q, v), data.qfrc_bias))
+        err["passive"].append(float(np.max(np.abs(data.qfrc_passive), initial=0.0)))
+        for s, name in sites:
+            apart[name].append(_err(position(name, q), data.site_xpos[s]))
+    gaps = {k: float(np.max(e)) for k, e in err.items()}  # np.max keeps a NaN, which fails the check
+    return {**gaps, "sites": {name: float(np.max(e)) for name, e in apart.items()}}
+
+
+def _symmetric(M) -> np.ndarray:
+    """Pinocchio's crba fills the upper triangle only: the whole symmetric matrix."""
+    return np.triu(M) + np.triu(M, 1).T
+
+
 @functools.lru_cache(maxsize=16)
 def reading_differences(robot: Robot) -> tuple[str, ...]:
     """How MuJoCo, which replays plans and simulations, reads other physics from the robot file than Pinocchio, whose
-    reading the planner's dynamics are: _named_differences, then mass matrix, bias forces, passive forces and named
-    points' positions differing by more than TOLERANCE at READING_STATES seeded states (Pinocchio's numeric
-    algorithms; check-model compares the CasADi functions at more). () when they agree, or when MuJoCo's reading cannot
-    be compared (free or ball joints, a file MuJoCo cannot read: check-model and the validation say so); other
-    coordinates or joint order are a difference. Simulate and plan refuse a robot with any (Task.check_against)."""
-    import mujoco
-
-    mj, skipped = _compile(robot)
+    reading the planner's dynamics are: _named_differences, then mass matrix, bias forces, passive forces (unless a
+    named cause above accounts for them) and named points' positions differing by more than TOLERANCE at
+    READING_STATES seeded states (Pinocchio's numeric algorithms; check-model compares the CasADi functions at more).
+    () when they agree, or when MuJoCo's reading cannot be compared or cannot be read at all (free or ball joints; a
+    file MuJoCo cannot compile: check-model and the validation say so); other coordinates or joint order are a
+    difference. Simulate and plan refuse a robot with any (Task.check_against)."""
+    mj, kind, why = _compile(robot)
     if mj is None:
-        why = skipped.removeprefix(MUJOCO_FAILED).removeprefix(f"{robot.path}: ")
-        return (why,) if skipped.startswith(MUJOCO_FAILED) and "MuJoCo cannot" not in skipped else ()
-    out = list(_named_differences(robot, mj))
-    model, data, mjdata = robot.model, robot.model.createData(), mujoco.MjData(mj)
-    sites = [(s, mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) for s in range(mj.nsite)]
-    sites = [(s, n) for s, n in sites if n in robot.points]
-    worst = {"mass matrix [kg, kg m, kg m^2]": 0.0, "bias forces [N, N m]": 0.0, "passive forces [N, N m]": 0.0}
-    hints = {"mass matrix [kg, kg m, kg m^2]": " (e.g. masses MuJoCo infers from geoms or rescales: Pinocchio reads the "
-                                               "<inertial> elements only)", "bias forces [N, N m]": "", "passive forces [N, N m]": ""}
-    apart = {}
+        return (why,) if kind == DIFFERENT else ()
+    named = _named_differences(robot, mj)
+    model, data = robot.model, robot.model.createData()
     rng = np.random.default_rng(0)
-    M = np.zeros((mj.nv, mj.nv))
-    for _ in range(READING_STATES):
-        q, v = random_state(model, rng)
-        mjdata.qpos[:], mjdata.qvel[:] = q, v
-        mujoco.mj_forward(mj, mjdata)
-        mujoco.mj_fullM(mj, mjdata, M)
-        Mp = pin.crba(model, data, q)
-        worst["mass matrix [kg, kg m, kg m^2]"] = max(worst["mass matrix [kg, kg m, kg m^2]"], _err(np.triu(Mp) + np.triu(Mp, 1).T, M))
-        worst["bias forces [N, N m]"] = max(worst["bias forces [N, N m]"], _err(pin.rnea(model, data, q, v, np.zeros(model.nv)), mjdata.qfrc_bias))
-        worst["passive forces [N, N m]"] = max(worst["passive forces [N, N m]"], float(np.max(np.abs(mjdata.qfrc_passive), initial=0.0)))
+
+    def position(point, q):
         pin.framesForwardKinematics(model, data, q)
-        for s, point in sites:
-            apart[point] = max(apart.get(point, 0.0), _err(data.oMf[robot.frame_id(point)].translation, mjdata.site_xpos[s]))
-    out += [f"{what} differ by up to {err:.3g}{hints[what]}" for what, err in worst.items() if not err <= TOLERANCE]
-    out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in apart.items() if not err <= TOLERANCE]
+        return data.oMf[robot.frame_id(point)].translation
+
+    gaps = _mujoco_gaps(mj, [random_state(model, rng) for _ in range(READING_STATES)],
+                        lambda q: _symmetric(pin.crba(model, data, q)),
+                        lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot.points)
+    out = list(named)
+    what = {"mass": "mass matrix [kg, kg m, kg m^2] differs by up to {:.3g} (e.g. masses MuJoCo infers from geoms or "
+                    "rescales: Pinocchio reads the <inertial> elements only)",
+            "bias": "bias forces [N, N m] differ by up to {:.3g}", "passive": "passive forces [N, N m] up to {:.3g}"}
+    for key, text in what.items():
+        if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
+            out.append(text.format(gaps[key]))
+    out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
     return tuple(out)
 
 
@@ -343,28 +380,18 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     in the world frame (Pinocchio: xyzw, body frame), a ball joint's likewise; converting M and h
     needs the velocity map and its time derivative, so such files are skipped instead.
     Sites are matched to named points by name. MuJoCo's passive forces are compared with zero (the planner has none),
-    and what _named_differences finds fails the check.
+    and what _named_differences finds fails the check, as do the file's Robot.passive terms.
     """
     import mujoco
 
-    mj, skipped = _compile(robot)
+    mj, kind, why = _compile(robot)
     if mj is None:
-        return None, skipped
-    data = mujoco.MjData(mj)
+        return None, why if kind == SKIPPED else MUJOCO_FAILED + why
+    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot.points)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
-    sites = [(s, name) for s, name in enumerate(names) if name in robot.points]
     missing = tuple(name for name in names if name and name not in robot.points)
-    err: dict[str, list[float]] = {"max_err_mass": [0.0], "max_err_bias": [0.0], "max_err_sites": [0.0], "max_err_passive": [0.0]}
-    M = np.zeros((mj.nv, mj.nv))
-    for q, v in states:
-        data.qpos[:], data.qvel[:] = q, v
-        mujoco.mj_forward(mj, data)
-        mujoco.mj_fullM(mj, data, M)
-        err["max_err_mass"].append(_err(dyn.mass(q), M))
-        err["max_err_bias"].append(_err(dyn.bias(q, v), data.qfrc_bias))
-        err["max_err_passive"].append(float(np.max(np.abs(data.qfrc_passive), initial=0.0)))
-        err["max_err_sites"] += [_err(dyn.point_position(name)(q), data.site_xpos[s]) for s, name in sites]
-    return MujocoCheck(**{k: float(np.max(e)) for k, e in err.items()}, missing_sites=missing,
+    return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
+                       max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
                        differences=_named_differences(robot, mj) + robot.passive), None
 
 

@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
                         "solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between DIR's task and "
                         "this one, every number of the task file moved part of the way (the biped's step 0.25 -> 0.30 m: "
-                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). Keeps DIR's timing. Implicit "
+                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule and the walk keep DIR's timing. Implicit "
                         "Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
                    help="with --init: what --init does by default (the held schedule first); kept so that older commands run")
@@ -384,8 +384,8 @@ def _cmd_simulate(args) -> int:
 
 
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
-FLAG_OWNED = {"keep_schedule": "--penalty-replan", "schedule_new_impacts": "--allow-new-impacts",
-              "schedule_only": "--penalty-replan"}
+FLAG_OWNED = {"keep_schedule": "--init DIR (held by default; --penalty-replan turns it off)",
+              "schedule_new_impacts": "--allow-new-impacts (with --init DIR)", "schedule_only": "--init DIR (held by default; --penalty-replan turns it off)"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:
@@ -421,7 +421,7 @@ def _cmd_plan(args) -> int:
             owned = sorted(set(fields) & set(FLAG_OWNED))  # a replan's flags set them after --solve: the JSON was lost
             if owned:
                 raise InputError(f"{', '.join(owned)} {'is' if len(owned) == 1 else 'are'} set by "
-                                 f"{', '.join(sorted({FLAG_OWNED[k] for k in owned}))} (with --init DIR), not by --solve")
+                                 f"{', '.join(sorted({FLAG_OWNED[k] for k in owned}))}, not by --solve")
             solve_options = solve_options_from_dict(fields, solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None

@@ -56,7 +56,7 @@ class Robot:
     dof_names: tuple[str, ...]  # one joint name per velocity index (nv,)
     sha256: str
     # the file's passive joint forces ("joint 'hip': damping 5") and URDF <mimic> couplings, which the planner's dynamics
-    # do not model: simulate and plan refuse the robot (Task.check_against); check-model compares the rigid-body terms only
+    # do not model: simulate and plan refuse the robot (Task.check_against), check-model fails naming them
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
 
@@ -292,10 +292,12 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                              "equality constraints")
     # Pinocchio's MJCF parser ignores <option gravity>; the file's value is MuJoCo's.
     model.gravity = pin.Motion(np.array(mj.opt.gravity, dtype=float), np.zeros(3))
-    def dof_name(i: int) -> str:  # a joint of several DoF (free, ball) names them as a URDF's: "root_0", "root_1", ...
+    dofs = np.bincount(mj.dof_jntid, minlength=mj.njnt)  # a joint of several (free, ball) names each: "root_0", ...
+
+    def dof_name(i: int) -> str:
         j = int(mj.dof_jntid[i])
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"dof_{i}"
-        return f"{name}_{i - int(mj.jnt_dofadr[j])}" if np.sum(mj.dof_jntid == j) > 1 else name
+        return f"{name}_{i - int(mj.jnt_dofadr[j])}" if dofs[j] > 1 else name
 
     dof_names = tuple(dof_name(i) for i in range(mj.nv))
     actuators = []
@@ -317,6 +319,9 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         if mj.jnt_actfrclimited[jnt] and np.sum(mj.actuator_trnid[:, 0] == jnt) == 1:  # the joint's actuatorfrcrange, likewise
             flo, fhi = sorted(np.asarray(mj.jnt_actfrcrange[jnt], float) / gear)  # (several motors: check.reading_differences)
             lo, hi = max(lo, flo), min(hi, fhi)
+        if lo > hi:  # the plan's bounds would be empty (they were kept inverted)
+            raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange and its force limits (forcerange, the joint's "
+                                 "actuatorfrcrange) divided by its gear do not overlap; no control is allowed")
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
     _mujoco_limits(model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
@@ -356,14 +361,14 @@ MASSLESS_LINK_KG = 1e-12
 MASSLESS_LINK_INERTIA = 1e-12
 
 
-def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
+def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = True):
     """The robot file as MuJoCo reads it, as an editable mujoco.MjSpec (the file is untouched).
 
     MJCF: the file. URDF: MuJoCo's URDF parser without the mesh geoms, plus what MJCF states and URDF
     does not: a site named after each link in `sites` at the link's origin, a joint motor per
     `robot.actuators` entry (its gear and control range, so MuJoCo's nu is the planner's), and
     MASSLESS_LINK_KG on each link that has a joint but no mass. Raises RobotFileError when MuJoCo
-    cannot read the file or orders its joints differently from Pinocchio, UnknownNameError for a
+    cannot read the file or (check_order) orders a URDF's joints differently from Pinocchio, UnknownNameError for a
     site that names no link.
     """
     import mujoco
@@ -393,7 +398,7 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = ()):
         spec.add_actuator(name=a.name, target=a.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[a.gear, 0, 0, 0, 0, 0],
                           ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))
     names = tuple(j.name for j in spec.joints)
-    if names != robot.dof_names:
+    if check_order and names != robot.dof_names:
         raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}")
     return spec
 

@@ -27,6 +27,18 @@ def script_parser(doc: str, **kwargs) -> UsageParser:
     return UsageParser(prog=Path(sys.argv[0]).stem, description=doc.split("\n\n")[0], **kwargs)  # run_main's name too
 
 
+def planner_command(argv: list[str]) -> int:
+    """`planner ARGV` in this process, its exit code; a Ctrl-C in it (exit 130) stops the script as a Ctrl-C of the
+    script would, instead of being read as a failed or refused run (the next run went on)."""
+    from planner.cli import EXIT_INTERRUPTED
+    from planner.cli import main as planner_main
+
+    code = planner_main(argv)
+    if code == EXIT_INTERRUPTED:
+        raise KeyboardInterrupt
+    return code
+
+
 def run_main(main) -> int:
     """main()'s exit code; a PlannerError (a bad input: a missing result directory, a bad task value) is printed as one
     line `SCRIPT: error: ...` on stderr and gives exit code 2, as planner's own commands do, instead of a traceback; a

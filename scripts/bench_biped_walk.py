@@ -23,10 +23,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from planner.cli import EXIT_INTERRUPTED
-from planner.cli import main as planner_main
 from planner.errors import InputError
-from scripts._report import report, run_main, script_parser
+from scripts._report import planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -59,9 +57,7 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     task.write_text(task_text(lower, step))
     shutil.rmtree(run_dir / "plan", ignore_errors=True)  # an earlier run's summary.json would be read as this run's
     argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
-    code = planner_main(argv + (["--steps", "6", "--no-validate"] if quick else []))
-    if code == EXIT_INTERRUPTED:  # Ctrl-C stops the benchmark (it read as a refused task)
-        raise KeyboardInterrupt
+    code = planner_command(argv + (["--steps", "6", "--no-validate"] if quick else []))
     plan = run_dir / "plan"
     if not (plan / "summary.json").is_file():  # a solve that did not converge writes to OUT/failed
         plan = plan / "failed"

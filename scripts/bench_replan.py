@@ -27,11 +27,9 @@ import sys
 import time
 from pathlib import Path
 
-from planner.cli import EXIT_INTERRUPTED
-from planner.cli import main as planner_main
 from planner.errors import InputError
 from planner.result import read_trajectory
-from scripts._report import report, run_main, script_parser
+from scripts._report import planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -75,9 +73,7 @@ def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) ->
     imports paid once per benchmark, before its first run)."""
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's files there would be read as this run's
     started = time.perf_counter()
-    code = planner_main(["plan", robot, "--task", str(task), "--out", str(out), "-q", *extra] + ([] if validate else ["--no-validate"]))
-    if code == EXIT_INTERRUPTED:  # Ctrl-C stops the benchmark, as it stops `planner plan` (the next run went on)
-        raise KeyboardInterrupt
+    code = planner_command(["plan", robot, "--task", str(task), "--out", str(out), "-q", *extra] + ([] if validate else ["--no-validate"]))
     return dict(record(out, code), command_s=time.perf_counter() - started)
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from planner import replay as R
 from planner.result import check_same_result, read_robot, read_summary, read_task, read_trajectory
-from scripts._report import report, run_main, script_parser
+from scripts._report import planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
@@ -234,12 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         plan = args.plan
         if args.quick:
-            from planner.cli import main as planner_main
-
             task = Path(tmp) / "hop.toml"
             task.write_text(QUICK_TASK)
             plan = Path(tmp) / "hop"
-            if planner_main(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-plots", "-q"]) != 0:
+            if planner_command(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-plots", "-q"]) != 0:
                 raise SystemExit("the quick hop did not converge")
         elif plan is None:
             parser.error("a plan directory is required (or --quick)")

@@ -234,13 +234,14 @@ OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio=
      '</tendon>', "tendon 't': range [-1, 0.2]"),
     (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "point 'point' is up to 0.3 m apart"),
     ('<site name="point"', '<body name="load"><geom type="sphere" size="0.02" mass="2"/></body><site name="point"',
-     "mass matrix [kg, kg m, kg m^2] differ by up to 2 (e.g. masses MuJoCo infers from geoms"),
+     "mass matrix [kg, kg m, kg m^2] differs by up to 2 (e.g. masses MuJoCo infers from geoms"),
 ])
 def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, named):
     """A robot file MuJoCo reads with physics Pinocchio's reading lacks (gravity compensation, [option] flags, fluid
-    forces, tendon springs and limits, a slide joint's ref, a mass MuJoCo infers from a geom) fails check-model naming
-    it, and simulate and plan refuse it (Task.check_against): each of them had planned, and its MuJoCo validation
-    PASSED, for physics the replay does not have (a gravity-compensated point mass that never falls)."""
+    forces, tendon springs and limits, a slide joint's ref, a mass MuJoCo infers from a geom) fails check-model, naming
+    it (the ref's and the geom mass's as its sites and mass errors), and simulate and plan refuse it naming it
+    (Task.check_against): each of them had planned, and its MuJoCo validation PASSED, for physics the replay does not
+    have (a gravity-compensated point mass that never falls)."""
     from planner.check import reading_differences
     from planner.task import load_task
 

@@ -138,7 +138,8 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
 def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     """A hinge's range with a ref is MuJoCo's (Pinocchio's parser shifted it by -ref, refusing targets MuJoCo allows); a
     joint's actuatorfrcrange bounds its one motor's control as forcerange does (the plan used the motor's +-20 where
-    MuJoCo clamps at +-5); a contact point that is an MJCF body, not a site, is refused by the task's check (the
+    MuJoCo clamps at +-5), with two motors the joint's range is checked against their summed reach (a negative gear
+    swaps its ends), and a control range those limits leave empty is refused (it was kept inverted); a contact point that is an MJCF body, not a site, is refused by the task's check (the
     simulation ran, and its validation found no MuJoCo site); a tendon motor is named in its refusal."""
     from planner.errors import TaskError
     from planner.task import parse_task
@@ -150,6 +151,13 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     task = parse_task({"contacts": [{"point": "leg"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
     with pytest.raises(TaskError, match=r"contact point 'leg' is an MJCF body, not a site; .*\(sites: foot\)"):
         task.check_against(robot)
+    from planner.check import reading_differences  # two motors on the joint, one with a negative gear: reach [-3, 1]
+
+    two = load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-2.5 2.5"', actuator='<motor name="a" joint="hip" ctrlrange="-1 1"/>'
+                             '<motor name="b" joint="hip" gear="-1" ctrlrange="0 2"/>'))
+    assert "joint 'hip': actuatorfrcrange [-2.5, 2.5] narrower than its motors' force range [-3, 1]" in reading_differences(two)
+    with pytest.raises(RobotFileError, match="actuator 'm': its ctrlrange and its force limits .* do not overlap"):
+        load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-1 1"', actuator='<motor name="m" joint="hip" ctrlrange="5 10"/>'))
     with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
         load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
                            extra='<tendon><fixed name="t"><joint joint="hip" coef="1"/></fixed></tendon>'))

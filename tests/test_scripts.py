@@ -799,7 +799,7 @@ def test_bench_biped_walk_does_not_read_an_earlier_runs_result(tmp_path, monkeyp
     stale = tmp_path / "lower_0.3" / "plan"
     stale.mkdir(parents=True)
     (stale / "summary.json").write_text('{"converged": true}')
-    monkeypatch.setattr(bench, "planner_main", lambda argv: 2)
+    monkeypatch.setattr(bench, "planner_command", lambda argv: 2)
     with pytest.raises(InputError, match="refused the task"):
         bench.run("0.3", bench.DEFAULT_STEP, tmp_path, quick=True)
 
@@ -812,7 +812,7 @@ def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch)
     out = tmp_path / "keep_schedule_2.7"
     out.mkdir()
     (out / "summary.json").write_text('{"converged": true}')  # an earlier run's
-    monkeypatch.setattr(bench, "planner_main", lambda argv: 2)
+    monkeypatch.setattr(bench, "planner_command", lambda argv: 2)
     row = bench.plan("capler", tmp_path / "task.toml", out, [], False)
     assert row["refused"] and row["exit_code"] == 2 and row["ipopt_iterations"] is None and not out.exists()
     assert "| 2.7 | keep_schedule | 2 | refused" in bench.table([{"value": 2.7, "variant": "keep_schedule", **row}])
@@ -1293,3 +1293,24 @@ def test_bench_fatrop_smoke_run_and_its_input_errors(tmp_path, capsys):
                          (["--solvers", "ipopt", "--ipopt-opt", "bogus_option=3"], "No such IPOPT option: bogus_option")):
         with pytest.raises(InputError, match=message):  # run_main makes it one line and exit 2
             bench.main(base + bad)
+
+
+def test_a_ctrl_c_in_a_scripts_planner_command_stops_the_script(monkeypatch, capsys):
+    """A `planner` command run by a script that exits 130 (Ctrl-C inside it) raises KeyboardInterrupt in the script
+    (bench_replan went on to its next run and recorded the interrupted one, exit 0), and run_main turns that into one
+    line `SCRIPT: interrupted` and exit 130, as `planner` does; any other exit code is returned."""
+    import planner.cli
+    from scripts import _report
+
+    monkeypatch.setattr(planner.cli, "main", lambda argv: 130)
+    with pytest.raises(KeyboardInterrupt):
+        _report.planner_command(["plan", "point_mass"])
+    monkeypatch.setattr(planner.cli, "main", lambda argv: 1)
+    assert _report.planner_command(["plan", "point_mass"]) == 1
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sys, "argv", ["bench_x.py"])
+    assert _report.run_main(interrupted) == 130
+    assert capsys.readouterr().err == "bench_x: interrupted\n"
