@@ -7,6 +7,25 @@ import os
 # MuJoCo (tests/test_walk.py); the documented iteration counts are all one-thread runs.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+
+def _same_blas_kernels() -> None:
+    """OpenBLAS's Haswell kernels on every x86 CPU that has them (AVX2 and FMA), unless the caller chose: OpenBLAS
+    (numpy's and CasADi's own) picks its kernels by CPU, and their rounding, like the thread count, changes the
+    homotopy's path. On an AVX-512 machine its SkylakeX kernels sent the biped's FESD drop to a step it could not
+    solve (tests/test_fesd.py), which the Haswell kernels pass on both machines."""
+    if "OPENBLAS_CORETYPE" in os.environ:
+        return
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
+    except OSError:  # not Linux: OpenBLAS's own choice
+        return
+    if {"avx2", "fma"} <= set(flags):
+        os.environ["OPENBLAS_CORETYPE"] = "Haswell"
+
+
+_same_blas_kernels()
+
 from .errors import InputError, PlannerError, SolveError  # noqa: E402
 from .model import Robot, load_robot  # noqa: E402
 
