@@ -104,8 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
                         "solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between DIR's task and "
                         "this one, every number of the task file moved part of the way (the biped's step 0.25 -> 0.30 m: "
-                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule and the walk keep DIR's timing. Implicit "
-                        "Euler only; finds the plan next to DIR's, not a new hint-free search")
+                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule and the walk keep "
+                        "DIR's timing. Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
                    help="with --init: what --init does by default (the held schedule first); kept so that older commands run")
     p.add_argument("--penalty-replan", action="store_true",
@@ -384,8 +384,8 @@ def _cmd_simulate(args) -> int:
 
 
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
-FLAG_OWNED = {"keep_schedule": "--init DIR (held by default; --penalty-replan turns it off)",
-              "schedule_new_impacts": "--allow-new-impacts (with --init DIR)", "schedule_only": "--init DIR (held by default; --penalty-replan turns it off)"}
+HELD = "--init DIR (held by default; --penalty-replan turns it off)"
+FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD, "schedule_new_impacts": "--allow-new-impacts (with --init DIR)"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:

@@ -21,9 +21,10 @@ import numpy as np
 from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect
 
 
-# gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than the solves handle: measured, a_n = 1e7 gave
-# a converged Capler plan whose clock ran 1.44x numerical time, a_n = 1e9 a point-mass hop running every NLP to its
-# cap for minutes, a_t = 1e9 a free flight gaining 0.2 m/s; the shipped tasks use 200-600
+# gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
+# the solves handle: measured, a_n = 1e7 gave a converged Capler plan whose clock ran 1.44x numerical time, a_n = 1e9 a
+# point-mass hop running every NLP to its cap for minutes, a_t = 1e9 a free flight gaining 0.2 m/s; the shipped tasks
+# use 200-600
 MAX_AUX_GAIN = 1e6
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
