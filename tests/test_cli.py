@@ -576,3 +576,37 @@ def test_ctrl_c_inside_ipopt_stops_the_command(tmp_path):
     assert "KeyboardInterruptException" in err and "homotopy 4" not in err, err
     assert err.strip().splitlines()[-1] == "planner plan: interrupted" and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_failed_verdict_exits_1_and_a_failed_simulation_keeps_its_diagnostics(tmp_path, capsys, monkeypatch):
+    """Exit code 1 (a valid input whose run failed), never 0 or 2: a simulation whose step did not converge (IPOPT's
+    failure stubbed at a complementary point) exits 1 and writes its diagnostics to DIR/failed; `validate` of a
+    result that did not converge exits 1; a plan that converged but whose MuJoCo validation fails (stubbed) exits 1.
+    No test asserted these codes: each could have been 0."""
+    import dataclasses
+
+    import planner.replay
+    import planner.simulate as sim
+
+    drop = tmp_path / "drop"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q"]) == 0
+    summary = json.loads((drop / "summary.json").read_text())
+    (drop / "summary.json").write_text(json.dumps({**summary, "converged": False}))  # same result_id: still one result
+    assert main(["validate", str(drop), "-q"]) == 1
+    real_validate = planner.replay.validate
+    monkeypatch.setattr(planner.replay, "validate",
+                        lambda *a, **k: dataclasses.replace(real_validate(*a, **k), passed=False, failures=("stubbed",)))
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "plan"), "-q", "--no-race", "--no-plots"]) == 1
+    assert json.loads((tmp_path / "plan" / "summary.json").read_text())["converged"] is True
+    real_solve = sim._solve_homotopy
+
+    def failing(*args, **kwargs):
+        x, lam, comp, n_nlp, iterations, _, _ = real_solve(*args, **kwargs)
+        return x, lam, comp, n_nlp, iterations, False, "Maximum_Iterations_Exceeded"
+
+    monkeypatch.setattr(sim, "_solve_homotopy", failing)
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "stuck"), "-q"]) == 1
+    assert json.loads((tmp_path / "stuck" / "failed" / "summary.json").read_text())["converged"] is False
+    capsys.readouterr()
