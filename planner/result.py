@@ -618,9 +618,10 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
     arrived: list[int] = []
     main = threading.current_thread() is threading.main_thread()
     previous = {sig: signal.getsignal(sig) for sig in held} if main else {}
-    for sig, handler in previous.items():
-        if handler is not signal.SIG_IGN and handler is not None:  # an ignored signal stays ignored
-            signal.signal(sig, lambda signum, frame: arrived.append(signum))
+    # the signals to hold: an ignored one stays ignored (None: a handler set outside Python)
+    swapped = [sig for sig, handler in previous.items() if handler is not signal.SIG_IGN and handler is not None]
+    for sig in swapped:
+        signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
         for i, (tmp, path) in enumerate(staged):
             try:
@@ -630,9 +631,8 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
                     Path(left).unlink(missing_ok=True)
                 raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
-        for sig, handler in previous.items():
-            if handler is not signal.SIG_IGN and handler is not None:
-                signal.signal(sig, handler)
+        for sig in swapped:
+            signal.signal(sig, previous[sig])
         for sig in dict.fromkeys(arrived):
             signal.raise_signal(sig)  # now as it would have been: Python's KeyboardInterrupt, the CLI's handler, or death
 
