@@ -50,14 +50,15 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
     if task:
         p.add_argument("--task", type=_path, help=task_help)
     if out:
-        p.add_argument("--out", type=_path, help="directory that receives the results")
+        p.add_argument("--out", type=_path, help="directory that receives the results (default results/ROBOT-COMMAND, "
+                       "e.g. results/capler-plan)")
     if plots:
         p.add_argument("--no-plots", action="store_true",
-                       help="write no PNG plots (they take ~1.5 s, a third of a 4.4 s replan unless it validates: they are then drawn meanwhile; `planner view` still works)")
+                       help="write no PNG plots (they take ~1.5 s; a validating plan draws them while MuJoCo replays; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
     if verbose:  # only the commands that run IPOPT have more to show
-        verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (in a racing plan each line starts with its arm's name, [default] or [alternate])")
-    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and --json)")
+        verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (a racing `planner plan`: each line starts with its arm's name, [default] or [alternate])")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors, a one-line failure notice (exit 1) and --json")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -186,7 +187,11 @@ def main(argv: list[str] | None = None) -> int:
     quiet_stdout = contextlib.redirect_stdout(sys.stderr) if redirect else contextlib.nullcontext()
     try:
         with quiet_stdout:
-            return args.run(args)
+            code = args.run(args)
+        # -q hides the report, not the failure (an exit 1 printed nothing at all)
+        if code == EXIT_FAILED and getattr(args, "quiet", False):
+            print(f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}", file=sys.stderr)
+        return code
     except InputError as exc:
         print(f"planner {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -217,7 +222,18 @@ def _progress(args, line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
+def _failure(summary: dict) -> str:
+    """Why a command's summary says it failed, as ": reason" (the -q failure line), or "" when it does not say."""
+    if summary.get("converged") is False:
+        return f": {summary.get('message') or 'did not converge'}"
+    validation = summary.get("validation", summary)
+    if isinstance(validation, dict) and validation.get("passed") is False:
+        return ": " + "; ".join(validation.get("failures") or ["the validation failed"])
+    return ""
+
+
 def _emit(args, summary: dict, text: str) -> None:
+    args.summary = summary  # the -q failure line reads it
     if args.json:
         print(json.dumps(summary), file=args.stdout)
     elif not args.quiet:
@@ -478,7 +494,8 @@ def _cmd_plan(args) -> int:
 
         result = race(problem, default_arms(solve_options), progress=progress)
     if args.init is not None:
-        result.options["init"] = str(args.init.absolute())  # summary.json says which plan this one started from
+        # summary.json says which plan this one started from
+        result = replace(result, options={**result.options, "init": str(args.init.absolute())})
     validating = not args.no_validate and result.trajectory.t.size > 1
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
@@ -510,14 +527,16 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
     iterate (DIR/failed) was held as a contact schedule, and a plan of another file with the same joint and point
     names (another mass) was accepted, as the NLP variables' names match."""
     from .model import file_sha256
-    from .result import check_same_result, locate_input, read_summary
+    from .result import check_robot_unchanged, check_same_result, locate_input, read_summary
 
     summary = read_summary(start, require=())
     check_same_result(start, summary, arrays)
     if summary.get("converged") is False:
         raise InputError(f"{start} holds a plan that did not converge (summary.json): a replan starts from a converged plan")
+    if check_robot_unchanged(summary, robot, start):
+        return
     named = summary.get("robot")
-    try:
+    try:  # a result written before summary.json kept robot_sha256
         path = locate_input(named, start, "robot") if isinstance(named, str) else None
     except InputError:  # moved since: the variables' names are still compared
         path = None

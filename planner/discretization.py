@@ -489,6 +489,10 @@ def radau_iia(n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return A, A[-1].copy(), c
 
 
+# more finite elements per step than this are a typo (the tasks use 2-3): n_fe = 10**7 ran out of memory building N = 1
+MAX_ELEMENTS = 1000
+
+
 @dataclass(frozen=True)
 class FESDOptions:
     """Settings of the FESD discretization.
@@ -509,7 +513,7 @@ class FESDOptions:
     def __post_init__(self):
         check_field_types(self)
         checks = [(self.n_s in (1, 2, 3), "n_s", self.n_s, "1, 2 or 3"),
-                  (self.n_fe >= 1, "n_fe", self.n_fe, ">= 1"),
+                  (1 <= self.n_fe <= MAX_ELEMENTS, "n_fe", self.n_fe, f"in [1, {MAX_ELEMENTS}]"),
                   (self.rho_h >= 0, "rho_h", self.rho_h, ">= 0")]
         for ok, key, value, allowed in checks:
             if not ok:

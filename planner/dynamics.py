@@ -120,6 +120,7 @@ class Dynamics:
     """
 
     def __init__(self, robot: Robot, backend: str = "auto"):
+        expect(robot, Robot, "Dynamics' robot")  # a path or a name raised AttributeError deep inside
         if backend not in BACKENDS:
             raise InputError(f"unknown dynamics backend {backend!r}; valid: {', '.join(BACKENDS)}")
         if backend == "pinocchio.casadi" and cpin is None:

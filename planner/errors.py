@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 from collections.abc import Iterable
 from dataclasses import fields
@@ -74,13 +75,35 @@ def expect(value, kind: type | tuple[type, ...], what: str) -> None:
         raise InputError(f"{what} must be a {names}, got {type(value).__name__} {value!r:.60}")
 
 
+C_INT_MAX = 2**31 - 1  # IPOPT and CasADi read ints as C ints: max_iter = 2**32 + 3 wrapped around to 3 iterations
+
+
+def representable(value, kind: str) -> bool:
+    """Whether the number `value` fits where it goes: a C int for kind "int", a double for kind "float" (an int of 400
+    digits raised OverflowError deep inside instead of the field's message)."""
+    if kind == "int":
+        return -C_INT_MAX - 1 <= value <= C_INT_MAX
+    return not isinstance(value, int) or abs(value) <= sys.float_info.max
+
+
+def shown(value, width: int = 60) -> str:
+    """repr(value) cut to `width` characters for a message (an int of more than 4300 digits, which Python refuses to
+    write out, is named as such)."""
+    try:
+        text = repr(value)
+    except ValueError:
+        return "<a value with an integer too long to write out>"
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
 def check_field_types(options, owner: str | None = None, unbounded: Iterable[str] = (), error: type = InputError) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str, or a tuple of one of them (or that or
-    None), holds values of that type (an int for a float), and a float is a number, not nan, and finite unless its
-    field is in `unbounded` (a bound, where inf means none): an `error` naming the field and what is allowed, not a
-    TypeError or a silent nan from a range check later (values from JSON: `planner plan --solve`; `x > 0` is False
-    for nan but True for inf). owner: how the message names the dataclass, as its own range checks do (e.g.
-    "contact" for ValidationOptions.contact, "" for none); default its class name."""
+    None), holds values of that type (an int for a float) that a C int or a double can hold, and a float is a number,
+    not nan, and finite unless its field is in `unbounded` (a bound, where inf means none): an `error` naming the field
+    and what is allowed, not a TypeError or a silent nan from a range check later (values from JSON: `planner plan
+    --solve`; `x > 0` is False for nan but True for inf). owner: how the message names the dataclass, as its own range
+    checks do (e.g. "contact" for ValidationOptions.contact, "" for none); default its class name. A list given for a
+    tuple field is stored as a tuple."""
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]
@@ -99,9 +122,13 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             ok = all(isinstance(v, str) for v in items)
         else:
             ok = all(isinstance(v, int if kind == "int" else (int, float)) and not isinstance(v, bool) for v in items)
+            ok = ok and all(representable(v, kind) for v in items)
             ok = ok and (kind == "int" or all(v == v and (inf_ok or abs(v) != float("inf")) for v in items))
         if not ok:
-            what = kinds[kind] if kind != "float" else ("a number, not nan" if inf_ok else "a finite number")
+            what = (f"an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}]" if kind == "int" else kinds[kind] if kind != "float"
+                    else "a number within a double's range, not nan (inf: no bound)" if inf_ok else "a finite number")
             label = type(options).__name__ if owner is None else owner
-            raise error(f"{label + '.' if label else ''}{f.name} = {value!r} is not allowed; it must be "
+            raise error(f"{label + '.' if label else ''}{f.name} = {shown(value, 200)} is not allowed; it must be "
                         + (f"a tuple of which each is {what}" if many else what))
+        if many and isinstance(value, list):  # stored as the tuple it is typed: a list field made hash() raise
+            object.__setattr__(options, f.name, tuple(value))

@@ -37,7 +37,7 @@ from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect, interruptible
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import ArraysReadOnly, write_files
+from .result import ArraysReadOnly, real_array, write_files
 from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -226,6 +226,20 @@ class GaitSpec(ArraysReadOnly):
     def __post_init__(self):
         if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 1 <= self.N <= MAX_STEPS):
             raise InputError(f"GaitSpec.N = {self.N!r} is not allowed; it must be an integer in [1, {MAX_STEPS}]")
+        check_field_types(self)  # T, jump_angle
+        if not self.T > 0:
+            raise InputError(f"GaitSpec.T = {self.T!r} is not allowed; it must be > 0 [s]")
+        # a mode given by its value ("zero") fell through to the zero input whatever it named
+        expect(self.desired_input, DesiredInput, "GaitSpec.desired_input")
+        expect(self.continuation, GaitContinuation, "GaitSpec.continuation")
+        expect(self.pronto, GaitPronto, "GaitSpec.pronto")
+        rules = {"x0": (6, "", np.isfinite), "Q": (6, " >= 0", lambda a: a >= 0), "R": (2, " > 0", lambda a: a > 0)}
+        for name, (n, sign, ok) in rules.items():
+            value = real_array(getattr(self, name), f"GaitSpec.{name}")
+            if value.shape != (n,) or not np.all(np.isfinite(value) & ok(value)):
+                raise InputError(f"GaitSpec.{name} = {getattr(self, name)!r} is not allowed; "
+                                 f"it must be {n} finite numbers{sign}")
+            object.__setattr__(self, name, value)
         super().__post_init__()
 
     @classmethod
@@ -923,7 +937,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     u_paper = -sol.u
     near_T = sol.t[:-1] >= min(sol.t[-1] - 0.1, sol.t[-2])  # the last 100 ms, at least the last step (N <= 15: none)
     summary = {
-        "command": "gait", "robot": str(robot.path), "task": task.source,
+        "command": "gait", "robot": str(robot.path), "task": task.source, "robot_sha256": robot.sha256,
         "converged": sol.converged, "solve_time_s": sol.solve_time_s,
         "n_nlp": len(sol.loops), "ipopt_iterations": sol.pronto_iterations, "iterations_solver": "pronto",
         "complementarity_residual": None,  # no complementarity: the contact sequence is fixed

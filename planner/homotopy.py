@@ -40,8 +40,9 @@ import numpy as np
 
 from .derivatives import nlp_derivatives
 from .errors import InputError, check_field_types, expect, interruptible
+from .task import MAX_NLPS
 from .problem import Penalty, Problem
-from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, NlpRecord, PlanResult, SolveStats, hops_of
+from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
@@ -373,8 +374,9 @@ class SolveOptions:
             (self.early_stop_comp is None or self.early_stop_comp > 0, "early_stop_comp", self.early_stop_comp, "> 0 or None"),
             (self.rho_f_schedule is None or _positive_tuple(self.rho_f_schedule), "rho_f_schedule", self.rho_f_schedule,
              "None or a non-empty tuple of factors > 0"),
-            (self.rho_schedule is None or _positive_tuple(self.rho_schedule), "rho_schedule", self.rho_schedule,
-             "None (the task's schedule) or a non-empty tuple of penalties > 0"),
+            (self.rho_schedule is None or _positive_tuple(self.rho_schedule) and len(self.rho_schedule) <= MAX_NLPS,
+             "rho_schedule", self.rho_schedule,
+             f"None (the task's schedule) or a non-empty tuple of at most {MAX_NLPS} penalties > 0"),
             (self.rho_min is None or self.rho_min > 0, "rho_min", self.rho_min, "> 0 or None"),
             (self.rho_max is None or self.rho_max > 0, "rho_max", self.rho_max, "> 0 or None"),
             (self.rho_min is None or self.rho_max is None or self.rho_min <= self.rho_max, "rho_min", self.rho_min,
@@ -423,6 +425,8 @@ def solve_fields_from_json(text: str) -> dict:
         values = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"{text!r:.80} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
+    except ValueError as exc:  # an integer of more than 4300 digits: Python's limit on reading one
+        raise InputError(f"{text!r:.80} is not SolveOptions fields: {exc}") from None
     except RecursionError:
         raise InputError(f"{text!r:.80} is nested too deeply to be SolveOptions fields") from None
     if not isinstance(values, dict):
@@ -735,9 +739,10 @@ def homotopy_rhos(problem: Problem, options: SolveOptions) -> list[float]:
     return task_rho_schedule(problem.task.plan.homotopy, options.rho_min, options.rho_max, options.rho_refine)
 
 
-@dataclass(frozen=True)
-class HomotopyNlp:
-    """NLP i of the homotopy as solve() hands it to IPOPT (with problem.lbx, problem.ubx)."""
+@dataclass(frozen=True, eq=False)
+class HomotopyNlp(ArraysReadOnly):
+    """NLP i of the homotopy as solve() hands it to IPOPT (with problem.lbx, problem.ubx); its arrays are read-only
+    copies (lbg was the problem's own array: written through it, the next solve ended elsewhere)."""
     label: str  # "homotopy {i + 1}"
     p: np.ndarray  # (7,) the parameters (Problem.params)
     lbg: np.ndarray  # (ng,) the row bounds: the terminal rows free while the terminal is soft
@@ -792,6 +797,8 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     """
     expect(problem, Problem, "solve's problem")
     expect(options, SolveOptions, "solve's options")
+    if progress is not None and not callable(progress):  # it raised TypeError after NLP 1, its work lost
+        raise InputError(f"solve's progress must be a function of an NlpRecord or None, got {type(progress).__name__}")
     problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
     _check_schedules(problem, options)
     if problem.fesd is not None and options.polish is Polish.HYBRID:
@@ -854,12 +861,14 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     # the homotopy's own point (no polish) is within IPOPT's default bound relaxation, 1e-8 of each scaled variable
     relaxed = 1e-8 * solvers.scale if source is None and solvers.scale is not None else None
     result = _result(problem, options, x, records, source, time.perf_counter() - start, timings, relaxed)
-    result.extra["_x"] = x  # the NLP solution (trajectory.npz's nlp_x, for planner plan --init; not in the summary)
-    result.extra["_signature"] = problem.signature
-    result.extra["_task"] = problem.task  # trajectory.npz's task_json
-    # the task's cost at the returned plan (the projection polish's own objective is a distance)
-    result.extra["control_cost"] = float(problem.objective_parts["control"](x, problem.params(0.0, 1.0)))
-    result.extra["scene"] = problem.skips.to_json()  # what the scene analysis left out, and why (summary.json)
+    result = replace(result, extra={
+        **result.extra,
+        "_x": x,  # the NLP solution (trajectory.npz's nlp_x, for planner plan --init; not in the summary)
+        "_signature": problem.signature,
+        "_task": problem.task,  # trajectory.npz's task_json
+        # the task's cost at the returned plan (the projection polish's own objective is a distance)
+        "control_cost": float(problem.objective_parts["control"](x, problem.params(0.0, 1.0))),
+        "scene": problem.skips.to_json()})  # what the scene analysis left out, and why (summary.json)
     if (not result.stats.converged and options.retry_terminal_weight is not None and options.soft_terminal_nlps >= 1
             and any(r.status == "Infeasible_Problem_Detected" for r in records)):
         return _retry(problem, options, result, progress)
@@ -906,10 +915,11 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
     stats = replace(result.stats, message=result.stats.message + note, n_nlp=len(nlps), solve_time_s=time.perf_counter() - start,
                     ipopt_iterations=first.stats.ipopt_iterations + result.stats.ipopt_iterations)
     timings = dict(result.timings, implicit_euler_s=first.stats.solve_time_s, implicit_euler_build_s=euler.build_time_s)
-    result = replace(result, stats=stats, nlps=nlps, timings=timings)
-    result.extra["implicit_euler"] = {"converged": first.stats.converged, "ipopt_iterations": first.stats.ipopt_iterations,
-                                      "solve_time_s": first.stats.solve_time_s, "complementarity_residual": first.stats.complementarity_residual}
-    return result
+    implicit_euler = {"converged": first.stats.converged, "ipopt_iterations": first.stats.ipopt_iterations,
+                      "solve_time_s": first.stats.solve_time_s,
+                      "complementarity_residual": first.stats.complementarity_residual}
+    return replace(result, stats=stats, nlps=nlps, timings=timings,
+                   extra={**result.extra, "implicit_euler": implicit_euler})
 
 
 def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress: Progress | None) -> PlanResult:
@@ -1037,14 +1047,29 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
                       refine: tuple[float, ...] = ()) -> list[float]:
     """rho0 kappa^i for i < n_nlp, continued while <= rho_max, without the values below rho_min
     (at least the last one is kept); each value of `refine` inside that range is sorted in."""
+    def too_many(count: str) -> InputError:
+        return InputError(f"rho_min, rho_max = {rho_min!r}, {rho_max!r} with the task's rho0 = {hom.rho0!r} and kappa = "
+                          f"{hom.kappa!r} schedule {count} NLPs, more than {MAX_NLPS}; raise plan.homotopy.kappa or narrow "
+                          "[rho_min, rho_max]")
+
     rhos = [hom.rho0 * hom.kappa**i for i in range(hom.n_nlp)]
     if rho_max is not None and hom.kappa > 1:
+        # counted before listed: kappa = 1.0001 continued the schedule to 92109 NLPs, and rho0 = 1e-300 with kappa =
+        # 1 + 1e-7 would list 7e9 penalties below rho_min before dropping them
+        def span(low: float) -> float:
+            return math.log(max(rho_max / low, 1.0)) / math.log(hom.kappa)
+
+        if span(max(hom.rho0, rho_min or 0.0)) > MAX_NLPS + 1 or span(hom.rho0) > 1e6:
+            raise too_many(f"about {span(max(hom.rho0, rho_min or 0.0)):.3g}")
         while rhos[-1] * hom.kappa <= rho_max * (1 + 1e-12):
             rhos.append(rhos[-1] * hom.kappa)
     if rho_min is not None:
         rhos = [r for r in rhos if r >= rho_min * (1 - 1e-12)] or rhos[-1:]
     inside = [r for r in refine if rhos[0] < r < rhos[-1] and all(abs(r - x) > 1e-9 * x for x in rhos)]
-    return sorted(rhos + inside)
+    rhos = sorted(rhos + inside)
+    if len(rhos) > MAX_NLPS:
+        raise too_many(str(len(rhos)))
+    return rhos
 
 
 def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=None, projection=False, loose=False, schedule=False):
@@ -1281,7 +1306,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
-                      options={"problem": _plain(problem.options), "solve": _plain(options)})
+                      options={"problem": _plain(problem.options), "solve": _plain(options)}, robot_sha256=problem.robot.sha256)
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):

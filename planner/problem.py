@@ -342,9 +342,11 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     contacts = tuple(c for c in task.contacts if c.point not in skips.never_touching)
     if not contacts:
         raise InputError("every [[contacts]] entry has touches = false; the time-freezing OCP needs at least one point that may touch")
+    elastic = [c.point for c in contacts if c.restitution > 0]  # before the system, which says "set mu = 0" to a frictional one
+    if elastic:
+        raise InputError(f"contact(s) {', '.join(elastic)}: planning with elastic contacts (restitution > 0) is not supported "
+                         "yet; set restitution = 0 (`planner simulate` models frictionless elastic impacts)")
     system = TimeFreezingSystem(dyn, contacts, task.ground_height, frictionless_tangential=not skips.enabled)
-    if any(m is ContactModel.ELASTIC for m in system.models):
-        raise InputError("planning with elastic contacts (restitution > 0) is not supported yet; set restitution = 0")
     known = {s.function for s in system.switches}
     scale_of = dict(options.switch_scale)
     for name in scale_of:

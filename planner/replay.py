@@ -199,8 +199,8 @@ class ValidationOptions:
     controller: a TrackingController or its value ("joint_pd", "stance_retarget"); an unknown name
     raises UnknownNameError. JOINT_PD stays the default by measurement (docs/validation.md): on the
     default Capler plan STANCE_RETARGET cuts the base error of the first 0.75 s from 106 to 35 mm but
-    is worse over the first 0.35 s (5.1 vs 1.6 mm) and over the whole plan (3.4 vs 3.0 m), and on a
-    fully actuated robot both are the same law.
+    is worse over the first 0.35 s (5.1 vs 1.6 mm) and over the whole plan (3.4 vs 3.0 m; on session 43's default
+    plan 1.0 vs 0.24 m), and on a fully actuated robot both are the same law.
     """
 
     contact: ContactSettings = field(default_factory=ContactSettings)
@@ -250,6 +250,9 @@ class Scene:
     geom_ids: tuple[int, ...]
     base_body: int  # the first moving body: its origin is "the base" of the tracking errors
     base_name: str
+    # a robot whose base cannot translate (a fixed arm): its first moving body's origin moves little or not at all
+    # (it was 0 mm for an arm whose tip missed by 32 mm), so the tracking errors are those of the first contact point
+    base_site: int | None
     qpos_adr: np.ndarray = field(repr=False)  # (nu,) qpos index of each actuator's joint
     dof_adr: np.ndarray = field(repr=False)  # (nu,) qvel index of each actuator's joint
     gear: np.ndarray = field(repr=False)  # (nu,)
@@ -326,7 +329,7 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     tilted = [c.point for c in task.contacts if c.normal != (0.0, 0.0, 1.0)]
     if tilted:
         raise InputError(f"contact point(s) {', '.join(tilted)} touch a tilted plane (contacts.normal); the MuJoCo "
-                         "validation models the ground plane only")
+                         "validation models the ground plane only (`planner plan --no-validate` plans without it)")
     site_names = [original.site(i).name for i in range(original.nsite)]
     site_ids = []
     for contact in task.contacts:
@@ -388,10 +391,11 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     # the first body that moves and has mass (a URDF's carriage link has only model.MASSLESS_LINK_KG)
     jointed = [int(b) for b in model.jnt_bodyid]
     base_body = next((b for b in jointed if model.body_mass[b] > MASSLESS_LINK_KG), jointed[0])
+    site_ids = tuple(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, c.point) for c in task.contacts)
     return Scene(
         model=model, robot=robot, task=task, settings=settings,
         points=tuple(c.point for c in task.contacts),
-        site_ids=tuple(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, c.point) for c in task.contacts),
+        site_ids=site_ids, base_site=None if _translates(model, base_body) or not site_ids else site_ids[0],
         geom_ids=tuple(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in sphere_names),
         base_body=base_body, base_name=model.body(base_body).name or f"body_{base_body}",
         qpos_adr=np.array(model.jnt_qposadr[trn], dtype=int), dof_adr=np.array(model.jnt_dofadr[trn], dtype=int),
@@ -544,7 +548,8 @@ class Validation:
     """Result of a MuJoCo validation. `to_json()` is the contract's `validation` object.
 
     max_tracking_error_m / final_tracking_error_m: the base position error [m] of the tracking
-    replay; max_penetration_m: the kinematic penetration [m]. Passed when both are within the
+    replay (of the first contact point when the base does not translate: `tracked` says
+    which); max_penetration_m: the kinematic penetration [m]. Passed when both are within the
     thresholds and MuJoCo did not diverge.
     """
 
@@ -564,6 +569,7 @@ class Validation:
     controller: TrackingController = TrackingController.JOINT_PD
     windows: WindowReport | None = None
     mujoco_version: str = mujoco.__version__
+    tracked: str = "base"  # what the tracking errors measure: the base, or a fixed-base robot's first contact point
 
     def to_json(self) -> dict:
         out = {
@@ -585,6 +591,7 @@ class Validation:
                 **asdict(self.windows), **self.windows.summary()},
             "robot": self.robot,
             "mujoco_version": self.mujoco_version,
+            "tracked": self.tracked,
         }
         return _jsonable(out)
 
@@ -598,7 +605,7 @@ class Validation:
             f"{k.samples * len(k.penetration_by_point_m)} samples"
             + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
                f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"),
-            f"  tracking ({self.controller.value}): base error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
+            f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); feet max "
             + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items())
             + f"; saturation {tr.saturation_fraction:.1%}",
@@ -609,13 +616,13 @@ class Validation:
             # a window longer than the plan is clipped to it
             span = (f"{len(w.starts_s)} windows of {w.window_s:g} s" if w.window_s < ol.duration_s else
                     f"1 window, the whole {ol.duration_s:.3g} s plan (window {w.window_s:g} s),")
-            lines.append(f"  tracking in {span} from the plan: base error "
+            lines.append(f"  tracking in {span} from the plan: {self.tracked} error "
                          f"mean {w.mean_m * 1e3:.2f} mm, median {w.median_m * 1e3:.2f} mm, worst {w.worst_m * 1e3:.2f} mm")
             if w.impacts:
                 lines.append(f"  impacts in the windows (MuJoCo - plan, from the plan's state {w.stride_s * 1e3:g}-"
                              f"{2 * w.stride_s * 1e3:g} ms before): {_impacts_text(w.impacts)}")
         lines += [
-            f"  open loop: base within {th.open_loop_band_m * 1e2:.0f} cm for {ol.time_within_band_s:.3f} of {ol.duration_s:.3f} s",
+            f"  open loop: {self.tracked} within {th.open_loop_band_m * 1e2:.0f} cm for {ol.time_within_band_s:.3f} of {ol.duration_s:.3f} s",
         ]
         lines += [f"  failed: {f}" for f in self.failures]
         return "\n".join(lines)
@@ -708,8 +715,10 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     failures = []
     if tracking.diverged:
         failures.append("MuJoCo diverged during the tracking replay")
+    tracked = "base" if scene.base_site is None else f"contact point {scene.points[0]!r}"
     if not tracking.max_base_error_m <= options.max_tracking_error_m:
-        failures.append(f"base tracking error {tracking.max_base_error_m:.4g} m > {options.max_tracking_error_m} m")
+        failures.append(f"{tracked} tracking error {tracking.max_base_error_m:.4g} m > {options.max_tracking_error_m} m"
+                        + ("" if scene.base_site is None else " (the base does not translate: its first contact point is tracked)"))
     if not kinematic.max_penetration_m <= options.max_penetration_m:
         failures.append(f"penetration {kinematic.max_penetration_m:.4g} m of {kinematic.worst_point!r} at "
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
@@ -723,7 +732,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
                               options.contact_gap_tol_m, options.min_flight_s),
         kinematic=kinematic, tracking=tracking, open_loop=open_loop, contact_settings=scene.settings,
         gains=gains, failures=tuple(failures), robot=str(robot.path), controller=options.controller,
-        windows=windows,
+        windows=windows, tracked=tracked,
     )
 
 
@@ -986,7 +995,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                    active=np.zeros((steps + 1, C), dtype=bool), depth=np.zeros((steps + 1, C)),
                    ctrl=np.zeros((steps, model.nu)), diverged=False)
     dist = np.zeros((steps + 1, C))
-    lower, upper, base = scene.ctrl_lower, scene.ctrl_upper, scene.base_body
+    lower, upper = scene.ctrl_lower, scene.ctrl_upper
     for k in range(steps + 1):
         rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
         if k < steps:
@@ -996,7 +1005,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
             mujoco.mj_step(model, data)
         else:
             mujoco.mj_forward(model, data)
-        rec.base[k] = data.xpos[base]
+        rec.base[k] = _base_position(scene, data)
         rec.sites[k] = data.site_xpos[site_ids]
         dist[k], rec.active[k] = scene.contact_state(data)
     rec.touching0 = np.isfinite(dist[0])  # detected: within the pair's gap of the ground
@@ -1142,6 +1151,20 @@ class _StanceRetarget:
         return q, v
 
 
+def _translates(model: mujoco.MjModel, body: int) -> bool:
+    """Whether a free or slide joint moves `body` (its own or an ancestor's: a URDF's massless carriage links)."""
+    translating = (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_SLIDE))  # model.jnt_type holds ints
+    while body > 0:
+        if any(model.jnt_type[j] in translating for j in np.nonzero(model.jnt_bodyid == body)[0]):
+            return True
+        body = int(model.body_parentid[body])
+    return False
+
+
+def _base_position(scene: Scene, data: mujoco.MjData) -> np.ndarray:
+    return data.xpos[scene.base_body] if scene.base_site is None else data.site_xpos[scene.base_site]
+
+
 def _planned_positions(scene: Scene, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Base origin (n, 3) and contact sites (n, C, 3) of the postures q (n, nq), by MuJoCo."""
     model, data = scene.model, mujoco.MjData(scene.model)
@@ -1150,7 +1173,7 @@ def _planned_positions(scene: Scene, q: np.ndarray) -> tuple[np.ndarray, np.ndar
     for k, qk in enumerate(q):
         data.qpos[:] = qk
         mujoco.mj_kinematics(model, data)
-        base[k], sites[k] = data.xpos[scene.base_body], data.site_xpos[site_ids]
+        base[k], sites[k] = _base_position(scene, data), data.site_xpos[site_ids]
     return base, sites
 
 

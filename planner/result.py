@@ -35,18 +35,56 @@ from .task import Task, load_task, parse_task, task_to_json
 def _read_only(obj) -> None:
     """Store each array field of a frozen dataclass as a read-only view of a read-only copy: a result is frozen through
     its arrays too (`trajectory.t[0] = 1` raised no error and changed physical_duration), and numpy refuses to make
-    such a view writable again (a view of the caller's array could be); the caller's own arrays stay writable."""
+    such a view writable again (a view of the caller's array could be); the caller's own arrays stay writable. A dict
+    field becomes a ReadOnlyDict, its arrays and dicts frozen the same way (`result.extra["_x"][0] = 123` changed
+    the nlp_x written and the replan's start), its lists ReadOnlyLists."""
     for f in fields(obj):
         value = getattr(obj, f.name)
-        if isinstance(value, np.ndarray):
-            frozen = np.array(value)
-            frozen.flags.writeable = False
-            object.__setattr__(obj, f.name, frozen.view())
+        if isinstance(value, (np.ndarray, dict)):
+            object.__setattr__(obj, f.name, _frozen(value))
+
+
+def _frozen(value):
+    if isinstance(value, np.ndarray):
+        frozen = np.array(value)
+        frozen.flags.writeable = False
+        return frozen.view()
+    if isinstance(value, dict):
+        return ReadOnlyDict({k: _frozen(v) for k, v in value.items()})
+    if isinstance(value, list):  # summary.json's lists (extra["race"], the scene's reasons): a list still, read-only
+        return ReadOnlyList(_frozen(v) for v in value)
+    return value
+
+
+class ReadOnlyDict(dict):
+    """A dict field of a frozen result: reading as a dict does (json.dumps, `**`, dict(...)), writing raises TypeError;
+    a changed copy is dataclasses.replace(result, extra={**result.extra, key: value})."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a result's dict is read-only: make a changed copy with dataclasses.replace(result, "
+                        "field={**result.field, key: value})")
+
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __reduce__(self):  # pickle and deepcopy: rebuilt whole (dict's own way sets the items one by one), arrays frozen
+        return _frozen, (dict(self),)
+
+
+class ReadOnlyList(list):
+    """A list inside a result's dict field: reads as a list (== a list, json.dumps), writing raises TypeError."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a result's list is read-only: make a changed copy with dataclasses.replace")
+
+    __setitem__ = __delitem__ = __iadd__ = __imul__ = append = extend = insert = pop = remove = clear = sort = reverse = _refuse
+
+    def __reduce__(self):
+        return _frozen, (list(self),)
 
 
 class ArraysReadOnly:
-    """Base of the frozen result dataclasses with array fields: read-only after construction, and after pickle or
-    copy.deepcopy too, which restore the fields without __post_init__ (with writable arrays)."""
+    """Base of the frozen result dataclasses with array or dict fields: read-only after construction, and after pickle
+    or copy.deepcopy too, which restore the fields without __post_init__ (with writable arrays)."""
 
     def __post_init__(self):
         _read_only(self)
@@ -191,7 +229,7 @@ class SolveStats:
 
 
 @dataclass(frozen=True, eq=False)
-class SimulationResult:
+class SimulationResult(ArraysReadOnly):
     """What `planner.simulate.simulate` returns."""
 
     robot: str  # robot file path (the viewer loads it back)
@@ -203,6 +241,7 @@ class SimulationResult:
     rho_f: float
     command: str = "simulate"
     extra: dict = field(default_factory=dict)
+    robot_sha256: str = ""  # the robot file's contents as simulated (validate refuses the file changed since)
 
     @property
     def ends_in_impact(self) -> bool:
@@ -216,14 +255,23 @@ class SimulationResult:
         """A few human-readable lines for the terminal."""
         lines = [_headline(self, f"{self.strategy}, ") + ")"] + _trajectory_lines(self.trajectory, task=self.extra.get("_task"))
         if self.ends_in_impact:
+            from .timefreezing import contact_labels  # (CasADi: not for reading results only)
+
+            last, task = self.trajectory.impacts[-1], self.extra.get("_task")
+            elastic = task is not None and any(label == last.contact and c.restitution > 0  # a corner's point#k too
+                                               for label, c in zip(contact_labels(task.contacts), task.contacts))
             lines.append("  the horizon ends inside the last impact (its clock is still stopped): its impulse and "
-                         "post-impact velocity are partial; lengthen tau_f or raise the contact's a_n")
+                         "post-impact velocity are partial; lengthen tau_f or raise the contact's a_n" + (
+                             f", unless {last.contact}'s bounces (restitution > 0) accumulate to a point in time "
+                             "(Zeno: ever shorter bounces), which the time-freezing simulation does not pass; "
+                             "restitution = 0 makes the landing a stance" if elastic else ""))
         return "\n".join(lines)
 
     def summary(self) -> dict:
         """The summary.json object (contract keys first)."""
         return {
             **_contract_keys(self, terminal_error=None),
+            "robot_sha256": self.robot_sha256,
             "strategy": self.strategy,
             "h": self.h,
             "rho_f": self.rho_f,
@@ -292,8 +340,8 @@ def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None)
               for imp, tap, out in zip(tr.impacts, taps, outside)]
     if outside.any():
         lines.append(f"  {int(outside.sum())} impact(s) outside the friction cone (|tangential| > mu normal): the tangential "
-                     "auxiliary field stopped sliding beyond Coulomb; `planner plan` keeps impacts inside the cone when "
-                     "a_t <= mu a_n (docs/tasks.md)")
+                     "auxiliary field stopped sliding beyond Coulomb; `planner plan` of one contact keeps impacts inside "
+                     "the cone when a_t <= mu a_n (docs/tasks.md)")
     return lines
 
 
@@ -353,7 +401,7 @@ def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
 
 
 @dataclass(frozen=True, eq=False)
-class PlanResult:
+class PlanResult(ArraysReadOnly):
     """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops."""
 
     robot: str
@@ -371,6 +419,7 @@ class PlanResult:
     options: dict = field(default_factory=dict)
     command: str = "plan"
     extra: dict = field(default_factory=dict)
+    robot_sha256: str = ""  # the robot file's contents as planned (validate and --init refuse the file changed since)
 
     def report(self) -> str:
         tr, st = self.trajectory, self.stats
@@ -390,6 +439,7 @@ class PlanResult:
         st = self.stats
         return {
             **_contract_keys(self, terminal_error=self.terminal_error),
+            "robot_sha256": self.robot_sha256,
             "hops": [hp.to_json() for hp in self.hops],
             "nlps": [r.to_json() for r in self.nlps],
             "polished": self.polished,
@@ -532,6 +582,9 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
     """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
     either is renamed, each with the same `result_id` (check_same_result). DIR is created if missing; an existing file
     there is an InputError."""
+    expect(out_dir, (str, os.PathLike), "the output directory")
+    if os.fspath(out_dir) == "":  # Path("") is the working directory, which the CLI's --out "" refuses too
+        raise InputError("the output directory is empty (''); name one, '.' for the working directory")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"cannot write results to {out}: it is a file, not a directory")
@@ -717,10 +770,27 @@ def read_task(out_dir: Path, arrays: dict[str, np.ndarray] | None = None, summar
 
 
 def read_robot(out_dir: Path, summary: dict):
-    """The robot (planner.model.Robot) of a result: the file its summary.json names (locate_input)."""
+    """The robot (planner.model.Robot) of a result: the file its summary.json names (locate_input), refused when its
+    contents differ from those the result was computed with (summary.json's robot_sha256; results written before it
+    had none): a plan of a 1 kg mass passed validation against the file edited to 1.3 kg."""
     from .model import load_robot
 
-    return load_robot(locate_input(summary["robot"], out_dir, "robot"))
+    robot = load_robot(locate_input(summary["robot"], out_dir, "robot"))
+    check_robot_unchanged(summary, robot, out_dir)
+    return robot
+
+
+def check_robot_unchanged(summary: dict, robot, out_dir: Path) -> bool:
+    """InputError when `robot`'s file has other contents than the result's summary.json says it was computed from
+    (robot_sha256: a file edited in place since is caught too); False when the summary predates robot_sha256."""
+    then = summary.get("robot_sha256")
+    if not (isinstance(then, str) and then):
+        return False
+    if then != robot.sha256:
+        raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the one the "
+                         f"result in {out_dir} was computed from ({then[:12]}...): compute the result again with this "
+                         "file, or use that one")
+    return True
 
 
 def locate_input(name: str, out_dir: Path, what: str) -> Path:

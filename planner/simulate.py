@@ -199,7 +199,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
             extra["discretization"]["collocated_steps"] = stats["collocated_steps"]
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
-    return SimulationResult(robot=str(robot.path), task=task.source, trajectory=trajectory, stats=solve,
+    return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory, stats=solve,
                             strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
 
 
@@ -398,7 +398,8 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
         y, w_guess = Yk[-1, -1], Wk[-1, -1]
         left = np.concatenate([w_guess[lam0], w_guess[lam1]])
     n_s, nw = fesd.n_s, builder.nw
-    shape = lambda parts, m: np.array(parts, float).reshape(-1, n_s, m)  # noqa: E731
+    # the element count given, not -1: a robot without actuators (nu = 0) has empty controls to reshape
+    shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)  # noqa: E731
     elements = (np.concatenate([[0.0], np.cumsum(lengths)]), np.array(bounds, float).reshape(-1, ny), shape(Ys, ny),
                 shape(Ws, nw), shape(Us, nu), np.array(lengths, float))
     return elements, total

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect
+from .errors import C_INT_MAX, RobotFileError, TaskError, UnknownNameError, check_field_types, expect, representable
 
 
 # gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
@@ -29,6 +29,8 @@ MAX_AUX_GAIN = 1e6
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
+# more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs
+MAX_NLPS = 100
 
 
 @dataclass(frozen=True)
@@ -52,9 +54,10 @@ class Contact:
     def __post_init__(self):
         _typed(self, "contacts")
         _require(len(self.normal) == 3, "contacts.normal", list(self.normal), "3 numbers (x, y, z)")
-        norm = math.hypot(*self.normal)  # neither overflows (1e200) nor underflows (1e-200) as a sum of squares does
-        _require(norm > 0 and self.normal[1] == 0.0, "contacts.normal", list(self.normal),
-                 "a nonzero vector in the x-z plane (y = 0)")
+        # neither overflows (1e200) nor underflows (1e-200) as a sum of squares does; beyond 1.3e308 it is inf
+        norm = math.hypot(*self.normal)
+        _require(0 < norm < math.inf and self.normal[1] == 0.0, "contacts.normal", list(self.normal),
+                 "a nonzero vector in the x-z plane (y = 0) of finite length (below 1.8e308)")
         if abs(norm - 1.0) > 4e-16:  # a unit normal to rounding is kept: a task read back from its JSON equals itself
             object.__setattr__(self, "normal", tuple(float(x) / norm for x in self.normal))
         _require(self.mu >= 0, "contacts.mu", self.mu, ">= 0")
@@ -135,7 +138,7 @@ class Homotopy:
         _typed(self, "plan.homotopy")
         _require(self.rho0 > 0, "plan.homotopy.rho0", self.rho0, "> 0")
         _require(self.kappa > 1, "plan.homotopy.kappa", self.kappa, "> 1")
-        _require(self.n_nlp >= 1, "plan.homotopy.n_nlp", self.n_nlp, ">= 1")
+        _require(1 <= self.n_nlp <= MAX_NLPS, "plan.homotopy.n_nlp", self.n_nlp, f"in [1, {MAX_NLPS}]")
         # rho0 kappa^(n_nlp - 1) overflowed to inf (a nan solve) or raised OverflowError
         last = math.log10(self.rho0) + (self.n_nlp - 1) * math.log10(self.kappa)
         _require(last <= 300, "plan.homotopy", {"rho0": self.rho0, "kappa": self.kappa, "n_nlp": self.n_nlp},
@@ -267,7 +270,7 @@ class JointPD:
         _require(len(set(self.joints)) == n, "simulate.pd.joints", list(self.joints), "without repeated names")
         for key in ("kp", "kd") + (("q_ref",) if self.q_ref is not None else ()):
             values = getattr(self, key)
-            _require(len(values) == n, f"simulate.pd.{key}", list(values), f"{n} numbers, one per joint in simulate.pd.joints")
+            _require(len(values) == n, f"simulate.pd.{key}", list(values), f"{n} number{'s' if n != 1 else ''}, one per joint in simulate.pd.joints")
             _require(all(math.isfinite(x) for x in values), f"simulate.pd.{key}", list(values), "finite")
         _require(all(x >= 0 for x in self.kp), "simulate.pd.kp", list(self.kp), ">= 0")
         _require(all(x >= 0 for x in self.kd), "simulate.pd.kd", list(self.kd), ">= 0")
@@ -403,6 +406,9 @@ class Task:
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
         is what the planner models (no passive joint forces, contact points in the x-z plane)."""
+        from .model import Robot  # here: reading a task needs no Pinocchio
+
+        expect(robot, Robot, "check_against's robot")
         if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
             raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have neither passive joint "
                                  "forces (damping, stiffness, friction) nor couplings between joints; remove them from the robot "
@@ -415,8 +421,8 @@ class Task:
                                  f"planner's dynamics are: {'; '.join(differences)}; `planner check-model {robot.path}` compares "
                                  "the two readings")
         for i, c in enumerate(self.contacts):
-            if c.point not in robot.points:
-                raise UnknownNameError("contact point", c.point, robot.points, f"contacts[{i}].point")
+            if c.point not in robot.points:  # the valid ones are the sites: a body named here is refused below
+                raise UnknownNameError("contact point", c.point, robot.sites, f"contacts[{i}].point")
             if c.point not in robot.sites:  # MuJoCo's replay has no site of that name (validate failed later)
                 raise TaskError(f"contact point {c.point!r} is an MJCF body, not a site; add <site name=\"...\"/> where the "
                                 f"body touches and name it (sites: {', '.join(robot.sites) or 'none'})")
@@ -523,6 +529,8 @@ def load_task(path: str | Path) -> Task:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None
+    except ValueError as exc:  # an integer of more than 4300 digits: Python's limit on reading one
+        raise TaskError(f"{path}: {exc}") from None
     except RecursionError:
         raise TaskError(f"{path}: nested too deeply to be a task") from None
     except OSError as exc:
@@ -623,6 +631,10 @@ def _convert(tp, value, key: str):
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise TaskError(f"{key} must be a number, got {_typename(value)}")
+        if not representable(value, "float"):
+            allowed = ("a number within a double's range (inf: no bound)" if key.rsplit(".", 1)[-1] in UNBOUNDED_OK
+                       else "a finite number")
+            raise TaskError(f"{key} must be {allowed}, got an integer beyond a double's range")
         if math.isnan(value):
             raise TaskError(f"{key} must be a number, got nan")
         if math.isinf(value) and key.rsplit(".", 1)[-1] not in UNBOUNDED_OK:
@@ -635,6 +647,8 @@ def _convert(tp, value, key: str):
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise TaskError(f"{key} must be an integer, got {_typename(value)}")
+        if not representable(value, "int"):
+            raise TaskError(f"{key} must be an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}], got one of {value.bit_length()} bits")
         return value
     if tp is str:
         if not isinstance(value, str):

@@ -12,6 +12,7 @@ import pytest
 
 from planner.cli import main
 from planner.errors import InputError
+from planner.model import file_sha256
 from planner.task import load_task, parse_task
 
 
@@ -148,7 +149,7 @@ def test_simulate_fesd_from_the_command_line(tmp_path, capsys):
 @pytest.mark.parametrize(
     "task_kwargs, fragment",
     [
-        ({"point": "toe"}, "unknown contact point 'toe'; valid contact points: mass, point"),
+        ({"point": "toe"}, "unknown contact point 'toe'; valid contact points: point"),  # the sites: not the body "mass"
         ({"N": 0}, "horizon.N = 0 is not allowed"),
         ({"tau_f": -1.0}, "horizon.tau_f = -1.0 is not allowed"),
         ({"z0": -0.1}, "initial.q"),
@@ -470,8 +471,15 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     heavy_robot.write_text(Path(summary["robot"]).read_text().replace('mass="1"', 'mass="2"'))
     heavy = tmp_path / "heavy"
     shutil.copytree(tmp_path / "hop", heavy)
-    (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot)}))
+    (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
+    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "has other contents")
+    # a result written before summary.json kept robot_sha256: the file it names is compared as it is now
+    (heavy / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"} | {"robot": str(heavy_robot)}))
     _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "whose contents differ from")
+    # the plan's own robot file edited in place since (the heavy file planned, then made the point mass's contents)
+    (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
+    heavy_robot.write_text(Path(summary["robot"]).read_text())
+    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "has other contents")
 
 
 def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatch):
@@ -610,3 +618,55 @@ def test_a_failed_verdict_exits_1_and_a_failed_simulation_keeps_its_diagnostics(
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "stuck"), "-q"]) == 1
     assert json.loads((tmp_path / "stuck" / "failed" / "summary.json").read_text())["converged"] is False
     capsys.readouterr()
+
+
+def test_a_result_keeps_its_robot_files_hash_and_validate_refuses_the_file_changed_since(tmp_path, capsys):
+    """summary.json of `planner simulate` and of `planner plan` holds robot_sha256, the SHA-256 of the robot file's
+    contents (planner.model.file_sha256). `validate DIR` after that file was edited in place (the 1 kg point mass made
+    1.3 kg) exits 2 with one line saying the file has other contents than the result was computed from: it replayed
+    the result with the other mass, named only by the file's path. A summary.json without robot_sha256 (a result written before it was kept) still
+    validates."""
+    robot = tmp_path / "pm.xml"
+    robot.write_text((Path(__file__).resolve().parents[1] / "robots" / "point_mass.xml").read_text())
+    hop = tmp_path / "hop.toml"
+    hop.write_text(HOP_TASK)
+    drop, plan = tmp_path / "drop", tmp_path / "plan"
+    assert main(["simulate", str(robot), "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
+    assert main(["plan", str(robot), "--task", str(hop), "--out", str(plan), "-q", "--no-plots", "--no-validate", "--no-race"]) == 0
+    for out in (drop, plan):
+        assert json.loads((out / "summary.json").read_text())["robot_sha256"] == file_sha256(robot)
+    source = robot.read_text()
+    assert source.count('mass="1"') == 1
+    robot.write_text(source.replace('mass="1"', 'mass="1.3"'))
+    _one_line_exit_2(capsys, ["validate", str(drop)], "has other contents")
+    summary = json.loads((drop / "summary.json").read_text())
+    (drop / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"}))
+    assert main(["validate", str(drop), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+FAR_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+            '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')  # infeasible: 50 m at 1 N
+
+
+@pytest.mark.parametrize("command", ["plan", "validate"])
+def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
+    """With -q, a command that fails (exit 1: a plan that does not converge; `validate` of a result that did not
+    converge) prints exactly one line on stderr saying that it failed, and nothing on stdout: -q hid the report
+    and with it the failure, so exit 1 printed nothing at all."""
+    if command == "plan":
+        task = tmp_path / "far.toml"
+        task.write_text(FAR_TASK)
+        argv = ["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "--no-plots",
+                "--no-race", "-q"]
+    else:
+        drop = tmp_path / "drop"
+        assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
+        summary = json.loads((drop / "summary.json").read_text())
+        (drop / "summary.json").write_text(json.dumps({**summary, "converged": False}))  # same result_id: one result
+        capsys.readouterr()
+        argv = ["validate", str(drop), "-q"]
+    assert main(argv) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1, (out, err)
+    assert err.startswith(f"planner {command}: failed") and "Traceback" not in err

@@ -109,6 +109,10 @@ def hop():
     (lambda r, t, p: write_results("x", "out"),
      "write_results' result must be a SimulationResult or PlanResult"),
     (lambda r, t, p: run_gait(3, t, None), "run_gait's robot must be a Robot or str or PathLike"),
+    (lambda r, t, p: Dynamics("point_mass"), "Dynamics' robot must be a Robot, got str"),
+    (lambda r, t, p: t.check_against("point_mass"), "check_against's robot must be a Robot, got str"),
+    # it raised TypeError only after NLP 1, whose work was lost
+    (lambda r, t, p: solve(p, SolveOptions(), progress=5), "solve's progress must be a function"),
 ])
 def test_api_calls_with_an_argument_of_the_wrong_kind_are_input_errors(hop, call, message):
     """A public function given an argument of the wrong kind (a path for a Robot, a SolveOptions for a ProblemOptions,
@@ -141,3 +145,20 @@ def test_solve_options_from_dict_takes_enum_members_and_values():
 
     assert solve_options_from_dict({"polish": Polish.NONE}) == solve_options_from_dict({"polish": "none"})
     assert solve_options_from_dict({"polish": "none"}).polish is Polish.NONE
+
+
+C_INT_MAX = 2**31 - 1  # IPOPT and CasADi read an int option as a C int
+
+
+@pytest.mark.parametrize("field, value, allowed", [
+    ("max_iter", 2**32 + 3, r"an integer in \[-2147483648, 2147483647\]"),  # IPOPT wrapped it around to 3 iterations
+    ("tol", 10**400, "a finite number"),  # an int beyond a double: OverflowError inside the solve
+], ids=["max_iter", "tol"])
+def test_numbers_a_c_int_or_a_double_cannot_hold_are_refused(field, value, allowed):
+    """An int field beyond a C int (SolveOptions(max_iter=2**32 + 3): IPOPT read it as 3 and stopped after 3
+    iterations) and a float field given an int beyond a double (tol = 10**400: OverflowError where it was converted)
+    are InputErrors naming the field, as check_field_types' other type errors are; the largest C int is still an
+    int option's value."""
+    with pytest.raises(InputError, match=rf"^SolveOptions\.{field} = \d+(\.\.\.)? is not allowed; it must be {allowed}"):
+        SolveOptions(**{field: value})
+    assert SolveOptions(max_iter=C_INT_MAX).max_iter == C_INT_MAX

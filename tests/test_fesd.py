@@ -321,3 +321,12 @@ def test_unactuated_capler_fesd_simulation_holds_the_collapsing_stance():
     assert max(gaps) <= 1e-8 and min(gaps) >= -5e-7  # never above the ground beyond IPOPT's bound relaxation
     point = simulate(robot, task, replace(options, velocity_switch=SwitchVelocity.POINT))
     assert not point.stats.converged and "step 51 " in point.stats.message
+
+
+def test_a_number_of_elements_beyond_a_thousand_is_refused():
+    """FESDOptions.n_fe is at most discretization.MAX_ELEMENTS = 1000 finite elements per step: n_fe = 10**7 (a typo)
+    was accepted, and building a one-step problem ran out of memory after 16 s; it is an InputError naming n_fe and
+    its range, before anything is built. 1000 is still allowed."""
+    with pytest.raises(InputError, match=r"^FESDOptions\.n_fe = 10000000 is not allowed; it must be in \[1, 1000\]"):
+        FESDOptions(n_fe=10**7)
+    assert FESDOptions(n_fe=1000).n_fe == 1000

@@ -298,3 +298,20 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     one_foot.write_text("[[contacts]]".join(text[:2]) + "\n[" + text[2].split("\n[", 1)[1])
     assert main(["gait", "biped", "--task", str(one_foot), "--out", str(tmp_path / "one"), "--no-validate"]) == 2
     assert "a gait needs both feet as [[contacts]]" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("field, value", [
+    ("desired_input", "inverse_dynamics"),  # the mode's value, not the DesiredInput: it silently meant ZERO
+    ("x0", np.zeros(3)), ("Q", np.ones(2)), ("R", np.array([0.01, 0.0])), ("T", -1.0), ("continuation", None),
+    ("jump_angle", float("nan")),
+], ids=["desired_input", "x0", "Q", "R", "T", "continuation", "jump_angle"])
+def test_gait_spec_refuses_what_the_ocp_cannot_use(field, value):
+    """GaitSpec checks each field as GaitSpec.N is checked: an InputError naming the field for a desired input given
+    as its string (anything but the enum member fell through to the zero input: gait 1 was solved with gait 2's
+    u_d = 0), an initial state or weights of the wrong length, a zero input weight, a period <= 0, a continuation
+    that is not a GaitContinuation and a nan jump angle; all were accepted and failed later inside the solve, or not
+    at all. The spec of a shipped task passes."""
+    spec = GaitSpec.from_task(load_task(ROBOTS_DIR / "biped_gait1.toml"), N=20)
+    assert dataclasses.replace(spec).desired_input is spec.desired_input
+    with pytest.raises(InputError, match=rf"^GaitSpec\.{field} "):
+        dataclasses.replace(spec, **{field: value})

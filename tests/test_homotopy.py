@@ -115,6 +115,14 @@ def test_active_set_bounds_fix_one_side():
     assert np.all(xc >= lbx) and np.all(xc <= ubx)
 
 
+def test_a_list_for_a_tuple_field_is_stored_as_the_tuple():
+    """A list given for a tuple field (SolveOptions built in code, or from JSON) is stored as the tuple: the options
+    equal and hash as those built with the tuple (a list kept as given made hash() raise TypeError)."""
+    listed, tupled = H.SolveOptions(rho_f_schedule=[10.0, 2.0]), H.SolveOptions(rho_f_schedule=(10.0, 2.0))
+    assert listed.rho_f_schedule == (10.0, 2.0) and isinstance(listed.rho_f_schedule, tuple)
+    assert listed == tupled and hash(listed) == hash(tupled)
+
+
 @pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"), ({"mu_strategy": "adaptive"}, "mu_strategy"),
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
@@ -122,7 +130,7 @@ def test_active_set_bounds_fix_one_side():
                                          ({"retry_terminal_weight": 0.0}, "retry_terminal_weight"),
                                          ({"early_stop_comp": 0.0}, "early_stop_comp"),
                                          ({"rho_f_schedule": ()}, "rho_f_schedule"), ({"rho_f_schedule": (10.0, 0.0)}, "rho_f_schedule"),
-                                         ({"rho_f_schedule": [10.0]}, "rho_f_schedule"),
+                                         ({"rho_f_schedule": ["10"]}, "rho_f_schedule"),
                                          ({"tol": "small"}, "tol = 'small' is not allowed; it must be a finite number"),
                                          ({"tol": float("inf")}, "tol = inf is not allowed; it must be a finite number"),
                                          ({"rho_max": float("inf")}, "rho_max = inf"),  # the schedule's loop never ended
@@ -679,3 +687,26 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     for i in (-1, 99):
         with pytest.raises(InputError, match=rf"homotopy_nlp's i = {i} is not allowed"):
             H.homotopy_nlp(prob, H.SolveOptions(), i)
+
+
+def test_a_schedule_of_more_than_a_hundred_nlps_is_refused():
+    """rho_max continues the task's geometric schedule, at most planner.task.MAX_NLPS = 100 NLPs after those below
+    rho_min are dropped: kappa = 1.0001 from rho0 = 1 to rho_max = 1e4 scheduled 92109 NLPs (a plan of days) and is an
+    InputError naming the cause, counted before the penalties are listed; the task's own n_nlp = 101 is a TaskError, an explicit
+    rho_schedule of 101 penalties an InputError; a schedule of the shipped tasks' kind is unchanged."""
+    from planner.errors import TaskError
+    from planner.task import Homotopy
+
+    with pytest.raises(InputError, match=r"rho_max = None, 10000.0 .* kappa = 1.0001 schedule about 9.21e\+04 NLPs, more than 100"):
+        H.task_rho_schedule(Homotopy(rho0=1.0, kappa=1.0001, n_nlp=5), rho_max=1e4)
+    # counted after the NLPs below rho_min are dropped: 95 are solved here (the first cap refused it)
+    assert len(H.task_rho_schedule(Homotopy(rho0=1.0, kappa=1.05, n_nlp=5), rho_min=1e4, rho_max=1e6)) == 95
+    with pytest.raises(InputError, match=r"more than 100"):  # rho0 = 1e-300: 4.6e7 penalties listed below rho_min
+        H.task_rho_schedule(Homotopy(rho0=1e-300, kappa=1.0000001, n_nlp=1), rho_min=100.0, rho_max=1e4)
+    with pytest.raises(InputError, match=r"rho_schedule = .* at most 100 penalties"):
+        H.SolveOptions(rho_schedule=(1.0,) * 101)
+    with pytest.raises(TaskError, match=r"plan.homotopy.n_nlp = 101 .* in \[1, 100\]"):
+        Homotopy(n_nlp=101)
+    assert H.task_rho_schedule(Homotopy(rho0=1.0, kappa=10.0, n_nlp=5), 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
+    exactly = H.task_rho_schedule(Homotopy(rho0=1.0, kappa=2.0, n_nlp=5), rho_max=2.0**99)  # 2^0 .. 2^99: 100 NLPs
+    assert len(exactly) == 100 and exactly[-1] == 2.0**99

@@ -298,3 +298,17 @@ def test_a_corner_plan_builds_with_each_contacts_own_gates():
     prob = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), task)
     for label in ("point#1", "point#2"):
         assert any(f"[alpha[{label}]]" in pair.name for pair in prob.pairs)
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.5])
+def test_an_elastic_contact_is_refused_naming_the_simulator(mu):
+    """A plan with an elastic contact (restitution > 0) is refused whatever its friction, with a message that names
+    the contact, restitution = 0 and `planner simulate` (which models frictionless elastic impacts): with mu > 0
+    the time-freezing system refused first and said "set mu = 0", after which the plan was refused again for the
+    restitution."""
+    task = parse_task({"contacts": [{"point": "point", "mu": mu, "restitution": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 3}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    with pytest.raises(InputError, match=r"^contact\(s\) point: planning with elastic contacts .*set restitution = 0 "
+                                         r"\(`planner simulate` models frictionless elastic impacts\)") as err:
+        build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), task)
+    assert "mu = 0" not in str(err.value)

@@ -497,6 +497,16 @@ def test_contact_point_that_is_not_a_site(capler):
         replay.validate_trajectory(robot, task, _zeros(robot))
 
 
+def test_a_tilted_plane_is_refused_naming_the_way_to_plan_without_validation(point_mass):
+    """A contact on a tilted plane (contacts.normal) is refused by the validation, which models the ground plane only,
+    and the message names `planner plan --no-validate`, which plans it without the validation (it said only what
+    the validation cannot do)."""
+    task = parse_task({"contacts": [{"point": "point", "normal": [0.1, 0.0, 1.0]}], "initial": {"q": [0.0, 1.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}})
+    with pytest.raises(InputError, match=r"point touch a tilted plane .*`planner plan --no-validate` plans without it"):
+        replay.build_scene(point_mass, task)
+
+
 def test_impact_points_name_contact_points_one_per_impact(capler):
     """validate_trajectory's impact_points must name the task's contact points, one entry per impact (None: the
     lowest point): an unknown name stood silently for the lowest point, and a list of another length was accepted."""
@@ -882,3 +892,91 @@ def test_stance_retarget_reduces_capler_error(capler):
     errors = {c: replay.validate_trajectory(robot, task, traj, replay.ValidationOptions(controller=c)).max_tracking_error_m
               for c in replay.TrackingController}
     assert errors[replay.TrackingController.STANCE_RETARGET] <= RETARGET_GAIN * errors[replay.TrackingController.JOINT_PD]
+
+
+# A fixed-base arm: shoulder 1 m above the ground, two 0.3 m links hinged about y (q = 0: stretched out along +x),
+# the contact site "tip" at the end. Its motors give at most 1 N m, a sixth of what holding it stretched out takes
+# (1 kg links: 9.81 * (0.15 + 0.45) = 5.9 N m at the shoulder).
+ARM_XML = """<mujoco model="arm">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.001" gravity="0 0 -9.81"/>
+  <worldbody>
+    <geom name="ground" type="plane" size="5 1 0.1"/>
+    <body name="upper" pos="0 0 1">
+      <joint name="shoulder" type="hinge" axis="0 1 0"/>
+      <inertial pos="0.15 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>
+      <body name="lower" pos="0.3 0 0">
+        <joint name="elbow" type="hinge" axis="0 1 0"/>
+        <inertial pos="0.15 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>
+        <site name="tip" pos="0.3 0 0"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="shoulder_motor" joint="shoulder" ctrlrange="-1 1"/>
+    <motor name="elbow_motor" joint="elbow" ctrlrange="-1 1"/>
+  </actuator>
+</mujoco>
+"""
+ARM_LENGTH_M = 0.6  # the arm falling from stretched out moves its tip by about this much: far beyond the threshold
+# A pendulum on a carriage of model.MASSLESS_LINK_KG (as a URDF's carriage links are): its base body is the pendulum,
+# hinged to the carriage, which slides, so its base translates through an ancestor's joint.
+CART_XML = """<mujoco model="cart">
+  <worldbody>
+    <geom name="ground" type="plane" size="5 1 0.1"/>
+    <body name="carriage" pos="0 0 1">
+      <joint name="slide" type="slide" axis="1 0 0"/>
+      <inertial pos="0 0 0" mass="1e-12" diaginertia="1e-12 1e-12 1e-12"/>
+      <body name="pendulum">
+        <joint name="pivot" type="hinge" axis="0 1 0"/>
+        <inertial pos="0 0 -0.15" mass="1" diaginertia="0.01 0.01 0.01"/>
+        <site name="tip" pos="0 0 -0.3"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="slide" ctrlrange="-10 10"/>
+    <motor joint="pivot" ctrlrange="-10 10"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def _held(robot, q, P=21):
+    """A plan that holds the posture q for 1 s with zero controls."""
+    return {"t": np.linspace(0.0, 1.0, P), "q": np.tile(q, (P, 1)), "v": np.zeros((P, robot.nv)),
+            "u": np.zeros((P, robot.nu)), "impact_times": np.zeros(0)}
+
+
+def test_a_fixed_base_robot_is_tracked_at_its_contact_point(point_mass, capler, tmp_path):
+    """A robot whose base cannot translate (a fixed arm) is tracked at its first contact point's site: the scene's
+    base_site is the site "tip" and the validation says it tracked "contact point 'tip'". Its base body's origin
+    sits on the fixed shoulder, so the base error was 0 mm whatever the motion: an arm too weak to hold the plan's
+    stretched-out posture fell and its validation passed. Now that plan fails on the tip's error, and the plan of
+    the arm hanging at rest passes. Robots whose base translates (the point mass, Capler's MJCF and URDF, and a
+    pendulum whose massless carriage slides) keep the base: base_site None, tracked "base"."""
+    import mujoco
+
+    xml = tmp_path / "arm.xml"
+    xml.write_text(ARM_XML)
+    arm = load_robot(xml)
+    hanging, stretched = (math.pi / 2, 0.0), (0.0, 0.0)
+    for q0 in (hanging, stretched):
+        task = parse_task({"contacts": [{"point": "tip"}], "initial": {"q": list(q0)}, "horizon": {"tau_f": 1.0, "N": 10}})
+        scene = replay.build_scene(arm, task)
+        assert scene.base_site == mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_SITE, "tip") == scene.site_ids[0]
+        result = replay.validate_trajectory(arm, task, _held(arm, q0))
+        assert result.tracked == "contact point 'tip'" and result.to_json()["tracked"] == result.tracked
+        if q0 == hanging:
+            assert result.passed, result.failures
+        else:
+            assert not result.passed and result.max_tracking_error_m > ARM_LENGTH_M / 2
+            assert result.failures[0].startswith("contact point 'tip' tracking error"), result.failures
+    cart = tmp_path / "cart.xml"
+    cart.write_text(CART_XML)
+    capler_robot, capler_task = capler
+    for robot, task in ((capler_robot, capler_task), (load_robot(ROBOTS_DIR / "capler.urdf"), capler_task),
+                        (point_mass, _task("point", q0=(0.0, 0.0))), (load_robot(cart), _task("tip", q0=(0.0, 0.0)))):
+        scene = replay.build_scene(robot, task)
+        assert scene.base_site is None, scene.base_name
+    assert replay.validate_trajectory(point_mass, _task("point", q0=(0.0, 0.0)), _held(point_mass, (0.0, 0.0))).tracked == "base"

@@ -395,3 +395,106 @@ def test_an_impact_outside_the_friction_cone_is_flagged():
         assert ("(outside the friction cone)" in result.report()) is outside
     frictionless = dataclasses.replace(task, contacts=(dataclasses.replace(task.contacts[0], mu=0.0),))
     assert simulate(robot, frictionless).summary()["impacts"][0]["outside_friction_cone"] is False
+
+
+def _hop_plan():
+    """A converged plan of the point mass's hop on 10 steps (~0.5 s): a PlanResult with every dict field filled."""
+    from planner.homotopy import SolveOptions, solve
+    from planner.problem import build_problem
+
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
+    result = solve(build_problem(load_robot("point_mass"), task), SolveOptions())
+    assert result.stats.converged, result.stats.message
+    return result
+
+
+DICT_WRITES = {  # each way of changing a dict in place
+    "setitem": lambda d: d.__setitem__("new", 1), "delitem": lambda d: d.__delitem__(next(iter(d))),
+    "update": lambda d: d.update(new=1), "pop": lambda d: d.pop(next(iter(d))), "popitem": lambda d: d.popitem(),
+    "setdefault": lambda d: d.setdefault("new", 1), "clear": lambda d: d.clear(), "ior": lambda d: d.__ior__({"new": 1}),
+}
+
+
+def test_a_results_dicts_are_read_only_too():
+    """A PlanResult's dict fields (extra, options, timings, constraint_violation) and a SimulationResult's extra, with
+    the dicts and arrays inside them, cannot be changed in place: every dict write raises TypeError and the NLP point
+    extra["_x"] is a read-only array (`result.extra["_x"][0] = 123` changed the nlp_x written and a replan's start,
+    and any caller could add or drop summary.json's keys). So after pickle and copy.deepcopy. A changed copy is
+    dataclasses.replace(result, extra={**result.extra, key: value}), itself read-only, the original unchanged."""
+    plan = _hop_plan()
+    simulation = replace(_tiny_result(2), extra={"discretization": {"name": "fesd"}, "_y": np.zeros(3)})
+    for result, fields in ((plan, ("extra", "options", "timings", "constraint_violation")), (simulation, ("extra",))):
+        for copied in (result, pickle.loads(pickle.dumps(result)), copy.deepcopy(result)):
+            dicts = [getattr(copied, name) for name in fields]
+            dicts += [v for d in dicts for v in d.values() if isinstance(v, dict)]  # nested: options["solve"], ...
+            assert len(dicts) > len(fields)
+            for d in dicts:
+                before = dict(d)
+                for name, write in DICT_WRITES.items():
+                    with pytest.raises(TypeError, match="read-only"):
+                        write(d)
+                assert d == before
+            arrays = [v for v in copied.extra.values() if isinstance(v, np.ndarray)]
+            assert arrays
+            for array in arrays:
+                with pytest.raises(ValueError, match="read-only"):
+                    array[0] = 123.0
+    lists = [v for v in plan.extra.values() if isinstance(v, list)] + [plan.extra["scene"]["reasons"]]
+    for listed in lists:  # summary.json's lists: extra["race"] of a raced plan, the scene's reasons
+        for write in (lambda x: x.append(1), lambda x: x.__setitem__(0, 1), lambda x: x.extend([1]), lambda x: x.clear()):
+            with pytest.raises(TypeError, match="read-only"):
+                write(listed)
+        assert listed == list(listed) and json.loads(json.dumps(listed)) == list(listed)
+    changed = replace(plan, extra={**plan.extra, "k": 1})
+    assert changed.extra["k"] == 1 and "k" not in plan.extra
+    np.testing.assert_array_equal(changed.extra["_x"], plan.extra["_x"])
+    with pytest.raises(TypeError, match="read-only"):
+        changed.extra["k"] = 2
+    with pytest.raises(ValueError, match="read-only"):
+        changed.extra["_x"][0] = 123.0
+
+
+def test_an_empty_output_directory_is_refused(tmp_path, monkeypatch):
+    """write_results and write_files with out_dir "" raise an InputError and write nothing: Path("") is the working
+    directory, where they wrote trajectory.npz and summary.json (an unset variable in a script's out_dir). "." still
+    names the working directory."""
+    monkeypatch.chdir(tmp_path)
+    for write in (lambda: write_results(_tiny_result(2), ""), lambda: write_files("", {"t": np.zeros(2)}, {"command": "x"})):
+        with pytest.raises(InputError, match=r"output directory is empty"):
+            write()
+    with pytest.raises(InputError, match=r"the output directory must be a str or PathLike, got NoneType"):
+        write_results(_tiny_result(2), None)  # a TypeError from os.fspath before
+    assert list(tmp_path.iterdir()) == []
+    write_results(_tiny_result(2), ".")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+
+
+def _ending_in_an_impact(restitution: float) -> SimulationResult:
+    """A hand-made drop whose horizon (tau 0 .. 0.3) ends inside its impact on "point" (frozen from tau = 0.1 on),
+    with the task of a contact of that restitution in extra["_task"], as simulate() keeps it."""
+    from planner.result import Impact
+
+    n = 4
+    tau = 0.1 * np.arange(n)
+    tr = Trajectory(tau=tau, y=np.column_stack([np.zeros(n), np.zeros(n), [0.0, 0.1, 0.1, 0.1]]), state_names=("q", "v", "t"),
+                    sigma=np.zeros((0, 0)), selector_names=(), t=np.array([0.0, 0.1, 0.1]), q=np.zeros((3, 1)),
+                    v=np.array([[-1.0], [-1.0], [-0.2]]), u=np.zeros((3, 0)),
+                    impacts=(Impact(time=0.1, contact="point", impulse=0.8, impulse_tangential=0.0, q=np.zeros(1),
+                                    v_pre=np.array([-1.0]), v_post=np.array([-0.2]), tau_start=0.1, tau_end=tau[-1]),))
+    task = parse_task({"contacts": [{"point": "point", "restitution": restitution}], "initial": {"q": [0.0, 0.3]},
+                       "horizon": {"tau_f": 0.3, "N": 3}})
+    return SimulationResult(robot="r", task="t.toml", trajectory=tr, stats=SolveStats(True, 0.0, 3, 9, 0.0),
+                            strategy="stepwise", h=0.1, rho_f=1.0, extra={"_task": task})
+
+
+def test_a_horizon_ending_inside_an_elastic_impact_names_zeno():
+    """When the horizon ends inside the last impact and that impact's contact is elastic (restitution > 0), the report
+    says the bounces may accumulate to a point in time (Zeno), which the time-freezing simulation does not pass, and
+    that restitution = 0 makes the landing a stance: it advised only a longer tau_f or a larger a_n, which cannot end
+    a Zeno sequence. An inelastic contact's report keeps the plain advice, without Zeno."""
+    elastic, inelastic = _ending_in_an_impact(0.5), _ending_in_an_impact(0.0)
+    assert elastic.ends_in_impact and inelastic.ends_in_impact
+    assert "Zeno" in elastic.report() and "restitution = 0" in elastic.report()
+    assert "the horizon ends inside the last impact" in inelastic.report()
+    assert "Zeno" not in inelastic.report() and "restitution = 0" not in inelastic.report()

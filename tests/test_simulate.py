@@ -623,3 +623,23 @@ def test_a_horizon_that_ends_inside_an_impact_says_so(tmp_path):
         assert result.stats.converged and len(result.trajectory.impacts) == 1
         assert result.ends_in_impact is unfinished and result.summary()["ends_in_impact"] is unfinished
         assert ("the horizon ends inside the last impact" in result.report()) is unfinished
+
+
+def test_fesd_simulates_a_robot_without_actuators(tmp_path):
+    """The FESD simulation of a robot without actuators (the point mass without its motors: nu = 0) drops it from
+    z = 0.2 m to one impact and converges: reshaping its element controls, an empty array, to (-1, n_s, 0) raised
+    "ValueError: cannot reshape array of size 0" after the last step."""
+    from planner.discretization import Discretization, FESDOptions
+
+    source = robot().path.read_text()
+    start, end = source.index("<actuator>"), source.index("</actuator>") + len("</actuator>")
+    passive = tmp_path / "passive.xml"
+    passive.write_text(source[:start] + source[end:])
+    unactuated = load_robot(passive)
+    assert unactuated.nu == 0
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.2]}, "horizon": {"tau_f": 0.3, "N": 6}})
+    # `planner simulate --discretization fesd`'s elements: FESDOptions' default n_fe = 2 leaves no spare element for
+    # the landing step (it ends unconverged with the motors too)
+    result = simulate(unactuated, task, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=2, n_fe=4)))
+    assert result.stats.converged, result.stats.message
+    assert len(result.trajectory.impacts) == 1 and result.trajectory.u.shape[1] == 0

@@ -66,7 +66,9 @@ def _with(path: str, value):
          r"plan.joint_bounds = \['hip', 'hip'\] .* one entry per joint"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1e200, "n_nlp": 3}},
          r"plan.homotopy = .* last penalty .* at most 1e300"),  # kappa**i raised OverflowError in the solve
-        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"n_nlp": 1000}}, r"at most 1e300"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1e4, "n_nlp": 80}}, r"at most 1e300"),
+        # kappa = 1.0001 scheduled 92109 NLPs through SolveOptions.rho_max; n_nlp itself is capped too
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.01, "n_nlp": 101}}, r"n_nlp = 101 .* \[1, 100\]"),
         ("horizon", {"tau_f": 2.5, "N": 10**9}, r"horizon.N = 1000000000 .* in \[1, 10000000\]"),  # built for ever
         ("contacts", [{"point": "foot", "a_n": 1e7}], r"contacts.a_n = 10000000.0 .* in \(0, 1e\+06\]"),  # clock at 1.44x
         ("contacts", [{"point": "foot", "a_t": 1e9}], r"contacts.a_t = 1000000000.0 .* in \(0, 1e\+06\]"),  # flight sped up
@@ -106,7 +108,7 @@ def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, mess
 def test_robot_dependent_errors():
     """Names and lengths are checked against the robot; targets must lie inside the joint bounds."""
     capler = load_robot("capler")
-    with pytest.raises(UnknownNameError, match="valid contact points: base, foot, knee"):
+    with pytest.raises(UnknownNameError, match="valid contact points: foot, knee$"):  # sites: "base" is a body
         parse_task(_with("contacts", [{"point": "toe"}])).check_against(capler)
     with pytest.raises(TaskError, match="initial.q has 2 entries; the robot needs 4"):
         parse_task(_with("initial.q", [0.0, 1.0])).check_against(capler)
@@ -348,3 +350,55 @@ def test_a_task_file_that_is_not_utf8_is_named(tmp_path):
     path.write_bytes(b"\xff\xfe[horizon]\n")
     with pytest.raises(TaskError, match=r"binary.toml: not valid TOML"):
         load_task(path)
+
+
+HUGE_INT = 10**400  # beyond a double's 1.8e308: converting it to a float raises OverflowError
+BIG_INT = 2**40  # beyond a C int's 2**31 - 1, what IPOPT, CasADi and NumPy's indexing read an int as
+
+
+def test_numbers_beyond_a_double_or_a_c_int_are_task_errors(tmp_path, capsys):
+    """A float key given an integer beyond a double (contacts.mu = 10**400: the reader's nan check raised
+    OverflowError: `planner simulate` printed its traceback, exit 1) and an int key beyond a C int (gait.steps =
+    2**40, accepted) are TaskErrors naming the key, from a dict and from a TOML file alike; `planner simulate` on
+    such a file is a user error: exit 2, one line."""
+    from planner.cli import main
+
+    with pytest.raises(TaskError, match=r"^contacts\[0\]\.mu must be a finite number"):
+        parse_task(_with("contacts", [{"point": "foot", "mu": HUGE_INT}]))
+    gait = (ROBOTS / "biped_gait1.toml").read_text()
+    assert gait.count("\nsteps = 10 ") == 1
+    many_steps = tmp_path / "steps.toml"
+    many_steps.write_text(gait.replace("\nsteps = 10 ", f"\nsteps = {BIG_INT} "))
+    with pytest.raises(TaskError, match=r"gait\.steps .*2147483647"):
+        load_task(many_steps)
+    drop = (ROBOTS / "point_mass.toml").read_text()
+    assert drop.count("\nmu = 0.0\n") == 1
+    huge_mu = tmp_path / "mu.toml"
+    huge_mu.write_text(drop.replace("\nmu = 0.0\n", f"\nmu = {HUGE_INT}\n"))
+    assert main(["simulate", "point_mass", "--task", str(huge_mu), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "contacts[0].mu must be a finite number" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_normal_whose_length_overflows_is_refused():
+    """A normal whose length is beyond a double (1.7e308, 0, 1.7e308: math.hypot is inf) is a TaskError naming
+    contacts.normal: each component divided by inf made the normal (0, 0, 0), a plane without a direction, accepted.
+    A normal of large but finite length (1e200) still normalizes to the unit vector."""
+    with pytest.raises(TaskError, match=r"^contacts\.normal = .* of finite length"):
+        Contact(point="foot", normal=(1.7e308, 0.0, 1.7e308))
+    assert Contact(point="foot", normal=(1e200, 0.0, 1e200)).normal == pytest.approx(
+        (math.sqrt(0.5), 0.0, math.sqrt(0.5)), abs=ULP_TOL)
+
+
+def test_an_unknown_contact_point_lists_the_sites_only():
+    """An unknown contact point lists the robot's sites as the valid names, those MuJoCo's validation can put a
+    contact on: the point mass's "point", not its body "mass", which the message offered and check_against then
+    refused as a body."""
+    robot = load_robot("point_mass")
+    with pytest.raises(UnknownNameError, match=r"unknown contact point 'toe'; valid contact points: point$"):
+        parse_task({"contacts": [{"point": "toe"}], "initial": {"q": [0.0, 1.0]},
+                    "horizon": {"tau_f": 1.0, "N": 5}}).check_against(robot)
+    with pytest.raises(TaskError, match=r"contact point 'mass' is an MJCF body, not a site"):
+        parse_task({"contacts": [{"point": "mass"}], "initial": {"q": [0.0, 1.0]},
+                    "horizon": {"tau_f": 1.0, "N": 5}}).check_against(robot)
