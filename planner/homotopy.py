@@ -40,10 +40,10 @@ import numpy as np
 
 from .derivatives import nlp_derivatives
 from .errors import InputError, check_field_types, expect, interruptible
-from .task import MAX_NLPS
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
+from .task import MAX_NLPS
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 

@@ -199,8 +199,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
             extra["discretization"]["collocated_steps"] = stats["collocated_steps"]
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
-    return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory, stats=solve,
-                            strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
+    return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
+                            stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
 
 
 def _why(msg: str, comp: float, comp_tol: float) -> str:
