@@ -209,6 +209,18 @@ def _tiny_result(n: int = 1) -> SimulationResult:
                             h=0.1, rho_f=1.0)
 
 
+def test_a_simulation_report_names_a_penetration_beyond_a_millimetre():
+    """A simulation whose contact went deeper than PENETRATION_NOTE_M into its plane says so in its report, with the
+    point, the depth [mm] and the time (it said only "converged" with a fixed arm's tip 45.6 mm in the ground); a
+    shallower one, or a result without the record (read from an older run), has no such line."""
+    from planner.result import PENETRATION_NOTE_M
+
+    deep = replace(_tiny_result(2), extra={"penetration": {"max_m": 0.0456, "point": "tip", "t": 0.5683}})
+    assert "tip went 45.6 mm into its plane (t = 0.5683 s)" in deep.report()
+    for extra in ({"penetration": {"max_m": PENETRATION_NOTE_M, "point": "tip", "t": 0.5}}, {}):
+        assert "into its plane" not in replace(_tiny_result(2), extra=extra).report()
+
+
 def test_a_result_is_written_whole_or_not_at_all(tmp_path):
     """write_files writes both files before it renames either: a summary that cannot be written (a value JSON cannot
     hold), or a summary.json that is a directory, leaves the earlier trajectory.npz byte for byte and no temp file
