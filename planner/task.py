@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import C_INT_MAX, RobotFileError, TaskError, UnknownNameError, check_field_types, expect, representable
+from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect, representable
 
 
 # gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
@@ -647,8 +647,6 @@ def _convert(tp, value, key: str):
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise TaskError(f"{key} must be an integer, got {_typename(value)}")
-        if not representable(value, "int"):
-            raise TaskError(f"{key} must be an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}], got one of {value.bit_length()} bits")
         return value
     if tp is str:
         if not isinstance(value, str):
