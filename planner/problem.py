@@ -294,11 +294,18 @@ class Problem:
         the solver relaxes the hard terminal rows when it uses w > 0), with Penalty.LINF an extra
         l1 weight rho_l1 on the sum of the (gated) products (0: the pure l_inf penalty), and a factor on
         the task's rho_f (the selectors' regularizer rho_f ||sigma - sigma*||^2; 1: the task's own)."""
-        return np.array([rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1, rho_f_scale], dtype=float)
+        values = (rho, hole_scale, an_scale, at_scale, terminal_weight, rho_l1, rho_f_scale)
+        for name, value in zip(PARAMETERS, values):
+            if not (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)):
+                raise InputError(f"Problem.params' {name} must be a number, got {type(value).__name__} {value!r:.60}")
+        return np.array(values, dtype=float)
 
     def point(self, x) -> np.ndarray:
         """x as a float vector (nx,); an InputError when it has another size (a point of another problem)."""
-        x = np.asarray(x, dtype=float).ravel()
+        try:
+            x = np.asarray(x, dtype=float).ravel()
+        except (TypeError, ValueError) as error:
+            raise InputError(f"a point of this problem is {self.nx} numbers, got {type(x).__name__} ({error})") from None
         if x.shape != (self.nx,):
             raise InputError(f"a point of this problem has nx = {self.nx} entries, got {x.size} (a point of another "
                              "problem? Problem.signature tells problems with the same variables)")

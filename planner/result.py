@@ -261,6 +261,11 @@ class SimulationResult(ArraysReadOnly):
         if deepest.get("max_m", 0.0) > PENETRATION_NOTE_M:
             lines.append(f"  {deepest['point']} went {deepest['max_m'] * 1e3:.1f} mm into its plane (t = {deepest['t']:.4g} s): the "
                          "steps keep a contact's velocity on the plane, not its position; a smaller h (more steps) drifts less")
+        for force in self.extra.get("forces_outside_friction_cone", ()):
+            lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
+                         f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N where mu "
+                         f"normal = {force['mu_normal_N']:.4g} N): a simulation's no-slip contact holds the point with "
+                         "any tangential force (docs/tasks.md)")
         if self.ends_in_impact:
             from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 
@@ -335,6 +340,34 @@ def outside_cone(tr: Trajectory, task: Task | None) -> np.ndarray:
     mu = dict(zip(contact_labels(task.contacts), (c.mu for c in task.contacts)))
     return np.array([mu.get(imp.contact, 0.0) > 0.0 and abs(imp.impulse_tangential)
                      > CONE_SLACK * mu[imp.contact] * max(imp.impulse, 0.0) + CONE_FLOOR_NS for imp in tr.impacts], dtype=bool)
+
+
+# A persistent contact force [N] beyond CONE_SLACK mu lambda_n by more than this is outside the cone: a simulation's
+# forces come from step solves at 1e-9 (the brick's frictionless-looking corners read 6e-9 N).
+CONE_FLOOR_N = 1e-6
+
+
+def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
+    """The contacts whose persistent force leaves their friction cone, one entry each: point, samples (how many of
+    the physical-time samples), max_tangential_N (the largest |lambda_t| outside [N]) and mu_normal_N (mu lambda_n
+    there [N]). A simulation's no-slip contact holds a point with whatever tangential force it takes (the paper's
+    model: no cone); a brick on two corners was held by +-3641 N against a normal force of 0.016 N. [] without the
+    task, the forces or any contact outside."""
+    samples = tr.contact_force_samples()
+    if task is None or samples is None or samples[0].shape[1] != len(task.contacts):
+        return []
+    from .timefreezing import contact_labels  # (CasADi: not for reading results only)
+
+    lambda_n, lambda_t = samples
+    out = []
+    for c, (label, contact) in enumerate(zip(contact_labels(task.contacts), task.contacts)):
+        bound = contact.mu * np.maximum(lambda_n[:, c], 0.0)
+        outside = np.abs(lambda_t[:, c]) > CONE_SLACK * bound + CONE_FLOOR_N
+        if contact.mu > 0 and outside.any():
+            worst = int(np.argmax(np.where(outside, np.abs(lambda_t[:, c]), -1.0)))
+            out.append({"point": label, "samples": int(outside.sum()), "max_tangential_N": float(abs(lambda_t[worst, c])),
+                        "mu_normal_N": float(bound[worst])})
+    return out
 
 
 def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None) -> list[str]:

@@ -31,7 +31,7 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, expect, interruptible
 from .model import Robot
-from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, recover
+from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, forces_outside_cone, recover
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -200,6 +200,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     extra["penetration"] = _penetration(system, task, trajectory)
+    extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
     return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
                             stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
 

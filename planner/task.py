@@ -557,6 +557,8 @@ def tasks_between(start: Task, end: Task, s: float) -> Task | None:
     the two, everything else (names, integers such as N, flags, the number of holes or contacts, an infinite
     bound) equal in both; None when they differ in anything but finite numbers. The source is end's. A replan
     walks the task from its start plan's task to the new one through these (planner.replan)."""
+    expect(start, Task, "tasks_between's start")
+    expect(end, Task, "tasks_between's end")
     _require(isinstance(s, (int, float)) and not isinstance(s, bool) and 0 <= s <= 1, "tasks_between's s", s,
              "a number in [0, 1] (0: start, 1: end)")
     try:

@@ -674,7 +674,9 @@ def test_schedules_the_problem_cannot_use_are_refused():
 def test_functions_of_a_point_refuse_a_point_of_another_size():
     """Problem.split, complementarity_residual and the homotopy's functions of x (constraint_violation, terminal_error,
     ungate, active_set_bounds, variable_scale), and solve with such an x0, refuse an x of another size with an
-    InputError naming nx (CasADi's shape error, IndexError or a silently ignored tail before); homotopy_nlp refuses an
+    InputError naming nx (CasADi's shape error, IndexError or a silently ignored tail before), and an x of strings too;
+    Problem.params refuses a parameter that is not a number (a string was numpy's ValueError, True read as 1);
+    homotopy_nlp refuses an
     NLP index outside its homotopy (-1 gave the last NLP, 99 an IndexError)."""
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
     wrong = np.zeros(prob.nx + 10)
@@ -684,6 +686,14 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     for call in calls:
         with pytest.raises(InputError, match=rf"a point of this problem has nx = {prob.nx} entries, got {prob.nx + 10}"):
             call(wrong)
+    for call in calls[:2]:  # not numbers: numpy's ValueError before
+        with pytest.raises(InputError, match=rf"a point of this problem is {prob.nx} numbers, got list"):
+            call(["a"] * prob.nx)
+    with pytest.raises(InputError, match="Problem.params' rho must be a number, got str 'a'"):
+        prob.params("a")
+    with pytest.raises(InputError, match="Problem.params' rho_f_scale must be a number, got bool True"):
+        prob.params(1.0, rho_f_scale=True)
+    assert prob.params(np.float64(3.0), 2)[:2].tolist() == [3.0, 2.0]
     for i in (-1, 99):
         with pytest.raises(InputError, match=rf"homotopy_nlp's i = {i} is not allowed"):
             H.homotopy_nlp(prob, H.SolveOptions(), i)

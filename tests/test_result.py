@@ -221,6 +221,27 @@ def test_a_simulation_report_names_a_penetration_beyond_a_millimetre():
         assert "into its plane" not in replace(_tiny_result(2), extra=extra).report()
 
 
+def test_a_persistent_force_outside_the_friction_cone_is_named():
+    """forces_outside_cone lists each contact whose persistent force has |lambda_t| > CONE_SLACK mu lambda_n (+ a
+    micronewton), with the number of samples, the largest tangential force outside and mu lambda_n there, and the
+    simulation report prints a line for each (a brick on two corners was held by +-3641 N against 0.016 N of normal
+    force, and the report said nothing). Inside the cone (|lambda_t| = mu lambda_n), on a frictionless contact, or
+    without the task or the forces: nothing."""
+    from planner.result import forces_outside_cone
+    from planner.task import Contact
+
+    tr = replace(_tiny_result(3).trajectory, y=np.column_stack([np.zeros((3, 2)), [0.0, 0.1, 0.2]]), t=np.array([0.0, 0.1, 0.2]),
+                 contact_force=np.array([[[10.0, 5.0], [1.0, 9.0]], [[10.0, -7.5], [1.0, 9.0]]]))  # (steps, contacts, n/t)
+    task = replace(load_task(default_task_path(resolve_robot_path("capler"))),
+                   contacts=(Contact(point="foot", mu=0.5), Contact(point="knee", mu=0.0)))
+    assert forces_outside_cone(tr, task) == [{"point": "foot", "samples": 1, "max_tangential_N": 7.5, "mu_normal_N": 5.0}]
+    assert forces_outside_cone(tr, None) == [] and forces_outside_cone(replace(tr, contact_force=None), task) == []
+    flagged = replace(_tiny_result(3), trajectory=tr, extra={"forces_outside_friction_cone": forces_outside_cone(tr, task)})
+    assert ("foot's contact force outside its friction cone at 1 of 3 samples (|tangential| up to 7.5 N where mu normal "
+            "= 5 N)") in flagged.report()
+    assert "friction cone" not in replace(flagged, extra={}).report()
+
+
 def test_a_result_is_written_whole_or_not_at_all(tmp_path):
     """write_files writes both files before it renames either: a summary that cannot be written (a value JSON cannot
     hold), or a summary.json that is a directory, leaves the earlier trajectory.npz byte for byte and no temp file

@@ -115,6 +115,7 @@ def test_the_deepest_penetration_is_the_lowest_gap_over_the_nodes():
     assert deepest == {"max_m": max(0.0, -float(y[k, 1])), "point": "point", "t": float(y[k, -1])}
     assert deepest["max_m"] < GAP_TOL < PENETRATION_NOTE_M and "into its plane" not in r.report()
     assert r.summary()["penetration"] == deepest
+    assert r.summary()["forces_outside_friction_cone"] == []  # resting on one no-slip point: no tangential force
 
 
 def test_contact_force_balances_gravity_after_the_drop():

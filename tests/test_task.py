@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from planner.errors import RobotFileError, TaskError, UnknownNameError
+from planner.errors import InputError, RobotFileError, TaskError, UnknownNameError
 from planner.model import load_robot
 from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, Periodic, Plan, Task, load_task, parse_task,
                           task_to_json, tasks_between)
@@ -257,7 +257,8 @@ def test_periodic_robot_dependent_errors():
 
 def test_tasks_between_moves_every_number_and_nothing_else():
     """tasks_between(a, b, s): each float of the task (a target coordinate, a hole's x, a contact's mu, the
-    horizon's tau_f) is a + s (b - a), s = 0 and 1 give a's and b's numbers exactly, and the source is b's. Tasks
+    horizon's tau_f) is a + s (b - a), s = 0 and 1 give a's and b's numbers exactly, and the source is b's; what is not
+    a Task is refused. Tasks
     that differ in an integer (N), a name, the number of holes or between an infinite and a finite bound have no
     tasks between them (None); equal infinite bounds stay."""
     a = load_task(ROBOTS / "capler.toml")
@@ -282,6 +283,8 @@ def test_tasks_between_moves_every_number_and_nothing_else():
     for s in (5.0, -0.1, math.nan, "0.5"):  # 5 extrapolated; nan was reported as a task value
         with pytest.raises(TaskError, match=r"tasks_between's s = .* a number in \[0, 1\]"):
             tasks_between(a, b, s)
+    with pytest.raises(InputError, match="tasks_between's start must be a Task, got str 'a'"):
+        tasks_between("a", "a", 0.5)  # returned 'a'
 
 
 @pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
