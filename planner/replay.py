@@ -606,9 +606,10 @@ class Validation:
             + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
                f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
-            f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); feet max "
-            + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items())
-            + f"; saturation {tr.saturation_fraction:.1%}",
+            f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
+            + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
+               if tr.max_foot_error_m else "")  # a task without contact points has no feet
+            + f"saturation {tr.saturation_fraction:.1%}",
             f"  impacts (MuJoCo - plan): {_impacts_text(tr.impacts)}",
         ]
         if self.windows is not None:

@@ -118,6 +118,26 @@ def test_the_deepest_penetration_is_the_lowest_gap_over_the_nodes():
     assert r.summary()["forces_outside_friction_cone"] == []  # resting on one no-slip point: no tangential force
 
 
+def test_a_task_without_contacts_is_implicit_euler_free_flight():
+    """contacts = [] simulates a free flight (it crashed in the penetration record, argmin of no gaps): the states
+    are implicit Euler's exact recursion v+ = v - g h, q+ = q + h v+ (z_N = z_0 - g h^2 N (N + 1) / 2, x at the
+    constant 1 m/s), no impacts, penetration 0 at no point, no force outside a cone; its MuJoCo validation report
+    lists no feet."""
+    N, h = 10, 0.05
+    flight = simulate(robot(), parse_task({"contacts": [], "initial": {"q": [0.0, 1.0], "v": [1.0, 0.0]},
+                                           "horizon": {"tau_f": N * h, "N": N}}), dynamics=dynamics())
+    tr = flight.trajectory
+    assert flight.stats.converged and tr.impacts == ()
+    np.testing.assert_allclose(tr.q[-1], [N * h, 1.0 - G * h**2 * N * (N + 1) / 2], atol=SOLVER_TOL)
+    assert flight.extra["penetration"] == {"max_m": 0.0, "point": None, "t": None}
+    assert flight.extra["forces_outside_friction_cone"] == []
+    from planner.replay import validate_plan
+
+    report = validate_plan(robot(), parse_task({"contacts": [], "initial": {"q": [0.0, 1.0], "v": [1.0, 0.0]},
+                                               "horizon": {"tau_f": N * h, "N": N}}), tr).report()
+    assert "feet max" not in report and "saturation" in report  # no contact points, no "feet max ;"
+
+
 def test_contact_force_balances_gravity_after_the_drop():
     """The recorded persistent-contact force (Trajectory.contact_force, written as lambda_n, lambda_t
     for the force plot): 0 in flight, and once the no-slip mass (1 kg) rests on the table the normal
