@@ -3,11 +3,13 @@ run_main, which runs a main() as a command the way `planner` runs its own (a bad
 script_parser, the argument parser that reports a usage error the same way."""
 from __future__ import annotations
 
+import argparse
+import errno
 import json
 import sys
 from pathlib import Path
 
-from planner.cli import UsageParser
+from planner.cli import PATH_ERRNOS, UsageParser, prepare_out_dir
 from planner.errors import PlannerError
 from planner.result import write_atomically
 
@@ -19,6 +21,23 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
     write_atomically(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     print(json.dumps(results if printed is None else printed, indent=1, default=str) if as_json else table)
     return 0
+
+
+def out_dir(text: str) -> Path:
+    """An --out argument: refused at once, as `planner` refuses it, when empty (an unset shell variable: results.json
+    went to the working directory) or when no directory can be made there (a file, an unwritable place; found only
+    after the whole run before)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path is not allowed (an unset shell variable?)")
+    try:
+        return prepare_out_dir(Path(text))
+    except PlannerError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def save_figure(fig, path: Path, dpi: int) -> None:
+    """fig as a PNG at path, atomically: an earlier plot stays whole until the new one is (a Ctrl-C mid-write)."""
+    write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=dpi))
 
 
 def script_parser(doc: str, **kwargs) -> UsageParser:
@@ -51,6 +70,10 @@ def run_main(main) -> int:
     except PlannerError as exc:
         print(f"{Path(sys.argv[0]).stem}: error: {exc}", file=sys.stderr)
         return 2
-    except (FileExistsError, NotADirectoryError, PermissionError) as exc:  # e.g. --out naming a file
-        print(f"{Path(sys.argv[0]).stem}: error: cannot use {exc.filename}: {exc.strerror}", file=sys.stderr)
-        return 2
+    except OSError as exc:  # e.g. --out in /proc: what the checks before the run cannot see
+        name = Path(sys.argv[0]).stem
+        if exc.errno in PATH_ERRNOS | {errno.EEXIST, errno.EPERM} and exc.filename:  # a path refused: the user's input
+            print(f"{name}: error: cannot use {exc.filename}: {exc.strerror}", file=sys.stderr)
+            return 2
+        print(f"{name}: failed: {exc.strerror or exc}" + (f": {exc.filename}" if exc.filename else ""), file=sys.stderr)
+        return 1

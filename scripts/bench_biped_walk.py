@@ -24,7 +24,8 @@ import sys
 from pathlib import Path
 
 from planner.errors import InputError
-from scripts._report import planner_command, report, run_main, script_parser
+from planner.result import write_atomically
+from scripts._report import out_dir, planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -54,7 +55,7 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     run_dir = out / (f"lower_{lower}" + ("" if step == DEFAULT_STEP else f"_step_{step}"))
     run_dir.mkdir(parents=True, exist_ok=True)
     task = run_dir / "task.toml"
-    task.write_text(task_text(lower, step))
+    write_atomically(task, task_text(lower, step))
     shutil.rmtree(run_dir / "plan", ignore_errors=True)  # an earlier run's summary.json would be read as this run's
     argv = ["plan", "biped", "--task", str(task), "--out", str(run_dir / "plan"), "-q"]
     code = planner_command(argv + (["--steps", "6", "--no-validate"] if quick else []))
@@ -66,7 +67,8 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     walk = v.get("walking") or {}
-    return {"lower_rad_s": lower, "step_m": step, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
+    # the bound a number in the JSON (None: removed), not its command-line text
+    return {"lower_rad_s": None if lower == "none" else float(lower), "step_m": step, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
             "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
             "physical_period_s": s["physical_duration_s"], "impact_times_s": [i["time"] for i in s["impacts"]],
             "walk_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
@@ -83,7 +85,7 @@ def table(rows: list[dict]) -> str:
         if not r["converged"]:
             walk = "(not converged) " + walk
         impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
-        lines.append(f"| {r['lower_rad_s']} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+        lines.append(f"| {'none' if r['lower_rad_s'] is None else format(r['lower_rad_s'], 'g')} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
                      f"{r['control_cost']:.2f} | {impacts} / {r['physical_period_s']:.3f} | {walk} |")
     return "\n".join(lines)
 
@@ -94,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
     parser.add_argument("--step", type=float, nargs="+", default=[DEFAULT_STEP],
                         help=f"step lengths [m], each with every bound (default {DEFAULT_STEP}: the task's)")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biped_walk")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "biped_walk")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)

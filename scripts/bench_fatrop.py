@@ -109,18 +109,23 @@ def main(argv=None) -> int:
     ap.add_argument("--case", choices=["capler", "hop"], default="capler", help="robots/capler.toml (tau_f 2.5 s, N steps) or the point-mass hop")
     ap.add_argument("--penalty", choices=["linf", "l1"], default="linf", help="ProblemOptions.penalty (l1: no slack s_c, no penalty rows)")
     ap.add_argument("--max-iter", type=int, nargs="+", default=[150])
-    ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution")
+    ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution (max_iter 3000)")
     ap.add_argument("--fatrop-opt", nargs="*", default=[], help="key=value FATROP options (numbers parsed)")
     ap.add_argument("--ipopt-opt", nargs="*", default=[], help="key=value IPOPT options for ipopt and ipopt_staged (numbers parsed)")
     ap.add_argument("--solvers", nargs="+", choices=["ipopt", "fatrop", "ipopt_staged"], default=["ipopt", "fatrop"])
     ap.add_argument("--verbose", action="store_true")
-    ap.add_argument("--convexify", default=None, help="FATROP: CasADi's convexify_strategy of the Hessian blocks (regularize, eigen-reflect, eigen-clip)")
+    ap.add_argument("--convexify", default=None, choices=["regularize", "eigen-reflect", "eigen-clip"],
+                    help="FATROP: CasADi's convexify_strategy of the Hessian blocks")
     ap.add_argument("--drop-free", action="store_true", help="FATROP: leave out the rows with both bounds infinite (NLP 1's soft terminal rows)")
     ap.add_argument("--scale", action="store_true", help="FATROP: IPOPT's gradient-based scaling (objective, rows) computed at x0")
     ap.add_argument("--out", default=None, help="write the JSON record to this file (FATROP prints its log to stdout)")
     a = ap.parse_args(argv)
-    if a.out is not None and not Path(a.out).parent.is_dir():  # found after the whole run before
-        ap.error(f"--out {a.out}: no directory {Path(a.out).parent}")
+    if a.out is not None:  # each found only after the whole run before, or (empty) nothing written at all
+        target = Path(a.out)
+        if not a.out.strip() or target.is_dir():
+            ap.error(f"--out {a.out!r} must name a file to write")
+        if not target.parent.is_dir() or not os.access(target.parent, os.W_OK | os.X_OK):
+            ap.error(f"--out {a.out}: no writable directory {target.parent}")
     robot, task = capler_case(a.N) if a.case == "capler" else hop_case(a.N)
     t0 = time.perf_counter()
     problem = build_problem(robot, task, ProblemOptions(penalty=Penalty(a.penalty)))
@@ -190,9 +195,11 @@ def main(argv=None) -> int:
                     out["runs"].append(rec2)
     except RuntimeError as exc:  # an option IPOPT or FATROP does not know (a traceback before)
         last = str(exc).strip().splitlines()[-1]
-        if "option" not in last.lower():
+        if "option" not in last.lower() and "type mismatch" not in last.lower():  # tol=abc: CasADi's type mismatch
             raise
-        raise InputError(f"{last.split(': ', 1)[-1]} (--ipopt-opt, --fatrop-opt)") from None
+        texts = [f"{k}={v}" for k, v in {**ip_extra, **fat_extra}.items() if isinstance(v, str)]
+        hint = f": a number expected? given as text: {', '.join(texts)}" if "type mismatch" in last and texts else ""
+        raise InputError(f"{last.split(': ', 1)[-1]} (--ipopt-opt, --fatrop-opt){hint}") from None
     out["load_after"] = os.getloadavg()
     if a.out:
         write_atomically(a.out, json.dumps(out, indent=1) + "\n")

@@ -47,7 +47,7 @@ from planner.cli import prepare_out_dir
 from planner.errors import interruptible
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
-from scripts._report import run_main, script_parser
+from scripts._report import out_dir, run_main, script_parser
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -486,7 +486,7 @@ def _nosnoc_version(nosnoc) -> str | None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = script_parser(__doc__)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="coarse grid (N = 25, no holes) for every solver")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--planner", action="store_true", help="also solve with our planner (its defaults and race, as planner plan) for the ratio")
@@ -524,14 +524,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"planner: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
         with contextlib.redirect_stdout(sys.stderr):
             records.append(run_planner(args.quick))
+    # --append combines records of the same settings only: a hint run at max_iter 1 was judged against a hint-free
+    # run at 4000 ("needed the hint: no")
+    settings = {"quick": args.quick, "n_fe": args.n_fe, "n_s": args.n_s, "a_t": args.a_t, "max_iter": args.max_iter}
     for rec in records:
         rec["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         rec["load_average_after"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
-    previous_machines = []
+        rec["settings"] = settings
+    previous_machines, kept = [], []
     if args.append and (args.out / "results.json").is_file():
         old = json.loads((args.out / "results.json").read_text())
         redone = {(r["solver"], r["variant"]) for r in records}
-        kept = [r for r in old.get("records", []) if (r["solver"], r["variant"]) not in redone and r["N"] == task.N]
+        kept = [r for r in old.get("records", []) if (r["solver"], r["variant"]) not in redone and r["N"] == task.N
+                and r.get("settings") == settings]
         records = kept + records
         previous_machines = old.get("previous_machines", []) + [{**(old.get("machine") or {}), "command": old.get("command")}]
     ratio = None
@@ -558,7 +563,7 @@ def main(argv: list[str] | None = None) -> int:
     if arrays:
         write_atomically(args.out / "trajectories.npz", lambda f: np.savez(f, **arrays))
     write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
-    text = table(records)
+    text = table(records) + "".join(f"\n{r['solver']} {r['variant']}: kept from the run of {r['date']}" for r in kept)
     if ratio is not None:
         text += f"\nwall time nosnoc (hint-free) / planner = {ratio:.2f}"
     if needs_hint is not None:

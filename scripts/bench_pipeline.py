@@ -65,7 +65,7 @@ from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, save_figure, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -167,7 +167,7 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
         return {"so": None, "skipped": "gcc not found on PATH: the codegen variant needs a C compiler (apt-get install gcc)"}
     cache.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    c_file = cache / "nlp_tmp.c"
+    c_file = cache / f"nlp_tmp_{os.getpid()}.c"  # one name per process: two runs in one directory wrote the same file
     solver.generate_dependencies(c_file.name, {"with_header": False})  # CasADi writes into the cwd
     Path(c_file.name).replace(c_file)
     generate_s = time.perf_counter() - t0
@@ -178,7 +178,12 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
     if not so.exists():
         t0 = time.perf_counter()
         tmp = so.with_suffix(f".{os.getpid()}.so")
-        subprocess.run([gcc, "-fPIC", "-shared", *flags, str(c_file), "-o", str(tmp)], check=True)
+        compiled = subprocess.run([gcc, "-fPIC", "-shared", *flags, str(c_file), "-o", str(tmp)], capture_output=True, text=True)
+        if compiled.returncode != 0:
+            c_file.unlink()
+            tmp.unlink(missing_ok=True)
+            last = (compiled.stderr.strip().splitlines() or ["(no message)"])[-1]
+            raise InputError(f"gcc refused --codegen-flags {' '.join(flags)}: {last}")
         tmp.replace(so)  # atomic: a concurrent run never loads a half-written library
         out["compile_s"] = time.perf_counter() - t0
     c_file.unlink()
@@ -340,12 +345,12 @@ def plot(records, path: Path) -> None:
     ax.set_xlabel(f"CPU time per IPOPT iteration [ms] (NLP {records[0]['nlp']}, fixed iterations)")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6, 10 iterations, 1 repeat")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES) + ["capler_set"],
                         help=f"default: capler50, capler125, hop (--quick: hop); capler_set: {', '.join(CAPLER_SET)}")
@@ -353,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iters", type=int, help="IPOPT iterations of the fixed run (default 150, --quick 10)")
     parser.add_argument("--repeats", type=int, help="interleaved repeats, the median is reported (default 3, --quick 1)")
     parser.add_argument("--codegen", action="store_true", help="also the generated-and-compiled NLP functions (gcc; minutes for Capler)")
-    parser.add_argument("--codegen-flags", nargs="+", default=["-O1"], help="gcc flags of --codegen (default -O1)")
+    parser.add_argument("--codegen-flags", type=str.split, default=["-O1"], metavar="'FLAGS'",
+                        help="gcc flags of --codegen in one argument (default -O1), e.g. --codegen-flags='-O2 -march=native'")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
     parser.add_argument("--full-only", action="store_true", help="only the end-to-end solve (no fixed-iteration runs)")
@@ -411,6 +417,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if any(r["variants"] for r in records):
         plot(records, args.out / "pipeline.png")
+    else:  # an earlier run's plot would sit beside these results as theirs
+        (args.out / "pipeline.png").unlink(missing_ok=True)
     return report(args.out, results, table(records), args.json)
 
 

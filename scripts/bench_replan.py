@@ -28,8 +28,8 @@ import time
 from pathlib import Path
 
 from planner.errors import InputError
-from planner.result import read_trajectory
-from scripts._report import planner_command, report, run_main, script_parser
+from planner.result import read_trajectory, write_atomically
+from scripts._report import out_dir, planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the replans to run per value (default replan: --penalty-replan, and keep_schedule: --init's "
                              "default; new_impacts: --allow-new-impacts)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "replan")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "replan")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
@@ -124,11 +124,17 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError(f"no default task robots/{args.robot}.toml; robots with one: {', '.join(known)}")
         robot, values, base_text = args.robot, args.values, task_file.read_text()
     moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
+    runs = {(value, variant): args.out / f"{variant}_{value:g}" for value in values for variant in args.variants}
     if args.init is not None:
         read_trajectory(args.init, ("nlp_x",))  # a start that is no plan fails here, not in every replan (each a refused row)
+        init = args.init.resolve()
+        for replaced in runs.values():  # plan() empties each run's directory first: it deleted such a start
+            if replaced.resolve() == init or replaced.resolve() in init.parents:
+                raise InputError(f"--init {args.init} lies in {replaced}, which this run replaces; copy it elsewhere "
+                                 "or give another --out")
     args.out.mkdir(parents=True, exist_ok=True)
     base_task = args.out / "base.toml"
-    base_task.write_text(base_text)
+    write_atomically(base_task, base_text)
     start = args.init
     if start is None:
         start = args.out / "base"
@@ -137,9 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for value in values:
         task = args.out / f"task_{value:g}.toml"
-        task.write_text(moved_task(base_text, value))
+        write_atomically(task, moved_task(base_text, value))
         for variant in args.variants:
-            run = plan(robot, task, args.out / f"{variant}_{value:g}", ["--init", str(start), *VARIANTS[variant]], args.validate)
+            run = plan(robot, task, runs[value, variant], ["--init", str(start), *VARIANTS[variant]], args.validate)
             rows.append({"value": value, "variant": variant, **run})
     return report(args.out, {"robot": robot, "start": str(start), "quick": args.quick, "runs": rows}, table(rows), args.json, printed=rows)
 

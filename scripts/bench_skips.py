@@ -40,7 +40,7 @@ from planner.homotopy import solve
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
 from planner.task import load_task, parse_task
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 
 DEFAULT_OUT = Path("results/bench/skips")
 GRID_POINTS = 401  # common physical-time grid of the q comparison
@@ -149,7 +149,7 @@ def table(records) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, short horizons")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), help="run only these cases (default: all)")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")

@@ -73,7 +73,7 @@ from planner.problem import build_problem
 from planner.result import write_atomically
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
-from scripts._report import run_main, script_parser
+from scripts._report import out_dir, run_main, save_figure, script_parser
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
@@ -369,7 +369,7 @@ DEFECT_TAU_MARGIN = 1.25
 CAPLER_NS = (40, 50, 75, 100)
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
 # the errors whose slope against h is reported (the others are the plan's optimum, not the grid's)
-OCP_ORDER_KEYS = ("defect_base_m", "defect_points_m", "flight_error_m", "landing_time_error_s")
+OCP_ORDER_KEYS = ("defect_base_m", "defect_points_m", "flight_error_m", "landing_time_error_s", "tracking_window_mean_m")
 
 
 @dataclass(frozen=True)
@@ -766,7 +766,7 @@ def plot(records: list[dict], path: Path, panels=PANELS) -> None:
     right = 1 - 0.23 * 2 / len(panels)  # the legend column keeps its width
     fig.legend(handles + h_handles, labels + [f"h = {h:g} s" for h in hs], loc="center left", bbox_to_anchor=(right + 0.005, 0.5), fontsize=7)
     fig.subplots_adjust(left=0.06 * 2 / len(panels), right=right, wspace=0.22)
-    fig.savefig(path, dpi=80)
+    save_figure(fig, path, dpi=80)
 
 
 def table(records: list[dict]) -> str:
@@ -812,7 +812,7 @@ def _strict(obj):
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--out", type=Path, help=f"output directory (default {DEFAULT_OUT}, suite ocp: {DEFAULT_OUT_OCP})")
+    parser.add_argument("--out", type=out_dir, help=f"output directory (default {DEFAULT_OUT}, suite ocp: {DEFAULT_OUT_OCP})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons (ocp: the point mass only)")
     parser.add_argument("--json", action="store_true", help="print the summary (orders, machine, files) as JSON")
     parser.add_argument("--suite", choices=sorted(SUITES), default="simulate")
@@ -858,7 +858,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(_strict(summary), indent=1))
     else:
         print(table(records) if args.suite == "simulate" else ocp_table(records))
-        print("\nconvergence orders (slope of log error vs log h):")
+        if orders:  # one grid has no slope
+            print("\nconvergence orders (slope of log error vs log h):")
         for o in orders:
             print(f"  {o['case']:<22} {o['variant']:<10} {o['error']:<26} {o['order']:5.2f}")
     return 0

@@ -24,7 +24,7 @@ from planner import homotopy as H
 from planner.problem import build_problem
 from planner.race import default_arms
 from scripts.bench_pipeline import CASES
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "early_stop"
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--at", nargs="+", default=["2:300,600,900", "3:200,400,600,700"], metavar="K:J1,J2",
                         help="NLP K capped at iterations J1, J2, ... (default 2:300,600,900 3:200,400,600,700)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6, NLP 2 at 5 iterations")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     try:

@@ -46,7 +46,7 @@ from planner.contact import plane_axes
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from planner.result import read_summary
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 from scripts.probe_replay import plan_problem
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -144,7 +144,7 @@ def table(rec: dict) -> str:
              "| time [s] | point | impulse n, t [N s] | v_n before -> after | v_t before -> after | KE before -> after | steps (R, motors, gravity, auxiliary, rest) |",
              "|---|---|---|---|---|---|---|"]
     for r in rec["impacts"]:
-        steps = "; ".join(f"{s['step']}: R {s['clock_rate']:.2f}, {s['motors']:+.2f}, {s['gravity']:+.2f}, "
+        steps = "; ".join(f"{s['step']}: R {round(s['clock_rate'], 2) + 0.0:.2f}, {s['motors']:+.2f}, {s['gravity']:+.2f}, "
                           f"{s['auxiliary']:+.2f}, {s['rest']:+.2f}" for s in r["steps"])
         (n0, n1), (t0, t1), (e0, e1) = r["normal_velocity"], r["tangential_velocity"], r["kinetic_energy"]
         lines.append(f"| {r['time']:.4f}{' (tap)' if r['tap'] else ''} | {r['contact']} | {r['impulse']:.3f}, "
@@ -156,7 +156,7 @@ def table(rec: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("plan_dir", type=Path, nargs="?", help="a plan's result directory")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"where results.json goes (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"where results.json goes (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print the records as JSON instead of the table")
     parser.add_argument("--plan", nargs=argparse.REMAINDER, metavar="ARGS",
                         help="run `planner plan ARGS` with the secant impulses instead (last option)")

@@ -32,7 +32,7 @@ import numpy as np
 
 from planner import replay as R
 from planner.result import check_same_result, read_robot, read_summary, read_task, read_trajectory
-from scripts._report import planner_command, report, run_main, script_parser
+from scripts._report import out_dir, planner_command, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=20, help="MuJoCo steps between linearizations (default 20: 5 ms)")
     parser.add_argument("--gap-tol", type=float, default=1e-6, help="gap below which a plan sample is in stance [m] (default 1e-6)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop planned here, N = 10")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     if args.every < 1:

@@ -42,7 +42,7 @@ from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -286,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--N", type=int, default=125, help="time-freezing steps over the task's tau_f (default the task's 125)")
     parser.add_argument("--max-iter", type=int, default=3000, help="IPOPT iterations of the hop OCP")
     parser.add_argument("--no-solve", action="store_true", help="stop after the start")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_multiphase")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_multiphase")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 10, one landing, 3 nodes per phase, no solve")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)

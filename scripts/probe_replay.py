@@ -34,7 +34,7 @@ from planner.problem import build_problem
 from planner.result import check_same_result, read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                         "homotopy or the held-schedule replan")
     parser.add_argument("--family", type=int, metavar="K", help="also solve step K with its clock advance fixed at "
                         f"{FAMILY_POINTS} values in [0, h], from the plan's and from the rollout's state there")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "probe_replay")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_replay")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
     if args.plan_first and args.liftoff_first:

@@ -26,7 +26,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, ipopt_options
 from planner.problem import ProblemOptions, build_problem
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
-from scripts._report import report, run_main, script_parser
+from scripts._report import out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-lift", action="store_true", help="ProblemOptions.lift_products = False")
     parser.add_argument("--top", type=int, default=10, help="variables and rows listed per NLP (default 10)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     case = "hop" if args.quick else args.case

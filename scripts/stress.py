@@ -47,7 +47,7 @@ import numpy as np
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
-from scripts._report import run_main, script_parser
+from scripts._report import out_dir, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -323,7 +323,7 @@ def generate(seed: int, families=None, per_family: int = 2, robot: str = "capler
     """The task list of a seed: per_family tasks of each family, each a JSON-able spec with its task
     dict. Deterministic: a family's tasks depend only on (seed, family name, index), not on which other
     families are run."""
-    families = list(families or FAMILIES)
+    families = list(dict.fromkeys(families or FAMILIES))  # a family named twice ran twice under the same ids
     unknown = [f for f in families if f not in FAMILIES]
     if unknown:
         raise InputError(f"unknown famil{'y' if len(unknown) == 1 else 'ies'} {', '.join(unknown)}; valid: {', '.join(FAMILIES)}")
@@ -607,7 +607,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scheduler", help="address of a Dask distributed scheduler (default: local processes)")
     parser.add_argument("--workers", type=int,
                         help="local worker processes (default: cpu count, with --race half of it; 0 = in this process)")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--list", action="store_true", help="print the generated tasks (JSON lines) and exit")
     args = parser.parse_args(argv)

@@ -172,13 +172,15 @@ def stress():
 
 def test_stress_generator_is_seeded(stress):
     """A seed gives the same task list every time, a family's tasks do not depend on the other families
-    run, another seed gives other tasks, and every generated task is a valid task for its robot."""
+    run (nor on a family named twice: it ran twice under the same ids), another seed gives other tasks, and every
+    generated task is a valid task for its robot."""
     from planner.task import parse_task
 
     a = stress.generate(3, per_family=2, robot="point_mass", N=20)
     assert a == stress.generate(3, per_family=2, robot="point_mass", N=20)
     assert [s["id"] for s in a] == [f"{f}-{k:02d}" for f in stress.FAMILIES for k in range(2)]
     assert [s for s in a if s["family"] == "torque"] == stress.generate(3, ["torque"], 2, "point_mass", 20)
+    assert stress.generate(3, ["torque", "torque"], 2, "point_mass", 20) == stress.generate(3, ["torque"], 2, "point_mass", 20)
     assert a != stress.generate(4, per_family=2, robot="point_mass", N=20)
     json.dumps(a)  # plain data: results.json keeps each task
     for robot in ("point_mass", "capler"):
@@ -497,6 +499,29 @@ def test_bench_nosnoc_quick_run(bench_nosnoc, tmp_path, capsys):
     assert (tmp_path / "trajectories.npz").is_file()
 
 
+def test_bench_nosnoc_append_keeps_only_records_of_the_same_settings(bench_nosnoc, monkeypatch, tmp_path, capsys):
+    """--append keeps an earlier record only when it was run with the same settings (quick, n_fe, n_s, a_t, max_iter),
+    and the table says which records are kept and from when: a hint run at max_iter 1 was judged against a hint-free
+    run at 4000, "nosnoc needed the hint: no", silently."""
+    pytest.importorskip("nosnoc")
+
+    def fake(nosnoc, ca, task, variant, **settings):  # a record as run_nosnoc writes it, without the solve
+        return {"solver": "nosnoc", "variant": variant, "N": task.N, "holes": len(task.holes), "converged": variant == "hint",
+                "wall_time_s": 1.0}
+
+    monkeypatch.setattr(bench_nosnoc, "run_nosnoc", fake)
+    out = ["--quick", "--append", "--out", str(tmp_path)]
+    assert bench_nosnoc.main(["--variants", "hint-free"] + out) == 0
+    capsys.readouterr()
+    assert bench_nosnoc.main(["--variants", "hint", "--max-iter", "1"] + out) == 0
+    records = json.loads((tmp_path / "results.json").read_text())
+    assert [r["variant"] for r in records["records"]] == ["hint"] and records["nosnoc_needs_hint"] is None
+    assert "kept from" not in capsys.readouterr().out
+    assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "1"] + out) == 0  # the same settings: combined
+    printed = capsys.readouterr().out
+    assert "nosnoc hint: kept from the run of" in printed and "nosnoc needed the hint: yes" in printed
+
+
 def test_bench_nosnoc_planner_side_races_as_planner_plan_does(bench_nosnoc, monkeypatch):
     """--planner solves as `planner plan` does: the race of planner.race.default_arms (two CPUs assumed here),
     recorded with each arm's outcome, exactly one "won", on the quick task (N = 25, no holes)."""
@@ -740,7 +765,7 @@ def test_bench_biped_walk_quick_run(tmp_path, capsys):
     for key in ("lower_rad_s", "step_m", "exit_code", "converged", "ipopt_iterations", "solve_time_s", "control_cost",
                 "physical_period_s", "impact_times_s", "walk_passed", "steps_walked", "max_torque_Nm", "failures"):
         assert key in r, key
-    assert r["lower_rad_s"] == "0.3" and r["step_m"] == 0.25 and r["walk_passed"] is None  # --quick does not walk
+    assert r["lower_rad_s"] == 0.3 and r["step_m"] == 0.25 and r["walk_passed"] is None  # --quick does not walk
     default = tomllib.loads(bench.TASK.read_text())
     default["plan"].pop("velocity_bounds")
     for lower, expect in (("none", []), ("0.2", [0.2])):
@@ -768,7 +793,8 @@ def test_bench_replan_quick_run(tmp_path, capsys):
     """--quick --json: the hop's start plan, then one moved task replanned both ways, with the documented
     fields, as printed and as in results.json; the keep_schedule run's first NLP is "schedule" and the
     other's is not. moved_task changes only the periodic step or, without one, the target's first
-    coordinate; a task without either is refused before any solve. No timing assertions."""
+    coordinate; a task without either is refused before any solve, and so is an --init inside a directory the run
+    replaces. No timing assertions."""
     import tomllib
 
     bench = _load("bench_replan")
@@ -790,6 +816,10 @@ def test_bench_replan_quick_run(tmp_path, capsys):
     assert moved["plan"]["periodic"].pop("step") == 0.3 and walk["plan"]["periodic"].pop("step") == 0.25 and moved == walk
     with pytest.raises(InputError, match="exactly one 'target_q = ...' line"):
         bench.moved_task("[plan]\nu_bound = 1.0\n", 0.3)
+    start = tmp_path / "keep_schedule_0.52"  # a replan of this run as the next one's start: it was deleted
+    with pytest.raises(InputError, match="lies in .*keep_schedule_0.52, which this run replaces"):
+        bench.main(["--quick", "--init", str(start), "--out", str(tmp_path)])
+    assert (start / "trajectory.npz").is_file()
 
 
 def test_bench_biped_walk_does_not_read_an_earlier_runs_result(tmp_path, monkeypatch):
@@ -820,6 +850,27 @@ def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch)
 
 # --- scripts/_report.py: run_main ------------------------------------------------------------------------
 
+def test_run_main_turns_an_os_error_into_one_line(capsys):
+    """An OSError that no check before the run could see (--out under /proc: FileNotFoundError after the whole run,
+    a traceback before) is one line: exit 2 when the system refuses a path, exit 1 naming the cause otherwise (a full
+    disk)."""
+    import errno
+
+    from scripts._report import run_main
+
+    def refused():
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", "/proc/x/results.json")
+
+    def full():
+        raise OSError(errno.ENOSPC, "No space left on device", "/data/results.json")
+
+    assert run_main(refused) == 2
+    assert capsys.readouterr().err.endswith("error: cannot use /proc/x/results.json: No such file or directory\n")
+    assert run_main(full) == 1
+    err = capsys.readouterr().err
+    assert err.endswith("failed: No space left on device: /data/results.json\n") and len(err.splitlines()) == 1
+
+
 def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
     """A script run as a command turns a PlannerError (here: a missing result directory) into one line
     `SCRIPT: error: ...` on stderr and exit code 2, as planner's CLI does; every script's __main__ block goes through
@@ -848,7 +899,7 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.stress", "--robot", "point_mass", "--seed", "-1"], "stress: error: --seed must be >= 0"),  # numpy's traceback
     (["scripts.stress", "--robot", "point_mass", "--rho-schedule", "nan"], "SolveOptions.rho_schedule"),  # every task crashed
     (["scripts.bench_pipeline", "--quick", "--solve", '{"bogus": 1}'], "add --full or --full-only"),  # silently ignored
-    (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "bench_replan: error: cannot use"),
+    (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "is a file, not a directory"),
     (["scripts.bench_replan", "nosuch", "--values", "1"], "no default task robots/nosuch.toml"),  # a traceback
     (["scripts.bench_replan", "point_mass", "--values", "1"], "exactly one 'target_q = ...' line"),  # exit 1
     (["scripts.bench_replan", "biped", "--quick", "--values", "0.9"], "give no robot or --values with it"),  # dropped
@@ -859,6 +910,16 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     # an --out that is a file: refused after the whole run (70 s of nosnoc's solves)
     *[([f"scripts.{name}", "--quick", "--out", "{file}"], "is a file, not a directory")
       for name in ("bench_nosnoc", "bench_pipeline", "bench_skips", "bench_work_precision")],
+    # an empty --out (an unset shell variable): results.json was written into the working directory
+    *[([f"scripts.{name}", "--quick", "--out", ""], "an empty path is not allowed")
+      for name in ("bench_skips", "stress", "bench_replan")],
+    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--convexify", "bogus"], "invalid choice: 'bogus'"),  # RuntimeError
+    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--max-iter", "2", "--ipopt-opt", "tol=abc"],
+     "given as text: tol=abc"),  # CasADi's "type mismatch" traceback
+    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--out", "{dir}"], "must name a file to write"),  # after the run
+    pytest.param(["scripts.bench_pipeline", "--quick", "--codegen", "--codegen-flags=-Obogus", "--variants", "baseline",
+                  "--cache", "{dir}/cache"], "gcc refused --codegen-flags -Obogus",  # CalledProcessError
+                 marks=pytest.mark.skipif(shutil.which("gcc") is None, reason="the codegen variant needs gcc")),
 ])
 def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     """Inputs that a script used to record as every task's crash, ignore, or end in a traceback on (an --out that is
@@ -866,7 +927,8 @@ def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     precede it), no usage text, no traceback."""
     a_file = tmp_path / "a_file"
     a_file.write_text("")
-    argv = [a.replace("{file}", str(a_file)) for a in argv] + ([] if "--out" in argv else ["--out", str(tmp_path / "out")])
+    argv = ([a.replace("{file}", str(a_file)).replace("{dir}", str(tmp_path)) for a in argv]
+            + ([] if "--out" in argv or "bench_fatrop" in argv[0] else ["--out", str(tmp_path / "out")]))
     proc = subprocess.run([sys.executable, "-m", *argv], cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
     err = proc.stderr.strip()
     assert proc.returncode == 2 and fragment in err.splitlines()[-1] and "usage:" not in err and "Traceback" not in err, err
@@ -1285,7 +1347,7 @@ def test_bench_fatrop_smoke_run_and_its_input_errors(tmp_path, capsys):
     assert [r["solver"] for r in record["runs"]] == ["ipopt", "fatrop"] and record["staged_nx"] > record["nx"]
     assert "| fatrop | 1 | 3 |" in capsys.readouterr().out
     base = ["--case", "hop", "--N", "6", "--max-iter", "3"]
-    for bad, message in ((["--solvers", "nope"], "invalid choice: 'nope'"), (["--out", str(tmp_path / "missing" / "x.json")], "no directory")):
+    for bad, message in ((["--solvers", "nope"], "invalid choice: 'nope'"), (["--out", str(tmp_path / "missing" / "x.json")], "no writable directory")):
         with pytest.raises(SystemExit) as stopped:
             bench.main(base + bad)
         assert stopped.value.code == 2 and message in capsys.readouterr().err
