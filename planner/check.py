@@ -21,7 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import Dynamics
-from .errors import InputError, RobotFileError
+from .errors import InputError, RobotFileError, shown
 from .model import Robot, mujoco_failure, mujoco_spec
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
@@ -141,6 +141,11 @@ def random_state(model: pin.Model, rng: np.random.Generator) -> tuple[np.ndarray
     return pin.normalize(model, q), rng.uniform(-1.0, 1.0, model.nv)
 
 
+# Random states per check: 1e5 take minutes; 1e20 were drawn into one list and filled 21.5 GB before the first
+# comparison.
+MAX_SAMPLES = 100_000
+
+
 def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | None = None) -> ModelCheck:
     """Compare the CasADi dynamics with Pinocchio and MuJoCo at `samples` random states.
 
@@ -150,8 +155,8 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     def integer(value) -> bool:  # not a bool, a float or nan (nan < 1 is False: it slipped through)
         return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
-    if not integer(samples) or samples < 1:
-        raise InputError(f"samples must be a positive integer, got {samples!r}")
+    if not integer(samples) or not 1 <= samples <= MAX_SAMPLES:
+        raise InputError(f"samples must be an integer in [1, {MAX_SAMPLES}], got {shown(samples)}")
     if not integer(seed) or seed < 0:  # numpy's generators take seeds >= 0 only
         raise InputError(f"seed must be an integer >= 0, got {seed!r}")
     if not robot.points:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import json
 import multiprocessing
 import os
@@ -18,11 +17,11 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import InputError, PlannerError
+from .errors import PATH_ERRNOS, InputError, PlannerError, shown
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
-# OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be): exit 2
-PATH_ERRNOS = {errno.ENAMETOOLONG, errno.ELOOP, errno.ENOTDIR, errno.ENOENT, errno.EISDIR, errno.EACCES, errno.EROFS}
+# the commands that exit 1 when their check or solve fails (view has no such verdict)
+EXIT_1_COMMANDS = frozenset({"check-model", "simulate", "plan", "gait", "validate"})
 EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
 # `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
 # point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
@@ -52,13 +51,17 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
     if out:
         p.add_argument("--out", type=_path, help="directory that receives the results (default results/ROBOT-COMMAND, "
                        "e.g. results/capler-plan)")
+    racing = p.prog.endswith(" plan")  # what only plan does (a race, a validation) is said in plan's help only
     if plots:
         p.add_argument("--no-plots", action="store_true",
-                       help="write no PNG plots (they take ~1.5 s; a validating plan draws them while MuJoCo replays; `planner view` still works)")
+                       help="write no PNG plots (they take ~1.5 s" + ("; a validating plan draws them while MuJoCo replays"
+                                                                   if racing else "") + "; `planner view` still works)")
     verbosity = p.add_mutually_exclusive_group()
     if verbose:  # only the commands that run IPOPT have more to show
-        verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output (a racing `planner plan`: each line starts with its arm's name, [default] or [alternate])")
-    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors, a one-line failure notice (exit 1) and --json")
+        verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output" + (
+            " (a racing plan: each line starts with its arm's name, [default] or [alternate])" if racing else ""))
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors" + (
+        ", a one-line failure notice (exit 1)" if p.prog.split()[-1] in EXIT_1_COMMANDS else "") + " and --json")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -241,11 +244,11 @@ def _emit(args, summary: dict, text: str) -> None:
 
 
 def _cmd_check_model(args) -> int:
-    from .check import check_model
+    from .check import MAX_SAMPLES, check_model
     from .model import load_robot
 
-    if args.samples < 1:
-        raise InputError(f"--samples must be >= 1, got {args.samples}")
+    if not 1 <= args.samples <= MAX_SAMPLES:
+        raise InputError(f"--samples must be in [1, {MAX_SAMPLES}], got {shown(args.samples)}")
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
     result = check_model(load_robot(args.robot, floating=args.floating), samples=args.samples, seed=args.seed)
@@ -531,8 +534,9 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
 
     summary = read_summary(start, require=())
     check_same_result(start, summary, arrays)
-    if summary.get("converged") is False:
-        raise InputError(f"{start} holds a plan that did not converge (summary.json): a replan starts from a converged plan")
+    if summary.get("converged") is not True:  # "no" (an edited file) passed as converged
+        raise InputError(f"{start} holds a plan that did not converge (summary.json's converged is "
+                         f"{shown(summary.get('converged'))}): a replan starts from a converged plan")
     if check_robot_unchanged(summary, robot, start):
         return
     named = summary.get("robot")
@@ -619,8 +623,13 @@ def _cmd_view(args) -> int:
 def prepare_out_dir(path: Path) -> Path:
     """Check that the output directory can be used, or say in one line why not. It is created when the results are
     written (result.write_files), so a later input error leaves no empty directory behind."""
+    if path.is_symlink() and not path.exists():  # a loop or a dangling link: "File exists" after the whole solve
+        raise InputError(f"--out {path} is a symbolic link to nothing (dangling or a loop)")
     if path.exists() and not path.is_dir():
         raise InputError(f"--out {path} is a file, not a directory")
+    failed = path / "failed"  # where a failed solve writes its diagnostics: refused then, they were lost
+    if failed.exists() and not failed.is_dir() or failed.is_symlink() and not failed.exists():
+        raise InputError(f"--out {path}: {failed} is not a directory, and a failed solve writes there")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
     if not existing.is_dir():
         raise InputError(f"cannot create output directory {path}: {existing} is a file")

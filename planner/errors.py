@@ -6,11 +6,25 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import signal
 import sys
 import threading
 from collections.abc import Iterable
 from dataclasses import fields
+
+
+# OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be, no
+# permission, a read-only or immutable file): the user's to fix, exit 2; the others (a full disk, an I/O error) exit 1
+PATH_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.ENOTDIR, errno.ENOENT, errno.EISDIR, errno.EACCES,
+                         errno.EROFS, errno.EPERM, errno.EEXIST})
+
+
+def write_error(path, exc: OSError) -> PlannerError:
+    """The error to raise for an OSError writing `path`: an InputError when the path is refused (PATH_ERRNOS), else a
+    PlannerError (exit 1: a full disk is not the user's input)."""
+    kind = InputError if exc.errno in PATH_ERRNOS else PlannerError
+    return kind(f"cannot write {path}: {exc.strerror or exc}")
 
 
 class PlannerError(Exception):

@@ -166,7 +166,7 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
                 return candidate
         known = sorted({p.stem for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")})
         raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}")
-    raise RobotFileError(f"robot file not found: {path}")
+    raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}")
 
 
 def detect_format(path: Path) -> RobotFormat:
@@ -421,9 +421,15 @@ def _parser_message(exc: Exception) -> str:
 def _quiet():
     """Pinocchio's parsers print warnings on stdout and, from C++, on the stderr file descriptor;
     keep the CLI's output clean (--json on stdout, one error line on stderr)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = os.dup(2)
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:  # None when the shell closed it (`>&-`): that was read as a robot file Pinocchio cannot parse
+            stream.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # descriptor 2 closed (`2>&-`): nothing there to keep clean
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
+        return
     try:
         with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(io.StringIO()):
             os.dup2(devnull.fileno(), 2)

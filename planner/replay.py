@@ -1072,8 +1072,9 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     """
     for key in ("window_s", "window_stride_s"):  # shorter, a window ran one sample and was reported at its asked length
         _check(getattr(options, key) >= ref.dt, key, getattr(options, key), f">= the replay's sample step {ref.dt:g} s")
-    per = max(1, int(round(options.window_s / ref.dt)))
-    stride = max(1, int(round(options.window_stride_s / ref.dt)))
+    span = (ref.steps + 1) * ref.dt  # a window or stride beyond the plan is the plan (1e308 s overflowed int())
+    per = max(1, int(round(min(options.window_s, span) / ref.dt)))
+    stride = max(1, int(round(min(options.window_stride_s, span) / ref.dt)))
     starts, errors, onsets, diverged = [], [], [], False
     base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
     for first in range(0, max(1, ref.steps - per // 2), stride):

@@ -16,6 +16,7 @@ ipopt_iterations, complementarity_residual, terminal_error, physical_duration_s,
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect
+from .errors import InputError, expect, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -668,6 +669,20 @@ def _json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
+def _keep(path: Path) -> tuple[bool, str | None]:
+    """Whether path holds a file, and a hard link to it under a temp name beside it (None: no file there, or links
+    not possible)."""
+    if not path.is_file():
+        return False, None
+    link = f"{path.parent}/.{path.name}.{os.getpid()}.{threading.get_ident()}.kept"
+    try:
+        Path(link).unlink(missing_ok=True)
+        os.link(path, link)
+    except OSError:  # a file system without hard links, an immutable file: no rollback for this one
+        return True, None
+    return True, link
+
+
 def write_atomically(path: str | os.PathLike, write) -> None:
     """Write path through a temp file in the same directory, then os.replace: readers never see half a
     file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
@@ -686,7 +701,7 @@ def _stage(path: str | os.PathLike, write) -> str:
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror}") from None
+        raise write_error(path, exc) from None
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -696,13 +711,15 @@ def _stage(path: str | os.PathLike, write) -> str:
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
-            raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+            raise write_error(path, exc) from None
         raise
     return tmp
 
 
 def _replace(staged: list[tuple[str, Path]]) -> None:
-    """Rename each staged temp file to its path; on an error the temp files not yet renamed are removed. Ctrl-C and
+    """Rename each staged temp file to its path; on an error the files already renamed are rolled back to the earlier
+    ones (kept as hard links until all are renamed: a summary.json that could not be replaced had left the new
+    trajectory.npz beside the old summary) and the temp files not yet renamed are removed. Ctrl-C and
     SIGTERM wait until all are renamed (in the main thread): between two renames they left files of two results.
     They are held by handlers that note them, then raised again: a signal mask held only the main thread, so with
     another thread in the process (a test suite's leftovers, a server) the kernel gave the signal to that one and
@@ -715,15 +732,27 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
     swapped = [sig for sig, handler in previous.items() if handler is not signal.SIG_IGN and handler is not None]
     for sig in swapped:
         signal.signal(sig, lambda signum, frame: arrived.append(signum))
+    kept: dict[Path, tuple[bool, str | None]] = {}  # path -> (it held a file, a hard link to that file)
     try:
         for i, (tmp, path) in enumerate(staged):
             try:
+                kept[path] = _keep(path) if len(staged) > 1 else (False, None)
                 os.replace(tmp, path)
             except OSError as exc:
                 for left, _ in staged[i:]:
                     Path(left).unlink(missing_ok=True)
-                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+                for _, done in staged[:i]:
+                    existed, link = kept.pop(done)
+                    with contextlib.suppress(OSError):  # the error to report is the one above
+                        if link is not None:
+                            os.replace(link, done)
+                        elif not existed:  # there was none: the new one goes too
+                            done.unlink()
+                raise write_error(path, exc) from None
     finally:
+        for _, link in kept.values():
+            if link is not None:
+                Path(link).unlink(missing_ok=True)
         for sig in swapped:
             signal.signal(sig, previous[sig])
         for sig in dict.fromkeys(arrived):
@@ -745,6 +774,8 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
         raise InputError(f"{path} is not valid JSON: {exc}") from None
     except RecursionError:
         raise InputError(f"{path} is nested too deeply to be a result's summary") from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise InputError(f"{path} cannot be read as a result's summary: {exc}") from None
     if not isinstance(summary, dict):
         raise InputError(f"{path} must hold a JSON object, got {type(summary).__name__}")
     for key in require:

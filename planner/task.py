@@ -524,9 +524,9 @@ def load_task(path: str | Path) -> Task:
     expect(path, (str, os.PathLike), "load_task's path")
     path = Path(path)
     if not path.is_file():
-        raise TaskError(f"task file not found: {path}")
+        raise TaskError(f"task file {path} is a directory" if path.is_dir() else f"task file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (some editors) is not TOML
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's limit on reading one
@@ -535,7 +535,11 @@ def load_task(path: str | Path) -> Task:
         raise TaskError(f"{path}: nested too deeply to be a task") from None
     except OSError as exc:
         raise TaskError(f"cannot read task file {path}: {exc.strerror}") from None
-    return parse_task(data, source=str(path))
+    try:
+        return parse_task(data, source=str(path))
+    except TaskError as exc:  # "missing key 'contacts'" named no file
+        exc.args = (f"{path}: {exc}",)
+        raise
 
 
 def parse_task(data: dict, source: str = "") -> Task:

@@ -165,6 +165,9 @@ def load_result(out_dir) -> Result:
         raise InputError(f"{summary_path}: impacts must be a list of objects with a numeric time")
 
     a = arrays
+    for key in ("t", "tau"):  # a 0-d array had no shape[0]: an IndexError
+        if a[key].ndim != 1:
+            raise InputError(f"{npz_path}: {key} must be a 1-D array, got shape {a[key].shape}")
     P = a["t"].shape[0]
     checks = [
         (a["tau"].ndim == 1, "tau must be (K,)"),
@@ -537,6 +540,9 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
+    if (html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm")
+            and html_path.resolve().parent == Path(out_dir).resolve()):  # `--html DIR/summary.json` replaced the result's own file
+        raise InputError(f"--html {html_path} would overwrite a file of the result it shows; name an .html file")
     vis = _visualizer(_Recorder())
     overlay = _draw(vis, load_result(out_dir), slow_motion)
     html = _page(vis.window.commands, overlay)

@@ -4,13 +4,12 @@ script_parser, the argument parser that reports a usage error the same way."""
 from __future__ import annotations
 
 import argparse
-import errno
 import json
 import sys
 from pathlib import Path
 
-from planner.cli import PATH_ERRNOS, UsageParser, prepare_out_dir
-from planner.errors import PlannerError
+from planner.cli import UsageParser, prepare_out_dir
+from planner.errors import PATH_ERRNOS, PlannerError
 from planner.result import write_atomically
 
 
@@ -72,7 +71,7 @@ def run_main(main) -> int:
         return 2
     except OSError as exc:  # e.g. --out in /proc: what the checks before the run cannot see
         name = Path(sys.argv[0]).stem
-        if exc.errno in PATH_ERRNOS | {errno.EEXIST, errno.EPERM} and exc.filename:  # a path refused: the user's input
+        if exc.errno in PATH_ERRNOS and exc.filename:  # a path refused: the user's input
             print(f"{name}: error: cannot use {exc.filename}: {exc.strerror}", file=sys.stderr)
             return 2
         print(f"{name}: failed: {exc.strerror or exc}" + (f": {exc.filename}" if exc.filename else ""), file=sys.stderr)

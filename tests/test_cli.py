@@ -37,7 +37,10 @@ def test_check_model_json_contract():
     "argv, fragment",
     [
         (["check-model", "/nonexistent/robot.xml"], "robot file not found"),
-        (["check-model", "capler", "--samples", "0"], "--samples must be >= 1"),
+        (["check-model", "capler", "--samples", "0"], "--samples must be in [1, 100000], got 0"),
+        (["check-model", "capler", "--samples", "99999999999999999999"], "--samples must be in [1, 100000]"),  # 21.5 GB
+        (["plan", "point_mass", "--task", "{dir}"], "is a directory"),  # "not found"
+        (["plan", "{dir}"], "robot file {dir} is a directory"),
         (["check-model", "capler", "--seed", "-1"], "--seed must be >= 0, got -1"),
         (["plan", "point_mass", "--solve", '{"rho_min": -1}'], "SolveOptions.rho_min = -1 is not allowed; it must be > 0"),
         (["check-model"], "the following arguments are required: robot"),
@@ -61,8 +64,9 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"tol": "small"}'], "SolveOptions.tol = 'small' is not allowed"),
     ],
 )
-def test_user_errors_are_one_line_exit_2(argv, fragment, capsys):
+def test_user_errors_are_one_line_exit_2(argv, fragment, capsys, tmp_path):
     """A user error prints exactly one line on stderr, no traceback, and exits 2."""
+    argv, fragment = [a.replace("{dir}", str(tmp_path)) for a in argv], fragment.replace("{dir}", str(tmp_path))
     with pytest.raises(SystemExit) as exit_info:
         code = main(argv)
         raise SystemExit(code)
@@ -670,3 +674,59 @@ def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1, (out, err)
     assert err.startswith(f"planner {command}: failed") and "Traceback" not in err
+
+
+def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
+    """What a robustness tester found (session 44), each now one line and exit 2 before any work, or read as the file
+    means it: an --out that is a symbolic-link loop (refused after the whole solve as "File exists"); an --out whose
+    failed/ is a file (a failed solve's diagnostics were lost); `view --html` onto the result's own summary.json (it
+    replaced it); a summary.json with a 5000-digit integer, a trajectory whose t is 0-d, `--window 1e308` (three
+    tracebacks); an --init whose converged is "no" (read as converged); a task file with a byte-order mark (refused
+    as TOML) and an empty one (its error named no file)."""
+    out = tmp_path / "drop"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "-q", "--no-plots"]) == 0
+    (tmp_path / "loopA").symlink_to(tmp_path / "loopB")
+    (tmp_path / "loopB").symlink_to(tmp_path / "loopA")
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "loopA")], "symbolic link to nothing")
+    (tmp_path / "q2").mkdir()
+    (tmp_path / "q2" / "failed").write_text("hi")
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "q2")], "failed is not a directory")
+    summary = (out / "summary.json").read_text()
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(out / "summary.json")], "would overwrite a file of the result")
+    assert (out / "summary.json").read_text() == summary
+    assert main(["validate", str(out), "--window", "1e308", "-q"]) in (0, 1)  # the whole plan as one window
+    huge = tmp_path / "huge"
+    shutil.copytree(out, huge)
+    (huge / "summary.json").write_text(summary.rstrip().rstrip("}") + ', "x": 1' + "0" * 5000 + "}")
+    _one_line_exit_2(capsys, ["validate", str(huge)], "cannot be read as a result's summary")
+    scalar = tmp_path / "scalar"
+    shutil.copytree(out, scalar)
+    arrays = dict(np.load(out / "trajectory.npz"))
+    np.savez(scalar / "trajectory.npz", **{**arrays, "t": np.array(1.0)})
+    _one_line_exit_2(capsys, ["view", str(scalar), "--html", str(tmp_path / "p.html")], "t must be a 1-D array")
+    bom = tmp_path / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + Path(_task(tmp_path)).read_bytes())
+    assert main(["simulate", "point_mass", "--task", str(bom), "--out", str(tmp_path / "b"), "-q", "--no-plots"]) == 0
+    (tmp_path / "empty.toml").write_text("")
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", str(tmp_path / "empty.toml")], "empty.toml: missing key 'contacts'")
+
+
+def test_init_refuses_a_summary_whose_converged_is_not_true(tmp_path, capsys):
+    """--init starts only from a plan whose summary.json says converged: true ("no", an edited file, passed)."""
+    plan = tmp_path / "hop"
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-race", "-q",
+                 "--no-plots"]) == 0
+    summary = json.loads((plan / "summary.json").read_text())
+    (plan / "summary.json").write_text(json.dumps({**summary, "converged": "no"}))
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--task", str(task), "--init", str(plan), "--out", str(tmp_path / "r")],
+                     "converged is 'no'")
+
+
+def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
+    """`planner simulate ... >&-` ran (Python's sys.stdout is None): the model loader flushed it and the error was
+    read as "Pinocchio cannot parse point_mass.xml" (exit 2)."""
+    proc = subprocess.run(f"{sys.executable} -m planner.cli simulate point_mass --task {_task(tmp_path)} --out {tmp_path / 'o'} "
+                          "--no-plots >&-", shell=True, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "cannot parse" not in proc.stderr, proc.stderr

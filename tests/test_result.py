@@ -261,6 +261,39 @@ def test_a_result_is_written_whole_or_not_at_all(tmp_path):
     assert not (other / "trajectory.npz").exists()
 
 
+def test_a_rename_that_fails_rolls_back_the_ones_before_it(tmp_path, monkeypatch):
+    """When the second rename fails (an immutable or foreign summary.json), the trajectory.npz already renamed is put
+    back byte for byte, so the directory keeps the earlier result whole (it held the new npz beside the old summary:
+    "files of two different results"); a refused path is an InputError (exit 2), a full disk a PlannerError that is not
+    one (exit 1), and no temp file or kept link is left. Into an empty directory the rollback leaves it empty."""
+    import errno
+    import os
+
+    from planner.errors import PlannerError
+
+    write_results(_tiny_result(2), tmp_path)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    real = os.replace
+
+    def failing(code):
+        def replace(src, dst):
+            if str(dst).endswith("summary.json") and str(src).endswith(".tmp"):
+                raise OSError(code, os.strerror(code), str(dst))
+            return real(src, dst)
+        return replace
+
+    for code, kind in ((errno.EPERM, InputError), (errno.ENOSPC, PlannerError)):
+        monkeypatch.setattr(os, "replace", failing(code))
+        with pytest.raises(kind, match=f"cannot write .*summary.json: {os.strerror(code)}") as caught:
+            write_results(_tiny_result(3), tmp_path)
+        assert (type(caught.value) is PlannerError) == (code == errno.ENOSPC)
+        assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(PlannerError):
+        write_results(_tiny_result(3), tmp_path / "empty")
+    assert list((tmp_path / "empty").iterdir()) == []
+
+
 def test_files_of_two_results_are_refused(tmp_path):
     """check_same_result refuses a summary.json and a trajectory.npz of two different writes (a run stopped between
     their renames: validate replayed the mix); files of one write, and older files without ids, pass."""
