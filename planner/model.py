@@ -219,8 +219,35 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
 
 
 def file_sha256(path: Path) -> str:
-    """The hex SHA-256 of a file's contents: what tells two robot files apart (Robot.sha256)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """The hex SHA-256 of a robot file's contents and, for an MJCF file, of the files it includes (`<include file=..>`,
+    recursively, each after its name as written): what tells two robot files apart (Robot.sha256). An edit of an
+    included actuator block was replayed by validate as the planned robot. A file that includes nothing hashes as its
+    bytes alone (the hash results have kept since robot_sha256 was added)."""
+    path = Path(path)
+    digest = hashlib.sha256(path.read_bytes())
+    for name, data in _included(path, path.parent, {path.resolve()}):
+        digest.update(b"\0" + name.encode() + b"\0" + data)
+    return digest.hexdigest()
+
+
+def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]:
+    """(file attribute, contents) of each file an MJCF file includes, depth first; a file that does not parse or an
+    include that cannot be read is left out (loading the robot reports those)."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError, ValueError):
+        return []
+    found = []
+    for element in root.iter("include"):
+        name = element.get("file")
+        candidates = [model_dir / name, path.parent / name] if name else []  # MuJoCo: the main file's directory
+        target = next((c for c in candidates if c.is_file()), None)
+        if target is None or target.resolve() in seen:
+            continue
+        seen.add(target.resolve())
+        found.append((name, target.read_bytes()))
+        found += _included(target, model_dir, seen)
+    return found
 
 
 def _point_frames(model: pin.Model) -> dict[str, int]:

@@ -6,7 +6,7 @@ import pytest
 
 from planner.dynamics import Dynamics
 from planner.errors import RobotFileError, UnknownNameError
-from planner.model import RobotFormat, load_robot
+from planner.model import ROBOTS_DIR, RobotFormat, load_robot
 
 EXACT = 1e-12  # parsed numbers are copied, not computed
 
@@ -170,3 +170,26 @@ def test_a_joint_of_several_dof_names_each(tmp_path):
     path.write_text('<mujoco><worldbody><body name="b"><freejoint name="root"/><inertial pos="0 0 0" mass="1" '
                     'diaginertia="1 1 1"/><site name="s"/></body></worldbody></mujoco>')
     assert load_robot(path).dof_names == tuple(f"root_{i}" for i in range(6))
+
+
+def test_the_robot_hash_covers_included_files(tmp_path):
+    """Robot.sha256 (summary.json's robot_sha256, which validate, view and --init check) changes when a file the MJCF
+    includes changes: an edited <include>d actuator block (gear 1 -> 3) was replayed by validate as the planned
+    robot. A file without includes hashes as its bytes alone (the hash of every earlier result); an include loop
+    ends."""
+    import hashlib
+
+    from planner.model import file_sha256
+
+    text = (ROBOTS_DIR / "point_mass.xml").read_text()
+    actuators = text[text.index("<actuator>"):text.index("</actuator>") + len("</actuator>")]
+    (tmp_path / "act.xml").write_text(f"<mujoco>{actuators}</mujoco>")
+    (tmp_path / "robot.xml").write_text(text.replace(actuators, '<include file="act.xml"/>'))
+    robot = load_robot(tmp_path / "robot.xml")
+    assert robot.nu == 2 and robot.sha256 == file_sha256(tmp_path / "robot.xml")
+    (tmp_path / "act.xml").write_text("<mujoco>" + actuators.replace('gear="1"', 'gear="3"') + "</mujoco>")
+    assert file_sha256(tmp_path / "robot.xml") != robot.sha256
+    plain = ROBOTS_DIR / "capler.xml"
+    assert file_sha256(plain) == hashlib.sha256(plain.read_bytes()).hexdigest()
+    (tmp_path / "loop.xml").write_text('<mujoco><include file="loop.xml"/></mujoco>')
+    assert len(file_sha256(tmp_path / "loop.xml")) == 64
