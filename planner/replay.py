@@ -40,8 +40,8 @@ import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
-from .result import (Trajectory, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
-                     write_atomically)
+from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
+                     real_array, write_atomically)
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -748,12 +748,13 @@ def write_validation(out_dir: str | Path, validation: Validation, result_id=_UNC
     out_dir since, the verdict is of the earlier result and is not stored (InputError). Not given: not checked.
     """
     path = Path(out_dir) / "summary.json"
-    summary = read_summary(Path(out_dir), require=())
-    if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
-        raise InputError(f"{out_dir} was written by another run while it was validated; the verdict (of the earlier "
-                         "result) is not stored: validate it again")
-    summary["validation"] = validation.to_json()
-    write_atomically(path, json.dumps(summary, indent=2) + "\n")
+    with directory_lock(Path(out_dir)):  # no other result may land between the read and the write
+        summary = read_summary(Path(out_dir), require=())
+        if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
+            raise InputError(f"{out_dir} was written by another run while it was validated; the verdict (of the earlier "
+                             "result) is not stored: validate it again")
+        summary["validation"] = validation.to_json()
+        write_atomically(path, json.dumps(summary, indent=2) + "\n")
     return path
 
 

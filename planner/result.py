@@ -17,6 +17,7 @@ ipopt_iterations, complementarity_residual, terminal_error, physical_duration_s,
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import signal
@@ -619,6 +620,24 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
     return write_files(out_dir, arrays, result.summary())
 
 
+@contextlib.contextmanager
+def directory_lock(out_dir: Path):
+    """Hold an exclusive lock on the directory (flock on its own descriptor: no lock file left behind) while a result
+    is renamed into it or its summary rewritten: a validation read the summary, another run replaced it, and the
+    validation wrote the old summary back over the new one. Where locks are not possible, no lock."""
+    try:
+        fd = os.open(out_dir, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
 def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
     either is renamed, each with the same `result_id` (check_same_result). DIR is created if missing; an existing file
@@ -648,7 +667,8 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
         for tmp, _ in staged:
             Path(tmp).unlink(missing_ok=True)
         raise
-    _replace(staged)
+    with directory_lock(out):
+        _replace(staged)
     return npz, path
 
 

@@ -294,6 +294,36 @@ def test_a_rename_that_fails_rolls_back_the_ones_before_it(tmp_path, monkeypatch
     assert list((tmp_path / "empty").iterdir()) == []
 
 
+def test_a_result_is_not_renamed_into_a_directory_another_writer_holds(tmp_path):
+    """write_files renames under the directory's lock (directory_lock, which write_validation holds from reading the
+    summary to writing it back): a validation had written the old summary, plus its verdict, over a new result that
+    landed in between. Here a thread holds the lock for HOLD_S; the write waits for it, and no lock file is left."""
+    import threading
+    import time
+
+    from planner.result import directory_lock
+
+    HOLD_S = 0.3  # long against a rename (microseconds), short for the suite
+    write_results(_tiny_result(2), tmp_path)
+    order = []
+
+    def hold():
+        with directory_lock(tmp_path):
+            order.append("held")
+            time.sleep(HOLD_S)
+            order.append("released")
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    while not order:
+        time.sleep(0.01)
+    write_results(_tiny_result(3), tmp_path)
+    order.append("written")
+    holder.join()
+    assert order == ["held", "released", "written"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
+
+
 def test_files_of_two_results_are_refused(tmp_path):
     """check_same_result refuses a summary.json and a trajectory.npz of two different writes (a run stopped between
     their renames: validate replayed the mix); files of one write, and older files without ids, pass."""
