@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect, interruptible
+from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect, interruptible, shown
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import ArraysReadOnly, real_array, write_files
@@ -224,8 +224,10 @@ class GaitSpec(ArraysReadOnly):
     pronto: GaitPronto
 
     def __post_init__(self):
-        if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 1 <= self.N <= MAX_STEPS):
-            raise InputError(f"GaitSpec.N = {self.N!r} is not allowed; it must be an integer in [1, {MAX_STEPS}]")
+        # N = 1 has no inner node, where the swing foot's clearance is read: a ValueError after 60 outer loops
+        if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 2 <= self.N <= MAX_STEPS):
+            raise InputError(f"GaitSpec.N = {shown(self.N)} is not allowed; it must be an integer in [2, {MAX_STEPS}] "
+                             "(horizon.N or --steps)")
         check_field_types(self)  # T, jump_angle
         if not self.T > 0:
             raise InputError(f"GaitSpec.T = {self.T!r} is not allowed; it must be > 0 [s]")
@@ -389,14 +391,19 @@ class GaitOCP:
         return float(ca.sum2(self.objective(x[:-1].T, u.T, np.hstack([xd[:-1], ud]).T)))
 
 
+# |swing foot height| [m] allowed at the landing Delta^-1(x0): a foot 31 mm below the ground was "converged"
+LANDING_GAP_M = 1e-6
+
+
 def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop], None] | None = None,
                ocp: GaitOCP | None = None) -> GaitSolution:
     """Paper 001's strategy for x(T) = Delta^-1(x0) (Sec. 3, Algorithms 1 and 2) with PRONTO.
 
     Step 1: embedding (fictitious torso torque). Step 2: PRONTO on the embedded OCP (8) from the
     projected desired curve, rho_emb <- factor rho_emb until max |u_emb| < emb_tolerance. Step 3:
-    drop u_emb, project, PRONTO on (9); rho_f <- factor rho_f while ||x(T) - x_f|| > newton_radius,
-    else Newton on the target: x_T <- x_T + Dbeta^-1 (x_f - x(T)), Dbeta from the LQ sensitivity.
+    drop u_emb, project, PRONTO on (9); rho_f <- factor rho_f (the target reset to x_f) while
+    ||x(T) - x_f|| > newton_radius, else Newton on the target: x_T <- x_T + Dbeta^-1 (x_f - x(T)), Dbeta from the LQ
+    sensitivity.
     progress(OuterLoop) is called after every outer loop. Raises TaskError when x0 does not jump
     from the jump set, SolveError when a projection diverges.
     """
@@ -407,6 +414,11 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
     if abs(xf[0] - spec.jump_angle) > 1e-9:
         raise TaskError(f"gait.x0 does not come from the jump set: Delta^-1(x0) has theta1 = {xf[0]:.9g} rad, but "
                         f"gait.jump_angle = {spec.jump_angle:.9g} rad (theta2 of x0 must equal jump_angle)")
+    gap = float(model.swing_height(xf[:3]))  # the impact happens where the swing foot lands: on the ground
+    if abs(gap) > LANDING_GAP_M:
+        raise TaskError(f"gait.x0 lands its swing foot {abs(gap) * 1e3:.3g} mm {'below' if gap < 0 else 'above'} the ground "
+                        f"(at Delta^-1(x0), the state before the impact): the impact map applies on the ground only; "
+                        f"with legs of equal length theta1 of x0 must be -theta2 of x0")
     ocp = ocp or GaitOCP(model, spec)
     N = spec.N
     t, xd, ude = desired_curve(model, x0, xf, spec.T, N)
@@ -465,8 +477,10 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         if action == "newton x_T":
             D = pu.terminal_response(x, u, res.K, -rho_f**2 * np.eye(6))  # d x_N / d x_T
             x_target = x_target + np.linalg.solve(D, xf - x[-1])
-        else:
+        else:  # back to the penalty on x_f itself: a target a Newton step moved would be pulled to instead (the
+            # stance leg turned two full turns to reach one; T = 2 s failed where IPOPT solves in 8 iterations)
             rho_f *= cont.factor
+            x_target = xf.copy()
     return GaitSolution(t=t, x=x, u=u, xd=xd, ud=ud, x_emb=x_emb, u_emb=u_emb, xf=xf, x_target=x_target, K=res.K,
                         cost=ocp.cost(x, u, xd, ud), final_error=float(np.linalg.norm(x[-1] - xf)), converged=converged,
                         loops=tuple(loops), pronto_iterations=total_it, solve_time_s=time.perf_counter() - start,
@@ -567,7 +581,9 @@ def periodic_walk(model: PinnedBiped, sol: GaitSolution, steps: int) -> Walk:
                 a[:, [lay.stance_hinge, lay.swing_hinge]] = a[:, [lay.swing_hinge, lay.stance_hinge]]
             stance_motor, swing_motor = swing_motor, stance_motor
         uj[:, stance_motor], uj[:, swing_motor] = u_hold[:, 0], u_hold[:, 1]
-        ts.append(j * T + sol.t); q.append(qj); v.append(vj); u.append(uj)
+        tj = j * T + sol.t
+        tj[[0, -1]] = j * T, (j + 1) * T  # an impact's two samples at one time exactly (j T + t_N was 1 ulp off)
+        ts.append(tj); q.append(qj); v.append(vj); u.append(uj)
         swing = lay.swing_foot if j % 2 == 0 else lay.stance_foot
         impacts.append(((j + 1) * T, swing, float(impulse[1]), float(impulse[0])))
     # the last step ends with its post-impact sample too
@@ -757,7 +773,8 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     pair_of = {p: i for i, p in enumerate(scene.points)}
     _require_feet(lay, scene.points)
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
-    state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0}
+    state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0,
+             "last_t": 0.0}
     height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
     below = np.nonzero(height[:-1] < -gains.ground_gap)[0]
     gate_k = min(below[-1] + 1 if len(below) else 0, N - 1)  # at least the last step: the landing needs the contact
@@ -787,6 +804,14 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
         return np.concatenate([th, thd]), hinges
 
     def control(t, q, v):
+        if state.get("unstable") or t < state["t0"] or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            # MuJoCo reset an unstable simulation (its time back to 0, "Nan, Inf or huge value in QACC"): the walk fell
+            # there (a negative time since the landing indexed the plan from its end: an IndexError)
+            if not state["down"]:
+                state["down"], state["fall_t"] = True, state["last_t"]
+            state["unstable"] = True
+            return np.zeros(model.robot.nu)
+        state["last_t"] = t
         j = state["j"]
         stance, swing = feet(j)
         x, _ = pinned(q, v, j)
@@ -851,6 +876,9 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     q0, v0 = model.floating(sol.x[0, :3], sol.x[0, 3:])
     # 20 % spare: a walk whose first steps are slower than the plan's (the speed loop catching up) still ends
     run = mujoco_rollout(scene, q0, v0, (1.2 * steps + 0.5) * T, control, sample_every=gains.sample_every)
+    back = np.nonzero(np.diff(run["t"]) < 0)[0]  # MuJoCo's reset of an unstable simulation: the samples after it go
+    if len(back):
+        run = {key: value[: back[0] + 1] if len(value) == len(run["t"]) else value for key, value in run.items()}
     walked = sum(1 for t in state["impacts"] if t < state.get("fall_t", np.inf))  # landings before any fall
     # the base against the plan tiled in time: timing drift included (information; PHASE ignores time)
     tiled = periodic_walk(model, sol, steps)
@@ -883,6 +911,10 @@ class GaitRunResult:
         lines = [f"gait {Path(self.robot).name} ({Path(self.task).name}): {'converged' if s.converged else 'NOT converged'} "
                  f"in {s.solve_time_s:.2f} s, {len(s.loops)} outer loops, {s.pronto_iterations} PRONTO iterations; "
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
+        need, mu = self.summary.get("friction_needed"), self.summary.get("friction_mu")
+        if need is not None and mu is not None and need > mu:  # it showed only in summary.json, before a fall
+            lines.append(f"  the stance foot needs |tangential / normal| force up to {need:.3g}, beyond its contact's mu = "
+                         f"{mu:g}: the gait has no friction cone, MuJoCo's foot slides where the ratio exceeds mu")
         if self.walking is not None:
             w = self.walking
             lines.append(f"MuJoCo ({w.gains.control.value} control): walked {w.steps_walked} of {w.steps_asked} steps"
@@ -950,6 +982,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "u_paper_last_100ms_Nm": {"min": np.min(u_paper[near_T], axis=0).tolist(), "max": np.max(u_paper[near_T], axis=0).tolist()},
         "min_normal_force_N": float(np.min(force[:, 1])),
         "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]))),
+        "friction_mu": next(c.mu for c in task.contacts if c.point == g.stance),  # the stance foot's, for the report
         "min_swing_foot_height_m": float(np.min(height[1:-1])),
         "outer_loops": [vars(loop) for loop in sol.loops],
         "walking": walking.to_json() if walking else None,

@@ -26,6 +26,8 @@ from .errors import RobotFileError, TaskError, UnknownNameError, check_field_typ
 # point-mass hop running every NLP to its cap for minutes, a_t = 1e9 a free flight gaining 0.2 m/s; the shipped tasks
 # use 200-600
 MAX_AUX_GAIN = 1e6
+# steps of a gait's walk (each a MuJoCo replay of one period): 1e8 failed allocating the tiled walk
+MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
@@ -380,7 +382,7 @@ class Gait:
         _require(self.desired_input in GAIT_DESIRED_INPUTS, "gait.desired_input", self.desired_input,
                  " or ".join(repr(x) for x in GAIT_DESIRED_INPUTS))
         _require(self.stance != self.swing, "gait.swing", self.swing, f"a point other than gait.stance ({self.stance!r})")
-        _require(self.steps >= 1, "gait.steps", self.steps, ">= 1")
+        _require(1 <= self.steps <= MAX_GAIT_STEPS, "gait.steps", self.steps, f"in [1, {MAX_GAIT_STEPS}]")
 
 
 @dataclass(frozen=True)

@@ -160,6 +160,46 @@ def test_ipopt_finds_the_same_gait(gaits, biped):
     assert np.max(np.abs(ip.x - sol.x)) < 1e-6
 
 
+def test_a_gait_whose_newton_step_overshoots_still_reaches_ipopts(biped):
+    """Gait 1's weights over T = 2 s instead of 1.53 (x0 the paper's): the first Newton step on the target raises the
+    final-state error above newton_radius, and the rho_f continuation that follows must pull x(T) to Delta^-1(x0)
+    again, not to the moved target (the stance leg turned two full turns toward it and the gait failed after 60 outer
+    loops). The strategy reaches the optimum IPOPT finds on the same discretized OCP with the hard final state."""
+    spec = dataclasses.replace(_spec("biped_gait1.toml"), T=2.0)
+    sol, ip = solve_gait(biped, spec), solve_gait_ipopt(biped, spec)
+    assert ip.success and sol.converged
+    assert any(loop.action == "newton x_T" for loop in sol.loops) and abs(sol.cost - ip.cost) < 1e-6 * ip.cost
+
+
+def test_a_walk_that_makes_mujoco_unstable_is_a_fall_not_a_crash(tmp_path, robot, biped):
+    """Gait 1 from the paper's x0 with the torso leaning back (theta3 = -20 deg): the gait converges, and its LQR walk
+    drives MuJoCo unstable ("Nan, Inf or huge value in QACC"), which resets MuJoCo's time to 0. The walk is then a
+    fall after the landings before it, and the results are written (an IndexError from a negative time since the
+    landing ended the command before; nothing was written)."""
+    task = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    x0 = np.array(task.gait.x0)
+    x0[2] = -x0[2]
+    q0, v0 = biped.floating(x0[:3], x0[3:])
+    task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=tuple(q0), v=tuple(v0)),
+                               gait=dataclasses.replace(task.gait, x0=tuple(x0)),
+                               horizon=dataclasses.replace(task.horizon, N=COARSE_N))
+    result = run_gait(robot, task, tmp_path)
+    assert result.solution.converged and result.walking.fell and result.walking.steps_walked < result.walking.steps_asked
+    assert (tmp_path / "summary.json").is_file() and json.loads((tmp_path / "summary.json").read_text())["walking"]["fell"]
+
+
+def test_an_x0_whose_landing_is_off_the_ground_is_refused(biped):
+    """x0 = (-0.3, pi/8, 20 deg, ...) jumps from theta1 = jump_angle = pi/8 (the old check), but at Delta^-1(x0) its
+    swing foot is cos(pi/8) - cos(0.3) = -31.5 mm below the ground (legs of 1 m): the impact map applies on the ground
+    only, and the gait "converged" with the robot lifted through the floor. Refused before the solve."""
+    spec = _spec("biped_gait1.toml")
+    x0 = np.array(spec.x0)
+    x0[0] = -0.3
+    with pytest.raises(TaskError, match=r"lands its swing foot 31.5 mm below the ground"):
+        solve_gait(biped, dataclasses.replace(spec, x0=x0))
+    assert abs(float(biped.swing_height(biped.delta_inverse(spec.x0)[:3]))) < 1e-9  # the paper's x0 lands on it
+
+
 def test_run_gait_writes_the_contract(tmp_path, robot):
     """run_gait writes trajectory.npz and summary.json with the contract's names, one progress record
     per outer loop, and impacts as repeated time samples (coarse grid, no MuJoCo)."""
@@ -177,7 +217,7 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
         assert key in data
     assert len(data["impact_times"]) == task.gait.steps == len(summary["impacts"])
     for t_imp in data["impact_times"]:
-        assert np.sum(np.isclose(data["t"], t_imp)) == 2
+        assert np.sum(data["t"] == t_imp) == 2  # exactly: 10.709999999999999 and 10.71 were one impact's samples
     assert res.walk.q.shape[1] == robot.nq
 
 
@@ -262,13 +302,13 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
 
 
 def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
-    """GaitSpec.from_task's N overrides the horizon's only when given, and must be an integer in [1, MAX_STEPS] (N = 0
-    silently meant the task's 153, 2.5 was accepted); the spec's arrays are read-only and the spec hashes and compares
+    """GaitSpec.from_task's N overrides the horizon's only when given, and must be an integer in [2, MAX_STEPS] (N = 0
+    silently meant the task's 153, 2.5 was accepted, N = 1 ended in a ValueError after the solve); the spec's arrays are read-only and the spec hashes and compares
     by identity (its arrays made hash() raise TypeError and == raise ValueError)."""
     task = load_task(ROBOTS_DIR / "biped_gait1.toml")
     assert GaitSpec.from_task(task).N == task.horizon.N and GaitSpec.from_task(task, 20).N == 20
-    for N in (0, -5, 2.5, "20", True):
-        with pytest.raises(InputError, match=r"GaitSpec.N = .* an integer in \[1, 10000000\]"):
+    for N in (0, 1, -5, 2.5, "20", True):
+        with pytest.raises(InputError, match=r"GaitSpec.N = .* an integer in \[2, 10000000\]"):
             GaitSpec.from_task(task, N)
     spec = GaitSpec.from_task(task)
     with pytest.raises(ValueError, match="read-only"):
