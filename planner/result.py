@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import glob
 import json
 import os
 import signal
 import tempfile
 import threading
+import time
 import uuid
 from dataclasses import dataclass, field, fields
 from functools import cached_property
@@ -712,12 +714,27 @@ def write_atomically(path: str | os.PathLike, write) -> None:
     _replace([(_stage(path, write), Path(path))])
 
 
+# A temp file of a write older than this [s] is a killed writer's (SIGKILL, or the plot process ended at exit): the
+# next write of the same file removes it. A live writer's is seconds old.
+STALE_TEMP_S = 3600.0
+
+
+def _remove_stale(path: Path) -> None:
+    """Remove the temp files of earlier writes of `path` left older than STALE_TEMP_S (nothing else cleaned them)."""
+    now = time.time()
+    for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        with contextlib.suppress(OSError):  # another process removed it first, or it cannot be: left as it is
+            if now - old.lstat().st_mtime > STALE_TEMP_S:
+                old.unlink()
+
+
 def _stage(path: str | os.PathLike, write) -> str:
     """The temp file beside `path` that write_atomically renames to it, written (write as there); its name."""
     path = Path(path)
     if isinstance(write, (str, bytes)):
         data = write.encode() if isinstance(write, str) else write
         write = lambda f: f.write(data)  # noqa: E731
+    _remove_stale(path)
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as exc:

@@ -324,6 +324,24 @@ def test_a_result_is_not_renamed_into_a_directory_another_writer_holds(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json", "trajectory.npz"]
 
 
+def test_a_killed_writers_old_temp_file_is_removed_by_the_next_write(tmp_path):
+    """A temp file a killed writer left (`.states.png.XXXX.tmp`: SIGKILL, or the plot process ended at exit) and
+    older than STALE_TEMP_S is removed by the next write of the same file; a fresh one (a live writer's) and the temp
+    files of other names stay. Nothing cleaned them before."""
+    import os
+
+    from planner.result import STALE_TEMP_S, write_atomically
+
+    stale, fresh, other = (tmp_path / name for name in (".a.json.x1.tmp", ".a.json.x2.tmp", ".b.json.x3.tmp"))
+    for p in (stale, fresh, other):
+        p.write_text("half")
+    old = os.stat(stale).st_mtime - 2 * STALE_TEMP_S
+    for p in (stale, other):
+        os.utime(p, (old, old))
+    write_atomically(tmp_path / "a.json", "{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".a.json.x2.tmp", ".b.json.x3.tmp", "a.json"]
+
+
 def test_files_of_two_results_are_refused(tmp_path):
     """check_same_result refuses a summary.json and a trajectory.npz of two different writes (a run stopped between
     their renames: validate replayed the mix); files of one write, and older files without ids, pass."""
