@@ -196,27 +196,31 @@ def main(argv: list[str] | None = None) -> int:
             print(f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}", file=sys.stderr)
         return code
     except InputError as exc:
-        print(f"planner {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+        return _stop(args, EXIT_INPUT, f"error: {exc}")
     except PlannerError as exc:
-        print(f"planner {args.command}: failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return _stop(args, EXIT_FAILED, f"failed: {exc}")
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:
         where = f": {exc.filename}" if exc.filename else ""
         if exc.errno in PATH_ERRNOS and exc.filename:  # a path the system refuses that no check above named
-            print(f"planner {args.command}: error: {exc.strerror}{where}", file=sys.stderr)
-            return EXIT_INPUT
-        print(f"planner {args.command}: failed: {exc.strerror or exc}{where}", file=sys.stderr)  # e.g. a full disk
-        return EXIT_FAILED
+            return _stop(args, EXIT_INPUT, f"error: {exc.strerror}{where}")
+        return _stop(args, EXIT_FAILED, f"failed: {exc.strerror or exc}{where}")  # e.g. a full disk
     except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
-        print(f"planner {args.command}: failed: out of memory (is horizon.N or --steps far too large?)", file=sys.stderr)
-        return EXIT_FAILED
+        return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
-        print(f"planner {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _stop(args, EXIT_INTERRUPTED, "interrupted")
+
+
+def _stop(args, code: int, text: str) -> int:
+    """A command that ended early: `planner COMMAND: TEXT` on stderr and, with --json, {"command", "exit_code",
+    "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code."""
+    print(f"planner {args.command}: {text}", file=sys.stderr)
+    if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
+        with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
+            print(json.dumps({"command": args.command, "exit_code": code, "error": text}), file=args.stdout, flush=True)
+    return code
 
 
 def _progress(args, line: str) -> None:

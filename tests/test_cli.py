@@ -76,11 +76,12 @@ def test_user_errors_are_one_line_exit_2(argv, fragment, capsys, tmp_path):
 
 
 def test_malformed_xml_from_a_subprocess(tmp_path):
-    """Malformed XML through the real console entry: exit 2, one line, nothing on stdout."""
+    """Malformed XML through the real console entry: exit 2, one line on stderr, on stdout (--json) only the error
+    object."""
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody>")
     proc = run("check-model", str(bad), "--json")
-    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.returncode == 2 and json.loads(proc.stdout)["exit_code"] == 2
     assert len(proc.stderr.strip().splitlines()) == 1 and "malformed XML" in proc.stderr
 
 
@@ -730,3 +731,14 @@ def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
     proc = subprocess.run(f"{sys.executable} -m planner.cli simulate point_mass --task {_task(tmp_path)} --out {tmp_path / 'o'} "
                           "--no-plots >&-", shell=True, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "cannot parse" not in proc.stderr, proc.stderr
+
+
+def test_json_is_one_object_on_every_exit(tmp_path, capsys):
+    """With --json, stdout holds one JSON object also when a command stops on an error: {"command", "exit_code",
+    "error"} (it held nothing, so a script reading stdout failed to parse it); stderr keeps its one line."""
+    assert main(["plan", "point_mass", "--task", str(tmp_path), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert json.loads(captured.out) == {"command": "plan", "exit_code": 2, "error": f"error: task file {tmp_path} is a directory"}
+    assert captured.err.strip() == f"planner plan: error: task file {tmp_path} is a directory"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "s"), "--json", "--no-plots"]) == 0
+    assert json.loads(capsys.readouterr().out)["command"] == "simulate"  # a success: the summary alone
