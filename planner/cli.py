@@ -36,7 +36,7 @@ class UsageParser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _path(text: str) -> Path:
+def path_argument(text: str) -> Path:
     """A path argument; an empty one (an unset shell variable) would be the working directory: refused."""
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path is not allowed (an unset shell variable?)")
@@ -47,9 +47,9 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
                 verbose: bool = False, task_help: str = "task file (default: the .toml beside the robot file)") -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     if task:
-        p.add_argument("--task", type=_path, help=task_help)
+        p.add_argument("--task", type=path_argument, help=task_help)
     if out:
-        p.add_argument("--out", type=_path, help="directory that receives the results (default results/ROBOT-COMMAND, "
+        p.add_argument("--out", type=path_argument, help="directory that receives the results (default results/ROBOT-COMMAND, "
                        "e.g. results/capler-plan)")
     racing = p.prog.endswith(" plan")  # what only plan does (a race, a validation) is said in plan's help only
     if plots:
@@ -102,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
-    p.add_argument("--init", type=_path, metavar="DIR",
+    p.add_argument("--init", type=path_argument, metavar="DIR",
                    help="replan from the plan in DIR (a `planner plan` result with the same contacts, N and options) after a "
                         "change of target, bounds or holes that DIR's plan nearly meets: first one smooth NLP with DIR's contact "
                         "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
@@ -160,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, tracking, open loop)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  planner validate results/capler --json")
-    p.add_argument("dir", type=_path, help="a result directory written by `planner plan` or `planner simulate`")
+    p.add_argument("dir", type=path_argument, help="a result directory written by `planner plan` or `planner simulate`")
     p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
                    help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
     p.add_argument("--window", type=float, default=None, metavar="SECONDS",
@@ -173,8 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner view results/capler                 # live; prints the URL\n"
                               "  planner view results/capler --html hop.html --slow-motion")
-    p.add_argument("dir", type=_path, help="a result directory written by `planner plan`, `planner simulate` or `planner gait`")
-    p.add_argument("--html", type=_path, help="write a static page that works offline instead of serving")
+    p.add_argument("dir", type=path_argument, help="a result directory written by `planner plan`, `planner simulate` or `planner gait`")
+    p.add_argument("--html", type=path_argument, help="write a static page that works offline instead of serving")
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)
@@ -271,7 +271,7 @@ def _load_inputs(args):
         raise InputError(f"no task file beside {robot.path} (expected {task_path}); give one with --task")
     task = load_task(task_path)
     task.check_against(robot)
-    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-{args.command}")
+    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-{args.command}", failed=True)
     return robot, task, out
 
 
@@ -574,7 +574,7 @@ def _cmd_gait(args) -> int:
     if args.task is None:
         raise InputError("planner gait needs --task (e.g. robots/biped_gait1.toml)")
     robot = load_robot(args.robot)
-    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait")
+    out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait", failed=True)
     result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()), validate=not args.no_validate)
     converged = bool(result.summary["converged"])
     if converged:
@@ -624,16 +624,16 @@ def _cmd_view(args) -> int:
         return EXIT_OK
 
 
-def prepare_out_dir(path: Path) -> Path:
+def prepare_out_dir(path: Path, failed: bool = False) -> Path:
     """Check that the output directory can be used, or say in one line why not. It is created when the results are
     written (result.write_files), so a later input error leaves no empty directory behind."""
     if path.is_symlink() and not path.exists():  # a loop or a dangling link: "File exists" after the whole solve
         raise InputError(f"--out {path} is a symbolic link to nothing (dangling or a loop)")
     if path.exists() and not path.is_dir():
         raise InputError(f"--out {path} is a file, not a directory")
-    failed = path / "failed"  # where a failed solve writes its diagnostics: refused then, they were lost
-    if failed.exists() and not failed.is_dir() or failed.is_symlink() and not failed.exists():
-        raise InputError(f"--out {path}: {failed} is not a directory, and a failed solve writes there")
+    below = path / "failed"  # failed: a solve's command, whose failure writes there (refused then, its diagnostics lost)
+    if failed and (below.exists() and not below.is_dir() or below.is_symlink() and not below.exists()):
+        raise InputError(f"--out {path}: {below} is not a directory, and a failed solve writes there")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
     if not existing.is_dir():
         raise InputError(f"cannot create output directory {path}: {existing} is a file")

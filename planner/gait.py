@@ -226,8 +226,8 @@ class GaitSpec(ArraysReadOnly):
     def __post_init__(self):
         # N = 1 has no inner node, where the swing foot's clearance is read: a ValueError after 60 outer loops
         if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 2 <= self.N <= MAX_STEPS):
-            raise InputError(f"GaitSpec.N = {shown(self.N)} is not allowed; it must be an integer in [2, {MAX_STEPS}] "
-                             "(horizon.N or --steps)")
+            raise InputError(f"GaitSpec.N = {shown(self.N)} is not allowed; a gait's horizon.N must be an integer in "
+                             f"[2, {MAX_STEPS}] (the swing foot's clearance is read at the inner nodes)")
         check_field_types(self)  # T, jump_angle
         if not self.T > 0:
             raise InputError(f"GaitSpec.T = {self.T!r} is not allowed; it must be > 0 [s]")
@@ -804,7 +804,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
         return np.concatenate([th, thd]), hinges
 
     def control(t, q, v):
-        if state.get("unstable") or t < state["t0"] or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        if state.get("unstable") or t < state["last_t"] or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             # MuJoCo reset an unstable simulation (its time back to 0, "Nan, Inf or huge value in QACC"): the walk fell
             # there (a negative time since the landing indexed the plan from its end: an IndexError)
             if not state["down"]:

@@ -245,7 +245,10 @@ def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]
         if target is None or target.resolve() in seen:
             continue
         seen.add(target.resolve())
-        found.append((name, target.read_bytes()))
+        try:
+            found.append((name, target.read_bytes()))
+        except OSError:  # unreadable: loading the robot says so
+            continue
         found += _included(target, model_dir, seen)
     return found
 

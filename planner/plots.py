@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError
 from .result import TAP_SHARE, write_atomically
 from .view import Result, load_result
 
@@ -42,13 +41,14 @@ def plot_results(out_dir) -> list[Path]:
 
 
 def _save(fig, name: str, directory: Path) -> Path:
-    """Save atomically: an earlier plot of the same name stays intact until the new one is complete."""
-    path = directory / name
-    try:
-        write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=DPI))  # [dots per inch]
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror}") from None
-    return path
+    save_figure(fig, directory / name)
+    return directory / name
+
+
+def save_figure(fig, path: Path, dpi: int = DPI) -> None:
+    """fig as a PNG at path [dpi: dots per inch], atomically: an earlier plot of the same name stays whole until the
+    new one is (a Ctrl-C mid-write); a path refused is an InputError (write_atomically)."""
+    write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=dpi))
 
 
 def _new_figure(width: float, height: float):

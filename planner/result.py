@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect, write_error
+from .errors import PATH_ERRNOS, InputError, PlannerError, expect, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -652,8 +652,9 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
         raise InputError(f"cannot write results to {out}: it is a file, not a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a parent that is a file, no permission, a read-only file system
-        raise InputError(f"cannot create output directory {out}: {exc.strerror}") from None
+    except OSError as exc:  # a parent that is a file, no permission, a read-only file system (a full disk: exit 1)
+        kind = InputError if exc.errno in PATH_ERRNOS else PlannerError
+        raise kind(f"cannot create output directory {out}: {exc.strerror}") from None
     # one id in both files: a crash between their renames leaves two results' files, which readers then refuse
     result_id = uuid.uuid4().hex
     arrays, summary = {**arrays, "result_id": np.array(result_id)}, {**summary, "result_id": result_id}
@@ -669,8 +670,13 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
         for tmp, _ in staged:
             Path(tmp).unlink(missing_ok=True)
         raise
-    with directory_lock(out):
-        _replace(staged)
+    try:
+        with directory_lock(out):
+            _replace(staged)
+    except BaseException:  # a Ctrl-C while waiting for the lock: the staged files go (_replace removes its own)
+        for tmp, _ in staged:
+            Path(tmp).unlink(missing_ok=True)
+        raise
     return npz, path
 
 
@@ -696,7 +702,7 @@ def _keep(path: Path) -> tuple[bool, str | None]:
     not possible)."""
     if not path.is_file():
         return False, None
-    link = f"{path.parent}/.{path.name}.{os.getpid()}.{threading.get_ident()}.kept"
+    link = f"{path.parent}/.{path.name}.{os.getpid()}.{threading.get_ident()}.kept.tmp"  # _remove_stale's, if killed
     try:
         Path(link).unlink(missing_ok=True)
         os.link(path, link)

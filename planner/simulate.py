@@ -207,8 +207,9 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
 
 def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
     """The deepest a contact point went into its plane over the nodes: max_m [m] (0: never), its point and physical
-    time t [s] (None, None without contacts). A simulation converges on its step equations, which keep the contact's velocity, not its position, on
-    the plane (the index-reduced DAE): a fixed arm's tip ended 45 mm in the ground with the run "converged"."""
+    time t [s] (None, None without contacts). A simulation converges on its step equations, which keep the contact's
+    velocity, not its position, on the plane (the index-reduced DAE): a fixed arm's tip ended 45 mm in the ground with
+    the run "converged"."""
     if not task.contacts:  # a free flight (contacts = []): nothing to go into
         return {"max_m": 0.0, "point": None, "t": None}
     u0 = np.zeros(system.dyn.nu)

@@ -8,8 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from planner.cli import UsageParser, prepare_out_dir
-from planner.errors import PATH_ERRNOS, PlannerError
+from planner.cli import UsageParser, path_argument, prepare_out_dir
+from planner.errors import PATH_ERRNOS, InputError, PlannerError
 from planner.result import write_atomically
 
 
@@ -26,17 +26,10 @@ def out_dir(text: str) -> Path:
     """An --out argument: refused at once, as `planner` refuses it, when empty (an unset shell variable: results.json
     went to the working directory) or when no directory can be made there (a file, an unwritable place; found only
     after the whole run before)."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty path is not allowed (an unset shell variable?)")
     try:
-        return prepare_out_dir(Path(text))
-    except PlannerError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def save_figure(fig, path: Path, dpi: int) -> None:
-    """fig as a PNG at path, atomically: an earlier plot stays whole until the new one is (a Ctrl-C mid-write)."""
-    write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=dpi))
+        return prepare_out_dir(path_argument(text))
+    except PlannerError as exc:  # (argparse names the flag itself)
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--out ")) from None
 
 
 def script_parser(doc: str, **kwargs) -> UsageParser:
@@ -66,9 +59,12 @@ def run_main(main) -> int:
     except KeyboardInterrupt:
         print(f"{Path(sys.argv[0]).stem}: interrupted", file=sys.stderr)
         return 130
-    except PlannerError as exc:
+    except InputError as exc:
         print(f"{Path(sys.argv[0]).stem}: error: {exc}", file=sys.stderr)
         return 2
+    except PlannerError as exc:  # not the input's fault (a full disk): exit 1, as `planner`'s
+        print(f"{Path(sys.argv[0]).stem}: failed: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:  # e.g. --out in /proc: what the checks before the run cannot see
         name = Path(sys.argv[0]).stem
         if exc.errno in PATH_ERRNOS and exc.filename:  # a path refused: the user's input

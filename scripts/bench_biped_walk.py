@@ -68,7 +68,8 @@ def run(lower: str, step: float, out: Path, quick: bool) -> dict:
     v = s.get("validation") or {}
     walk = v.get("walking") or {}
     # the bound a number in the JSON (None: removed), not its command-line text
-    return {"lower_rad_s": None if lower == "none" else float(lower), "step_m": step, "exit_code": code, "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
+    return {"lower_rad_s": None if lower == "none" else float(lower), "step_m": step, "exit_code": code,
+            "converged": s["converged"], "ipopt_iterations": s["ipopt_iterations"],
             "solve_time_s": s["solve_time_s"], "control_cost": s["control_cost"],
             "physical_period_s": s["physical_duration_s"], "impact_times_s": [i["time"] for i in s["impacts"]],
             "walk_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
@@ -85,7 +86,8 @@ def table(rows: list[dict]) -> str:
         if not r["converged"]:
             walk = "(not converged) " + walk
         impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
-        lines.append(f"| {'none' if r['lower_rad_s'] is None else format(r['lower_rad_s'], 'g')} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
+        lower = "none" if r["lower_rad_s"] is None else format(r["lower_rad_s"], "g")
+        lines.append(f"| {lower} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "
                      f"{r['control_cost']:.2f} | {impacts} / {r['physical_period_s']:.3f} | {walk} |")
     return "\n".join(lines)
 

@@ -43,7 +43,6 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.cli import prepare_out_dir
 from planner.errors import interruptible
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
@@ -499,7 +498,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="keep the records of OUT/results.json that this run does not redo (run the variants one at a time)")
     parser.add_argument("--max-iter", type=int, default=4000, help="IPOPT max_iter per NLP (the example's 4000)")
     args = parser.parse_args(argv)
-    prepare_out_dir(args.out)  # before the solves: an --out that is a file was refused only after them
     if args.n_fe < 1 or args.n_s < 1 or args.max_iter < 1:
         parser.error("--n-fe, --n-s and --max-iter must be >= 1")
     return args
@@ -555,8 +553,9 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     arrays = {}
     if args.append and (args.out / "trajectories.npz").is_file():
+        prefixes = tuple(f"{r['solver']}_{r['variant']}_" for r in kept)  # not those of the records dropped above
         with np.load(args.out / "trajectories.npz") as old_arrays:
-            arrays.update({k: old_arrays[k] for k in old_arrays.files})
+            arrays.update({k: old_arrays[k] for k in old_arrays.files if k.startswith(prefixes)})
     for rec in records:  # the nosnoc solutions, for plots and checks: OUT/trajectories.npz
         for key, value in (rec.pop("_trajectory", None) or {}).items():
             arrays[f"{rec['solver']}_{rec['variant']}_{key}"] = value

@@ -58,17 +58,19 @@ from planner.cli import prepare_out_dir
 from planner.homotopy import (SolveOptions, _Solvers, homotopy_nlp, ipopt_options, keep_freed_memory, solve,
                               solve_fields_from_json, solve_options_from_dict, variable_scale)
 from planner.derivatives import nlp_derivatives
-from planner.errors import InputError
+from planner.errors import InputError, PlannerError
 from planner.model import load_robot
 from planner.discretization import StepForm
 from planner.problem import ProblemOptions, build_problem
 from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
-from scripts._report import out_dir, report, run_main, save_figure, script_parser
+from planner.plots import save_figure
+from scripts._report import out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
+DEFAULT_CODEGEN_FLAGS = ["-O1"]
 DEFAULT_CACHE = Path.home() / ".cache" / "planner" / "codegen"
 CALLBACKS = ("f", "g", "grad_f", "jac_g", "hess_l")
 
@@ -182,8 +184,10 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
         if compiled.returncode != 0:
             c_file.unlink()
             tmp.unlink(missing_ok=True)
-            last = (compiled.stderr.strip().splitlines() or ["(no message)"])[-1]
-            raise InputError(f"gcc refused --codegen-flags {' '.join(flags)}: {last}")
+            why = " ".join(compiled.stderr.strip().splitlines()[-2:]) or "(no message)"
+            if flags != DEFAULT_CODEGEN_FLAGS:  # the user's flags: theirs to fix
+                raise InputError(f"gcc refused --codegen-flags {' '.join(flags)}: {why}")
+            raise PlannerError(f"gcc failed on the generated NLP functions: {why}")
         tmp.replace(so)  # atomic: a concurrent run never loads a half-written library
         out["compile_s"] = time.perf_counter() - t0
     c_file.unlink()
@@ -358,7 +362,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iters", type=int, help="IPOPT iterations of the fixed run (default 150, --quick 10)")
     parser.add_argument("--repeats", type=int, help="interleaved repeats, the median is reported (default 3, --quick 1)")
     parser.add_argument("--codegen", action="store_true", help="also the generated-and-compiled NLP functions (gcc; minutes for Capler)")
-    parser.add_argument("--codegen-flags", type=str.split, default=["-O1"], metavar="'FLAGS'",
+    parser.add_argument("--codegen-flags", type=str.split, default=DEFAULT_CODEGEN_FLAGS, metavar="'FLAGS'",
                         help="gcc flags of --codegen in one argument (default -O1), e.g. --codegen-flags='-O2 -march=native'")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")

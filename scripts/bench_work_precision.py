@@ -73,7 +73,8 @@ from planner.problem import build_problem
 from planner.result import write_atomically
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
-from scripts._report import out_dir, run_main, save_figure, script_parser
+from planner.plots import save_figure
+from scripts._report import out_dir, run_main, script_parser
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")

@@ -853,7 +853,7 @@ def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch)
 def test_run_main_turns_an_os_error_into_one_line(capsys):
     """An OSError that no check before the run could see (--out under /proc: FileNotFoundError after the whole run,
     a traceback before) is one line: exit 2 when the system refuses a path, exit 1 naming the cause otherwise (a full
-    disk)."""
+    disk), also when it reaches run_main as the PlannerError of a write (it said "error:", exit 2)."""
     import errno
 
     from scripts._report import run_main
@@ -869,6 +869,13 @@ def test_run_main_turns_an_os_error_into_one_line(capsys):
     assert run_main(full) == 1
     err = capsys.readouterr().err
     assert err.endswith("failed: No space left on device: /data/results.json\n") and len(err.splitlines()) == 1
+
+    def written_full():  # write_atomically's error for a full disk: a PlannerError that is no InputError
+        from planner.errors import write_error
+
+        raise write_error("/data/results.json", OSError(errno.ENOSPC, "No space left on device"))
+
+    assert run_main(written_full) == 1 and "failed: cannot write /data/results.json" in capsys.readouterr().err
 
 
 def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
