@@ -20,11 +20,11 @@ PATH_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.ENOTDIR, errno.E
                          errno.EROFS, errno.EPERM, errno.EEXIST})
 
 
-def write_error(path, exc: OSError) -> PlannerError:
+def write_error(path, exc: OSError, doing: str = "cannot write") -> PlannerError:
     """The error to raise for an OSError writing `path`: an InputError when the path is refused (PATH_ERRNOS), else a
-    PlannerError (exit 1: a full disk is not the user's input)."""
+    PlannerError (exit 1: a full disk is not the user's input); the message is `DOING PATH: reason`."""
     kind = InputError if exc.errno in PATH_ERRNOS else PlannerError
-    return kind(f"cannot write {path}: {exc.strerror or exc}")
+    return kind(f"{doing} {path}: {exc.strerror or exc}")
 
 
 class PlannerError(Exception):

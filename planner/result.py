@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, expect, write_error
+from .errors import InputError, expect, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -653,8 +653,7 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a parent that is a file, no permission, a read-only file system (a full disk: exit 1)
-        kind = InputError if exc.errno in PATH_ERRNOS else PlannerError
-        raise kind(f"cannot create output directory {out}: {exc.strerror}") from None
+        raise write_error(out, exc, "cannot create output directory") from None
     # one id in both files: a crash between their renames leaves two results' files, which readers then refuse
     result_id = uuid.uuid4().hex
     arrays, summary = {**arrays, "result_id": np.array(result_id)}, {**summary, "result_id": result_id}
