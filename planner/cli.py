@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -189,7 +190,9 @@ def main(argv: list[str] | None = None) -> int:
     redirect = getattr(args, "json", False) or getattr(args, "verbose", False)
     quiet_stdout = contextlib.redirect_stdout(sys.stderr) if redirect else contextlib.nullcontext()
     try:
-        with quiet_stdout:
+        with quiet_stdout, warnings.catch_warnings():  # restores showwarning for an in-process caller
+            # one line, as every other message: Python's format adds the source line that issued it
+            warnings.showwarning = lambda message, *_: print(f"planner {args.command}: warning: {message}", file=sys.stderr)
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
         if code == EXIT_FAILED and getattr(args, "quiet", False):
@@ -433,6 +436,7 @@ def _cmd_plan(args) -> int:
     from .discretization import Discretization
     from .homotopy import FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
+    from .task import MAX_STEPS
 
     discretization, fesd = _discretization(args, elements=3)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
@@ -454,8 +458,8 @@ def _cmd_plan(args) -> int:
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
     elif discretization is Discretization.FESD:
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
-    if args.steps is not None and args.steps < 1:
-        raise InputError(f"--steps must be >= 1, got {args.steps}")
+    if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
+        raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
     if args.init is not None and discretization is not Discretization.IMPLICIT_EULER:
         raise InputError("--init works with --discretization implicit_euler only")
     for flag, given in (("--keep-schedule", args.keep_schedule), ("--penalty-replan", args.penalty_replan),
@@ -595,7 +599,11 @@ def _cmd_validate(args) -> int:
     if not os.access(args.dir, os.W_OK | os.X_OK):  # before the replays: the verdict is written into DIR/summary.json
         raise InputError(f"result directory {args.dir} is not writable: the validation is stored in its summary.json")
     windowed = {} if args.window is None else {"window_s": args.window}
-    result_id = read_summary(args.dir, require=()).get("result_id")  # a run writing DIR meanwhile: its verdict is not stored
+    summary = read_summary(args.dir, require=())
+    result_id = summary.get("result_id")  # a run writing DIR meanwhile: its verdict is not stored
+    if not summary.get("robot_sha256"):  # a result written before the hash (or one with it deleted): said, not silent
+        _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
+                        "the one the result was computed from")
     result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))
     write_validation(args.dir, result, result_id)
     _emit(args, result.to_json(), result.report())

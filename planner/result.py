@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect, write_error
+from .errors import InputError, expect, shown, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -750,6 +750,8 @@ def _stage(path: str | os.PathLike, write) -> str:
         os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as f:
             write(f)
+            f.flush()
+            os.fsync(f.fileno())  # on disk before the rename: a power cut after it left an empty file under the name
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
@@ -806,6 +808,8 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
 def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) -> dict:
     """summary.json as a dict holding a path for each key of `require` (InputError otherwise)."""
     path = Path(out_dir) / "summary.json"
+    if path.exists() and not path.is_file():  # a FIFO (or a device) there made validate wait for ever
+        raise InputError(f"{path} is not a regular file")
     try:
         summary = json.loads(path.read_text())
     except FileNotFoundError:
@@ -897,7 +901,10 @@ def check_robot_unchanged(summary: dict, robot, out_dir: Path) -> bool:
     """InputError when `robot`'s file has other contents than the result's summary.json says it was computed from
     (robot_sha256: a file edited in place since is caught too); False when the summary predates robot_sha256."""
     then = summary.get("robot_sha256")
-    if not (isinstance(then, str) and then):
+    if then is not None and not isinstance(then, str):  # a number or a list there switched the check off
+        raise InputError(f"{Path(out_dir) / 'summary.json'}: robot_sha256 must be a string (the robot file's SHA-256), "
+                         f"got {shown(then)}")
+    if not then:
         return False
     if then != robot.sha256:
         raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the one the "

@@ -367,7 +367,8 @@ def test_plan_fesd_from_the_command_line(tmp_path, capsys):
 
 def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     """`plan --steps N` plans the task on N steps of h = tau_f / N instead of the task's own N (the hop's
-    task says 40; the plan has 8 steps of 0.125 s); --steps 0 is exit 2, one line naming --steps."""
+    task says 40; the plan has 8 steps of 0.125 s); --steps 0 and --steps 1e8 are exit 2, one line naming --steps (not
+    the task's horizon.N)."""
     task = tmp_path / "hop.toml"
     task.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
                     '[horizon]\ntau_f = 1.0\nN = 40\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
@@ -375,7 +376,8 @@ def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["n_steps"] == 8 and summary["h"] == 0.125
-    _one_line_exit_2(capsys, argv[:-1] + ["0"], "--steps must be >= 1")
+    _one_line_exit_2(capsys, argv[:-1] + ["0"], "--steps must be in [1, ")
+    _one_line_exit_2(capsys, argv[:-1] + ["100000000"], "--steps must be in [1, 10000000], got 100000000")
 
 
 def test_verbose_json_keeps_stdout_one_json_object(tmp_path):
@@ -629,8 +631,9 @@ def test_a_result_keeps_its_robot_files_hash_and_validate_refuses_the_file_chang
     """summary.json of `planner simulate` and of `planner plan` holds robot_sha256, the SHA-256 of the robot file's
     contents (planner.model.file_sha256). `validate DIR` after that file was edited in place (the 1 kg point mass made
     1.3 kg) exits 2 with one line saying the file has other contents than the result was computed from: it replayed
-    the result with the other mass, named only by the file's path. A summary.json without robot_sha256 (a result written before it was kept) still
-    validates."""
+    the result with the other mass, named only by the file's path. A summary.json without robot_sha256 (a result
+    written before it was kept) still validates, with a note on stderr that the file was not checked (deleting the
+    key switched the check off silently); a robot_sha256 that is not a string is exit 2 (a number did the same)."""
     robot = tmp_path / "pm.xml"
     robot.write_text((Path(__file__).resolve().parents[1] / "robots" / "point_mass.xml").read_text())
     hop = tmp_path / "hop.toml"
@@ -645,9 +648,13 @@ def test_a_result_keeps_its_robot_files_hash_and_validate_refuses_the_file_chang
     robot.write_text(source.replace('mass="1"', 'mass="1.3"'))
     _one_line_exit_2(capsys, ["validate", str(drop)], "has other contents")
     summary = json.loads((drop / "summary.json").read_text())
+    (drop / "summary.json").write_text(json.dumps({**summary, "robot_sha256": 12345}))
+    _one_line_exit_2(capsys, ["validate", str(drop)], "robot_sha256 must be a string")
     (drop / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"}))
     assert main(["validate", str(drop), "-q"]) == 0
     assert capsys.readouterr().err == ""
+    assert main(["validate", str(drop)]) == 0
+    assert "has no robot_sha256: the robot file is not checked" in capsys.readouterr().err
 
 
 FAR_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'

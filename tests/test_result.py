@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import pickle
 import shutil
 from dataclasses import replace
@@ -356,8 +357,13 @@ def test_files_of_two_results_are_refused(tmp_path):
 
 
 def test_broken_result_files_are_input_errors(tmp_path):
-    """A summary.json nested too deeply for Python's JSON reader (RecursionError) and a plan whose nlp_x is not numeric
-    are InputErrors; a start of the same size but other variables says so (it read "291 against 291")."""
+    """A summary.json nested too deeply for Python's JSON reader (RecursionError), a FIFO named summary.json (reading
+    it waited for a writer for ever) and a plan whose nlp_x is not numeric are InputErrors; a start of the same size
+    but other variables says so (it read "291 against 291")."""
+    os.mkfifo(tmp_path / "summary.json")
+    with pytest.raises(InputError, match="summary.json is not a regular file"):
+        read_summary(tmp_path)
+    (tmp_path / "summary.json").unlink()
     (tmp_path / "summary.json").write_text('{"robot": "r", "x": ' + "[" * 100000 + "]" * 100000 + "}")
     with pytest.raises(InputError, match="nested too deeply"):
         read_summary(tmp_path)

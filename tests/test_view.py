@@ -20,6 +20,7 @@ import pytest
 from planner.errors import InputError
 from planner.model import load_robot
 from planner import view
+from planner.cli import main
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 GRAVITY = 9.81  # [m/s^2]
@@ -235,6 +236,21 @@ def test_kinematic_tree_fallback_for_a_robot_without_visuals(tmp_path):
     # a rod's centre is half-way to its end: 0.5 m below j1, 0.3 m below j2
     assert np.allclose(rods["rod_j1_j2"].placement[:3, 3], [0, 0, -0.25])
     assert np.allclose(rods["rod_j2_tip"].placement[:3, 3], [0, 0, -0.15])
+
+
+def test_a_missing_mesh_is_one_warning_line_in_the_cli(tmp_path, capsys):
+    """`planner view DIR --html` of a robot whose URDF names a mesh file that is not there draws the kinematic tree
+    and says why in one stderr line (Python's warning format added the source line that issued it)."""
+    urdf = tmp_path / "mesh.urdf"
+    source = (ROBOTS / "capler.urdf").read_text()
+    assert source.count('<box size="0.12 0.08 0.08"/>') == 1
+    urdf.write_text(source.replace('<box size="0.12 0.08 0.08"/>', '<mesh filename="missing_body.stl"/>'))
+    out = make_result_dir(tmp_path, robot=str(urdf))
+    assert main(["view", str(out), "--html", str(tmp_path / "page.html")]) == 0
+    err = capsys.readouterr().err.splitlines()  # (under pytest a library's DeprecationWarning shows too, one line)
+    assert all(line.startswith("planner view: warning: ") for line in err), err
+    mesh = [line for line in err if "meshcat replay" in line]
+    assert len(mesh) == 1 and "could not read the geometry" in mesh[0] and "missing_body.stl" in mesh[0], err
 
 
 # --- the animation timeline ----------------------------------------------------------------------------
