@@ -700,10 +700,10 @@ class WalkReport:
 
     steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
     `steps_asked`); fell: the hip dropped below 0.6 m or the torso passed +-90 deg; impact_times
-    [s] (MuJoCo) against the plan's (j+1) T; max_hinge_error [rad], max_torso_error [rad],
-    max_hip_height_error [m]: over the steps walked, against the plan at the same stance-leg angle
-    (WalkControl.PHASE) or at the same time since the last landing (time-indexed modes);
-    max_torque [N m].
+    [s] (MuJoCo, the first steps_asked landings; the replay runs 20 % longer) against the plan's (j+1) T;
+    max_hinge_error [rad], max_torso_error [rad], max_hip_height_error [m]: over the steps walked, against the plan
+    at the same stance-leg angle (WalkControl.PHASE) or at the same time since the last landing (time-indexed
+    modes); max_torque [N m]: up to the last landing asked for (or the fall).
     """
 
     steps_asked: int
@@ -880,17 +880,21 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     if len(back):
         run = {key: value[: back[0] + 1] if len(value) == len(run["t"]) else value for key, value in run.items()}
     walked = sum(1 for t in state["impacts"] if t < state.get("fall_t", np.inf))  # landings before any fall
+    # the report covers the steps asked: the spare time's landings (12 for 10 steps) and torques are not the walk's
+    landings = state["impacts"][:steps]
+    until = min(state.get("fall_t", np.inf), landings[-1] if len(landings) == steps else np.inf)
     # the base against the plan tiled in time: timing drift included (information; PHASE ignores time)
     tiled = periodic_walk(model, sol, steps)
     upto = run["t"] <= min(state.get("fall_t", np.inf), steps * T)
     plan_base = np.column_stack([np.interp(run["t"][upto], tiled.t, tiled.q[:, i]) for i in (lay.x, lay.z)])
     base_error = np.linalg.norm(run["q"][upto][:, [lay.x, lay.z]] - plan_base, axis=1)
     return WalkReport(steps_asked=steps, steps_walked=min(walked, steps), fell=state["down"],
-                      impact_times=tuple(float(x) for x in state["impacts"]),
+                      impact_times=tuple(float(x) for x in landings),
                       planned_impact_times=tuple((j + 1) * T for j in range(steps)),
                       max_hinge_error=state["err"][0], max_torso_error=state["err"][1],
-                      max_hip_height_error=state["err"][2], max_torque=float(np.max(np.abs(run["u"]))),
-                      swing_contact_from=gate, gains=gains, step_lengths=tuple(state["steps"]),
+                      max_hip_height_error=state["err"][2],
+                      max_torque=float(np.max(np.abs(run["u"][run["t"] <= until]), initial=0.0)),
+                      swing_contact_from=gate, gains=gains, step_lengths=tuple(state["steps"][:steps]),
                       planned_step_length=tiled.step_length, max_base_error_in_time=float(np.max(base_error, initial=0.0)))
 
 

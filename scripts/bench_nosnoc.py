@@ -523,18 +523,23 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.redirect_stdout(sys.stderr):
             records.append(run_planner(args.quick))
     # --append combines records of the same settings only: a hint run at max_iter 1 was judged against a hint-free
-    # run at 4000 ("needed the hint: no")
-    settings = {"quick": args.quick, "n_fe": args.n_fe, "n_s": args.n_s, "a_t": args.a_t, "max_iter": args.max_iter}
+    # run at 4000 ("needed the hint: no"). The planner's record depends on the task alone (nosnoc's max_iter had
+    # dropped it)
+    nosnoc_settings = {"quick": args.quick, "n_fe": args.n_fe, "n_s": args.n_s, "a_t": args.a_t, "max_iter": args.max_iter}
+
+    def settings(solver: str) -> dict:
+        return nosnoc_settings if solver == "nosnoc" else {"quick": args.quick}
+
     for rec in records:
         rec["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         rec["load_average_after"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
-        rec["settings"] = settings
+        rec["settings"] = settings(rec["solver"])
     previous_machines, kept = [], []
     if args.append and (args.out / "results.json").is_file():
         old = json.loads((args.out / "results.json").read_text())
         redone = {(r["solver"], r["variant"]) for r in records}
         kept = [r for r in old.get("records", []) if (r["solver"], r["variant"]) not in redone and r["N"] == task.N
-                and r.get("settings") == settings]
+                and r.get("settings") == settings(r["solver"])]
         records = kept + records
         previous_machines = old.get("previous_machines", []) + [{**(old.get("machine") or {}), "command": old.get("command")}]
     ratio = None

@@ -335,7 +335,8 @@ def _given(full_solve: dict) -> str:
 def plot(records, path: Path) -> None:
     """Stacked bars: CPU ms per iteration of every (case, variant), callbacks and the rest."""
     rows = [(f"{r['case']} {v}", m) for r in records for v, m in r["variants"].items()]
-    fig = Figure(figsize=(9, 0.35 * len(rows) + 1.2))
+    # the legend beside the bars, not over them: with one or two bars it was cut at the figure's edge
+    fig = Figure(figsize=(10.5, max(0.35 * len(rows) + 1.2, 2.2)), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     y = np.arange(len(rows))
@@ -347,8 +348,7 @@ def plot(records, path: Path) -> None:
     ax.set_yticks(y, [label for label, _ in rows], fontsize=7)
     ax.invert_yaxis()
     ax.set_xlabel(f"CPU time per IPOPT iteration [ms] (NLP {records[0]['nlp']}, fixed iterations)")
-    ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
+    fig.legend(fontsize=7, loc="outside right upper")
     save_figure(fig, path, dpi=110)
 
 

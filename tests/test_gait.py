@@ -296,6 +296,7 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
         assert sol.converged and sol.final_error < FINAL_STATE_TOL
         report = replay_gait(biped, sol, task, WALK_STEPS)
         assert report.steps_walked == WALK_STEPS and not report.fell
+        assert len(report.impact_times) == len(report.step_lengths) == WALK_STEPS  # not the spare 20 %'s too
         assert abs(report.impact_times[0] - sol.t[-1]) < 0.02
         assert report.max_hinge_error < WALK_ANGLE_TOL and report.max_torso_error < WALK_ANGLE_TOL
         assert report.max_torque < WALK_TORQUE_MARGIN * np.max(np.abs(sol.u))

@@ -502,7 +502,8 @@ def test_bench_nosnoc_quick_run(bench_nosnoc, tmp_path, capsys):
 def test_bench_nosnoc_append_keeps_only_records_of_the_same_settings(bench_nosnoc, monkeypatch, tmp_path, capsys):
     """--append keeps an earlier record only when it was run with the same settings (quick, n_fe, n_s, a_t, max_iter),
     and the table says which records are kept and from when: a hint run at max_iter 1 was judged against a hint-free
-    run at 4000, "nosnoc needed the hint: no", silently."""
+    run at 4000, "nosnoc needed the hint: no", silently. The planner's record is kept across nosnoc's settings (its
+    solve does not use them; another --max-iter dropped it) and not across --quick."""
     pytest.importorskip("nosnoc")
 
     def fake(nosnoc, ca, task, variant, **settings):  # a record as run_nosnoc writes it, without the solve
@@ -520,6 +521,15 @@ def test_bench_nosnoc_append_keeps_only_records_of_the_same_settings(bench_nosno
     assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "1"] + out) == 0  # the same settings: combined
     printed = capsys.readouterr().out
     assert "nosnoc hint: kept from the run of" in printed and "nosnoc needed the hint: yes" in printed
+    monkeypatch.setattr(bench_nosnoc, "run_planner", lambda quick: {"solver": "planner", "variant": "hint-free", "N": 25,
+                                                                    "holes": 0, "converged": True, "wall_time_s": 0.5})
+    assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "1", "--planner"] + out) == 0
+    capsys.readouterr()
+    assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "7"] + out) == 0
+    records = json.loads((tmp_path / "results.json").read_text())
+    assert [(r["solver"], r["variant"]) for r in records["records"]] == [("planner", "hint-free"), ("nosnoc", "hint-free")]
+    assert records["wall_time_ratio_nosnoc_over_planner"] == 2.0
+    assert "planner hint-free: kept from the run of" in capsys.readouterr().out
 
 
 def test_bench_nosnoc_planner_side_races_as_planner_plan_does(bench_nosnoc, monkeypatch):
@@ -987,6 +997,22 @@ def test_bench_pipeline_quick_run(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(bench.shutil, "which", lambda name: None)
     assert "gcc not found" in bench.compile_nlp(None, tmp_path / "cache", ["-O1"])["skipped"]
 
+
+def test_bench_pipeline_plot_keeps_its_legend_inside_the_figure(tmp_path, monkeypatch):
+    """pipeline.png with one bar (one case, one variant) shows the whole legend: it sat over the axes in a figure
+    1.55 in high and was cut at the figure's edge."""
+    bench = _load("bench_pipeline")
+    shown = {}
+    monkeypatch.setattr(bench, "save_figure", lambda fig, path, dpi: shown.setdefault("fig", fig))
+    per_iter = {"rest_cpu_ms_per_iter": 10.0, "eval_cpu_ms_per_iter": {c: 1.0 for c in bench.CALLBACKS}}
+    bench.plot([{"case": "hop", "nlp": 1, "variants": {"baseline": per_iter}}], tmp_path / "pipeline.png")
+    fig = shown["fig"]
+    renderer = fig.canvas.get_renderer()
+    fig.draw(renderer)
+    (legend,) = fig.legends
+    box, frame = legend.get_window_extent(renderer), fig.bbox
+    assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1, (box, frame)
+    assert len(legend.get_texts()) == len(bench.CALLBACKS) + 1
 
 @pytest.mark.parametrize("flag", ["--iters", "--repeats"])
 def test_bench_pipeline_rejects_a_count_below_one(capsys, flag):
