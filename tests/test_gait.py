@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError, TaskError, UnknownNameError
-from planner.gait import (GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, replay_gait, run_gait,
-                          solve_gait, solve_gait_ipopt)
+from planner.gait import (GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, find_layout, replay_gait,
+                          run_gait, solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
 from planner.task import load_task, parse_task
 
@@ -356,3 +356,13 @@ def test_gait_spec_refuses_what_the_ocp_cannot_use(field, value):
     assert dataclasses.replace(spec).desired_input is spec.desired_input
     with pytest.raises(InputError, match=rf"^GaitSpec\.{field} "):
         dataclasses.replace(spec, **{field: value})
+
+
+def test_a_foot_that_is_not_on_a_motor_driven_leg_is_named(robot):
+    """find_layout with a point that does not hang from an actuated leg hinge (gait.stance = "torso_top") names that
+    point and why ("leg hinge 'x' has no motor" named neither the point nor the [gait] key's role)."""
+    assert find_layout(robot, "foot_1", "foot_2").stance_foot == "foot_1"
+    with pytest.raises(InputError, match=r"the stance foot 'torso_top' is not on a motor-driven leg hinge"):
+        find_layout(robot, "torso_top", "foot_2")
+    with pytest.raises(InputError, match=r"the swing foot 'torso_top' is not on a motor-driven leg hinge"):
+        find_layout(robot, "foot_1", "torso_top")
