@@ -190,7 +190,15 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     """
     expect(spec, (str, os.PathLike), "load_robot's spec (a robot name or file)")
     path = resolve_robot_path(spec)
-    fmt = detect_format(path)
+    try:
+        fmt = detect_format(path)
+    except RobotFileError as exc:
+        shadowed = [ROBOTS_DIR / f"{path.name}{ext}" for ext in (".xml", ".urdf")]
+        if Path(spec) == Path(path.name) and not path.suffix and any(f.is_file() for f in shadowed):
+            # an existing path wins, as everywhere; a stray file named `capler` made `plan capler` a parse error
+            raise RobotFileError(f"{exc} (the file {path.name!r} in the working directory is read, not robots/"
+                                 f"{path.name}; to use that one, give its path)") from None
+        raise
     if floating and fmt is RobotFormat.MJCF:
         raise RobotFileError(f"{path}: floating applies to URDF only; an MJCF file declares its own <freejoint/>")
     try:

@@ -792,6 +792,10 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
         raise InputError("trajectory 't' must be non-decreasing (an impact repeats a time, never goes back)")
     if t[-1] <= t[0]:
         raise InputError(f"trajectory spans no physical time (t from {t[0]} to {t[-1]})")
+    outside = out["impact_times"][(out["impact_times"] < t[0]) | (out["impact_times"] > t[-1])]
+    if outside.size:  # impact times shifted by 100 s were matched against nothing and passed
+        raise InputError(f"trajectory impact time {outside[0]:g} s lies outside its samples' span "
+                         f"[{t[0]:g}, {t[-1]:g}] s")
     return out
 
 

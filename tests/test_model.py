@@ -39,6 +39,18 @@ def test_bare_name_resolves_to_robots_dir():
         load_robot("no_such_robot")
 
 
+def test_a_file_of_a_robots_name_in_the_working_directory_is_read_and_said_so(tmp_path, monkeypatch):
+    """A file named `capler` in the working directory is the robot `capler` (an existing path wins); when it is not a
+    robot file, the error says that it hid robots/capler (a stray notes file made `plan capler` a bare parse error)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "capler").write_text("notes")
+    with pytest.raises(RobotFileError, match=r"malformed XML .*the file 'capler' in the working directory is read, "
+                                             r"not robots/capler; to use that one, give its path"):
+        load_robot("capler")
+    (tmp_path / "capler").write_text((ROBOTS_DIR / "capler.xml").read_text())
+    assert load_robot("capler").path == tmp_path / "capler"
+
+
 def test_unknown_joint_lists_names():
     """An unknown joint name raises UnknownNameError listing the robot's joints."""
     with pytest.raises(UnknownNameError, match="base_x, base_z, hip, knee"):

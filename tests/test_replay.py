@@ -669,6 +669,11 @@ def test_missing_and_garbled_files(ground_truth, tmp_path):
     np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")})
     with pytest.raises(InputError, match="lacks impact_times"):
         replay.validate(d)
+    d = copy("shifted_impacts")  # impact times 100 s late were matched against nothing: passed
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
+             impact_times=np.atleast_1d(traj["impact_times"]) + 100.0)
+    with pytest.raises(InputError, match=r"impact time .* s lies outside its samples' span"):
+        replay.validate(d)
     d = copy("complex")  # replayed the real part, with a ComplexWarning
     np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "v", "u", "impact_times")}, "q": traj["q"] + 1j})
     with pytest.raises(InputError, match="'q' must hold real numbers"):
