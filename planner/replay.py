@@ -792,7 +792,8 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
         raise InputError("trajectory 't' must be non-decreasing (an impact repeats a time, never goes back)")
     if t[-1] <= t[0]:
         raise InputError(f"trajectory spans no physical time (t from {t[0]} to {t[-1]})")
-    outside = out["impact_times"][(out["impact_times"] < t[0]) | (out["impact_times"] > t[-1])]
+    slack = 1e-9 * max(1.0, abs(t[0]), abs(t[-1]))  # rounding of an impact at either end
+    outside = out["impact_times"][(out["impact_times"] < t[0] - slack) | (out["impact_times"] > t[-1] + slack)]
     if outside.size:  # impact times shifted by 100 s were matched against nothing and passed
         raise InputError(f"trajectory impact time {outside[0]:g} s lies outside its samples' span "
                          f"[{t[0]:g}, {t[-1]:g}] s")
