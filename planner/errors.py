@@ -100,6 +100,12 @@ def representable(value, kind: str) -> bool:
     return not isinstance(value, int) or abs(value) <= sys.float_info.max
 
 
+def plain(value):
+    """A numpy scalar or array as the Python number or (nested) list it holds, anything else as it is: a notebook's
+    np.int64 for an int field or np.array for a tuple was refused as "not an integer", "not an array"."""
+    return value.tolist() if type(value).__module__ == "numpy" and hasattr(value, "tolist") else value
+
+
 def shown(value, width: int = 60) -> str:
     """repr(value) cut to `width` characters for a message (an int of more than 4300 digits, which Python refuses to
     write out, is named as such)."""
@@ -121,11 +127,14 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]
-        value = getattr(options, f.name)
+        given = getattr(options, f.name)
         many = names[0].startswith("tuple[") and names[0].endswith(", ...]")
         kind = names[0][len("tuple["):-len(", ...]")] if many else names[0]
-        if kind not in kinds or (value is None and "None" in names):
+        if kind not in kinds or (given is None and "None" in names):
             continue
+        value = plain(given)
+        if many and isinstance(value, (tuple, list)):
+            value = [plain(v) for v in value]
         items = value if many and isinstance(value, (tuple, list)) else (value,)
         inf_ok = f.name in unbounded
         if many and not isinstance(value, (tuple, list)):
@@ -142,7 +151,9 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             what = (f"an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}]" if kind == "int" else kinds[kind] if kind != "float"
                     else "a number within a double's range, not nan (inf: no bound)" if inf_ok else "a finite number")
             label = type(options).__name__ if owner is None else owner
-            raise error(f"{label + '.' if label else ''}{f.name} = {shown(value, 200)} is not allowed; it must be "
+            raise error(f"{label + '.' if label else ''}{f.name} = {shown(given, 200)} is not allowed; it must be "
                         + (f"a tuple of which each is {what}" if many else what))
-        if many and isinstance(value, list):  # stored as the tuple it is typed: a list field made hash() raise
+        if many:  # stored as the tuple it is typed (a list field made hash() raise), of Python numbers
             object.__setattr__(options, f.name, tuple(value))
+        elif value is not given:
+            object.__setattr__(options, f.name, value)

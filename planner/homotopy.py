@@ -799,7 +799,11 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     expect(options, SolveOptions, "solve's options")
     if progress is not None and not callable(progress):  # it raised TypeError after NLP 1, its work lost
         raise InputError(f"solve's progress must be a function of an NlpRecord or None, got {type(progress).__name__}")
-    problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
+    start = problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
+    if not np.all(np.isfinite(start)):  # it ran the whole homotopy on NaN (IPOPT's Invalid_Number_Detected, 8 NLPs)
+        bad = int(np.flatnonzero(~np.isfinite(start))[0])
+        raise InputError(f"problem.x0 holds NaN or inf (first at {problem.var_names[bad]}, entry {bad}): a start "
+                         "must be finite")
     _check_schedules(problem, options)
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's

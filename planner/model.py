@@ -189,6 +189,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     floating: give a URDF robot a free-flyer root joint (an MJCF file declares its own <freejoint/>).
     """
     expect(spec, (str, os.PathLike), "load_robot's spec (a robot name or file)")
+    expect(floating, bool, "load_robot's floating")  # "no" built a floating robot
     path = resolve_robot_path(spec)
     try:
         fmt = detect_format(path)

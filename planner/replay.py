@@ -674,6 +674,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
 def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: ValidationOptions | None = None) -> Validation:
     """validate_trajectory of a solved plan's Trajectory, in memory: its physical-time samples, and its impacts'
     contact points and taps as `validate(DIR)` reads them from summary.json."""
+    expect(trajectory, Trajectory, "validate_plan's trajectory (PlanResult.trajectory; arrays: validate_trajectory)")
     arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
     return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
                                impact_taps=trajectory.taps)
@@ -1277,14 +1278,23 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
     steps -= steps % sample_every  # end on a sample
     if steps < sample_every:
         raise InputError(f"duration {duration} s is shorter than one sample ({sample_every} steps)")
+    start = {}
+    for name, value, n in (("q0", q0, model.nq), ("v0", v0, model.nv)):  # numpy broadcast a length-1 q0 to every entry
+        start[name] = real_array(value, f"mujoco_rollout's {name}")
+        if start[name].shape != (n,) or not np.all(np.isfinite(start[name])):
+            raise InputError(f"mujoco_rollout's {name} must be {n} finite numbers (the scene's n{name[0]}), got "
+                             f"{start[name].tolist()!r:.80}")
     held = np.zeros(model.nu)
 
     def command(k, data):
         if k % sample_every == 0 and control is not None:
-            held[:] = np.asarray(control(data.time, data.qpos.copy(), data.qvel.copy()), dtype=float)
+            u = real_array(control(data.time, data.qpos.copy(), data.qvel.copy()), "mujoco_rollout's control(t, q, v)")
+            if u.shape != held.shape:  # a scalar drove every motor
+                raise InputError(f"mujoco_rollout's control(t, q, v) must return nu = {model.nu} numbers, got shape {u.shape}")
+            held[:] = u
         return held.copy()
 
-    run = _simulate(scene, np.asarray(q0, float), np.asarray(v0, float), steps, 0.0, command)
+    run = _simulate(scene, start["q0"], start["v0"], steps, 0.0, command)
     impacts = detect_impacts(run.times, run.active, scene.points, min_flight_s, run.touching0)
     picks = np.arange(0, steps + 1, sample_every)
     u = run.ctrl[np.maximum(picks - 1, 0)] if model.nu else np.zeros((picks.size, 0))

@@ -465,6 +465,18 @@ class PlanResult(ArraysReadOnly):
     extra: dict = field(default_factory=dict)
     robot_sha256: str = ""  # the robot file's contents as planned (validate and --init refuse the file changed since)
 
+    def nlp_point(self, problem) -> np.ndarray:
+        """The NLP point (problem.nx,) this plan ended at, to start `problem` from (a replan:
+        `dataclasses.replace(problem, x0=result.nlp_point(problem))`, as `planner plan --init DIR` reads it from
+        trajectory.npz): a copy; an InputError when `problem` has other variables (Problem.signature: another N,
+        contact set, discretization or formulation) or the result holds none (it was only in a private key)."""
+        if "_x" not in self.extra or "_signature" not in self.extra:
+            raise InputError("this plan holds no NLP point to start from")
+        if self.extra["_signature"] != problem.signature:
+            raise InputError(f"this plan's NLP variables ({self.extra['_signature'][:16]!r}) are not those of the problem "
+                             f"({problem.signature!r}): a start needs the same robot contacts, N, discretization and options")
+        return np.array(self.extra["_x"], dtype=float)
+
     def report(self) -> str:
         tr, st = self.trajectory, self.stats
         lines = [_headline(self, "") + f", terminal error {self.terminal_error:.1e})"]

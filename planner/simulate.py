@@ -88,14 +88,16 @@ class SimulateOptions:
     def __post_init__(self):
         check_field_types(self)
         if not isinstance(self.strategy, Strategy):
-            raise InputError(f"strategy = {self.strategy!r} is not allowed; it must be one of {[s.value for s in Strategy]}")
+            raise InputError(f"SimulateOptions.strategy = {self.strategy!r} is not allowed; it must be one of "
+                             f"{[s.value for s in Strategy]}")
         if not isinstance(self.discretization, Discretization):
-            raise InputError(f"discretization = {self.discretization!r} is not allowed; it must be one of {[d.value for d in Discretization]}")
+            raise InputError(f"SimulateOptions.discretization = {self.discretization!r} is not allowed; it must be one of "
+                             f"{[d.value for d in Discretization]}")
         if not isinstance(self.fesd, FESDOptions):
-            raise InputError(f"fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
+            raise InputError(f"SimulateOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
         if self.velocity_switch is not None and not isinstance(self.velocity_switch, SwitchVelocity):
-            raise InputError(f"velocity_switch = {self.velocity_switch!r} is not allowed; it must be None or one of "
-                             f"{[v.value for v in SwitchVelocity]}")
+            raise InputError(f"SimulateOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be None "
+                             f"or one of {[v.value for v in SwitchVelocity]}")
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")
         checks = [

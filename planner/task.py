@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect, representable
+from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect, plain, representable
 
 
 # gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
@@ -624,6 +624,7 @@ UNBOUNDED_OK = frozenset({"lower", "upper", "u_bound", "v_bound"})
 
 
 def _convert(tp, value, key: str):
+    value = plain(value)  # numpy's numbers and arrays (a task built in a notebook) as the Python ones they hold
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):
         inner = [a for a in args if a is not type(None)]
@@ -631,7 +632,7 @@ def _convert(tp, value, key: str):
             return None
         return _convert(inner[0], value, key)
     if origin is tuple:
-        if not isinstance(value, list):
+        if not isinstance(value, (list, tuple)):
             raise TaskError(f"{key} must be an array, got {_typename(value)}")
         return tuple(_convert(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
     if is_dataclass(tp):

@@ -19,6 +19,7 @@ import contextlib
 import io
 import json
 import math
+import os
 import re
 import time
 import warnings
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, PlannerError
+from .errors import InputError, PlannerError, expect
 from .model import Robot, RobotFormat
 from .result import (ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
                      write_atomically)
@@ -138,6 +139,7 @@ class Result(ArraysReadOnly):
 
 def load_result(out_dir) -> Result:
     """Read a result directory (the contract in design.md). Raises InputError naming what is wrong."""
+    expect(out_dir, (str, os.PathLike), "load_result's out_dir")
     directory = Path(out_dir)
     if not directory.is_dir():
         raise InputError(f"result directory not found: {directory}")
@@ -537,6 +539,9 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     Opening `page.html#time=T` shows the replay paused at replay time T [s] (tau in slow motion).
     Returns the path written. Raises InputError for an unusable result directory or output path.
     """
+    expect(out_dir, (str, os.PathLike), "render_html's out_dir")
+    expect(html_path, (str, os.PathLike), "render_html's html_path")
+    expect(slow_motion, bool, "render_html's slow_motion")
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
@@ -560,6 +565,8 @@ def serve(out_dir, slow_motion: bool = False, zmq_url: str | None = None, *, blo
     Starts meshcat's server as a subprocess unless `zmq_url` names a running one (`meshcat-server`).
     The server lives until this Python process exits; `block=True` waits for Ctrl-C instead of returning.
     """
+    expect(slow_motion, bool, "serve's slow_motion")
+    expect(zmq_url, (str, type(None)), "serve's zmq_url")
     res = load_result(out_dir)  # fail on bad input before starting a server
     if zmq_url is not None:
         _check_server(zmq_url)  # meshcat itself would wait forever for a server that is not there

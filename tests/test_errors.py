@@ -2,8 +2,9 @@
 the check of the public functions' arguments."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+import numpy as np
 import pytest
 
 from planner.discretization import FESDOptions
@@ -16,10 +17,11 @@ from planner.problem import ProblemOptions, build_problem
 from planner.pronto import ProntoOptions
 from planner.race import race
 from planner.replan import replan
-from planner.replay import ContactSettings, TrackingGains, ValidationOptions, validate
+from planner.replay import ContactSettings, TrackingGains, ValidationOptions, validate, validate_plan
 from planner.result import write_results
 from planner.simulate import SimulateOptions, simulate
 from planner.task import load_task, parse_task
+from planner.view import load_result, render_html, serve
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,23 @@ def test_check_field_types(kwargs, ok):
     field = next(iter(kwargs))
     assert f"_Typed.{field} = {kwargs[field]!r} is not allowed" in str(err.value)
     assert isinstance(err.value, PlannerError)
+
+
+def test_numpy_numbers_and_arrays_are_read_as_the_python_values_they_hold():
+    """A notebook's np.int64 for an int, np.float64 for a float, np.bool_ for a bool and a 1-D np.array for a tuple are
+    accepted and stored as Python values (np.int64 was "not an integer" and an array "not a tuple of numbers"); the
+    objects equal and hash as those built from plain values; what they hold is checked as before."""
+
+    typed = _Typed(flag=np.bool_(False), count=np.int64(3), scale=np.float32(0.5), items=np.array([1.0, 2.5]),
+                   names=np.array(["a", "b"]))
+    assert typed == _Typed(flag=False, count=3, scale=0.5, items=(1.0, 2.5), names=("a", "b"))
+    assert hash(typed) == hash(_Typed(flag=False, count=3, scale=0.5, items=(1.0, 2.5), names=("a", "b")))
+    assert type(typed.count) is int and type(typed.items) is tuple and type(typed.items[0]) is float
+    assert SolveOptions(max_iter=np.int64(100)).max_iter == 100
+    for bad in ({"count": np.float64(1.5)}, {"items": np.array([1.0, np.nan])}, {"items": np.array([[1.0, 2.0]])},
+                {"scale": np.complex128(1j)}):
+        with pytest.raises(InputError, match=f"_Typed.{next(iter(bad))} = "):
+            _Typed(**bad)
 
 
 @pytest.mark.parametrize("cls, field, value, owner", [
@@ -113,6 +132,15 @@ def hop():
     (lambda r, t, p: t.check_against("point_mass"), "check_against's robot must be a Robot, got str"),
     # it raised TypeError only after NLP 1, whose work was lost
     (lambda r, t, p: solve(p, SolveOptions(), progress=5), "solve's progress must be a function"),
+    (lambda r, t, p: load_robot("robots/capler.urdf", floating="no"), "load_robot's floating must be a bool"),
+    (lambda r, t, p: render_html(3, "x.html"), "render_html's out_dir must be a str or PathLike"),
+    (lambda r, t, p: render_html("results", 3), "render_html's html_path must be a str or PathLike"),
+    (lambda r, t, p: load_result(5), "load_result's out_dir must be a str or PathLike"),
+    (lambda r, t, p: serve("results", slow_motion="yes"), "serve's slow_motion must be a bool"),
+    (lambda r, t, p: validate_plan(r, t, {"q": 1}), "validate_plan's trajectory .* must be a Trajectory"),
+    # the whole homotopy ran on NaN
+    (lambda r, t, p: solve(replace(p, x0=np.full(p.nx, np.nan)), SolveOptions()),
+     r"problem.x0 holds NaN or inf \(first at .*, entry 0\): a start must be finite"),
 ])
 def test_api_calls_with_an_argument_of_the_wrong_kind_are_input_errors(hop, call, message):
     """A public function given an argument of the wrong kind (a path for a Robot, a SolveOptions for a ProblemOptions,

@@ -27,7 +27,7 @@ def hop_plan():
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=20))
     res = H.solve(prob, H.SolveOptions())
     assert res.stats.converged, res.stats.message
-    return prob, res.extra["_x"]
+    return prob, res.nlp_point(prob)
 
 
 @pytest.fixture
@@ -62,6 +62,20 @@ def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
     assert res.trajectory.q[-1, 0] == pytest.approx(0.6, abs=TERMINAL_TOL)
     assert (res.stats.n_nlp, res.stats.ipopt_iterations) == (3, sum(r.iterations for r in res.nlps))
     assert res.timings["ipopt_s"] == pytest.approx(sum(r.time_s for r in res.nlps))
+
+
+def test_a_plan_in_memory_gives_its_nlp_point_to_a_problem_of_the_same_variables(hop_plan):
+    """PlanResult.nlp_point(problem) is the plan's NLP point (what trajectory.npz's nlp_x keeps for --init), a copy,
+    for a problem of the same variables (the moved task's); one of other variables (N = 10) is an InputError naming
+    why (the point was only in the private result.extra["_x"])."""
+    prob, x0 = hop_plan
+    res = H.solve(dataclasses.replace(prob, x0=x0), H.replan_options())
+    point = res.nlp_point(_moved(prob, x0, 0.55))
+    np.testing.assert_array_equal(point, res.extra["_x"])
+    point[0] += 1.0
+    assert res.nlp_point(prob)[0] == res.extra["_x"][0]
+    with pytest.raises(InputError, match="are not those of the problem .*same robot contacts, N"):
+        res.nlp_point(build_problem(prob.robot, hop_task(N=10)))
 
 
 def _steps(res) -> list[str]:

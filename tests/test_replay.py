@@ -276,6 +276,21 @@ def test_decimated_rollout_validates(capler):
     assert result.max_tracking_error_m <= DECIMATED_TOL_M
 
 
+def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
+    """mujoco_rollout's q0 (nq,), v0 (nv,) and control's u (nu,) are checked: numpy broadcast a 1-entry q0 to every
+    coordinate (Capler started 0.7 m up on its slides, its joints at 0.7 rad) and a scalar control to every motor."""
+    robot, task = capler
+    scene = replay.build_scene(robot, task)
+    start = [0.0, DROP_Z, *HOLD]
+    for q0, v0, message in (([0.7], np.zeros(4), r"q0 must be 4 finite numbers \(the scene's nq\), got \[0.7\]"),
+                            (start, np.zeros(5), "v0 must be 4 finite numbers"),
+                            ([0.0, np.nan, *HOLD], np.zeros(4), "q0 must be 4 finite numbers")):
+        with pytest.raises(InputError, match=message):
+            replay.mujoco_rollout(scene, q0, v0, 0.01)
+    with pytest.raises(InputError, match=r"control\(t, q, v\) must return nu = 2 numbers, got shape \(\)"):
+        replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, lambda t, q, v: 5.0)
+
+
 def test_shifted_base_fails(ground_truth, capler):
     """The ground truth with the base 5 cm higher throughout: a robot hovering above its feet is not
     physical, MuJoCo lets it fall, and the tracking error exceeds the threshold."""

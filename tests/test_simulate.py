@@ -329,9 +329,12 @@ def test_initial_state_below_ground_is_input_error():
 
 
 def test_options_are_validated():
-    """Options are checked when built: unknown strategy values and out-of-range numbers are errors."""
-    with pytest.raises(InputError, match="strategy"):
+    """Options are checked when built: unknown strategy values and out-of-range numbers are errors, named with the
+    class as every options class names its fields ("strategy = 'fast'" alone did not say whose)."""
+    with pytest.raises(InputError, match=r"^SimulateOptions.strategy = 'fast' is not allowed; it must be one of"):
         SimulateOptions(strategy="fast")
+    with pytest.raises(InputError, match=r"^SimulateOptions.velocity_switch = 'x' is not allowed"):
+        SimulateOptions(velocity_switch="x")
     with pytest.raises(InputError, match="kappa"):
         SimulateOptions(kappa=1.0)
 

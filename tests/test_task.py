@@ -405,3 +405,18 @@ def test_an_unknown_contact_point_lists_the_sites_only():
     with pytest.raises(TaskError, match=r"contact point 'mass' is an MJCF body, not a site"):
         parse_task({"contacts": [{"point": "mass"}], "initial": {"q": [0.0, 1.0]},
                     "horizon": {"tau_f": 1.0, "N": 5}}).check_against(robot)
+
+
+def test_a_task_built_from_numpy_values_equals_the_one_from_plain_values():
+    """parse_task takes what a notebook holds: a 1-D np.array or a Python tuple for an array, np.int64 for an integer
+    (refused before as "initial.q must be an array, got ndarray" and "horizon.N must be an integer, got int64"); the
+    task equals the one read from lists and ints. A 2-D array where numbers go is still refused."""
+    import numpy as np
+
+    plain = {"contacts": [{"point": "point"}], "initial": {"q": [0.0, 1.0]}, "horizon": {"tau_f": 0.2, "N": 10}}
+    numpy = {"contacts": ({"point": "point"},), "initial": {"q": np.array([0.0, 1.0])},
+             "horizon": {"tau_f": np.float64(0.2), "N": np.int64(10)}}
+    assert parse_task(numpy) == parse_task(plain)
+    assert type(parse_task(numpy).horizon.N) is int
+    with pytest.raises(TaskError, match=r"initial.q\[0\] must be a number"):
+        parse_task({**plain, "initial": {"q": np.zeros((1, 2))}})
