@@ -222,7 +222,8 @@ def _stop(args, code: int, text: str) -> int:
     print(f"planner {args.command}: {text}", file=sys.stderr)
     if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
         with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
-            print(json.dumps({"command": args.command, "exit_code": code, "error": text}), file=args.stdout, flush=True)
+            reason = text.split(": ", 1)[1] if text.startswith(("error: ", "failed: ")) else text  # exit_code says which
+            print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout, flush=True)
     return code
 
 

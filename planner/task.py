@@ -404,6 +404,14 @@ class Task:
         # a point may touch several planes (a corner), but the same plane twice doubles its contact forces
         _require(len(set(planes)) == len(planes), "contacts", [f"{p} {list(n)}" for p, n in planes],
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
+        # touches = false drops a point's contact machinery, so it is the point's, not one plane's: false on one plane
+        # of a corner dropped the other plane's contact as well, silently
+        mixed = sorted({c.point for c in self.contacts} & {c.point for c in self.contacts if not c.touches}
+                       & {c.point for c in self.contacts if c.touches})
+        _require(not mixed, "contacts", [f"{c.point} touches = {str(c.touches).lower()}" for c in self.contacts
+                                         if c.point in mixed],
+                 "the same touches on every entry of a point (touches = false says the point never touches any "
+                 "plane)")
 
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics

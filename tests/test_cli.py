@@ -742,10 +742,11 @@ def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
 
 def test_json_is_one_object_on_every_exit(tmp_path, capsys):
     """With --json, stdout holds one JSON object also when a command stops on an error: {"command", "exit_code",
-    "error"} (it held nothing, so a script reading stdout failed to parse it); stderr keeps its one line."""
+    "error"} (it held nothing, so a script reading stdout failed to parse it), the error without stderr's "error: "
+    prefix (the exit code says which kind); stderr keeps its one line."""
     assert main(["plan", "point_mass", "--task", str(tmp_path), "--json"]) == 2
     captured = capsys.readouterr()
-    assert json.loads(captured.out) == {"command": "plan", "exit_code": 2, "error": f"error: task file {tmp_path} is a directory"}
+    assert json.loads(captured.out) == {"command": "plan", "exit_code": 2, "error": f"task file {tmp_path} is a directory"}
     assert captured.err.strip() == f"planner plan: error: task file {tmp_path} is a directory"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "s"), "--json", "--no-plots"]) == 0
     assert json.loads(capsys.readouterr().out)["command"] == "simulate"  # a success: the summary alone

@@ -420,3 +420,16 @@ def test_a_task_built_from_numpy_values_equals_the_one_from_plain_values():
     assert type(parse_task(numpy).horizon.N) is int
     with pytest.raises(TaskError, match=r"initial.q\[0\] must be a number"):
         parse_task({**plain, "initial": {"q": np.zeros((1, 2))}})
+
+
+def test_touches_is_the_same_on_every_plane_of_a_corner():
+    """A point listed with two normals (a corner) takes one `touches` for both: false on one plane only dropped the
+    contact machinery of the point, so of its other plane too, silently (a biped's foot_1 on the ground and a wall
+    planned as if foot_1 never landed). False on every entry stays allowed."""
+    base = {"initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 4}}
+    wall = {"point": "point", "normal": [1.0, 0.0, 0.0]}
+    with pytest.raises(TaskError, match=r"contacts = \['point touches = true', 'point touches = false'\] is not allowed; "
+                                        "it must be the same touches on every entry of a point"):
+        parse_task({**base, "contacts": [{"point": "point"}, {**wall, "touches": False}]})
+    both = parse_task({**base, "contacts": [{"point": "point", "touches": False}, {**wall, "touches": False}]})
+    assert [c.touches for c in both.contacts] == [False, False]
