@@ -52,6 +52,9 @@ MAX_PENETRATION_M = 0.002  # depth of any contact point below the ground along t
 OPEN_LOOP_BAND_M = 0.05  # open loop: how long the base stays within this distance of the plan [m]
 CONTACT_GAP_TOL_M = 1e-3  # a point "is in contact" when its gap is below this [m]; the plan's
 #   contact gaps are at the complementarity tolerance (<< 1 mm) while a step of flight moves a foot by cm
+# The trajectory's own flight dynamics (_flight_residual), relative: a plan's or a simulation's ~1e-8, a MuJoCo
+# recording's O(dt) differences of M and h along a step below 1e-2 (measured below), controls set to zero ~1
+FLIGHT_RESIDUAL_TOL = 0.1
 WINDOW_S = 0.1  # length of the windowed tracking replays [s]: the window of the re-simulation
 #   defect (scripts/bench_work_precision.py), short against a hop's flight (~0.3 s)
 WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans the window statistics
@@ -441,6 +444,12 @@ class KinematicReport:
     hole_point: str | None = None
     hole_index: int | None = None
     hole_time_s: float | None = None  # where on that path [s]
+    # the plan's own dynamics on its flight steps (_flight_residual): the largest |M(q+) (v+ - v)/dt + h(q+, v+) - B u|
+    # of a degree of freedom, relative to the largest of its terms on those steps; None without a flight step
+    flight_steps: int = 0
+    max_flight_residual: float | None = None
+    flight_residual_dof: str | None = None
+    flight_residual_time_s: float | None = None
 
     @property
     def contacts_agree(self) -> bool:
@@ -604,7 +613,12 @@ class Validation:
             f"contacts agree on {k.samples * len(k.penetration_by_point_m) - k.contact_mismatches}/"
             f"{k.samples * len(k.penetration_by_point_m)} samples"
             + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
-               f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"),
+               f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"
+               if k.min_hole_metric < 1.0 else  # outside every hole: "deepest into" and "in" read as an entry
+               f"; closest to a hole between samples: ellipse metric {k.min_hole_metric:.2f} (outside: rim 1), "
+               f"{k.hole_point} by holes[{k.hole_index}]")
+            + ("" if k.max_flight_residual is None else f"; own dynamics over {k.flight_steps} flight steps to "
+               f"{k.max_flight_residual:.1e} (limit {FLIGHT_RESIDUAL_TOL})"),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
@@ -707,6 +721,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
             raise UnknownNameError("contact point", point, scene.points)
 
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None)
+    kinematic = replace(kinematic, **_flight_residual(robot, arrays, scene, options.contact_gap_tol_m))
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
@@ -726,6 +741,11 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
+    if kinematic.max_flight_residual is not None and not kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
+        failures.append(f"the trajectory's own dynamics: in flight its controls do not give its motion (M a + h - B u "
+                        f"is {kinematic.max_flight_residual:.3g} of its terms in {kinematic.flight_residual_dof!r} at "
+                        f"t = {kinematic.flight_residual_time_s:.4g} s > {FLIGHT_RESIDUAL_TOL}); the tracking replay's "
+                        "feedback can hide that on a robot whose every coordinate has a motor")
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -858,6 +878,44 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
         max_site_disagreement_m=float(np.abs(height_mj - height_pin).max()) if C else 0.0,
         **_hole_reach(robot, task, t, q),
     )
+
+
+def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], scene: Scene, tol: float) -> dict:
+    """The trajectory's own equations of motion on its flight steps: between two samples i, i+1 at which every contact
+    point is more than `tol` [m] above the ground, with no impact between, implicit Euler (the planner's step, and
+    MuJoCo's to O(dt)) has M(q+) (v+ - v) / dt + h(q+, v+) = B u+ (u+ the control held over the step). Its largest
+    violation per degree of freedom, relative to the largest of those terms there over the flight steps: ~1e-8 for
+    a plan or a simulation, ~1 for controls that do not move the robot as its samples do. KinematicReport's flight
+    fields; empty without a flight step."""
+    t, q, v, u = arrays["t"], arrays["q"], arrays["v"], arrays["u"]
+    impacts = np.atleast_1d(arrays["impact_times"])
+    model, data = robot.model, robot.model.createData()
+    frames = [robot.frame_id(p) for p in scene.points]
+    airborne = np.ones(t.size, dtype=bool)
+    for i in range(t.size):
+        pin.framesForwardKinematics(model, data, q[i])
+        airborne[i] = all(data.oMf[f].translation[2] - scene.ground_height > tol for f in frames)
+    steps = [i for i in range(t.size - 1) if airborne[i] and airborne[i + 1] and t[i + 1] > t[i]
+             and not np.any((impacts > t[i]) & (impacts <= t[i + 1]))]
+    if not steps:
+        return {}
+    B = robot.actuation_matrix
+    residual, scale = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv)
+    for n, i in enumerate(steps):
+        M = pin.crba(model, data, q[i + 1])
+        M = np.triu(M) + np.triu(M, 1).T  # (Pinocchio fills the upper triangle)
+        inertial = M @ (v[i + 1] - v[i]) / (t[i + 1] - t[i])
+        bias = pin.rnea(model, data, q[i + 1], v[i + 1], np.zeros(robot.nv))
+        control = B @ u[i + 1]
+        residual[n] = inertial + bias - control
+        scale = np.maximum(scale, np.abs(inertial) + np.abs(bias) + np.abs(control))
+    # a coordinate on which nothing acts in flight: its terms are rounding, judged on the others' scale or the
+    # robot's weight (an arm hanging at rest has only rounding, ~1e-16, in every term)
+    weight = pin.computeTotalMass(model) * np.linalg.norm(model.gravity.linear)
+    relative = np.abs(residual) / np.maximum(scale, 1e-6 * max(scale.max(), weight, 1e-12))
+    n, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
+    return {"flight_steps": len(steps), "max_flight_residual": float(relative[n, j]),
+            "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1])}
 
 
 def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:

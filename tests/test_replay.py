@@ -535,6 +535,34 @@ def test_impact_points_name_contact_points_one_per_impact(capler):
         replay.validate_trajectory(robot, task, traj, impact_taps=[False, True])
 
 
+def _pushed_flight(h: float = 0.01, steps: int = 50, force=(2.0, 12.0)):
+    """The 1 kg point mass 1 m above the table pushed by a constant force [N] (x, z), implicit Euler as the planner
+    steps it: v+ = v + h (f - m g), q+ = q + h v+; the contract arrays of that flight."""
+    accel = np.array([force[0], force[1] - 9.81])  # m = 1 kg
+    t = h * np.arange(steps + 1)
+    v = np.array([k * h * accel for k in range(steps + 1)])
+    q = np.vstack([[0.0, 1.0], [0.0, 1.0] + h * np.cumsum(v[1:], axis=0)])
+    return {"t": t, "q": q, "v": v, "u": np.tile(force, (steps + 1, 1)), "impact_times": np.zeros(0)}
+
+
+def test_controls_that_do_not_give_the_motion_fail_on_a_fully_actuated_robot(point_mass):
+    """A trajectory's own flight dynamics are checked: the point mass pushed through the air by a constant force
+    passes (its flight rows hold to rounding), the same samples with the controls set to zero fail naming the
+    dynamics, although the tracking replay's PD on both slides follows them within its threshold (a plan's controls
+    zeroed passed the validation: the feedback supplied them)."""
+    task = _task("point", q0=(0.0, 1.0))
+    good = replay.validate_trajectory(point_mass, task, _pushed_flight())
+    assert good.passed, good.failures
+    assert good.kinematic.flight_steps == 50 and good.kinematic.max_flight_residual < 1e-9
+    zeroed = {**_pushed_flight(), "u": np.zeros((51, 2))}
+    bad = replay.validate_trajectory(point_mass, task, zeroed)
+    assert bad.max_tracking_error_m <= bad.thresholds.max_tracking_error_m  # the PD hides it
+    assert not bad.passed and len(bad.failures) == 1, bad.failures
+    assert bad.failures[0].startswith("the trajectory's own dynamics: in flight its controls do not give its motion "
+                                      "(M a + h - B u is 1 of its terms in 'x' at t = 0.01 s > 0.1)"), bad.failures
+    assert bad.kinematic.max_flight_residual == pytest.approx(1.0)
+
+
 def test_a_path_through_a_hole_between_samples_fails(point_mass):
     """The OCP keeps contact points out of the holes at its nodes only: a plan's point that goes through a hole
     narrower than a step's travel (two samples 0.5 m apart on either side of an 8 cm wide, 100 m tall hole, or a 8 mm
@@ -556,6 +584,9 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     beside = validation(2.0)
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
     assert not any("goes through" in f for f in beside.failures)
+    # the report says the path stayed outside (it read "deepest into a hole ..., point in holes[0]" at metric 1406)
+    assert "; closest to a hole between samples: ellipse metric 1406.25 (outside: rim 1), point by holes[0]" in beside.report()
+    assert "deepest into a hole between samples: ellipse metric 0.00" in validation(0.2625).report()
     for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
         assert not any("goes through" in f for f in unchecked.failures)
 
