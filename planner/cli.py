@@ -192,7 +192,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with quiet_stdout, warnings.catch_warnings():  # restores showwarning for an in-process caller
             # one line, as every other message: Python's format adds the source line that issued it
-            warnings.showwarning = lambda message, *_: print(f"planner {args.command}: warning: {message}", file=sys.stderr)
+            warnings.showwarning = lambda message, category, *_: print(
+                f"planner {args.command}: warning: {message}"
+                + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
         if code == EXIT_FAILED and getattr(args, "quiet", False):
@@ -222,8 +224,10 @@ def _stop(args, code: int, text: str) -> int:
     print(f"planner {args.command}: {text}", file=sys.stderr)
     if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
         with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
-            reason = text.split(": ", 1)[1] if text.startswith(("error: ", "failed: ")) else text  # exit_code says which
-            print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout, flush=True)
+            # the exit code says which kind: "error: " or "failed: " is stderr's prefix
+            reason = text.split(": ", 1)[1] if text.startswith(("error: ", "failed: ")) else text
+            print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout,
+                  flush=True)
     return code
 
 
@@ -602,7 +606,7 @@ def _cmd_validate(args) -> int:
     windowed = {} if args.window is None else {"window_s": args.window}
     summary = read_summary(args.dir, require=())
     result_id = summary.get("result_id")  # a run writing DIR meanwhile: its verdict is not stored
-    if not summary.get("robot_sha256"):  # a result written before the hash (or one with it deleted): said, not silent
+    if summary.get("robot_sha256", "") == "":  # a result written before the hash (or with it deleted): said, not silent
         _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
                         "the one the result was computed from")
     result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))

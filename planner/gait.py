@@ -79,13 +79,16 @@ def find_layout(robot: Robot, stance_foot: str = "foot_1", swing_foot: str = "fo
         return int(model.joints[joint].idx_v)
 
     stance, swing = leg_hinge(stance_foot), leg_hinge(swing_foot)
+    if stance == swing:
+        raise InputError(f"{robot.path}: feet {stance_foot!r} and {swing_foot!r} must hang from two different leg "
+                         "hinges")
     motors = {a.dof: j for j, a in enumerate(robot.actuators)}
     for key, foot, dof in (("stance", stance_foot, stance), ("swing", swing_foot, swing)):
         if dof not in motors:  # gait.stance = "torso_top" read "leg hinge 'x' has no motor"
             raise InputError(f"{robot.path}: the {key} foot {foot!r} is not on a motor-driven leg hinge: it moves "
                              f"with joint {names[dof]!r}, which has no motor; the gait needs one motor per hip")
     root = [i for i in range(5) if i not in (stance, swing)]
-    if len(root) != 3 or stance == swing:
+    if len(root) != 3:
         raise InputError(f"{robot.path}: feet {stance_foot!r} and {swing_foot!r} must hang from two different leg hinges")
     return BipedLayout(x=root[0], z=root[1], torso=root[2], stance_hinge=stance, swing_hinge=swing,
                        stance_foot=stance_foot, swing_foot=swing_foot,

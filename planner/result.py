@@ -470,11 +470,15 @@ class PlanResult(ArraysReadOnly):
         `dataclasses.replace(problem, x0=result.nlp_point(problem))`, as `planner plan --init DIR` reads it from
         trajectory.npz): a copy; an InputError when `problem` has other variables (Problem.signature: another N,
         contact set, discretization or formulation) or the result holds none (it was only in a private key)."""
+        from .problem import Problem
+
+        expect(problem, Problem, "nlp_point's problem")
         if "_x" not in self.extra or "_signature" not in self.extra:
             raise InputError("this plan holds no NLP point to start from")
         if self.extra["_signature"] != problem.signature:
-            raise InputError(f"this plan's NLP variables ({self.extra['_signature'][:16]!r}) are not those of the problem "
-                             f"({problem.signature!r}): a start needs the same robot contacts, N, discretization and options")
+            raise InputError(f"this plan's NLP variables ({self.extra['_signature'][:16]!r}) are not those of the "
+                             f"problem ({problem.signature!r}): a start needs the same robot contacts, N, "
+                             "discretization and options")
         return np.array(self.extra["_x"], dtype=float)
 
     def report(self) -> str:
@@ -763,7 +767,7 @@ def _stage(path: str | os.PathLike, write) -> str:
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
-            os.fsync(f.fileno())  # on disk before the rename: a power cut after it left an empty file under the name
+            os.fsync(f.fileno())  # on disk before the rename: a power cut after it could leave an empty file
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
@@ -805,6 +809,13 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
                         elif not existed:  # there was none: the new one goes too
                             done.unlink()
                 raise write_error(path, exc) from None
+        with contextlib.suppress(OSError):  # the renames on disk too (a directory that cannot be opened: as before)
+            for folder in {path.parent for _, path in staged}:
+                fd = os.open(folder, os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
     finally:
         for _, link in kept.values():
             if link is not None:

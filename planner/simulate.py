@@ -91,13 +91,14 @@ class SimulateOptions:
             raise InputError(f"SimulateOptions.strategy = {self.strategy!r} is not allowed; it must be one of "
                              f"{[s.value for s in Strategy]}")
         if not isinstance(self.discretization, Discretization):
-            raise InputError(f"SimulateOptions.discretization = {self.discretization!r} is not allowed; it must be one of "
+            raise InputError(f"SimulateOptions.discretization = {self.discretization!r} is not allowed; it must be one "
+                             "of "
                              f"{[d.value for d in Discretization]}")
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"SimulateOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
         if self.velocity_switch is not None and not isinstance(self.velocity_switch, SwitchVelocity):
-            raise InputError(f"SimulateOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be None "
-                             f"or one of {[v.value for v in SwitchVelocity]}")
+            raise InputError(f"SimulateOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be "
+                             f"None or one of {[v.value for v in SwitchVelocity]}")
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")
         checks = [

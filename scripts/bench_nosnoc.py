@@ -525,7 +525,8 @@ def main(argv: list[str] | None = None) -> int:
     # --append combines records of the same settings only: a hint run at max_iter 1 was judged against a hint-free
     # run at 4000 ("needed the hint: no"). The planner's record depends on the task alone (nosnoc's max_iter had
     # dropped it)
-    nosnoc_settings = {"quick": args.quick, "n_fe": args.n_fe, "n_s": args.n_s, "a_t": args.a_t, "max_iter": args.max_iter}
+    nosnoc_settings = {"quick": args.quick, "n_fe": args.n_fe, "n_s": args.n_s, "a_t": args.a_t,
+                       "max_iter": args.max_iter}
 
     def settings(solver: str) -> dict:
         return nosnoc_settings if solver == "nosnoc" else {"quick": args.quick}

@@ -661,6 +661,26 @@ FAR_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
             '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')  # infeasible: 50 m at 1 N
 
 
+def test_validate_fails_a_plan_whose_controls_were_zeroed(tmp_path, capsys):
+    """The point-mass hop (both slides driven) validates; the same result with every control set to zero exits 1 on
+    its own flight dynamics, while the tracking PD still follows it (it passed: the feedback carried the mass)."""
+    hop = tmp_path / "hop.toml"
+    hop.write_text(HOP_TASK)
+    plan = tmp_path / "plan"
+    # (20 steps: the task's 10 track to 12.5 mm, beyond the limit, docs/validation.md)
+    assert main(["plan", "point_mass", "--task", str(hop), "--out", str(plan), "-q", "--no-plots", "--no-race",
+                 "--steps", "20"]) == 0
+    assert json.loads((plan / "summary.json").read_text())["validation"]["kinematic"]["max_flight_residual"] < 1e-6
+    arrays = dict(np.load(plan / "trajectory.npz"))
+    np.savez(plan / "trajectory.npz", **{**arrays, "u": np.zeros_like(arrays["u"])})
+    capsys.readouterr()
+    assert main(["validate", str(plan), "--json"]) == 1
+    validation = json.loads(capsys.readouterr().out)
+    assert validation["max_tracking_error_m"] <= validation["thresholds"]["max_tracking_error_m"]
+    assert [f.split(":")[0] for f in validation["failures"]] == ["the trajectory's own dynamics"], \
+        validation["failures"]
+
+
 @pytest.mark.parametrize("command", ["plan", "validate"])
 def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
     """With -q, a command that fails (exit 1: a plan that does not converge; `validate` of a result that did not
@@ -746,7 +766,8 @@ def test_json_is_one_object_on_every_exit(tmp_path, capsys):
     prefix (the exit code says which kind); stderr keeps its one line."""
     assert main(["plan", "point_mass", "--task", str(tmp_path), "--json"]) == 2
     captured = capsys.readouterr()
-    assert json.loads(captured.out) == {"command": "plan", "exit_code": 2, "error": f"task file {tmp_path} is a directory"}
+    assert json.loads(captured.out) == {"command": "plan", "exit_code": 2,
+                                        "error": f"task file {tmp_path} is a directory"}
     assert captured.err.strip() == f"planner plan: error: task file {tmp_path} is a directory"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "s"), "--json", "--no-plots"]) == 0
     assert json.loads(capsys.readouterr().out)["command"] == "simulate"  # a success: the summary alone

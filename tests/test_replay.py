@@ -230,6 +230,7 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
     result = replay.validate(out)
     assert result.passed, result.failures
     assert result.max_tracking_error_m <= GROUND_TRUTH_TOL_M
+    assert result.kinematic.max_flight_residual is None  # a recording, not the planner's implicit-Euler steps
     assert all(e <= GROUND_TRUTH_TOL_M for e in result.tracking.max_foot_error_m.values())
     assert result.open_loop.time_within_band_s == pytest.approx(result.open_loop.duration_s)
     assert len(result.tracking.impacts) == 1 and result.tracking.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
@@ -412,7 +413,7 @@ def test_validate_plan_is_validate_of_the_written_result(point_mass, tmp_path):
             replay_json.pop("wall_time_s")
         return out
 
-    in_memory = numbers(replay.validate_plan(point_mass, task, result.trajectory))
+    in_memory = numbers(replay.validate_plan(point_mass, task, result.trajectory, dynamics=True))  # implicit Euler
     assert len(in_memory["tracking"]["impacts"]) == len(result.trajectory.impacts) >= 1
     assert in_memory == numbers(replay.validate(tmp_path / "drop"))
 
@@ -551,16 +552,34 @@ def test_controls_that_do_not_give_the_motion_fail_on_a_fully_actuated_robot(poi
     dynamics, although the tracking replay's PD on both slides follows them within its threshold (a plan's controls
     zeroed passed the validation: the feedback supplied them)."""
     task = _task("point", q0=(0.0, 1.0))
-    good = replay.validate_trajectory(point_mass, task, _pushed_flight())
+    good = replay.validate_trajectory(point_mass, task, _pushed_flight(), dynamics=True)
     assert good.passed, good.failures
     assert good.kinematic.flight_steps == 50 and good.kinematic.max_flight_residual < 1e-9
     zeroed = {**_pushed_flight(), "u": np.zeros((51, 2))}
-    bad = replay.validate_trajectory(point_mass, task, zeroed)
+    bad = replay.validate_trajectory(point_mass, task, zeroed, dynamics=True)
     assert bad.max_tracking_error_m <= bad.thresholds.max_tracking_error_m  # the PD hides it
     assert not bad.passed and len(bad.failures) == 1, bad.failures
     assert bad.failures[0].startswith("the trajectory's own dynamics: in flight its controls do not give its motion "
                                       "(M a + h - B u is 1 of its terms in 'x' at t = 0.01 s > 0.1)"), bad.failures
     assert bad.kinematic.max_flight_residual == pytest.approx(1.0)
+    unchecked = replay.validate_trajectory(point_mass, task, zeroed)  # samples of unknown source: not judged
+    assert unchecked.passed and unchecked.kinematic.max_flight_residual is None
+
+
+@pytest.mark.parametrize("summary, checked", [
+    ({"command": "plan", "options": {"problem": {"discretization": "implicit_euler"}}}, True),
+    ({"command": "plan", "options": {"problem": {"discretization": "fesd"}}}, False),
+    ({"command": "plan"}, False),
+    ({"command": "simulate", "strategy": "stepwise"}, True),
+    ({"command": "simulate", "strategy": "horizon"}, True),
+    ({"command": "simulate", "strategy": "stepwise", "discretization": {"name": "fesd", "n_s": 2}}, False),
+    ({"command": "simulate"}, False),  # written by other code, e.g. a MuJoCo recording in the contract's format
+])
+def test_the_flight_dynamics_are_judged_for_the_planners_implicit_euler_samples_only(summary, checked):
+    """validate(DIR) checks a result's own flight dynamics when its summary says the planner stepped it by implicit
+    Euler: FESD's Radau stages (0.24 of the terms on a Capler drop swinging its legs) and MuJoCo's semi-implicit
+    substeps recorded every 2 ms (0.9) meet that step's relation only to O(dt), and failed valid results."""
+    assert replay._stepped_by_implicit_euler(summary) is checked
 
 
 def test_a_path_through_a_hole_between_samples_fails(point_mass):
@@ -585,7 +604,8 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
     assert not any("goes through" in f for f in beside.failures)
     # the report says the path stayed outside (it read "deepest into a hole ..., point in holes[0]" at metric 1406)
-    assert "; closest to a hole between samples: ellipse metric 1406.25 (outside: rim 1), point by holes[0]" in beside.report()
+    assert ("; closest to a hole between samples: ellipse metric 1406.25 (outside: rim 1), point by holes[0]"
+            in beside.report())
     assert "deepest into a hole between samples: ellipse metric 0.00" in validation(0.2625).report()
     for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
         assert not any("goes through" in f for f in unchecked.failures)

@@ -521,13 +521,14 @@ def test_bench_nosnoc_append_keeps_only_records_of_the_same_settings(bench_nosno
     assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "1"] + out) == 0  # the same settings: combined
     printed = capsys.readouterr().out
     assert "nosnoc hint: kept from the run of" in printed and "nosnoc needed the hint: yes" in printed
-    monkeypatch.setattr(bench_nosnoc, "run_planner", lambda quick: {"solver": "planner", "variant": "hint-free", "N": 25,
-                                                                    "holes": 0, "converged": True, "wall_time_s": 0.5})
+    planned = {"solver": "planner", "variant": "hint-free", "N": 25, "holes": 0, "converged": True, "wall_time_s": 0.5}
+    monkeypatch.setattr(bench_nosnoc, "run_planner", lambda quick: dict(planned))
     assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "1", "--planner"] + out) == 0
     capsys.readouterr()
     assert bench_nosnoc.main(["--variants", "hint-free", "--max-iter", "7"] + out) == 0
     records = json.loads((tmp_path / "results.json").read_text())
-    assert [(r["solver"], r["variant"]) for r in records["records"]] == [("planner", "hint-free"), ("nosnoc", "hint-free")]
+    assert [(r["solver"], r["variant"]) for r in records["records"]] == [("planner", "hint-free"),
+                                                                         ("nosnoc", "hint-free")]
     assert records["wall_time_ratio_nosnoc_over_planner"] == 2.0
     assert "planner hint-free: kept from the run of" in capsys.readouterr().out
 

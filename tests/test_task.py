@@ -428,8 +428,8 @@ def test_touches_is_the_same_on_every_plane_of_a_corner():
     planned as if foot_1 never landed). False on every entry stays allowed."""
     base = {"initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 4}}
     wall = {"point": "point", "normal": [1.0, 0.0, 0.0]}
-    with pytest.raises(TaskError, match=r"contacts = \['point touches = true', 'point touches = false'\] is not allowed; "
-                                        "it must be the same touches on every entry of a point"):
+    with pytest.raises(TaskError, match=r"contacts = \['point touches = true', 'point touches = false'\] is not "
+                                        "allowed; it must be the same touches on every entry of a point"):
         parse_task({**base, "contacts": [{"point": "point"}, {**wall, "touches": False}]})
     both = parse_task({**base, "contacts": [{"point": "point", "touches": False}, {**wall, "touches": False}]})
     assert [c.touches for c in both.contacts] == [False, False]
