@@ -741,9 +741,8 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
         if point is not None and point not in scene.points:  # it stood for the lowest point, silently
             raise UnknownNameError("contact point", point, scene.points)
 
-    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None)
-    if dynamics:
-        kinematic = replace(kinematic, **_flight_residual(robot, arrays, scene, options.contact_gap_tol_m))
+    kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None,
+                           arrays if dynamics else None)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
@@ -867,10 +866,12 @@ def _impact_points(summary: dict, task: Task, n_impacts: int) -> tuple[list[str 
 # the three replays
 # ==================================================================================================
 
-def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: float, task: Task | None = None) -> KinematicReport:
+def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: float, task: Task | None = None,
+               dynamics: Mapping[str, np.ndarray] | None = None) -> KinematicReport:
     """Set qpos at every sample: penetration (MuJoCo's kinematics) and contact agreement, where the
     plan's contact is Pinocchio's gap < tol and MuJoCo's is its collision detection within tol; with the task's
-    holes, how deep its contact points reach into them between the samples (_hole_reach)."""
+    holes, how deep its contact points reach into them between the samples (_hole_reach); with the trajectory's
+    arrays as `dynamics`, its own flight dynamics on the samples without a contact (_flight_residual)."""
     model, data = scene.model, mujoco.MjData(scene.model)
     pdata = robot.model.createData()
     frames = [robot.frame_id(p) for p in scene.points]
@@ -899,24 +900,20 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
         mismatch_times_s=tuple(float(x) for x in t[np.nonzero(mismatch.any(axis=1))[0][:10]]),
         max_site_disagreement_m=float(np.abs(height_mj - height_pin).max()) if C else 0.0,
         **_hole_reach(robot, task, t, q),
+        **({} if dynamics is None else _flight_residual(robot, dynamics, ~planned.any(axis=1))),
     )
 
 
-def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], scene: Scene, tol: float) -> dict:
-    """The trajectory's own equations of motion on its flight steps: between two samples i, i+1 at which every contact
-    point is more than `tol` [m] above the ground, with no impact between, the planner's implicit-Euler step has
+def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: np.ndarray) -> dict:
+    """The trajectory's own equations of motion on its flight steps: between two samples i, i+1 at which no contact
+    point is in contact (airborne (P,), _kinematic's), with no impact between, the planner's implicit-Euler step has
     M(q+) (v+ - v) / dt + h(q+, v+) = B u+ (u+ the control held over the step). Its largest violation per degree of
-    freedom, relative to the largest of those terms there over the flight steps: 6e-16 to 7e-7 for the planner's plans
+    freedom, relative to the largest of those terms there over the flight steps: 6e-16 to 2.3e-2 for the planner's plans
     and simulations, ~1 for controls that do not move the robot as its samples do (for other sources of samples see
     _stepped_by_implicit_euler). KinematicReport's flight fields; empty without a flight step."""
     t, q, v, u = arrays["t"], arrays["q"], arrays["v"], arrays["u"]
     impacts = np.atleast_1d(arrays["impact_times"])
     model, data = robot.model, robot.model.createData()
-    frames = [robot.frame_id(p) for p in scene.points]
-    airborne = np.ones(t.size, dtype=bool)
-    for i in range(t.size):
-        pin.framesForwardKinematics(model, data, q[i])
-        airborne[i] = all(data.oMf[f].translation[2] - scene.ground_height > tol for f in frames)
     steps = [i for i in range(t.size - 1) if airborne[i] and airborne[i + 1] and t[i + 1] > t[i]
              and not np.any((impacts > t[i]) & (impacts <= t[i + 1]))]
     if not steps:
