@@ -145,6 +145,21 @@ class Robot:
                 return True
         return False
 
+    def contact_rank(self, contacts, q: np.ndarray, height: float, touch_tol: float = 1e-6) -> tuple[int, int]:
+        """(rows, rank) of the contact rows at q (nq,) of the contacts (point, unit normal (3,), frictional) whose point
+        lies on its plane (through (0, 0, height) [m]) to touch_tol [m]: a normal row each, with friction a tangent
+        row too. rank < rows: the forces of those contacts together are not unique."""
+        model, data, q = self.model, self.model.createData(), np.asarray(q, float)
+        pin.framesForwardKinematics(model, data, q)
+        stacked = []
+        for point, n, frictional in contacts:
+            frame, n = self.frame_id(point), np.asarray(n, float)
+            if abs(n @ (data.oMf[frame].translation - np.array([0.0, 0.0, height]))) > touch_tol:
+                continue
+            J = np.asarray(pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))[:3]
+            stacked += [n @ J] + ([np.array([n[2], 0.0, -n[0]]) @ J] if frictional else [])
+        return len(stacked), (int(np.linalg.matrix_rank(np.array(stacked), tol=1e-9)) if stacked else 0)
+
     def dof_index(self, joint: str, key: str = "") -> int:
         """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names (and names `key`, the task
         key that gave the joint, when given)."""
@@ -209,7 +224,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
             else:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
-        raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}") from None
+        hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
+                "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else "")
+        raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}{hint}") from None
+    if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
+        raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
     actuators, dof_names, passive = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
     if fmt is RobotFormat.URDF:
@@ -351,6 +370,13 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                                  "and general actuators (gain, bias or dynamics) are not supported; use <motor>")
         jnt = mj.actuator_trnid[i, 0]
         gear = float(mj.actuator_gear[i, 0])
+        if gear == 0.0:  # its force gear * ctrl is always 0 (a PD law divided by it)
+            raise RobotFileError(f"{path}: actuator {name!r} has gear 0, so it exerts no force; give it a nonzero gear "
+                                 "or remove it")
+        for what, values in (("ctrlrange", mj.actuator_ctrlrange[i]), ("forcerange", mj.actuator_forcerange[i])):
+            if values[0] > values[1]:  # MuJoCo then drops the limit: a sign typo would leave the motor unbounded
+                raise RobotFileError(f"{path}: actuator {name!r}: its {what} {values[0]:g} {values[1]:g} is reversed, "
+                                     "which MuJoCo reads as no limit; write the lower bound first")
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
         if mj.actuator_forcelimited[i]:  # MuJoCo clamps gear * ctrl to forcerange: the control bounds are that too
             flo, fhi = sorted(np.asarray(mj.actuator_forcerange[i], float) / gear)

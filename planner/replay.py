@@ -422,6 +422,7 @@ class Thresholds:
     contact_gap_tol_m: float
     min_flight_s: float
     min_hole_metric: float = HOLE_PASS_METRIC  # a plan's contact points between samples (KinematicReport.min_hole_metric)
+    max_flight_residual: float = FLIGHT_RESIDUAL_TOL  # the plan's own flight dynamics, relative (KinematicReport)
 
 
 @dataclass(frozen=True)
@@ -618,7 +619,7 @@ class Validation:
                f"; closest to a hole between samples: ellipse metric {k.min_hole_metric:.2f} (outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
             + ("" if k.max_flight_residual is None else f"; own dynamics over {k.flight_steps} flight steps to "
-               f"{k.max_flight_residual:.1e} (limit {FLIGHT_RESIDUAL_TOL})"),
+               f"{k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
@@ -983,7 +984,7 @@ def hole_failure(kinematic: KinematicReport) -> str | None:
         return None
     return (f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse metric "
             f"{k.min_hole_metric:.3g} < {HOLE_PASS_METRIC}) between the plan's nodes: the hole is narrower than a step's "
-            "travel; plan on a finer grid (--steps)")
+            "travel; plan on a finer grid (more steps: the task's horizon.N, or `planner plan --steps`)")
 
 
 class _Reference:

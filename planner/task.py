@@ -13,6 +13,7 @@ import os
 import tomllib
 import types
 import typing
+import warnings
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 
@@ -442,11 +443,22 @@ class Task:
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
+        rows, rank = robot.contact_rank([(c.point, c.normal, c.mu > 0) for c in self.contacts if c.touches],
+                                        self.initial.q, self.ground_height)
+        if rank < rows:  # (checked where the task starts: later double stances are not seen)
+            touching = ", ".join(dict.fromkeys(c.point for c in self.contacts if c.touches))
+            warnings.warn(f"of the contacts ({touching}), those on the ground at initial.q constrain {rows} directions "
+                          f"but only {rank} independently: their forces together are not unique (e.g. two sticking points of one "
+                          "rigid body) and the solver may fail; give one of them mu = 0", stacklevel=2)
         robot.check_inertia(self.initial.q)
-        if self.simulate.u is not None:
-            _length("simulate.u", self.simulate.u, robot.nu)
-        for i, change in enumerate(self.simulate.schedule):
-            _length(f"simulate.schedule[{i}].u", change.u, robot.nu)
+        controls = [("simulate.u", self.simulate.u)] if self.simulate.u is not None else []
+        controls += [(f"simulate.schedule[{i}].u", change.u) for i, change in enumerate(self.simulate.schedule)]
+        for key, u in controls:
+            _length(key, u, robot.nu)
+            for j, (uj, a) in enumerate(zip(u, robot.actuators)):
+                if not a.lower <= uj <= a.upper:  # a PD's controls are counted in summary.json instead
+                    warnings.warn(f"{key}[{j}] = {uj:g} ({a.name}) is beyond the actuator's range [{a.lower:g}, "
+                                  f"{a.upper:g}], to which MuJoCo's replay clamps it", stacklevel=2)
         if self.simulate.pd is not None:
             self.pd_actuators(robot)
         if self.plan is None:
@@ -457,6 +469,13 @@ class Task:
             if p not in robot.points:
                 raise UnknownNameError("point", p, robot.points, f"plan.above_ground[{i}]")
         self.velocity_rows(robot)
+        for r, b in enumerate(self.plan.joint_bounds):
+            i = robot.dof_index(b.joint, f"plan.joint_bounds[{r}].joint")
+            lo, hi = robot.q_lower[i], robot.q_upper[i]
+            if b.lower < lo or b.upper > hi:  # (an unlimited joint reads +-inf here: never wider)
+                warnings.warn(f"plan.joint_bounds[{r}] ({b.joint}: [{b.lower:g}, {b.upper:g}]) goes beyond the robot "
+                              f"file's range [{lo:g}, {hi:g}], which MuJoCo's replay enforces; the plan may leave it",
+                              stacklevel=2)
         if self.plan.periodic is not None:
             self.periodic_map(robot)
             return

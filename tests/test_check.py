@@ -172,6 +172,17 @@ def test_report_text():
     assert "vs MuJoCo:    skipped: " in check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).report()
 
 
+def test_an_mjcf_free_joint_passes_with_mujoco_skipped(tmp_path):
+    """An MJCF <freejoint/> is one MuJoCo joint and six named degrees of freedom (root_0 ... root_5): check-model
+    compares it with Pinocchio and skips MuJoCo, naming the joint (it failed every such file on the joint names)."""
+    path = tmp_path / "free.xml"
+    path.write_text('<mujoco><worldbody><body name="b"><freejoint name="root"/><inertial pos="0 0 0" mass="1" '
+                    'diaginertia="1 1 1"/><site name="s"/></body></worldbody></mujoco>')
+    result = check_model(load_robot(path), samples=2)
+    assert result.passed and result.mujoco is None
+    assert result.mujoco_skipped.startswith("free/ball joints root:")
+
+
 def test_result_is_frozen():
     """ModelCheck is immutable."""
     result = check_model(load_robot("point_mass"), samples=1)

@@ -316,6 +316,27 @@ def test_gating_and_ungate_keep_the_trajectory():
     assert len(gates) == 2 * n * prob.N
 
 
+def test_a_verdict_on_ungated_pairs_says_what_the_table_showed():
+    """An unpolished point whose gated pairs are complementary (the homotopy's table: 1e-12) but whose ungated pairs are
+    not is refused, and the message says that the table's number is of the gated pairs (a user saw 3.7e-12 in the table
+    and "complementarity residual 0.00134 > 1e-06" as the verdict, unexplained)."""
+    from planner.result import NlpRecord
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    x = prob.x0.copy()
+    names = [s.name.split("[")[0] for s in prob.system.switches]
+    b = prob.builder
+    w = x[prob.var_blocks["w"][0]]
+    sigma, lam1 = w[b.w_blocks["sigma"]].copy(), w[b.w_blocks["lambda1"]].copy()
+    sigma[names.index("beta")], sigma[names.index("alpha")] = 1.0, 0.3  # flight at step 0: alpha's pair is gated off
+    lam1[names.index("alpha")] = 0.5
+    x[prob.var_blocks["w"][0]] = b.w_from(sigma, w[b.w_blocks["lambda0"]], lam1, w[b.w_blocks["forces"]])
+    assert prob.complementarity_residual(x) > H.SolveOptions().comp_tol
+    record = NlpRecord(label="homotopy 1", rho=100.0, hole_scale=1.0, objective=0.0, complementarity_residual=1e-12,
+                       iterations=1, time_s=0.0, status="Solve_Succeeded", success=True, terminal_error=0.0)
+    message = H._result(prob, H.SolveOptions(), x, [record], None, 0.0, {}).stats.message
+    assert "homotopy 1's 1.0e-12 is of the gated pairs" in message
+
+
 def test_aux_continuation_scale_one_is_the_task():
     """ProblemOptions.aux_continuation with an_scale = at_scale = 1 gives the task's constraints."""
     from planner.problem import ProblemOptions

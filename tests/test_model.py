@@ -79,6 +79,41 @@ def test_servo_actuators_are_refused(tmp_path, actuator):
         load_robot(_hopper(tmp_path, actuator=actuator))
 
 
+@pytest.mark.parametrize("actuator, message", [
+    ('<motor name="m" joint="hip" gear="0" ctrlrange="-20 20"/>', "'m' has gear 0"),  # simulate divided by it
+    ('<motor name="m" joint="hip" ctrlrange="20 -20"/>', "ctrlrange 20 -20 is reversed"),  # MuJoCo: unlimited
+    ('<motor name="m" joint="hip" forcerange="5 -5"/>', "forcerange 5 -5 is reversed")])
+def test_motors_that_do_nothing_or_lost_their_limit_are_refused(tmp_path, actuator, message):
+    """A motor of gear 0 exerts no force, and a reversed range is no limit to MuJoCo (a sign typo removed the torque
+    bound): refused, naming the actuator and the value."""
+    with pytest.raises(RobotFileError, match=message):
+        load_robot(_hopper(tmp_path, actuator=actuator))
+
+
+@pytest.mark.parametrize("text, name", [
+    ('<mujoco><worldbody><body name="b"><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="s"/></body>'
+     '</worldbody></mujoco>', "ball.xml"),
+    ('<robot name="r"><link name="b"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" '
+     'iyz="0"/></inertial></link></robot>', "ball.urdf")])
+def test_a_robot_without_degrees_of_freedom_is_refused(tmp_path, text, name):
+    """A robot file without joints is refused when read (check-model crashed in Pinocchio, simulate in CasADi)."""
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(RobotFileError, match="no degrees of freedom"):
+        load_robot(path)
+
+
+def test_an_include_pinocchio_cannot_read_is_named(tmp_path):
+    """An MJCF file whose bodies are in an <include>d file (MuJoCo reads it, Pinocchio's parser not): the error says
+    that the include is what Pinocchio does not read, not only Pinocchio's "No such node (body)"."""
+    (tmp_path / "body.xml").write_text('<mujoco><body name="b"><joint name="z" type="slide" axis="0 0 1"/>'
+                                       '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></mujoco>')
+    path = tmp_path / "robot.xml"
+    path.write_text('<mujoco><worldbody><include file="body.xml"/></worldbody></mujoco>')
+    with pytest.raises(RobotFileError, match="the file has an <include>: Pinocchio's MJCF parser does not read included"):
+        load_robot(path)
+
+
 def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
     """A motor's forcerange bounds its control (force / gear); a joint declared limited="false" has no position limits
     though it states a range (Pinocchio's parser kept the range); an <equality> is refused."""

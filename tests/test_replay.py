@@ -249,6 +249,7 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
     assert block["windows"]["impacts_landed"] == 1 and block["windows"]["impacts"][0]["difference_s"] == pytest.approx(0.0, abs=1e-12)
     assert block["thresholds"]["max_tracking_error_m"] == replay.MAX_TRACKING_ERROR_M == 0.01
     assert block["thresholds"]["max_penetration_m"] == replay.MAX_PENETRATION_M == 0.002
+    assert block["thresholds"]["max_flight_residual"] == replay.FLIGHT_RESIDUAL_TOL == 0.1
     json.dumps(block, allow_nan=False)  # strict JSON
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,7 +22,7 @@ MINIMAL = {"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0
 @pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
 def test_default_tasks_match_their_robots(toml):
     """Every task in robots/ parses and fits the robot file beside it (NAME_variant.toml: NAME.xml)."""
-    stems = (toml.stem, toml.stem.split("_")[0])  # robots/biped_gait1.toml is a task of robots/biped.xml
+    stems = (toml.stem, toml.stem.rsplit("_", 1)[0])  # biped_gait1.toml: biped.xml; point_mass_hop.toml: point_mass.xml
     robot_file = next(p for s in stems for p in (toml.with_name(s + ".xml"), toml.with_name(s + ".urdf")) if p.exists())
     load_task(toml).check_against(load_robot(robot_file))
 
@@ -121,6 +122,57 @@ def test_robot_dependent_errors():
     inverted = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.0}]})
     with pytest.raises(TaskError, match="lower = 1.0 .* <= upper"):
         parse_task(inverted)
+
+
+def test_constant_controls_beyond_the_actuators_range_warn():
+    """simulate.u and a schedule's u beyond an actuator's range warn, naming the entry, the actuator and its range:
+    MuJoCo's replay clamps them (a 200 N push on a 30 N motor went 56 m and failed validation at 46 m unexplained)."""
+    capler = load_robot("capler")
+    with pytest.warns(UserWarning, match=r"simulate.u\[0\] = 100 \(hip_motor\) is beyond the actuator's range \[-60, 60\]"):
+        parse_task(_with("simulate", {"u": [100.0, 0.0]})).check_against(capler)
+    schedule = {"schedule": [{"t": 0.5, "u": [0.0, -61.0]}]}
+    with pytest.warns(UserWarning, match=r"simulate.schedule\[0\].u\[1\] = -61 \(knee_motor\)"):
+        parse_task(_with("simulate", schedule)).check_against(capler)
+
+
+PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" axis="1 0 0"/>
+<joint name="pz" type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/>
+<inertial pos="0 0 0" mass="3" diaginertia="0.04 0.04 0.04"/><site name="left" pos="-0.2 0 -0.02"/>
+<site name="right" pos="0.2 0 -0.02"/></body></worldbody><actuator><motor name="m" joint="pz"/></actuator></mujoco>"""
+
+
+@pytest.mark.parametrize("mu_right, z, warns", [(0.6, 0.02, True), (0.0, 0.02, False), (0.6, 0.1, False)])
+def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, warns):
+    """Two sticking points of one rigid plank on the ground: 4 contact rows on 3 degrees of freedom, so their forces
+    are not unique (a plan burnt 433 s at its caps, a simulation reported 1e15 N): a warning naming the counts. One
+    frictionless point (3 rows), or the plank in the air at the start, gives none."""
+    path = tmp_path / "plank.xml"
+    path.write_text(PLANK)
+    task = parse_task({"contacts": [{"point": "left", "mu": 0.6}, {"point": "right", "mu": mu_right}],
+                       "initial": {"q": [0.0, z, 0.0]}, "horizon": {"tau_f": 0.3, "N": 30}})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        task.check_against(load_robot(path))
+    messages = [str(w.message) for w in caught]
+    assert messages == (["of the contacts (left, right), those on the ground at initial.q constrain 4 directions but "
+                         "only 3 independently: their forces together are not unique (e.g. two sticking points of one "
+                         "rigid body) and the solver may fail; give one of them mu = 0"] if warns else [])
+
+
+def test_joint_bounds_beyond_the_files_range_warn():
+    """plan.joint_bounds replaces the file's range, but MuJoCo's replay enforces the file's: a bound beyond it (e.g. in
+    degrees: +-60 on a +-1 rad hinge, planned silently to -2.8 rad) warns naming the joint and both ranges; bounds
+    inside the range, and bounds of a joint without a range (base_x), do not."""
+    capler = load_robot("capler")
+    wide = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": -60.0, "upper": 60.0}]})
+    with pytest.warns(UserWarning, match=r"joint_bounds\[0\] \(hip: \[-60, 60\]\) goes beyond the robot file's range "
+                                         r"\[-1.1781, 1.1781\]"):
+        parse_task(wide).check_against(capler)
+    inside = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [
+        {"joint": "hip", "lower": -1.0, "upper": 1.0}, {"joint": "base_x", "lower": -5.0, "upper": 5.0}]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parse_task(inside).check_against(capler)
 
 
 def test_plan_needs_actuators(tmp_path):
