@@ -98,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
-                              "  planner plan point_mass --task hop.toml --no-validate --json\n"
+                              "  planner plan point_mass --task robots/point_mass_hop.toml --no-validate --json\n"
                               "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
                               "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")

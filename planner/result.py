@@ -424,9 +424,15 @@ class Hop:
         return dict(vars(self))
 
 
+# A flight phase whose contact point stays within this distance of its takeoff position [m] is no hop: FESD's point-mass
+# hop kept beta = 1 for 65 ms at rest on the ground after its landing and reported a second hop of distance and apex 0.
+HOP_MIN_TRAVEL_M = 1e-6
+
+
 def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
-    contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks."""
+    contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
+    does not move (HOP_MIN_TRAVEL_M) is left out."""
     clock = traj.y[:, -1]
     air = np.asarray(flight, float).ravel() > 0.5
     hops, k, N = [], 0, len(air)
@@ -439,6 +445,8 @@ def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
             k += 1
         # steps a..k-1 end in flight: nodes a..k; node a is the last on the ground
         seg = point_xyz[a : k + 1]
+        if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
+            continue
         hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(clock[min(k + 1, N)]),
                         distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
     return hops

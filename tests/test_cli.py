@@ -12,7 +12,7 @@ import pytest
 
 from planner.cli import main
 from planner.errors import InputError
-from planner.model import file_sha256
+from planner.model import ROBOTS_DIR, file_sha256
 from planner.task import load_task, parse_task
 
 
@@ -212,8 +212,7 @@ def test_missing_default_task(tmp_path, capsys):
     _one_line_exit_2(capsys, ["simulate", str(robot)], "no task file beside")
 
 
-HOP_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
-            '[horizon]\ntau_f = 1.0\nN = 10\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 10\n")  # hop 0.5 m, N = 10
 
 
 def test_plan_draws_its_plots_while_it_validates(tmp_path, capsys):

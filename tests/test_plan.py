@@ -7,23 +7,9 @@ import numpy as np
 import pytest
 
 from planner.cli import main
+from planner.model import ROBOTS_DIR
 
-HOP_TASK = """
-[[contacts]]
-point = "point"
-mu = 0.5
-
-[initial]
-q = [0.0, 0.0]
-
-[horizon]
-tau_f = 1.0
-N = 40
-
-[plan]
-target_q = [0.5, 0.0]
-u_bound = 30.0
-"""
+HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 40\n")
 
 CONTRACT = ("command", "robot", "task", "converged", "solve_time_s", "n_nlp", "ipopt_iterations", "complementarity_residual",
             "terminal_error", "physical_duration_s", "impacts", "hops", "nlps")
