@@ -1,10 +1,16 @@
-"""The common ending of the scripts' main(): OUT/results.json written atomically, then JSON or a table on stdout; and
-run_main, which runs a main() as a command the way `planner` runs its own (a bad input is one line and exit 2), and
-script_parser, the argument parser that reports a usage error the same way."""
+"""The common ending of the scripts' main(): OUT/results.json written atomically (with the "run" stamp: command, date,
+machine), then JSON or a table on stdout; and run_main, which runs a main() as a command the way `planner` runs its own
+(a bad input is one line and exit 2), and script_parser, the argument parser that reports a usage error the same way,
+with the argument types and checks the scripts share."""
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import math
+import os
+import platform
+import shlex
 import sys
 from pathlib import Path
 
@@ -13,9 +19,49 @@ from planner.errors import PATH_ERRNOS, InputError, PlannerError
 from planner.result import write_atomically
 
 
+# the command line that script_parser's parser last read, for the "run" stamp: report() has no argv of its own
+_command: str | None = None
+
+
+def utc_now() -> str:
+    """The date-time now, UTC, ISO 8601 to the second (a local day could not be compared across machines)."""
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def _cpu_model() -> str | None:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:  # not Linux
+        pass
+    return platform.processor() or None
+
+
+def machine_info() -> dict:
+    """Where and when a script ran: platform, CPU model, cores (all and usable: nproc), Python, CasADi and NumPy
+    versions, OMP_NUM_THREADS, load averages, date (UTC). The benchmarks' "machine" adds their own keys to it."""
+    import casadi
+    import numpy
+
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return {"platform": platform.platform(), "machine": platform.machine(), "cpu_model": _cpu_model(),
+            "cpu_count": os.cpu_count(), "usable_cpus": usable, "python": platform.python_version(),
+            "casadi": casadi.__version__, "numpy": numpy.__version__,
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None, "date": utc_now()}
+
+
+def run_info() -> dict:
+    """results.json's "run": the command line (as parsed by script_parser's parser) and machine_info()."""
+    return {"command": _command, **machine_info()}
+
+
 def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
-    """Write `results` to out/results.json (atomically; out created), print `printed` (default: results) as JSON
-    when as_json, else `table`; return 0, main()'s exit code."""
+    """Write `results` to out/results.json (atomically; out created; a dict gets the "run" stamp), print `printed`
+    (default: results) as JSON when as_json, else `table`; return 0, main()'s exit code."""
+    if isinstance(results, dict) and "run" not in results:
+        results = {**results, "run": run_info()}
     out.mkdir(parents=True, exist_ok=True)
     write_atomically(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     print(json.dumps(results if printed is None else printed, indent=1, default=str) if as_json else table)
@@ -32,10 +78,54 @@ def out_dir(text: str) -> Path:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("--out ")) from None
 
 
+class _ScriptParser(UsageParser):
+    def parse_known_args(self, args=None, namespace=None):
+        global _command
+        words = sys.argv[1:] if args is None else list(args)
+        _command = shlex.join(["python", "-m", f"scripts.{self.prog}", *map(str, words)])
+        return super().parse_known_args(args, namespace)
+
+
 def script_parser(doc: str, **kwargs) -> UsageParser:
     """The script's argument parser, described by the first paragraph of its docstring `doc`: a usage error is one line
-    and exit code 2, as in `planner`."""
-    return UsageParser(prog=Path(sys.argv[0]).stem, description=doc.split("\n\n")[0], **kwargs)  # run_main's name too
+    and exit code 2, as in `planner`; the command line it reads is the "run" stamp's."""
+    return _ScriptParser(prog=Path(sys.argv[0]).stem, description=doc.split("\n\n")[0], **kwargs)  # run_main's name too
+
+
+def _number(text: str, ok, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and ok(value)):  # nan compares false: a NaN weight ran on, writing NaN
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A float argument that is a finite number (nan and inf refused)."""
+    return _number(text, lambda v: True, "a finite number")
+
+
+def positive_float(text: str) -> float:
+    """A float argument that is finite and > 0."""
+    return _number(text, lambda v: v > 0, "a finite number > 0")
+
+
+def nonnegative_float(text: str) -> float:
+    """A float argument that is finite and >= 0."""
+    return _number(text, lambda v: v >= 0, "a finite number >= 0")
+
+
+def refuse_with_quick(parser, args, dests: list[str], runs: str) -> None:
+    """--quick runs its own settings (`runs`, said in the error): an argument of `dests` given beside it was dropped
+    silently before, so it is a usage error."""
+    if not args.quick:
+        return
+    given = [a.option_strings[0] if a.option_strings else a.dest for a in parser._actions
+             if a.dest in dests and getattr(args, a.dest) != a.default]
+    if given:
+        parser.error(f"--quick runs {runs}: give no {' or '.join(given)} with it")
 
 
 def planner_command(argv: list[str]) -> int:

@@ -21,11 +21,12 @@ import math
 import re
 import shutil
 import sys
+import tomllib
 from pathlib import Path
 
 from planner.errors import InputError
 from planner.result import write_atomically
-from scripts._report import out_dir, planner_command, report, run_main, script_parser
+from scripts._report import out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -49,6 +50,21 @@ def task_text(lower: str, step: float = DEFAULT_STEP) -> str:
         text = STEP_LINE.sub(f"step = {step!r}", text)
         text = GUESS_LINE.sub(f"q = [0.0, {math.cos(a)!r}, 0.0, {-a!r}, {a!r}]", text)
     return text
+
+
+def check_tasks(pairs: list[tuple[str, float]]) -> None:
+    """Each (lower, step)'s task checked against the biped as `planner plan` checks it, before any solve: a refused
+    one (e.g. a step whose standing guess breaks the joint bounds) stopped the script after the runs before it, whose
+    results were lost."""
+    from planner.model import load_robot
+    from planner.task import parse_task
+
+    robot = load_robot("biped")
+    for lower, step in pairs:
+        try:
+            parse_task(tomllib.loads(task_text(lower, step)), source=str(TASK)).check_against(robot)
+        except InputError as exc:
+            raise InputError(f"the task of step {step:g} m, lower {lower} is refused: {exc}") from None
 
 
 def run(lower: str, step: float, out: Path, quick: bool) -> dict:
@@ -98,12 +114,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
     parser.add_argument("--step", type=float, nargs="+", default=[DEFAULT_STEP],
                         help=f"step lengths [m], each with every bound (default {DEFAULT_STEP}: the task's)")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "biped_walk")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "biped_walk",
+                        help="output directory (default results/bench/biped_walk)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
-    if args.quick and args.lower != parser.get_default("lower"):  # --quick runs its own bound: the given ones were dropped
-        parser.error("--quick runs the default bound 0.3 rad/s: give no --lower with it")
+    refuse_with_quick(parser, args, ["lower"], "the default bound 0.3 rad/s")
     lowers = ["0.3"] if args.quick else args.lower
     for lower in lowers:  # a typo fails here, before any solve
         try:
@@ -113,7 +129,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--lower {lower!r}: give a number >= 0 [rad/s] or none")
     if not all(0 < s < 2 for s in args.step):
         parser.error(f"--step {args.step}: give lengths in (0, 2) m (the legs are 1 m long)")
-    rows = [run(lower, step, args.out, args.quick) for step in args.step for lower in lowers]
+    pairs = [(lower, step) for step in args.step for lower in lowers]
+    check_tasks(pairs)
+    rows = [run(lower, step, args.out, args.quick) for lower, step in pairs]
     return report(args.out, {"task": str(TASK), "quick": args.quick, "runs": rows}, table(rows), args.json, printed=rows)
 
 

@@ -34,7 +34,7 @@ from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.result import write_atomically
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
-from scripts._report import run_main, script_parser
+from scripts._report import run_info, run_main, script_parser
 
 
 def measures(problem, x, p, lbg, ubg) -> dict:
@@ -103,17 +103,32 @@ def parse_options(pairs) -> dict:
     return out
 
 
+def check_options(solvers: list[str], ipopt: dict, fatrop: dict) -> None:
+    """The given solver options tried on a one-variable NLP before any run: IPOPT refuses an unknown name or a wrong
+    type when its solver is made, FATROP only when it solves, so one found in a later solver's run stopped the script
+    after the runs before it (main() turns the RuntimeError into one line)."""
+    x = ca.SX.sym("x")
+    nlp = {"x": x, "f": x ** 2}
+    if {"ipopt", "ipopt_staged"} & set(solvers):
+        ca.nlpsol("ipopt_options", "ipopt", nlp, {"ipopt": {"print_level": 0, **ipopt}, "print_time": False})
+    if "fatrop" in solvers:
+        options = {"fatrop": {"print_level": 0, **fatrop}, "print_time": False}
+        ca.nlpsol("fatrop_options", "fatrop", nlp, options)(x0=1.0)
+
+
 def main(argv=None) -> int:
     ap = script_parser(__doc__)
-    ap.add_argument("--N", type=int, default=125)
+    ap.add_argument("--N", type=int, default=125, help="steps of the case's horizon (default 125, Capler's own)")
     ap.add_argument("--case", choices=["capler", "hop"], default="capler", help="robots/capler.toml (tau_f 2.5 s, N steps) or the point-mass hop")
     ap.add_argument("--penalty", choices=["linf", "l1"], default="linf", help="ProblemOptions.penalty (l1: no slack s_c, no penalty rows)")
-    ap.add_argument("--max-iter", type=int, nargs="+", default=[150])
+    ap.add_argument("--max-iter", type=int, nargs="+", default=[150],
+                    help="NLP 1's iteration caps, one run per cap and solver (default 150)")
     ap.add_argument("--warm", action="store_true", help="also the next NLP (rho 1e3) from each solver's NLP 1 solution (max_iter 3000)")
     ap.add_argument("--fatrop-opt", nargs="*", default=[], help="key=value FATROP options (numbers parsed)")
     ap.add_argument("--ipopt-opt", nargs="*", default=[], help="key=value IPOPT options for ipopt and ipopt_staged (numbers parsed)")
-    ap.add_argument("--solvers", nargs="+", choices=["ipopt", "fatrop", "ipopt_staged"], default=["ipopt", "fatrop"])
-    ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--solvers", nargs="+", choices=["ipopt", "fatrop", "ipopt_staged"], default=["ipopt", "fatrop"],
+                    help="ipopt (the original NLP), fatrop and ipopt_staged (the staged NLP); default ipopt fatrop")
+    ap.add_argument("--verbose", action="store_true", help="print the solvers' iteration logs")
     ap.add_argument("--convexify", default=None, choices=["regularize", "eigen-reflect", "eigen-clip"],
                     help="FATROP: CasADi's convexify_strategy of the Hessian blocks")
     ap.add_argument("--drop-free", action="store_true", help="FATROP: leave out the rows with both bounds infinite (NLP 1's soft terminal rows)")
@@ -140,9 +155,10 @@ def main(argv=None) -> int:
     out = {"case": a.case, "N": a.N, "penalty": a.penalty, "nx": problem.nx, "ng": problem.ng, "staged_nx": st.x.shape[0], "staged_ng": st.g.shape[0],
            "build_s": build_s, "staged_s": staged_s, "rho_nlp1": rhos[0], "fatrop_options": fat_extra, "ipopt_options": ip_extra, "convexify": a.convexify, "scale": a.scale, "drop_free": a.drop_free,
            "date": datetime.datetime.utcnow().isoformat(timespec="minutes"), "casadi": ca.__version__,
-           "load_before": os.getloadavg(), "runs": []}
+           "load_before": os.getloadavg(), "runs": [], "run": run_info()}
     log = (lambda *s: print(*s, file=sys.stderr, flush=True))
     try:
+        check_options(a.solvers, ip_extra, fat_extra)
         for max_iter in a.max_iter:
             for name in a.solvers:
                 t0 = time.perf_counter()
@@ -205,6 +221,7 @@ def main(argv=None) -> int:
         write_atomically(a.out, json.dumps(out, indent=1) + "\n")
     print(f"N = {a.N}: {problem.nx} / {problem.ng} (staged {out['staged_nx']} / {out['staged_ng']}), {out['date']}")
     print("| solver | NLP | max_iter | it. | status | CPU ms/it (evals) | objective | gated prod. | viol. | terminal |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in out["runs"]:
         print(f"| {r['solver']} | {r['nlp']} | {r.get('max_iter', 3000)} | {r['iterations']} | {r['status']} | "
               f"{r['cpu_ms_per_iter']:.2f} ({r['eval_cpu_ms_per_iter']:.2f}) | {r['objective']:.6f} | {r['gated_product_max']:.2e} | "

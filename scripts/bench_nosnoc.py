@@ -22,7 +22,7 @@ min over nodes and holes of ((x - xc)/a)^2 + ((z - zc)/b)^2 (>= 1: outside), IPO
 `--planner` also runs our own planner on the same task file in the same process, as `planner plan` does
 (defaults of planner.problem / planner.homotopy, its race of two solver variants on two CPUs: planner.race)
 for the wall-time ratio. `--quick` uses a coarse grid (N = 25, no holes) for both. nosnoc is an optional
-dependency (pip install nosnoc); it is imported in main().
+dependency (pip install nosnoc); it is imported in main(), not for the planner alone (`--planner --variants`).
 
     python -m scripts.bench_nosnoc [--quick] [--planner] [--out DIR] [--json]   (from the repository root)
 """
@@ -31,11 +31,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import datetime
 import json
 import math
 import os
-import platform
 import sys
 import time
 from dataclasses import dataclass, field
@@ -43,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.errors import interruptible
+from planner.errors import InputError, interruptible
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
-from scripts._report import out_dir, run_main, script_parser
+from scripts._report import machine_info, out_dir, run_info, run_main, script_parser, utc_now
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -420,25 +418,6 @@ def run_planner(quick: bool) -> dict:
 # output
 # ==================================================================================================
 
-def machine_info(nosnoc_version: str | None) -> dict:
-    import casadi
-
-    def cpu_model():
-        try:
-            for line in Path("/proc/cpuinfo").read_text().splitlines():
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-        except OSError:
-            pass
-        return platform.processor() or None
-
-    return {"platform": platform.platform(), "machine": platform.machine(), "cpu_model": cpu_model(),
-            "cpu_count": os.cpu_count(), "python": platform.python_version(), "casadi": casadi.__version__,
-            "nosnoc": nosnoc_version, "numpy": np.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
-
-
 def _fmt(x, spec):
     if x is None:
         return "-"
@@ -469,10 +448,26 @@ def _import_nosnoc():
     try:
         import nosnoc
     except ImportError as exc:
-        raise SystemExit(
+        raise InputError(  # run_main: `bench_nosnoc: error: ...`, exit 2, as stress without dask
             "bench_nosnoc needs the optional benchmark dependency nosnoc: `pip install nosnoc` "
-            f"(or `pip install -e .[bench]`); see docs/benchmarks.md ({exc})") from None
+            f"(or `pip install -e .[bench]`), or give --planner --variants (the planner only); see docs/benchmarks.md "
+            f"({exc})") from None
     return nosnoc
+
+
+def read_previous(path: Path) -> dict | None:
+    """OUT/results.json that --append adds to (None: there is none), read before any solve: an unreadable one ended the
+    whole run in a traceback."""
+    if not path.is_file():
+        return None
+    try:
+        old = json.loads(path.read_text())
+        if not (isinstance(old, dict) and isinstance(old.get("records", []), list)
+                and all(isinstance(r, dict) and {"solver", "variant", "N"} <= set(r) for r in old.get("records", []))):
+            raise ValueError("not a results.json of bench_nosnoc")
+    except (ValueError, UnicodeDecodeError) as exc:  # (json.JSONDecodeError is a ValueError)
+        raise InputError(f"--append: cannot read {path}: {exc}; move it away or run without --append") from None
+    return old
 
 
 def _nosnoc_version(nosnoc) -> str | None:
@@ -489,7 +484,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--quick", action="store_true", help="coarse grid (N = 25, no holes) for every solver")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--planner", action="store_true", help="also solve with our planner (its defaults and race, as planner plan) for the ratio")
-    parser.add_argument("--variants", nargs="+", choices=("hint-free", "hint"), default=["hint-free", "hint"])
+    parser.add_argument("--variants", nargs="*", choices=("hint-free", "hint"), default=["hint-free", "hint"],
+                        help="nosnoc's initial guesses: hint-free (y0 everywhere) and hint (the example's spline); "
+                             "default both; none: with --planner, the planner only (no nosnoc needed)")
     parser.add_argument("--n-fe", type=int, default=1, help="nosnoc finite elements per control stage (default 1)")
     parser.add_argument("--n-s", type=int, default=1, help="nosnoc Radau IIA stages (default 1: implicit Euler)")
     parser.add_argument("--a-t", type=float, default=None,
@@ -500,28 +497,20 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.n_fe < 1 or args.n_s < 1 or args.max_iter < 1:
         parser.error("--n-fe, --n-s and --max-iter must be >= 1")
+    if not args.variants and not args.planner:
+        parser.error("nothing to run: give --variants hint-free and/or hint, or --planner")
     return args
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    nosnoc = _import_nosnoc()
+    old = read_previous(args.out / "results.json") if args.append else None
+    nosnoc = _import_nosnoc() if args.variants else None  # the planner alone does not need it
     import casadi as ca
 
     task = load_capler_task()
     if args.quick:
         task = quick_task(task)
-    records = []
-    for variant in args.variants:
-        print(f"nosnoc {variant}: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
-        with contextlib.redirect_stdout(sys.stderr):  # nosnoc's iteration table: stdout is the table or the JSON
-            rec = run_nosnoc(nosnoc, ca, task, variant, n_fe=args.n_fe, n_s=args.n_s, a_t=args.a_t, max_iter=args.max_iter)
-        records.append(rec)
-        print(table([rec]), file=sys.stderr, flush=True)
-    if args.planner:
-        print(f"planner: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
-        with contextlib.redirect_stdout(sys.stderr):
-            records.append(run_planner(args.quick))
     # --append combines records of the same settings only: a hint run at max_iter 1 was judged against a hint-free
     # run at 4000 ("needed the hint: no"). The planner's record depends on the task alone (nosnoc's max_iter had
     # dropped it)
@@ -531,13 +520,24 @@ def main(argv: list[str] | None = None) -> int:
     def settings(solver: str) -> dict:
         return nosnoc_settings if solver == "nosnoc" else {"quick": args.quick}
 
-    for rec in records:
-        rec["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-        rec["load_average_after"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
-        rec["settings"] = settings(rec["solver"])
+    def finished(rec: dict) -> dict:  # stamped as it finishes: the end of the whole run dated every record alike
+        load = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+        return dict(rec, date=utc_now(), load_average_after=load, settings=settings(rec["solver"]))
+
+    records = []
+    for variant in args.variants:
+        print(f"nosnoc {variant}: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
+        with contextlib.redirect_stdout(sys.stderr):  # nosnoc's iteration table: stdout is the table or the JSON
+            rec = run_nosnoc(nosnoc, ca, task, variant, n_fe=args.n_fe, n_s=args.n_s, a_t=args.a_t,
+                             max_iter=args.max_iter)
+        records.append(finished(rec))
+        print(table([rec]), file=sys.stderr, flush=True)
+    if args.planner:
+        print(f"planner: N = {task.N}, {len(task.holes)} holes ...", file=sys.stderr, flush=True)
+        with contextlib.redirect_stdout(sys.stderr):
+            records.append(finished(run_planner(args.quick)))
     previous_machines, kept = [], []
-    if args.append and (args.out / "results.json").is_file():
-        old = json.loads((args.out / "results.json").read_text())
+    if old is not None:
         redone = {(r["solver"], r["variant"]) for r in records}
         kept = [r for r in old.get("records", []) if (r["solver"], r["variant"]) not in redone and r["N"] == task.N
                 and r.get("settings") == settings(r["solver"])]
@@ -553,8 +553,9 @@ def main(argv: list[str] | None = None) -> int:
     if ref is not None and hinted is not None:
         needs_hint = (not ref["converged"]) and bool(hinted["converged"])
     results = {"benchmark": "bench_nosnoc", "command": "python -m scripts.bench_nosnoc " + " ".join(argv if argv is not None else sys.argv[1:]),
-               "quick": args.quick, "task": dataclasses.asdict(task), "machine": machine_info(_nosnoc_version(nosnoc)),
-               "previous_machines": previous_machines,
+               "quick": args.quick, "task": dataclasses.asdict(task),
+               "machine": {**machine_info(), "nosnoc": _nosnoc_version(nosnoc) if nosnoc else None},
+               "previous_machines": previous_machines, "run": run_info(),
                "records": records, "nosnoc_needs_hint": needs_hint, "wall_time_ratio_nosnoc_over_planner": ratio}
     args.out.mkdir(parents=True, exist_ok=True)
     arrays = {}

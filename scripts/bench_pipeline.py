@@ -37,11 +37,9 @@ capler_set, all seven Capler tasks (CAPLER_SET: one task's iteration count is a 
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import hashlib
 import json
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -66,7 +64,7 @@ from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
 from planner.plots import save_figure
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import machine_info, out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -364,7 +362,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--codegen", action="store_true", help="also the generated-and-compiled NLP functions (gcc; minutes for Capler)")
     parser.add_argument("--codegen-flags", type=str.split, default=DEFAULT_CODEGEN_FLAGS, metavar="'FLAGS'",
                         help="gcc flags of --codegen in one argument (default -O1), e.g. --codegen-flags='-O2 -march=native'")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
+    parser.add_argument("--cache", type=out_dir, default=DEFAULT_CACHE,
+                        help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
     parser.add_argument("--full-only", action="store_true", help="only the end-to-end solve (no fixed-iteration runs)")
     parser.add_argument("--nlp", type=int, choices=(1, 2), default=1,
@@ -413,9 +412,7 @@ def main(argv: list[str] | None = None) -> int:
                for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
-               "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
-                           "casadi": ca.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "keep_freed_memory": heap_kept,
-                           "date": datetime.date.today().isoformat(), "load_average_before": load_before,
+               "machine": {**machine_info(), "keep_freed_memory": heap_kept, "load_average_before": load_before,
                            "load_average_after": os.getloadavg()},
                "variants": {v: VARIANTS[v] for v in variants}, "records": records}
     args.out.mkdir(parents=True, exist_ok=True)

@@ -28,14 +28,13 @@ import time
 from pathlib import Path
 
 from planner.errors import InputError
-from planner.result import read_trajectory, write_atomically
-from scripts._report import out_dir, planner_command, report, run_main, script_parser
+from planner.result import read_summary, read_trajectory, write_atomically
+from scripts._report import out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
 STEP_LINE = re.compile(r"^(step = )([^\s#]+)", re.MULTILINE)
-QUICK_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
-              '[horizon]\ntau_f = 1.0\nN = 20\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+QUICK_TASK = (ROOT / "robots" / "point_mass_hop.toml").read_text()
 # variant names as in the docs' tables since session 9 ("replan": --init alone before session 42)
 VARIANTS = {"replan": ["--penalty-replan"], "keep_schedule": [], "new_impacts": ["--allow-new-impacts"]}
 DEFAULT_VARIANTS = ["replan", "keep_schedule"]
@@ -105,13 +104,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="the replans to run per value (default replan: --penalty-replan, and keep_schedule: --init's "
                              "default; new_impacts: --allow-new-impacts)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "replan")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "replan",
+                        help="output directory (default results/bench/replan)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
+    refuse_with_quick(parser, args, ["robot", "values"], "the point-mass hop to 0.52 m")
     if args.quick:
-        if args.values or args.robot != "capler":  # --quick has its own robot and value: the given ones were dropped
-            parser.error("--quick plans the point-mass hop to 0.52 m: give no robot or --values with it")
         robot, values, base_text = "point_mass", [0.52], QUICK_TASK
     else:
         if not args.values:
@@ -127,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     runs = {(value, variant): args.out / f"{variant}_{value:g}" for value in values for variant in args.variants}
     if args.init is not None:
         read_trajectory(args.init, ("nlp_x",))  # a start that is no plan fails here, not in every replan (each a refused row)
+        made_for = Path(str(read_summary(args.init, require=("robot",))["robot"])).stem
+        if made_for != robot:  # each replan was refused instead, a row each, exit 0
+            raise InputError(f"--init {args.init} is a plan of {made_for}, not of {robot}: give a plan of {robot}")
         init = args.init.resolve()
         for replaced in runs.values():  # plan() empties each run's directory first: it deleted such a start
             if replaced.resolve() == init or replaced.resolve() in init.parents:

@@ -11,8 +11,9 @@ Suite "simulate" (the default; --cases picks among CASE_NAMES):
   error |v_post - v_post_exact|_inf [m/s], penetration -min gap over the nodes [m].
 * Capler (robots/capler.xml) dropped from 5 cm while joint PD holds its posture: against a fine-grid
   run (h_ref = smallest h / 8) and against a MuJoCo rollout with the same PD law (planner.replay).
-  Errors: base position error max |p_base - p_base_ref|_2 on a common 1 ms grid [m], impact time
-  difference [s] (also vs the exact ballistic impact time: the held posture falls rigidly), penetration.
+  Errors: base position error max |p_base - p_base_ref|_2 at the run's own samples (the references
+  interpolated there) [m], impact time difference [s] (also vs the exact ballistic impact time: the
+  held posture falls rigidly), penetration.
   A MuJoCo line (timestep varied, error against the fine-grid run) puts the soft-contact simulator on
   the same plot.
 
@@ -43,11 +44,9 @@ numbers; the runs are deterministic (no random numbers).
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import json
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -55,7 +54,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import casadi
 import matplotlib
 import mujoco
 import numpy as np
@@ -74,7 +72,8 @@ from planner.result import write_atomically
 from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
 from planner.plots import save_figure
-from scripts._report import out_dir, run_main, script_parser
+from scripts._report import machine_info as shared_machine_info
+from scripts._report import out_dir, run_info, run_main, script_parser
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
@@ -702,22 +701,13 @@ def convergence_orders(records: list[dict], keys: tuple[str, ...] | None = None)
 
 
 def machine_info() -> dict:
-    """Platform, CPU model, core count, memory [GiB], load averages, library versions, date (UTC)."""
-    def proc_field(path: str, key: str) -> str | None:
-        try:
-            for line in Path(path).read_text().splitlines():
-                if line.startswith(key):
-                    return line.split(":", 1)[1].strip()
-        except OSError:
-            pass
-        return None
-
-    mem = proc_field("/proc/meminfo", "MemTotal")
-    return {"platform": platform.platform(), "machine": platform.machine(), "cpu_model": proc_field("/proc/cpuinfo", "model name"),
-            "cpu_count": os.cpu_count(), "memory_gib": round(int(mem.split()[0]) / 2**20, 1) if mem else None,
-            "python": platform.python_version(), "casadi": casadi.__version__, "pinocchio": pinocchio.__version__,
-            "mujoco": mujoco.__version__, "numpy": np.__version__, "matplotlib": matplotlib.__version__,
-            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    """The shared machine record (scripts._report.machine_info: platform, CPU model, cores, load, date UTC) with the
+    memory [GiB] and this benchmark's library versions."""
+    meminfo = Path("/proc/meminfo")
+    lines = meminfo.read_text().splitlines() if meminfo.is_file() else []
+    kib = next((int(line.split()[1]) for line in lines if line.startswith("MemTotal")), None)
+    return {**shared_machine_info(), "memory_gib": round(kib / 2**20, 1) if kib else None,
+            "pinocchio": pinocchio.__version__, "mujoco": mujoco.__version__, "matplotlib": matplotlib.__version__}
 
 
 # Which error each panel of the plot shows, by case: (panel title, error key per case prefix)
@@ -816,7 +806,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=out_dir, help=f"output directory (default {DEFAULT_OUT}, suite ocp: {DEFAULT_OUT_OCP})")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: 2 grid points, short horizons (ocp: the point mass only)")
     parser.add_argument("--json", action="store_true", help="print the summary (orders, machine, files) as JSON")
-    parser.add_argument("--suite", choices=sorted(SUITES), default="simulate")
+    parser.add_argument("--suite", choices=sorted(SUITES), default="simulate",
+                        help="simulate (default: the simulator's cases against exact solutions) or ocp (plans)")
     parser.add_argument("--cases", nargs="+", choices=CASE_NAMES + OCP_CASE_NAMES, help="run only these cases of the suite (default: all)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per point; the wall time is their median (ocp: not Capler, planned once)")
     parser.add_argument("--capler-N", type=int, nargs="+", metavar="N",
@@ -849,7 +840,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     results = {"command": "python -m scripts.bench_work_precision " + " ".join(argv if argv is not None else sys.argv[1:]),
                "suite": args.suite, "quick": args.quick, "repeat": args.repeat, "total_wall_time_s": time.perf_counter() - start,
-               "machine": machine, "references": refs, "orders": orders, "records": records}
+               "machine": machine, "references": refs, "orders": orders, "records": records, "run": run_info()}
     write_atomically(out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
     plot(records, out / "work_precision.png", PANELS if args.suite == "simulate" else OCP_PANELS)
     summary = {"results": str(out / "results.json"), "plot": str(out / "work_precision.png"),

@@ -14,6 +14,7 @@ accept it, the plan's control cost and impacts, and in how many selectors the po
 """
 from __future__ import annotations
 
+import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -21,26 +22,33 @@ from pathlib import Path
 import numpy as np
 
 from planner import homotopy as H
+from planner.errors import InputError
 from planner.problem import build_problem
 from planner.race import default_arms
 from scripts.bench_pipeline import CASES
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import out_dir, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "early_stop"
+DEFAULT_AT = ["2:300,600,900", "3:200,400,600,700"]
 MODES = {"at 0": 0, "at 1": 1, "inside": 2}
 
 
-def parse_at(items: list[str]) -> dict[int, list[int]]:
-    """'K:j1,j2,...' items -> {K: [j1, j2, ...]} (NLP K >= 1, iterations >= 1, sorted); ValueError otherwise."""
-    out: dict[int, list[int]] = {}
-    for item in items:
-        k, _, js = item.partition(":")
+def at_item(text: str) -> tuple[int, list[int]]:
+    """An --at item 'K:j1,j2,...' -> (K, [j1, j2, ...] sorted); NLP K and the iterations whole numbers >= 1."""
+    k, _, js = text.partition(":")
+    try:
         nlp, its = int(k), sorted(int(j) for j in js.split(","))
-        if nlp < 1 or not its or its[0] < 1:
-            raise ValueError(f"{item!r}: NLP and iterations must be >= 1")
-        out[nlp] = its
-    return out
+    except ValueError:
+        nlp, its = 0, []
+    if nlp < 1 or not its or its[0] < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give K:J1,J2,... with NLP K and iterations J whole numbers >= 1")
+    return nlp, its
+
+
+def parse_at(items: list[str]) -> dict[int, list[int]]:
+    """'K:j1,j2,...' items -> {K: [j1, j2, ...]} (at_item's)."""
+    return dict(at_item(item) for item in items)
 
 
 def selector_modes(problem, x) -> np.ndarray:
@@ -113,19 +121,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--case", choices=sorted(CASES), default="capler125", help="the task (bench_pipeline's cases; default capler125)")
     parser.add_argument("--arm", choices=("default", "alternate"), default="alternate",
                         help="the race arm's SolveOptions (planner.race.default_arms; default alternate, the main job's winner)")
-    parser.add_argument("--at", nargs="+", default=["2:300,600,900", "3:200,400,600,700"], metavar="K:J1,J2",
+    parser.add_argument("--at", nargs="+", type=at_item, metavar="K:J1,J2",
                         help="NLP K capped at iterations J1, J2, ... (default 2:300,600,900 3:200,400,600,700)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the hop with N = 6, NLP 2 at 5 iterations")
     parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
-    try:
-        at = parse_at(["2:5"] if args.quick else args.at)
-    except ValueError as exc:
-        parser.error(f"--at: {exc}")
+    refuse_with_quick(parser, args, ["case", "at"], "the hop with N = 6, NLP 2 at 5 iterations")
+    at = parse_at(["2:5"] if args.quick else DEFAULT_AT) if args.at is None else dict(args.at)
     case = "hop" if args.quick else args.case
     problem = build_problem(*CASES[case](args.quick))
     options = dict(default_arms(H.SolveOptions()))[args.arm]
+    n_nlps = len(H.homotopy_rhos(problem, options))
+    if max(at) > n_nlps:  # those NLPs are never run: an empty table, exit 0
+        raise InputError(f"--at {max(at)}:...: the homotopy of case {case} has NLPs 1 to {n_nlps}")
     records = probe(problem, options, at)
     results = {"command": "python -m scripts.probe_early_stop " + " ".join(argv if argv is not None else sys.argv[1:]),
                "case": case, "arm": args.arm, "records": records}

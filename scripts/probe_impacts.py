@@ -27,7 +27,8 @@ v_{k+1} = 0) and removes energy where it acts: dissipative by construction. Step
 
     python -m scripts.probe_impacts DIR                          # the plan in DIR (needs its nlp_x)
     python -m scripts.probe_impacts --plan capler --out DIR --no-validate   # the hint-free plan with the variant
-Writes OUT/results.json (default results/probe/impacts, as the other probes: the plan's directory stays as written).
+Writes OUT/results.json (default results/probe/impacts, beside probe_early_stop's, probe_lqr's and probe_steps'; the
+plan's directory stays as written).
 """
 from __future__ import annotations
 

@@ -32,14 +32,14 @@ import numpy as np
 
 from planner import replay as R
 from planner.result import check_same_result, read_robot, read_summary, read_task, read_trajectory
-from scripts._report import out_dir, planner_command, report, run_main, script_parser
+from scripts._report import (nonnegative_float, out_dir, planner_command, positive_float, refuse_with_quick, report,
+                             run_main, script_parser)
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
 FD_STEP = 1e-6  # [m, rad, m/s, rad/s, N m] central differences of the accelerations: O(1e-12) truncation, 1e-10 round-off
 HORIZONS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)  # [s] of physical time from the plan's start
-QUICK_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
-              '[horizon]\ntau_f = 1.0\nN = 10\n[plan]\ntarget_q = [0.5, 0.0]\nu_bound = 30.0\n')
+QUICK_TASK = (ROOT / "robots" / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 10\n")
 
 
 def load(out_dir: Path):
@@ -219,18 +219,21 @@ def table(rec: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("plan", nargs="?", type=Path, help="a `planner plan` result directory")
-    parser.add_argument("--q", type=float, default=1e4, help="position weight (default 1e4)")
-    parser.add_argument("--v", type=float, default=1e2, help="velocity weight (default 1e2)")
-    parser.add_argument("--r", type=float, default=1.0, help="torque weight (default 1)")
-    parser.add_argument("--base-factor", type=float, default=1.0, help="factor on the unactuated coordinates' weights (default 1)")
+    parser.add_argument("--q", type=nonnegative_float, default=1e4, help="position weight (default 1e4)")
+    parser.add_argument("--v", type=nonnegative_float, default=1e2, help="velocity weight (default 1e2)")
+    parser.add_argument("--r", type=positive_float, default=1.0, help="torque weight, > 0: R is inverted (default 1)")
+    parser.add_argument("--base-factor", type=nonnegative_float, default=1.0,
+                        help="factor on the unactuated coordinates' weights (default 1)")
     parser.add_argument("--every", type=int, default=20, help="MuJoCo steps between linearizations (default 20: 5 ms)")
-    parser.add_argument("--gap-tol", type=float, default=1e-6, help="gap below which a plan sample is in stance [m] (default 1e-6)")
+    parser.add_argument("--gap-tol", type=positive_float, default=1e-6,
+                        help="gap below which a plan sample is in stance [m] (default 1e-6)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop planned here, N = 10")
     parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     if args.every < 1:
         parser.error("--every must be >= 1")
+    refuse_with_quick(parser, args, ["plan"], "the point-mass hop it plans (N = 10)")
     with tempfile.TemporaryDirectory() as tmp:
         plan = args.plan
         if args.quick:

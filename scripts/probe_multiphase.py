@@ -42,7 +42,7 @@ from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, constraint_violation, replan_options, solve
 from planner.problem import _path_functions, build_problem
 from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, _penalized_nlp, _solve_homotopy
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import finite_float, out_dir, positive_float, refuse_with_quick, report, run_main, script_parser
 from scripts.bench_pipeline import capler_case
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -279,21 +279,28 @@ def table(rec: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--landings", type=float, nargs="*", default=[0.85, 1.85], help="intermediate footholds' guesses [m]")
-    parser.add_argument("--T", type=float, default=2.3, help="the hop plan's duration [s] (the time-freezing plans' clocks end at 2.3-2.5 s)")
-    parser.add_argument("--nodes", type=int, nargs=2, default=[8, 8], metavar=("STANCE", "FLIGHT"))
-    parser.add_argument("--start", choices=sorted(STARTS), default="pd")
+    parser.add_argument("--landings", type=finite_float, nargs="*", default=[0.85, 1.85],
+                        help="intermediate footholds' guesses [m]")
+    parser.add_argument("--T", type=positive_float, default=2.3,
+                        help="the hop plan's duration [s] (the time-freezing plans' clocks end at 2.3-2.5 s)")
+    parser.add_argument("--nodes", type=int, nargs=2, default=[8, 8], metavar=("STANCE", "FLIGHT"),
+                        help="the hop OCP's nodes per stance and per flight phase (default 8 8)")
+    parser.add_argument("--start", choices=sorted(STARTS), default="pd",
+                        help="the time-freezing start from the hop plan: interp, pd (default) or track (see above)")
     parser.add_argument("--N", type=int, default=125, help="time-freezing steps over the task's tau_f (default the task's 125)")
     parser.add_argument("--max-iter", type=int, default=3000, help="IPOPT iterations of the hop OCP")
     parser.add_argument("--no-solve", action="store_true", help="stop after the start")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_multiphase")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_multiphase",
+                        help="output directory (default results/bench/probe_multiphase)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 10, one landing, 3 nodes per phase, no solve")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
+    refuse_with_quick(parser, args, ["N", "landings", "nodes", "max_iter"],
+                      "N = 10, one landing, 3 nodes per phase, 200 iterations, no solve")
     if args.quick:
         args.N, args.landings, args.nodes, args.max_iter, args.no_solve = 10, [1.0], [3, 3], 200, True
-    if args.T <= 0 or min(args.nodes) < 1:
-        parser.error(f"--T must be > 0 and --nodes >= 1, got {args.T}, {args.nodes}")
+    if min(args.nodes) < 1 or args.N < 1 or args.max_iter < 1:
+        parser.error(f"--nodes, --N and --max-iter must be >= 1, got {args.nodes}, {args.N}, {args.max_iter}")
     rec = probe(args.N, sorted(args.landings), args.T, tuple(args.nodes), args.start, args.max_iter, not args.no_solve)
     return report(args.out, rec, table(rec), args.json)
 

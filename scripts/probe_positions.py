@@ -36,7 +36,7 @@ import casadi as ca
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from scripts import bench_work_precision as wp
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import nonnegative_float, out_dir, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = ("pm_drop_frictionless", "pm_drop_noslip", "capler_pd_drop")
@@ -97,15 +97,17 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--power", type=float, default=2.0, help="p of the weight r^p (0: the plain trapezoid)")
-    parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_positions")
+    parser.add_argument("--power", type=nonnegative_float, default=2.0,
+                        help="p of the weight r^p (0: the plain trapezoid)")
+    parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES),
+                        help=f"the simulation cases (default all: {', '.join(CASES)})")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_positions",
+                        help="output directory (default results/bench/probe_positions)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the frictionless point mass at h = 0.04, 0.02")
     parser.add_argument("--json", action="store_true", help="print the records as JSON instead of the table")
     parser.add_argument("--plan", nargs=argparse.REMAINDER, metavar="ARGS", help="run `planner plan ARGS` with the rule instead (last option)")
     args = parser.parse_args(argv)
-    if args.power < 0:
-        parser.error(f"--power must be >= 0, got {args.power}")
+    refuse_with_quick(parser, args, ["cases", "plan"], "the frictionless point mass at two steps")
     if args.plan is not None:
         from planner.cli import main as cli
 

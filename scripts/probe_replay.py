@@ -34,7 +34,7 @@ from planner.problem import build_problem
 from planner.result import check_same_result, read_robot, read_start, read_summary, read_task, read_trajectory
 from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import nonnegative_float, out_dir, positive_float, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
@@ -216,11 +216,12 @@ def table(rec: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("plan", type=Path, help="a `planner plan` result directory of Capler (hip and knee PD)")
-    parser.add_argument("--kp", type=float, default=200.0, help="joint PD stiffness [N m/rad]")
-    parser.add_argument("--kd", type=float, default=5.0, help="joint PD damping [N m s/rad]")
+    parser.add_argument("--kp", type=nonnegative_float, default=200.0, help="joint PD stiffness [N m/rad]")
+    parser.add_argument("--kd", type=nonnegative_float, default=5.0, help="joint PD damping [N m s/rad]")
     parser.add_argument("--plan-first", action="store_true", help="start each step's solve at the plan's own solution")
     parser.add_argument("--liftoff-first", action="store_true", help="start each step's solve at a free-flight prediction")
-    parser.add_argument("--first-rho0", type=float, help="with --plan-first or --liftoff-first: the penalty that start's homotopy "
+    parser.add_argument("--first-rho0", type=positive_float,
+                        help="with --plan-first or --liftoff-first: the penalty that start's homotopy "
                         "begins with (default the simulator's; 1e4 keeps the start's branch where a weak penalty lets the regularizer move it)")
     parser.add_argument("--by-clock", action="store_true", help="read the plan (control, PD target) at the rollout's own clock + h "
                         "instead of at its step index")
@@ -228,13 +229,14 @@ def main(argv: list[str] | None = None) -> int:
                         "homotopy or the held-schedule replan")
     parser.add_argument("--family", type=int, metavar="K", help="also solve step K with its clock advance fixed at "
                         f"{FAMILY_POINTS} values in [0, h], from the plan's and from the rollout's state there")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_replay")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_replay",
+                        help="output directory (default results/bench/probe_replay)")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
     if args.plan_first and args.liftoff_first:
         parser.error("--plan-first and --liftoff-first are two rules for the same first start: choose one")
-    if args.first_rho0 is not None and (not (args.plan_first or args.liftoff_first) or args.first_rho0 <= 0):
-        parser.error("--first-rho0 needs --plan-first or --liftoff-first and a value > 0")
+    if args.first_rho0 is not None and not (args.plan_first or args.liftoff_first):
+        parser.error("--first-rho0 needs --plan-first or --liftoff-first")
     if args.by_clock and args.plan_first:
         parser.error("--plan-first starts step k at the plan's step k, which --by-clock no longer follows: choose one")
     if args.family is not None and args.family < 0:

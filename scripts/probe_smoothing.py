@@ -27,7 +27,8 @@ import numpy as np
 from planner.homotopy import SolveOptions, _Solvers, _terminal_rows, ipopt_options, terminal_error
 from planner.problem import build_problem
 from scripts.bench_pipeline import capler_case, nlp1_arguments
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import (nonnegative_float, out_dir, positive_float, refuse_with_quick, report, run_main,
+                             script_parser)
 
 ROOT = Path(__file__).resolve().parent.parent
 # smoothing width per switching function at scale 1: a tenth of Capler's speeds, a centimetre of gap, and for phi
@@ -115,20 +116,25 @@ def table(rec: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--start", choices=("paper", "line", "nlp1"), default="paper")
-    parser.add_argument("--eps-scales", type=float, nargs="+", default=[10.0, 3.0, 1.0, 0.3, 0.1])
-    parser.add_argument("--terminal-weight", type=float, default=0.0, help="soft terminal weight (default 0: the hard terminal rows)")
+    parser.add_argument("--start", choices=("paper", "line", "nlp1"), default="paper",
+                        help="the NLPs' first start: paper (y_0 at every node, default), line or nlp1 (see above)")
+    parser.add_argument("--eps-scales", type=positive_float, nargs="+", default=[10.0, 3.0, 1.0, 0.3, 0.1],
+                        help="the smoothing widths' scales, one NLP each from the last (default 10 3 1 0.3 0.1)")
+    parser.add_argument("--terminal-weight", type=nonnegative_float, default=0.0,
+                        help="soft terminal weight (default 0: the hard terminal rows)")
     parser.add_argument("--no-holes", action="store_true", help="the holes switched off (hole scale 0)")
     parser.add_argument("--N", type=int, default=125, help="steps over the task's tau_f (default the task's 125)")
-    parser.add_argument("--max-iter", type=int, default=3000)
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_smoothing")
+    parser.add_argument("--max-iter", type=int, default=3000, help="IPOPT iterations per NLP (default 3000)")
+    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_smoothing",
+                        help="output directory (default results/bench/probe_smoothing)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, scales 1 and 0.1, 10 iterations each")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)
+    refuse_with_quick(parser, args, ["N", "max_iter", "eps_scales"], "N = 6, scales 1 and 0.1, 10 iterations each")
     if args.quick:
         args.N, args.eps_scales, args.max_iter = 6, [1.0, 0.1], 10
-    if any(s <= 0 for s in args.eps_scales):
-        parser.error(f"--eps-scales must be > 0, got {args.eps_scales}")
+    if args.N < 1 or args.max_iter < 1:
+        parser.error(f"--N and --max-iter must be >= 1, got {args.N}, {args.max_iter}")
     rec = probe(args.N, args.start, args.eps_scales, args.terminal_weight, not args.no_holes, args.max_iter)
     return report(args.out, rec, table(rec), args.json)
 

@@ -31,11 +31,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import datetime
 import json
 import math
 import os
-import platform
 import sys
 import time
 import tomllib
@@ -47,7 +45,8 @@ import numpy as np
 from planner.batch import Crashed, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
-from scripts._report import out_dir, run_main, script_parser
+from scripts._report import machine_info as shared_machine_info
+from scripts._report import out_dir, run_info, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -554,14 +553,11 @@ def markdown(summary: dict, records: list[dict], header: str) -> str:
 
 
 def machine_info() -> dict:
-    import casadi
+    """The shared machine record (scripts._report.machine_info) with the solver's and the replay's library versions."""
     import mujoco
     import pinocchio
 
-    return {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
-            "casadi": casadi.__version__, "pinocchio": pinocchio.__version__, "mujoco": mujoco.__version__,
-            "numpy": np.__version__, "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    return {**shared_machine_info(), "pinocchio": pinocchio.__version__, "mujoco": mujoco.__version__}
 
 
 def _plain(obj):
@@ -627,16 +623,19 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.workers is not None and args.workers < 0:  # before OUT is touched
         parser.error(f"--workers must be >= 0, got {args.workers}")
-    args.out.mkdir(parents=True, exist_ok=True)
     # one line per finished task, so a stopped run keeps what it did; records.jsonl once the run is done (a stopped
-    # run emptied it beside the previous run's results.json)
+    # run emptied it beside the previous run's results.json). Made by the first finished task: a refused --scheduler
+    # (dask missing, unreachable) left OUT with an empty one
     partial = args.out / "records.partial.jsonl"
-    partial.write_text("")
+    logged = []
 
     def log(i, result):
         rec = finish(specs[i], result)
-        with partial.open("a") as f:
+        if not logged:
+            args.out.mkdir(parents=True, exist_ok=True)
+        with partial.open("a" if logged else "w") as f:
             f.write(json.dumps(_strict(rec), allow_nan=False) + "\n")
+        logged.append(i)
         where = f" at {rec['stage']}" if rec["outcome"] == CRASHED else ""
         print(f"{rec['id']:<20} {rec['outcome']}{where}  {(rec.get('message') or '')[:120]}", file=sys.stderr, flush=True)
 
@@ -658,7 +657,7 @@ def main(argv: list[str] | None = None) -> int:
     machine = machine_info()
     results = {"command": command, "seed": args.seed, "robot": args.robot, "per_family": args.per_family, "N": args.N,
                "solve_options": overrides, "race": args.race, "scheduler": args.scheduler, "workers": workers, "total_wall_time_s": wall,
-               "machine": machine, "summary": summary, "records": records}
+               "machine": machine, "summary": summary, "records": records, "run": run_info()}
     write_atomically(args.out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")
     os.replace(partial, args.out / "records.jsonl")
     header = (f"Stress run `{command}` on {machine['date'][:10]}: {len(records)} tasks, base {args.robot}, seed {args.seed}, "

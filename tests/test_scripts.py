@@ -20,6 +20,7 @@ from planner.errors import InputError
 from planner.model import load_robot
 from planner.problem import build_problem
 from planner.task import load_task
+from scripts._report import run_main
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -473,12 +474,36 @@ def test_bench_nosnoc_model_and_hint(bench_nosnoc):
     assert "hint-free" in line and "1.0e-04" in line and len(line.splitlines()) == 3
 
 
-def test_bench_nosnoc_says_how_to_install(bench_nosnoc, monkeypatch, tmp_path):
-    """Without nosnoc, main() stops with a message naming `pip install nosnoc`, before any work."""
+def test_bench_nosnoc_says_how_to_install(bench_nosnoc, monkeypatch, tmp_path, capsys):
+    """Without nosnoc, main() stops with a message naming `pip install nosnoc`, before any work: one line
+    `bench_nosnoc: error: ...` and exit 2 as stress without dask (it was exit 1 without the prefix); the planner alone
+    (--planner --variants) runs without it, each record dated when it finished."""
     monkeypatch.setitem(sys.modules, "nosnoc", None)  # import nosnoc -> ImportError
-    with pytest.raises(SystemExit, match="pip install nosnoc"):
-        bench_nosnoc.main(["--quick", "--out", str(tmp_path)])
+    monkeypatch.setattr(sys, "argv", ["bench_nosnoc.py"])
+    assert run_main(lambda: bench_nosnoc.main(["--quick", "--out", str(tmp_path)])) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bench_nosnoc: error: ") and "pip install nosnoc" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "results.json").exists()
+    planned = {"solver": "planner", "variant": "hint-free", "N": 25, "holes": 0, "converged": True, "wall_time_s": 0.5}
+    monkeypatch.setattr(bench_nosnoc, "run_planner", lambda quick: dict(planned))
+    assert bench_nosnoc.main(["--quick", "--planner", "--variants", "--out", str(tmp_path)]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    (rec,) = results["records"]
+    assert rec["solver"] == "planner" and rec["date"].endswith("+00:00") and results["machine"]["nosnoc"] is None
+    assert results["run"]["command"].endswith("--quick --planner --variants --out " + str(tmp_path))
+
+
+def test_bench_nosnoc_append_refuses_an_unreadable_results_json_before_any_solve(bench_nosnoc, monkeypatch, tmp_path):
+    """--append reads OUT/results.json before any solve: an unreadable one is one line and exit 2 (it was a
+    JSONDecodeError traceback after the whole run)."""
+    def solve(*args, **kwargs):
+        raise AssertionError("solved before the file to append to was read")
+
+    monkeypatch.setattr(bench_nosnoc, "run_nosnoc", solve)
+    for text in ('{"records": [\n', '[1, 2]\n', '{"records": [{"solver": "nosnoc"}]}\n'):
+        (tmp_path / "results.json").write_text(text)
+        with pytest.raises(InputError, match="--append: cannot read .*results.json"):  # run_main: one line, exit 2
+            bench_nosnoc.main(["--quick", "--append", "--out", str(tmp_path)])
 
 
 def test_bench_nosnoc_quick_run(bench_nosnoc, tmp_path, capsys):
@@ -922,7 +947,8 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.bench_replan", "point_mass", "--values", "1"], "exactly one 'target_q = ...' line"),  # exit 1
     (["scripts.bench_replan", "biped", "--quick", "--values", "0.9"], "give no robot or --values with it"),  # dropped
     (["scripts.bench_biped_walk", "--quick", "--lower", "fast"], "give no --lower with it"),  # dropped
-    (["scripts.bench_biped_walk", "--quick", "--step", "1.9"], "refused the task of step 1.9 m"),  # FileNotFoundError
+    # refused before any solve: a later step's refusal lost the runs before it (FileNotFoundError before that)
+    (["scripts.bench_biped_walk", "--quick", "--step", "0.25", "1.9"], "the task of step 1.9 m, lower 0.3 is refused"),
     (["scripts.bench_work_precision", "--suite", "ocp", "--quick", "--cases", "ocp_capler"], "runs the point-mass hop only"),
     (["scripts.readme_figures", "results", "--at", "nan"], "--at must be a number of seconds"),  # a traceback
     # an --out that is a file: refused after the whole run (70 s of nosnoc's solves)
@@ -966,6 +992,104 @@ def test_probe_replay_refuses_a_plan_of_another_robot(tmp_path):
                           cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
     err = proc.stderr.strip()
     assert proc.returncode == 2 and "this probe reads plans of Capler" in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("script, argv, fragment", [
+    # nonsense numbers: a LinAlgError traceback (--r 0), or a run that wrote NaN (exit 0) or warned 35k times
+    *[("probe_lqr", ["--quick", flag, value], f"argument {flag}: expected a finite number {bound}, got '{value}'")
+      for flag, value, bound in (("--r", "0", "> 0"), ("--q", "nan", ">= 0"), ("--q", "-1", ">= 0"),
+                                 ("--gap-tol", "nan", "> 0"))],
+    ("probe_replay", ["{dir}", "--kp", "nan"], "argument --kp: expected a finite number >= 0"),
+    ("probe_smoothing", ["--eps-scales", "1", "nan"], "argument --eps-scales: expected a finite number > 0"),
+    ("probe_positions", ["--quick", "--power", "nan"], "argument --power: expected a finite number >= 0"),
+    # what --quick replaces, given beside it: dropped silently
+    ("probe_lqr", ["--quick", "{dir}"], "give no plan with it"),
+    ("probe_smoothing", ["--quick", "--N", "0", "--max-iter", "0"], "give no --N or --max-iter with it"),
+    ("probe_multiphase", ["--quick", "--nodes", "0", "0"], "give no --nodes with it"),
+    ("probe_positions", ["--quick", "--cases", "pm_drop_noslip"], "give no --cases with it"),
+    ("probe_early_stop", ["--quick", "--case", "hop"], "give no --case with it"),
+    ("probe_early_stop", ["--quick", "--at", "2:5"], "give no --at with it"),
+    ("probe_early_stop", ["--at", "2:abc"], "argument --at: '2:abc': give K:J1,J2,..."),
+    ("probe_early_stop", ["--case", "hop", "--at", "2:5", "9:5"], "case hop has NLPs 1 to 6"),  # an empty table
+    # a --cache written into the working directory, or refused after the derivation
+    ("bench_pipeline", ["--quick", "--codegen", "--cache", ""], "argument --cache: an empty path is not allowed"),
+    ("bench_pipeline", ["--quick", "--codegen", "--cache", "{file}"], "is a file, not a directory"),
+])
+def test_scripts_refuse_bad_arguments_before_any_solve(tmp_path, monkeypatch, capsys, script, argv, fragment):
+    """Arguments a script ran on (or crashed on, or dropped) are refused before any solve, as `SCRIPT: error: ...` in
+    one line and exit 2, with nothing written."""
+    import importlib
+
+    module = importlib.import_module(f"scripts.{script}")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    argv = [a.replace("{file}", str(a_file)).replace("{dir}", str(tmp_path)) for a in argv]
+    monkeypatch.setattr(sys, "argv", [f"{script}.py"])  # the name script_parser and run_main give the error
+    try:
+        code = run_main(lambda: module.main(argv + ["--out", str(tmp_path / "out")]))
+    except SystemExit as exc:  # a usage error (argparse)
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"{script}: error: ") and fragment in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bench_replan_refuses_a_start_plan_of_another_robot(tmp_path, capsys):
+    """--init of a point-mass plan for capler is refused up front naming the plan's robot (each replan was a
+    "refused" row, exit 0)."""
+    from scripts import bench_replan
+
+    start = tmp_path / "hop"
+    start.mkdir()
+    np.savez(start / "trajectory.npz", nlp_x=np.zeros(3))
+    (start / "summary.json").write_text(json.dumps({"robot": "robots/point_mass.xml", "task": "hop.toml"}))
+    with pytest.raises(InputError, match="is a plan of point_mass, not of capler"):
+        bench_replan.main(["capler", "--values", "2.9", "3.1", "--init", str(start), "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
+
+
+def test_report_stamps_results_with_the_run(tmp_path, monkeypatch):
+    """report() adds "run" to a dict's results.json (and to its printed JSON): the command as the script's parser read
+    it, the UTC date-time, the machine; keys of the results stay as they are, a list is written as it is."""
+    from scripts import _report
+
+    monkeypatch.setattr(sys, "argv", ["probe_x.py"])
+    parser = _report.script_parser("A probe.")
+    parser.add_argument("--n", type=int)
+    parser.parse_args(["--n", "3"])
+    assert _report.report(tmp_path, {"n": 3, "command": "mine"}, "table", False) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    run = results.pop("run")
+    assert results == {"n": 3, "command": "mine"} and run["command"] == "python -m scripts.probe_x --n 3"
+    assert run["date"].endswith("+00:00") and run["cpu_count"] >= 1 and run["usable_cpus"] >= 1
+    for key in ("cpu_model", "platform", "python", "casadi", "numpy", "load_average"):
+        assert key in run, key
+    _report.report(tmp_path, [1, 2], "table", False)
+    assert json.loads((tmp_path / "results.json").read_text()) == [1, 2]
+
+
+def test_stress_refused_scheduler_leaves_out_untouched(stress, tmp_path, monkeypatch, capsys):
+    """A --scheduler refused (here: dask.distributed missing) is exit 2 with OUT not created (it held an empty
+    records.partial.jsonl)."""
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # from dask.distributed import ... -> ImportError
+    argv = ["--robot", "point_mass", "--families", "friction", "--per-family", "1", "--scheduler", "tcp://127.0.0.1:1"]
+    assert stress.main(argv + ["--out", str(tmp_path / "out")]) == 2
+    assert "stress: error: a Dask scheduler was given" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("script", ["bench_replan", "bench_biped_walk", "probe_multiphase", "probe_positions",
+                                    "probe_replay", "probe_smoothing"])
+def test_scripts_help_says_where_results_go(script, monkeypatch, capsys):
+    """--out's help names the default directory (it had no help)."""
+    import importlib
+
+    module = importlib.import_module(f"scripts.{script}")
+    with pytest.raises(SystemExit) as stopped:
+        module.main(["--help"])
+    assert stopped.value.code == 0
+    printed = " ".join(capsys.readouterr().out.split())  # (argparse wraps the help)
+    assert f"output directory (default results/bench/{script.removeprefix('bench_')}" in printed
 
 
 # --- scripts/bench_pipeline.py -------------------------------------------------------------------------
@@ -1379,7 +1503,8 @@ def test_bench_fatrop_smoke_run_and_its_input_errors(tmp_path, capsys):
     assert bench.main(["--case", "hop", "--N", "6", "--max-iter", "3", "--out", str(out)]) == 0
     record = json.loads(out.read_text())
     assert [r["solver"] for r in record["runs"]] == ["ipopt", "fatrop"] and record["staged_nx"] > record["nx"]
-    assert "| fatrop | 1 | 3 |" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "| fatrop | 1 | 3 |" in printed and json.loads(out.read_text())["run"]["cpu_count"]
     base = ["--case", "hop", "--N", "6", "--max-iter", "3"]
     for bad, message in ((["--solvers", "nope"], "invalid choice: 'nope'"), (["--out", str(tmp_path / "missing" / "x.json")], "no writable directory")):
         with pytest.raises(SystemExit) as stopped:
@@ -1388,6 +1513,16 @@ def test_bench_fatrop_smoke_run_and_its_input_errors(tmp_path, capsys):
     for bad, message in ((["--fatrop-opt", "nokey"], "expected key=value"),
                          (["--solvers", "ipopt", "--ipopt-opt", "bogus_option=3"], "No such IPOPT option: bogus_option")):
         with pytest.raises(InputError, match=message):  # run_main makes it one line and exit 2
+            bench.main(base + bad)
+    assert "|---|---|" in printed  # a Markdown table: it lacked the row under its header
+
+    def solve(*args):
+        raise AssertionError("a solver ran before the options were checked")
+
+    bench.run = solve  # (the module is this test's own: _load)
+    for bad, message in ((["--fatrop-opt", "bogus=1"], "Fatrop option not supported: bogus"),  # after the IPOPT run
+                         (["--solvers", "fatrop", "ipopt", "--ipopt-opt", "bogus_option=3"], "No such IPOPT option")):
+        with pytest.raises(InputError, match=message):
             bench.main(base + bad)
 
 
