@@ -255,15 +255,15 @@ def _compile(robot: Robot):
         return None, UNREADABLE, str(exc)
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     other = [j.name or f"joint_{i}" for i, j in enumerate(spec.joints) if int(j.type) not in kept]
+    try:
+        mj = spec.compile()
+    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
+        return None, UNREADABLE, mujoco_failure(robot.path, exc)
     if other:  # before the names: a free joint is one MuJoCo joint and six named degrees of freedom (root_0 ...)
         return None, SKIPPED, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
     if tuple(j.name for j in spec.joints) != robot.dof_names:  # a URDF planar joint: MuJoCo's three, Pinocchio's one
         return None, DIFFERENT, (f"MuJoCo orders the joints {tuple(j.name for j in spec.joints)}, Pinocchio "
                                  f"{robot.dof_names}")
-    try:
-        mj = spec.compile()
-    except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
-        return None, UNREADABLE, mujoco_failure(robot.path, exc)
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
         model = robot.model
         unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]

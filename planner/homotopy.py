@@ -1284,9 +1284,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     if comp > options.comp_tol:
         reasons.append(f"complementarity residual {comp:.3g} > {options.comp_tol:g}")
         if not polished and last.complementarity_residual <= options.comp_tol:  # the table's column reads as converged
-            reasons[-1] += (f" (of all pairs; {last.label}'s {last.complementarity_residual:.1e} is of the gated pairs, "
-                            "whose branches a flight or impact switches off, and only the polish makes the rest "
-                            "complementary)")
+            reasons[-1] += (f" (of all pairs; {last.label}'s {last.complementarity_residual:.1e} is of the gated "
+                            "pairs: a pair whose selector has no effect in a step's mode (alpha's in flight) is not "
+                            "counted there, and only the polish makes those complementary too)")
     if term > options.terminal_tol:
         reasons.append(f"terminal error {term:.3g} > {options.terminal_tol:g}")
     worst = max(viol, key=viol.get)

@@ -145,20 +145,30 @@ class Robot:
                 return True
         return False
 
-    def contact_rank(self, contacts, q: np.ndarray, height: float, touch_tol: float = 1e-6) -> tuple[int, int]:
-        """(rows, rank) of the contact rows at q (nq,) of the contacts (point, unit normal (3,), frictional) whose point
-        lies on its plane (through (0, 0, height) [m]) to touch_tol [m]: a normal row each, with friction a tangent
-        row too. rank < rows: the forces of those contacts together are not unique."""
+    def contact_rank(self, contacts, q: np.ndarray, height: float,
+                     touch_tol: float = 1e-6) -> tuple[list[int], int, int]:
+        """Of the contacts (point, unit plane normal (3,), frictional), those whose point lies on its plane (through
+        (0, 0, height) [m]) at q (nq,) to touch_tol [m]: (their indices, the rank of their normal rows n^T J_p(q),
+        the rank of those rows and the frictional ones' tangent rows together). A rank below the rows' count: the
+        forces of those contacts together are not unique."""
+        from .contact import plane_axes  # (contact imports the dynamics, which import this module)
+
         model, data, q = self.model, self.model.createData(), np.asarray(q, float)
         pin.framesForwardKinematics(model, data, q)
-        stacked = []
-        for point, n, frictional in contacts:
-            frame, n = self.frame_id(point), np.asarray(n, float)
+        on, normal_rows, tangent_rows = [], [], []
+        for i, (point, surface, frictional) in enumerate(contacts):
+            frame, (n, t) = self.frame_id(point), (np.array(a) for a in plane_axes(surface))
             if abs(n @ (data.oMf[frame].translation - np.array([0.0, 0.0, height]))) > touch_tol:
                 continue
             J = np.asarray(pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))[:3]
-            stacked += [n @ J] + ([np.array([n[2], 0.0, -n[0]]) @ J] if frictional else [])
-        return len(stacked), (int(np.linalg.matrix_rank(np.array(stacked), tol=1e-9)) if stacked else 0)
+            on.append(i)
+            normal_rows.append(n @ J)
+            tangent_rows += [t @ J] if frictional else []
+
+        def rank(rows):
+            return int(np.linalg.matrix_rank(np.array(rows), tol=1e-9)) if rows else 0
+
+        return on, rank(normal_rows), rank(normal_rows + tangent_rows)
 
     def dof_index(self, joint: str, key: str = "") -> int:
         """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names (and names `key`, the task
@@ -373,10 +383,13 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         if gear == 0.0:  # its force gear * ctrl is always 0 (a PD law divided by it)
             raise RobotFileError(f"{path}: actuator {name!r} has gear 0, so it exerts no force; give it a nonzero gear "
                                  "or remove it")
-        for what, values in (("ctrlrange", mj.actuator_ctrlrange[i]), ("forcerange", mj.actuator_forcerange[i])):
-            if values[0] > values[1]:  # MuJoCo then drops the limit: a sign typo would leave the motor unbounded
-                raise RobotFileError(f"{path}: actuator {name!r}: its {what} {values[0]:g} {values[1]:g} is reversed, "
-                                     "which MuJoCo reads as no limit; write the lower bound first")
+        for what, limited, values in (("ctrlrange", mj.actuator_ctrllimited[i], mj.actuator_ctrlrange[i]),
+                                      ("forcerange", mj.actuator_forcelimited[i], mj.actuator_forcerange[i])):
+            if not limited and np.any(values != 0.0):  # autolimits drops a range whose lower is not below its upper:
+                # a sign typo unbounded the motor silently
+                raise RobotFileError(f"{path}: actuator {name!r}: its {what} {values[0]:g} {values[1]:g} is no "
+                                     "limit to MuJoCo (lower not below upper, or limited=\"false\"); write the lower "
+                                     "bound first, or remove the range")
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
         if mj.actuator_forcelimited[i]:  # MuJoCo clamps gear * ctrl to forcerange: the control bounds are that too
             flo, fhi = sorted(np.asarray(mj.actuator_forcerange[i], float) / gear)

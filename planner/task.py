@@ -443,13 +443,19 @@ class Task:
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
-        rows, rank = robot.contact_rank([(c.point, c.normal, c.mu > 0) for c in self.contacts if c.touches],
-                                        self.initial.q, self.ground_height)
+        touching = [i for i, c in enumerate(self.contacts) if c.touches]
+        on, normal_rank, rank = robot.contact_rank([(self.contacts[i].point, self.contacts[i].normal,
+                                                     self.contacts[i].mu > 0) for i in touching],
+                                                    self.initial.q, self.ground_height)
+        on = [touching[k] for k in on]
+        rows = len(on) + sum(self.contacts[i].mu > 0 for i in on)
         if rank < rows:  # (checked where the task starts: later double stances are not seen)
-            touching = ", ".join(dict.fromkeys(c.point for c in self.contacts if c.touches))
-            warnings.warn(f"of the contacts ({touching}), those on the ground at initial.q constrain {rows} directions "
-                          f"but only {rank} independently: their forces together are not unique (e.g. two sticking points of one "
-                          "rigid body) and the solver may fail; give one of them mu = 0", stacklevel=2)
+            names = ", ".join(f"contacts[{i}] ({self.contacts[i].point})" for i in on)
+            fix = ("their normals alone are dependent: remove one of them" if normal_rank < len(on) else
+                   "give mu = 0 to one of them with friction")
+            warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
+                          "independently, so their forces together are not unique (e.g. two sticking points of one "
+                          f"rigid body) and the solver may fail; {fix}")
         robot.check_inertia(self.initial.q)
         controls = [("simulate.u", self.simulate.u)] if self.simulate.u is not None else []
         controls += [(f"simulate.schedule[{i}].u", change.u) for i, change in enumerate(self.simulate.schedule)]
@@ -458,7 +464,7 @@ class Task:
             for j, (uj, a) in enumerate(zip(u, robot.actuators)):
                 if not a.lower <= uj <= a.upper:  # a PD's controls are counted in summary.json instead
                     warnings.warn(f"{key}[{j}] = {uj:g} ({a.name}) is beyond the actuator's range [{a.lower:g}, "
-                                  f"{a.upper:g}], to which MuJoCo's replay clamps it", stacklevel=2)
+                                  f"{a.upper:g}], to which MuJoCo's replay clamps it")
         if self.simulate.pd is not None:
             self.pd_actuators(robot)
         if self.plan is None:
@@ -474,8 +480,7 @@ class Task:
             lo, hi = robot.q_lower[i], robot.q_upper[i]
             if b.lower < lo or b.upper > hi:  # (an unlimited joint reads +-inf here: never wider)
                 warnings.warn(f"plan.joint_bounds[{r}] ({b.joint}: [{b.lower:g}, {b.upper:g}]) goes beyond the robot "
-                              f"file's range [{lo:g}, {hi:g}], which MuJoCo's replay enforces; the plan may leave it",
-                              stacklevel=2)
+                              f"file's range [{lo:g}, {hi:g}], which MuJoCo's replay enforces; the plan may leave it")
         if self.plan.periodic is not None:
             self.periodic_map(robot)
             return

@@ -40,6 +40,7 @@ DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
 FD_STEP = 1e-6  # [m, rad, m/s, rad/s, N m] central differences of the accelerations: O(1e-12) truncation, 1e-10 round-off
 HORIZONS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)  # [s] of physical time from the plan's start
 QUICK_TASK = (ROOT / "robots" / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 10\n")
+assert "\nN = 10\n" in QUICK_TASK, "robots/point_mass_hop.toml's horizon line changed"
 
 
 def load(out_dir: Path):

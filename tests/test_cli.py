@@ -213,6 +213,7 @@ def test_missing_default_task(tmp_path, capsys):
 
 
 HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 10\n")  # hop 0.5 m, N = 10
+assert "\nN = 10\n" in HOP_TASK, "robots/point_mass_hop.toml's horizon line changed"
 
 
 def test_plan_draws_its_plots_while_it_validates(tmp_path, capsys):

@@ -81,8 +81,9 @@ def test_servo_actuators_are_refused(tmp_path, actuator):
 
 @pytest.mark.parametrize("actuator, message", [
     ('<motor name="m" joint="hip" gear="0" ctrlrange="-20 20"/>', "'m' has gear 0"),  # simulate divided by it
-    ('<motor name="m" joint="hip" ctrlrange="20 -20"/>', "ctrlrange 20 -20 is reversed"),  # MuJoCo: unlimited
-    ('<motor name="m" joint="hip" forcerange="5 -5"/>', "forcerange 5 -5 is reversed")])
+    ('<motor name="m" joint="hip" ctrlrange="20 -20"/>', "ctrlrange 20 -20 is no limit to MuJoCo"),  # MuJoCo: unlimited
+    ('<motor name="m" joint="hip" forcerange="5 -5"/>', "forcerange 5 -5 is no limit"),
+    ('<motor name="m" joint="hip" ctrlrange="5 5"/>', "ctrlrange 5 5 is no limit")])
 def test_motors_that_do_nothing_or_lost_their_limit_are_refused(tmp_path, actuator, message):
     """A motor of gear 0 exerts no force, and a reversed range is no limit to MuJoCo (a sign typo removed the torque
     bound): refused, naming the actuator and the value."""
@@ -110,7 +111,7 @@ def test_an_include_pinocchio_cannot_read_is_named(tmp_path):
                                        '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></mujoco>')
     path = tmp_path / "robot.xml"
     path.write_text('<mujoco><worldbody><include file="body.xml"/></worldbody></mujoco>')
-    with pytest.raises(RobotFileError, match="the file has an <include>: Pinocchio's MJCF parser does not read included"):
+    with pytest.raises(RobotFileError, match="has an <include>: Pinocchio's MJCF parser does not read included"):
         load_robot(path)
 
 

@@ -10,6 +10,7 @@ from planner.cli import main
 from planner.model import ROBOTS_DIR
 
 HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 40\n")
+assert "\nN = 40\n" in HOP_TASK, "robots/point_mass_hop.toml's horizon line changed"
 
 CONTRACT = ("command", "robot", "task", "converged", "solve_time_s", "n_nlp", "ipopt_iterations", "complementarity_residual",
             "terminal_error", "physical_duration_s", "impacts", "hops", "nlps")

@@ -15,7 +15,8 @@ import pytest
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
 from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result, read_robot, read_start,
-                            hops_of, read_summary, read_task, recover, tap_flags, write_atomically, write_files, write_results)
+                            hops_of, read_summary, read_task, recover, tap_flags, write_atomically, write_files,
+                            write_results)
 from planner.simulate import simulate
 from planner.task import default_task_path, load_task, parse_task, task_to_json
 

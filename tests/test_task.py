@@ -128,7 +128,8 @@ def test_constant_controls_beyond_the_actuators_range_warn():
     """simulate.u and a schedule's u beyond an actuator's range warn, naming the entry, the actuator and its range:
     MuJoCo's replay clamps them (a 200 N push on a 30 N motor went 56 m and failed validation at 46 m unexplained)."""
     capler = load_robot("capler")
-    with pytest.warns(UserWarning, match=r"simulate.u\[0\] = 100 \(hip_motor\) is beyond the actuator's range \[-60, 60\]"):
+    with pytest.warns(UserWarning, match=r"simulate.u\[0\] = 100 \(hip_motor\) is beyond the actuator's range "
+                                         r"\[-60, 60\]"):
         parse_task(_with("simulate", {"u": [100.0, 0.0]})).check_against(capler)
     schedule = {"schedule": [{"t": 0.5, "u": [0.0, -61.0]}]}
     with pytest.warns(UserWarning, match=r"simulate.schedule\[0\].u\[1\] = -61 \(knee_motor\)"):
@@ -141,11 +142,12 @@ PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" a
 <site name="right" pos="0.2 0 -0.02"/></body></worldbody><actuator><motor name="m" joint="pz"/></actuator></mujoco>"""
 
 
-@pytest.mark.parametrize("mu_right, z, warns", [(0.6, 0.02, True), (0.0, 0.02, False), (0.6, 0.1, False)])
-def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, warns):
+@pytest.mark.parametrize("mu_right, z, fix", [(0.6, 0.02, "give mu = 0 to one of them with friction"),
+                                               (0.0, 0.02, None), (0.6, 0.1, None)])
+def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, fix):
     """Two sticking points of one rigid plank on the ground: 4 contact rows on 3 degrees of freedom, so their forces
-    are not unique (a plan burnt 433 s at its caps, a simulation reported 1e15 N): a warning naming the counts. One
-    frictionless point (3 rows), or the plank in the air at the start, gives none."""
+    are not unique (a plan burnt 433 s at its caps, a simulation reported 1e15 N): a warning naming the contacts, the
+    counts and the fix. One frictionless point (3 rows), or the plank in the air at the start, gives none."""
     path = tmp_path / "plank.xml"
     path.write_text(PLANK)
     task = parse_task({"contacts": [{"point": "left", "mu": 0.6}, {"point": "right", "mu": mu_right}],
@@ -154,9 +156,21 @@ def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, wa
         warnings.simplefilter("always")
         task.check_against(load_robot(path))
     messages = [str(w.message) for w in caught]
-    assert messages == (["of the contacts (left, right), those on the ground at initial.q constrain 4 directions but "
-                         "only 3 independently: their forces together are not unique (e.g. two sticking points of one "
-                         "rigid body) and the solver may fail; give one of them mu = 0"] if warns else [])
+    assert messages == ([] if fix is None else [
+        "contacts[0] (left), contacts[1] (right) on their planes at initial.q constrain 4 directions but only 3 "
+        "independently, so their forces together are not unique (e.g. two sticking points of one rigid body) and the "
+        f"solver may fail; {fix}"])
+
+
+def test_a_point_in_a_corner_is_told_which_contact_to_change(tmp_path):
+    """A point in a corner, a rough floor and a frictionless wall: 3 rows on 2 degrees of freedom; the warning names
+    both planes' contacts by index (the same point) and asks for mu = 0 on the one with friction, not on the wall."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [1.0, 0.0, 0.0]}],
+                       "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.3, "N": 30}})
+    with pytest.warns(UserWarning, match=r"^contacts\[0\] \(point\), contacts\[1\] \(point\) on their planes at "
+                                         r"initial.q constrain 3 directions but only 2 .* give mu = 0 to one of them "
+                                         r"with friction$"):
+        task.check_against(load_robot("point_mass"))
 
 
 def test_joint_bounds_beyond_the_files_range_warn():
@@ -164,7 +178,8 @@ def test_joint_bounds_beyond_the_files_range_warn():
     degrees: +-60 on a +-1 rad hinge, planned silently to -2.8 rad) warns naming the joint and both ranges; bounds
     inside the range, and bounds of a joint without a range (base_x), do not."""
     capler = load_robot("capler")
-    wide = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": -60.0, "upper": 60.0}]})
+    wide = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0],
+                          "joint_bounds": [{"joint": "hip", "lower": -60.0, "upper": 60.0}]})
     with pytest.warns(UserWarning, match=r"joint_bounds\[0\] \(hip: \[-60, 60\]\) goes beyond the robot file's range "
                                          r"\[-1.1781, 1.1781\]"):
         parse_task(wide).check_against(capler)
