@@ -265,6 +265,10 @@ class SimulationResult(ArraysReadOnly):
         if deepest.get("max_m", 0.0) > PENETRATION_NOTE_M:
             lines.append(f"  {deepest['point']} went {deepest['max_m'] * 1e3:.1f} mm into its plane (t = {deepest['t']:.4g} s): the "
                          "steps keep a contact's velocity on the plane, not its position; a smaller h (more steps) drifts less")
+        for joint in self.extra.get("joints_outside_range", ()):
+            lines.append(f"  {joint['joint']} left the robot file's range [{joint['lower']:.4g}, {joint['upper']:.4g}] at "
+                         f"{joint['samples']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
+                         "simulation has no joint limits, MuJoCo's replay enforces them")
         for force in self.extra.get("forces_outside_friction_cone", ()):
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
                          f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N where mu "

@@ -37,6 +37,8 @@ from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
 # An initial gap below -GAP_TOL [m] is "below the ground": the time-freezing system must start in c >= 0.
 GAP_TOL = 1e-9
+# A joint beyond the file's range by more than this [m or rad] is reported (a start on its limit stays there to rounding)
+RANGE_TOL = 1e-9
 
 
 class Strategy(Enum):
@@ -203,6 +205,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     if "restarted_steps" in stats:
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     extra["penetration"] = _penetration(system, task, trajectory)
+    extra["joints_outside_range"] = _outside_range(robot, trajectory)
     extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
     return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
                             stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
@@ -220,6 +223,23 @@ def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
     k, c = np.unravel_index(np.argmin(gaps), gaps.shape)
     return {"max_m": float(max(0.0, -gaps[k, c])), "point": contact_labels(task.contacts)[c],
             "t": float(trajectory.y[k, -1])}
+
+
+def _outside_range(robot: Robot, trajectory) -> list[dict]:
+    """Each joint whose position left the robot file's range at the nodes: joint, samples, the farthest value [m or rad]
+    and the range. A simulation has no joint limits (the planner's dynamics have none), MuJoCo's replay enforces the
+    file's: a pogo leg driven to -0.176 m past its -0.05 m limit failed validation as a tracking error."""
+    if robot.nq != robot.nv:  # a free flyer's quaternion: its coordinates are not the named degrees of freedom
+        return []
+    q = trajectory.y[:, : robot.nq]
+    out = []
+    for i, (lo, hi) in enumerate(zip(robot.q_lower, robot.q_upper)):
+        beyond = (q[:, i] < lo - RANGE_TOL) | (q[:, i] > hi + RANGE_TOL)
+        if beyond.any():
+            far = q[beyond, i][np.argmax(np.maximum(lo - q[beyond, i], q[beyond, i] - hi))]
+            out.append({"joint": robot.dof_names[i], "samples": int(beyond.sum()), "farthest": float(far),
+                        "lower": float(lo), "upper": float(hi)})
+    return out
 
 
 def _why(msg: str, comp: float, comp_tol: float) -> str:

@@ -682,3 +682,23 @@ def test_fesd_simulates_a_robot_without_actuators(tmp_path):
     result = simulate(unactuated, task, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=2, n_fe=4)))
     assert result.stats.converged, result.stats.message
     assert len(result.trajectory.impacts) == 1 and result.trajectory.u.shape[1] == 0
+
+
+def test_a_joint_beyond_the_files_range_is_reported(tmp_path):
+    """A simulation has no joint limits but MuJoCo's replay has the file's: a slide joint falling through its range
+    (no contacts, range [-0.1, 0.1] m) is listed in summary.json with its samples beyond and its farthest value, and
+    the report names it; a joint that stays inside is not listed."""
+    path = tmp_path / "slider.xml"
+    path.write_text('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1" range="-0.1 0.1"/>'
+                    '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="s"/><body name="arm">'
+                    '<joint name="x" type="slide" axis="1 0 0" range="-1 1"/><inertial pos="0 0 0" mass="1" '
+                    'diaginertia="1 1 1"/></body></body></worldbody><actuator><motor name="m" joint="x"/></actuator>'
+                    '</mujoco>')
+    task = parse_task({"contacts": [], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.3, "N": 10}})
+    res = simulate(load_robot(path), task)
+    z = res.trajectory.y[:, 0]
+    assert res.stats.converged and z.min() < -0.1
+    (entry,) = res.summary()["joints_outside_range"]
+    assert entry == {"joint": "z", "samples": int(np.sum(z < -0.1)), "farthest": float(z.min()), "lower": -0.1,
+                     "upper": 0.1}
+    assert f"z left the robot file's range [-0.1, 0.1] at {entry['samples']} of 11 nodes" in res.report()
