@@ -267,7 +267,7 @@ class SimulationResult(ArraysReadOnly):
                          "steps keep a contact's velocity on the plane, not its position; a smaller h (more steps) drifts less")
         for joint in self.extra.get("joints_outside_range", ()):
             lines.append(f"  {joint['joint']} left the robot file's range [{joint['lower']:.4g}, {joint['upper']:.4g}] at "
-                         f"{joint['samples']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
+                         f"{joint['nodes']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
                          "simulation has no joint limits, MuJoCo's replay enforces them")
         for force in self.extra.get("forces_outside_friction_cone", ()):
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "

@@ -226,8 +226,8 @@ def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
 
 
 def _outside_range(robot: Robot, trajectory) -> list[dict]:
-    """Each joint whose position left the robot file's range at the nodes: joint, samples, the farthest value [m or rad]
-    and the range. A simulation has no joint limits (the planner's dynamics have none), MuJoCo's replay enforces the
+    """Each joint whose position left the robot file's range at the nodes: joint, nodes (how many), the farthest value
+    [m or rad] and the range. A simulation has no joint limits (the planner's dynamics have none), MuJoCo's replay enforces the
     file's: a pogo leg driven to -0.176 m past its -0.05 m limit failed validation as a tracking error."""
     if robot.nq != robot.nv:  # a free flyer's quaternion: its coordinates are not the named degrees of freedom
         return []
@@ -237,7 +237,7 @@ def _outside_range(robot: Robot, trajectory) -> list[dict]:
         beyond = (q[:, i] < lo - RANGE_TOL) | (q[:, i] > hi + RANGE_TOL)
         if beyond.any():
             far = q[beyond, i][np.argmax(np.maximum(lo - q[beyond, i], q[beyond, i] - hi))]
-            out.append({"joint": robot.dof_names[i], "samples": int(beyond.sum()), "farthest": float(far),
+            out.append({"joint": robot.dof_names[i], "nodes": int(beyond.sum()), "farthest": float(far),
                         "lower": float(lo), "upper": float(hi)})
     return out
 

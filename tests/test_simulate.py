@@ -686,7 +686,7 @@ def test_fesd_simulates_a_robot_without_actuators(tmp_path):
 
 def test_a_joint_beyond_the_files_range_is_reported(tmp_path):
     """A simulation has no joint limits but MuJoCo's replay has the file's: a slide joint falling through its range
-    (no contacts, range [-0.1, 0.1] m) is listed in summary.json with its samples beyond and its farthest value, and
+    (no contacts, range [-0.1, 0.1] m) is listed in summary.json with its nodes beyond and its farthest value, and
     the report names it; a joint that stays inside is not listed."""
     path = tmp_path / "slider.xml"
     path.write_text('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1" range="-0.1 0.1"/>'
@@ -699,6 +699,6 @@ def test_a_joint_beyond_the_files_range_is_reported(tmp_path):
     z = res.trajectory.y[:, 0]
     assert res.stats.converged and z.min() < -0.1
     (entry,) = res.summary()["joints_outside_range"]
-    assert entry == {"joint": "z", "samples": int(np.sum(z < -0.1)), "farthest": float(z.min()), "lower": -0.1,
+    assert entry == {"joint": "z", "nodes": int(np.sum(z < -0.1)), "farthest": float(z.min()), "lower": -0.1,
                      "upper": 0.1}
-    assert f"z left the robot file's range [-0.1, 0.1] at {entry['samples']} of 11 nodes" in res.report()
+    assert f"z left the robot file's range [-0.1, 0.1] at {entry['nodes']} of 11 nodes" in res.report()
