@@ -457,14 +457,8 @@ class Task:
                           "independently, so their forces together are not unique (e.g. two sticking points of one "
                           f"rigid body) and the solver may fail; {fix}")
         robot.check_inertia(self.initial.q)
-        controls = [("simulate.u", self.simulate.u)] if self.simulate.u is not None else []
-        controls += [(f"simulate.schedule[{i}].u", change.u) for i, change in enumerate(self.simulate.schedule)]
-        for key, u in controls:
+        for key, u in self._constant_controls():
             _length(key, u, robot.nu)
-            for j, (uj, a) in enumerate(zip(u, robot.actuators)):
-                if not a.lower <= uj <= a.upper:  # a PD's controls are counted in summary.json instead
-                    warnings.warn(f"{key}[{j}] = {uj:g} ({a.name}) is beyond the actuator's range [{a.lower:g}, "
-                                  f"{a.upper:g}], to which MuJoCo's replay clamps it")
         if self.simulate.pd is not None:
             self.pd_actuators(robot)
         if self.plan is None:
@@ -493,6 +487,21 @@ class Task:
             for i, (qi, lo, hi) in enumerate(zip(q, lower, upper)):
                 if not lo <= qi <= hi:
                     raise TaskError(f"{key}[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
+
+    def _constant_controls(self) -> list[tuple[str, tuple[float, ...]]]:
+        """(task key, controls (nu,)) of simulate.u and each schedule entry."""
+        controls = [("simulate.u", self.simulate.u)] if self.simulate.u is not None else []
+        return controls + [(f"simulate.schedule[{i}].u", change.u) for i, change in enumerate(self.simulate.schedule)]
+
+    def warn_controls_beyond_range(self, robot) -> None:
+        """Warn for each constant simulate.u or schedule control beyond its actuator's range (MuJoCo's replay clamps
+        it; the simulation does not). For `simulate` only: plan and validate do not use these controls. Lengths are
+        check_against's."""
+        for key, u in self._constant_controls():
+            for j, (uj, a) in enumerate(zip(u, robot.actuators)):
+                if not a.lower <= uj <= a.upper:  # a PD's controls are counted in summary.json instead
+                    warnings.warn(f"{key}[{j}] = {uj:g} ({a.name}) is beyond the actuator's range [{a.lower:g}, "
+                                  f"{a.upper:g}], to which MuJoCo's replay clamps it")
 
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with

@@ -18,7 +18,6 @@ markdown table (and FATROP's own log, which CasADi writes to stdout); --out writ
 --verbose prints both solvers' iteration logs. docs/benchmarks.md, "FATROP"."""
 from __future__ import annotations
 
-import datetime
 import json
 import os
 import sys
@@ -34,7 +33,7 @@ from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.result import write_atomically
 from planner.staged import staged_nlp
 from scripts.bench_pipeline import capler_case, hop_case, nlp1_arguments
-from scripts._report import run_info, run_main, script_parser
+from scripts._report import run_info, run_main, script_parser, utc_now
 
 
 def measures(problem, x, p, lbg, ubg) -> dict:
@@ -154,7 +153,7 @@ def main(argv=None) -> int:
     fat_extra, ip_extra = parse_options(a.fatrop_opt), parse_options(a.ipopt_opt)
     out = {"case": a.case, "N": a.N, "penalty": a.penalty, "nx": problem.nx, "ng": problem.ng, "staged_nx": st.x.shape[0], "staged_ng": st.g.shape[0],
            "build_s": build_s, "staged_s": staged_s, "rho_nlp1": rhos[0], "fatrop_options": fat_extra, "ipopt_options": ip_extra, "convexify": a.convexify, "scale": a.scale, "drop_free": a.drop_free,
-           "date": datetime.datetime.utcnow().isoformat(timespec="minutes"), "casadi": ca.__version__,
+           "date": utc_now(), "casadi": ca.__version__,
            "load_before": os.getloadavg(), "runs": [], "run": run_info()}
     log = (lambda *s: print(*s, file=sys.stderr, flush=True))
     try:
