@@ -623,12 +623,19 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
         sigma[k] = Ws[k, -1][builder.w_blocks["sigma"]]
     W, U = Ws[:, -1], Us[:, -1]
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol, switch_at_start=switch_at_start)
+    impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),
+                            kinetic_energy_post=_kinetic(system, imp.q, imp.v_post)) for imp in impacts)
     forces = None
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
                       forces=forces, force_names=system.lam_names, contact_force=_contact_force(system, builder, Y, W, U, forces),
                       t=t, q=q, v=v, u=u, impacts=impacts)
+
+
+def _kinetic(system: TimeFreezingSystem, q, v) -> float:
+    """1/2 v^T M(q) v [J] of q (nq,), v (nv,)."""
+    return 0.5 * float(v @ np.asarray(system.dyn.mass(q)) @ v)
 
 
 def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, forces) -> np.ndarray | None:

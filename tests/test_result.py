@@ -62,6 +62,31 @@ def test_recover_one_impact():
     assert q.shape == (7, 1)
 
 
+# kinetic energies [J] of a hand-made impact: 1 % of the larger is the threshold, these lie 0.5 % either side of it
+GAIN_BELOW, GAIN_ABOVE = 1.005, 1.015
+
+
+def test_an_impact_that_gains_kinetic_energy_is_flagged():
+    """An impact ends with at most the kinetic energy it started with (restitution <= 1), so one that gains more than
+    ENERGY_GAIN_SHARE of it is a push-off lumped into its partly frozen steps: flagged on its report line, counted in
+    a line of its own and in summary.json (`gains_energy`). One within the share, or without energies (nan: not
+    computed), is not; a losing one never."""
+    from planner.result import ENERGY_GAIN_SHARE
+
+    tau, y, u, dt, dv, imp = handmade()
+    (im,) = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))[4]
+    assert not im.gains_energy and GAIN_BELOW - 1 < ENERGY_GAIN_SHARE < GAIN_ABOVE - 1
+    cases = ((1.0, GAIN_ABOVE, True), (1.0, GAIN_BELOW, False), (2.0, 0.5, False), (float("nan"), 1.0, False))
+    for pre, post, gains in cases:
+        gained = replace(im, kinetic_energy_pre=pre, kinetic_energy_post=post)
+        assert gained.gains_energy is gains and gained.to_json()["gains_energy"] is gains
+        result = replace(_tiny_result(2), trajectory=replace(_tiny_result(2).trajectory, impacts=(gained,)))
+        report = result.report()
+        assert (f"(kinetic energy 1 -> {GAIN_ABOVE:.4g} J)" in report) is gains
+        assert ("1 impact(s) gain kinetic energy (up to +0.015 J)" in report) is gains
+    assert replace(im, kinetic_energy_pre=float("nan")).to_json()["kinetic_energy_pre_J"] is None
+
+
 def test_recover_splits_a_run_where_the_clock_ran_after_the_impact():
     """Four partly frozen steps in a row (clock +0.04, +0.05, +0.06, +0.07 of h = 0.1) are two impacts, not one:
     a run takes its first step, the fully frozen ones after it and at most one more, because after a later partly

@@ -27,6 +27,7 @@ SOLVER_TOL = 1e-5
 SELECTOR_TOL = 1e-5  # same barrier offset of sigma from sigma* on its bound
 CLOCK_RATE_TOL = 1e-6  # t' = 1 up to the barrier offset times h
 GAP_TOL = 1e-5  # c(q) on the ground (frozen intervals, sliding): solver accuracy
+KE_ROUNDING = 1e-12  # 1/2 v^T M v with M = I from CasADi against 1/2 v.v: a few roundings
 
 
 @functools.cache
@@ -77,6 +78,9 @@ def test_inelastic_frictionless_drop():
     np.testing.assert_allclose(imp.v_post, [1.0, 0.0], atol=SOLVER_TOL)
     assert imp.v_pre[1] < -4.0
     assert imp.impulse == pytest.approx(-imp.v_pre[1], abs=SOLVER_TOL)
+    # the 1 kg mass's kinetic energy 1/2 |v|^2 (M = I): the landing keeps only the sliding 1/2 J
+    assert imp.kinetic_energy_pre == pytest.approx(0.5 * imp.v_pre @ imp.v_pre, rel=KE_ROUNDING)
+    assert imp.kinetic_energy_post == pytest.approx(0.5, abs=SOLVER_TOL) and not imp.gains_energy
     after = tr.t > imp.time
     np.testing.assert_allclose(tr.v[after], np.tile([1.0, 0.0], (after.sum(), 1)), atol=SOLVER_TOL)
     np.testing.assert_allclose(tr.q[after, 1], 0.0, atol=GAP_TOL)
@@ -219,6 +223,8 @@ def check_elastic(eps: float, h: float):
     for imp in complete:  # post-impact normal velocity = -eps x pre-impact
         assert imp.v_post[1] / imp.v_pre[1] == pytest.approx(-eps, rel=ratio_rtol(h))
         assert imp.impulse == pytest.approx(imp.v_post[1] - imp.v_pre[1], rel=SOLVER_TOL * 100)
+        assert imp.kinetic_energy_post == pytest.approx(eps ** 2 * imp.kinetic_energy_pre, rel=2 * ratio_rtol(h))
+        assert not imp.gains_energy  # a bounce gives back at most what it took
     times = [imp.time for imp in tr.impacts] + [np.inf]
     for k in (1, 2):  # apex heights eps^(2k) h0
         apex = tr.q[(tr.t > times[k - 1]) & (tr.t < times[k]), 1].max()
