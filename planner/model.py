@@ -391,15 +391,16 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                                      "limit to MuJoCo (lower not below upper, or limited=\"false\"); write the lower "
                                      "bound first, or remove the range")
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
-        if mj.actuator_forcelimited[i]:  # MuJoCo clamps gear * ctrl to forcerange: the control bounds are that too
-            flo, fhi = sorted(np.asarray(mj.actuator_forcerange[i], float) / gear)
-            lo, hi = max(lo, flo), min(hi, fhi)
-        if mj.jnt_actfrclimited[jnt] and np.sum(mj.actuator_trnid[:, 0] == jnt) == 1:  # the joint's actuatorfrcrange, likewise
-            flo, fhi = sorted(np.asarray(mj.jnt_actfrcrange[jnt], float) / gear)  # (several motors: check.reading_differences)
+        if mj.actuator_forcelimited[i]:  # MuJoCo clamps the motor's force ctrl (gain 1) to forcerange before the gear
+            flo, fhi = mj.actuator_forcerange[i]
+            lo, hi = max(lo, float(flo)), min(hi, float(fhi))
+        if mj.jnt_actfrclimited[jnt] and np.sum(mj.actuator_trnid[:, 0] == jnt) == 1:  # the joint's actuatorfrcrange:
+            # it clamps the joint's force gear * ctrl (several motors: check.reading_differences)
+            flo, fhi = sorted(np.asarray(mj.jnt_actfrcrange[jnt], float) / gear)
             lo, hi = max(lo, flo), min(hi, fhi)
         if lo > hi:  # the plan's bounds would be empty (they were kept inverted)
-            raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange and its force limits (forcerange, the joint's "
-                                 "actuatorfrcrange) divided by its gear do not overlap; no control is allowed")
+            raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange, its forcerange and the joint's "
+                                 "actuatorfrcrange divided by its gear do not overlap; no control is allowed")
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
     _mujoco_limits(model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once

@@ -116,10 +116,26 @@ def test_an_include_pinocchio_cannot_read_is_named(tmp_path):
 
 
 def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
-    """A motor's forcerange bounds its control (force / gear); a joint declared limited="false" has no position limits
-    though it states a range (Pinocchio's parser kept the range); an <equality> is refused."""
-    robot = load_robot(_hopper(tmp_path, actuator='<motor name="m" joint="hip" gear="2" forcerange="-5 5" ctrlrange="-20 20"/>'))
-    assert (robot.actuators[0].lower, robot.actuators[0].upper) == (-2.5, 2.5)
+    """A motor's forcerange bounds its control as MuJoCo clamps it: the motor's force (its ctrl) before the gear, so
+    the joint's force saturates at gear times the bound (the bound was forcerange / gear: half the motor on gear 2, and
+    a plan above MuJoCo's limit on gear 0.5); a joint declared limited="false" has no position limits though it states
+    a range (Pinocchio's parser kept the range); an <equality> is refused."""
+    import mujoco
+
+    for gear, hip, motor_range, bounds in ((2.0, "", 'forcerange="-5 5"', (-5.0, 5.0)),
+                                           (0.5, "", 'forcerange="-5 5"', (-5.0, 5.0)),
+                                           (2.0, 'actuatorfrcrange="-5 5"', "", (-2.5, 2.5))):  # the joint's: / gear
+        path = _hopper(tmp_path, hip=hip, actuator=f'<motor name="m" joint="hip" gear="{gear}" {motor_range} '
+                                                   'ctrlrange="-20 20"/>')
+        motor = load_robot(path).actuators[0]
+        mj = mujoco.MjModel.from_xml_path(str(path))
+        data = mujoco.MjData(mj)
+        for bound in (motor.lower, motor.upper):  # MuJoCo's joint force at the bound and beyond it: gear * bound
+            for ctrl in (bound, 2 * bound):
+                data.ctrl[0] = ctrl
+                mujoco.mj_forward(mj, data)
+                assert data.qfrc_actuator[mj.jnt_dofadr[mj.actuator_trnid[0, 0]]] == pytest.approx(gear * bound, abs=EXACT)
+        assert (motor.lower, motor.upper) == bounds
     robot = load_robot(_hopper(tmp_path, hip='limited="false"'))
     assert robot.q_lower[2] == -np.inf and robot.q_upper[2] == np.inf
     assert load_robot(_hopper(tmp_path)).q_upper[2] == 1.0
@@ -204,7 +220,7 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     two = load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-2.5 2.5"', actuator='<motor name="a" joint="hip" ctrlrange="-1 1"/>'
                              '<motor name="b" joint="hip" gear="-1" ctrlrange="0 2"/>'))
     assert "joint 'hip': actuatorfrcrange [-2.5, 2.5] narrower than its motors' force range [-3, 1]" in reading_differences(two)
-    with pytest.raises(RobotFileError, match="actuator 'm': its ctrlrange and its force limits .* do not overlap"):
+    with pytest.raises(RobotFileError, match="actuator 'm': its ctrlrange, its forcerange and the joint's actuatorfrcrange .* do not overlap"):
         load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-1 1"', actuator='<motor name="m" joint="hip" ctrlrange="5 10"/>'))
     with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
         load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
