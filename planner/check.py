@@ -86,12 +86,23 @@ class ModelCheck:
         return errors
 
     @property
+    def failures(self) -> list[str]:
+        """Why the check fails, one entry per reason ([] when it passes): a difference above TOLERANCE (or NaN), MuJoCo
+        sites that are no points of Pinocchio's reading, physics MuJoCo applies that the planner does not model, and a
+        file MuJoCo cannot compile or reads with other coordinates (which cannot be replayed)."""
+        out = [f"{name} {err:.1e} > {TOLERANCE:g}" for name, err in self.max_errors.items() if not err <= TOLERANCE]
+        if self.mujoco and self.mujoco.missing_sites:
+            out.append(f"MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)}")
+        if self.mujoco and self.mujoco.differences:
+            out.append(f"MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}")
+        if (self.mujoco_skipped or "").startswith(MUJOCO_FAILED):
+            out.append(self.mujoco_skipped)
+        return out
+
+    @property
     def passed(self) -> bool:
-        """Every difference <= TOLERANCE (a NaN fails), every MuJoCo site is one of Pinocchio's points, and MuJoCo reads
-        the file as Pinocchio does (a file it cannot compile, or reads with other coordinates, cannot be replayed)."""
-        return (all(err <= TOLERANCE for err in self.max_errors.values())
-                and not (self.mujoco and (self.mujoco.missing_sites or self.mujoco.differences))
-                and not (self.mujoco_skipped or "").startswith(MUJOCO_FAILED))
+        """No failures (CheckResult.failures)."""
+        return not self.failures
 
     def to_json(self) -> dict:
         out = asdict(self)
@@ -100,6 +111,7 @@ class ModelCheck:
             for key in ("missing_sites", "differences"):  # as JSON reads them back
                 out["mujoco"][key] = list(out["mujoco"][key])
         out["passed"] = self.passed
+        out["failures"] = self.failures  # (the -q failure line reads them)
         out["tolerance"] = TOLERANCE
         return out
 
@@ -394,7 +406,7 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
         return None, why if kind == SKIPPED else MUJOCO_FAILED + why
     gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot.points)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
-    missing = tuple(name for name in names if name and name not in robot.points)
+    missing = tuple(name for name in names if name and name not in robot.points and name not in robot.world_sites)
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
                        max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
                        differences=_named_differences(robot, mj) + robot.passive), None

@@ -59,6 +59,7 @@ class Robot:
     # do not model: simulate and plan refuse the robot (Task.check_against), check-model fails naming them
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
+    world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -240,8 +241,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
-    actuators, dof_names, passive = _mjcf_info(path, model) if fmt is RobotFormat.MJCF else _urdf_info(model)
-    if fmt is RobotFormat.URDF:
+    world_sites: tuple[str, ...] = ()
+    if fmt is RobotFormat.MJCF:
+        actuators, dof_names, passive, world_sites = _mjcf_info(path, model)
+    else:
+        actuators, dof_names, passive = _urdf_info(model)
         passive += _urdf_couplings(path)
     return Robot(
         path=path,
@@ -253,6 +257,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         sha256=file_sha256(path),
         passive=passive,
         floating=floating,
+        world_sites=world_sites,
     )
 
 
@@ -339,9 +344,11 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
     return tuple(actuators), tuple(dof_names), passive
 
 
-def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
-    """MJCF: joint motors, joint names and passive joint terms (Robot.passive) read from MuJoCo's compiled model of
-    the same file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
+def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
+                                                     tuple[str, ...]]:
+    """MJCF: joint motors, joint names, passive joint terms (Robot.passive) and the sites on the world body
+    (Robot.world_sites) read from MuJoCo's compiled model of the same file; Pinocchio's joint limits made MuJoCo's
+    (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -406,7 +413,9 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
-    return tuple(actuators), dof_names, passive
+    world_sites = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)
+                        if mj.site_bodyid[s] == 0)
+    return tuple(actuators), dof_names, passive, tuple(name for name in world_sites if name)
 
 
 def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:

@@ -433,6 +433,7 @@ class Task:
                                  "the two readings")
         for i, c in enumerate(self.contacts):
             if c.point not in robot.points:  # the valid ones are the sites: a body named here is refused below
+                _not_on_the_world(c.point, robot, f"contacts[{i}].point")
                 raise UnknownNameError("contact point", c.point, robot.sites, f"contacts[{i}].point")
             if c.point not in robot.sites:  # MuJoCo's replay has no site of that name (validate failed later)
                 raise TaskError(f"contact point {c.point!r} is an MJCF body, not a site; add <site name=\"...\"/> where the "
@@ -467,6 +468,7 @@ class Task:
             raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with")
         for i, p in enumerate(self.plan.above_ground):
             if p not in robot.points:
+                _not_on_the_world(p, robot, f"plan.above_ground[{i}]")
                 raise UnknownNameError("point", p, robot.points, f"plan.above_ground[{i}]")
         self.velocity_rows(robot)
         for r, b in enumerate(self.plan.joint_bounds):
@@ -560,6 +562,14 @@ class Task:
             i = robot.dof_index(b.joint, f"plan.joint_bounds[{r}].joint")
             lower[i], upper[i] = b.lower, b.upper
         return lower, upper
+
+
+def _not_on_the_world(point: str, robot, key: str) -> None:
+    """TaskError when `point`, not a point of the robot, names a site on the world body: it exists in the file but
+    never moves with the robot (it read as an unknown name)."""
+    if point in robot.world_sites:
+        raise TaskError(f"{key} = {point!r} is a site on the world body, fixed in the world, not a point of the robot; "
+                        "move the <site> into the robot's body that touches")
 
 
 def load_task(path: str | Path) -> Task:

@@ -19,6 +19,7 @@ TOL_CHECK = TOLERANCE / 10
 JSON_KEYS = {
     "robot", "format", "nq", "nv", "dof_names", "points", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
+    "failures",
 }
 TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacobian_us", "evaluations"}
 
@@ -68,7 +69,7 @@ def test_json_contract():
         assert json.loads(json.dumps(out)) == out
         assert set(out) == JSON_KEYS and set(out["timing"]) == TIMING_KEYS
         assert (out["robot"], out["format"], out["nq"], out["nv"]) == ("capler", name.split(".")[1].replace("xml", "mjcf"), 4, 4)
-        assert out["passed"] is True and out["tolerance"] == TOLERANCE
+        assert out["passed"] is True and out["failures"] == [] and out["tolerance"] == TOLERANCE
         if has_mujoco:
             assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "max_err_passive", "missing_sites", "differences"}
             assert out["mujoco"]["missing_sites"] == [] and out["mujoco"]["differences"] == []
@@ -206,6 +207,34 @@ def test_a_site_pinocchio_does_not_read_fails_the_check(tmp_path):
     result = check_model(load_robot(path), samples=2)
     assert result.mujoco is not None and result.mujoco.missing_sites == ("foot",)
     assert not result.passed and "missing in Pinocchio's reading: foot" in result.report()
+    assert result.failures == ["MuJoCo sites missing in Pinocchio's reading: foot"]
+
+
+WORLD_SITE = FRAMED_SITE.replace('<frame pos="0 0 -0.1"><site name="foot"/></frame>', "").replace(
+    "<worldbody>", '<worldbody><site name="marker" pos="1 0 0"/>')
+
+
+def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
+    """A site on the world body (a target marker) is fixed in the world: check-model passes without it (it failed, as a
+    site inside a <frame>, with no <frame> in the file), and a task that names it as a contact point or an above-ground
+    point is told so (it read "unknown contact point"). `planner check-model -q` of a failing file names the reasons
+    (it printed "the validation failed")."""
+    from planner.cli import main
+    from planner.errors import TaskError
+    from planner.task import parse_task
+
+    path = tmp_path / "world.xml"
+    path.write_text(WORLD_SITE)
+    robot = load_robot(path)
+    assert robot.world_sites == ("marker",) and "marker" not in robot.points
+    assert check_model(robot, samples=2).passed
+    base = {"initial": {"q": [0.5]}, "horizon": {"tau_f": 0.5, "N": 10}}
+    with pytest.raises(TaskError, match=r"contacts\[0\].point = 'marker' is a site on the world body"):
+        parse_task({**base, "contacts": [{"point": "marker"}]}).check_against(robot)
+    framed = tmp_path / "framed.xml"
+    framed.write_text(FRAMED_SITE)
+    assert main(["check-model", str(framed), "--samples", "2", "-q"]) == 1
+    assert "MuJoCo sites missing in Pinocchio's reading: foot" in capsys.readouterr().err
 
 
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
