@@ -22,7 +22,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, shown
-from .model import Robot, mujoco_failure, mujoco_spec
+from .model import Robot, mujoco_failure, mujoco_spec, planar_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -96,7 +96,7 @@ class ModelCheck:
         if self.mujoco and self.mujoco.differences:
             out.append(f"MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}")
         if (self.mujoco_skipped or "").startswith(MUJOCO_FAILED):
-            out.append(self.mujoco_skipped)
+            out.append(self.mujoco_skipped.removeprefix(MUJOCO_FAILED))
         return out
 
     @property
@@ -275,7 +275,7 @@ def _compile(robot: Robot):
         return None, SKIPPED, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
     if tuple(j.name for j in spec.joints) != robot.dof_names:  # a URDF planar joint: MuJoCo's three, Pinocchio's one
         return None, DIFFERENT, (f"MuJoCo orders the joints {tuple(j.name for j in spec.joints)}, Pinocchio "
-                                 f"{robot.dof_names}")
+                                 f"{robot.dof_names}{planar_hint(robot)}")
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
         model = robot.model
         unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]

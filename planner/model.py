@@ -487,8 +487,18 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
                           ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))
     names = tuple(j.name for j in spec.joints)
     if check_order and names != robot.dof_names:
-        raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}")
+        raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}"
+                             f"{planar_hint(robot)}")
     return spec
+
+
+def planar_hint(robot: Robot) -> str:
+    """" (...)" naming the robot's URDF planar joints and the fix, or "": MuJoCo reads such a joint as three joints,
+    Pinocchio as one (x, y and the angle's cos and sin), so the two readings' joints differ."""
+    planar = [robot.model.names[j] for j in range(1, robot.model.njoints)
+              if robot.model.joints[j].shortname() == "JointModelPlanar"]
+    return (f" (URDF planar joint {', '.join(map(repr, planar))}: MuJoCo reads it as three joints, Pinocchio as one; "
+            "write it as two prismatic joints and a revolute one)" if planar else "")
 
 
 def mujoco_failure(path, exc: Exception, step: str = "compile") -> str:

@@ -878,7 +878,9 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
     try:
         summary = json.loads(path.read_text())
     except FileNotFoundError:
-        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?") from None
+        failed = (f"; a failed run's diagnostics are in {Path(out_dir) / 'failed'}"
+                  if (Path(out_dir) / "failed" / "summary.json").is_file() else "")
+        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?{failed}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read {path}: {exc}") from None
     except json.JSONDecodeError as exc:

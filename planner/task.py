@@ -286,7 +286,7 @@ class Simulate:
     regularized implicit Euler scheme."""
 
     u: tuple[float, ...] | None = None
-    schedule: tuple[ControlChange, ...] = ()  # sorted by t; each entry replaces u from its time on
+    schedule: tuple[ControlChange, ...] = ()  # strictly increasing t; each entry replaces u from its time on
     rho_f: float = 1.0  # weight of ||sigma - sigma*||^2; 0 gives the plain implicit Euler MPCC (Fig. 5)
     pd: JointPD | None = None  # joint PD feedback added to u (none when omitted)
 
@@ -294,7 +294,8 @@ class Simulate:
         _typed(self, "simulate")
         _require(self.rho_f >= 0, "simulate.rho_f", self.rho_f, ">= 0")
         times = [c.t for c in self.schedule]
-        _require(times == sorted(times), "simulate.schedule", times, "sorted by increasing t")
+        _require(all(a < b for a, b in zip(times, times[1:])), "simulate.schedule", times,
+                 "sorted by strictly increasing t (two entries at one time: which would act?)")
 
     def controls_at(self, t: float, nu: int) -> np.ndarray:
         """Controls (nu,) in force at physical time t [s]."""

@@ -237,6 +237,22 @@ def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
     assert "MuJoCo sites missing in Pinocchio's reading: foot" in capsys.readouterr().err
 
 
+
+PLANAR_URDF = """<robot name="p"><link name="world"/><link name="base"><inertial><mass value="1"/>
+<inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+<joint name="base" type="planar"><parent link="world"/><child link="base"/><axis xyz="0 1 0"/></joint></robot>"""
+
+
+def test_a_urdf_planar_joint_is_named_with_its_fix(tmp_path):
+    """A URDF planar joint (MuJoCo: three joints, Pinocchio: one) fails check-model with the joint named and the fix
+    (it said only that the two readings order the joints differently)."""
+    path = tmp_path / "planar.urdf"
+    path.write_text(PLANAR_URDF)
+    (failure,) = check_model(load_robot(path), samples=2).failures
+    assert failure.startswith("MuJoCo orders the joints") and failure.endswith(
+        "(URDF planar joint 'base': MuJoCo reads it as three joints, Pinocchio as one; write it as two prismatic joints "
+        "and a revolute one)")
+
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,
     so check-model fails saying why (it said PASSED, the comparison "skipped"), and simulate and plan refuse it (they ran

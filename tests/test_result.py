@@ -405,7 +405,11 @@ def test_files_of_two_results_are_refused(tmp_path):
 def test_broken_result_files_are_input_errors(tmp_path):
     """A summary.json nested too deeply for Python's JSON reader (RecursionError), a FIFO named summary.json (reading
     it waited for a writer for ever) and a plan whose nlp_x is not numeric are InputErrors; a start of the same size
-    but other variables says so (it read "291 against 291")."""
+    but other variables says so (it read "291 against 291"); a directory whose run failed points at its failed/."""
+    (tmp_path / "failed").mkdir()
+    (tmp_path / "failed" / "summary.json").write_text("{}")
+    with pytest.raises(InputError, match="a failed run's diagnostics are in .*failed"):
+        read_summary(tmp_path)
     os.mkfifo(tmp_path / "summary.json")
     with pytest.raises(InputError, match="summary.json is not a regular file"):
         read_summary(tmp_path)

@@ -181,6 +181,13 @@ def _bad_q(d: Path) -> None:
     _changed(d, "q", lambda q: q[:, :3])
 
 
+def _failed_only(d: Path) -> None:
+    """d as a failed plan leaves it: its diagnostics in d/failed, nothing in d."""
+    (d / "failed").mkdir()
+    for name in ("trajectory.npz", "summary.json"):
+        (d / name).rename(d / "failed" / name)
+
+
 def _nan_q(d: Path) -> None:
     _changed(d, "q", lambda q: np.where(np.arange(q.size).reshape(q.shape) == 1, np.nan, q))
 
@@ -188,6 +195,7 @@ def _nan_q(d: Path) -> None:
 @pytest.mark.parametrize("damage, message", [
     (lambda d: shutil.rmtree(d), "result directory not found"),
     (lambda d: (d / "trajectory.npz").unlink(), "trajectory.npz is missing"),
+    (lambda d: _failed_only(d), "trajectory.npz is missing (a failed run's diagnostics are in its failed/ folder)"),
     (lambda d: _drop_key(d, "tau"), "lacks tau"),
     (_bad_q, "q must be (P, nq)"),
     (_nan_q, "q is not finite"),  # numpy's LinAlgError came out of the drawing
