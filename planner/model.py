@@ -11,6 +11,7 @@ import hashlib
 import io
 import os
 import sys
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -247,6 +248,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     else:
         actuators, dof_names, passive = _urdf_info(model)
         passive += _urdf_couplings(path)
+        if any(True for _ in ET.parse(path).getroot().iter("transmission")):
+            warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
+                          "effort> (> 0) with gear 1, and a joint without one is not actuated")
     return Robot(
         path=path,
         format=fmt,

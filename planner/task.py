@@ -466,7 +466,9 @@ class Task:
         if self.plan is None:
             return
         if robot.nu == 0:
-            raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with")
+            urdf = (" (a URDF joint is actuated by its <limit effort> > 0; <transmission> elements are not read)"
+                    if robot.format.name == "URDF" else "")
+            raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with{urdf}")
         for i, p in enumerate(self.plan.above_ground):
             if p not in robot.points:
                 _not_on_the_world(p, robot, f"plan.above_ground[{i}]")

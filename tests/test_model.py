@@ -1,6 +1,8 @@
 """Robot-file loading: actuators, limits, named points, gravity and name resolution."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -257,3 +259,28 @@ def test_the_robot_hash_covers_included_files(tmp_path):
     assert file_sha256(plain) == hashlib.sha256(plain.read_bytes()).hexdigest()
     (tmp_path / "loop.xml").write_text('<mujoco><include file="loop.xml"/></mujoco>')
     assert len(file_sha256(tmp_path / "loop.xml")) == 64
+
+
+def test_urdf_transmissions_are_not_read_and_say_so(tmp_path):
+    """A URDF's <transmission> elements are not read (a joint's motor is its <limit effort>, gear 1): loading warns, and a
+    plan of such a file whose joints have effort 0 names the rule (it said only "no actuators to plan with", and a
+    mechanicalReduction of 2 was silently gear 1)."""
+    from planner.errors import TaskError
+    from planner.task import parse_task
+
+    text = (ROBOTS_DIR / "capler.urdf").read_text()
+    transmission = ('<transmission name="t"><type>transmission_interface/SimpleTransmission</type><joint name="hip">'
+                    '<hardwareInterface>EffortJointInterface</hardwareInterface></joint><actuator name="m">'
+                    '<mechanicalReduction>2</mechanicalReduction></actuator></transmission></robot>')
+    path = tmp_path / "geared.urdf"
+    path.write_text(text.replace("</robot>", transmission))
+    with pytest.warns(UserWarning, match="<transmission> elements are not read"):
+        assert [a.gear for a in load_robot(path).actuators] == [1.0, 1.0]
+    unactuated = tmp_path / "unactuated.urdf"
+    unactuated.write_text(re.sub(r'effort="[^"]*"', 'effort="0"', path.read_text()))
+    with pytest.warns(UserWarning, match="<transmission>"):
+        robot = load_robot(unactuated)
+    task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.4, 0.0, 0.0]}})
+    with pytest.raises(TaskError, match=r"no actuators to plan with \(a URDF joint is actuated by its <limit effort>"):
+        task.check_against(robot)
