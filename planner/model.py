@@ -61,6 +61,7 @@ class Robot:
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
+    ground_z: float | None = None  # height [m] of an MJCF file's plane geom named "ground" (the task's ground_height rules)
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -242,9 +243,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
-    world_sites: tuple[str, ...] = ()
+    world_sites, ground_z = (), None
     if fmt is RobotFormat.MJCF:
-        actuators, dof_names, passive, world_sites = _mjcf_info(path, model)
+        actuators, dof_names, passive, world_sites, ground_z = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
         passive += _urdf_couplings(path)
@@ -262,6 +263,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         passive=passive,
         floating=floating,
         world_sites=world_sites,
+        ground_z=ground_z,
     )
 
 
@@ -349,10 +351,10 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
-                                                     tuple[str, ...]]:
-    """MJCF: joint motors, joint names, passive joint terms (Robot.passive) and the sites on the world body
-    (Robot.world_sites) read from MuJoCo's compiled model of the same file; Pinocchio's joint limits made MuJoCo's
-    (_mujoco_limits).
+                                                     tuple[str, ...], float | None]:
+    """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
+    (Robot.world_sites) and the ground plane's height (Robot.ground_z) read from MuJoCo's compiled model of the same
+    file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -419,7 +421,10 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
     world_sites = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)
                         if mj.site_bodyid[s] == 0)
-    return tuple(actuators), dof_names, passive, tuple(name for name in world_sites if name)
+    ground = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground")
+    ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
+                and mj.geom_bodyid[ground] == 0 else None)
+    return tuple(actuators), dof_names, passive, tuple(name for name in world_sites if name), ground_z
 
 
 def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:

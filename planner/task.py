@@ -442,6 +442,10 @@ class Task:
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")
+        if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
+            warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, the task's "
+                          f"ground_height = {self.ground_height:g} m: the planner uses the task's and MuJoCo's replay "
+                          "moves the plane there; set ground_height to the file's if that is the ground meant")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
@@ -565,6 +569,11 @@ class Task:
             i = robot.dof_index(b.joint, f"plan.joint_bounds[{r}].joint")
             lower[i], upper[i] = b.lower, b.upper
         return lower, upper
+
+
+# a robot file's ground plane this far [m] from the task's ground_height warns: far below any contact's accuracy, far
+# above rounding of the file's numbers
+GROUND_MISMATCH_M = 1e-9
 
 
 def _not_on_the_world(point: str, robot, key: str) -> None:

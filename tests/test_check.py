@@ -34,6 +34,7 @@ def test_project_robots_pass(name):
     assert result.mujoco is not None and result.mujoco_skipped is None
 
 
+@pytest.mark.filterwarnings("ignore:.*<transmission> elements are not read")  # (ur5 has them: check-model needs none)
 @pytest.mark.parametrize("name", ["ur5", "panda"])
 def test_third_party_urdf_matches_mujoco(erd_robot, name):
     """A fixed-base URDF of example-robot-data (meshes by package:// path, which planner.model.mujoco_spec drops) is

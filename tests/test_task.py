@@ -141,6 +141,20 @@ def test_constant_controls_beyond_the_actuators_range_warn():
         parse_task(_with("simulate", schedule)).warn_controls_beyond_range(capler)
 
 
+
+def test_a_ground_height_other_than_the_files_ground_plane_warns():
+    """A task whose ground_height differs from the robot file's ground plane (geom 'ground') warns with both heights:
+    the planner plans on the task's and MuJoCo's replay moved the file's plane there without a word (a plane at
+    z = 0.1 m in the file, ground_height 0 in the task, passed simulate, validate and view)."""
+    capler = load_robot("capler")
+    assert capler.ground_z == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parse_task(MINIMAL).check_against(capler)
+    with pytest.warns(UserWarning, match=r"ground plane \(geom 'ground'\) is at z = 0 m, the task's ground_height = "
+                                         r"-0.1 m"):
+        parse_task({**MINIMAL, "ground_height": -0.1}).check_against(capler)
+
 PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" axis="1 0 0"/>
 <joint name="pz" type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/>
 <inertial pos="0 0 0" mass="3" diaginertia="0.04 0.04 0.04"/><site name="left" pos="-0.2 0 -0.02"/>
