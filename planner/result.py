@@ -974,9 +974,12 @@ def check_robot_unchanged(summary: dict, robot, out_dir: Path) -> bool:
     if not then:
         return False
     if then != robot.sha256:
+        source = summary.get("robot")
+        other = (f" ({source}: another file)" if isinstance(source, str) and source
+                 and Path(source).resolve() != Path(robot.path).resolve() else "")
         raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the one the "
-                         f"result in {out_dir} was computed from ({then[:12]}...): compute the result again with this "
-                         "file, or use that one")
+                         f"result in {out_dir} was computed from{other} ({then[:12]}...): compute the result again with "
+                         "this file, or use that one")
     return True
 
 

@@ -479,7 +479,7 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     heavy = tmp_path / "heavy"
     shutil.copytree(tmp_path / "hop", heavy)
     (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
-    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "has other contents")
+    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], f"was computed from ({heavy_robot}: another file)")
     # a result written before summary.json kept robot_sha256: the file it names is compared as it is now
     (heavy / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"} | {"robot": str(heavy_robot)}))
     _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "whose contents differ from")
