@@ -923,12 +923,50 @@ class GaitRunResult:
         if need is not None and mu is not None and need > mu:  # it showed only in summary.json, before a fall
             lines.append(f"  the stance foot needs |tangential / normal| force up to {need:.3g}, beyond its contact's mu = "
                          f"{mu:g}: the gait has no friction cone, MuJoCo's foot slides where the ratio exceeds mu")
+        lines += [f"  {violation}" for violation in self.summary.get("contact_violations", ())]
         if self.walking is not None:
             w = self.walking
             lines.append(f"MuJoCo ({w.gains.control.value} control): walked {w.steps_walked} of {w.steps_asked} steps"
                          f"{' then fell' if w.fell else ''}; max hinge error {np.rad2deg(w.max_hinge_error):.2f} deg, "
                          f"max torque {w.max_torque:.0f} N m")
         return "\n".join(lines)
+
+
+def _impact_contact(model: PinnedBiped, x_minus) -> dict:
+    """The gait's impact as contacts see it: the swing foot's impulse (tangential, normal) [N s] and the trailing
+    foot's vertical velocity right after it [m/s] (the impact map's no-slip landing lets that foot go whatever its
+    velocity)."""
+    impulse = np.array(model.impulse(x_minus)).ravel()
+    theta, dtheta = np.split(model.delta(x_minus), 2)
+    q, v = model.floating(theta, dtheta)  # after relabelling the file's swing foot is the one that trails
+    trailing = np.array(model.dyn.point_jacobian(model.layout.swing_foot)(q)) @ v
+    return {"impact_impulse_N_s": [float(impulse[0]), float(impulse[1])], "trailing_foot_lift_off_m_s": float(trailing[2])}
+
+
+# a gait's contact quantities beyond these bounds are violations (contact_violations): the solver's accuracy, far
+# below the shipped gaits' margins (normal force >= 195 N, impulse 20 N s, lift-off +0.33 m/s)
+CONTACT_FORCE_TOL_N, CONTACT_IMPULSE_TOL_N_S, LIFT_OFF_TOL_M_S = 1e-6, 1e-9, 1e-9
+
+
+def contact_violations(summary: dict) -> list[str]:
+    """What a gait asks of the ground that a unilateral contact cannot give, one line each (the paper's OCP has no
+    contact constraints; such gaits converged silently, MuJoCo's walk then fell): a stance force that pulls, an impact
+    impulse that pulls or leaves the friction cone, a trailing foot that does not lift off after the impact."""
+    out = []
+    mu = summary["impact_friction_mu"]
+    if summary["min_normal_force_N"] < -CONTACT_FORCE_TOL_N:
+        out.append(f"the stance foot's normal force falls to {summary['min_normal_force_N']:.4g} N: the ground would "
+                   "have to pull it down")
+    tangential, normal = summary["impact_impulse_N_s"]
+    if normal < -CONTACT_IMPULSE_TOL_N_S:
+        out.append(f"the impact's normal impulse is {normal:.4g} N s: the ground would have to pull the landing foot")
+    elif abs(tangential) > mu * normal + CONTACT_IMPULSE_TOL_N_S:
+        out.append(f"the impact's tangential impulse {tangential:.4g} N s is {abs(tangential) / max(normal, 1e-300):.3g} "
+                   f"times its normal one {normal:.4g} N s, beyond mu = {mu:g}: the landing foot would slide")
+    if summary["trailing_foot_lift_off_m_s"] < -LIFT_OFF_TOL_M_S:
+        out.append(f"the trailing foot moves down at {summary['trailing_foot_lift_off_m_s']:.3g} m/s right after the "
+                   "impact: it would not lift off (a double support the gait does not have)")
+    return out
 
 
 def _require_feet(layout: BipedLayout, contacts) -> None:
@@ -989,12 +1027,16 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "integral_u_squared": (np.sum(sol.u**2, axis=0) * spec.T / spec.N).tolist(),
         "u_paper_last_100ms_Nm": {"min": np.min(u_paper[near_T], axis=0).tolist(), "max": np.max(u_paper[near_T], axis=0).tolist()},
         "min_normal_force_N": float(np.min(force[:, 1])),
-        "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]))),
+        # where the ground pushes (a pulling ground is a contact violation below, the ratio means nothing there)
+        "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]), where=force[:, 1] > 0.0, initial=0.0)),
         "friction_mu": next(c.mu for c in task.contacts if c.point == g.stance),  # the stance foot's, for the report
+        **_impact_contact(model, sol.x[-1]),
+        "impact_friction_mu": next(c.mu for c in task.contacts if c.point == g.swing),  # the landing foot's
         "min_swing_foot_height_m": float(np.min(height[1:-1])),
         "outer_loops": [vars(loop) for loop in sol.loops],
         "walking": walking.to_json() if walking else None,
     }
+    summary["contact_violations"] = contact_violations(summary)
     if out_dir is not None:
         arrays = {"tau": walk.t, "y": np.hstack([walk.q, walk.v, walk.t[:, None]]), "t": walk.t, "q": walk.q, "v": walk.v,
                   "u": walk.u, "impact_times": np.array([i[0] for i in walk.impacts]),

@@ -96,6 +96,58 @@ def test_impact_map_matches_appendix_c(biped):
         assert np.max(np.abs(biped.delta_inverse(biped.delta(x)) - x)) < 1e-12
 
 
+
+def test_the_impacts_contact_quantities_are_mujocos(robot, biped):
+    """The gait's impact as the contacts see it (summary.json's impact_impulse_N_s, trailing_foot_lift_off_m_s) equals
+    an inelastic no-slip impact computed from MuJoCo's mass matrix and Jacobians of the same file at gait 1's
+    pre-impact state Delta^-1(x0): M (v+ - v-) = Js' Lambda, Js v+ = 0 (docs/biped.md: (-15.36, 20.02) N s, +0.33
+    m/s)."""
+    import mujoco
+
+    from planner.gait import _impact_contact
+
+    x_minus = biped.delta_inverse(_spec("biped_gait1.toml").x0)
+    got = _impact_contact(biped, x_minus)
+    q, v = biped.floating(x_minus[:3], x_minus[3:])
+    mj = mujoco.MjModel.from_xml_path(str(robot.path))
+    data = mujoco.MjData(mj)
+    data.qpos[:], data.qvel[:] = q, v
+    mujoco.mj_forward(mj, data)
+    M = np.zeros((mj.nv, mj.nv))
+    mujoco.mj_fullM(mj, data, M)
+
+    def jacobian(site):
+        jac = np.zeros((3, mj.nv))
+        mujoco.mj_jacSite(mj, data, jac, None, mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_SITE, site))
+        return jac
+
+    Js = jacobian(biped.layout.swing_foot)[[0, 2]]
+    impulse = -np.linalg.solve(Js @ np.linalg.solve(M, Js.T), Js @ v)
+    v_plus = v + np.linalg.solve(M, Js.T @ impulse)
+    assert got["impact_impulse_N_s"] == pytest.approx(impulse.tolist(), abs=CLOSED_FORM_TOL)
+    assert got["trailing_foot_lift_off_m_s"] == pytest.approx((jacobian(biped.layout.stance_foot) @ v_plus)[2],
+                                                              abs=CLOSED_FORM_TOL)
+    assert got["impact_impulse_N_s"] == pytest.approx([-15.36, 20.02], abs=0.005)  # docs/biped.md's two decimals
+
+
+def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
+    """contact_violations names what a unilateral, frictional contact cannot give (such gaits converged silently, and
+    MuJoCo's walk fell without a reason): a stance force that pulls (-1356 N, a T = 1 s gait), an impact impulse that
+    pulls (-10.2 N s) or leaves the friction cone (ratio 10.3 at mu = 1), a trailing foot moving down after the
+    impact (-0.067 m/s). The shipped gaits' margins give none."""
+    from planner.gait import contact_violations
+
+    good = {"friction_mu": 1.0, "impact_friction_mu": 1.0, "min_normal_force_N": 195.0,
+            "impact_impulse_N_s": [-15.36, 20.02], "trailing_foot_lift_off_m_s": 0.33}
+    assert contact_violations(good) == []
+    cases = (({"min_normal_force_N": -1356.5}, "normal force falls to -1356 N"),
+             ({"impact_impulse_N_s": [1.0, -10.19]}, "normal impulse is -10.19 N s"),
+             ({"impact_impulse_N_s": [19.5, 1.9]}, "is 10.3 times its normal one 1.9 N s, beyond mu = 1"),
+             ({"trailing_foot_lift_off_m_s": -0.067}, "trailing foot moves down at -0.067 m/s"))
+    for change, message in cases:
+        (line,) = contact_violations({**good, **change})
+        assert message in line
+
 def test_desired_curve_meets_the_boundary_states_and_is_differentiated(biped):
     """The desired curve starts at x0 and ends at Delta^-1(x0) in angles and rates (paper Sec. 2.2:
     x_d(0) = x0, x_d(T) = x_f), and its rates are the time derivative of its angles."""
@@ -212,6 +264,7 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
                 "complementarity_residual", "terminal_error", "physical_duration_s", "impacts"):
         assert key in summary
     assert summary["command"] == "gait" and summary["converged"] and summary["n_nlp"] == len(records)
+    assert summary["contact_violations"] == [] and summary["trailing_foot_lift_off_m_s"] > 0
     data = np.load(tmp_path / "trajectory.npz")
     for key in ("tau", "y", "t", "q", "v", "u", "impact_times"):
         assert key in data
