@@ -192,6 +192,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with quiet_stdout, warnings.catch_warnings():  # restores showwarning for an in-process caller
             # one line, as every other message: Python's format adds the source line that issued it
+            # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
+            # runner showed pyzmq's through meshcat as a second line of a one-line error)
+            warnings.simplefilter("ignore", DeprecationWarning)
             warnings.showwarning = lambda message, category, *_: print(
                 f"planner {args.command}: warning: {message}"
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
@@ -416,7 +419,8 @@ def _cmd_simulate(args) -> int:
 
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
 HELD = "--init DIR (held by default; --penalty-replan turns it off)"
-FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD, "schedule_new_impacts": "--allow-new-impacts (with --init DIR)"}
+FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD, "schedule_new_impacts": "--allow-new-impacts (with --init DIR)",
+              "fesd_start": "--fesd-start (with --discretization fesd)"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:
@@ -447,6 +451,7 @@ def _cmd_plan(args) -> int:
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
     solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
                                  warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
+    fields = {}
     if args.solve is not None:
         try:
             fields = solve_fields_from_json(args.solve)
@@ -461,7 +466,7 @@ def _cmd_plan(args) -> int:
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
-    elif discretization is Discretization.FESD:
+    elif discretization is Discretization.FESD and "rho_max" not in fields:  # (--solve's wins: it was replaced)
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
     if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
         raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")

@@ -55,6 +55,7 @@ def test_check_model_json_contract():
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
+        (["plan", "point_mass", "--solve", '{"fesd_start": "implicit_euler"}'], "set by --fesd-start"),  # was ignored
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
         (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object of SolveOptions fields, got an array"),
         (["plan", "point_mass", "--solve", "3"], "expected a JSON object of SolveOptions fields, got a number"),
@@ -364,6 +365,26 @@ def test_plan_fesd_from_the_command_line(tmp_path, capsys):
     assert summary["options"]["solve"]["rho_max"] == 1e5
     _one_line_exit_2(capsys, argv[:-1] + ["0"], "n_fe = 0 is not allowed")
 
+
+
+def test_solves_rho_max_wins_over_fesds_default(tmp_path, monkeypatch):
+    """`plan --discretization fesd` ends its homotopy at FESD_RHO_MAX unless --solve sets rho_max: that value was
+    replaced silently (summary.json said 1e5 for a requested 1e6)."""
+    import planner.homotopy as H
+    from planner.cli import FESD_RHO_MAX
+
+    seen = []
+
+    def record(problem, options, progress=None):
+        seen.append(options.rho_max)
+        raise KeyboardInterrupt  # enough: the options reached the solve
+
+    monkeypatch.setattr(H, "solve", record)
+    argv = ["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "4", "--no-race",
+            "--no-validate", "--discretization", "fesd", "--out", str(tmp_path / "o")]
+    for extra, rho_max in (([], FESD_RHO_MAX), (["--solve", '{"rho_max": 1e6}'], 1e6)):
+        assert main(argv + extra) == 130
+    assert seen == [FESD_RHO_MAX, 1e6]
 
 def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     """`plan --steps N` plans the task on N steps of h = tau_f / N instead of the task's own N (the hop's
