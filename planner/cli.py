@@ -530,11 +530,11 @@ def _cmd_plan(args) -> int:
         result_id = read_summary(target, require=()).get("result_id")
         try:
             validation = validate(target)
-        except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done
-            with contextlib.suppress(PlannerError):
+            write_validation(target, validation, result_id)  # (refused when another run wrote target meanwhile)
+        except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
+            with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
             raise
-        write_validation(target, validation, result_id)
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
