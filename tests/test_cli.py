@@ -274,6 +274,25 @@ def test_ctrl_c_during_validation_is_reported_over_a_plot_failure(tmp_path, caps
     assert capsys.readouterr().err.strip() == "planner plan: interrupted"
 
 
+
+def test_a_refused_validation_write_waits_for_the_plots(tmp_path, capsys, monkeypatch):
+    """When the validation cannot be written (another run wrote the directory meanwhile: exit 2, one line) the command
+    still waits for the plots drawn meanwhile: exiting killed the plotting child mid-file and left a temp file."""
+    import planner.replay
+    from planner.plots import PLOT_FILES
+
+    def refused(out_dir, validation, result_id):
+        raise InputError(f"{out_dir} was written by another run while it was validated")
+
+    monkeypatch.setattr(planner.replay, "validate", lambda out_dir, options=None: None)  # at once: the plots still run
+    monkeypatch.setattr(planner.replay, "write_validation", refused)
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(out), "-q", "--no-race"]) == 2
+    assert "written by another run" in capsys.readouterr().err
+    assert all((out / name).is_file() for name in PLOT_FILES) and not list(out.glob(".*.tmp"))
+
 def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     """An infeasible plan (target 50 m away with |u| <= 1 N in 0.2 s) exits 1, writes its diagnostics
     under DIR/failed, and leaves the results already in DIR byte for byte intact."""
