@@ -788,6 +788,23 @@ def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[flo
     return HomotopyNlp(f"homotopy {i + 1}", p, lbg, ubg, soft, hole_scale, loose=i < len(rhos) - 1)
 
 
+def _check_bounds(problem: Problem) -> None:
+    """InputError naming the first bad entry of lbx/ubx (nx,) or lbg/ubg (ng,): another size, NaN, lower above upper, or
+    a lower bound of +inf (upper -inf). CasADi's assertion on an edited Problem's bounds came out as a traceback."""
+    names = {"x": problem.var_names, "g": None}
+    for kind, n in (("x", problem.nx), ("g", problem.ng)):
+        lower, upper = (np.asarray(getattr(problem, f"{side}{kind}"), float).ravel() for side in ("lb", "ub"))
+        for side, bound in (("lb", lower), ("ub", upper)):
+            if bound.size != n:
+                raise InputError(f"problem.{side}{kind} has {bound.size} entries, the problem {n}")
+        bad = np.isnan(lower) | np.isnan(upper) | (lower > upper) | (lower == np.inf) | (upper == -np.inf)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            what = f"{names[kind][i]}, entry {i}" if names[kind] else f"entry {i}"
+            raise InputError(f"problem.lb{kind}/ub{kind} at {what}: [{lower[i]:g}, {upper[i]:g}] is no interval (a NaN, "
+                             "lower above upper, or an infinite bound on the wrong side)")
+
+
 def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Progress | None = None) -> PlanResult:
     """Run the homotopy (and the polishing NLP) on `problem`; returns a PlanResult.
 
@@ -804,6 +821,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         bad = int(np.flatnonzero(~np.isfinite(start))[0])
         raise InputError(f"problem.x0 holds NaN or inf (first at {problem.var_names[bad]}, entry {bad}): a start "
                          "must be finite")
+    _check_bounds(problem)
     _check_schedules(problem, options)
     if problem.fesd is not None and options.polish is Polish.HYBRID:
         # its ratio test reads one selector's own multipliers; a FESD selector also pairs with its element's
