@@ -25,7 +25,7 @@ from .errors import expect
 from .homotopy import SolveOptions, solve
 from .problem import Problem, build_problem
 from .result import PlanResult
-from .task import Task, tasks_between
+from .task import Task, tasks_apart, tasks_between
 
 FIRST_STEP = 0.5  # the walk's first task is halfway: the whole way was just tried
 MIN_STEP = 0.125  # the walk stalls below this step: each refused held schedule costs up to schedule_max_iter iterations (20-135 on Capler)
@@ -54,14 +54,21 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     penalty = replace(options, keep_schedule=False, schedule_only=False, schedule_new_impacts=False)
     parts = [solve(problem, held, progress)]
     result = parts[-1]
+    no_walk = None
     if not result.stats.converged and start_task is not None:
-        walked = _walk(problem, held, penalty, start_task, parts, progress)
-        if walked is not None:
-            return _totals(walked, parts, time.perf_counter() - start)
+        apart = tasks_apart(start_task, problem.task)
+        if apart is None:
+            walked = _walk(problem, held, penalty, start_task, parts, progress)
+            if walked is not None:
+                return _totals(walked, parts, time.perf_counter() - start)
+        else:  # said: the --init help promises a walk
+            no_walk = (f"no walk from the start's task: the two tasks differ in {apart!r}, not only in numbers; "
+                       "the penalty replan instead")
     if not result.stats.converged:
         result = solve(problem, penalty, progress)
         parts.append(result)
-    return _totals(result, parts, time.perf_counter() - start)
+    result = _totals(result, parts, time.perf_counter() - start)
+    return replace(result, extra={**result.extra, "no_walk": no_walk}) if no_walk else result
 
 
 def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_task: Task, parts: list[PlanResult],

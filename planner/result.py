@@ -533,6 +533,8 @@ class PlanResult(ArraysReadOnly):
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others
             lines.append("race: " + race_arms_text(self.extra["race"]))
+        if self.extra.get("no_walk"):  # planner.replan
+            lines.append(f"  ({self.extra['no_walk']})")
         if not st.converged:
             lines.append(f"  {st.message}")
         return "\n".join(lines)

@@ -636,6 +636,15 @@ def tasks_between(start: Task, end: Task, s: float) -> Task | None:
         return None
 
 
+def tasks_apart(start: Task, end: Task) -> str | None:
+    """The key in which two tasks differ by more than finite numbers (tasks_between is None for them), else None."""
+    try:
+        _between(start, end, 1.0, "")
+    except _Apart as exc:
+        return str(exc) or "task"
+    return None
+
+
 class _Apart(Exception):
     """Two tasks differ in something that is not a number."""
 
