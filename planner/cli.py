@@ -10,6 +10,7 @@ import contextlib
 import json
 import multiprocessing
 import os
+import re
 import signal
 import sys
 import time
@@ -389,6 +390,18 @@ def _choice(flag: str, value: str, enum):
     return names[value]
 
 
+@contextlib.contextmanager
+def _said_of(flags: str):
+    """An options class's InputError (it names its own fields, e.g. "FESDOptions.n_s") said of the flags that set them;
+    a field another one owns gets the --solve that sets it."""
+    try:
+        yield
+    except InputError as exc:
+        owner = re.search(r"SolveOptions\.(\w+) owns", str(exc))
+        hint = f" (with --solve '{{\"{owner[1]}\": ...}}')" if owner else ""
+        raise InputError(f"{flags}: {exc}{hint}") from None
+
+
 def _discretization(args, elements: int):
     """(Discretization, FESDOptions) of --discretization, --stages (default FESDOptions' n_s) and --elements (default
     `elements`, the command's own). InputError naming the valid values, and for an FESD flag without --discretization
@@ -401,7 +414,8 @@ def _discretization(args, elements: int):
     if given and discretization is not Discretization.FESD:
         raise InputError(f"{' and '.join(given)} set{'s' if len(given) == 1 else ''} the FESD discretization; add --discretization fesd")
     n_s = FESDOptions().n_s if args.stages is None else args.stages
-    return discretization, FESDOptions(n_s=n_s, n_fe=elements if args.elements is None else args.elements)
+    with _said_of("--stages/--elements"):
+        return discretization, FESDOptions(n_s=n_s, n_fe=elements if args.elements is None else args.elements)
 
 
 def _cmd_simulate(args) -> int:
@@ -420,7 +434,8 @@ def _cmd_simulate(args) -> int:
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
 HELD = "--init DIR (held by default; --penalty-replan turns it off)"
 FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD, "schedule_new_impacts": "--allow-new-impacts (with --init DIR)",
-              "fesd_start": "--fesd-start (with --discretization fesd)"}
+              "fesd_start": "--fesd-start (with --discretization fesd)",
+              "print_level": "-v (IPOPT's log on stderr; with -q or --json it went to stdout)"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:
@@ -449,8 +464,9 @@ def _cmd_plan(args) -> int:
 
     discretization, fesd = _discretization(args, elements=3)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
-    solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
-                                 warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
+    with _said_of("--ipopt/--warm-ipopt"):
+        solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
+                                     warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
     fields = {}
     if args.solve is not None:
         try:
@@ -614,7 +630,9 @@ def _cmd_validate(args) -> int:
     if summary.get("robot_sha256", "") == "":  # a result written before the hash (or with it deleted): said, not silent
         _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
                         "the one the result was computed from")
-    result = validate(args.dir, ValidationOptions(controller=args.controller, **windowed))
+    with _said_of("--controller/--window"):
+        options = ValidationOptions(controller=args.controller, **windowed)
+    result = validate(args.dir, options)
     write_validation(args.dir, result, result_id)
     _emit(args, result.to_json(), result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
