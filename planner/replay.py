@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect
+from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect, shown
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
 from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
                      real_array, write_atomically)
@@ -680,10 +680,11 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
                                          holes=summary.get("command") == "plan",  # a simulation has no holes
                                          dynamics=_stepped_by_implicit_euler(summary))
-    if summary.get("converged") is False:  # a replay of the last iterate tracked is no verdict on a motion
-        return replace(validation, passed=False, failures=validation.failures + (
-            f"the {'simulation' if summary.get('command') == 'simulate' else 'plan'} did not converge (summary.json): "
-            "MuJoCo replayed its last iterate",))
+    if summary.get("converged") is not True:  # a replay of the last iterate tracked is no verdict on a motion
+        said = "" if summary.get("converged") is False else f"; its converged is {shown(summary.get('converged'))}"
+        return replace(validation, passed=False, failures=validation.failures + (  # ("yes", or none, passed)
+            f"the {'simulation' if summary.get('command') == 'simulate' else 'plan'} did not converge (summary.json"
+            f"{said}): MuJoCo replayed its last iterate",))
     return validation
 
 

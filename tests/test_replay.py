@@ -657,7 +657,8 @@ def test_a_diverged_tracking_replay_fails_the_validation(point_mass, monkeypatch
 
 def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
     """validate(DIR) of a result whose summary says it did not converge fails, saying so, even when MuJoCo tracks its
-    last iterate (a plan of one step, terminal error 0.25, was PASSED, exit 0)."""
+    last iterate (a plan of one step, terminal error 0.25, was PASSED, exit 0); so does one whose converged is not
+    true (an edited "yes" passed)."""
     _, good = ground_truth
     for f in ("summary.json", "trajectory.npz"):
         (tmp_path / f).write_bytes((good / f).read_bytes())
@@ -666,6 +667,9 @@ def test_a_result_that_did_not_converge_does_not_pass(ground_truth, tmp_path):
     converged, failed = replay.validate(good), replay.validate(tmp_path)
     assert converged.passed and not failed.passed
     assert failed.failures == ("the simulation did not converge (summary.json): MuJoCo replayed its last iterate",)
+    (tmp_path / "summary.json").write_text(json.dumps({**summary, "converged": "yes"}))  # it passed as converged
+    assert replay.validate(tmp_path).failures == ("the simulation did not converge (summary.json; its converged is "
+                                                  "'yes'): MuJoCo replayed its last iterate",)
 
 
 def test_a_periodic_plan_that_did_not_converge_does_not_pass(tmp_path, monkeypatch):
