@@ -554,6 +554,7 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     overlay = _draw(vis, load_result(out_dir), slow_motion)
     html = _page(vis.window.commands, overlay)
     try:
+        html_path.parent.mkdir(parents=True, exist_ok=True)  # as --out's directories are
         write_atomically(html_path, html)
     except OSError as exc:
         raise InputError(f"cannot write {html_path}: {exc.strerror}") from None

@@ -301,8 +301,9 @@ def _page_commands(html: str) -> list[dict]:
 
 def test_static_page_is_self_contained_and_animated(result_dir, tmp_path):
     """The page fetches nothing (every http(s) string is an XML namespace identifier, no src/href/
-    import), and embeds the scene (robot parts, ground, 3 holes, contact) and an animation of them."""
-    html = view.render_html(result_dir, tmp_path / "replay.html").read_text()
+    import), and embeds the scene (robot parts, ground, 3 holes, contact) and an animation of them. Its directories
+    are made, as --out's are (a missing one was refused)."""
+    html = view.render_html(result_dir, tmp_path / "pages" / "replay.html").read_text()
     urls = set(re.findall(r"https?://[^\s\"'<>)\\]+", html))
     assert urls <= XML_NAMESPACES, urls - XML_NAMESPACES
     assert not re.search(r"<(script|img|link|iframe)[^>]*\s(src|href)\s*=", html, re.IGNORECASE)
