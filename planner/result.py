@@ -215,6 +215,14 @@ class Trajectory(ArraysReadOnly):
     force_names: tuple[str, ...] = ()  # lambda_n[point], lambda_t[point], ...
     contact_force: np.ndarray | None = None  # (K-1, n_contacts, 2) persistent-contact force of each step [N]
 
+    def __post_init__(self):
+        # a Trajectory edited with dataclasses.replace (q shorter than t) was written and validated as it was
+        samples = {name: len(getattr(self, name)) for name in ("t", "q", "v", "u")}
+        if len(set(samples.values())) > 1 or len(self.tau) != len(self.y):
+            grid = {name: len(getattr(self, name)) for name in ("tau", "y")}
+            raise InputError(f"a Trajectory's arrays must agree in length: the samples {samples}, the grid {grid}")
+        super().__post_init__()
+
     def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
         physical time between the ends of the steps whose clock ran (an impact's two samples get the

@@ -256,6 +256,15 @@ def _tiny_result(n: int = 1) -> SimulationResult:
                             h=0.1, rho_f=1.0)
 
 
+
+def test_a_trajectory_of_arrays_that_disagree_in_length_is_refused():
+    """A Trajectory whose physical-time samples (t, q, v, u) or grid (tau, y) differ in length is an InputError naming
+    the lengths: one edited with dataclasses.replace (q shorter than t) was written and validated."""
+    tr = _tiny_result(3).trajectory
+    for change in ({"q": tr.q[:2]}, {"u": np.zeros((4, 0))}, {"y": tr.y[:1]}):
+        with pytest.raises(InputError, match="a Trajectory's arrays must agree in length"):
+            replace(tr, **change)
+
 def test_a_simulation_report_names_a_penetration_beyond_a_millimetre():
     """A simulation whose contact went deeper than PENETRATION_NOTE_M into its plane says so in its report, with the
     point, the depth [mm] and the time (it said only "converged" with a fixed arm's tip 45.6 mm in the ground); a
