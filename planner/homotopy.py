@@ -1321,6 +1321,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     message = "ok" + (how if polished else "") if converged else "; ".join(reasons)
     if capped:
         message += f"; on the way, IPOPT stopped early in {', '.join(capped)}"
+    infeasible = [r.label for r in records if r.status == "Infeasible_Problem_Detected"]
+    if infeasible and not converged:  # (the failure line named the last NLP's status only)
+        message += (f"; IPOPT found {', '.join(infeasible)} locally infeasible: the target may be out of reach in the "
+                    "horizon with these control bounds, holes and joint limits")
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]

@@ -310,6 +310,7 @@ def test_failed_plan_keeps_earlier_results(tmp_path, capsys):
     assert main(["plan", "point_mass", "--task", str(task), "--out", str(out), "--no-validate", "--json"]) == 1
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] is False
+    assert "locally infeasible: the target may be out of reach" in summary["message"]  # (the last NLP's status only)
     for name, data in earlier.items():
         assert (out / name).read_bytes() == data
     assert json.loads((out / "failed" / "summary.json").read_text())["converged"] is False
