@@ -101,7 +101,7 @@ class ModelCheck:
 
     @property
     def passed(self) -> bool:
-        """No failures (CheckResult.failures)."""
+        """No failures (ModelCheck.failures)."""
         return not self.failures
 
     def to_json(self) -> dict:

@@ -245,6 +245,8 @@ def _failure(summary: dict) -> str:
     """Why a command's summary says it failed, as ": reason" (the -q failure line), or "" when it does not say."""
     if summary.get("converged") is False:
         return f": {summary.get('message') or 'did not converge'}"
+    if summary.get("contact_violations"):  # planner gait
+        return ": " + "; ".join(summary["contact_violations"])
     validation = summary.get("validation", summary)
     if isinstance(validation, dict) and validation.get("passed") is False:
         return ": " + "; ".join(validation.get("failures") or ["the validation failed"])
@@ -433,9 +435,9 @@ def _cmd_simulate(args) -> int:
 
 # SolveOptions fields that `plan`'s flags own: --solve may not set them
 HELD = "--init DIR (held by default; --penalty-replan turns it off)"
-FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD, "schedule_new_impacts": "--allow-new-impacts (with --init DIR)",
-              "fesd_start": "--fesd-start (with --discretization fesd)",
-              "print_level": "-v (IPOPT's log on stderr; with -q or --json it went to stdout)"}
+FLAG_OWNED = {"keep_schedule": HELD, "schedule_only": HELD,
+              "schedule_new_impacts": "--allow-new-impacts (with --init DIR)",
+              "fesd_start": "--fesd-start (with --discretization fesd)"}
 
 
 def _ipopt_args(flag: str, items: list[str]) -> dict:
@@ -478,6 +480,8 @@ def _cmd_plan(args) -> int:
             solve_options = solve_options_from_dict(fields, solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
+    if args.quiet and solve_options.print_level > 0:  # (as -v -q: IPOPT's log went to stdout)
+        raise InputError("--solve's print_level shows IPOPT's log and -q hides all but errors; drop one of them")
     fesd_start = _choice("--fesd-start", args.fesd_start or FESDStart.HINT_FREE.value, FESDStart)
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
@@ -611,9 +615,12 @@ def _cmd_gait(args) -> int:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
-    verdict = "converged" if converged and walked else "converged, but the MuJoCo walk fell" if converged else "FAILED"
+    # a gait that asks the ground to pull (or to hold beyond friction) is no motion of the robot: it fails as a fall
+    valid = walked and not result.summary.get("contact_violations")
+    verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
+               else "converged, but the gait violates its contacts") if converged else "FAILED"
     _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}")
-    return EXIT_OK if converged and walked else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
+    return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 
 
 def _cmd_validate(args) -> int:

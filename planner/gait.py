@@ -940,7 +940,8 @@ def _impact_contact(model: PinnedBiped, x_minus) -> dict:
     theta, dtheta = np.split(model.delta(x_minus), 2)
     q, v = model.floating(theta, dtheta)  # after relabelling the file's swing foot is the one that trails
     trailing = np.array(model.dyn.point_jacobian(model.layout.swing_foot)(q)) @ v
-    return {"impact_impulse_N_s": [float(impulse[0]), float(impulse[1])], "trailing_foot_lift_off_m_s": float(trailing[2])}
+    return {"impact_impulse_N_s": [float(impulse[0]), float(impulse[1])],
+            "trailing_foot_lift_off_m_s": float(trailing[2])}
 
 
 # a gait's contact quantities beyond these bounds are violations (contact_violations): the solver's accuracy, far
@@ -961,7 +962,8 @@ def contact_violations(summary: dict) -> list[str]:
     if normal < -CONTACT_IMPULSE_TOL_N_S:
         out.append(f"the impact's normal impulse is {normal:.4g} N s: the ground would have to pull the landing foot")
     elif abs(tangential) > mu * normal + CONTACT_IMPULSE_TOL_N_S:
-        out.append(f"the impact's tangential impulse {tangential:.4g} N s is {abs(tangential) / max(normal, 1e-300):.3g} "
+        ratio = abs(tangential) / max(normal, 1e-300)
+        out.append(f"the impact's tangential impulse {tangential:.4g} N s is {ratio:.3g} "
                    f"times its normal one {normal:.4g} N s, beyond mu = {mu:g}: the landing foot would slide")
     if summary["trailing_foot_lift_off_m_s"] < -LIFT_OFF_TOL_M_S:
         out.append(f"the trailing foot moves down at {summary['trailing_foot_lift_off_m_s']:.3g} m/s right after the "

@@ -801,8 +801,8 @@ def _check_bounds(problem: Problem) -> None:
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             what = f"{names[kind][i]}, entry {i}" if names[kind] else f"entry {i}"
-            raise InputError(f"problem.lb{kind}/ub{kind} at {what}: [{lower[i]:g}, {upper[i]:g}] is no interval (a NaN, "
-                             "lower above upper, or an infinite bound on the wrong side)")
+            raise InputError(f"problem.lb{kind}/ub{kind} at {what}: [{lower[i]:g}, {upper[i]:g}] is no interval (a "
+                             "NaN, lower above upper, or an infinite bound on the wrong side)")
 
 
 def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Progress | None = None) -> PlanResult:

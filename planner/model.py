@@ -61,7 +61,7 @@ class Robot:
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
-    ground_z: float | None = None  # height [m] of an MJCF file's plane geom named "ground" (the task's ground_height rules)
+    ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -412,8 +412,8 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
             flo, fhi = sorted(np.asarray(mj.jnt_actfrcrange[jnt], float) / gear)
             lo, hi = max(lo, flo), min(hi, fhi)
         if lo > hi:  # the plan's bounds would be empty (they were kept inverted)
-            raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange, its forcerange and the joint's "
-                                 "actuatorfrcrange divided by its gear do not overlap; no control is allowed")
+            raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange, its forcerange (before the gear) and the "
+                                 "joint's actuatorfrcrange / gear do not overlap; no control is allowed")
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
     _mujoco_limits(model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once

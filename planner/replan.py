@@ -58,12 +58,13 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     if not result.stats.converged and start_task is not None:
         apart = tasks_apart(start_task, problem.task)
         if apart is None:
-            walked = _walk(problem, held, penalty, start_task, parts, progress)
+            walked, no_walk = _walk(problem, held, penalty, start_task, parts, progress)
             if walked is not None:
                 return _totals(walked, parts, time.perf_counter() - start)
         else:  # said: the --init help promises a walk
-            no_walk = (f"no walk from the start's task: the two tasks differ in {apart!r}, not only in numbers; "
-                       "the penalty replan instead")
+            no_walk = f"the two tasks differ in {apart!r}, not only in numbers"
+    if no_walk:
+        no_walk = f"no walk from the start's task: {no_walk}; the penalty replan instead"
     if not result.stats.converged:
         result = solve(problem, penalty, progress)
         parts.append(result)
@@ -72,32 +73,31 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
 
 
 def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_task: Task, parts: list[PlanResult],
-          progress) -> PlanResult | None:
-    """The walk from problem.x0 (every solve's result appended to parts): the result at problem.task, or None."""
+          progress) -> tuple[PlanResult | None, str | None]:
+    """The walk from problem.x0 (every solve's result appended to parts): (the result at problem.task, None), or
+    (None, why there was no walk) when the tasks between have other NLP variables, or (None, None) when it stalled."""
     s, step, refusals, retimings, x = 0.0, FIRST_STEP, 0, 0, problem.x0
     while True:
         t = min(1.0, s + step)
         task = tasks_between(start_task, problem.task, t)
-        if task is None:
-            return None
         pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
         if pb.signature != problem.signature:  # e.g. mu from 0: the tangential variables appear
-            return None
+            return None, f"the task {t:g} of the way there has other NLP variables (e.g. a mu from 0)"
         result = _labelled(pb, x, held, lambda label, t=t: f"walk {t:.3g}", (s, t), parts, progress)
         if not result.stats.converged:
             refusals, step = refusals + 1, step / 2
             if refusals <= MAX_REFUSALS and step >= MIN_STEP:
                 continue
             if retimings == MAX_RETIMINGS:
-                return None
+                return None, None
             retimings += 1
             retime = replace(penalty, max_iter=min(penalty.max_iter, RETIME_MAX_ITER))
             result = _labelled(pb, x, retime, lambda label, t=t: f"retime {t:.3g}: {label}", (s, t), parts, progress)
             if not result.stats.converged:
-                return None
+                return None, None
             refusals, step = 0, FIRST_STEP  # then the rest of the way at once
         if t == 1.0:
-            return result
+            return result, None
         s, x, step = t, result.extra["_x"], min(2 * step, 1.0 - t)  # not past the task: a refusal there halves the rest
 
 

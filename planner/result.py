@@ -148,7 +148,7 @@ class Impact(ArraysReadOnly):
         an impact only dissipates (restitution <= 1), so this is a push-off lumped into the impact's partly frozen
         steps (docs/validation.md, session 35), where MuJoCo's replay may see no impact."""
         pre, post = self.kinetic_energy_pre, self.kinetic_energy_post
-        return bool(post - pre > ENERGY_GAIN_SHARE * max(pre, post))  # (False for nan)
+        return bool(post - pre > max(ENERGY_GAIN_SHARE * max(pre, post), ENERGY_GAIN_FLOOR_J))  # (False for nan)
 
     @property
     def impulse_norm(self) -> float:
@@ -167,6 +167,8 @@ class Impact(ArraysReadOnly):
 # energy (Impact.gains_energy). The main job's plan has four such (+1.5 to +19.4 J, and a tap's +0.8 mJ); its other
 # impacts lose energy or change it by under 0.1 %.
 ENERGY_GAIN_SHARE = 0.01
+# ... and by more than this [J]: an impact at rest gains rounding (~1e-15 J), the main job's smallest gain is 0.8 mJ
+ENERGY_GAIN_FLOOR_J = 1e-9
 
 
 def _finite_or_none(value: float) -> float | None:
@@ -416,12 +418,13 @@ def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None)
     lines = [f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s){n_taps}{extra}"]
     lines += [f"  {'tap' if tap else 'impact'} at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
               f"{imp.impulse_tangential:.4g} N s tangential" + (" (outside the friction cone)" if out else "")
-              + (f" (kinetic energy {imp.kinetic_energy_pre:.4g} -> {imp.kinetic_energy_post:.4g} J)" if imp.gains_energy else "")
+              + (f" (kinetic energy {imp.kinetic_energy_pre:.4g} -> {imp.kinetic_energy_post:.4g} J)"
+                 if imp.gains_energy else "")
               for imp, tap, out in zip(tr.impacts, taps, outside)]
     gains = [imp for imp in tr.impacts if imp.gains_energy]
     if gains:
-        lines.append(f"  {len(gains)} impact(s) gain kinetic energy (up to "
-                     f"{max(i.kinetic_energy_post - i.kinetic_energy_pre for i in gains):+.3g} J): push-offs lumped into "
+        gain = max(i.kinetic_energy_post - i.kinetic_energy_pre for i in gains)
+        lines.append(f"  {len(gains)} impact(s) gain kinetic energy (up to {gain:+.3g} J): push-offs lumped into "
                      "their partly frozen steps (an impact only dissipates), where MuJoCo's replay may see no impact "
                      "(docs/validation.md)")
     if outside.any():
@@ -890,7 +893,8 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
     except FileNotFoundError:
         failed = (f"; a failed run's diagnostics are in {Path(out_dir) / 'failed'}"
                   if (Path(out_dir) / "failed" / "summary.json").is_file() else "")
-        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?{failed}") from None
+        raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?"
+                         f"{failed}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read {path}: {exc}") from None
     except json.JSONDecodeError as exc:
@@ -984,12 +988,13 @@ def check_robot_unchanged(summary: dict, robot, out_dir: Path) -> bool:
     if not then:
         return False
     if then != robot.sha256:
-        source = summary.get("robot")
-        other = (f" ({source}: another file)" if isinstance(source, str) and source
-                 and Path(source).resolve() != Path(robot.path).resolve() else "")
-        raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the one the "
-                         f"result in {out_dir} was computed from{other} ({then[:12]}...): compute the result again with "
-                         "this file, or use that one")
+        source, other = summary.get("robot"), ""
+        with contextlib.suppress(InputError):  # (the file as validate and view find it: a relative or bare name too)
+            named = locate_input(source, Path(out_dir), "robot") if isinstance(source, str) and source else None
+            other = f" ({source}: another file)" if named and named.resolve() != Path(robot.path).resolve() else ""
+        raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the "
+                         f"one the result in {out_dir} was computed from{other} ({then[:12]}...): compute the result "
+                         "again with this file, or use that one")
     return True
 
 

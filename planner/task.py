@@ -443,9 +443,10 @@ class Task:
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
-            warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, the task's "
-                          f"ground_height = {self.ground_height:g} m: the planner uses the task's and MuJoCo's replay "
-                          "moves the plane there; set ground_height to the file's if that is the ground meant")
+            # (the task's value left out: a replan's walk checks tasks in between, which warned once each)
+            warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "
+                          "task's ground_height: the planner uses the task's and MuJoCo's replay moves the plane "
+                          "there; set ground_height to the file's if that is the ground meant")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
@@ -650,12 +651,14 @@ class _Apart(Exception):
 
 
 def _between(a, b, s: float, key: str):
+    """key: the dotted path of a and b in the task ("plan.holes[0].a"), which _Apart names."""
     if key == "source":
         return b
     if is_dataclass(a) and type(a) is type(b):
-        return type(a)(**{f.name: _between(getattr(a, f.name), getattr(b, f.name), s, f.name) for f in fields(a)})
+        return type(a)(**{f.name: _between(getattr(a, f.name), getattr(b, f.name), s, _join(key, f.name))
+                          for f in fields(a)})
     if isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b):
-        return tuple(_between(x, y, s, key) for x, y in zip(a, b))
+        return tuple(_between(x, y, s, f"{key}[{i}]") for i, (x, y) in enumerate(zip(a, b)))
     if type(a) is float and type(b) is float and a != b and math.isfinite(a) and math.isfinite(b):
         return b if s == 1.0 else a + s * (b - a)  # s = 1: end's numbers exactly
     if type(a) is type(b) and a == b:

@@ -146,8 +146,8 @@ def load_result(out_dir) -> Result:
     npz_path, summary_path = directory / "trajectory.npz", directory / "summary.json"
     for p in (npz_path, summary_path):
         if not p.is_file():
-            failed = (" (a failed run's diagnostics are in its failed/ folder)" if (directory / "failed" / p.name).is_file()
-                      else "")
+            failed = (" (a failed run's diagnostics are in its failed/ folder)"
+                      if (directory / "failed" / p.name).is_file() else "")
             raise InputError(f"{directory} is not a result directory: {p.name} is missing{failed}")
     summary = read_summary(directory, require=("robot",))  # without a task: no ground, holes or contacts
     required, optional = ("tau", "y", "t", "q", "v", "u", "impact_times"), ("lambda_n", "lambda_t")

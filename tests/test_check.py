@@ -212,7 +212,8 @@ def test_a_site_pinocchio_does_not_read_fails_the_check(tmp_path):
 
 
 WORLD_SITE = FRAMED_SITE.replace('<frame pos="0 0 -0.1"><site name="foot"/></frame>', "").replace(
-    "<worldbody>", '<worldbody><site name="marker" pos="1 0 0"/>')
+    "<worldbody>", '<worldbody><site name="marker" pos="1 0 0"/>').replace(
+    "</worldbody>", '</worldbody><actuator><motor joint="z" ctrlrange="-50 50"/></actuator>')
 
 
 def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
@@ -232,6 +233,9 @@ def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
     base = {"initial": {"q": [0.5]}, "horizon": {"tau_f": 0.5, "N": 10}}
     with pytest.raises(TaskError, match=r"contacts\[0\].point = 'marker' is a site on the world body"):
         parse_task({**base, "contacts": [{"point": "marker"}]}).check_against(robot)
+    above = {**base, "contacts": [{"point": "top"}], "plan": {"target_q": [0.5], "above_ground": ["marker"]}}
+    with pytest.raises(TaskError, match=r"plan.above_ground\[0\] = 'marker' is a site on the world body"):
+        parse_task(above).check_against(robot)
     framed = tmp_path / "framed.xml"
     framed.write_text(FRAMED_SITE)
     assert main(["check-model", str(framed), "--samples", "2", "-q"]) == 1
@@ -251,8 +255,8 @@ def test_a_urdf_planar_joint_is_named_with_its_fix(tmp_path):
     path.write_text(PLANAR_URDF)
     (failure,) = check_model(load_robot(path), samples=2).failures
     assert failure.startswith("MuJoCo orders the joints") and failure.endswith(
-        "(URDF planar joint 'base': MuJoCo reads it as three joints, Pinocchio as one; write it as two prismatic joints "
-        "and a revolute one)")
+        "(URDF planar joint 'base': MuJoCo reads it as three joints, Pinocchio as one; write it as two prismatic "
+        "joints and a revolute one)")
 
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,

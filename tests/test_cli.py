@@ -56,9 +56,11 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
         (["plan", "point_mass", "--solve", '{"fesd_start": "implicit_euler"}'], "set by --fesd-start"),  # was ignored
-        (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level is set by -v"),  # a -q printed it
-        (["plan", "point_mass", "--ipopt", "tol=1"], "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
-        (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"], "--stages/--elements: FESDOptions.n_s = 4"),
+        (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level shows IPOPT's log and -q"),
+        (["plan", "point_mass", "--ipopt", "tol=1"],
+         "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
+        (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"],
+         "--stages/--elements: FESDOptions.n_s = 4"),
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
         (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object of SolveOptions fields, got an array"),
         (["plan", "point_mass", "--solve", "3"], "expected a JSON object of SolveOptions fields, got a number"),

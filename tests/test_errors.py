@@ -144,7 +144,8 @@ def hop():
     # edited bounds: CasADi's assertion "lb <= ub && lb!=inf" came out as a RuntimeError traceback
     (lambda r, t, p: solve(replace(p, lbx=np.where(np.arange(p.nx) == 3, np.nan, p.lbx)), SolveOptions()),
      r"problem.lbx/ubx at .*, entry 3: \[nan, .*\] is no interval"),
-    (lambda r, t, p: solve(replace(p, lbx=p.ubx + 1.0), SolveOptions()), r"problem.lbx/ubx at .*, entry 0: .* is no interval"),
+    (lambda r, t, p: solve(replace(p, lbx=p.ubx + 1.0), SolveOptions()),
+     r"problem.lbx/ubx at .*, entry 0: .* is no interval"),
     (lambda r, t, p: solve(replace(p, ubg=p.ubg[:-1]), SolveOptions()), r"problem.ubg has .* entries, the problem"),
 ])
 def test_api_calls_with_an_argument_of_the_wrong_kind_are_input_errors(hop, call, message):

@@ -370,11 +370,13 @@ def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
     assert spec == spec and spec != GaitSpec.from_task(task) and len({spec, spec}) == 1
 
 
-def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_path, capsys):
-    """`planner gait` exits 1 when its MuJoCo walk falls (mu = 0: it converged, printed "converged" and exited 0); a
+def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_path, capsys, monkeypatch):
+    """`planner gait` exits 1 when its MuJoCo walk falls (mu = 0: it converged, printed "converged" and exited 0) or
+    when the gait violates its contacts (-q's line names them; without the walk it exited 0 in silence); a
     coarse grid (N = 15: no sample in the last 100 ms) writes its result with the task it solved (task_json, which
     `view` reads from any directory) instead of a ValueError traceback; a task without both feet as contacts is
     refused before the solve (after it, or not at all with --no-validate)."""
+    import planner.gait
     from planner.cli import main
 
     gait1 = (ROBOTS_DIR / "biped_gait1.toml").read_text()
@@ -387,6 +389,11 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "coarse"), "--no-validate", "-q"]) == 0
     with np.load(tmp_path / "coarse" / "trajectory.npz") as npz:
         assert load_task(coarse).gait == parse_task(json.loads(str(npz["task_json"]))).gait
+    capsys.readouterr()
+    monkeypatch.setattr(planner.gait, "contact_violations", lambda summary: ["the ground would have to pull"])
+    assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "pull"), "--no-validate", "-q"]) == 1
+    assert capsys.readouterr().err.strip() == "planner gait: failed: the ground would have to pull"
+    monkeypatch.undo()
     one_foot = tmp_path / "one_foot.toml"
     text = gait1.split("[[contacts]]")
     one_foot.write_text("[[contacts]]".join(text[:2]) + "\n[" + text[2].split("\n[", 1)[1])

@@ -136,7 +136,8 @@ def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
             for ctrl in (bound, 2 * bound):
                 data.ctrl[0] = ctrl
                 mujoco.mj_forward(mj, data)
-                assert data.qfrc_actuator[mj.jnt_dofadr[mj.actuator_trnid[0, 0]]] == pytest.approx(gear * bound, abs=EXACT)
+                dof = mj.jnt_dofadr[mj.actuator_trnid[0, 0]]
+                assert data.qfrc_actuator[dof] == pytest.approx(gear * bound, abs=EXACT)
         assert (motor.lower, motor.upper) == bounds
     robot = load_robot(_hopper(tmp_path, hip='limited="false"'))
     assert robot.q_lower[2] == -np.inf and robot.q_upper[2] == np.inf
@@ -222,7 +223,8 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     two = load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-2.5 2.5"', actuator='<motor name="a" joint="hip" ctrlrange="-1 1"/>'
                              '<motor name="b" joint="hip" gear="-1" ctrlrange="0 2"/>'))
     assert "joint 'hip': actuatorfrcrange [-2.5, 2.5] narrower than its motors' force range [-3, 1]" in reading_differences(two)
-    with pytest.raises(RobotFileError, match="actuator 'm': its ctrlrange, its forcerange and the joint's actuatorfrcrange .* do not overlap"):
+    with pytest.raises(RobotFileError,
+                       match="actuator 'm': its ctrlrange, its forcerange .* actuatorfrcrange / gear do not overlap"):
         load_robot(_hopper(tmp_path, hip='actuatorfrcrange="-1 1"', actuator='<motor name="m" joint="hip" ctrlrange="5 10"/>'))
     with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
         load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
@@ -262,8 +264,8 @@ def test_the_robot_hash_covers_included_files(tmp_path):
 
 
 def test_urdf_transmissions_are_not_read_and_say_so(tmp_path):
-    """A URDF's <transmission> elements are not read (a joint's motor is its <limit effort>, gear 1): loading warns, and a
-    plan of such a file whose joints have effort 0 names the rule (it said only "no actuators to plan with", and a
+    """A URDF's <transmission> elements are not read (a joint's motor is its <limit effort>, gear 1): loading warns, and
+    a plan of such a file whose joints have effort 0 names the rule (it said only "no actuators to plan with", and a
     mechanicalReduction of 2 was silently gear 1)."""
     from planner.errors import TaskError
     from planner.task import parse_task

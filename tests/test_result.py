@@ -70,13 +70,14 @@ def test_an_impact_that_gains_kinetic_energy_is_flagged():
     """An impact ends with at most the kinetic energy it started with (restitution <= 1), so one that gains more than
     ENERGY_GAIN_SHARE of it is a push-off lumped into its partly frozen steps: flagged on its report line, counted in
     a line of its own and in summary.json (`gains_energy`). One within the share, or without energies (nan: not
-    computed), is not; a losing one never."""
+    computed), or within ENERGY_GAIN_FLOOR_J (rounding at rest), is not; a losing one never."""
     from planner.result import ENERGY_GAIN_SHARE
 
     tau, y, u, dt, dv, imp = handmade()
     (im,) = recover(tau, y, u, dt, dv, imp, 1, 1, ("foot",))[4]
     assert not im.gains_energy and GAIN_BELOW - 1 < ENERGY_GAIN_SHARE < GAIN_ABOVE - 1
-    cases = ((1.0, GAIN_ABOVE, True), (1.0, GAIN_BELOW, False), (2.0, 0.5, False), (float("nan"), 1.0, False))
+    cases = ((1.0, GAIN_ABOVE, True), (1.0, GAIN_BELOW, False), (2.0, 0.5, False), (float("nan"), 1.0, False),
+             (0.0, 1e-15, False))  # (at rest: rounding, below ENERGY_GAIN_FLOOR_J)
     for pre, post, gains in cases:
         gained = replace(im, kinetic_energy_pre=pre, kinetic_energy_post=post)
         assert gained.gains_energy is gains and gained.to_json()["gains_energy"] is gains

@@ -12,7 +12,7 @@ import pytest
 from planner.errors import InputError, RobotFileError, TaskError, UnknownNameError
 from planner.model import load_robot
 from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, Periodic, Plan, Task, load_task, parse_task,
-                          task_to_json, tasks_between)
+                          task_to_json, tasks_apart, tasks_between)
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 ROUNDING = 1e-15  # a + s (b - a) of numbers ~1 in double precision
@@ -142,8 +142,8 @@ def test_constant_controls_beyond_the_actuators_range_warn():
 
 
 
-def test_a_ground_height_other_than_the_files_ground_plane_warns():
-    """A task whose ground_height differs from the robot file's ground plane (geom 'ground') warns with both heights:
+def test_a_ground_height_other_than_the_files_ground_plane_warns(tmp_path):
+    """A task whose ground_height differs from the robot file's ground plane (geom 'ground') warns with the file's:
     the planner plans on the task's and MuJoCo's replay moved the file's plane there without a word (a plane at
     z = 0.1 m in the file, ground_height 0 in the task, passed simulate, validate and view)."""
     capler = load_robot("capler")
@@ -151,9 +151,14 @@ def test_a_ground_height_other_than_the_files_ground_plane_warns():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         parse_task(MINIMAL).check_against(capler)
-    with pytest.warns(UserWarning, match=r"ground plane \(geom 'ground'\) is at z = 0 m, the task's ground_height = "
-                                         r"-0.1 m"):
+    with pytest.warns(UserWarning, match=r"ground plane \(geom 'ground'\) is at z = 0 m, not at the task's "
+                                         r"ground_height"):
         parse_task({**MINIMAL, "ground_height": -0.1}).check_against(capler)
+    # a URDF has no ground plane to compare, nor has an MJCF file without a plane named ground
+    assert load_robot("robots/capler.urdf").ground_z is None
+    plank = tmp_path / "plank.xml"
+    plank.write_text(PLANK)
+    assert load_robot(plank).ground_z is None
 
 PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" axis="1 0 0"/>
 <joint name="pz" type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/>
@@ -346,7 +351,7 @@ def test_tasks_between_moves_every_number_and_nothing_else():
     horizon's tau_f) is a + s (b - a), s = 0 and 1 give a's and b's numbers exactly, and the source is b's; what is not
     a Task is refused. Tasks
     that differ in an integer (N), a name, the number of holes or between an infinite and a finite bound have no
-    tasks between them (None); equal infinite bounds stay."""
+    tasks between them (None), and tasks_apart names the first such key by its path; equal infinite bounds stay."""
     a = load_task(ROBOTS / "capler.toml")
     plan = a.plan
     b = replace(a, source="moved.toml", horizon=replace(a.horizon, tau_f=3.0),
@@ -358,9 +363,11 @@ def test_tasks_between_moves_every_number_and_nothing_else():
     assert mid.plan.holes[1:] == plan.holes[1:] and mid.initial == a.initial and mid.horizon.N == a.horizon.N
     assert mid.source == "moved.toml"
     assert tasks_between(a, b, 0.0) == replace(a, source="moved.toml") and tasks_between(a, b, 1.0) == b
-    assert tasks_between(a, replace(b, horizon=replace(b.horizon, N=50)), 0.5) is None
-    assert tasks_between(a, replace(b, contacts=(replace(b.contacts[0], point="knee"),)), 0.5) is None
-    assert tasks_between(a, replace(b, plan=replace(b.plan, holes=b.plan.holes[:2])), 0.5) is None
+    for apart, key in ((replace(b, horizon=replace(b.horizon, N=50)), "horizon.N"),
+                       (replace(b, contacts=(replace(b.contacts[0], point="knee"),)), "contacts[0].point"),
+                       (replace(b, plan=replace(b.plan, holes=b.plan.holes[:2])), "plan.holes")):
+        assert tasks_between(a, apart, 0.5) is None and tasks_apart(a, apart) == key  # (the replan's note names it)
+    assert tasks_apart(a, b) is None
     bounded = load_task(ROBOTS / "biped.toml")  # plan.velocity_bounds: lower 0.3, upper inf
     assert bounded.plan.velocity_bounds[0].upper == math.inf
     assert tasks_between(bounded, bounded, 0.5) == bounded
