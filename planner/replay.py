@@ -390,7 +390,6 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     assert np.allclose(model.body_mass, original.body_mass) and np.allclose(model.body_inertia, original.body_inertia)
 
     trn = model.actuator_trnid[:, 0]
-    limited = model.actuator_ctrllimited.astype(bool)
     # the first body that moves and has mass (a URDF's carriage link has only model.MASSLESS_LINK_KG)
     jointed = [int(b) for b in model.jnt_bodyid]
     base_body = next((b for b in jointed if model.body_mass[b] > MASSLESS_LINK_KG), jointed[0])
@@ -403,8 +402,10 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
         base_body=base_body, base_name=model.body(base_body).name or f"body_{base_body}",
         qpos_adr=np.array(model.jnt_qposadr[trn], dtype=int), dof_adr=np.array(model.jnt_dofadr[trn], dtype=int),
         gear=np.array(model.actuator_gear[:, 0], dtype=float),
-        ctrl_lower=np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf),
-        ctrl_upper=np.where(limited, model.actuator_ctrlrange[:, 1], np.inf),
+        # the robot's control bounds: MuJoCo's ctrlrange, forcerange and the joint's actuatorfrcrange together (the
+        # ctrlrange alone missed a forcerange's saturation)
+        ctrl_lower=np.array([a.lower for a in robot.actuators], dtype=float).reshape(model.nu),
+        ctrl_upper=np.array([a.upper for a in robot.actuators], dtype=float).reshape(model.nu),
     )
 
 

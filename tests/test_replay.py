@@ -177,6 +177,18 @@ def test_scene_keeps_dynamics_and_moves_ground(point_mass, capler):
     assert dist[0] == pytest.approx(0.0005, abs=1e-12) and not active[0]
 
 
+
+def test_the_replays_control_bounds_are_the_robots(point_mass, tmp_path):
+    """The replay clamps and counts saturation at the robot's control bounds, a motor's forcerange included (the scene
+    read the ctrlrange alone, so a plan at a 30 N forcerange under a 100 N ctrlrange never saturated)."""
+    path = tmp_path / "point_mass.xml"
+    text = point_mass.path.read_text()
+    assert text.count('ctrlrange="-100 100"') == 2
+    path.write_text(text.replace('ctrlrange="-100 100"', 'ctrlrange="-100 100" forcerange="-30 30"', 1))
+    scene = replay.build_scene(load_robot(path), _task("point"))
+    np.testing.assert_array_equal(scene.ctrl_lower, [-30.0, -100.0])
+    np.testing.assert_array_equal(scene.ctrl_upper, [30.0, 100.0])
+
 def test_impact_detection_ignores_chatter():
     """Contact onsets count as impacts only after min_flight_s without contact (or from a free start)."""
     times = np.arange(0, 0.1, 0.001)
