@@ -828,6 +828,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
     if problem.fesd is not None and options.fesd_start is FESDStart.IMPLICIT_EULER:
         return _solve_through_implicit_euler(problem, options, progress)
+    if options.fesd_rho_schedule != SolveOptions.fesd_rho_schedule:  # (accepted and ignored before)
+        raise InputError(f"SolveOptions.fesd_rho_schedule = {options.fesd_rho_schedule} applies to discretization fesd "
+                         "with fesd_start implicit_euler only; this solve's penalties are rho_schedule's")
     start = time.perf_counter()
     keep_freed_memory()
     hom = problem.task.plan.homotopy
@@ -926,10 +929,13 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
             progress(replace(rec, label=f"implicit Euler: {rec.label}"))
 
     # reoptimize off: the FESD NLPs start from the polished plan, as measured (docs/formulation.md)
-    first = solve(euler, replace(options, fesd_start=FESDStart.HINT_FREE, reoptimize=False), euler_progress)
+    done = SolveOptions.fesd_rho_schedule  # (read here: the inner solves refuse any other)
+    first = solve(euler, replace(options, fesd_start=FESDStart.HINT_FREE, reoptimize=False, fesd_rho_schedule=done),
+                  euler_progress)
     x0 = fesd_start_from_implicit_euler(problem, euler, first.extra["_x"])
-    fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule, holes=HoleSchedule.ENFORCED,
-                           soft_terminal_nlps=0, retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
+    fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule,
+                           fesd_rho_schedule=done, holes=HoleSchedule.ENFORCED, soft_terminal_nlps=0,
+                           retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
     result = solve(replace(problem, x0=x0), fesd_options, progress)
     nlps = tuple(replace(r, label=f"implicit Euler: {r.label}") for r in first.nlps) + result.nlps
     note = (f"; from the implicit-Euler plan ({first.stats.ipopt_iterations} iterations, "

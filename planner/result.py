@@ -288,8 +288,8 @@ class SimulationResult(ArraysReadOnly):
         """The horizon ends while the last impact is still frozen (its clock never ran again): a simulation has no
         terminal state to end it, so that impact is unfinished and its impulse and v_post are partial (a 100 kg point
         mass landing at 4.4 m/s stays frozen for ~m |v_n| / a_n = 2.2 s of numerical time at a_n = 200)."""
-        tr = self.trajectory
-        return bool(tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1])
+        tr = self.trajectory  # (a failed run's last node is where it stopped, not the horizon's end)
+        return bool(self.stats.converged and tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1])
 
     def report(self) -> str:
         """A few human-readable lines for the terminal."""
@@ -318,6 +318,8 @@ class SimulationResult(ArraysReadOnly):
                              f", unless {last.contact}'s bounces (restitution > 0) accumulate to a point in time "
                              "(Zeno: ever shorter bounces), which the time-freezing simulation does not pass; "
                              "restitution = 0 makes the landing a stance" if elastic else ""))
+        if not self.stats.converged:  # (shown only by -q's failure line)
+            lines.append(f"  {self.stats.message}")
         return "\n".join(lines)
 
     def summary(self) -> dict:
@@ -424,9 +426,9 @@ def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None)
     gains = [imp for imp in tr.impacts if imp.gains_energy]
     if gains:
         gain = max(i.kinetic_energy_post - i.kinetic_energy_pre for i in gains)
-        lines.append(f"  {len(gains)} impact(s) gain kinetic energy (up to {gain:+.3g} J): push-offs lumped into "
-                     "their partly frozen steps (an impact only dissipates), where MuJoCo's replay may see no impact "
-                     "(docs/validation.md)")
+        lines.append(f"  {len(gains)} impact(s) gain kinetic energy (up to {gain:+.3g} J): an impact only "
+                     "dissipates, so these are pushes their partly frozen steps lump into them (a push-off, or support "
+                     "the auxiliary field carries), where MuJoCo's replay may see no impact (docs/validation.md)")
     if outside.any():
         lines.append(f"  {int(outside.sum())} impact(s) outside the friction cone (|tangential| > mu normal): the tangential "
                      "auxiliary field stopped sliding beyond Coulomb; `planner plan` of one contact keeps impacts inside "

@@ -672,9 +672,14 @@ def test_a_horizon_ending_inside_an_elastic_impact_names_zeno():
     """When the horizon ends inside the last impact and that impact's contact is elastic (restitution > 0), the report
     says the bounces may accumulate to a point in time (Zeno), which the time-freezing simulation does not pass, and
     that restitution = 0 makes the landing a stance: it advised only a longer tau_f or a larger a_n, which cannot end
-    a Zeno sequence. An inelastic contact's report keeps the plain advice, without Zeno."""
+    a Zeno sequence. An inelastic contact's report keeps the plain advice, without Zeno. A failed run's report says
+    why it failed instead (it advised a longer tau_f for a step that did not converge)."""
     elastic, inelastic = _ending_in_an_impact(0.5), _ending_in_an_impact(0.0)
     assert elastic.ends_in_impact and inelastic.ends_in_impact
     assert "Zeno" in elastic.report() and "restitution = 0" in elastic.report()
     assert "the horizon ends inside the last impact" in inelastic.report()
     assert "Zeno" not in inelastic.report() and "restitution = 0" not in inelastic.report()
+    # a run that failed stopped where its last node is: no horizon ended there, and the report says why it failed
+    failed = replace(elastic, stats=SolveStats(False, 0.0, 3, 9, 0.0, message="step 3 did not converge"))
+    assert not failed.ends_in_impact and "horizon ends" not in failed.report()
+    assert failed.report().endswith("\n  step 3 did not converge")
