@@ -190,7 +190,12 @@ from planner.task import parse_task
 problem = build_problem(load_robot("point_mass"), parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.0]},
                         "horizon": {"tau_f": 1.0, "N": 2}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}))
 R.solve = lambda problem, options, progress=None: time.sleep(120)
-threading.Thread(target=lambda: (time.sleep(1), print(*[c.pid for c in mp.active_children()], flush=True)), daemon=True).start()
+def report():  # once both arms run (a fixed 1 s found none on a loaded box, and the test failed)
+    deadline = time.monotonic() + 60
+    while len(mp.active_children()) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    print(*[c.pid for c in mp.active_children()], flush=True)
+threading.Thread(target=report, daemon=True).start()
 R.race(problem, R.default_arms(SolveOptions()), processes=2)
 """
 
