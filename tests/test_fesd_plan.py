@@ -107,6 +107,7 @@ def hop():
 
 FLIGHT_BETA = 1 - 1e-3  # an element flies when beta exceeds this at every stage (the barrier leaves it ~1e-8 below 1)
 HOP_N = 10  # steps of h = 0.1 s: the landing step holds the touchdown and both jumps' ends (3 elements)
+REST_TOL = 1e-6  # [m/s] a velocity at rest: the polish's constraint tolerance (1e-8) times the elements' dynamics
 
 
 def test_fesd_hop_converges(hop):
@@ -150,6 +151,18 @@ def test_fesd_hop_impact_time_is_exact(hop):
     root = (-vz - np.sqrt(vz**2 - 2 * a * z)) / a  # the later root of z + vz s + a s^2 / 2 = 0 (a < 0)
     assert impact.time == pytest.approx(t + root, abs=IMPACT_TIME_TOL)
 
+
+
+def test_fesd_impacts_end_in_the_plans_state(hop):
+    """An FESD impact's post-impact velocity is the state where its run of frozen elements ends: the stance whose
+    element runs the clock at 95 % (the a_n field carrying part of the weight) and the landing both end at rest, so
+    no impact gains kinetic energy (v_pre plus the elements' auxiliary increments read +0.94 m/s and +0.32 m/s upward:
+    the support over the running part counted, gravity not)."""
+    _, res = hop
+    assert len(res.trajectory.impacts) == 2
+    for imp in res.trajectory.impacts:
+        assert not imp.gains_energy, (imp.time, imp.v_pre, imp.v_post)
+        np.testing.assert_allclose(imp.v_post, 0.0, atol=REST_TOL)  # the point rests after both (no slip)
 
 def test_physical_time_and_l1_blocks():
     """With horizon.physical_time every FESD step gets a speed of time s_k >= 1 (block "s" (N, 1), in
