@@ -44,7 +44,8 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     1 (its held-schedule NLPs labelled "walk s", its penalty replans "retime s: <NLP>"). If there is no walk or it
     fails: the penalty replan from problem.x0 (`solve` with options as given, keep_schedule off). The result's
     nlps, iterations, solve time and timings cover every NLP run; extra["walk"] lists the fractions of the way
-    each accepted step of the walk reached. progress(record) as in `solve`.
+    each accepted step of the walk reached, extra["no_walk"] says why there was no walk (tasks that differ in more
+    than numbers, or other NLP variables between them). progress(record) as in `solve`.
     """
     expect(problem, Problem, "replan's problem")
     expect(options, SolveOptions, "replan's options")

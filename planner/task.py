@@ -418,7 +418,7 @@ class Task:
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
         is what the planner models (no passive joint forces, contact points in the x-z plane)."""
-        from .model import Robot  # here: reading a task needs no Pinocchio
+        from .model import Robot, RobotFormat  # here: reading a task needs no Pinocchio
 
         expect(robot, Robot, "check_against's robot")
         if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
@@ -472,7 +472,7 @@ class Task:
             return
         if robot.nu == 0:
             urdf = (" (a URDF joint is actuated by its <limit effort> > 0; <transmission> elements are not read)"
-                    if robot.format.name == "URDF" else "")
+                    if robot.format is RobotFormat.URDF else "")
             raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with{urdf}")
         for i, p in enumerate(self.plan.above_ground):
             if p not in robot.points:
