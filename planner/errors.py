@@ -116,6 +116,22 @@ def shown(value, width: int = 60) -> str:
     return text if len(text) <= width else text[: width - 3] + "..."
 
 
+def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, optional: bool = False) -> None:
+    """The field `key` of the frozen dataclass `options` holds a member of `enum` (of `allowed` if given; None too if
+    `optional`), given as the member or its value ("monotone" from a script as from `--solve` JSON): stored as the member,
+    or an InputError naming the field, the value and the valid values (a value was refused by a message that listed it
+    as valid)."""
+    given = getattr(options, key)
+    members = list(enum) if allowed is None else list(allowed)
+    if given is None and optional:
+        return
+    member = given if isinstance(given, enum) else next((m for m in members if m.value == plain(given)), None)
+    if member not in members:
+        raise InputError(f"{type(options).__name__}.{key} = {shown(given)} is not allowed; it must be one of "
+                         f"{[m.value for m in members]}" + (" or None" if optional else ""))
+    object.__setattr__(options, key, member)
+
+
 def check_field_types(options, owner: str | None = None, unbounded: Iterable[str] = (), error: type = InputError) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str, or a tuple of one of them (or that or
     None), holds values of that type (an int for a float) that a C int or a double can hold, and a float is a number,

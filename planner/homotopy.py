@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types, expect, interruptible
+from .errors import InputError, check_field_types, enum_field, expect, interruptible
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -348,10 +348,7 @@ class SolveOptions:
         for key in ("ipopt", "warm_ipopt"):
             object.__setattr__(self, key, _ipopt_pairs(key, getattr(self, key), warm=key == "warm_ipopt"))
         for key, enum in ENUM_FIELDS.items():
-            if key == "variable_scaling" and self.variable_scaling is None:
-                continue
-            if not isinstance(getattr(self, key), enum):
-                raise InputError(f"SolveOptions.{key} = {getattr(self, key)!r} is not allowed; it must be one of {[e.value for e in enum]}")
+            enum_field(self, key, enum, optional=key == "variable_scaling")
         checks = [
             (self.tol > 0, "tol", self.tol, "> 0"),
             (self.acceptable_tol > 0, "acceptable_tol", self.acceptable_tol, "> 0"),

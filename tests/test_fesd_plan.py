@@ -69,10 +69,10 @@ def test_blocks_and_shapes():
     np.testing.assert_allclose(mine, theirs * gates, atol=EVAL_TOL)
 
 
-@pytest.mark.parametrize("kwargs, key", [({"discretization": "fesd"}, "discretization"), ({"fesd": (2, 3)}, "fesd"),
+@pytest.mark.parametrize("kwargs, key", [({"discretization": "fed"}, "discretization"), ({"fesd": (2, 3)}, "fesd"),
                                          ({"discretization": Discretization.FESD, "clock_weight": 1.0}, "clock_weight")])
 def test_invalid_options_raise(kwargs, key):
-    """A discretization that is not the Enum, fesd that is not FESDOptions, and FESD with the clock
+    """A discretization that is none of the Enum's values, fesd that is not FESDOptions, and FESD with the clock
     weight (not transcribed for FESD) are InputErrors naming the option and the valid values."""
     with pytest.raises(InputError, match=key):
         ProblemOptions(**kwargs)
@@ -113,12 +113,14 @@ REST_TOL = 1e-6  # [m/s] a velocity at rest: the polish's constraint tolerance (
 def test_fesd_hop_converges(hop):
     """The FESD OCP of the hop converges: polished, complementarity (own-stage pairs and the gated
     cross-complementarity) <= 1e-6, terminal error <= 1e-6, every constraint kept, one hop to x = 0.5 and no other
-    (the plan rests after its landing with beta = 1 on some steps: no hop)."""
+    (the plan rests after its landing with beta = 1 on some steps: no hop), landing at its impact's time."""
     prob, res = hop
     assert res.stats.converged, res.stats.message
     assert res.polished
     assert res.stats.complementarity_residual <= COMP_TOL and res.terminal_error <= TERMINAL_TOL
     assert len(res.hops) == 1 and res.hops[0].distance == pytest.approx(0.5, abs=1e-6)
+    landing = res.hops[0].landing_time  # the touchdown, not the end of the element after the frozen impact element
+    assert any(imp.time == landing for imp in res.trajectory.impacts), (landing, [i.time for i in res.trajectory.impacts])
 
 
 def test_fesd_hop_impact_time_is_exact(hop):
@@ -218,10 +220,10 @@ def test_implicit_euler_plan_maps_onto_fesd():
         fesd_start_from_implicit_euler(build_problem(robot, hop_task(N=HOP_N + 1), fesd_options(2, 3)), euler, res.extra["_x"])
 
 
-@pytest.mark.parametrize("kwargs, key", [({"fesd_start": "implicit_euler"}, "fesd_start"), ({"fesd_rho_schedule": ()}, "fesd_rho_schedule"),
+@pytest.mark.parametrize("kwargs, key", [({"fesd_start": "euler"}, "fesd_start"), ({"fesd_rho_schedule": ()}, "fesd_rho_schedule"),
                                          ({"fesd_rho_schedule": (1e4, -1.0)}, "fesd_rho_schedule")])
 def test_invalid_fesd_start_options_raise(kwargs, key):
-    """fesd_start must be the FESDStart Enum, fesd_rho_schedule a non-empty tuple of positive penalties."""
+    """fesd_start must be one of the FESDStart Enum's values, fesd_rho_schedule a non-empty tuple of positive penalties."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
 

@@ -143,7 +143,7 @@ def test_hops_leave_out_flight_phases_where_the_point_does_not_move():
     rest after its landing with beta = 1 was a second hop of distance and apex 0); a real hop is kept with its takeoff,
     landing, distance and apex, and a hop down a ledge (apex 0, distance > 0) is kept too."""
     clock = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7])
-    traj = SimpleNamespace(y=clock[:, None])
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
     flight = np.array([0, 1, 1, 0, 1, 1, 0])  # steps 1-2 and 4-5 in flight
     xyz = np.zeros((8, 3))
     xyz[2:4, 0], xyz[2, 2], xyz[3, 0] = 0.25, 0.1, 0.5  # node 2 in the air, lands at x = 0.5 at node 3
