@@ -28,7 +28,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import InputError
+from .errors import InputError, plain, shown
 
 CRASHED = "crashed"
 DEFAULT_STAGE = "task"  # the stage of a crash outside any `with stage(...)` block
@@ -138,8 +138,8 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
         return []
     if scheduler is not None:
         return _run_dask(fn, items, scheduler, progress)
-    if workers is not None and workers < 0:
-        raise InputError(f"workers must be >= 0, got {workers}")
+    if workers is not None and (not isinstance(plain(workers), int) or isinstance(workers, bool) or workers < 0):
+        raise InputError(f"workers must be None or an integer >= 0, got {shown(workers)}")
     if workers == 0:
         out = []
         for i, item in enumerate(items):

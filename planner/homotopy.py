@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types, enum_field, expect, interruptible
+from .errors import InputError, check_field_types, enum_field, expect, interruptible, plain
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -461,7 +461,7 @@ IPOPT_OWNED = {"tol": "tol", "acceptable_tol": "acceptable_tol", "max_iter": "ma
 def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...]:
     """SolveOptions.ipopt / warm_ipopt as sorted (name, value) pairs, checked by IPOPT itself."""
     try:
-        pairs = tuple(sorted(dict(given).items()))
+        pairs = tuple(sorted((name, plain(value)) for name, value in dict(given).items()))  # np.int64(5) as 5
     except (TypeError, ValueError):
         raise InputError(f"SolveOptions.{field} = {given!r} is not allowed; it must be a dict of IPOPT options") from None
     for name, value in pairs:

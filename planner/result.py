@@ -94,7 +94,8 @@ class ArraysReadOnly:
         _read_only(self)
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
+        # a cached property's array (Trajectory.taps) is restored writable too, and the summary reads it
+        self.__dict__.update({k: _frozen(v) if isinstance(v, np.ndarray) else v for k, v in state.items()})
         _read_only(self)
 
 
@@ -244,9 +245,8 @@ class Trajectory(ArraysReadOnly):
     @cached_property  # read by the summary, the report, the plots and the validation's matching
     def taps(self) -> np.ndarray:
         """(I,) bool, read-only: which impacts are taps (TAP_SHARE)."""
-        flags = tap_flags([imp.impulse_norm for imp in self.impacts])
-        flags.flags.writeable = False  # computed once per trajectory, so no caller may change it for the next
-        return flags
+        # computed once per trajectory, so no caller may change it for the next (a view: not made writable again)
+        return _frozen(tap_flags([imp.impulse_norm for imp in self.impacts]))
 
     @property
     def physical_duration(self) -> float:

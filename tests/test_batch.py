@@ -68,11 +68,13 @@ def test_system_exit_is_a_crash_not_the_end_of_the_sweep():
 
 
 def test_rejects_lambda_and_negative_workers():
+    """A lambda, and workers that are no integer >= 0 (a str raised TypeError, 2.5 and True ran), are InputErrors."""
     assert run_batch(square_or_raise, []) == []
     with pytest.raises(InputError, match="top-level"):
         run_batch(lambda x: x, [1], workers=1)
-    with pytest.raises(InputError, match="workers"):
-        run_batch(square_or_raise, [1], workers=-1)
+    for bad in (-1, "2", 2.5, True):
+        with pytest.raises(InputError, match="workers must be None or an integer >= 0"):
+            run_batch(square_or_raise, [1], workers=bad)
 
 
 def test_dask_local_cluster_matches_serial():

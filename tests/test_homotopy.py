@@ -266,6 +266,8 @@ def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment
     option a field owns, and a malformed value are InputErrors when the options are made, with IPOPT's reason."""
     with pytest.raises(InputError, match=re.escape(fragment)):
         H.SolveOptions(**kwargs)
+    numpy = H.SolveOptions(ipopt={"acceptable_iter": np.int64(5), "acceptable_obj_change_tol": np.float32(0.5)})
+    assert numpy.ipopt == (("acceptable_iter", 5), ("acceptable_obj_change_tol", 0.5))  # numbers too (were refused)
 
 
 CPU_LIMIT = 1e-9  # [s] IPOPT's max_cpu_time: expires at the first check, so the NLP's status shows the option arrived

@@ -99,8 +99,11 @@ def test_pendulum_matches_ipopt(pendulum_solution):
 
 
 def test_bad_options_are_input_errors():
-    """Wrong feedback weight lengths or Armijo constants are InputError with the reason."""
+    """Wrong or empty feedback weights or Armijo constants are InputError with the reason."""
     with pytest.raises(InputError):
         ProntoOptions(feedback_q=(1.0,), feedback_r=(1.0,), armijo_c=0.9)
+    for empty in ({"feedback_q": ()}, {"feedback_r": ()}):  # min() of an empty tuple raised ValueError
+        with pytest.raises(InputError, match="feedback"):
+            ProntoOptions(**{"feedback_q": (1.0,), "feedback_r": (1.0,), **empty})
     with pytest.raises(InputError, match="feedback"):
         Pronto(_pendulum(), ProntoOptions(feedback_q=(1.0,), feedback_r=(1.0,)))

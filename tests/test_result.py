@@ -462,12 +462,13 @@ def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_p
 def test_a_result_is_frozen_through_its_arrays(tmp_path):
     """A Trajectory's and an Impact's arrays are read-only (writing raises ValueError), so a result cannot be changed
     in place (`trajectory.t[0] = 123` changed physical_duration): not after `flags.writeable = True`, nor in a pickled
-    or deep-copied result (they came back writable); the arrays the caller built stay writable and are not shared."""
+    or deep-copied result (they came back writable, a cached `taps` too); the arrays the caller built stay writable and are not shared."""
     robot = load_robot("point_mass")
     result = simulate(robot, load_task(default_task_path(robot.path)))
+    result.trajectory.taps  # cached before the copies: they restored it writable, and the summary reads it
     for tr in (result.trajectory, pickle.loads(pickle.dumps(result)).trajectory, copy.deepcopy(result).trajectory):
         assert tr.impacts
-        for array in (tr.t, tr.q, tr.tau, tr.y, tr.impacts[0].v_post):
+        for array in (tr.t, tr.q, tr.tau, tr.y, tr.impacts[0].v_post, tr.taps):
             with pytest.raises(ValueError, match="read-only"):
                 array[0] = 123.0
             with pytest.raises(ValueError, match="WRITEABLE"):
