@@ -433,12 +433,12 @@ def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:
     where it is limited (Pinocchio's parser shifts a hinge's range by its ref)."""
     lower, upper = np.array(model.lowerPositionLimit, float), np.array(model.upperPositionLimit, float)  # copies
     for j in range(mj.njnt):
-        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j)
         if int(mj.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             continue
-        if not name or not model.existJointName(name):
-            continue
-        i = model.joints[model.getJointId(name)].idx_q
+        # by MuJoCo's qpos address, as the actuators and dof_names are: Pinocchio merges a body's several joints into
+        # one "Composite_<first>" joint, so a planar base's slide "z" had no Pinocchio joint of its name (its range
+        # kept Pinocchio's degrees-to-radians reading of its metres, and the file was refused)
+        i = int(mj.jnt_qposadr[j])
         lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 

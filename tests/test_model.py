@@ -146,6 +146,28 @@ def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
         load_robot(_hopper(tmp_path, extra='<equality><joint joint1="hip" joint2="x"/></equality>'))
 
 
+def test_limits_of_joints_sharing_a_body_are_mujocos(tmp_path):
+    """A planar base written as three joints of one body (Pinocchio merges them into one composite joint) gets MuJoCo's
+    limits per joint, in the file's units: the slide "z" in metres though the compiler reads angles in degrees (it kept
+    Pinocchio's degrees-to-radians reading, [-0.017, 0.035], and the file was refused), a slide declared unlimited
+    under a default range none, and a hinge with a ref its range as MuJoCo reads it (Pinocchio's was shifted by ref)."""
+    import mujoco
+
+    path = tmp_path / "planar.xml"
+    path.write_text('<mujoco><default><joint range="-1 1"/></default><worldbody>'
+                    '<geom name="ground" type="plane" size="5 1 0.1"/><body name="base" pos="0 0 0.5">'
+                    '<joint name="x" type="slide" axis="1 0 0" limited="false"/>'
+                    '<joint name="z" type="slide" axis="0 0 1" range="-1 2"/>'
+                    '<joint name="pitch" type="hinge" axis="0 1 0" ref="10" range="-20 40"/>'
+                    '<inertial pos="0.1 0 0" mass="3" diaginertia="0.05 0.05 0.05"/><site name="foot" pos="0 0 -0.3"/>'
+                    '</body></worldbody></mujoco>')
+    robot = load_robot(path)
+    mj = mujoco.MjModel.from_xml_path(str(path))
+    assert list(robot.q_lower) == [-np.inf, -1.0, mj.jnt_range[2, 0]]
+    assert list(robot.q_upper) == [np.inf, 2.0, mj.jnt_range[2, 1]]
+    assert mj.jnt_range[2, 1] == pytest.approx(np.radians(40), abs=EXACT)
+
+
 @pytest.mark.parametrize("hip, term", [('damping="5"', "damping 5"), ('stiffness="50"', "stiffness 50"),
                                        ('frictionloss="2"', "frictionloss 2")])
 def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
