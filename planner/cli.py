@@ -187,11 +187,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
     # which CasADi writes to sys.stdout, also from the race's forked arms) goes to stderr
-    args.stdout = sys.stdout
+    out, err = (None if stream is None else _ReaderMayLeave(stream) for stream in (sys.stdout, sys.stderr))  # (>&-: None)
+    args.stdout = out
     redirect = getattr(args, "json", False) or getattr(args, "verbose", False)
-    quiet_stdout = contextlib.redirect_stdout(sys.stderr) if redirect else contextlib.nullcontext()
+    quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
-        with quiet_stdout, warnings.catch_warnings():  # restores showwarning for an in-process caller
+        # restores showwarning for an in-process caller
+        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings():
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)
@@ -220,6 +222,33 @@ def main(argv: list[str] | None = None) -> int:
         return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         return _stop(args, EXIT_INTERRUPTED, "interrupted")
+
+
+class _ReaderMayLeave:
+    """A text stream whose reader may go away (`planner plan ... 2>&1 | grep -m1 homotopy`): what is printed after that
+    is dropped and the command goes on, writes its results and exits as it would (the solve stopped at the first
+    progress line the pipe refused, nothing was written and the exit code was 0)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _guarded(self, name: str, *args):
+        try:
+            return getattr(self._stream, name)(*args)
+        except BrokenPipeError:
+            # the stream's buffer still holds the text: flushed into /dev/null at exit, not another BrokenPipeError
+            with contextlib.suppress(OSError, ValueError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+            return len(args[0]) if args else None
+
+    def write(self, text: str):
+        return self._guarded("write", text)
+
+    def flush(self):
+        return self._guarded("flush")
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def _stop(args, code: int, text: str) -> int:

@@ -806,6 +806,18 @@ def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
     assert proc.returncode == 0 and "cannot parse" not in proc.stderr, proc.stderr
 
 
+def test_a_reader_that_leaves_does_not_stop_the_plan(tmp_path):
+    """`planner plan ... 2>&1 | grep -m1 homotopy`: the reader of the progress lines left after the first; the solve
+    stopped there, nothing was written and the exit code was 0. Now the lines are dropped and the plan is written."""
+    task = Path(__file__).resolve().parents[1] / "robots" / "point_mass_hop.toml"
+    out, code = tmp_path / "o", tmp_path / "code"
+    proc = subprocess.run(f"({sys.executable} -m planner.cli plan point_mass --task {task} --out {out} --no-plots "
+                          f"--no-validate --no-race; echo $? > {code}) 2>&1 | head -c 1", shell=True,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.stdout == " "  # the first character of the first progress line, then the reader left
+    assert code.read_text().strip() == "0" and json.loads((out / "summary.json").read_text())["converged"] is True
+
+
 def test_json_is_one_object_on_every_exit(tmp_path, capsys):
     """With --json, stdout holds one JSON object also when a command stops on an error: {"command", "exit_code",
     "error"} (it held nothing, so a script reading stdout failed to parse it), the error without stderr's "error: "
