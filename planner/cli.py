@@ -643,6 +643,10 @@ def _cmd_gait(args) -> int:
     if converged:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
+    from .plots import PLOT_FILES
+
+    for name in PLOT_FILES:  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
+        (target / name).unlink(missing_ok=True)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
     # a gait that asks the ground to pull (or to hold beyond friction) is no motion of the robot: it fails as a fall
     valid = walked and not result.summary.get("contact_violations")
@@ -654,10 +658,9 @@ def _cmd_gait(args) -> int:
 
 def _cmd_validate(args) -> int:
     from .replay import ValidationOptions, validate, write_validation
-    from .result import read_summary
+    from .result import read_summary, result_dir
 
-    if not args.dir.is_dir():
-        raise InputError(f"result directory not found: {args.dir}")
+    result_dir(args.dir)
     if not os.access(args.dir, os.W_OK | os.X_OK):  # before the replays: the verdict is written into DIR/summary.json
         raise InputError(f"result directory {args.dir} is not writable: the validation is stored in its summary.json")
     windowed = {} if args.window is None else {"window_s": args.window}
@@ -706,6 +709,11 @@ def prepare_out_dir(path: Path, failed: bool = False) -> Path:
     below = path / "failed"  # failed: a solve's command, whose failure writes there (refused then, its diagnostics lost)
     if failed and (below.exists() and not below.is_dir() or below.is_symlink() and not below.exists()):
         raise InputError(f"--out {path}: {below} is not a directory, and a failed solve writes there")
+    if failed and below.is_dir() and not os.access(below, os.W_OK | os.X_OK):  # found after the solve: result mixed
+        raise InputError(f"--out {path}: {below} is not writable, and a solve writes there or clears it")
+    for name in ("trajectory.npz", "summary.json"):  # write_files refuses them, but after the whole solve
+        if (path / name).is_dir():
+            raise InputError(f"--out {path}: {path / name} is a directory, where the result's file goes")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
     if not existing.is_dir():
         raise InputError(f"cannot create output directory {path}: {existing} is a file")

@@ -418,8 +418,14 @@ def solve_fields_from_json(text: str) -> dict:
     """The SolveOptions fields of a JSON object (for solve_options_from_dict), e.g. '{"rho_f_schedule": [10]}'; text
     that is not JSON or not an object is an InputError."""
     expect(text, str, "solve_fields_from_json's text")
+    def once(pairs):  # '{"rho_min": 1, "rho_min": 2}' kept the last silently
+        repeated = sorted({k for i, (k, _) in enumerate(pairs) if k in dict(pairs[:i])})
+        if repeated:
+            raise InputError(f"{text!r:.80} gives {', '.join(repeated)} more than once; give each field once")
+        return dict(pairs)
+
     try:
-        values = json.loads(text)
+        values = json.loads(text, object_pairs_hook=once)
     except json.JSONDecodeError as exc:
         raise InputError(f"{text!r:.80} is not JSON ({exc.msg}); e.g. '{{\"rho_f_schedule\": [10]}}'") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's limit on reading one
@@ -473,9 +479,25 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
         owner = "warm_mu_init" if (warm and name == "mu_init") else IPOPT_OWNED.get(name)
         if owner:
             raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that instead")
+    for name, value in pairs:  # CasADi hands IPOPT's integer options int(value): acceptable_iter = 2.5 ran as 2
+        if isinstance(value, float) and not value.is_integer() and _ipopt_option_is_integer(name):
+            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; IPOPT's {name} is an integer")
     if pairs:
         _check_with_ipopt(field, dict(pairs))
     return pairs
+
+
+def _ipopt_option_is_integer(name: str) -> bool:
+    """Whether IPOPT registers `name` as an integer option: CasADi refuses a string for it with "is_int()" (a number
+    it would take and truncate)."""
+    x = ca.SX.sym("x")
+    with contextlib.redirect_stdout(io.StringIO()):
+        try:
+            ca.nlpsol("ipopt_type_check", "ipopt", {"x": x, "f": x * x},
+                      {"print_time": False, "ipopt": {name: "?", "print_level": 0, "sb": "yes"}})
+        except RuntimeError as e:
+            return '"is_int()" failed' in str(e)
+    return False
 
 
 def _check_with_ipopt(field: str, opts: dict) -> None:

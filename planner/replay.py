@@ -41,7 +41,7 @@ import pinocchio as pin
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect, shown
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
 from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
-                     real_array, write_atomically)
+                     real_array, result_dir, write_atomically)
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -636,8 +636,10 @@ class Validation:
             lines.append(f"  tracking in {span} from the plan: {self.tracked} error "
                          f"mean {w.mean_m * 1e3:.2f} mm, median {w.median_m * 1e3:.2f} mm, worst {w.worst_m * 1e3:.2f} mm")
             if w.impacts:
-                lines.append(f"  impacts in the windows (MuJoCo - plan, from the plan's state {w.stride_s * 1e3:g}-"
-                             f"{2 * w.stride_s * 1e3:g} ms before): {_impacts_text(w.impacts)}")
+                start = ("in the window (MuJoCo - plan, from the plan's start)" if len(w.starts_s) == 1 else
+                         f"in the windows (MuJoCo - plan, from the plan's state {w.stride_s * 1e3:g}-"
+                         f"{2 * w.stride_s * 1e3:g} ms before)")
+                lines.append(f"  impacts {start}: {_impacts_text(w.impacts)}")
         lines += [
             f"  open loop: {self.tracked} within {th.open_loop_band_m * 1e2:.0f} cm for {ol.time_within_band_s:.3f} of {ol.duration_s:.3f} s",
         ]
@@ -660,9 +662,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     """
     expect(out_dir, (str, os.PathLike), "validate's out_dir")
     expect(options, (ValidationOptions, type(None)), "validate's options")
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        raise InputError(f"result directory not found: {out_dir}")
+    out_dir = result_dir(out_dir)
     summary = read_summary(out_dir, require=("robot",))  # the task: trajectory.npz's copy, else summary.json's path
     if summary.get("command") == "gait":
         # its samples relabel the legs at every impact (q jumps), which no tracking replay follows
@@ -1164,7 +1164,8 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     stride = max(1, int(round(min(options.window_stride_s, span) / ref.dt)))
     starts, errors, onsets, diverged = [], [], [], False
     base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
-    for first in range(0, max(1, ref.steps - per // 2), stride):
+    # a window as long as the plan is the one window the report names (30 more, each clipped to the plan's end, ran)
+    for first in range(0, 1 if per >= ref.steps else max(1, ref.steps - per // 2), stride):
         last = min(first + per, ref.steps)
         run = _replay(scene, ref.window(first, last), gains, [], options, options.controller,
                       positions=(base[first:last + 1], sites[first:last + 1]))

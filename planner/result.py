@@ -898,9 +898,19 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
 
 # --- reading a result directory back (replay and view use these) -------------------------------------
 
+def result_dir(out_dir) -> Path:
+    """out_dir as a Path, or an InputError when it is missing or a file ("afile/trajectory.npz not found" and "result
+    directory not found: afile" named a path that exists)."""
+    directory = Path(out_dir)
+    if not directory.is_dir():
+        raise InputError(f"{directory} is a file, not a result directory" if directory.exists() else
+                         f"result directory not found: {directory}")
+    return directory
+
+
 def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) -> dict:
     """summary.json as a dict holding a path for each key of `require` (InputError otherwise)."""
-    path = Path(out_dir) / "summary.json"
+    path = result_dir(out_dir) / "summary.json"
     if path.exists() and not path.is_file():  # a FIFO (or a device) there made validate wait for ever
         raise InputError(f"{path} is not a regular file")
     try:
@@ -928,7 +938,7 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
 
 def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
     """The arrays of out_dir/trajectory.npz; InputError when missing, unreadable or lacking `required`."""
-    path = Path(out_dir) / "trajectory.npz"
+    path = result_dir(out_dir) / "trajectory.npz"
     if not path.is_file():
         raise InputError(f"{path} not found")
     try:

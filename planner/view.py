@@ -32,7 +32,7 @@ import pinocchio as pin
 from .errors import InputError, PlannerError, expect
 from .model import Robot, RobotFormat
 from .result import (ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
-                     write_atomically)
+                     result_dir, write_atomically)
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -140,9 +140,7 @@ class Result(ArraysReadOnly):
 def load_result(out_dir) -> Result:
     """Read a result directory (the contract in design.md). Raises InputError naming what is wrong."""
     expect(out_dir, (str, os.PathLike), "load_result's out_dir")
-    directory = Path(out_dir)
-    if not directory.is_dir():
-        raise InputError(f"result directory not found: {directory}")
+    directory = result_dir(out_dir)
     npz_path, summary_path = directory / "trajectory.npz", directory / "summary.json"
     for p in (npz_path, summary_path):
         if not p.is_file():
@@ -547,9 +545,12 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
-    if (html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm")
-            and html_path.resolve().parent == Path(out_dir).resolve()):  # `--html DIR/summary.json` replaced the result's own file
-        raise InputError(f"--html {html_path} would overwrite a file of the result it shows; name an .html file")
+    # `--html DIR/summary.json` replaced the result's own file, `--html robot.xml` the robot file the result reads
+    if html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm"):
+        raise InputError(f"--html {html_path} would overwrite a file that is not an HTML page; name an .html file")
+    existing = next(p for p in html_path.absolute().parents if p.exists())  # the root always exists
+    if not existing.is_dir():  # mkdir said "File exists" of the page
+        raise InputError(f"cannot write {html_path}: {existing} is a file, not a directory")
     vis = _visualizer(_Recorder())
     overlay = _draw(vis, load_result(out_dir), slow_motion)
     html = _page(vis.window.commands, overlay)

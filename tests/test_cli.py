@@ -766,7 +766,7 @@ def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
     (tmp_path / "q2" / "failed").write_text("hi")
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "q2")], "failed is not a directory")
     summary = (out / "summary.json").read_text()
-    _one_line_exit_2(capsys, ["view", str(out), "--html", str(out / "summary.json")], "would overwrite a file of the result")
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(out / "summary.json")], "would overwrite a file that")
     assert (out / "summary.json").read_text() == summary
     assert main(["validate", str(out), "--window", "1e308", "-q"]) in (0, 1)  # the whole plan as one window
     huge = tmp_path / "huge"
@@ -783,6 +783,28 @@ def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
     assert main(["simulate", "point_mass", "--task", str(bom), "--out", str(tmp_path / "b"), "-q", "--no-plots"]) == 0
     (tmp_path / "empty.toml").write_text("")
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", str(tmp_path / "empty.toml")], "empty.toml: missing key 'contacts'")
+
+
+def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
+    """What a robustness tester found (session 48), each now one line and exit 2 before any work: `view --html` onto a
+    file that is not an HTML page (the robot file the result reads was replaced) or below a file ("File exists");
+    an --out whose summary.json is a directory (refused after the whole solve); a --solve field given twice (the last
+    won); a file given as a result directory ("afile/trajectory.npz not found", "result directory not found")."""
+    out = tmp_path / "drop"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "-q", "--no-plots"]) == 0
+    robot = tmp_path / "robot.xml"
+    robot.write_text("<mujoco/>")
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(robot)], "would overwrite a file that is not an HTML")
+    assert robot.read_text() == "<mujoco/>"
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(robot / "page.html")], "robot.xml is a file, not a")
+    (tmp_path / "taken" / "summary.json").mkdir(parents=True)
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "taken")],
+                     "summary.json is a directory, where the result's file goes")
+    hop = str(ROBOTS_DIR / "point_mass_hop.toml")
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--task", hop, "--solve", '{"tol": 1, "tol": 2}'], "more than once")
+    for argv in (["validate", str(robot)], ["view", str(robot)],
+                 ["plan", "point_mass", "--task", hop, "--init", str(robot)]):
+        _one_line_exit_2(capsys, argv, "robot.xml is a file, not a result directory")
 
 
 def test_init_refuses_a_summary_whose_converged_is_not_true(tmp_path, capsys):
@@ -809,7 +831,7 @@ def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
 def test_a_reader_that_leaves_does_not_stop_the_plan(tmp_path):
     """`planner plan ... 2>&1 | grep -m1 homotopy`: the reader of the progress lines left after the first; the solve
     stopped there, nothing was written and the exit code was 0. Now the lines are dropped and the plan is written."""
-    task = Path(__file__).resolve().parents[1] / "robots" / "point_mass_hop.toml"
+    task = ROBOTS_DIR / "point_mass_hop.toml"
     out, code = tmp_path / "o", tmp_path / "code"
     proc = subprocess.run(f"({sys.executable} -m planner.cli plan point_mass --task {task} --out {out} --no-plots "
                           f"--no-validate --no-race; echo $? > {code}) 2>&1 | head -c 1", shell=True,

@@ -375,7 +375,8 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     when the gait violates its contacts (-q's line names them; without the walk it exited 0 in silence); a
     coarse grid (N = 15: no sample in the last 100 ms) writes its result with the task it solved (task_json, which
     `view` reads from any directory) instead of a ValueError traceback; a task without both feet as contacts is
-    refused before the solve (after it, or not at all with --no-validate)."""
+    refused before the solve (after it, or not at all with --no-validate); an earlier plan's plots in --out are removed
+    (a gait draws none)."""
     import planner.gait
     from planner.cli import main
 
@@ -386,7 +387,10 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     coarse.write_text(gait1.replace("\nN = 153\n", "\nN = 15\n"))
     assert "\nmu = 0.0" in slippery.read_text()
     assert main(["gait", "biped", "--task", str(slippery), "--out", str(tmp_path / "fell"), "-q"]) == 1
+    (tmp_path / "coarse").mkdir()
+    (tmp_path / "coarse" / "states.png").write_bytes(b"an earlier plan's plot")
     assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "coarse"), "--no-validate", "-q"]) == 0
+    assert not (tmp_path / "coarse" / "states.png").exists()  # it read as the gait's
     with np.load(tmp_path / "coarse" / "trajectory.npz") as npz:
         assert load_task(coarse).gait == parse_task(json.loads(str(npz["task_json"]))).gait
     capsys.readouterr()

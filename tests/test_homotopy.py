@@ -260,6 +260,8 @@ def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
     ({"ipopt": {"constr_viol_tol": float("nan")}}, "values finite numbers or strings"),
     ({"warm_ipopt": {"obj_scaling_factor": float("inf")}}, "values finite numbers or strings"),
     ({"ipopt": ["alpha_for_y"]}, "must be a dict of IPOPT options"),
+    ({"warm_ipopt": {"acceptable_iter": 2.5}}, "'acceptable_iter' = 2.5 is not allowed; IPOPT's acceptable_iter is an "
+                                               "integer"),  # it ran as 2
 ])
 def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment):
     """SolveOptions.ipopt / warm_ipopt: what IPOPT rejects (unknown name, value outside its list or range), an

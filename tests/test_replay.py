@@ -267,13 +267,16 @@ def test_mujoco_rollout_validates_with_zero_error(ground_truth):
 
 def test_cli_window_option(ground_truth, capsys):
     """`planner validate DIR --window S` sets the window length in the JSON it prints; a window longer
-    than the 0.6 s plan is reported as one window of the whole plan; a window of zero is a user error
+    than the 0.6 s plan is one window of the whole plan, as reported (a window started every stride over the plan's
+    first half, each clipped to its end); a window of zero is a user error
     (exit 2, one line naming the option)."""
     from planner.cli import main
 
     _, out = ground_truth
     assert main(["validate", str(out), "--window", "0.2", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["windows"]["window_s"] == 0.2
+    assert main(["validate", str(out), "--window", "100", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows"]["starts_s"] == [0.0]  # one replay, not 30 clipped ones
     assert main(["validate", str(out), "--window", "100"]) == 0
     assert "tracking in 1 window, the whole 0.6 s plan (window 100 s)," in capsys.readouterr().out
     assert main(["validate", str(out), "--window", "0"]) == 2
