@@ -11,6 +11,7 @@ import hashlib
 import io
 import os
 import sys
+import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
@@ -230,8 +231,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         raise
     if floating and fmt is RobotFormat.MJCF:
         raise RobotFileError(f"{path}: floating applies to URDF only; an MJCF file declares its own <freejoint/>")
+    printed: list[str] = []  # what the parser printed on descriptor 2: urdfdom's reason ("Error:   ...")
     try:
-        with _quiet():
+        with _quiet(printed):
             if fmt is RobotFormat.MJCF:
                 model = pin.buildModelFromMJCF(str(path))
             else:
@@ -239,7 +241,10 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
                 "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else "")
-        raise RobotFileError(f"Pinocchio cannot parse {path}: {_parser_message(exc)}{hint}") from None
+        said = [ln for ln in dict.fromkeys(ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines()
+                                           if "Error:" in ln) if ln]
+        reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
+        raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
@@ -248,6 +253,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         actuators, dof_names, passive, world_sites, ground_z = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
+        lower, upper = model.lowerPositionLimit, model.upperPositionLimit
+        one = [(model.names[j], model.joints[j].idx_q) for j in range(1, model.njoints) if model.joints[j].nq == 1]
+        inverted = [f"{name!r} ({lower[i]:g} > {upper[i]:g})" for name, i in one if lower[i] > upper[i]]
+        if inverted:  # MuJoCo reads such a joint as unlimited (check-model named that, not the swap)
+            raise RobotFileError(f"{path}: joint {', '.join(inverted)}: its <limit lower> is above its upper; swap them")
         passive += _urdf_couplings(path)
         if any(True for _ in ET.parse(path).getroot().iter("transmission")):
             warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
@@ -415,7 +425,7 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
             raise RobotFileError(f"{path}: actuator {name!r}: its ctrlrange, its forcerange (before the gear) and the "
                                  "joint's actuatorfrcrange / gear do not overlap; no control is allowed")
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
-    _mujoco_limits(model, mj, mujoco)
+    _mujoco_limits(path, model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
@@ -427,7 +437,7 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     return tuple(actuators), dof_names, passive, tuple(name for name in world_sites if name), ground_z
 
 
-def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:
+def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
     """Pinocchio's hinge and slide joint limits set to MuJoCo's: none where MuJoCo reads the joint as unlimited
     (limited="false", or no range: Pinocchio's MJCF parser keeps a range the file declares unlimited), MuJoCo's range
     where it is limited (Pinocchio's parser shifts a hinge's range by its ref)."""
@@ -439,6 +449,10 @@ def _mujoco_limits(model: pin.Model, mj, mujoco) -> None:
         # one "Composite_<first>" joint, so a planar base's slide "z" had no Pinocchio joint of its name (its range
         # kept Pinocchio's degrees-to-radians reading of its metres, and the file was refused)
         i = int(mj.jnt_qposadr[j])
+        if not mj.jnt_limited[j] and mj.jnt_range[j, 0] > mj.jnt_range[j, 1]:  # autolimits drops it: a sign typo
+            name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}"
+            raise RobotFileError(f"{path}: joint {name!r}: its range {mj.jnt_range[j, 0]:g} {mj.jnt_range[j, 1]:g} is "
+                                 "no limit to MuJoCo (lower above upper); write the lower bound first, or remove the range")
         lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 
@@ -511,8 +525,9 @@ def planar_hint(robot: Robot) -> str:
 
 
 def mujoco_failure(path, exc: Exception, step: str = "compile") -> str:
-    """`MuJoCo cannot STEP PATH: ` and the first line of MuJoCo's error text (its ValueError)."""
-    return f"MuJoCo cannot {step} {path}: {str(exc).strip().splitlines()[0]}"
+    """`MuJoCo cannot STEP PATH: ` and MuJoCo's error text (its ValueError) on one line: the error and the element it
+    names ("Element name 'cx', id 1, line 4", the body to fix)."""
+    return f"MuJoCo cannot {step} {path}: " + "; ".join(ln.strip() for ln in str(exc).strip().splitlines() if ln.strip())
 
 
 def _parser_message(exc: Exception) -> str:
@@ -525,9 +540,10 @@ def _parser_message(exc: Exception) -> str:
 
 
 @contextlib.contextmanager
-def _quiet():
+def _quiet(printed: list[str] | None = None):
     """Pinocchio's parsers print warnings on stdout and, from C++, on the stderr file descriptor;
-    keep the CLI's output clean (--json on stdout, one error line on stderr)."""
+    keep the CLI's output clean (--json on stdout, one error line on stderr). What went to the descriptor is appended
+    to `printed` (a URDF's parse error says its reason only there)."""
     for stream in (sys.stdout, sys.stderr):
         if stream is not None:  # None when the shell closed it (`>&-`): that was read as a robot file Pinocchio cannot parse
             stream.flush()
@@ -538,9 +554,14 @@ def _quiet():
             yield
         return
     try:
-        with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(io.StringIO()):
-            os.dup2(devnull.fileno(), 2)
-            yield
+        with tempfile.TemporaryFile("w+") as caught, contextlib.redirect_stdout(io.StringIO()):
+            os.dup2(caught.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+                caught.seek(0)
+                if printed is not None:
+                    printed.append(caught.read())
     finally:
-        os.dup2(saved, 2)
         os.close(saved)

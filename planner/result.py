@@ -474,17 +474,24 @@ class Hop:
 # A flight phase whose contact point stays within this distance of its takeoff position [m] is no hop: FESD's point-mass
 # hop kept beta = 1 for 65 ms at rest on the ground after its landing and reported a second hop of distance and apex 0.
 HOP_MIN_TRAVEL_M = 1e-6
+# A point this far from its contact plane [m] is off it: far above the plans' contact gaps (~1e-9 m at rest, 4e-11 m
+# where a landing ends a whole flight step at a node) and far below a hop's first step (~1 cm).
+HOP_GAP_M = 1e-6
 # An impact this far past a flight's last node still ends it [s]: the node clock and the recovered impact time round
 # apart (implicit Euler's equal them to ~1e-16 s).
 LANDING_SLACK_S = 1e-9
 
 
-def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
-    """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
-    contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
-    does not move (HOP_MIN_TRAVEL_M) is left out."""
+def hops_of(traj: Trajectory, flight, point_xyz, gap) -> list[Hop]:
+    """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight), the contact point's
+    positions point_xyz (N+1, 3) and its gap to the contact plane `gap` (N+1,) [m] at the nodes; times are the node
+    clocks. A step is in flight when beta > 0.5 and the point is off the plane at one of its ends (HOP_GAP_M); a phase in
+    which the point does not move (HOP_MIN_TRAVEL_M) is left out."""
     clock = traj.y[:, -1]
-    air = np.asarray(flight, float).ravel() > 0.5
+    # beta alone read a sliding stance (beta 0.82-0.92 with the point on the ground, 0.1 m of it) as the end of a hop,
+    # and FESD's stance with beta 0.95 as its take-off
+    off = np.abs(np.asarray(gap, float).ravel()) > HOP_GAP_M  # (below: a point over a hole)
+    air = (np.asarray(flight, float).ravel() > 0.5) & (off[:-1] | off[1:])
     hops, k, N = [], 0, len(air)
     while k < N:
         if not air[k]:

@@ -141,14 +141,14 @@ URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolu
         (None, "robot file not found"),
         ('<sdf version="1.6"><model name="m"/></sdf>', "neither MJCF (<mujoco>) nor URDF (<robot>): root element <sdf>"),
         ("<mujoco><worldbody>", "malformed XML"),
-        (URDF_BROKEN, "Pinocchio cannot parse"),
+        (URDF_BROKEN, "does not contain a valid URDF model: Joint [j] is of type REVOLUTE but it does not specify limits"),
         ('<mujoco><worldbody><body><joint type="hinge"/><geom type="sphere" size="-1"/></body></worldbody></mujoco>', "Pinocchio cannot parse"),
     ],
     ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf"],
 )
 def test_bad_robot_files(tmp_path, text, message):
     """A missing, foreign, malformed or unparsable robot file raises RobotFileError (an InputError) with a
-    one-line message naming the problem."""
+    one-line message naming the problem (a URDF's with urdfdom's reason, which it prints only on descriptor 2)."""
     path = tmp_path / "robot.xml"
     if text is not None:
         path.write_text(text)

@@ -168,6 +168,30 @@ def test_limits_of_joints_sharing_a_body_are_mujocos(tmp_path):
     assert mj.jnt_range[2, 1] == pytest.approx(np.radians(40), abs=EXACT)
 
 
+def test_an_inverted_joint_range_is_refused_and_mujocos_element_named(tmp_path):
+    """A joint range with its lower bound above the upper (MuJoCo reads it as no limit: a sign typo unbounded the joint
+    silently, or check-model blamed MuJoCo) is refused in MJCF and URDF, as an inverted ctrlrange is; MuJoCo's
+    compile error keeps the element it names (the body to fix was dropped)."""
+    mjcf = tmp_path / "inverted.xml"
+    mjcf.write_text('<mujoco><compiler angle="radian"/><worldbody><body name="b"><joint name="hip" type="hinge" '
+                    'range="1 -1"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></worldbody></mujoco>')
+    with pytest.raises(RobotFileError, match="joint 'hip': its range 1 -1 is no limit to MuJoCo"):
+        load_robot(mjcf)
+    urdf = tmp_path / "inverted.urdf"
+    urdf.write_text('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="1" '
+                    'iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link><joint name="hip" type="revolute">'
+                    '<parent link="a"/><child link="b"/><axis xyz="0 1 0"/><limit lower="1" upper="-1" effort="5" '
+                    'velocity="1"/></joint></robot>')
+    with pytest.raises(RobotFileError, match=r"joint 'hip' \(1 > -1\): its <limit lower> is above its upper"):
+        load_robot(urdf)
+    massless = tmp_path / "massless.xml"
+    massless.write_text('<mujoco><worldbody><body name="cx"><joint name="x" type="slide" axis="1 0 0"/><body name="b">'
+                        '<joint name="hip" type="hinge"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body>'
+                        '</body></worldbody></mujoco>')
+    with pytest.raises(RobotFileError, match="must be larger than mjMINVAL; Element name 'cx', id 1, line 1"):
+        load_robot(massless)
+
+
 @pytest.mark.parametrize("hip, term", [('damping="5"', "damping 5"), ('stiffness="50"', "stiffness 50"),
                                        ('frictionloss="2"', "frictionloss 2")])
 def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
