@@ -62,6 +62,7 @@ class Robot:
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
+    unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads and Pinocchio's parser skips (in a <frame>)
     ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
 
     def check_inertia(self, q) -> None:
@@ -248,9 +249,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
-    world_sites, ground_z = (), None
+    world_sites, unread_sites, ground_z = (), (), None
     if fmt is RobotFormat.MJCF:
-        actuators, dof_names, passive, world_sites, ground_z = _mjcf_info(path, model)
+        actuators, dof_names, passive, world_sites, unread_sites, ground_z = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
         lower, upper = model.lowerPositionLimit, model.upperPositionLimit
@@ -273,6 +274,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         passive=passive,
         floating=floating,
         world_sites=world_sites,
+        unread_sites=unread_sites,
         ground_z=ground_z,
     )
 
@@ -361,9 +363,9 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
-                                                     tuple[str, ...], float | None]:
+                                                     tuple[str, ...], tuple[str, ...], float | None]:
     """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
-    (Robot.world_sites) and the ground plane's height (Robot.ground_z) read from MuJoCo's compiled model of the same
+    (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites) and the ground plane's height (Robot.ground_z) read from MuJoCo's compiled model of the same
     file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
@@ -429,12 +431,14 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
-    world_sites = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)
-                        if mj.site_bodyid[s] == 0)
+    site_names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)]
+    world_sites = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] == 0)
+    frames = {f.name for f in model.frames}
+    unread = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] != 0 and name not in frames)
     ground = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground")
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
-    return tuple(actuators), dof_names, passive, tuple(name for name in world_sites if name), ground_z
+    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z
 
 
 def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:

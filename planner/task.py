@@ -578,11 +578,14 @@ GROUND_MISMATCH_M = 1e-9
 
 
 def _not_on_the_world(point: str, robot, key: str) -> None:
-    """TaskError when `point`, not a point of the robot, names a site on the world body: it exists in the file but
-    never moves with the robot (it read as an unknown name)."""
+    """TaskError when `point`, not a point of the robot, names a site on the world body (it exists in the file but never
+    moves with the robot) or one Pinocchio's parser skipped: it read as an unknown name."""
     if point in robot.world_sites:
         raise TaskError(f"{key} = {point!r} is a site on the world body, fixed in the world, not a point of the robot; "
                         "move the <site> into the robot's body that touches")
+    if point in robot.unread_sites:  # ("valid contact points: (none)" of a file that plainly has the site)
+        raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame>); move the "
+                        "<site> out of the <frame> into its body, with the frame's pos and orientation")
 
 
 def load_task(path: str | Path) -> Task:

@@ -219,8 +219,8 @@ WORLD_SITE = FRAMED_SITE.replace('<frame pos="0 0 -0.1"><site name="foot"/></fra
 def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
     """A site on the world body (a target marker) is fixed in the world: check-model passes without it (it failed, as a
     site inside a <frame>, with no <frame> in the file), and a task that names it as a contact point or an above-ground
-    point is told so (it read "unknown contact point"). `planner check-model -q` of a failing file names the reasons
-    (it printed "the validation failed")."""
+    point is told so (it read "unknown contact point"), as one naming a site inside a <frame>. `planner check-model -q`
+    of a failing file names the reasons (it printed "the validation failed")."""
     from planner.cli import main
     from planner.errors import TaskError
     from planner.task import parse_task
@@ -240,6 +240,9 @@ def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
     framed.write_text(FRAMED_SITE)
     assert main(["check-model", str(framed), "--samples", "2", "-q"]) == 1
     assert "MuJoCo sites missing in Pinocchio's reading: foot" in capsys.readouterr().err
+    assert load_robot(framed).unread_sites == ("foot",)  # a task naming it is told why (it read "valid: (none)")
+    with pytest.raises(TaskError, match=r"contacts\[0\].point = 'foot' is a site Pinocchio's MJCF parser skips"):
+        parse_task({**base, "contacts": [{"point": "foot"}]}).check_against(load_robot(framed))
 
 
 
