@@ -371,7 +371,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         for c, gap in zip(contacts, np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel()):
             if gap < -1e-9:
                 raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}")
-    _check_target_outside_holes(dyn, contacts, plan)
+    _check_target_outside_holes(dyn, task.contacts, plan)
 
     if options.discretization is Discretization.FESD:
         return _build_fesd(robot, task, options, dyn, skips, contacts, system, builder, switch_scale, y0, start)
@@ -624,7 +624,7 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
     ground = task.ground_height
     above = [dyn.point_position(pt)(q_sym)[2] - ground for pt in plan.above_ground]
     hole_exprs = []
-    for ct in contacts:
+    for ct in task.contacts:  # touches = false too: a contact point stays out of the holes whether it may touch or not
         pos = dyn.point_position(ct.point)(q_sym)
         for i, e in enumerate(plan.holes):
             if (ct.point, i) in skips.dropped_holes:

@@ -944,14 +944,14 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
 
 
 def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:
-    """The smallest ellipse metric a touching contact point reaches in a hole of task.plan along q linear between the
+    """The smallest ellipse metric a contact point reaches in a hole of task.plan along q linear between the
     samples t (P,), q (P, nq), from the second sample on (the OCP's hole rows start at node 1, and a point starting in
     a hole may leave it in the first step): the OCP keeps the points out of the holes at its nodes only, so a hole
     narrower than a step's travel can be crossed between two (a plan went through an 8 cm wide, 100 m tall one).
     Each step is evaluated at HOLE_SUBSAMPLES points, more where the points travel farther than a quarter of the
     narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES). KinematicReport's hole fields; empty without holes."""
     holes = task.plan.holes if task is not None and task.plan is not None else ()
-    points = list(dict.fromkeys(c.point for c in task.contacts if c.touches)) if holes else []
+    points = list(dict.fromkeys(c.point for c in task.contacts)) if holes else []  # touches = false too, as in the OCP
     if not points:
         return {}
     data = robot.model.createData()

@@ -86,7 +86,8 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
     holes = task.plan.holes if task.plan is not None else ()
     if holes:
         lower, upper = task.q_bounds(robot)
-        for point in dict.fromkeys(c.point for c in touching):
+        # every contact point, touches = false too: the holes' rows keep each out (a never-touching knee was let in)
+        for point in dict.fromkeys(c.point for c in task.contacts):
             lo, hi = reach_box(robot, point, lower, upper)
             for i, e in enumerate(holes):
                 if hi[0] < e.x - e.a or lo[0] > e.x + e.a or hi[2] < e.z - e.b or lo[2] > e.z + e.b:

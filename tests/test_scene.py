@@ -106,6 +106,24 @@ def test_never_touching_point_gets_only_a_gap_constraint(capler):
     assert (same.nx, same.ng, len(same.pairs)) == (off.nx, off.ng, len(off.pairs))
 
 
+def test_a_never_touching_point_stays_out_of_the_holes(capler):
+    """touches = false skips a point's contact machinery, not the holes: its hole rows are built as with the analysis
+    off (they were dropped, and a plan put the knee in a hole), and a target that puts it in a hole is refused."""
+    N = 3
+    hole = {"x": 0.5, "z": 0.5, "a": 0.03, "b": 0.03}
+    task = knee_task(N)
+    with_hole = dataclasses.replace(task, plan=dataclasses.replace(task.plan, holes=parse_task(
+        {"contacts": [{"point": "foot"}], "initial": {"q": [0.0] * 4}, "horizon": {"tau_f": 1.0, "N": 2},
+         "plan": {"target_q": [0.0] * 4, "holes": [hole]}}).plan.holes))
+    on = build_problem(capler, with_hole)
+    off = build_problem(capler, with_hole, ProblemOptions(scene_analysis=False))
+    assert on.g_blocks["holes"].shape == off.g_blocks["holes"].shape == (N, 2)  # foot and knee
+    knee = np.asarray(on.system.dyn.point_position("knee")(np.array(task.plan.target_q)), float).ravel()
+    inside = dataclasses.replace(with_hole.plan.holes[0], x=float(knee[0]), z=float(knee[2]))
+    with pytest.raises(InputError, match="contact point 'knee' .* inside plan.holes"):
+        build_problem(capler, dataclasses.replace(with_hole, plan=dataclasses.replace(with_hole.plan, holes=(inside,))))
+
+
 def test_touches_key_is_checked(capler):
     """contacts.touches must be a boolean; a task whose every contact is touches = false cannot be planned."""
     with pytest.raises(TaskError, match="contacts\\[0\\].touches must be true or false"):
