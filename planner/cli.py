@@ -537,7 +537,8 @@ def _cmd_plan(args) -> int:
 
     def progress(rec):
         _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "
-                        f"{rec.complementarity_residual:.1e}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  {rec.status}")
+                        f"{rec.complementarity_residual:.1e}  {rec.iterations:5d} it  {rec.time_s:7.2f} s  {rec.status}"
+                        + (f"; {rec.note}" if rec.note else ""))
 
     if not args.no_validate:  # what the validation cannot model (a tilted plane, a ball joint) is said before the solve
         from .replay import build_scene

@@ -987,14 +987,18 @@ def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress:
     return replace(keep, stats=stats, nlps=nlps)
 
 
-def _held(problem, solvers, options, x0, records, progress, label):
-    """The task's cost with the contact schedule of x0 (ungated) held (SCHEDULE_IPOPT): the accepted point, or None."""
+def _held(problem, solvers, options, x0, records, progress, label, refuse=None):
+    """The task's cost with the contact schedule of x0 (ungated) held (SCHEDULE_IPOPT): the accepted point, or None.
+    refuse(x): why an accepted point is set aside (its record's note), or ""."""
     lbx, ubx, x_held = active_set_bounds(problem, x0)
     x, _, _, rec = _run(problem, solvers, x_held, None, None, problem.params(0.0, 1.0), lbx, ubx, label, schedule=True)
+    accepted = _accepted(problem, options, x, rec)
+    note = refuse(x) if accepted and refuse is not None else ""
+    rec = replace(rec, note=note) if note else rec
     records.append(rec)
     if progress:
         progress(rec)
-    return x if _accepted(problem, options, x, rec) else None
+    return x if accepted and not note else None
 
 
 def _held_scaled(problem, solvers, options, x0, records, progress, label):
@@ -1017,9 +1021,12 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     """SolveOptions.keep_schedule: the task's cost with x0's contact schedule held; the accepted point, or None."""
     if "gates" in problem.notes:
         x0 = ungate(problem, x0)
-    x = _held(problem, solvers, options, x0, records, progress, "schedule")
-    if x is None or options.schedule_new_impacts:
-        return x
+    return _held(problem, solvers, options, x0, records, progress, "schedule",
+                 None if options.schedule_new_impacts else lambda x: _new_impacts(problem, options, x0, x))
+
+
+def _new_impacts(problem, options, x0, x) -> str:
+    """Why the held schedule's point x adds impacts to the start x0 (both ungated), or "" when it does not."""
     # a selector strictly inside (0, 1) at x0 is not held: the biped's step 0.25 -> 0.28 m made its first step a
     # frozen impact of the stance foot that the start does not have. The schedule is kept if every impact overlaps
     # one of the start's at the same point: one may end a step later (Capler at 3.1 m: steps 95-98 -> 95-99), and one
@@ -1029,9 +1036,13 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     # MuJoCo as closely as the walk's; the biped's refused new impacts are full ones (4.0 N s, as its only impact)
     old = _impacts(problem, x0, options)
     largest = max((j for *_, j in old), default=0.0)
-    new = [(c, a, b) for c, a, b, j in _impacts(problem, x, options)
+    new = [(c, a, j) for c, a, b, j in _impacts(problem, x, options)
            if not any(c == c0 and a < b0 and a0 < b for c0, a0, b0, _ in old) and j >= TAP_SHARE * largest]
-    return None if new else x
+    if not new:
+        return ""
+    said = ", ".join(f"{j:.3g} N s at {c} (step {a})" for c, a, j in new)
+    return (f"set aside: it adds {len(new)} impact(s) the start does not have ({said}); --allow-new-impacts "
+            "(SolveOptions.schedule_new_impacts) accepts it")
 
 
 def _impacts(problem: Problem, x, options) -> list[tuple[str, int, int, float]]:

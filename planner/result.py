@@ -450,6 +450,8 @@ class NlpRecord:
     status: str  # IPOPT return status
     success: bool
     terminal_error: float  # max |terminal residual| [m, rad (, m/s, rad/s)]
+    # why the planner set aside the NLP's point though IPOPT succeeded (a held schedule that adds an impact), or ""
+    note: str = ""
 
     def __post_init__(self):
         _no_negative_zero(self, "complementarity_residual")
@@ -555,7 +557,8 @@ class PlanResult(ArraysReadOnly):
         tr, st = self.trajectory, self.stats
         lines = [_headline(self, "") + f", terminal error {self.terminal_error:.1e})"]
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
-                  f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}" for r in self.nlps]
+                  f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}"
+                  + (f"; {r.note}" if r.note else "") for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)", self.extra.get("_task"))
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")

@@ -605,12 +605,15 @@ def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monke
 def test_a_tap_does_not_refuse_the_held_schedule(hop, monkeypatch, share, accepted):
     """A held-schedule point whose one impact more than the start has an impulse below result.TAP_SHARE of the start's
     largest (a tap: Capler's were 0.3-0.8 %) is accepted as if it had none (the one "schedule" NLP); one at
-    TAP_SHARE is a new impact and refused (the schedule only: not converged)."""
+    TAP_SHARE is a new impact and refused (the schedule only: not converged), its record's note saying so."""
     prob, res, _ = hop
     moved = dataclasses.replace(_moved_hop(prob), x0=res.extra["_x"])
     _an_impact_added(monkeypatch, moved, share)
     run = H.solve(moved, dataclasses.replace(H.replan_options(), keep_schedule=True, schedule_only=True))
     assert [r.label for r in run.nlps] == ["schedule"] and run.stats.converged is accepted
+    # a refusal says why in its record (IPOPT's success stood alone, with no reason for the walk after it)
+    assert run.nlps[0].success and (run.nlps[0].note == "") is accepted
+    assert accepted or "set aside: it adds 1 impact(s) the start does not have" in run.report()
 
 
 def test_schedule_new_impacts_lifts_only_the_new_impact_refusal(hop, monkeypatch):
