@@ -551,7 +551,10 @@ def _cmd_plan(args) -> int:
 
         start_arrays = read_trajectory(args.init)
         _check_start(args.init, robot, start_arrays)
-        problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
+        try:
+            problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
+        except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only
+            raise InputError(f"{exc}{_skips_apart(args.init, start_arrays, task)}") from None
         solve_options = replace(replan_options(solve_options), keep_schedule=held,
                                 schedule_new_impacts=args.allow_new_impacts)
     if held:
@@ -565,8 +568,10 @@ def _cmd_plan(args) -> int:
 
         result = race(problem, default_arms(solve_options), progress=progress)
     if args.init is not None:
-        # summary.json says which plan this one started from
-        result = replace(result, options={**result.options, "init": str(args.init.absolute())})
+        # summary.json says which plan this one started from: its directory and its result_id (the directory may be
+        # --out itself, or be written again later)
+        start_id = str(start_arrays["result_id"]) if "result_id" in start_arrays else None
+        result = replace(result, options={**result.options, "init": str(args.init.absolute()), "init_result_id": start_id})
     validating = not args.no_validate and result.trajectory.t.size > 1
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
@@ -615,6 +620,22 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
     if path is not None and file_sha256(path) != robot.sha256:
         raise InputError(f"{start} is a plan of the robot file {named}, whose contents differ from {robot.path}: a replan "
                          "starts from a plan of the same robot")
+
+
+def _skips_apart(init: Path, arrays: dict, task) -> str:
+    """Why a start's NLP variables may differ though its robot, contacts, N and options are this task's: a scene skip
+    one task has and the other not (mu = 0 drops a contact's tangential variables), as "; ..." text, or ""."""
+    from .result import read_task
+
+    try:
+        start = read_task(init, arrays)
+    except InputError:
+        return ""
+    mu = {c.point: c.mu for c in start.contacts}
+    apart = [f"{c.point!r} has mu {mu[c.point]:g} there and {c.mu:g} here" for c in task.contacts
+             if c.point in mu and (mu[c.point] == 0) != (c.mu == 0)]
+    return (f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init"
+            if apart else "")
 
 
 def _start_task(args, arrays: dict):

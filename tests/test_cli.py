@@ -471,10 +471,12 @@ HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     """`plan --init DIR` starts the hop to x = 0.55 m from the plan of the hop to 0.5 m in DIR: by default in the
     one NLP that holds DIR's contact schedule (--keep-schedule says the same); with --penalty-replan it converges
-    with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name DIR).
+    with one NLP at the replan penalty, the second one skipped (summary.json's options say so, and name DIR and
+    its result_id).
     DIR keeps the task its plan solved (trajectory.npz's task_json, what the replan walks from), so the replan
     needs no task file of it; --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's
-    NLP point (a simulation), a plan on another grid (--steps), FESD, --keep-schedule, --penalty-replan or
+    NLP point (a simulation), a plan on another grid (--steps) or with mu = 0 where DIR's was not (its tangential
+    variables skipped: named as the cause), FESD, --keep-schedule, --penalty-replan or
     --allow-new-impacts without --init, --penalty-replan with either of the other two, a plan that did not converge
     and a plan of another robot file are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
@@ -491,6 +493,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     assert summary["options"]["solve"]["rho_schedule"] == [1e4, 1e6]
     assert [n["label"] for n in summary["nlps"]] == ["homotopy 1", "polish", "reoptimize"]
     assert summary["options"]["init"] == str(tmp_path / "hop")
+    start_id = json.loads((tmp_path / "hop" / "summary.json").read_text())["result_id"]
+    assert summary["options"]["init_result_id"] == start_id  # the directory may be written again, or be --out
     assert summary["options"]["solve"]["keep_schedule"] is False
     for out_name, extra in (("closer", []), ("kept", ["--keep-schedule"])):
         assert main([a if a != str(tmp_path / "closer") else str(tmp_path / out_name) for a in argv] + extra) == 0
@@ -513,6 +517,9 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
     _one_line_exit_2(capsys, argv + ["--steps", "10"], "other NLP variables")
+    (tmp_path / "slippery.toml").write_text(HOP_TOML.format(x=0.55).replace("mu = 0.5", "mu = 0.0"))
+    _one_line_exit_2(capsys, [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv],
+                     "contact 'point' has mu 0.5 there and 0 here: mu = 0 drops a contact's tangential variables")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
     # a failed plan's last iterate, and a plan of another robot file whose names match (another mass): accepted before
     summary = json.loads((tmp_path / "hop" / "summary.json").read_text())
