@@ -478,7 +478,10 @@ class Hop:
 HOP_MIN_TRAVEL_M = 1e-6
 # A point this far from its contact plane [m] is off it: far above the plans' contact gaps (~1e-9 m at rest, 4e-11 m
 # where a landing ends a whole flight step at a node) and far below a hop's first step (~1 cm).
-HOP_GAP_M = 1e-6
+ON_PLANE_M = 1e-6
+# A point on its plane moving into it faster than this [m/s] is landing: far above a stance's velocity (~1e-9 m/s), far
+# below a landing's (0.1-2 m/s).
+APPROACH_MPS = 1e-3
 # An impact this far past a flight's last node still ends it [s]: the node clock and the recovered impact time round
 # apart (implicit Euler's equal them to ~1e-16 s).
 LANDING_SLACK_S = 1e-9
@@ -487,12 +490,12 @@ LANDING_SLACK_S = 1e-9
 def hops_of(traj: Trajectory, flight, point_xyz, gap) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight), the contact point's
     positions point_xyz (N+1, 3) and its gap to the contact plane `gap` (N+1,) [m] at the nodes; times are the node
-    clocks. A step is in flight when beta > 0.5 and the point is off the plane at one of its ends (HOP_GAP_M); a phase in
+    clocks. A step is in flight when beta > 0.5 and the point is off the plane at one of its ends (ON_PLANE_M); a phase in
     which the point does not move (HOP_MIN_TRAVEL_M) is left out."""
     clock = traj.y[:, -1]
     # beta alone read a sliding stance (beta 0.82-0.92 with the point on the ground, 0.1 m of it) as the end of a hop,
     # and FESD's stance with beta 0.95 as its take-off
-    off = np.abs(np.asarray(gap, float).ravel()) > HOP_GAP_M  # (below: a point over a hole)
+    off = np.abs(np.asarray(gap, float).ravel()) > ON_PLANE_M  # (below: a point over a hole)
     air = (np.asarray(flight, float).ravel() > 0.5) & (off[:-1] | off[1:])
     hops, k, N = [], 0, len(air)
     while k < N:
@@ -611,7 +614,8 @@ IMPULSE_SHARE = 1e-2
 
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
-            frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
+            frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False,
+            landed=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
 
     tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
@@ -628,7 +632,13 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     posture and pre-/post-impact velocities, and one pair of samples.
     switch_at_start: the first frozen step of an interval starts at the impact (FESD puts the switch on
     an element boundary), so the impact's time, posture and pre-impact velocity are its start point;
-    otherwise (implicit Euler) the landing happens inside that step and they are taken at its end.
+    otherwise (implicit Euler) the landing happens inside that step and they are taken at its end, less the step's
+    auxiliary increment, unless landed[a] (K-1,) says the step starts with a contact point already on its plane and
+    moving into it (a landing that ended a whole flight step at a node) and the step ran the clock for part of its
+    length (not fully frozen): then the impact comes first, at the step's
+    start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated at the
+    step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
+    its pre-impact velocity.
     Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
     """
     y, u_steps = np.asarray(y, float), np.asarray(u_steps, float)
@@ -656,7 +666,10 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # step. A later partly frozen step ran the clock after the impact, so its end is a physical sample and a
         # frozen step after it is the next impact: lumping it in made v_post the sum of every auxiliary increment
         # (support over the running parts too), a velocity the plan never has (docs/validation.md, session 36)
-        while b + 1 < n_steps and frozen[b + 1] and (b == a or fully[b]):
+        # an implicit-Euler landing at a node ran the clock after its impact already in step a (one that froze the
+        # whole step is the same instant either way: dated as before, so the biped's plans keep their samples)
+        at_node = landed is not None and landed[a] and not switch_at_start and not fully[a]
+        while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node) or fully[b]):
             b += 1
         if np.sum(dt_steps[a : b + 1] - advance[a : b + 1]) < min_frozen:
             # a FESD sliver: an element of ~1e-8 s between two switches leaks its clock like a frozen one
@@ -665,12 +678,15 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             continue
         # the first frozen step may run the clock for part of the step (a landing), never backwards: a
         # solver's bound relaxation can leave it 1e-10 s behind the previous sample
-        if switch_at_start:  # the clock a selector leaks while frozen (~1e-6 of a step) stays out of the impact time
+        if switch_at_start or at_node:
+            # the clock a selector leaks while frozen (~1e-6 of a step) stays out of the impact time
             t_imp, q_imp, v_pre = max(clock[a], ts[-1]), y[a, :nq], y[a, nq : nq + nv]
             # the run's end state: v_pre plus the auxiliary increments when every element stopped the clock, and
             # also right where the last element ran it for part of its length (a stance whose auxiliary field
             # carries part of the weight at 95 % clock: its increment, support included, read +0.94 m/s upward
-            # for a point mass at rest)
+            # for a point mass at rest). An implicit-Euler landing at a node: v_pre plus the increment is no state
+            # of the plan (it lumps the step's push-off, and MuJoCo's windows from it tracked Capler's 1.175 s
+            # twice as far off: 103 mm against 47)
             v_post = y[b + 1, nq : nq + nv]
         else:
             t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
@@ -1023,12 +1039,14 @@ def check_robot_unchanged(summary: dict, robot, out_dir: Path) -> bool:
     if not then:
         return False
     if then != robot.sha256:
-        source, other = summary.get("robot"), ""
+        source, named = summary.get("robot"), None
         with contextlib.suppress(InputError):  # (the file as validate and view find it: a relative or bare name too)
             named = locate_input(source, Path(out_dir), "robot") if isinstance(source, str) and source else None
-            other = f" ({source}: another file)" if named and named.resolve() != Path(robot.path).resolve() else ""
+        if named is not None and named.resolve() != Path(robot.path).resolve():  # another robot, not an edited file
+            raise InputError(f"the result in {out_dir} was computed for another robot file, {source}, not "
+                             f"{robot.path}: use that file, or a result of this one")
         raise InputError(f"the robot file {robot.path} has other contents (SHA-256 {robot.sha256[:12]}...) than the "
-                         f"one the result in {out_dir} was computed from{other} ({then[:12]}...): compute the result "
+                         f"one the result in {out_dir} was computed from ({then[:12]}...): compute the result "
                          "again with this file, or use that one")
     return True
 

@@ -245,7 +245,7 @@ class TimeFreezingSystem:
       impulse_rates: SX (2 * n_contacts, n_fields): normal and tangential impulse per unit numerical
         time [N] of each field (a_n for f_A,n, a_t for f_A,t, the oscillator force for f_osc, 0 else)
       Functions of (y, u): fields_fn -> field_matrix, switching_fn -> switching,
-        impulse_fn -> impulse_rates, gap_fn -> (n_contacts,) gaps c [m]
+        impulse_fn -> impulse_rates, gap_fn -> (n_contacts,) gaps c [m], normal_velocity_fn -> (n_contacts,) n^T v [m/s]
       labels (n_contacts,): contact names used in field and selector names (contact_labels)
     Several contacts (empty otherwise): factors (Factor, ...), the polynomial variables after the
       selectors; lam SX (n_lambda,) contact forces [N], lam_names, lam_index (label -> slice);
@@ -372,6 +372,8 @@ class TimeFreezingSystem:
         self.impulse_fn = ca.Function("tf_impulse", args, [self.impulse_rates], arg_names, ["impulse_rate"])
         gaps = ca.vertcat(*[ct.gap for ct in self.terms]) if self.terms else ca.SX(0, 1)
         self.gap_fn = ca.Function("tf_gap", args, [gaps], arg_names, ["c"])
+        approach = ca.vertcat(*[ct.normal_velocity for ct in self.terms]) if self.terms else ca.SX(0, 1)
+        self.normal_velocity_fn = ca.Function("tf_normal_velocity", args, [approach], arg_names, ["nv"])
 
     def _compose(self, ground_height: float, q, v, M, fv, values: dict, impulses: dict, h: list) -> None:
         """The multi-contact rule (module docstring; docs/formulation.md, "Several contacts")."""

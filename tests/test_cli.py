@@ -532,14 +532,14 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     heavy = tmp_path / "heavy"
     shutil.copytree(tmp_path / "hop", heavy)
     (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
-    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], f"was computed from ({heavy_robot}: another file)")
+    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], f"was computed for another robot file, {heavy_robot}, not")
     # a result written before summary.json kept robot_sha256: the file it names is compared as it is now
     (heavy / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"} | {"robot": str(heavy_robot)}))
     _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "whose contents differ from")
     # the plan's own robot file edited in place since (the heavy file planned, then made the point mass's contents)
     (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
     heavy_robot.write_text(Path(summary["robot"]).read_text())
-    _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "has other contents")
+    _one_line_exit_2(capsys, [argv[0], str(heavy_robot), *argv[2:-1], str(heavy)], "has other contents")
 
 
 def test_plan_races_two_variants_unless_told_not_to(tmp_path, capsys, monkeypatch):

@@ -493,8 +493,9 @@ def test_regularization_from_last_skips_the_unregularized_try():
         assert solvers.projection().size_in(0) == (prob.nx, 1)
     assert regularized[H.Regularization.FROM_LAST].all()
     assert not regularized[H.Regularization.FROM_ZERO].all()
+    assert H.SolveOptions(regularization="from_last").regularization is H.Regularization.FROM_LAST  # its value too
     with pytest.raises(InputError, match="regularization"):
-        H.SolveOptions(regularization="from_last")
+        H.SolveOptions(regularization="last")
 
 
 HOP_VX_BOUND = 1.0  # [m/s] below the unbounded hop's top speed (1.51 m/s), so the bound must act

@@ -17,7 +17,8 @@ CONTRACT = ("command", "robot", "task", "converged", "solve_time_s", "n_nlp", "i
 
 
 def test_plan_command_writes_results(tmp_path, capsys):
-    """plan --json writes trajectory.npz and summary.json with the contract keys and exits 0."""
+    """plan --json writes trajectory.npz and summary.json with the contract keys and exits 0; its impacts are dated
+    where the point first touches the ground."""
     task = tmp_path / "hop.toml"
     task.write_text(HOP_TASK)
     out = tmp_path / "out"
@@ -34,6 +35,12 @@ def test_plan_command_writes_results(tmp_path, capsys):
     for key in ("tau", "y", "t", "q", "v", "u", "impact_times"):
         assert key in data.files
     assert json.loads((out / "summary.json").read_text())["converged"]
+    # the hop's landings end a flight step at a node (the point at z = 0 moving down there): each impact is dated at
+    # that node, where the point first touches (they were dated one step later, with the point already on the ground)
+    for impact in summary["impacts"]:
+        first = int(np.argmax(data["t"] >= impact["time"] - LANDING_TIME_TOL))
+        assert abs(data["q"][first, 1]) <= GROUND_TOL and data["q"][first - 1, 1] > GROUND_TOL, impact["time"]
+        assert impact["v_pre"][1] < 0  # the point's z velocity: moving into the ground
 
 
 def test_plan_without_plan_table_is_bad_input(tmp_path, capsys):
@@ -68,6 +75,7 @@ def test_capler_default_task():
 
 
 # Fig. 6 phase checks on the physical-time samples
+LANDING_TIME_TOL = 1e-9  # [s] an impact's time and its node's clock are one number, up to rounding
 STICK_TOL = 1e-6  # [m] foot displacement that counts as sticking (the plans' stances move it by < 1e-11 m)
 GROUND_TOL = 1e-6  # [m] foot height that counts as on the ground (constraints hold to 1e-6)
 HOLE_TOL = 1e-6  # ellipse level-set margin: the hole rows hold to the constraint tolerance

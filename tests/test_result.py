@@ -109,6 +109,32 @@ def test_recover_splits_a_run_where_the_clock_ran_after_the_impact():
     np.testing.assert_allclose(vs[:, 0], [-1.0, -2.0, -2.0, 0.3, 0.2, -1.2, 0.3, 0.1, 0.1, 0.1], atol=EXACT)
 
 
+def test_recover_dates_a_landing_at_a_node_there():
+    """The same four partly frozen steps, the first starting with the point on its plane moving into it (landed[1]: a
+    landing that ended a flight step at the node at t = 0.1): its impact is at that node, posture and pre-impact
+    velocity (it was dated at the step's end, 0.14, one step late, with the stance's motion in v_pre), its
+    post-impact velocity the step's end state, and the clock ran after it, so the next frozen step starts the next
+    impact (dated at its end, as an impact inside its step is), whose run takes one more step by the usual rule. The
+    node where the clock stopped running after the landing (t = 0.14) stays a sample."""
+    clock = [0.0, 0.1, 0.14, 0.19, 0.25, 0.32, 0.42, 0.52]
+    v = [-1.0, -2.0, -0.5, 0.2, -0.3, 0.1, 0.1, 0.1]
+    y = np.column_stack([np.arange(8.0), v, clock])
+    dv = np.array([[0.0], [1.5], [0.8], [0.9], [0.6], [0.0], [0.0]])
+    imp = dv.reshape(7, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    landed = np.array([False, True, False, False, False, False, False])
+    t, q, vs, _, impacts = recover(0.1 * np.arange(8), y, np.zeros((7, 1)), np.full(7, 0.1), dv, imp, 1, 1, ("foot",),
+                                   landed=landed)
+    assert [im.time for im in impacts] == pytest.approx([0.1, 0.19, 0.32], abs=EXACT)
+    assert [(im.tau_start, im.tau_end) for im in impacts] == [pytest.approx((0.1, 0.2)), pytest.approx((0.2, 0.4)),
+                                                              pytest.approx((0.4, 0.5))]
+    assert [im.impulse for im in impacts] == pytest.approx([1.5, 0.8 + 0.9, 0.6], abs=EXACT)
+    assert (impacts[0].q[0], impacts[0].v_pre[0], impacts[0].v_post[0]) == pytest.approx((1.0, -2.0, -0.5))
+    np.testing.assert_allclose(q[:, 0], [0, 1, 1, 1, 2, 3, 3, 4, 5, 5, 6, 7], atol=EXACT)  # node 2 kept
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.1, 0.14, 0.19, 0.19, 0.25, 0.32, 0.32, 0.42, 0.52], atol=EXACT)
+    unlanded = recover(0.1 * np.arange(8), y, np.zeros((7, 1)), np.full(7, 0.1), dv, imp, 1, 1, ("foot",))[4]
+    assert [im.time for im in unlanded] == pytest.approx([0.14, 0.25], abs=EXACT)
+
+
 def test_recover_never_goes_back_in_time():
     """An impact that starts with a clock 2e-10 s behind the previous sample (an NLP solver's bound
     relaxation: the clock rate of a frozen step at -1e-8) is placed at the previous sample's time:
