@@ -138,7 +138,7 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
         return []
     if scheduler is not None:
         return _run_dask(fn, items, scheduler, progress)
-    if workers is not None and (not isinstance(plain(workers), int) or isinstance(workers, bool) or workers < 0):
+    if workers is not None and (not isinstance(plain(workers), int) or isinstance(plain(workers), bool) or workers < 0):
         raise InputError(f"workers must be None or an integer >= 0, got {shown(workers)}")
     if workers == 0:
         out = []

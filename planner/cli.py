@@ -187,8 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
     # which CasADi writes to sys.stdout, also from the race's forked arms) goes to stderr
-    out, err = (None if stream is None else _ReaderMayLeave(stream) for stream in (sys.stdout, sys.stderr))  # (>&-: None)
-    args.stdout = out
+    # (None: closed by the shell, >&-)
+    out, err = (None if stream is None else _ReaderMayLeave(stream) for stream in (sys.stdout, sys.stderr))
+    args.stdout, args.stderr = out, err
     redirect = getattr(args, "json", False) or getattr(args, "verbose", False)
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
@@ -204,14 +205,14 @@ def main(argv: list[str] | None = None) -> int:
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
         if code == EXIT_FAILED and getattr(args, "quiet", False):
-            print(f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}", file=sys.stderr)
+            print(f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}", file=err or sys.stderr)
         return code
     except InputError as exc:
         return _stop(args, EXIT_INPUT, f"error: {exc}")
     except PlannerError as exc:
         return _stop(args, EXIT_FAILED, f"failed: {exc}")
     except BrokenPipeError:  # `planner ... | head`: the reader left; that is not an error
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _to_devnull(sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:
         where = f": {exc.filename}" if exc.filename else ""
@@ -238,7 +239,7 @@ class _ReaderMayLeave:
         except BrokenPipeError:
             # the stream's buffer still holds the text: flushed into /dev/null at exit, not another BrokenPipeError
             with contextlib.suppress(OSError, ValueError):
-                os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+                _to_devnull(self._stream.fileno())
             return len(args[0]) if args else None
 
     def write(self, text: str):
@@ -251,10 +252,19 @@ class _ReaderMayLeave:
         return getattr(self._stream, name)
 
 
+def _to_devnull(fd: int) -> None:
+    """Point descriptor `fd` at /dev/null: what is still buffered for a reader that left is dropped at exit."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
+
+
 def _stop(args, code: int, text: str) -> int:
     """A command that ended early: `planner COMMAND: TEXT` on stderr and, with --json, {"command", "exit_code",
     "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code."""
-    print(f"planner {args.command}: {text}", file=sys.stderr)
+    print(f"planner {args.command}: {text}", file=getattr(args, "stderr", None) or sys.stderr)  # (a reader may leave)
     if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
         with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
             # the exit code says which kind: "error: " or "failed: " is stderr's prefix
@@ -326,14 +336,11 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     returns."""
     from .result import write_results
 
-    from .plots import PLOT_FILES
-
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     write_results(result, target)
     if result.stats.converged:
         _remove_failed(out / "failed")
-    for name in PLOT_FILES:  # an earlier result's plots (--no-plots now, or a plot this robot has not) would mix in
-        (target / name).unlink(missing_ok=True)
+    _remove_plots(target)
     if args.no_plots:
         return target, lambda: None
     if not background:
@@ -554,7 +561,8 @@ def _cmd_plan(args) -> int:
         try:
             problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
         except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only
-            raise InputError(f"{exc}{_skips_apart(args.init, start_arrays, task)}") from None
+            apart = _skips_apart(args.init, start_arrays, task) if "other NLP variables" in str(exc) else ""
+            raise InputError(f"{exc}{apart}") from None
         solve_options = replace(replan_options(solve_options), keep_schedule=held,
                                 schedule_new_impacts=args.allow_new_impacts)
     if held:
@@ -571,7 +579,8 @@ def _cmd_plan(args) -> int:
         # summary.json says which plan this one started from: its directory and its result_id (the directory may be
         # --out itself, or be written again later)
         start_id = str(start_arrays["result_id"]) if "result_id" in start_arrays else None
-        result = replace(result, options={**result.options, "init": str(args.init.absolute()), "init_result_id": start_id})
+        result = replace(result, options={**result.options, "init": str(args.init.absolute()),
+                                          "init_result_id": start_id})
     validating = not args.no_validate and result.trajectory.t.size > 1
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
@@ -622,6 +631,15 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
                          "starts from a plan of the same robot")
 
 
+def _remove_plots(target: Path) -> None:
+    """An earlier result's plots in `target` (--no-plots now, a plot this robot has not, a gait that draws none) would
+    mix in with the new result's files."""
+    from .plots import PLOT_FILES
+
+    for name in PLOT_FILES:
+        (target / name).unlink(missing_ok=True)
+
+
 def _skips_apart(init: Path, arrays: dict, task) -> str:
     """Why a start's NLP variables may differ though its robot, contacts, N and options are this task's: a scene skip
     one task has and the other not (mu = 0 drops a contact's tangential variables), as "; ..." text, or ""."""
@@ -665,10 +683,7 @@ def _cmd_gait(args) -> int:
     if converged:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
-    from .plots import PLOT_FILES
-
-    for name in PLOT_FILES:  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
-        (target / name).unlink(missing_ok=True)
+    _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
     # a gait that asks the ground to pull (or to hold beyond friction) is no motion of the robot: it fails as a fall
     valid = walked and not result.summary.get("contact_violations")

@@ -118,9 +118,9 @@ def shown(value, width: int = 60) -> str:
 
 def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, optional: bool = False) -> None:
     """The field `key` of the frozen dataclass `options` holds a member of `enum` (of `allowed` if given; None too if
-    `optional`), given as the member or its value ("monotone" from a script as from `--solve` JSON): stored as the member,
-    or an InputError naming the field, the value and the valid values (a value was refused by a message that listed it
-    as valid)."""
+    `optional`), given as the member or its value ("monotone" from a script as from `--solve` JSON): stored as the
+    member, or an InputError naming the field, the value and the valid values (a value was refused by a message that
+    listed it as valid)."""
     given = getattr(options, key)
     members = list(enum) if allowed is None else list(allowed)
     if given is None and optional:

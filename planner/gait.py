@@ -34,7 +34,8 @@ import casadi as ca
 import numpy as np
 
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, SolveError, TaskError, UnknownNameError, check_field_types, expect, interruptible, shown
+from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_field_types, enum_field, expect,
+                     interruptible, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import ArraysReadOnly, real_array, write_files
@@ -638,11 +639,7 @@ class WalkGains:
 
     def __post_init__(self):
         check_field_types(self)
-        if not isinstance(self.control, WalkControl):  # its value ("phase") too, as ValidationOptions.controller
-            names = [c.value for c in WalkControl]
-            if self.control not in names:
-                raise UnknownNameError("walk control", str(self.control), names)
-            object.__setattr__(self, "control", WalkControl(self.control))
+        enum_field(self, "control", WalkControl)  # its value ("phase") too
         for name, ok, allowed in (("kp", self.kp >= 0, ">= 0"), ("kd", self.kd >= 0, ">= 0"),
                                   ("bandwidth", self.bandwidth > 0, "> 0"), ("ground_gap", self.ground_gap >= 0, ">= 0"),
                                   ("sample_every", self.sample_every >= 1, ">= 1"),

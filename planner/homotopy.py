@@ -448,12 +448,7 @@ def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> S
     for key, value in values.items():
         if key not in names:
             raise InputError(f"SolveOptions has no field {key!r}; the fields are {names}")
-        if key in ENUM_FIELDS and value is not None and not isinstance(value, ENUM_FIELDS[key]):
-            allowed = [e.value for e in ENUM_FIELDS[key]]
-            if value not in allowed:
-                raise InputError(f"SolveOptions.{key} = {value!r} is not allowed; it must be one of {allowed}")
-            value = ENUM_FIELDS[key](value)
-        out[key] = tuple(value) if isinstance(value, list) else value
+        out[key] = tuple(value) if isinstance(value, list) else value  # (an Enum field's value: SolveOptions's own)
     return replace(base or SolveOptions(), **out)
 
 
@@ -1367,8 +1362,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     beta = W[:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
-    gap = np.array([float(problem.system.gap_fn(y, np.zeros(problem.system.nu))[0]) for y in nodes])
-    # the robot flies when every contact point does (one contact: its beta)
+    # the robot flies when every contact point does (one contact: its beta): off its plane, the nearest of them
+    gap = np.array([np.min(np.abs(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float)))
+                    for y in nodes])
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, gap)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,

@@ -258,7 +258,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         one = [(model.names[j], model.joints[j].idx_q) for j in range(1, model.njoints) if model.joints[j].nq == 1]
         inverted = [f"{name!r} ({lower[i]:g} > {upper[i]:g})" for name, i in one if lower[i] > upper[i]]
         if inverted:  # MuJoCo reads such a joint as unlimited (check-model named that, not the swap)
-            raise RobotFileError(f"{path}: joint {', '.join(inverted)}: its <limit lower> is above its upper; swap them")
+            raise RobotFileError(f"{path}: joint {', '.join(inverted)}: its <limit lower> is above its upper; "
+                                 "swap them")
         passive += _urdf_couplings(path)
         if any(True for _ in ET.parse(path).getroot().iter("transmission")):
             warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
@@ -365,7 +366,8 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
                                                      tuple[str, ...], tuple[str, ...], float | None]:
     """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
-    (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites) and the ground plane's height (Robot.ground_z) read from MuJoCo's compiled model of the same
+    (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites) and the ground plane's
+    height (Robot.ground_z) read from MuJoCo's compiled model of the same
     file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
@@ -456,7 +458,8 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
         if not mj.jnt_limited[j] and mj.jnt_range[j, 0] > mj.jnt_range[j, 1]:  # autolimits drops it: a sign typo
             name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}"
             raise RobotFileError(f"{path}: joint {name!r}: its range {mj.jnt_range[j, 0]:g} {mj.jnt_range[j, 1]:g} is "
-                                 "no limit to MuJoCo (lower above upper); write the lower bound first, or remove the range")
+                                 "no limit to MuJoCo (lower above upper); write the lower bound first, or remove the "
+                                 "range")
         lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 
@@ -531,7 +534,8 @@ def planar_hint(robot: Robot) -> str:
 def mujoco_failure(path, exc: Exception, step: str = "compile") -> str:
     """`MuJoCo cannot STEP PATH: ` and MuJoCo's error text (its ValueError) on one line: the error and the element it
     names ("Element name 'cx', id 1, line 4", the body to fix)."""
-    return f"MuJoCo cannot {step} {path}: " + "; ".join(ln.strip() for ln in str(exc).strip().splitlines() if ln.strip())
+    lines = (ln.strip() for ln in str(exc).strip().splitlines())
+    return f"MuJoCo cannot {step} {path}: " + "; ".join(ln for ln in lines if ln)
 
 
 def _parser_message(exc: Exception) -> str:
@@ -558,14 +562,14 @@ def _quiet(printed: list[str] | None = None):
             yield
         return
     try:
-        with tempfile.TemporaryFile("w+") as caught, contextlib.redirect_stdout(io.StringIO()):
+        with tempfile.TemporaryFile("w+b") as caught, contextlib.redirect_stdout(io.StringIO()):
             os.dup2(caught.fileno(), 2)
             try:
                 yield
             finally:
                 os.dup2(saved, 2)
-                caught.seek(0)
-                if printed is not None:
-                    printed.append(caught.read())
+                if printed is not None:  # bytes: a file's Latin-1 joint name refused a valid file as undecodable
+                    caught.seek(0)
+                    printed.append(caught.read().decode(errors="replace"))
     finally:
         os.close(saved)

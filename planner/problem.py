@@ -176,7 +176,8 @@ class ProblemOptions:
             if self.clock_weight != 0:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")
         # COLLOCATED: planner simulate only (untried in the OCP)
-        enum_field(self, "velocity_switch", SwitchVelocity, [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED])
+        enum_field(self, "velocity_switch", SwitchVelocity,
+                   [p for p in SwitchVelocity if p is not SwitchVelocity.COLLOCATED])
         enum_field(self, "step_form", StepForm)
         if not self.clock_weight >= 0:
             raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed; it must be >= 0")

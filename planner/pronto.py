@@ -104,8 +104,9 @@ class ProntoOptions:
         if not (self.tolerance > 0 and 0 < self.armijo_c < 0.5 and 0 < self.armijo_beta < 1 and self.min_step > 0):
             raise InputError("pronto options: need tolerance > 0, 0 < armijo_c < 0.5, 0 < armijo_beta < 1, min_step > 0")
         if not (self.feedback_q and self.feedback_r) or min(self.feedback_q) < 0 or min(self.feedback_r) <= 0:
-            raise InputError(f"pronto feedback weights feedback_q = {self.feedback_q}, feedback_r = {self.feedback_r} are "
-                             "not allowed: each needs one weight per state (q, >= 0) or input (r, > 0)")
+            raise InputError(f"pronto feedback weights feedback_q = {self.feedback_q}, feedback_r = "
+                             f"{self.feedback_r} are not allowed: each needs one weight per state (q, >= 0) or input "
+                             "(r, > 0)")
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, expect, shown
+from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, enum_field, expect, shown
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
 from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
                      real_array, result_dir, write_atomically)
@@ -200,7 +200,7 @@ class ValidationOptions:
     """Everything the validation can be told; the defaults are the documented settings.
 
     controller: a TrackingController or its value ("joint_pd", "stance_retarget"); an unknown name
-    raises UnknownNameError. JOINT_PD stays the default by measurement (docs/validation.md): on the
+    raises InputError. JOINT_PD stays the default by measurement (docs/validation.md): on the
     default Capler plan STANCE_RETARGET cuts the base error of the first 0.75 s from 106 to 35 mm but
     is worse over the first 0.35 s (5.1 vs 1.6 mm) and over the whole plan (3.4 vs 3.0 m; on session 43's default
     plan 1.0 vs 0.24 m), and on a fully actuated robot both are the same law.
@@ -226,11 +226,7 @@ class ValidationOptions:
         _check(self.min_flight_s >= 0, "min_flight_s", self.min_flight_s, ">= 0")
         _check(self.window_s > 0, "window_s", self.window_s, "> 0")
         _check(self.window_stride_s > 0, "window_stride_s", self.window_stride_s, "> 0")
-        if not isinstance(self.controller, TrackingController):
-            names = [c.value for c in TrackingController]
-            if self.controller not in names:
-                raise UnknownNameError("tracking controller", str(self.controller), names)
-            object.__setattr__(self, "controller", TrackingController(self.controller))
+        enum_field(self, "controller", TrackingController)
 
 
 # ==================================================================================================

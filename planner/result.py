@@ -489,9 +489,9 @@ LANDING_SLACK_S = 1e-9
 
 def hops_of(traj: Trajectory, flight, point_xyz, gap) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight), the contact point's
-    positions point_xyz (N+1, 3) and its gap to the contact plane `gap` (N+1,) [m] at the nodes; times are the node
-    clocks. A step is in flight when beta > 0.5 and the point is off the plane at one of its ends (ON_PLANE_M); a phase in
-    which the point does not move (HOP_MIN_TRAVEL_M) is left out."""
+    positions point_xyz (N+1, 3) and `gap` (N+1,) [m], the distance of the robot's nearest contact point to its plane,
+    at the nodes; times are the node clocks. A step is in flight when beta > 0.5 and the point is off the plane at one
+    of its ends (ON_PLANE_M); a phase in which the point does not move (HOP_MIN_TRAVEL_M) is left out."""
     clock = traj.y[:, -1]
     # beta alone read a sliding stance (beta 0.82-0.92 with the point on the ground, 0.1 m of it) as the end of a hop,
     # and FESD's stance with beta 0.95 as its take-off
@@ -512,7 +512,8 @@ def hops_of(traj: Trajectory, flight, point_xyz, gap) -> list[Hop]:
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
         # impact element still reads as flight (beta = 1), so node k + 1 lies one element (26 ms) past it
-        # (the last impact of the phase: FESD's phase may start on the ground, with beta between 0.5 and 1, and hold a tap)
+        # (the last impact of the phase: FESD's phase may start on the ground, with beta between 0.5 and 1, and hold a
+        # tap)
         landing = max((i.time for i in traj.impacts if clock[a] < i.time <= end + LANDING_SLACK_S), default=end)
         hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(landing),
                         distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
@@ -633,8 +634,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     switch_at_start: the first frozen step of an interval starts at the impact (FESD puts the switch on
     an element boundary), so the impact's time, posture and pre-impact velocity are its start point;
     otherwise (implicit Euler) the landing happens inside that step and they are taken at its end, less the step's
-    auxiliary increment, unless landed[a] (K-1,) says the step starts with a contact point already on its plane and
-    moving into it (a landing that ended a whole flight step at a node) and the step ran the clock for part of its
+    auxiliary increment, unless landed[a, c] (K-1, n_contacts) says the step starts with contact c, the one taking the
+    step's largest normal impulse, already on its plane and moving into it (a landing that ended a whole flight step at
+    a node) and the step ran the clock for part of its
     length (not fully frozen): then the impact comes first, at the step's
     start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated at the
     step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
@@ -668,7 +670,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # (support over the running parts too), a velocity the plan never has (docs/validation.md, session 36)
         # an implicit-Euler landing at a node ran the clock after its impact already in step a (one that froze the
         # whole step is the same instant either way: dated as before, so the biped's plans keep their samples)
-        at_node = landed is not None and landed[a] and not switch_at_start and not fully[a]
+        # (the contact that takes the step's largest normal impulse: another foot's stance drift is no landing)
+        lander = int(np.argmax(np.abs(np.asarray(impulses)[a, :, 0]))) if len(contacts) else 0
+        at_node = landed is not None and bool(landed[a][lander]) and not switch_at_start and not fully[a]
         while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node) or fully[b]):
             b += 1
         if np.sum(dt_steps[a : b + 1] - advance[a : b + 1]) < min_frozen:

@@ -11,8 +11,9 @@ the solution:
   (mu = 0: no tangential impulse; TimeFreezingSystem.frictionless_tangential): with alpha* = 1/2 the
   Sec. 6 polynomials then reduce to the frictionless ones, so F and the state trajectories are the same.
 * never_touching: a contact with `touches = false` (docs/tasks.md) gets no time-freezing machinery
-  at all (no selectors, fields, multipliers, complementarity pairs, contact forces) and only the path
-  constraint gap >= 0 at every node (Problem.g_blocks["never_touching"]). Same solution whenever the
+  at all (no selectors, fields, multipliers, complementarity pairs, contact forces), only the path
+  constraint gap >= 0 at every node (Problem.g_blocks["never_touching"]) besides the holes' rows that every
+  contact point gets. Same solution whenever the
   point indeed never touches in the full problem's solution (the task's claim).
 * dropped_holes: a (contact point, hole) pair is dropped when the point provably cannot reach the
   ellipse's bounding box. The rule (conservative, no dynamics): from the root, slide joints with
@@ -51,7 +52,7 @@ class Skips:
 
     enabled: False when ProblemOptions.scene_analysis is off (then nothing is skipped).
     frictionless (n,): contact points (mu = 0, inelastic) without tangential machinery.
-    never_touching (n,): contact points with touches = false: no contact machinery, gap >= 0 only.
+    never_touching (n,): contact points with touches = false: no contact machinery, gap >= 0 (and the holes) only.
     dropped_holes (n,): (contact point, hole index into task.plan.holes) pairs left out.
     elastic_state (n,): contact points that get an elastic state p (empty: no p is built).
     reasons (n,): one human-readable line per decision.
@@ -78,7 +79,7 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
     if not enabled:
         return Skips(enabled=False, elastic_state=elastic, reasons=tuple(reasons + ["scene analysis off: everything is built"]))
     never = tuple(c.point for c in task.contacts if not c.touches)
-    reasons += [f"{p}: touches = false, no contact machinery, only gap >= 0" for p in never]
+    reasons += [f"{p}: touches = false, no contact machinery, only gap >= 0 (and the holes)" for p in never]
     touching = [c for c in task.contacts if c.touches]
     frictionless = tuple(c.point for c in touching if c.mu == 0 and c.restitution == 0)
     reasons += [f"{p}: mu = 0, no tangential switch, jump field or pairs" for p in frictionless]

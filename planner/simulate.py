@@ -31,8 +31,8 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible
 from .model import Robot
-from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory, forces_outside_cone,
-                     recover)
+from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory,
+                     forces_outside_cone, recover)
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -618,9 +618,9 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     W, U = Ws[:, -1], Us[:, -1]
     landed = None
     if not switch_at_start and n_c:  # a step that starts with a point on its plane moving into it: its impact first
-        landed = np.array([bool(np.any((np.asarray(system.gap_fn(Y[k], U[k]), float).ravel() <= ON_PLANE_M)
-                                       & (np.asarray(system.normal_velocity_fn(Y[k], U[k]), float).ravel() < -APPROACH_MPS)))
-                           for k in range(N)])
+        gaps = np.array([np.asarray(system.gap_fn(Y[k], U[k]), float).ravel() for k in range(N)])
+        approach = np.array([np.asarray(system.normal_velocity_fn(Y[k], U[k]), float).ravel() for k in range(N)])
+        landed = (gaps <= ON_PLANE_M) & (approach < -APPROACH_MPS)  # (N, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
                                   switch_at_start=switch_at_start, landed=landed)
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),

@@ -546,7 +546,7 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
     # `--html DIR/summary.json` replaced the result's own file, `--html robot.xml` the robot file the result reads
-    if html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm"):
+    if html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm") and not _is_page(html_path):
         raise InputError(f"--html {html_path} would overwrite a file that is not an HTML page; name an .html file")
     existing = next(p for p in html_path.absolute().parents if p.exists())  # the root always exists
     if not existing.is_dir():  # mkdir said "File exists" of the page
@@ -560,6 +560,13 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     except OSError as exc:
         raise InputError(f"cannot write {html_path}: {exc.strerror}") from None
     return html_path
+
+
+def _is_page(path: Path) -> bool:
+    """Whether the file at `path` is an HTML page (one render_html wrote without an .html suffix may be written
+    again)."""
+    with open(path, "rb") as f:
+        return f.read(15).lower() == b"<!doctype html>"
 
 
 def serve(out_dir, slow_motion: bool = False, zmq_url: str | None = None, *, block: bool = False,

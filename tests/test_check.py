@@ -141,7 +141,7 @@ URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolu
         (None, "robot file not found"),
         ('<sdf version="1.6"><model name="m"/></sdf>', "neither MJCF (<mujoco>) nor URDF (<robot>): root element <sdf>"),
         ("<mujoco><worldbody>", "malformed XML"),
-        (URDF_BROKEN, "does not contain a valid URDF model: Joint [j] is of type REVOLUTE but it does not specify limits"),
+        (URDF_BROKEN, "valid URDF model: Joint [j] is of type REVOLUTE but it does not specify limits"),
         ('<mujoco><worldbody><body><joint type="hinge"/><geom type="sphere" size="-1"/></body></worldbody></mujoco>', "Pinocchio cannot parse"),
     ],
     ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf"],

@@ -518,7 +518,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
     _one_line_exit_2(capsys, argv + ["--steps", "10"], "other NLP variables")
     (tmp_path / "slippery.toml").write_text(HOP_TOML.format(x=0.55).replace("mu = 0.5", "mu = 0.0"))
-    _one_line_exit_2(capsys, [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv],
+    slippery = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv]
+    _one_line_exit_2(capsys, slippery,
                      "contact 'point' has mu 0.5 there and 0 here: mu = 0 drops a contact's tangential variables")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
     # a failed plan's last iterate, and a plan of another robot file whose names match (another mass): accepted before
@@ -794,7 +795,8 @@ def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
 
 def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
     """What a robustness tester found (session 48), each now one line and exit 2 before any work: `view --html` onto a
-    file that is not an HTML page (the robot file the result reads was replaced) or below a file ("File exists");
+    file that is not an HTML page (the robot file the result reads was replaced; a page without the .html suffix is
+    written again) or below a file ("File exists");
     an --out whose summary.json is a directory (refused after the whole solve); a --solve field given twice (the last
     won); a file given as a result directory ("afile/trajectory.npz not found", "result directory not found")."""
     out = tmp_path / "drop"
@@ -804,6 +806,8 @@ def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
     _one_line_exit_2(capsys, ["view", str(out), "--html", str(robot)], "would overwrite a file that is not an HTML")
     assert robot.read_text() == "<mujoco/>"
     _one_line_exit_2(capsys, ["view", str(out), "--html", str(robot / "page.html")], "robot.xml is a file, not a")
+    for _ in range(2):  # a page written without an .html suffix is a page: written again
+        assert main(["view", str(out), "--html", str(tmp_path / "page"), "-q"]) == 0
     (tmp_path / "taken" / "summary.json").mkdir(parents=True)
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "taken")],
                      "summary.json is a directory, where the result's file goes")

@@ -214,8 +214,8 @@ def test_enum_fields_take_their_values():
     assert SimulateOptions(strategy="horizon").strategy is Strategy.HORIZON
     assert SimulateOptions(velocity_switch="collocated").velocity_switch is SwitchVelocity.COLLOCATED
     assert SolveOptions(variable_scaling=None).variable_scaling is None
-    with pytest.raises(InputError, match=r"ProblemOptions.velocity_switch = 'collocated' is not allowed; it must be one "
-                                         r"of \['point', 'secant'\]"):
+    with pytest.raises(InputError, match=r"ProblemOptions.velocity_switch = 'collocated' is not allowed; it must be "
+                                         r"one of \['point', 'secant'\]"):
         ProblemOptions(velocity_switch="collocated")  # planner simulate only
     with pytest.raises(InputError, match=r"SolveOptions.mu_strategy = None is not allowed"):
         SolveOptions(mu_strategy=None)

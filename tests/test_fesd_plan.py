@@ -120,7 +120,7 @@ def test_fesd_hop_converges(hop):
     assert res.stats.complementarity_residual <= COMP_TOL and res.terminal_error <= TERMINAL_TOL
     assert len(res.hops) == 1 and res.hops[0].distance == pytest.approx(0.5, abs=1e-6)
     landing = res.hops[0].landing_time  # the touchdown, not the end of the element after the frozen impact element
-    assert any(imp.time == landing for imp in res.trajectory.impacts), (landing, [i.time for i in res.trajectory.impacts])
+    assert any(imp.time == landing for imp in res.trajectory.impacts), [i.time for i in res.trajectory.impacts]
 
 
 def test_fesd_hop_impact_time_is_exact(hop):
@@ -220,10 +220,11 @@ def test_implicit_euler_plan_maps_onto_fesd():
         fesd_start_from_implicit_euler(build_problem(robot, hop_task(N=HOP_N + 1), fesd_options(2, 3)), euler, res.extra["_x"])
 
 
-@pytest.mark.parametrize("kwargs, key", [({"fesd_start": "euler"}, "fesd_start"), ({"fesd_rho_schedule": ()}, "fesd_rho_schedule"),
+@pytest.mark.parametrize("kwargs, key", [({"fesd_start": "euler"}, "fesd_start"),
+                                         ({"fesd_rho_schedule": ()}, "fesd_rho_schedule"),
                                          ({"fesd_rho_schedule": (1e4, -1.0)}, "fesd_rho_schedule")])
 def test_invalid_fesd_start_options_raise(kwargs, key):
-    """fesd_start must be one of the FESDStart Enum's values, fesd_rho_schedule a non-empty tuple of positive penalties."""
+    """fesd_start must be one of FESDStart's values, fesd_rho_schedule a non-empty tuple of positive penalties."""
     with pytest.raises(InputError, match=key):
         H.SolveOptions(**kwargs)
 

@@ -123,7 +123,8 @@ def test_a_list_for_a_tuple_field_is_stored_as_the_tuple():
     assert listed == tupled and hash(listed) == hash(tupled)
 
 
-@pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"), ({"mu_strategy": "fast"}, "mu_strategy"),
+@pytest.mark.parametrize("kwargs, key", [({"tol": 0}, "tol"), ({"max_iter": 0}, "max_iter"),
+                                         ({"mu_strategy": "fast"}, "mu_strategy"),
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
                                          ({"mumps_ordering": "amf2"}, "mumps_ordering"),

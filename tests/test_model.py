@@ -146,6 +146,19 @@ def test_the_files_limits_are_read_as_mujoco_reads_them(tmp_path):
         load_robot(_hopper(tmp_path, extra='<equality><joint joint1="hip" joint2="x"/></equality>'))
 
 
+def test_what_a_parser_prints_is_read_as_bytes():
+    """What Pinocchio's parsers print on descriptor 2 is kept for the error message (urdfdom's reason) and read with
+    undecodable bytes replaced: a Latin-1 joint name there made a valid file "unparsable" (UnicodeDecodeError)."""
+    import os
+
+    from planner.model import _quiet
+
+    printed = []
+    with _quiet(printed):
+        os.write(2, b"Warning: joint j\xe9 has no limits\n")
+    assert printed == ["Warning: joint j\ufffd has no limits\n"]
+
+
 def test_limits_of_joints_sharing_a_body_are_mujocos(tmp_path):
     """A planar base written as three joints of one body (Pinocchio merges them into one composite joint) gets MuJoCo's
     limits per joint, in the file's units: the slide "z" in metres though the compiler reads angles in degrees (it kept

@@ -188,7 +188,8 @@ def test_bad_inputs():
             ProblemOptions(switch_scale=bad)
     as_list = ProblemOptions(switch_scale=[("phi", 2)])  # stored as the tuple form: equal and hashable
     assert as_list == ProblemOptions(switch_scale=(("phi", 2.0),)) and hash(as_list) == hash(ProblemOptions(switch_scale=(("phi", 2.0),)))
-    with pytest.raises(InputError, match=r"ProblemOptions.penalty = 'l2' is not allowed; it must be one of \['linf', 'l1'\]"):
+    with pytest.raises(InputError, match=r"ProblemOptions.penalty = 'l2' is not allowed; it must be one of "
+                                         r"\['linf', 'l1'\]"):
         ProblemOptions(penalty="l2")
     with pytest.raises(InputError, match="ProblemOptions.clock_weight = 'x' is not allowed; it must be a finite number"):
         ProblemOptions(clock_weight="x")

@@ -895,7 +895,8 @@ def test_controller_option_is_an_enum():
     """The tracking controller is a TrackingController; its value is accepted, other names are not."""
     assert replay.ValidationOptions().controller is replay.TrackingController.JOINT_PD
     assert replay.ValidationOptions(controller="stance_retarget").controller is replay.TrackingController.STANCE_RETARGET
-    with pytest.raises(UnknownNameError, match="joint_pd, stance_retarget"):
+    with pytest.raises(InputError, match=r"controller = 'lqr' is not allowed; it must be one of "
+                                         r"\['joint_pd', 'stance_retarget'\]"):
         replay.ValidationOptions(controller="lqr")
 
 

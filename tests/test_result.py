@@ -110,7 +110,7 @@ def test_recover_splits_a_run_where_the_clock_ran_after_the_impact():
 
 
 def test_recover_dates_a_landing_at_a_node_there():
-    """The same four partly frozen steps, the first starting with the point on its plane moving into it (landed[1]: a
+    """The same four partly frozen steps, the first starting with the point on its plane moving into it (landed[1, 0]: a
     landing that ended a flight step at the node at t = 0.1): its impact is at that node, posture and pre-impact
     velocity (it was dated at the step's end, 0.14, one step late, with the stance's motion in v_pre), its
     post-impact velocity the step's end state, and the clock ran after it, so the next frozen step starts the next
@@ -121,7 +121,7 @@ def test_recover_dates_a_landing_at_a_node_there():
     y = np.column_stack([np.arange(8.0), v, clock])
     dv = np.array([[0.0], [1.5], [0.8], [0.9], [0.6], [0.0], [0.0]])
     imp = dv.reshape(7, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
-    landed = np.array([False, True, False, False, False, False, False])
+    landed = np.array([[False], [True], [False], [False], [False], [False], [False]])  # (steps, contacts)
     t, q, vs, _, impacts = recover(0.1 * np.arange(8), y, np.zeros((7, 1)), np.full(7, 0.1), dv, imp, 1, 1, ("foot",),
                                    landed=landed)
     assert [im.time for im in impacts] == pytest.approx([0.1, 0.19, 0.32], abs=EXACT)
@@ -492,7 +492,8 @@ def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_p
 def test_a_result_is_frozen_through_its_arrays(tmp_path):
     """A Trajectory's and an Impact's arrays are read-only (writing raises ValueError), so a result cannot be changed
     in place (`trajectory.t[0] = 123` changed physical_duration): not after `flags.writeable = True`, nor in a pickled
-    or deep-copied result (they came back writable, a cached `taps` too); the arrays the caller built stay writable and are not shared."""
+    or deep-copied result (they came back writable, a cached `taps` too); the
+    arrays the caller built stay writable and are not shared."""
     robot = load_robot("point_mass")
     result = simulate(robot, load_task(default_task_path(robot.path)))
     result.trajectory.taps  # cached before the copies: they restored it writable, and the summary reads it
