@@ -28,7 +28,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import InputError, plain, shown
+from .errors import InputError, killed_with_parent, plain, shown
 
 CRASHED = "crashed"
 DEFAULT_STAGE = "task"  # the stage of a crash outside any `with stage(...)` block
@@ -152,7 +152,8 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (IPOPT, MuJoCo, BLAS)
     results: list[Any] = [None] * len(items)
     lost: list[int] = []
-    with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+    # (a stopped sweep's workers solved on with no parent: stress's Capler tasks take up to ~1900 s)
+    with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=killed_with_parent) as pool:
         futures = {pool.submit(_call, ref, item): i for i, item in enumerate(items)}
         for fut in as_completed(futures):
             i = futures[fut]
@@ -166,7 +167,7 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
             if progress:
                 progress(i, results[i])
     for i in sorted(lost):  # each in its own process, so the one that kills its worker is the one reported
-        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=killed_with_parent) as pool:
             try:
                 results[i] = pool.submit(_call, ref, items[i]).result()
             except BrokenProcessPool as exc:

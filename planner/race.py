@@ -25,7 +25,7 @@ import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, PlannerError, SolveError, expect
+from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent
 from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
@@ -189,11 +189,4 @@ def _die_with_parent() -> None:
     """The arm never outlives the race: Ctrl-C is the parent's to handle (it kills the arms), and on Linux the
     arm gets SIGKILL if the parent dies (prctl PR_SET_PDEATHSIG) instead of solving on for minutes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # not Linux: the parent's finally still kills the arms on any exception
-        pass
-    if os.getppid() == 1:  # the parent died before prctl took effect
-        os._exit(1)
+    killed_with_parent()  # (not Linux: the parent's finally still kills the arms on any exception)

@@ -44,7 +44,7 @@ import numpy as np
 from planner.errors import InputError, interruptible
 from planner.result import write_atomically
 from planner.task import Ellipse  # the task's hole: ((x - x_c)/a)^2 + ((z - z_c)/b)^2 >= 1
-from scripts._report import machine_info, out_dir, run_info, run_main, script_parser, utc_now
+from scripts._report import machine_info, out_dir, positive_float, run_info, run_main, script_parser, utc_now
 
 DEFAULT_OUT = Path("results/bench/nosnoc")
 TASK_FILE = Path(__file__).resolve().parents[1] / "robots" / "capler.toml"
@@ -489,7 +489,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "default both; none: with --planner, the planner only (no nosnoc needed)")
     parser.add_argument("--n-fe", type=int, default=1, help="nosnoc finite elements per control stage (default 1)")
     parser.add_argument("--n-s", type=int, default=1, help="nosnoc Radau IIA stages (default 1: implicit Euler)")
-    parser.add_argument("--a-t", type=float, default=None,
+    parser.add_argument("--a-t", type=positive_float, default=None,
                         help="tangential gain of nosnoc's impact fields (default mu * a_n, the example's; the task says 600)")
     parser.add_argument("--append", action="store_true",
                         help="keep the records of OUT/results.json that this run does not redo (run the variants one at a time)")

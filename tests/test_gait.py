@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -353,6 +354,20 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
         assert abs(report.impact_times[0] - sol.t[-1]) < 0.02
         assert report.max_hinge_error < WALK_ANGLE_TOL and report.max_torso_error < WALK_ANGLE_TOL
         assert report.max_torque < WALK_TORQUE_MARGIN * np.max(np.abs(sol.u))
+
+
+def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
+    """The gait model walks on z = 0 with the period horizon.tau_f: a ground_height, a tilted contact normal or a
+    horizon.physical_time are refused before the solve, named (they were ignored: a ground at 0.3 m planned the
+    same gait, and MuJoCo's replay on the moved ground fell after one step)."""
+    task = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    tilted = dataclasses.replace(task.contacts[0], normal=(0.1, 0.0, 0.995))
+    for changed, said in ((dataclasses.replace(task, ground_height=0.3), "ground_height = 0.3"),
+                          (dataclasses.replace(task, contacts=(tilted, *task.contacts[1:])), "contacts[0].normal"),
+                          (dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=1.0)),
+                           "horizon.physical_time = 1")):
+        with pytest.raises(TaskError, match=rf"{re.escape(said)}.* would be ignored by `planner gait`"):
+            GaitSpec.from_task(changed)
 
 
 def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():

@@ -73,14 +73,20 @@ def test_work_precision_quick_run(bench, tmp_path, capsys):
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+# MuJoCo's landing within this share of a step of the plan's, in the windows: 0.01-0.02 h measured, so a landing dated
+# one step late (0.39 h before session 48) fails
+WINDOW_LANDING_SHARE = 0.1
+
+
 def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
     """--suite ocp --quick --json: the point-mass hop planned at N = 20 and 40 (no Capler), one record
     per N with wall time, IPOPT iterations, convergence, hops and impacts, and finite errors: the
     re-simulation defect, MuJoCo tracking, penetration, terminal error and the exact flight. The
-    landing time error against the exact flight falls from N = 20 to 40 (measured 2.4e-2 and 1.0e-2 s:
+    landing time error against the exact flight falls from N = 20 to 40 (measured 2.2e-2 and 1.15e-2 s:
     different local optima, one and two hops, but both land with implicit Euler's O(h) error). Every
-    planned impact is a landing for MuJoCo started 25-50 ms before it, within one step h of the plan
-    (measured 0.39 h and 0.13 h)."""
+    planned impact is a landing for MuJoCo started 25-50 ms before it, within WINDOW_LANDING_SHARE of a step of the
+    plan (measured 0.49 and 0.51 ms, 0.01 h and 0.02 h, since session 48 dates a landing at a node there; 0.39 h and
+    0.13 h before, one step late)."""
     assert bench.main(["--suite", "ocp", "--quick", "--json", "--out", str(tmp_path)]) == 0
     summary = json.loads(capsys.readouterr().out)
     results = json.loads((tmp_path / "results.json").read_text())
@@ -95,7 +101,8 @@ def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
         for key in ("defect_base_m", "tracking_error_m", "tracking_window_mean_m", "penetration_m", "terminal_error", "flight_error_m", "landing_time_error_s"):
             assert r["errors"][key] is not None and math.isfinite(r["errors"][key]), (key, r["N"])
         assert r["defect"]["windows"] >= 5 and r["defect"]["failed_windows"] == []
-        assert r["window_impacts_landed"] == [r["n_impacts"], r["n_impacts"]] and r["errors"]["window_impact_time_error_s"] <= r["h"]
+        assert r["window_impacts_landed"] == [r["n_impacts"], r["n_impacts"]]
+        assert r["errors"]["window_impact_time_error_s"] <= WINDOW_LANDING_SHARE * r["h"]
     assert records[1]["errors"]["landing_time_error_s"] < records[0]["errors"]["landing_time_error_s"]
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
