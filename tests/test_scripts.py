@@ -930,10 +930,32 @@ def test_a_scripts_bad_input_is_one_line_and_exit_2(tmp_path):
     assert proc.returncode == 2 and proc.stderr.strip().startswith("probe_impacts: error: ")
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
     for script in sorted(SCRIPTS.glob("*.py")):
-        if script.name != "_report.py":
+        if script.name not in ("_report.py", "__init__.py"):
             text = script.read_text()
             assert "sys.exit(run_main(main))" in text.split('if __name__ == "__main__":')[-1], script.name
             assert "script_parser(__doc__" in text and "ArgumentParser(" not in text, script.name
+
+
+IMPORT_ORDER = """
+import sys
+order = []
+class Recorder:
+    def find_spec(self, name, path=None, target=None):
+        order.append(name)
+sys.meta_path.insert(0, Recorder())
+import scripts.{name}
+print("numpy" in order, all(order.index("planner") < order.index(m) for m in ("numpy", "casadi") if m in order))
+"""
+
+
+@pytest.mark.parametrize("name", ["bench_skips", "stress", "bench_work_precision"])
+def test_a_script_imports_planner_before_numpy_and_casadi(name):
+    """planner fixes OpenBLAS's threads and kernels, which numpy and CasADi read when they load: a script run as
+    `python -m scripts.NAME` imports planner first (scripts/__init__.py), where it imported numpy first and took
+    another homotopy path on an AVX-512 machine (bench_skips' never-touching case: 1688 iterations, not 1404)."""
+    proc = subprocess.run([sys.executable, "-c", IMPORT_ORDER.format(name=name)], cwd=SCRIPTS.parent,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.split() == ["True", "True"], proc.stderr
 
 
 def test_a_scripts_usage_error_is_one_line_and_exit_2():
