@@ -257,13 +257,14 @@ class GaitSpec(ArraysReadOnly):
             raise TaskError(f"{task.source or 'the task'} has no [gait] table; `planner gait` needs one (docs/tasks.md)")
         # the gait model stands on z = 0 with the period tau_f: these were ignored (a ground at 0.3 m planned the same
         # gait, then MuJoCo's replay on the moved ground "fell" after one step)
-        ignored = ([f"ground_height = {task.ground_height:g}"] if task.ground_height != 0 else []) + [
-            f"contacts[{i}].normal = {list(c.normal)}" for i, c in enumerate(task.contacts) if c.normal != (0.0, 0.0, 1.0)]
+        ignored = [f"ground_height = {task.ground_height:g}"] if task.ground_height != 0 else []
+        ignored += [f"contacts[{i}].normal = {list(c.normal)}" for i, c in enumerate(task.contacts)
+                    if c.normal != (0.0, 0.0, 1.0)]
         if task.horizon.physical_time is not None:
             ignored.append(f"horizon.physical_time = {task.horizon.physical_time:g}")
         if ignored:
-            raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, whose "
-                            "model walks on the ground z = 0 with the period horizon.tau_f; remove them")
+            raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
+                            "whose model walks on the ground z = 0 with the period horizon.tau_f; remove them")
         return cls(T=task.horizon.tau_f, N=task.horizon.N if N is None else N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
                    Q=np.array(g.q_weights, float), R=np.array(g.r_weights, float),
                    desired_input=DesiredInput(g.desired_input), continuation=g.continuation, pronto=g.pronto)
