@@ -418,8 +418,10 @@ def solve_fields_from_json(text: str) -> dict:
     """The SolveOptions fields of a JSON object (for solve_options_from_dict), e.g. '{"rho_f_schedule": [10]}'; text
     that is not JSON or not an object is an InputError."""
     expect(text, str, "solve_fields_from_json's text")
+
     def once(pairs):  # '{"rho_min": 1, "rho_min": 2}' kept the last silently
-        repeated = sorted({k for i, (k, _) in enumerate(pairs) if k in dict(pairs[:i])})
+        keys = [k for k, _ in pairs]
+        repeated = sorted({k for k in keys if keys.count(k) > 1})
         if repeated:
             raise InputError(f"{text!r:.80} gives {', '.join(repeated)} more than once; give each field once")
         return dict(pairs)

@@ -242,8 +242,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
                 "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else "")
-        said = [ln for ln in dict.fromkeys(ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines()
-                                           if "Error:" in ln) if ln]
+        errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
+        said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
