@@ -634,10 +634,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     otherwise (implicit Euler) the landing happens inside that step and they are taken at its end, less the step's
     auxiliary increment, unless landed[a, c] (K-1, n_contacts) says the step starts with contact c, the one taking the
     step's largest normal impulse, already on its plane and moving into it (a landing that ended a whole flight step at
-    a node) and the step ran the clock for part of its
-    length (not fully frozen): then the impact comes first, at the step's
-    start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated at the
-    step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
+    a node) and the step ran the clock for part of its length (not fully frozen): then the impact comes first, at the
+    step's start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated
+    at the step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
     its pre-impact velocity.
     Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
     """
@@ -686,9 +685,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             # the run's end state: v_pre plus the auxiliary increments when every element stopped the clock, and
             # also right where the last element ran it for part of its length (a stance whose auxiliary field
             # carries part of the weight at 95 % clock: its increment, support included, read +0.94 m/s upward
-            # for a point mass at rest). An implicit-Euler landing at a node: v_pre plus the increment is no state
-            # of the plan (it lumps the step's push-off, and MuJoCo's windows from it tracked Capler's 1.175 s
-            # twice as far off: 103 mm against 47)
+            # for a point mass at rest). An implicit-Euler landing at a node: likewise the step's end state, since
+            # v_pre plus the step's increment is no state of the plan (it lumps the push-off the step runs after it)
             v_post = y[b + 1, nq : nq + nv]
         else:
             t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
