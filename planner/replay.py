@@ -23,11 +23,13 @@ Units: SI throughout (m, s, rad, N, N m). Arrays follow the result contract of .
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import math
 import os
 import time as _time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
@@ -1083,22 +1085,38 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                    ctrl=np.zeros((steps, model.nu)), diverged=False)
     dist = np.zeros((steps + 1, C))
     lower, upper = scene.ctrl_lower, scene.ctrl_upper
-    for k in range(steps + 1):
-        rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
-        if k < steps:
-            u = command(k, data)
-            rec.ctrl[k] = u
-            data.ctrl[:] = np.minimum(np.maximum(u, lower), upper)  # np.clip, at half its call cost
-            mujoco.mj_step(model, data)
-        else:
-            mujoco.mj_forward(model, data)
-        rec.base[k] = _base_position(scene, data)
-        rec.sites[k] = data.site_xpos[site_ids]
-        dist[k], rec.active[k] = scene.contact_state(data)
+    with _mujoco_warnings_held():
+        for k in range(steps + 1):
+            rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
+            if k < steps:
+                u = command(k, data)
+                rec.ctrl[k] = u
+                data.ctrl[:] = np.minimum(np.maximum(u, lower), upper)  # np.clip, at half its call cost
+                mujoco.mj_step(model, data)
+            else:
+                mujoco.mj_forward(model, data)
+            rec.base[k] = _base_position(scene, data)
+            rec.sites[k] = data.site_xpos[site_ids]
+            dist[k], rec.active[k] = scene.contact_state(data)
     rec.touching0 = np.isfinite(dist[0])  # detected: within the pair's gap of the ground
     rec.depth[:] = np.maximum(-np.where(np.isfinite(dist), dist, 0.0), 0.0)
     rec.diverged = any(data.warning[w].number > 0 for w in _BAD_STATE_WARNINGS)
+    for w in range(mujoco.mjtWarning.mjNWARNING):  # the bad states are the report's `diverged`; the rest said once
+        if w not in _BAD_STATE_WARNINGS and data.warning[w].number > 0:
+            warnings.warn(f"MuJoCo: {mujoco.mju_warningText(w, data.warning[w].lastinfo)}", stacklevel=2)
     return rec
+
+
+@contextlib.contextmanager
+def _mujoco_warnings_held():
+    """MuJoCo's own handler prints its warnings to stderr, through `-q`, and appends them to MUJOCO_LOG.TXT in the
+    caller's working directory; the rollout reads them from data.warning instead. The previous handler is restored."""
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda message: None)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
 
 
 def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned: list[tuple[str, float, bool]],

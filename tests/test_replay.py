@@ -13,6 +13,7 @@ import re
 import shutil
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -306,6 +307,20 @@ def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
             replay.mujoco_rollout(scene, q0, v0, 0.01)
     with pytest.raises(InputError, match=r"control\(t, q, v\) must return nu = 2 numbers, got shape \(\)"):
         replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, lambda t, q, v: 5.0)
+
+
+def test_a_diverging_rollout_is_flagged_not_printed(point_mass, tmp_path, monkeypatch, capfd):
+    """A rollout that MuJoCo resets (a 1e20 m/s start) is reported as diverged, while MuJoCo's own warning handler, which
+    prints through `-q` and appends to MUJOCO_LOG.TXT in the working directory, stays silent; its previous handler
+    (the caller's) is restored afterwards."""
+    monkeypatch.chdir(tmp_path)
+    scene = replay.build_scene(point_mass, _task("point"))
+    run = replay._simulate(scene, np.array([0.0, 1.0]), np.array([1e20, 0.0]), 5, 0.0,
+                           lambda k, data: np.zeros(scene.model.nu))
+    assert run.diverged
+    assert capfd.readouterr().err == ""
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert mujoco.get_mju_user_warning() is None
 
 
 def test_shifted_base_fails(ground_truth, capler):
