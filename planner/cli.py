@@ -451,6 +451,8 @@ def _discretization(args, elements: int):
                                       ("--fesd-start", getattr(args, "fesd_start", None))) if value is not None]
     if given and discretization is not Discretization.FESD:
         raise InputError(f"{' and '.join(given)} set{'s' if len(given) == 1 else ''} the FESD discretization; add --discretization fesd")
+    if discretization is not Discretization.FESD:
+        return discretization, FESDOptions()
     n_s = FESDOptions().n_s if args.stages is None else args.stages
     with _said_of("--stages/--elements"):
         return discretization, FESDOptions(n_s=n_s, n_fe=elements if args.elements is None else args.elements)

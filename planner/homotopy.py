@@ -933,12 +933,12 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
     options.fesd_rho_schedule with the holes and the hard terminal enforced from the first NLP on (the
     start already keeps them), then polish. Returns the FESD PlanResult; its NLP records start with the
     implicit-Euler ones (labelled "implicit Euler: ..."), and iterations and solve time count both."""
-    from .discretization import Discretization
+    from .discretization import Discretization, FESDOptions
     from .problem import build_problem, fesd_start_from_implicit_euler
 
     start = time.perf_counter()
-    euler = build_problem(problem.robot, problem.task, replace(problem.options, discretization=Discretization.IMPLICIT_EULER),
-                          dynamics=problem.system.dyn)
+    euler_options = replace(problem.options, discretization=Discretization.IMPLICIT_EULER, fesd=FESDOptions())
+    euler = build_problem(problem.robot, problem.task, euler_options, dynamics=problem.system.dyn)
 
     def euler_progress(rec):
         if progress:

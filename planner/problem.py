@@ -141,7 +141,7 @@ class ProblemOptions:
       "FESD in the OCP". Needs clock_weight = 0 (InputError otherwise). With gating, a cross pair
       is gated (and reported) with the gate of its selector's stage: a selector switched off by the
       gates may change sign inside an element (e.g. alpha, n^T v, at a flight's apex).
-    fesd: FESDOptions (n_s, n_fe, rho_h) of the FESD stages; ignored with IMPLICIT_EULER.
+    fesd: FESDOptions (n_s, n_fe, rho_h) of the FESD stages; only the default with IMPLICIT_EULER.
     lift_products: ImplicitEulerStep's lift_products: True (default) makes the products of selectors
       variables with bilinear lifting rows and bounds (the paper's Sec. 5.1); False substitutes them
       (Capler: 4 variables and rows fewer per step, IPOPT iterations ~12 % cheaper, but over the
@@ -172,6 +172,9 @@ class ProblemOptions:
         enum_field(self, "discretization", Discretization)
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"ProblemOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions(n_s, n_fe, rho_h)")
+        if self.discretization is not Discretization.FESD and self.fesd != FESDOptions():
+            raise InputError(f"ProblemOptions.fesd = {self.fesd!r} sets the FESD discretization, which "
+                             f"discretization = {self.discretization.value} would ignore; add discretization=Discretization.FESD")
         if self.discretization is Discretization.FESD:
             if self.clock_weight != 0:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")

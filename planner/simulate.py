@@ -85,7 +85,7 @@ class SimulateOptions:
     restarts: bool = True
     restart_rho0: float = 1e4  # holds an exact solution whose switching functions are >= 2 rho_f / 1e4 away from 0
     discretization: Discretization = Discretization.IMPLICIT_EULER
-    fesd: FESDOptions = FESDOptions()  # used when discretization is FESD
+    fesd: FESDOptions = FESDOptions()  # FESD's; only the default with implicit Euler
     velocity_switch: SwitchVelocity | None = None
 
     def __post_init__(self):
@@ -94,6 +94,9 @@ class SimulateOptions:
         enum_field(self, "discretization", Discretization)
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"SimulateOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
+        if self.discretization is not Discretization.FESD and self.fesd != FESDOptions():
+            raise InputError(f"SimulateOptions.fesd = {self.fesd!r} sets the FESD discretization, which "
+                             f"discretization = {self.discretization.value} would ignore; add discretization=Discretization.FESD")
         enum_field(self, "velocity_switch", SwitchVelocity, optional=True)
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")

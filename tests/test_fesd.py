@@ -330,3 +330,17 @@ def test_a_number_of_elements_beyond_a_thousand_is_refused():
     with pytest.raises(InputError, match=r"^FESDOptions\.n_fe = 10000000 is not allowed; it must be in \[1, 1000\]"):
         FESDOptions(n_fe=10**7)
     assert FESDOptions(n_fe=1000).n_fe == 1000
+
+
+def test_fesd_settings_under_implicit_euler_are_refused():
+    """SimulateOptions and ProblemOptions refuse FESD settings (n_s, n_fe, rho_h) other than the default when the
+    discretization is implicit Euler, which would ignore them (the CLI already refused --stages without
+    --discretization fesd); the default FESDOptions and any FESD settings under FESD are accepted."""
+    from planner.problem import ProblemOptions
+
+    for options in (SimulateOptions, ProblemOptions):
+        with pytest.raises(InputError, match=rf"^{options.__name__}\.fesd = FESDOptions\(n_s=1, n_fe=2, rho_h=1.0\) "
+                                             r"sets the FESD discretization, .*implicit_euler would ignore"):
+            options(fesd=FESDOptions(n_s=1))
+        assert options(fesd=FESDOptions()).discretization is Discretization.IMPLICIT_EULER
+        assert options(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1)).fesd.n_s == 1
