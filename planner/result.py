@@ -702,7 +702,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
                                   impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
                                   v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
-        for vel in (v_pre, v_post):
+        # a landing at a node: that node's sample is already the pre-impact one (an impact is two samples at one time)
+        repeated = at_node and ts[-1] == t_imp and np.array_equal(qs[-1], q_imp) and np.array_equal(vs[-1], v_pre)
+        for vel in (v_pre, v_post)[int(repeated):]:
             ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
         if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock
             ts.append(clock[b + 1]); qs.append(y[b + 1, :nq]); vs.append(y[b + 1, nq : nq + nv]); us.append(u_steps[b])
