@@ -290,6 +290,13 @@ class Scene:
         return {int(g): c for c, g in enumerate(self.geom_ids)}
 
 
+def _expect_inputs(robot, task, call: str) -> None:
+    """InputError naming the argument when a call is given a path or a name for the Robot or the Task (load_robot,
+    load_task read them), not an AttributeError from inside."""
+    expect(robot, Robot, f"{call}'s robot (planner.model.load_robot)")
+    expect(task, Task, f"{call}'s task (planner.task.load_task)")
+
+
 def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = None,
                 detect_within_m: float = CONTACT_GAP_TOL_M) -> Scene:
     """Compile the robot file with MuJoCo and give it the validation's contact model.
@@ -310,6 +317,8 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     joint as the planner reads them, and model.MASSLESS_LINK_KG on a moving link without mass.
     Raises InputError for an unknown site (link), a free/ball joint or a tilted ground.
     """
+    _expect_inputs(robot, task, "build_scene")
+    expect(settings, (ContactSettings, type(None)), "build_scene's settings")
     settings = settings or ContactSettings()
     spec = mujoco_spec(robot, [c.point for c in task.contacts])
     try:
@@ -710,7 +719,10 @@ def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: Val
     """validate_trajectory of a solved plan's Trajectory, in memory: its physical-time samples, and its impacts'
     contact points and taps as `validate(DIR)` reads them from summary.json. dynamics: the trajectory is the planner's
     implicit-Euler steps, so its own flight dynamics are checked (validate(DIR) reads that from summary.json)."""
+    _expect_inputs(robot, task, "validate_plan")
     expect(trajectory, Trajectory, "validate_plan's trajectory (PlanResult.trajectory; arrays: validate_trajectory)")
+    expect(options, (ValidationOptions, type(None)), "validate_plan's options")
+    expect(dynamics, bool, "validate_plan's dynamics")
     arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
     return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
                                impact_taps=trajectory.taps, dynamics=dynamics)
@@ -732,6 +744,10 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     (Trajectory.taps), listed but not matched against the whole replay's MuJoCo impacts (the windows match them
     too); None: none.
     """
+    _expect_inputs(robot, task, "validate_trajectory")
+    expect(options, (ValidationOptions, type(None)), "validate_trajectory's options")
+    for flag, name in ((holes, "holes"), (dynamics, "dynamics")):
+        expect(flag, bool, f"validate_trajectory's {name}")
     options = options or ValidationOptions()
     scene = build_scene(robot, task, options.contact, detect_within_m=options.contact_gap_tol_m)
     task.check_against(robot)
@@ -793,6 +809,7 @@ def write_validation(out_dir: str | Path, validation: Validation, result_id=_UNC
     `result_id` (None for a result written without one) when the validation started; if another run has written
     out_dir since, the verdict is of the earlier result and is not stored (InputError). Not given: not checked.
     """
+    expect(validation, Validation, "write_validation's validation")
     path = Path(out_dir) / "summary.json"
     with directory_lock(Path(out_dir)):  # no other result may land between the read and the write
         summary = read_summary(Path(out_dir), require=())

@@ -1092,3 +1092,25 @@ def test_a_fixed_base_robot_is_tracked_at_its_contact_point(point_mass, capler, 
         scene = replay.build_scene(robot, task)
         assert scene.base_site is None, scene.base_name
     assert replay.validate_trajectory(point_mass, _task("point", q0=(0.0, 0.0)), _held(point_mass, (0.0, 0.0))).tracked == "base"
+
+
+def test_the_in_memory_validation_api_names_a_wrong_argument(point_mass, tmp_path):
+    """build_scene, validate_plan, validate_trajectory and write_validation given a robot's name, a task's path, a dict
+    of options or a ContactSettings where ValidationOptions go raise InputError naming the argument (each was an
+    AttributeError from inside: 'str' object has no attribute 'path')."""
+    task = _task("point")
+    traj = {"t": np.zeros(2), "q": np.zeros((2, 2)), "v": np.zeros((2, 2)), "u": np.zeros((2, 2)), "impact_times": []}
+    calls = [(lambda: replay.build_scene("point_mass", task), r"build_scene's robot .*must be a Robot, got str"),
+             (lambda: replay.build_scene(point_mass, "robots/point_mass.toml"), r"build_scene's task .*must be a Task"),
+             (lambda: replay.build_scene(point_mass, task, "x"), r"build_scene's settings must be a ContactSettings"),
+             (lambda: replay.validate_trajectory(point_mass, task, traj, {"window_s": 0.2}),
+              r"validate_trajectory's options must be a ValidationOptions or None, got dict"),
+             (lambda: replay.validate_trajectory(point_mass, task, traj, replay.ContactSettings()),
+              r"validate_trajectory's options must be a ValidationOptions"),
+             (lambda: replay.validate_trajectory(point_mass, task, traj, dynamics="yes"),
+              r"validate_trajectory's dynamics must be a bool"),
+             (lambda: replay.validate_plan(point_mass, task, traj), r"validate_plan's trajectory"),
+             (lambda: replay.write_validation(tmp_path, "x"), r"write_validation's validation must be a Validation")]
+    for call, message in calls:
+        with pytest.raises(InputError, match=message):
+            call()
