@@ -351,7 +351,8 @@ class SolveOptions:
             enum_field(self, key, enum, optional=key == "variable_scaling")
         checks = [
             (self.tol > 0, "tol", self.tol, "> 0"),
-            (self.acceptable_tol > 0, "acceptable_tol", self.acceptable_tol, "> 0"),
+            # (IPOPT would get tol: acceptable_tol below it stops nothing sooner)
+            (self.acceptable_tol >= self.tol, "acceptable_tol", self.acceptable_tol, f">= tol = {self.tol!r}"),
             (self.max_iter >= 1, "max_iter", self.max_iter, ">= 1"),
             (self.schedule_max_iter >= 1, "schedule_max_iter", self.schedule_max_iter, ">= 1"),
             (self.polish_starts >= 1, "polish_starts", self.polish_starts, ">= 1"),

@@ -74,7 +74,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect
+from .errors import InputError, check_field_types, enum_field, expect, plain
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -188,7 +188,7 @@ class ProblemOptions:
         entries = self.switch_scale if isinstance(self.switch_scale, (tuple, list)) else None
         for entry in entries if entries is not None else (self.switch_scale,):
             ok = isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[0], str)
-            scale = entry[1] if ok else None
+            scale = plain(entry[1]) if ok else None
             if not (ok and isinstance(scale, (int, float)) and not isinstance(scale, bool) and 0 < scale < float("inf")):
                 raise InputError(f"ProblemOptions.switch_scale entry {entry!r} is not allowed; it must be a pair (function name, "
                                  "finite scale > 0), e.g. (('phi', 100.0),)")

@@ -251,6 +251,14 @@ def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
         H.solve(prob, H.SolveOptions(linear_solver="ma27"))
 
 
+def test_acceptable_tol_below_tol_is_refused():
+    """SolveOptions.acceptable_tol below tol is an InputError naming both: IPOPT was given tol instead, while the
+    result's options recorded the value asked for. Equal to tol is allowed."""
+    with pytest.raises(InputError, match=r"^SolveOptions\.acceptable_tol = 1e-10 is not allowed; it must be >= tol = 1e-08"):
+        H.SolveOptions(acceptable_tol=1e-10)
+    assert H.SolveOptions(tol=1e-6, acceptable_tol=1e-6).acceptable_tol == 1e-6
+
+
 @pytest.mark.parametrize("kwargs, fragment", [
     ({"ipopt": {"no_such_option": 1}}, "No such IPOPT option: no_such_option"),
     ({"ipopt": {"alpha_for_y": "sideways"}}, "Valid: primal, bound-mult, min"),

@@ -186,6 +186,8 @@ def test_bad_inputs():
                 (("phi", True),), (("phi", 1.0), ("phi", 2.0))):
         with pytest.raises(InputError, match="ProblemOptions.switch_scale"):
             ProblemOptions(switch_scale=bad)
+    for scale in (np.int64(2), np.float32(2.0)):  # a notebook's numbers (refused as "not a finite scale > 0")
+        assert ProblemOptions(switch_scale=(("phi", scale),)).switch_scale == (("phi", 2.0),)
     as_list = ProblemOptions(switch_scale=[("phi", 2)])  # stored as the tuple form: equal and hashable
     assert as_list == ProblemOptions(switch_scale=(("phi", 2.0),)) and hash(as_list) == hash(ProblemOptions(switch_scale=(("phi", 2.0),)))
     with pytest.raises(InputError, match=r"ProblemOptions.penalty = 'l2' is not allowed; it must be one of "
