@@ -292,7 +292,13 @@ def _failure(summary: dict) -> str:
     return ""
 
 
-def _emit(args, summary: dict, text: str) -> None:
+def _emit(args, summary: dict, text: str, written: Path | None = None) -> None:
+    """Print the summary (--json) or the text (unless -q). written: the directory the summary went to, whose
+    result_id the printed summary gets too (--json printed summary.json without it)."""
+    if written is not None:
+        from .result import read_summary
+
+        summary = {**summary, "result_id": read_summary(written, require=()).get("result_id")}
     args.summary = summary  # the -q failure line reads it
     if args.json:
         print(json.dumps(summary), file=args.stdout)
@@ -467,7 +473,7 @@ def _cmd_simulate(args) -> int:
     result = simulate(robot, task, options)
     target, _ = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
-    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}")
+    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", written=target)
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
@@ -605,7 +611,7 @@ def _cmd_plan(args) -> int:
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
     plots_drawn()
-    _emit(args, summary, text)
+    _emit(args, summary, text, written=target)
     return EXIT_OK if ok else EXIT_FAILED
 
 
@@ -691,7 +697,7 @@ def _cmd_gait(args) -> int:
     valid = walked and not result.summary.get("contact_violations")
     verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
                else "converged, but the gait violates its contacts") if converged else "FAILED"
-    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}")
+    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}", written=target)
     return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 
 

@@ -116,11 +116,13 @@ def _one_line_exit_2(capsys, argv, fragment):
 
 
 def test_simulate_writes_the_contract(tmp_path, capsys):
-    """`simulate --json` exits 0, prints the summary and writes trajectory.npz, summary.json and plots."""
+    """`simulate --json` exits 0, prints the summary and writes trajectory.npz, summary.json and plots; the printed
+    summary is summary.json's, result_id included (it was missing: the id is made when the files are written)."""
     out = tmp_path / "out"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["command"] == "simulate" and summary["converged"]
+    assert summary == json.loads((out / "summary.json").read_text()) and len(summary["result_id"]) == 32
     assert {"trajectory.npz", "summary.json", "clock.png"} <= {p.name for p in out.iterdir()}
 
 
@@ -233,6 +235,7 @@ def test_plan_draws_its_plots_while_it_validates(tmp_path, capsys):
     code = main(["plan", "point_mass", "--task", str(task), "--out", str(out), "--json", "--no-race"])
     summary = json.loads(capsys.readouterr().out)
     assert code in (0, 1) and summary["converged"] and "validation" in summary
+    assert summary == json.loads((out / "summary.json").read_text())  # the validation and the result_id too
     again = tmp_path / "again"
     again.mkdir()
     for name in ("trajectory.npz", "summary.json"):
