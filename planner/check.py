@@ -22,7 +22,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, shown
-from .model import Robot, mujoco_failure, mujoco_spec, planar_hint
+from .model import Robot, mujoco_failure, mujoco_spec, order_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -124,7 +124,8 @@ class ModelCheck:
                                                             ("sites", self.mujoco.max_err_sites), ("passive", self.mujoco.max_err_passive)))
             if self.mujoco.missing_sites:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
-                           "(Pinocchio's MJCF parser skips a site inside a <frame>)")
+                           "(Pinocchio's MJCF parser skips a site inside a <frame>, and every body of <worldbody> "
+                           "after the first)")
             if self.mujoco.differences:
                 mujoco += f"; MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}"
         else:
@@ -273,9 +274,10 @@ def _compile(robot: Robot):
         return None, UNREADABLE, mujoco_failure(robot.path, exc)
     if other:  # before the names: a free joint is one MuJoCo joint and six named degrees of freedom (root_0 ...)
         return None, SKIPPED, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
-    if tuple(j.name for j in spec.joints) != robot.dof_names:  # a URDF planar joint: MuJoCo's three, Pinocchio's one
-        return None, DIFFERENT, (f"MuJoCo orders the joints {tuple(j.name for j in spec.joints)}, Pinocchio "
-                                 f"{robot.dof_names}{planar_hint(robot)}")
+    names = tuple(j.name for j in spec.joints)
+    if names != robot.dof_names:  # a URDF planar joint (MuJoCo's three, Pinocchio's one), URDF siblings
+        return None, DIFFERENT, (f"MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}"
+                                 f"{order_hint(robot, names)}")
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
         model = robot.model
         unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]
@@ -294,7 +296,11 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     def name(kind, i):
         return mujoco.mj_id2name(mj, kind, i) or f"#{i}"
 
-    out = [f"<option><flag {flag}=\"disable\"/>" for flag in DISABLED_PHYSICS
+    gravity = np.asarray(robot.model.gravity.linear, float)  # an MJCF file's is MuJoCo's; a URDF's <mujoco> may set one
+    out = [] if np.allclose(mj.opt.gravity, gravity, rtol=0.0, atol=TOLERANCE) else [
+        f"gravity {np.round(mj.opt.gravity, 9).tolist()} m/s^2 in MuJoCo (<option gravity>), "
+        f"{np.round(gravity, 9).tolist()} in Pinocchio"]
+    out += [f"<option><flag {flag}=\"disable\"/>" for flag in DISABLED_PHYSICS
            if mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))]
     out += [f"<option><flag {flag}=\"enable\"/>" for flag in ENABLED_PHYSICS
             if mj.opt.enableflags & int(getattr(mujoco.mjtEnableBit, f"mjENBL_{flag.upper()}"))]
@@ -379,8 +385,9 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
                         lambda q: _symmetric(pin.crba(model, data, q)),
                         lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot.points)
     out = list(named)
-    what = {"mass": "mass matrix [kg, kg m, kg m^2] differs by up to {:.3g} (e.g. masses MuJoCo infers from geoms or "
-                    "rescales: Pinocchio reads the <inertial> elements only)",
+    what = {"mass": "mass matrix [kg, kg m, kg m^2] differs by up to {:.3g} (e.g. masses MuJoCo infers from geoms, a "
+                    "geom's mass or a mesh's inertia, which Pinocchio's parser reads otherwise, or masses MuJoCo "
+                    "rescales)",
             "bias": "bias forces [N, N m] differ by up to {:.3g}", "passive": "passive forces [N, N m] up to {:.3g}"}
     for key, text in what.items():
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name

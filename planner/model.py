@@ -62,7 +62,7 @@ class Robot:
     passive: tuple[str, ...] = ()
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
-    unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads and Pinocchio's parser skips (in a <frame>)
+    unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads, Pinocchio's parser not (<frame>, 2nd body)
     ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
 
     def check_inertia(self, q) -> None:
@@ -246,6 +246,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
+    if fmt is RobotFormat.MJCF:
+        _refuse_second_tree(path, model)
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
@@ -334,6 +336,25 @@ def _urdf_couplings(path: Path) -> tuple[str, ...]:
     tree, which both read alike (a gripper's mimic finger)."""
     return tuple(f"joint {j.get('name', '?')!r}: <mimic> (a coupling MuJoCo makes an equality constraint)"
                  for j in ET.parse(path).getroot().iter("joint") if j.find("mimic") is not None)
+
+
+def _refuse_second_tree(path: Path, model: pin.Model) -> None:
+    """RobotFileError when <worldbody> holds several bodies and Pinocchio, whose MJCF parser reads the first of them
+    only, has other degrees of freedom than MuJoCo: a marker body placed before the robot left a robot "without
+    joints", a second moving body after it was blamed on a <frame>. Scenery bodies without joints after the robot
+    stay allowed (MuJoCo's replay keeps them out of collisions)."""
+    import mujoco
+
+    try:
+        mj = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError:  # said where MuJoCo's reading is needed (_mjcf_info)
+        return
+    roots = [mj.body(b).name or f"body {b}" for b in range(1, mj.nbody) if mj.body_parentid[b] == 0]
+    if len(roots) > 1 and mj.nv != model.nv:
+        raise RobotFileError(f"{path}: <worldbody> holds {len(roots)} bodies ({', '.join(map(repr, roots))}) and "
+                             f"Pinocchio's MJCF parser reads the first one only ({roots[0]!r}: {model.nv} of MuJoCo's "
+                             f"{mj.nv} degrees of freedom): a robot is one body tree; put its root body first, and "
+                             "scenery (bodies without joints) after it or as geoms and sites of <worldbody> itself")
 
 
 def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
@@ -518,17 +539,23 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
     names = tuple(j.name for j in spec.joints)
     if check_order and names != robot.dof_names:
         raise RobotFileError(f"{robot.path}: MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}"
-                             f"{planar_hint(robot)}")
+                             f"{order_hint(robot, names)}")
     return spec
 
 
-def planar_hint(robot: Robot) -> str:
-    """" (...)" naming the robot's URDF planar joints and the fix, or "": MuJoCo reads such a joint as three joints,
-    Pinocchio as one (x, y and the angle's cos and sin), so the two readings' joints differ."""
+def order_hint(robot: Robot, mujoco_names) -> str:
+    """" (...)" naming why MuJoCo's joints (mujoco_names) differ from the robot's and the fix, or "": a URDF planar
+    joint MuJoCo reads as three joints, Pinocchio as one (x, y and the angle's cos and sin); URDF sibling branches,
+    which Pinocchio orders by their joints' names and MuJoCo as the file lists them."""
     planar = [robot.model.names[j] for j in range(1, robot.model.njoints)
               if robot.model.joints[j].shortname() == "JointModelPlanar"]
-    return (f" (URDF planar joint {', '.join(map(repr, planar))}: MuJoCo reads it as three joints, Pinocchio as one; "
-            "write it as two prismatic joints and a revolute one)" if planar else "")
+    if planar:
+        return (f" (URDF planar joint {', '.join(map(repr, planar))}: MuJoCo reads it as three joints, Pinocchio as "
+                "one; write it as two prismatic joints and a revolute one)")
+    if robot.format is RobotFormat.URDF and sorted(mujoco_names) == sorted(robot.dof_names):
+        return (" (Pinocchio's URDF parser orders sibling branches by their joints' names, MuJoCo as the file lists "
+                "them: write the <joint> elements of each link's children in the order of their names)")
+    return ""
 
 
 def mujoco_failure(path, exc: Exception, step: str = "compile") -> str:

@@ -584,8 +584,9 @@ def _not_on_the_world(point: str, robot, key: str) -> None:
         raise TaskError(f"{key} = {point!r} is a site on the world body, fixed in the world, not a point of the robot; "
                         "move the <site> into the robot's body that touches")
     if point in robot.unread_sites:  # ("valid contact points: (none)" of a file that plainly has the site)
-        raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame>); move the "
-                        "<site> out of the <frame> into its body, with the frame's pos and orientation")
+        raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame>, or on a "
+                        "body of <worldbody> after the first, which is the robot); move the <site> out of the <frame> "
+                        "into its body, with the frame's pos and orientation, or onto the robot")
 
 
 def load_task(path: str | Path) -> Task:

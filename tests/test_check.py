@@ -261,6 +261,27 @@ def test_a_urdf_planar_joint_is_named_with_its_fix(tmp_path):
         "(URDF planar joint 'base': MuJoCo reads it as three joints, Pinocchio as one; write it as two prismatic "
         "joints and a revolute one)")
 
+def test_urdf_siblings_out_of_name_order_are_named_with_the_fix(tmp_path):
+    """A URDF listing a link's child joints out of their names' order (right_hip before left_hip) fails check-model,
+    saying that Pinocchio orders sibling branches by name and MuJoCo as the file lists them, and how to fix it (the
+    message gave the two orders only); listed in name order, the same robot passes."""
+    link = ('<link name="{}"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/>'
+            '</inertial></link>')
+    joint = ('<joint name="{}" type="{}"><parent link="{}"/><child link="{}"/><axis xyz="{}"/>'
+             '<limit lower="-1" upper="1" effort="{}" velocity="1"/></joint>')
+    right, left = (joint.format(f"{side}_hip", "revolute", "c", side[0], "0 1 0", 9) for side in ("right", "left"))
+    head = ('<robot name="b"><link name="world"/>' + "".join(link.format(n) for n in "crl")
+            + joint.format("x", "prismatic", "world", "c", "1 0 0", 0))
+    for name, siblings, passed in (("right_first.urdf", right + left, False), ("left_first.urdf", left + right, True)):
+        (tmp_path / name).write_text(head + siblings + "</robot>")
+        result = check_model(load_robot(tmp_path / name), samples=1)
+        assert result.passed is passed
+        if not passed:
+            assert result.failures[0].endswith(
+                "(Pinocchio's URDF parser orders sibling branches by their joints' names, MuJoCo as the file lists "
+                "them: write the <joint> elements of each link's children in the order of their names)"), result.failures
+
+
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
     """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,
     so check-model fails saying why (it said PASSED, the comparison "skipped"), and simulate and plan refuse it (they ran
@@ -331,7 +352,9 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()
     gravity = tmp_path / "gravity.urdf"
     gravity.write_text(urdf.replace("</robot>", '<mujoco><option gravity="0 0 -3"/></mujoco></robot>'))
-    assert any(d.startswith("bias forces") for d in reading_differences(load_robot(gravity)))
+    said = reading_differences(load_robot(gravity))
+    assert "gravity [0.0, 0.0, -3.0] m/s^2 in MuJoCo (<option gravity>), [0.0, 0.0, -9.81] in Pinocchio" in said, said
+    assert any(d.startswith("bias forces") for d in said)
     assert not check_model(load_robot(gravity), samples=1).passed
     hip = '<limit lower="-1.1780972450961724" upper="1.1780972450961724" effort="60" velocity="100"/>'
     assert urdf.count(hip) == 1

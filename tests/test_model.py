@@ -106,6 +106,24 @@ def test_a_robot_without_degrees_of_freedom_is_refused(tmp_path, text, name):
         load_robot(path)
 
 
+def test_a_second_body_tree_in_the_worldbody_is_named(tmp_path):
+    """Pinocchio's MJCF parser reads the first body of <worldbody> only: a marker body before the robot (read as a
+    robot "without joints") and a second moving body after it (blamed on a <frame>) are refused naming the bodies and
+    the fix; a scenery body without joints after the robot is still read."""
+    robot = (ROBOTS_DIR / "point_mass.xml").read_text()
+    marker, cart = ('<body name="marker" pos="0.5 0 0.3"><geom type="sphere" size="0.02"/></body>',
+                    '<body name="cart"><joint name="cx" type="slide" axis="1 0 0"/>'
+                    '<geom type="sphere" size="0.1"/></body>')
+    for name, text, first in (("before.xml", robot.replace("<worldbody>", "<worldbody>" + marker), "'marker': 0 of"),
+                              ("after.xml", robot.replace("</worldbody>", cart + "</worldbody>"), "'mass': 2 of")):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(RobotFileError, match=rf"<worldbody> holds 2 bodies .* reads the first one only \({first} "
+                                                 r"MuJoCo's \d degrees of freedom\): a robot is one body tree"):
+            load_robot(tmp_path / name)
+    (tmp_path / "scenery.xml").write_text(robot.replace("</worldbody>", marker + "</worldbody>"))
+    assert load_robot(tmp_path / "scenery.xml").nv == 2
+
+
 def test_an_include_pinocchio_cannot_read_is_named(tmp_path):
     """An MJCF file whose bodies are in an <include>d file (MuJoCo reads it, Pinocchio's parser not): the error says
     that the include is what Pinocchio does not read, not only Pinocchio's "No such node (body)"."""
