@@ -375,7 +375,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         for c, gap in zip(contacts, np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel()):
             if gap < -1e-9:
                 raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}")
-    _check_target_outside_holes(dyn, task.contacts, plan)
+    _check_outside_holes(dyn, task.contacts, task)
 
     if options.discretization is Discretization.FESD:
         return _build_fesd(robot, task, options, dyn, skips, contacts, system, builder, switch_scale, y0, start)
@@ -952,20 +952,23 @@ class _Rows:
         return np.concatenate(self.hi)
 
 
-def _check_target_outside_holes(dyn: Dynamics, contacts, plan) -> None:
-    """InputError when plan.target_q (nq,) [m, rad] puts a contact point inside one of the plan's holes: the last
-    node is held both at the target and out of the holes, so no plan exists (Capler's target x = 2.6 m stands
-    its foot in the third hole; the solve only found that out by failing, in 224 s). The initial state is not
-    checked: the holes' rows start at node 1, so a point may leave a hole in the first step."""
-    if plan.target_q is None:
-        return
-    for c in contacts:
-        p = np.asarray(dyn.point_position(c.point)(np.array(plan.target_q, float)), float).ravel()
-        for i, e in enumerate(plan.holes):
-            if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
-                raise InputError(f"plan.target_q puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, inside "
-                                 f"plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no plan can end "
-                                 "there: move the target or the hole")
+def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
+    """InputError when task.initial.q or plan.target_q (nq,) [m, rad] puts a contact point inside one of the plan's
+    holes. The last node is held both at the target and out of the holes, so no plan exists (Capler's target x = 2.6 m
+    stands its foot in the third hole; the solve only found that out by failing, in 224 s). The holes' rows start at
+    node 1, so a start standing in a hole, on ground that is not there, was planned and validated."""
+    plan = task.plan
+    for key, q in (("initial.q", task.initial.q), ("plan.target_q", plan.target_q)):
+        if q is None:
+            continue
+        for c in contacts:
+            p = np.asarray(dyn.point_position(c.point)(np.array(q, float)), float).ravel()
+            for i, e in enumerate(plan.holes):
+                if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
+                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, inside "
+                                     f"plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no plan can "
+                                     f"{'start' if key == 'initial.q' else 'end'} there: move the "
+                                     f"{'start' if key == 'initial.q' else 'target'} or the hole")
 
 
 def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X, var_blocks, y0) -> ca.SX:

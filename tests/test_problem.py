@@ -255,7 +255,7 @@ def test_velocity_bounds_rows_are_the_joint_rate_sums():
 def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     """A task whose target puts a contact point inside a hole (Capler's base at x = 2.6 m stands the foot in the
     third hole, 2.25 .. 2.75 m) has no plan: build_problem says which point and hole. A target on the hole's rim
-    (x = 2.75 m) is outside and builds."""
+    (x = 2.75 m) is outside and builds. A start inside a hole is refused the same way."""
     from planner.discretization import Discretization
 
     robot, task, _ = capler_small
@@ -267,6 +267,12 @@ def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'foot' .* inside plan.holes\[2\]"):
         build_problem(robot, at(2.6), options)
     build_problem(robot, at(2.75), options)
+    # a start standing in a hole likewise (the holes' rows start at node 1: it was planned, and validated)
+    hole = dataclasses.replace(task.plan.holes[0], x=0.0)
+    start_in_hole = dataclasses.replace(task, plan=dataclasses.replace(task.plan, holes=(hole,) + task.plan.holes[1:]))
+    with pytest.raises(InputError, match=r"^initial.q puts contact point 'foot' .* inside plan.holes\[0\] .*no plan can "
+                                         r"start there: move the start or the hole"):
+        build_problem(robot, start_in_hole, options)
 
 
 @pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
