@@ -359,13 +359,19 @@ def _refuse_second_tree(path: Path, model: pin.Model) -> None:
 
 def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
     """RobotFileError naming a body whose mass is negative or whose rotational inertia is not positive semi-definite
-    (a URDF ixx = -1, a mass of -5 kg): its dynamics were garbage (check-model: mass errors of 1e115)."""
+    (a URDF ixx = -1, a mass of -5 kg): its dynamics were garbage (check-model: mass errors of 1e115); or one whose
+    principal moments break the triangle inequality, which MuJoCo refuses."""
     for jid in range(1, model.njoints):
         inertia = model.inertias[jid]
         if not (inertia.mass >= 0.0 and np.all(np.linalg.eigvalsh(inertia.inertia) >= -1e-12)):
             raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has mass {inertia.mass:g} kg and rotational "
                                  f"inertia eigenvalues {np.round(np.linalg.eigvalsh(inertia.inertia), 9).tolist()} kg m^2; "
                                  "masses and inertias must be non-negative")
+        a, b, c = np.linalg.eigvalsh(inertia.inertia)  # ascending
+        if a + b < c * (1.0 - 1e-9) - 1e-12:  # no body has them (MuJoCo refuses the file; a URDF was simulated first)
+            raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has principal moments of inertia "
+                                 f"{np.round([a, b, c], 9).tolist()} kg m^2, and no rigid body's smaller two sum to less "
+                                 "than the largest (A + B >= C)")
 
 
 def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:

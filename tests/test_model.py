@@ -261,8 +261,8 @@ def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checke
 def test_couplings_and_negative_inertias_are_refused(tmp_path):
     """A URDF <mimic> joint (Pinocchio: an independent joint; MuJoCo: an equality constraint, so the replay and the
     plan disagreed and both passed) is refused by simulate and plan (Task.check_against) naming the joint, as passive
-    joint forces are; a body of negative mass or inertia (check-model compared garbage, mass errors of 1e115) is refused
-    when the file is read."""
+    joint forces are; a body of negative mass or inertia (check-model compared garbage, mass errors of 1e115), or of
+    principal moments no rigid body has, is refused when the file is read."""
     from planner.model import ROBOTS_DIR
     from planner.task import load_task
 
@@ -277,6 +277,12 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
     negative.write_text(urdf.replace('<mass value="0.548"/>', '<mass value="-0.548"/>'))
     with pytest.raises(RobotFileError, match=r"mass -0.548 kg"):
         load_robot(negative)
+    # principal moments 1, 1, 3 (g m^2): no rigid body has them; MuJoCo refuses the file, and simulate had run on it
+    inertia = '<inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/>'
+    impossible = tmp_path / "impossible_inertia.urdf"
+    impossible.write_text(urdf.replace(inertia, inertia.replace('izz="0.001"', 'izz="0.003"'), 1))
+    with pytest.raises(RobotFileError, match=r"principal moments of inertia \[0.001, 0.001, 0.003\] kg m\^2, .*A \+ B >= C"):
+        load_robot(impossible)
 
 
 def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
