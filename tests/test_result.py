@@ -109,6 +109,29 @@ def test_recover_splits_a_run_where_the_clock_ran_after_the_impact():
     np.testing.assert_allclose(vs[:, 0], [-1.0, -2.0, -2.0, 0.3, 0.2, -1.2, 0.3, 0.1, 0.1, 0.1], atol=EXACT)
 
 
+def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
+    """A fully frozen step (the impact still on at its end) followed by a step whose clock ran 99.92 % of it (below
+    FROZEN_TOL: no frozen step by itself) is one impact: the second step's auxiliary increment and impulse are the
+    impact's end, so the inelastic v_post is 0 and the impulse the whole m |v_pre|. Left out, v_post kept moving into
+    the ground (a tester's drop: -7.8 mm/s) and the impulse was short by that much. A step that froze nothing after it
+    is left alone."""
+    clock = [0.0, 0.1, 0.1, 0.19992, 0.29992]
+    y = np.column_stack([np.zeros(5), [-1.0, -2.0, -0.1, 0.0, 0.0], clock])
+    dv = np.array([[0.0], [1.9], [0.1], [0.0]])
+    imp = dv.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    t, _, vs, _, impacts = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1, ("foot",))
+    (impact,) = impacts
+    assert (impact.time, impact.v_pre[0], impact.v_post[0], impact.impulse) == pytest.approx((0.1, -2.0, 0.0, 2.0))
+    assert (impact.tau_start, impact.tau_end) == pytest.approx((0.1, 0.3))
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.1, 0.19992, 0.29992], atol=EXACT)
+    whole = [0.0, 0.1, 0.1, 0.2, 0.3]  # the clock ran all of the next step: the impact ended with the frozen one
+    y_whole = np.column_stack([np.zeros(5), [-1.0, -2.0, 0.0, 0.0, 0.0], whole])
+    dv_whole = np.array([[0.0], [2.0], [0.0], [0.0]])
+    (impact,) = recover(0.1 * np.arange(5), y_whole, np.zeros((4, 1)), np.full(4, 0.1), dv_whole,
+                        dv_whole.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2), 1, 1, ("foot",))[4]
+    assert (impact.v_post[0], impact.tau_end) == pytest.approx((0.0, 0.2))
+
+
 def test_recover_dates_a_landing_at_a_node_there():
     """The same four partly frozen steps, the first starting with the point on its plane moving into it (landed[1, 0]: a
     landing that ended a flight step at the node at t = 0.1): its impact is at that node, posture and pre-impact
