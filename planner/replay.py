@@ -802,14 +802,17 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
 _UNCHECKED = object()
 
 
-def write_validation(out_dir: str | Path, validation: Validation, result_id=_UNCHECKED) -> Path:
-    """Store `validation.to_json()` as the `validation` object of out_dir/summary.json.
+def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> Path:
+    """Store `validation.to_json()` (a Validation, or a periodic plan's planner.gait.WalkValidation) as the
+    `validation` object of out_dir/summary.json.
 
     Written to a temporary file and renamed, so a reader never sees half a summary. result_id: the summary's
     `result_id` (None for a result written without one) when the validation started; if another run has written
     out_dir since, the verdict is of the earlier result and is not stored (InputError). Not given: not checked.
     """
-    expect(validation, Validation, "write_validation's validation")
+    from .gait import WalkValidation  # (gait imports this module)
+
+    expect(validation, (Validation, WalkValidation), "write_validation's validation")
     path = Path(out_dir) / "summary.json"
     with directory_lock(Path(out_dir)):  # no other result may land between the read and the write
         summary = read_summary(Path(out_dir), require=())

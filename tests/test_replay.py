@@ -1110,7 +1110,7 @@ def test_the_in_memory_validation_api_names_a_wrong_argument(point_mass, tmp_pat
              (lambda: replay.validate_trajectory(point_mass, task, traj, dynamics="yes"),
               r"validate_trajectory's dynamics must be a bool"),
              (lambda: replay.validate_plan(point_mass, task, traj), r"validate_plan's trajectory"),
-             (lambda: replay.write_validation(tmp_path, "x"), r"write_validation's validation must be a Validation")]
+             (lambda: replay.write_validation(tmp_path, "x"), r"write_validation's validation must be a Validation or WalkValidation")]
     for call, message in calls:
         with pytest.raises(InputError, match=message):
             call()
