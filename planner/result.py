@@ -302,6 +302,11 @@ class SimulationResult(ArraysReadOnly):
             lines.append(f"  {joint['joint']} left the robot file's range [{joint['lower']:.4g}, {joint['upper']:.4g}] at "
                          f"{joint['nodes']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
                          "simulation has no joint limits, MuJoCo's replay enforces them")
+        for brake in self.extra.get("braked_outside_friction_cone", ()):
+            lines.append(f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in "
+                         f"{brake['steps']} running step(s) (up to {brake['max_tangential_N']:.4g} N where mu normal = "
+                         f"{brake['mu_normal_N']:.4g} N): a point sliding on its plane brakes at a_t / m whatever mu, "
+                         "with no impact and no lambda_t (docs/tasks.md)")
         for force in self.extra.get("forces_outside_friction_cone", ()):
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
                          f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N where mu "

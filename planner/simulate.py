@@ -31,8 +31,8 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible
 from .model import Robot
-from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory,
-                     forces_outside_cone, recover)
+from .result import (APPROACH_MPS, CONE_FLOOR_N, CONE_SLACK, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
+                     Trajectory, forces_outside_cone, recover)
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -182,14 +182,17 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     if options.discretization is Discretization.FESD:
         fesd = FESDInterval(builder, options.fesd)
         elements, stats = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
-        stats = dict(stats, solve_time_s=time.perf_counter() - start)
-        trajectory = element_trajectory(system, builder, *elements, fesd.b, options.frozen_tol)
+        weights = fesd.b
         U = elements[4][:, -1]
     else:
         run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
         Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
-        stats = dict(stats, solve_time_s=time.perf_counter() - start)
-        trajectory = step_trajectory(system, builder, Y, W, U, h, options.frozen_tol)
+        n = len(W)
+        Y, W, U = np.asarray(Y, float), np.asarray(W, float).reshape(n, builder.nw), np.asarray(U, float).reshape(n, system.nu)
+        elements, weights = (h * np.arange(n + 1), Y, Y[1:, None], W[:, None], U[:, None], np.full(n, h)), np.ones(1)
+    stats = dict(stats, solve_time_s=time.perf_counter() - start)
+    trajectory = element_trajectory(system, builder, *elements, weights, options.frozen_tol,
+                                    switch_at_start=options.discretization is Discretization.FESD)
     converged = stats["comp"] <= options.comp_tol and stats["ok"]
     solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
@@ -205,6 +208,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     extra["penetration"] = _penetration(system, task, trajectory)
     extra["joints_outside_range"] = _outside_range(robot, trajectory)
     extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
+    extra["braked_outside_friction_cone"] = braked_outside_cone(system, builder, elements, weights, options.frozen_tol,
+                                                                trajectory)
     return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
                             stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
 
@@ -605,19 +610,9 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     (FESD; see result.recover)."""
     N = len(Ws)
     nq, nv = system.nq, system.nv
-    aux = system.auxiliary_mask
-    dv_aux = np.zeros((N, nv))
     n_c = len(system.contacts)
-    impulses = np.zeros((N, n_c, 2))
-    sigma = np.zeros((N, system.n_sigma))
-    for k in range(N):
-        for j, weight in enumerate(b):
-            coef = builder.coefficients(Ws[k, j])
-            fmat = np.asarray(system.fields_fn(Ys[k, j], Us[k, j]))
-            dv_aux[k] += weight * dt[k] * fmat[nq : nq + nv, aux] @ coef[aux]
-            if n_c:
-                impulses[k] += (weight * dt[k] * np.asarray(system.impulse_fn(Ys[k, j], Us[k, j])) @ coef).reshape(n_c, 2)
-        sigma[k] = Ws[k, -1][builder.w_blocks["sigma"]]
+    dv_aux, impulses = _auxiliary_parts(system, builder, Ys, Ws, Us, dt, b)
+    sigma = np.array([Ws[k, -1][builder.w_blocks["sigma"]] for k in range(N)]).reshape(N, system.n_sigma)
     W, U = Ws[:, -1], Us[:, -1]
     landed = None
     if not switch_at_start and n_c:  # a step that starts with a point on its plane moving into it: its impact first
@@ -634,6 +629,51 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
                       forces=forces, force_names=system.lam_names, contact_force=_contact_force(system, builder, Y, W, U, forces),
                       t=t, q=q, v=v, u=u, impacts=impacts)
+
+
+def _auxiliary_parts(system: TimeFreezingSystem, builder: ImplicitEulerStep, Ys, Ws, Us, dt, b):
+    """Per element k (arguments as element_trajectory's): the velocity increment of the auxiliary fields dv_aux
+    (N, nv) [m/s, rad/s] and the contacts' normal and tangential impulses (N, n_contacts, 2) [N s], by quadrature."""
+    N, nq, nv, n_c = len(Ws), system.nq, system.nv, len(system.contacts)
+    aux = system.auxiliary_mask
+    dv_aux, impulses = np.zeros((N, nv)), np.zeros((N, n_c, 2))
+    for k in range(N):
+        for j, weight in enumerate(b):
+            coef = builder.coefficients(Ws[k, j])
+            fmat = np.asarray(system.fields_fn(Ys[k, j], Us[k, j]))
+            dv_aux[k] += weight * dt[k] * fmat[nq : nq + nv, aux] @ coef[aux]
+            if n_c:
+                impulses[k] += (weight * dt[k] * np.asarray(system.impulse_fn(Ys[k, j], Us[k, j])) @ coef).reshape(n_c, 2)
+    return dv_aux, impulses
+
+
+def braked_outside_cone(system: TimeFreezingSystem, builder: ImplicitEulerStep, elements, b, frozen_tol: float,
+                        trajectory: Trajectory) -> list[dict]:
+    """The contacts a tangential auxiliary field held beyond their friction cone in steps whose clock ran (no impact,
+    no lambda_t): a point sliding on its plane brakes at a_t / m whatever mu (docs/tasks.md). One entry per contact
+    with mu > 0: point, steps (how many), max_tangential_N (the field's tangential impulse over the step's physical
+    time [N]) and mu_normal_N (mu times the normal force there: the persistent one at the step's end and the field's
+    [N]). elements: (tau, Y, Ys, Ws, Us, dt) as element_trajectory takes them."""
+    _, Y, Ys, Ws, Us, dt = elements
+    if not len(system.contacts) or not len(Ws):
+        return []
+    impulses = _auxiliary_parts(system, builder, Ys, Ws, Us, dt, b)[1]
+    clock = np.asarray(Y, float)[:, -1]
+    advance = np.diff(clock)
+    running = (advance >= (1.0 - frozen_tol) * dt) & (advance > 0)
+    samples = trajectory.contact_force_samples()
+    at_end = np.clip(np.searchsorted(trajectory.t, clock[1:], side="right") - 1, 0, len(trajectory.t) - 1)
+    persistent = samples[0][at_end] if samples is not None else np.zeros((len(advance), len(system.contacts)))
+    out = []
+    for c, contact in enumerate(system.contacts):
+        rate = impulses[:, c] / np.where(running, advance, 1.0)[:, None]  # (N, 2) [N]
+        bound = contact.mu * np.maximum(rate[:, 0] + persistent[:, c], 0.0)
+        outside = running & (np.abs(rate[:, 1]) > CONE_SLACK * bound + CONE_FLOOR_N)
+        if contact.mu > 0 and outside.any():
+            worst = int(np.argmax(np.where(outside, np.abs(rate[:, 1]), -1.0)))
+            out.append({"point": system.labels[c], "steps": int(outside.sum()),
+                        "max_tangential_N": float(abs(rate[worst, 1])), "mu_normal_N": float(bound[worst])})
+    return out
 
 
 def _kinetic(system: TimeFreezingSystem, q, v) -> float:

@@ -120,6 +120,22 @@ def test_the_deepest_penetration_is_the_lowest_gap_over_the_nodes():
     assert deepest["max_m"] < GAP_TOL < PENETRATION_NOTE_M and "into its plane" not in r.report()
     assert r.summary()["penetration"] == deepest
     assert r.summary()["forces_outside_friction_cone"] == []  # resting on one no-slip point: no tangential force
+    assert r.summary()["braked_outside_friction_cone"] == []
+
+
+def test_braking_by_the_tangential_field_beyond_the_cone_is_reported():
+    """A point mass started sliding at 2 m/s on its plane (mu = 0.1, a_t = 5) brakes at a_t / m = 5 m/s^2 in steps
+    whose clock runs, not at mu g = 0.98 m/s^2 (the paper's no-slip contact, docs/tasks.md), with no impact and
+    lambda_t = 0: summary.json's braked_outside_friction_cone names the point, the 40 steps it braked (2 m/s at
+    0.05 m/s per step of 0.01 s) and the 5 N against mu lambda_n = 0.981 N, and the report says so (nothing did)."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.1, "a_n": 100.0, "a_t": 5.0}],
+                       "initial": {"q": [0.0, 0.0], "v": [2.0, 0.0]}, "horizon": {"tau_f": 0.6, "N": 60}})
+    r = simulate(robot(), task, dynamics=dynamics())
+    assert r.stats.converged and r.trajectory.impacts == ()
+    (brake,) = r.summary()["braked_outside_friction_cone"]
+    assert brake["point"] == "point" and brake["steps"] == 40
+    assert (brake["max_tangential_N"], brake["mu_normal_N"]) == pytest.approx((5.0, 0.1 * G), rel=1e-4)
+    assert "point braked by the tangential auxiliary field beyond its friction cone in 40 running step(s)" in r.report()
 
 
 def test_a_task_without_contacts_is_implicit_euler_free_flight():
