@@ -504,7 +504,7 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
 
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
-    from .homotopy import FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
+    from .homotopy import REPLAN_FIELDS, FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
     from .task import MAX_STEPS
 
@@ -521,6 +521,10 @@ def _cmd_plan(args) -> int:
             if owned:
                 raise InputError(f"{', '.join(owned)} {'is' if len(owned) == 1 else 'are'} set by "
                                  f"{', '.join(sorted({FLAG_OWNED[k] for k in owned}))}, not by --solve")
+            replanned = sorted(set(fields) & set(REPLAN_FIELDS)) if args.init is not None else []
+            if replanned:  # replan_options sets them after --solve: the JSON was lost likewise
+                raise InputError(f"{', '.join(replanned)} {'is' if len(replanned) == 1 else 'are'} set by --init DIR "
+                                 "(a replan's own homotopy from the plan, docs/tasks.md), not by --solve")
             solve_options = solve_options_from_dict(fields, solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
@@ -650,7 +654,8 @@ def _remove_plots(target: Path) -> None:
 
 def _skips_apart(init: Path, arrays: dict, task) -> str:
     """Why a start's NLP variables may differ though its robot, contacts, N and options are this task's: a scene skip
-    one task has and the other not (mu = 0 drops a contact's tangential variables), as "; ..." text, or ""."""
+    one task has and the other not (mu = 0 drops a contact's tangential variables), or horizon.physical_time (a speed
+    of time per step) in one of them, as "; ..." text, or ""."""
     from .result import read_task
 
     try:
@@ -660,8 +665,13 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
     mu = {c.point: c.mu for c in start.contacts}
     apart = [f"{c.point!r} has mu {mu[c.point]:g} there and {c.mu:g} here" for c in task.contacts
              if c.point in mu and (mu[c.point] == 0) != (c.mu == 0)]
-    return (f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init"
+    said = (f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init"
             if apart else "")
+    timed = [t.horizon.physical_time is not None for t in (start, task)]
+    if timed[0] != timed[1]:  # (the message's list of causes named neither)
+        said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "
+                 "step, so plan without --init")
+    return said
 
 
 def _start_task(args, arrays: dict):

@@ -562,6 +562,9 @@ def _small_mu_ipopt(options: SolveOptions) -> dict:
     return dict(SMALL_MU_MUMPS) if options.linear_solver == "mumps" else {}
 
 
+SCHEDULE_KEPT = " (the start's contact schedule kept)"  # a held-schedule NLP's result message
+
+
 def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     """`options` (default SolveOptions()) set up to start from a converged plan of a task with the same
     Problem.signature: one NLP at REPLAN_RHO (and one at REPLAN_RHO_MAX unless its products are <=
@@ -570,11 +573,16 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
     (planner plan --init DIR) the task's cost with the plan's contact schedule held comes first."""
     expect(options, (SolveOptions, type(None)), "replan_options' options")
-    return replace(options or SolveOptions(), rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0,
-                   early_stop_comp=REPLAN_STOP_COMP,
-                   holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
-                   mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
-                   bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
+    fields = dict(rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0, early_stop_comp=REPLAN_STOP_COMP,
+                  holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
+                  mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
+                  bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
+    return replace(options or SolveOptions(), **fields)
+
+
+# the SolveOptions fields replan_options sets (`planner plan --init DIR --solve` may not: they were replaced)
+REPLAN_FIELDS = ("rho_schedule", "soft_terminal_nlps", "early_stop_comp", "holes", "variable_scaling", "mu_strategy",
+                 "mu_init", "bound_push", "bound_frac")
 
 
 def _distance(x, x_ref):
@@ -1350,7 +1358,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
             reasons[-1] += " (within IPOPT's bound relaxation of the scaled variables, 1e-8 each)"
     capped = [r.label for r in homotopy if not r.success and r is not last]
     converged = not reasons
-    how = {"schedule": " (the start's contact schedule kept)",
+    how = {"schedule": SCHEDULE_KEPT,
            "reoptimize": " (active-set polished, then re-optimized on its contact schedule)"}.get(last.label, " (active-set polished)")
     message = "ok" + (how if polished else "") if converged else "; ".join(reasons)
     if capped:

@@ -22,7 +22,7 @@ import time
 from dataclasses import replace
 
 from .errors import expect
-from .homotopy import SolveOptions, solve
+from .homotopy import SCHEDULE_KEPT, SolveOptions, solve
 from .problem import Problem, build_problem
 from .result import PlanResult
 from .task import Task, tasks_apart, tasks_between
@@ -120,6 +120,9 @@ def _totals(result: PlanResult, parts: list[PlanResult], wall: float) -> PlanRes
     when the walk made the plan."""
     records = [r for part in parts for r in part.nlps]
     stats = replace(result.stats, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records))
+    if "walk" in result.extra and any(r.label.startswith("retime") for r in records):  # not the start's schedule then
+        stats = replace(stats, message=stats.message.replace(
+            SCHEDULE_KEPT, " (walked there: the contact schedule re-timed by a penalty replan on the way)"))
     timings = {k: sum(p.timings.get(k, 0.0) for p in parts) if isinstance(v, float) else v for k, v in result.timings.items()}
     extra = {k: v for k, v in result.extra.items() if k != "walk"}
     if "walk" in result.extra:

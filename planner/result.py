@@ -950,6 +950,12 @@ def result_dir(out_dir) -> Path:
     return directory
 
 
+def _failed_hint(out_dir) -> str:
+    """"; a failed run's diagnostics are in DIR/failed" when they are (a result file missing from DIR), or ""."""
+    failed = Path(out_dir) / "failed"
+    return f"; a failed run's diagnostics are in {failed}" if (failed / "summary.json").is_file() else ""
+
+
 def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) -> dict:
     """summary.json as a dict holding a path for each key of `require` (InputError otherwise)."""
     path = result_dir(out_dir) / "summary.json"
@@ -958,10 +964,8 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
     try:
         summary = json.loads(path.read_text())
     except FileNotFoundError:
-        failed = (f"; a failed run's diagnostics are in {Path(out_dir) / 'failed'}"
-                  if (Path(out_dir) / "failed" / "summary.json").is_file() else "")
         raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?"
-                         f"{failed}") from None
+                         f"{_failed_hint(out_dir)}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read {path}: {exc}") from None
     except json.JSONDecodeError as exc:
@@ -982,7 +986,7 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     """The arrays of out_dir/trajectory.npz; InputError when missing, unreadable or lacking `required`."""
     path = result_dir(out_dir) / "trajectory.npz"
     if not path.is_file():
-        raise InputError(f"{path} not found")
+        raise InputError(f"{path} not found{_failed_hint(out_dir)}")
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: np.asarray(npz[k]) for k in npz.files}

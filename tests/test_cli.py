@@ -56,6 +56,10 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
         (["plan", "point_mass", "--solve", '{"fesd_start": "implicit_euler"}'], "set by --fesd-start"),  # was ignored
+        # replan_options sets these after --solve with --init DIR: they were replaced silently
+        (["plan", "point_mass", "--init", "{dir}", "--solve", '{"mu_init": 0.1, "holes": "relaxed_first"}'],
+         "--solve: holes, mu_init are set by --init DIR (a replan's own homotopy from the plan, docs/tasks.md), not by "
+         "--solve"),
         (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level shows IPOPT's log and -q"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
          "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
@@ -524,6 +528,9 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     slippery = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv]
     _one_line_exit_2(capsys, slippery,
                      "contact 'point' has mu 0.5 there and 0 here: mu = 0 drops a contact's tangential variables")
+    (tmp_path / "timed.toml").write_text(HOP_TOML.format(x=0.55).replace("N = 20\n", "N = 20\nphysical_time = 0.9\n"))
+    timed = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "timed.toml") for a in argv]
+    _one_line_exit_2(capsys, timed, "horizon.physical_time is set here only: it adds a speed of time per step")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
     # a failed plan's last iterate, and a plan of another robot file whose names match (another mass): accepted before
     summary = json.loads((tmp_path / "hop" / "summary.json").read_text())

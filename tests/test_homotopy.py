@@ -251,6 +251,14 @@ def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
         H.solve(prob, H.SolveOptions(linear_solver="ma27"))
 
 
+def test_replan_fields_are_the_ones_replan_options_sets():
+    """homotopy.REPLAN_FIELDS, which `planner plan --init DIR --solve` refuses (they were replaced silently), are
+    exactly the SolveOptions fields replan_options changes."""
+    default, replan = H.SolveOptions(), H.replan_options()
+    changed = {f.name for f in dataclasses.fields(default) if getattr(default, f.name) != getattr(replan, f.name)}
+    assert changed == set(H.REPLAN_FIELDS)
+
+
 def test_acceptable_tol_below_tol_is_refused():
     """SolveOptions.acceptable_tol below tol is an InputError naming both: IPOPT was given tol instead, while the
     result's options recorded the value asked for. Equal to tol is allowed."""

@@ -135,3 +135,21 @@ def test_schedule_only_stops_after_the_held_schedule(hop_plan):
     np.testing.assert_array_equal(res.extra["_x"], H.ungate(moved, x0) if "gates" in moved.notes else x0)
     with pytest.raises(InputError, match="schedule_only"):
         H.SolveOptions(schedule_only=True)
+
+
+def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_plan):
+    """A walk whose last, held-schedule NLP follows a re-timing (a penalty replan on the way) ends on the re-timed
+    schedule, not on the start's: its message says so (it said "the start's contact schedule kept", from the last
+    NLP's label). A walk of held schedules only keeps that message."""
+    prob, x0 = hop_plan
+    held = replan(_moved(prob, x0, 0.52), H.replan_options(), prob.task)
+    assert held.stats.converged and held.stats.message == "ok" + H.SCHEDULE_KEPT
+
+    def labelled(label, walk):
+        return dataclasses.replace(held, nlps=tuple(dataclasses.replace(r, label=label) for r in held.nlps),
+                                   extra={**held.extra, "walk": walk})
+
+    walk = labelled("walk 1", (0.5, 1.0))
+    retimed = R._totals(walk, [labelled("retime 0.5: reoptimize", (0.0, 0.5)), walk], 1.0)
+    assert retimed.stats.message == "ok (walked there: the contact schedule re-timed by a penalty replan on the way)"
+    assert R._totals(walk, [labelled("walk 0.5", (0.0, 0.5)), walk], 1.0).stats.message == held.stats.message

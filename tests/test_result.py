@@ -15,8 +15,8 @@ import pytest
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
 from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result, read_robot, read_start,
-                            hops_of, read_summary, read_task, recover, tap_flags, write_atomically, write_files,
-                            write_results)
+                            hops_of, read_summary, read_task, read_trajectory, recover, tap_flags, write_atomically,
+                            write_files, write_results)
 from planner.simulate import simulate
 from planner.task import default_task_path, load_task, parse_task, task_to_json
 
@@ -472,6 +472,8 @@ def test_broken_result_files_are_input_errors(tmp_path):
     (tmp_path / "failed" / "summary.json").write_text("{}")
     with pytest.raises(InputError, match="a failed run's diagnostics are in .*failed"):
         read_summary(tmp_path)
+    with pytest.raises(InputError, match="trajectory.npz not found; a failed run's diagnostics are in .*failed"):
+        read_trajectory(tmp_path)  # (`plan --init DIR` reads it first: it said "not found" only)
     os.mkfifo(tmp_path / "summary.json")
     with pytest.raises(InputError, match="summary.json is not a regular file"):
         read_summary(tmp_path)
