@@ -153,7 +153,8 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
     results: list[Any] = [None] * len(items)
     lost: list[int] = []
     # (a stopped sweep's workers solved on with no parent: stress's Capler tasks take up to ~1900 s)
-    with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=killed_with_parent) as pool:
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=killed_with_parent)
+    try:
         futures = {pool.submit(_call, ref, item): i for i, item in enumerate(items)}
         for fut in as_completed(futures):
             i = futures[fut]
@@ -166,6 +167,10 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
                 results[i] = crashed_record(exc, "transfer")
             if progress:
                 progress(i, results[i])
+    except BaseException:
+        _stop(pool)
+        raise
+    pool.shutdown()
     for i in sorted(lost):  # each in its own process, so the one that kills its worker is the one reported
         with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=killed_with_parent) as pool:
             try:
@@ -178,6 +183,17 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
         if progress:
             progress(i, results[i])
     return results
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queued jobs and end the running ones (a Ctrl-C, a progress callback's error): leaving the pool's
+    `with` waited for every queued job, so a stopped stress run solved all of them and kept none."""
+    running = list((getattr(pool, "_processes", None) or {}).values())  # (no public handle on the workers)
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in running:
+        process.terminate()
+    for process in running:
+        process.join()
 
 
 def _run_dask(fn, items: Sequence[Any], scheduler: Any, progress) -> list[Any]:

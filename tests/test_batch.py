@@ -67,6 +67,33 @@ def test_system_exit_is_a_crash_not_the_end_of_the_sweep():
     assert isinstance(out[1], Crashed) and out[1].error.startswith("SystemExit")
 
 
+def sleeps(path):
+    """A job of 0.5 s that leaves its file behind when it finishes."""
+    import pathlib
+    import time
+
+    time.sleep(0.5)
+    pathlib.Path(path).write_text("done")
+    return path
+
+
+def test_a_stopped_batch_stops_its_queued_and_running_jobs(tmp_path):
+    """An exception in the parent while jobs run (a Ctrl-C; here the progress callback's) cancels the queued jobs and
+    ends the running one: leaving the pool waited for every queued job first (a stopped stress run solved all of its
+    tasks and kept none). Of six 0.5 s jobs on one worker, the first finishes and no other does."""
+    import time
+
+    items = [str(tmp_path / f"job{i}") for i in range(6)]
+
+    def stop(i, result):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(sleeps, items, workers=1, progress=stop)
+    time.sleep(1.0)  # a job left running would finish in the meantime
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["job0"]
+
+
 def test_rejects_lambda_and_negative_workers():
     """A lambda, and workers that are no integer >= 0 (a str raised TypeError, 2.5 and True ran), are InputErrors."""
     assert run_batch(square_or_raise, []) == []
