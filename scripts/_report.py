@@ -70,12 +70,15 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
 
 def out_dir(text: str) -> Path:
     """An --out argument: refused at once, as `planner` refuses it, when empty (an unset shell variable: results.json
-    went to the working directory) or when no directory can be made there (a file, an unwritable place; found only
-    after the whole run before)."""
+    went to the working directory), when no directory can be made there (a file, an unwritable place; found only
+    after the whole run before) or when its results.json is a directory."""
     try:
-        return prepare_out_dir(path_argument(text))
+        out = prepare_out_dir(path_argument(text))
     except PlannerError as exc:  # (argparse names the flag itself)
         raise argparse.ArgumentTypeError(str(exc).removeprefix("--out ")) from None
+    if (out / "results.json").is_dir():  # its write failed after the whole run
+        raise argparse.ArgumentTypeError(f"{out / 'results.json'} is a directory; results.json is written there")
+    return out
 
 
 class _ScriptParser(UsageParser):

@@ -568,6 +568,8 @@ def main(argv: list[str] | None = None) -> int:
             arrays[f"{rec['solver']}_{rec['variant']}_{key}"] = value
     if arrays:
         write_atomically(args.out / "trajectories.npz", lambda f: np.savez(f, **arrays))
+    else:  # an earlier run's solutions would sit beside these results as theirs
+        (args.out / "trajectories.npz").unlink(missing_ok=True)
     write_atomically(args.out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     text = table(records) + "".join(f"\n{r['solver']} {r['variant']}: kept from the run of {r['date']}" for r in kept)
     if ratio is not None:

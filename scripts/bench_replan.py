@@ -117,6 +117,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--values is required (the moved target x or step [m])")
         if not all(math.isfinite(v) for v in args.values):
             parser.error(f"--values must be finite numbers, got {args.values}")
+        labels = [f"{v:g}" for v in args.values]  # a value's run directory and task file are named so
+        if len(set(labels)) != len(labels):  # (the later run deleted the earlier one's plan)
+            parser.error(f"--values {' '.join(map(repr, args.values))} name the same runs ({', '.join(labels)}): give "
+                         "each value once, apart in its first 6 digits")
         task_file = ROOT / "robots" / f"{args.robot}.toml"
         if not task_file.is_file():
             known = sorted(p.stem for p in (ROOT / "robots").glob("*.toml"))

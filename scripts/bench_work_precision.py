@@ -824,6 +824,8 @@ def main(argv: list[str] | None = None) -> int:
         # the quick ocp suite is the point mass only: Capler's cases and grids were dropped, and an empty results.json
         # written over the last one
         parser.error("--quick with --suite ocp runs the point-mass hop only: give no Capler --cases or --capler-N with it")
+    if args.capler_N and args.cases and not any(c.startswith("ocp_capler") for c in args.cases):
+        parser.error("--capler-N sets the grids of the Capler cases, and --cases runs none")  # (it was dropped)
     out = prepare_out_dir(args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP))  # before the runs
 
     def log(rec):  # progress on stderr: stdout keeps the table or the JSON

@@ -607,6 +607,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--list", action="store_true", help="print the generated tasks (JSON lines) and exit")
     args = parser.parse_args(argv)
+    if args.scheduler is not None and args.workers is not None:  # (ignored, and written to results.json as used)
+        parser.error("--workers sets the local processes; a Dask --scheduler has its own workers")
 
     overrides = {k: v for k, v in (("max_iter", args.max_iter), ("rho_schedule", args.rho_schedule)) if v is not None}
     try:

@@ -484,7 +484,8 @@ def test_bench_nosnoc_model_and_hint(bench_nosnoc):
 def test_bench_nosnoc_says_how_to_install(bench_nosnoc, monkeypatch, tmp_path, capsys):
     """Without nosnoc, main() stops with a message naming `pip install nosnoc`, before any work: one line
     `bench_nosnoc: error: ...` and exit 2 as stress without dask (it was exit 1 without the prefix); the planner alone
-    (--planner --variants) runs without it, each record dated when it finished."""
+    (--planner --variants) runs without it, each record dated when it finished, and removes an earlier run's
+    trajectories.npz (it stayed beside results.json as this run's)."""
     monkeypatch.setitem(sys.modules, "nosnoc", None)  # import nosnoc -> ImportError
     monkeypatch.setattr(sys, "argv", ["bench_nosnoc.py"])
     assert run_main(lambda: bench_nosnoc.main(["--quick", "--out", str(tmp_path)])) == 2
@@ -493,7 +494,9 @@ def test_bench_nosnoc_says_how_to_install(bench_nosnoc, monkeypatch, tmp_path, c
     assert not (tmp_path / "results.json").exists()
     planned = {"solver": "planner", "variant": "hint-free", "N": 25, "holes": 0, "converged": True, "wall_time_s": 0.5}
     monkeypatch.setattr(bench_nosnoc, "run_planner", lambda quick: dict(planned))
+    (tmp_path / "trajectories.npz").write_bytes(b"an earlier run's nosnoc solutions")  # not this run's: removed
     assert bench_nosnoc.main(["--quick", "--planner", "--variants", "--out", str(tmp_path)]) == 0
+    assert not (tmp_path / "trajectories.npz").exists()
     results = json.loads((tmp_path / "results.json").read_text())
     (rec,) = results["records"]
     assert rec["solver"] == "planner" and rec["date"].endswith("+00:00") and results["machine"]["nosnoc"] is None
@@ -971,8 +974,16 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.stress", "--robot", "point_mass", "--seed", "-1"], "stress: error: --seed must be >= 0"),  # numpy's traceback
     (["scripts.stress", "--robot", "point_mass", "--rho-schedule", "nan"], "SolveOptions.rho_schedule"),  # every task crashed
     (["scripts.bench_pipeline", "--quick", "--solve", '{"bogus": 1}'], "add --full or --full-only"),  # silently ignored
+    # options of runs that do not happen: dropped, and recorded in results.json as if used
+    (["scripts.bench_pipeline", "--quick", "--full-only", "--variants", "mumps_amd", "--iters", "50"],
+     "--variants, --iters set the fixed-iteration runs, which --full-only skips"),
+    (["scripts.bench_work_precision", "--suite", "ocp", "--cases", "ocp_pm_hop", "--capler-N", "40"],
+     "--capler-N sets the grids of the Capler cases, and --cases runs none"),
+    (["scripts.stress", "--robot", "point_mass", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"],
+     "--workers sets the local processes; a Dask --scheduler has its own workers"),
     (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "is a file, not a directory"),
     (["scripts.bench_replan", "nosuch", "--values", "1"], "no default task robots/nosuch.toml"),  # a traceback
+    (["scripts.bench_replan", "capler", "--values", "3.1", "3.1000001"], "name the same runs (3.1, 3.1)"),  # deleted one
     (["scripts.bench_replan", "point_mass", "--values", "1"], "exactly one 'target_q = ...' line"),  # exit 1
     (["scripts.bench_replan", "biped", "--quick", "--values", "0.9"], "give no robot or --values with it"),  # dropped
     (["scripts.bench_biped_walk", "--quick", "--lower", "fast"], "give no --lower with it"),  # dropped
@@ -983,6 +994,9 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     # an --out that is a file: refused after the whole run (70 s of nosnoc's solves)
     *[([f"scripts.{name}", "--quick", "--out", "{file}"], "is a file, not a directory")
       for name in ("bench_nosnoc", "bench_pipeline", "bench_skips", "bench_work_precision")],
+    # an --out whose results.json is a directory: refused after the whole run
+    *[([f"scripts.{name}", "--quick", "--out", "{dir}/rj"], "rj/results.json is a directory")
+      for name in ("bench_skips", "stress")],
     # an empty --out (an unset shell variable): results.json was written into the working directory
     *[([f"scripts.{name}", "--quick", "--out", ""], "an empty path is not allowed")
       for name in ("bench_skips", "stress", "bench_replan")],
@@ -1000,6 +1014,7 @@ def test_scripts_refuse_bad_input_before_running(tmp_path, argv, fragment):
     precede it), no usage text, no traceback."""
     a_file = tmp_path / "a_file"
     a_file.write_text("")
+    (tmp_path / "rj" / "results.json").mkdir(parents=True)
     argv = ([a.replace("{file}", str(a_file)).replace("{dir}", str(tmp_path)) for a in argv]
             + ([] if "--out" in argv or "bench_fatrop" in argv[0] else ["--out", str(tmp_path / "out")]))
     proc = subprocess.run([sys.executable, "-m", *argv], cwd=SCRIPTS.parent, capture_output=True, text=True, timeout=120)
