@@ -38,7 +38,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
                      interruptible, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import ArraysReadOnly, real_array, write_files
+from .result import CONE_SLACK, ArraysReadOnly, real_array, write_files
 from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -744,6 +744,10 @@ class WalkReport:
                 "speed_gain": self.gains.speed_gain, "speed_integral": self.gains.speed_integral}
 
 
+# A MuJoCo landing counts as a step when the new stance foot is at least this share of the plan's step length ahead.
+MIN_STEP_SHARE = 0.5
+
+
 def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, steps: int,
                 gains: WalkGains | None = None, trace: list | None = None, settings=None,
                 arm_index: int | None = None) -> WalkReport:
@@ -783,6 +787,8 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
                          "use 'phase'")
     pair_of = {p: i for i, p in enumerate(scene.points)}
     _require_feet(lay, scene.points)
+    tiled = periodic_walk(model, sol, steps)  # the plan's walk: its step length, and its base against MuJoCo's
+    planned_step = tiled.step_length
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
     state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0,
              "last_t": 0.0}
@@ -834,7 +840,9 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
             lands = swing_z + sample_s * max(swing_zdot, 0.0) >= 0.0
         else:
             lands = swing_z < gains.ground_gap
-        if armed and lands and float(foot_pos[swing](q)[0]) > float(foot_pos[stance](q)[0]):
+        # a landing is a step: half the plan's length at least (a swing foot armed at a mid-stance dip and rising
+        # through the ground counted ten 0.1-0.5 mm shuffles in 33 ms as "10 of 10 steps")
+        if armed and lands and float(foot_pos[swing](q)[0] - foot_pos[stance](q)[0]) >= MIN_STEP_SHARE * planned_step:
             state["impacts"].append(t)
             state["steps"].append(float(foot_pos[swing](q)[0] - foot_pos[stance](q)[0]))
             # stride-to-stride speed loop: a step that ends slower than the plan leans the torso forward for the
@@ -895,7 +903,6 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     landings = state["impacts"][:steps]
     until = min(state.get("fall_t", np.inf), landings[-1] if len(landings) == steps else np.inf)
     # the base against the plan tiled in time: timing drift included (information; PHASE ignores time)
-    tiled = periodic_walk(model, sol, steps)
     upto = run["t"] <= min(state.get("fall_t", np.inf), steps * T)
     plan_base = np.column_stack([np.interp(run["t"][upto], tiled.t, tiled.q[:, i]) for i in (lay.x, lay.z)])
     base_error = np.linalg.norm(run["q"][upto][:, [lay.x, lay.z]] - plan_base, axis=1)
@@ -926,10 +933,6 @@ class GaitRunResult:
         lines = [f"gait {Path(self.robot).name} ({Path(self.task).name}): {'converged' if s.converged else 'NOT converged'} "
                  f"in {s.solve_time_s:.2f} s, {len(s.loops)} outer loops, {s.pronto_iterations} PRONTO iterations; "
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
-        need, mu = self.summary.get("friction_needed"), self.summary.get("friction_mu")
-        if need is not None and mu is not None and need > mu:  # it showed only in summary.json, before a fall
-            lines.append(f"  the stance foot needs |tangential / normal| force up to {need:.3g}, beyond its contact's mu = "
-                         f"{mu:g}: the gait has no friction cone, MuJoCo's foot slides where the ratio exceeds mu")
         lines += [f"  {violation}" for violation in self.summary.get("contact_violations", ())]
         if self.walking is not None:
             w = self.walking
@@ -958,13 +961,18 @@ CONTACT_FORCE_TOL_N, CONTACT_IMPULSE_TOL_N_S, LIFT_OFF_TOL_M_S = 1e-6, 1e-9, 1e-
 
 def contact_violations(summary: dict) -> list[str]:
     """What a gait asks of the ground that a unilateral contact cannot give, one line each (the paper's OCP has no
-    contact constraints; such gaits converged silently, MuJoCo's walk then fell): a stance force that pulls, an impact
-    impulse that pulls or leaves the friction cone, a trailing foot that does not lift off after the impact."""
+    contact constraints; such gaits converged silently, MuJoCo's walk then fell): a stance force that pulls or leaves
+    the friction cone, an impact impulse that pulls or leaves it, a trailing foot that does not lift off after the
+    impact. mu: the smaller of the two feet's (they swap roles every step)."""
     out = []
     mu = summary["impact_friction_mu"]
     if summary["min_normal_force_N"] < -CONTACT_FORCE_TOL_N:
         out.append(f"the stance foot's normal force falls to {summary['min_normal_force_N']:.4g} N: the ground would "
                    "have to pull it down")
+    elif summary["friction_needed"] > summary["friction_mu"] * CONE_SLACK:  # (was only said: --no-validate exited 0)
+        out.append(f"the stance foot needs |tangential / normal| force up to {summary['friction_needed']:.3g}, "
+                   f"beyond its contact's mu = {summary['friction_mu']:g}: the gait has no friction cone, the foot "
+                   "would slide")
     tangential, normal = summary["impact_impulse_N_s"]
     if normal < -CONTACT_IMPULSE_TOL_N_S:
         out.append(f"the impact's normal impulse is {normal:.4g} N s: the ground would have to pull the landing foot")
@@ -1038,9 +1046,10 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "min_normal_force_N": float(np.min(force[:, 1])),
         # where the ground pushes (a pulling ground is a contact violation below, the ratio means nothing there)
         "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]), where=force[:, 1] > 0.0, initial=0.0)),
-        "friction_mu": next(c.mu for c in task.contacts if c.point == g.stance),  # the stance foot's, for the report
+        # the smaller of the two feet's: each is the stance foot and the landing foot every other step
+        "friction_mu": min(c.mu for c in task.contacts if c.point in (g.stance, g.swing)),
         **_impact_contact(model, sol.x[-1]),
-        "impact_friction_mu": next(c.mu for c in task.contacts if c.point == g.swing),  # the landing foot's
+        "impact_friction_mu": min(c.mu for c in task.contacts if c.point in (g.stance, g.swing)),
         "min_swing_foot_height_m": float(np.min(height[1:-1])),
         "outer_loops": [vars(loop) for loop in sol.loops],
         "walking": walking.to_json() if walking else None,

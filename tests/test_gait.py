@@ -134,14 +134,17 @@ def test_the_impacts_contact_quantities_are_mujocos(robot, biped):
 def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
     """contact_violations names what a unilateral, frictional contact cannot give (such gaits converged silently, and
     MuJoCo's walk fell without a reason): a stance force that pulls (-1356 N, a T = 1 s gait), an impact impulse that
-    pulls (-10.2 N s) or leaves the friction cone (ratio 10.3 at mu = 1), a trailing foot moving down after the
-    impact (-0.067 m/s). The shipped gaits' margins give none."""
+    pulls (-10.2 N s) or leaves the friction cone (ratio 10.3 at mu = 1), a stance force beyond the friction cone,
+    a trailing foot moving down after the impact (-0.067 m/s). The shipped gaits' margins give none."""
     from planner.gait import contact_violations
 
-    good = {"friction_mu": 1.0, "impact_friction_mu": 1.0, "min_normal_force_N": 195.0,
+    good = {"friction_mu": 1.0, "impact_friction_mu": 1.0, "min_normal_force_N": 195.0, "friction_needed": 0.648,
             "impact_impulse_N_s": [-15.36, 20.02], "trailing_foot_lift_off_m_s": 0.33}
     assert contact_violations(good) == []
     cases = (({"min_normal_force_N": -1356.5}, "normal force falls to -1356 N"),
+             # gait 1 on a foot of mu = 0.6: it was only said, and `gait --no-validate` exited 0
+             ({"friction_needed": 0.648, "friction_mu": 0.6}, "needs |tangential / normal| force up to 0.648, beyond "
+                                                              "its contact's mu = 0.6"),
              ({"impact_impulse_N_s": [1.0, -10.19]}, "normal impulse is -10.19 N s"),
              ({"impact_impulse_N_s": [19.5, 1.9]}, "is 10.3 times its normal one 1.9 N s, beyond mu = 1"),
              ({"trailing_foot_lift_off_m_s": -0.067}, "trailing foot moves down at -0.067 m/s"))
