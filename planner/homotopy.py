@@ -149,7 +149,8 @@ ENUM_FIELDS = {"mu_strategy": MuStrategy, "holes": HoleSchedule, "polish": Polis
 class SolveOptions:
     """Numerical settings of the homotopy (the homotopy's rho0, kappa, n_nlp come from the task).
 
-    tol, acceptable_tol: IPOPT's tol and acceptable_tol; max_iter: IPOPT iterations per NLP (unscaled, NLP 2 of
+    tol, acceptable_tol: IPOPT's tol and acceptable_tol (None: ACCEPTABLE_TOL, or tol if larger; a value below tol is
+    refused, IPOPT would get tol); max_iter: IPOPT iterations per NLP (unscaled, NLP 2 of
     the default Capler task stopped at 3000 on its way to hopping, and allowed to converge, at 3958,
     the path led NLP 4 astray; with variable_scaling it converges in 1535: docs/formulation.md round 6);
     print_level: IPOPT's (0 silent, 5 the usual log); linear_solver: IPOPT's (the CasADi wheel has
@@ -293,7 +294,7 @@ class SolveOptions:
     """
 
     tol: float = 1e-8
-    acceptable_tol: float = 1e-6
+    acceptable_tol: float | None = None
     max_iter: int = 3000
     print_level: int = 0
     linear_solver: str = "mumps"
@@ -351,8 +352,8 @@ class SolveOptions:
             enum_field(self, key, enum, optional=key == "variable_scaling")
         checks = [
             (self.tol > 0, "tol", self.tol, "> 0"),
-            # (IPOPT would get tol: acceptable_tol below it stops nothing sooner)
-            (self.acceptable_tol >= self.tol, "acceptable_tol", self.acceptable_tol, f">= tol = {self.tol!r}"),
+            (self.acceptable_tol is None or self.acceptable_tol >= self.tol, "acceptable_tol", self.acceptable_tol,
+             f">= tol = {self.tol!r} (or None)"),
             (self.max_iter >= 1, "max_iter", self.max_iter, ">= 1"),
             (self.schedule_max_iter >= 1, "schedule_max_iter", self.schedule_max_iter, ">= 1"),
             (self.polish_starts >= 1, "polish_starts", self.polish_starts, ">= 1"),
@@ -562,6 +563,7 @@ def _small_mu_ipopt(options: SolveOptions) -> dict:
     return dict(SMALL_MU_MUMPS) if options.linear_solver == "mumps" else {}
 
 
+ACCEPTABLE_TOL = 1e-6  # SolveOptions.acceptable_tol's default (IPOPT's acceptable_tol), or tol when larger
 SCHEDULE_KEPT = " (the start's contact schedule kept)"  # a held-schedule NLP's result message
 
 
@@ -598,7 +600,9 @@ def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dic
     NLP solved to options.intermediate_tol)."""
     tol = options.intermediate_tol if (loose and options.intermediate_tol is not None) else options.tol
     ip = {
-        "tol": tol, "acceptable_tol": max(options.acceptable_tol, tol), "max_iter": options.max_iter,
+        "tol": tol, "acceptable_tol": max(tol, ACCEPTABLE_TOL if options.acceptable_tol is None
+                                          else options.acceptable_tol),
+        "max_iter": options.max_iter,
         "print_level": options.print_level, "sb": "yes", "linear_solver": options.linear_solver,
         "mu_strategy": options.mu_strategy.value, "mu_init": options.mu_init,
         "bound_push": options.bound_push, "bound_frac": options.bound_frac,

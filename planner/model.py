@@ -246,8 +246,13 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
-    if fmt is RobotFormat.MJCF:
-        _refuse_second_tree(path, model)
+    if model.nv == 0 and fmt is RobotFormat.MJCF:  # (MuJoCo's reading, needed for the cause, is made below otherwise)
+        import mujoco
+
+        with contextlib.suppress(ValueError):  # a file MuJoCo cannot compile: said where its reading is needed
+            said = _second_tree(path, mujoco.MjModel.from_xml_path(str(path)), model)
+            if said:
+                raise RobotFileError(said)
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
@@ -338,23 +343,18 @@ def _urdf_couplings(path: Path) -> tuple[str, ...]:
                  for j in ET.parse(path).getroot().iter("joint") if j.find("mimic") is not None)
 
 
-def _refuse_second_tree(path: Path, model: pin.Model) -> None:
-    """RobotFileError when <worldbody> holds several bodies and Pinocchio, whose MJCF parser reads the first of them
-    only, has other degrees of freedom than MuJoCo: a marker body placed before the robot left a robot "without
-    joints", a second moving body after it was blamed on a <frame>. Scenery bodies without joints after the robot
-    stay allowed (MuJoCo's replay keeps them out of collisions)."""
-    import mujoco
-
-    try:
-        mj = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError:  # said where MuJoCo's reading is needed (_mjcf_info)
-        return
+def _second_tree(path: Path, mj, model: pin.Model) -> str | None:
+    """The error when <worldbody> holds several bodies and Pinocchio, whose MJCF parser reads the first of them only,
+    has other degrees of freedom than MuJoCo's compiled model mj (a marker body placed before the robot left a robot
+    "without joints", a second moving body after it was blamed on a <frame>), else None. Scenery bodies without joints
+    after the robot stay allowed (MuJoCo's replay keeps them out of collisions)."""
     roots = [mj.body(b).name or f"body {b}" for b in range(1, mj.nbody) if mj.body_parentid[b] == 0]
-    if len(roots) > 1 and mj.nv != model.nv:
-        raise RobotFileError(f"{path}: <worldbody> holds {len(roots)} bodies ({', '.join(map(repr, roots))}) and "
-                             f"Pinocchio's MJCF parser reads the first one only ({roots[0]!r}: {model.nv} of MuJoCo's "
-                             f"{mj.nv} degrees of freedom): a robot is one body tree; put its root body first, and "
-                             "scenery (bodies without joints) after it or as geoms and sites of <worldbody> itself")
+    if len(roots) < 2 or mj.nv == model.nv:
+        return None
+    return (f"{path}: <worldbody> holds {len(roots)} bodies ({', '.join(map(repr, roots))}) and Pinocchio's MJCF "
+            f"parser reads the first one only ({roots[0]!r}: {model.nv} of MuJoCo's {mj.nv} degrees of freedom): a "
+            "robot is one body tree; put its root body first, and scenery (bodies without joints) after it or as "
+            "geoms and sites of <worldbody> itself")
 
 
 def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
@@ -370,8 +370,8 @@ def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
         a, b, c = np.linalg.eigvalsh(inertia.inertia)  # ascending
         if a + b < c * (1.0 - 1e-9) - 1e-12:  # no body has them (MuJoCo refuses the file; a URDF was simulated first)
             raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has principal moments of inertia "
-                                 f"{np.round([a, b, c], 9).tolist()} kg m^2, and no rigid body's smaller two sum to less "
-                                 "than the largest (A + B >= C)")
+                                 f"{np.round([a, b, c], 9).tolist()} kg m^2, and no rigid body's smaller two sum to "
+                                 "less than the largest (A + B >= C)")
 
 
 def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:
@@ -407,8 +407,9 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     except ValueError as exc:
         raise RobotFileError(mujoco_failure(path, exc)) from None
     if mj.nv != model.nv:
-        raise RobotFileError(f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv} (a body or joint inside a <frame>, "
-                             "or an <include>, is not read by Pinocchio's MJCF parser)")
+        raise RobotFileError(_second_tree(path, mj, model) or (
+            f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv} (a body or joint inside a <frame>, or an "
+            "<include>, is not read by Pinocchio's MJCF parser)"))
     if mj.neq:  # Pinocchio's model has no such coupling: the planner's motion would break it
         raise RobotFileError(f"{path}: {mj.neq} <equality> constraint(s); the planner models kinematic trees without "
                              "equality constraints")

@@ -173,8 +173,8 @@ class ProblemOptions:
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"ProblemOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions(n_s, n_fe, rho_h)")
         if self.discretization is not Discretization.FESD and self.fesd != FESDOptions():
-            raise InputError(f"ProblemOptions.fesd = {self.fesd!r} sets the FESD discretization, which "
-                             f"discretization = {self.discretization.value} would ignore; add discretization=Discretization.FESD")
+            raise InputError(f"ProblemOptions.fesd = {self.fesd!r} sets the FESD discretization, which discretization "
+                             f"= {self.discretization.value} would ignore; add discretization=Discretization.FESD")
         if self.discretization is Discretization.FESD:
             if self.clock_weight != 0:
                 raise InputError(f"ProblemOptions.clock_weight = {self.clock_weight!r} is not allowed with discretization fesd; it must be 0")
@@ -965,10 +965,11 @@ def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
             p = np.asarray(dyn.point_position(c.point)(np.array(q, float)), float).ravel()
             for i, e in enumerate(plan.holes):
                 if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
-                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, inside "
-                                     f"plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no plan can "
-                                     f"{'start' if key == 'initial.q' else 'end'} there: move the "
-                                     f"{'start' if key == 'initial.q' else 'target'} or the hole")
+                    start = key == "initial.q"
+                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, "
+                                     f"inside plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no "
+                                     f"plan can {'start' if start else 'end'} there: move the "
+                                     f"{'start' if start else 'target'} or the hole")
 
 
 def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X, var_blocks, y0) -> ca.SX:

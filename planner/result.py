@@ -621,7 +621,7 @@ IMPULSE_SHARE = 1e-2
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
             frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False,
-            landed=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
+            landed=None, approach=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
 
     tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
@@ -631,7 +631,11 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
     frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
     clock runs again); a frozen step after a partly frozen one that is not the run's first starts the
-    next run. A run is an impact when the numerical time it froze, sum(h s - clock advance), is at least
+    next run. A run that ends with a fully frozen step whose contact (the one taking the run's first step's largest
+    normal impulse) still moves into its plane at the step's end takes the next step too when that froze more than
+    TAIL_SHARE of it (the impact's end, below frozen_tol); approach (K-1, n_contacts) [m/s]: each contact's normal
+    velocity at the start of each step, moving into its plane below -APPROACH_MPS (None: no such step is
+    taken). A run is an impact when the numerical time it froze, sum(h s - clock advance), is at least
     frozen_tol times the longest step (so a FESD element a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
     the largest (the largest first; one contact: always one Impact), all with the interval's time,
@@ -679,12 +683,13 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         at_node = landed is not None and bool(landed[a][lander]) and not switch_at_start and not fully[a]
         while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node) or fully[b]):
             b += 1
-        # an impact still on at the end of a fully frozen step ends in the next one, however little of it that step
-        # froze (below frozen_tol it is no frozen step): its increment and impulse are the impact's end (a drop whose
-        # last step ran the clock for 99.2 % of it kept v_post moving into the ground at 7.8 mm/s)
-        # (implicit Euler; FESD puts the impact's end on an element boundary)
-        tail = not switch_at_start and fully[b] and b + 1 < n_steps
-        if tail and advance[b + 1] < (1.0 - TAIL_SHARE) * dt_steps[b + 1]:
+        # an impact still on at the end of a fully frozen step (its contact still moving into its plane there) ends
+        # in the next one, however little of it that step froze (below frozen_tol it is no frozen step): its increment
+        # and impulse are the impact's end (a drop whose last step ran the clock for 99.2 % of it kept v_post moving
+        # into the ground at 7.8 mm/s). A stance's drift correction after an impact that ended at the step's end is
+        # not (a replan's push-off was counted into its landing). Implicit Euler: FESD ends impacts on element bounds.
+        tail = not switch_at_start and approach is not None and fully[b] and b + 1 < n_steps
+        if tail and approach[b + 1][lander] < -APPROACH_MPS and advance[b + 1] < (1 - TAIL_SHARE) * dt_steps[b + 1]:
             b += 1
         if np.sum(dt_steps[a : b + 1] - advance[a : b + 1]) < min_frozen:
             # a FESD sliver: an element of ~1e-8 s between two switches leaks its clock like a frozen one

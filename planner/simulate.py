@@ -95,8 +95,8 @@ class SimulateOptions:
         if not isinstance(self.fesd, FESDOptions):
             raise InputError(f"SimulateOptions.fesd = {self.fesd!r} is not allowed; it must be a FESDOptions")
         if self.discretization is not Discretization.FESD and self.fesd != FESDOptions():
-            raise InputError(f"SimulateOptions.fesd = {self.fesd!r} sets the FESD discretization, which "
-                             f"discretization = {self.discretization.value} would ignore; add discretization=Discretization.FESD")
+            raise InputError(f"SimulateOptions.fesd = {self.fesd!r} sets the FESD discretization, which discretization "
+                             f"= {self.discretization.value} would ignore; add discretization=Discretization.FESD")
         enum_field(self, "velocity_switch", SwitchVelocity, optional=True)
         if self.discretization is Discretization.FESD and self.strategy is not Strategy.STEPWISE:
             raise InputError("discretization = fesd is implemented for strategy = stepwise only")
@@ -187,9 +187,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     else:
         run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
         Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
-        n = len(W)
-        Y, W, U = np.asarray(Y, float), np.asarray(W, float).reshape(n, builder.nw), np.asarray(U, float).reshape(n, system.nu)
-        elements, weights = (h * np.arange(n + 1), Y, Y[1:, None], W[:, None], U[:, None], np.full(n, h)), np.ones(1)
+        elements, weights = step_elements(system, builder, Y, W, U, h), np.ones(1)
     stats = dict(stats, solve_time_s=time.perf_counter() - start)
     trajectory = element_trajectory(system, builder, *elements, weights, options.frozen_tol,
                                     switch_at_start=options.discretization is Discretization.FESD)
@@ -591,11 +589,17 @@ def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W
 
     Y (N+1, ny), W (N, nw), U (N, nu) of N solved steps of length h [s]; S (N,) speeds of time
     (default 1): step k advances numerical time h and integrates h S[k] F."""
+    return element_trajectory(system, builder, *step_elements(system, builder, Y, W, U, h, S), np.ones(1), frozen_tol,
+                              switch_at_start=False)
+
+
+def step_elements(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, S=None) -> tuple:
+    """N implicit-Euler steps (arguments as step_trajectory's) as element_trajectory's one-stage elements:
+    (tau (N+1,), Y (N+1, ny), Ys (N, 1, ny), Ws (N, 1, nw), Us (N, 1, nu), dt (N,))."""
     N = len(W)
     S = np.ones(N) if S is None else np.asarray(S, float).ravel()
     Y, W, U = np.asarray(Y, float), np.asarray(W, float).reshape(N, builder.nw), np.asarray(U, float).reshape(N, system.nu)
-    return element_trajectory(system, builder, h * np.arange(N + 1), Y, Y[1:, None], W[:, None], U[:, None], h * S,
-                              np.ones(1), frozen_tol, switch_at_start=False)
+    return h * np.arange(N + 1), Y, Y[1:, None], W[:, None], U[:, None], h * S
 
 
 def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, tau, Y, Ys, Ws, Us, dt, b, frozen_tol,
@@ -614,13 +618,13 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     dv_aux, impulses = _auxiliary_parts(system, builder, Ys, Ws, Us, dt, b)
     sigma = np.array([Ws[k, -1][builder.w_blocks["sigma"]] for k in range(N)]).reshape(N, system.n_sigma)
     W, U = Ws[:, -1], Us[:, -1]
-    landed = None
+    landed = approach = None
     if not switch_at_start and n_c:  # a step that starts with a point on its plane moving into it: its impact first
         gaps = np.array([np.asarray(system.gap_fn(Y[k], U[k]), float).ravel() for k in range(N)])
         approach = np.array([np.asarray(system.normal_velocity_fn(Y[k], U[k]), float).ravel() for k in range(N)])
         landed = (gaps <= ON_PLANE_M) & (approach < -APPROACH_MPS)  # (N, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
-                                  switch_at_start=switch_at_start, landed=landed)
+                                  switch_at_start=switch_at_start, landed=landed, approach=approach)
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),
                             kinetic_energy_post=_kinetic(system, imp.q, imp.v_post)) for imp in impacts)
     forces = None
@@ -643,7 +647,8 @@ def _auxiliary_parts(system: TimeFreezingSystem, builder: ImplicitEulerStep, Ys,
             fmat = np.asarray(system.fields_fn(Ys[k, j], Us[k, j]))
             dv_aux[k] += weight * dt[k] * fmat[nq : nq + nv, aux] @ coef[aux]
             if n_c:
-                impulses[k] += (weight * dt[k] * np.asarray(system.impulse_fn(Ys[k, j], Us[k, j])) @ coef).reshape(n_c, 2)
+                impulse = np.asarray(system.impulse_fn(Ys[k, j], Us[k, j]))
+                impulses[k] += (weight * dt[k] * impulse @ coef).reshape(n_c, 2)
     return dv_aux, impulses
 
 

@@ -168,8 +168,9 @@ def main(argv=None) -> int:
                     args = dict(args1)
                 elif name == "fatrop":
                     st1 = st.without_free_rows(args1["lbg"], args1["ubg"]) if a.drop_free else st
-                    fo = dict(tolerance=opts.tol, tol_acceptable=opts.acceptable_tol, mu_init=opts.mu_init, bound_push=opts.bound_push,
-                              max_iter=max_iter, print_level=5 if a.verbose else 0)
+                    acceptable = ipopt_options(opts, False)["ipopt"]["acceptable_tol"]  # as IPOPT gets it
+                    fo = dict(tolerance=opts.tol, tol_acceptable=acceptable, mu_init=opts.mu_init,
+                              bound_push=opts.bound_push, max_iter=max_iter, print_level=5 if a.verbose else 0)
                     fo.update(fat_extra)
                     df, dg = gradient_scaling(st1, st1.lift(args1["x0"]), args1["p"]) if a.scale else (1.0, np.ones(st1.g.shape[0]))
                     out["scaling"] = {"objective": df, "rows_scaled": int(np.sum(dg < 1)), "row_min": float(np.min(dg))}

@@ -393,9 +393,9 @@ def main(argv: list[str] | None = None) -> int:
             full.append((given, solve_options_from_dict(given)))
         except InputError as e:
             parser.error(f"--solve: {e}")
-    fixed = [flag for flag, given in (("--variants", args.variants), ("--iters", args.iters), ("--repeats", args.repeats),
-                                      ("--nlp", args.nlp != parser.get_default("nlp")), ("--codegen", args.codegen))
-             if given]
+    fixed = [flag for flag, given in (("--variants", args.variants), ("--iters", args.iters),
+                                      ("--repeats", args.repeats), ("--nlp", args.nlp != parser.get_default("nlp")),
+                                      ("--codegen", args.codegen)) if given]
     if args.full_only and fixed:  # no fixed-iteration run: they were recorded in results.json as if they had applied
         parser.error(f"{', '.join(fixed)} set{'s' if len(fixed) == 1 else ''} the fixed-iteration runs, which "
                      "--full-only skips")

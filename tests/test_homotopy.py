@@ -260,11 +260,14 @@ def test_replan_fields_are_the_ones_replan_options_sets():
 
 
 def test_acceptable_tol_below_tol_is_refused():
-    """SolveOptions.acceptable_tol below tol is an InputError naming both: IPOPT was given tol instead, while the
-    result's options recorded the value asked for. Equal to tol is allowed."""
+    """SolveOptions.acceptable_tol set below tol is an InputError naming both: IPOPT was given tol instead, while the
+    result's options recorded the value asked for. Equal to tol is allowed, and the default (None) gives IPOPT
+    ACCEPTABLE_TOL or tol when that is larger, so tol = 1e-5 alone is accepted."""
     with pytest.raises(InputError, match=r"^SolveOptions\.acceptable_tol = 1e-10 is not allowed; it must be >= tol = 1e-08"):
         H.SolveOptions(acceptable_tol=1e-10)
     assert H.SolveOptions(tol=1e-6, acceptable_tol=1e-6).acceptable_tol == 1e-6
+    for tol, given in ((1e-5, 1e-5), (1e-8, H.ACCEPTABLE_TOL)):
+        assert H.ipopt_options(H.SolveOptions(tol=tol), warm=False)["ipopt"]["acceptable_tol"] == given
 
 
 @pytest.mark.parametrize("kwargs, fragment", [

@@ -113,17 +113,23 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
     """A fully frozen step (the impact still on at its end) followed by a step whose clock ran 99.92 % of it (below
     FROZEN_TOL: no frozen step by itself) is one impact: the second step's auxiliary increment and impulse are the
     impact's end, so the inelastic v_post is 0 and the impulse the whole m |v_pre|. Left out, v_post kept moving into
-    the ground (a tester's drop: -7.8 mm/s) and the impulse was short by that much. A step that froze nothing after it
-    is left alone."""
+    the ground (a tester's drop: -7.8 mm/s) and the impulse was short by that much. The point must still move into its
+    plane at the frozen step's end (approach, per step's start): an impact over by then is followed by a stance's drift
+    correction (a replan's push-off had been counted into its landing). A step that froze nothing is left alone."""
     clock = [0.0, 0.1, 0.1, 0.19992, 0.29992]
     y = np.column_stack([np.zeros(5), [-1.0, -2.0, -0.1, 0.0, 0.0], clock])
     dv = np.array([[0.0], [1.9], [0.1], [0.0]])
     imp = dv.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
-    t, _, vs, _, impacts = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1, ("foot",))
+    approach = y[:4, 1:2]  # the point mass's normal velocity is its v
+    t, _, vs, _, impacts = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1, ("foot",),
+                                   approach=approach)
     (impact,) = impacts
     assert (impact.time, impact.v_pre[0], impact.v_post[0], impact.impulse) == pytest.approx((0.1, -2.0, 0.0, 2.0))
     assert (impact.tau_start, impact.tau_end) == pytest.approx((0.1, 0.3))
     np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.1, 0.19992, 0.29992], atol=EXACT)
+    over = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1, ("foot",),
+                   approach=np.where(np.arange(4)[:, None] == 2, 0.0, approach))[4]  # at rest on its plane at 0.1
+    assert [(im.v_post[0], im.impulse, im.tau_end) for im in over] == [pytest.approx((-0.1, 1.9, 0.2))]
     whole = [0.0, 0.1, 0.1, 0.2, 0.3]  # the clock ran all of the next step: the impact ended with the frozen one
     y_whole = np.column_stack([np.zeros(5), [-1.0, -2.0, 0.0, 0.0, 0.0], whole])
     dv_whole = np.array([[0.0], [2.0], [0.0], [0.0]])
