@@ -13,6 +13,7 @@ import os
 import re
 import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -223,6 +224,10 @@ def main(argv: list[str] | None = None) -> int:
         return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         return _stop(args, EXIT_INTERRUPTED, "interrupted")
+    except SystemError as exc:  # a Ctrl-C inside a Python callback CasADi called: "returned a result with an exception set"
+        if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            return _stop(args, EXIT_INTERRUPTED, "interrupted")
+        raise
 
 
 class _ReaderMayLeave:
@@ -343,14 +348,16 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
+    _remove_plots(target)  # first: one it cannot remove left the new result beside the earlier result's plots
     write_results(result, target)
     if result.stats.converged:
         _remove_failed(out / "failed")
-    _remove_plots(target)
     if args.no_plots:
         return target, lambda: None
     if not background:
-        _plotted(args, result.stats.converged, _draw(target))
+        with _sigint_deferred():  # a Ctrl-C left the new result with part of its plots
+            drawn = _draw(target)
+        _plotted(args, result.stats.converged, drawn)
         return target, lambda: None
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
@@ -391,6 +398,23 @@ def _remove_failed(stale: Path) -> None:
         (stale / name).unlink(missing_ok=True)
     with contextlib.suppress(OSError):  # not empty: the user's own files stay
         stale.rmdir()
+
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Ctrl-C waits for the block, then interrupts as usual (KeyboardInterrupt after it); off the main thread, where
+    Python takes no signal, the block just runs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _draw(target: Path) -> str | None:

@@ -814,9 +814,11 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
 
 def check_same_result(out_dir: str | os.PathLike, summary: dict, arrays: dict) -> None:
     """InputError when out_dir's summary.json and trajectory.npz (read as `summary`, `arrays`) carry different
-    result ids: files of two results, a run stopped between writing them. Files without ids (older results) pass."""
+    result ids, or only one of them an id: files of two results, a run stopped between writing them (a summary.json
+    without its id beside another run's trajectory.npz was validated as one result). Files without ids (older
+    results) pass."""
     ids = summary.get("result_id"), str(arrays["result_id"]) if "result_id" in arrays else None
-    if None not in ids and ids[0] != ids[1]:
+    if ids[0] != ids[1]:
         raise InputError(f"{out_dir}: summary.json and trajectory.npz are files of two different results (a run stopped "
                          "between writing them?); run the plan or simulation again")
 

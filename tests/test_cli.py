@@ -872,3 +872,60 @@ def test_json_is_one_object_on_every_exit(tmp_path, capsys):
     assert captured.err.strip() == f"planner plan: error: task file {tmp_path} is a directory"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "s"), "--json", "--no-plots"]) == 0
     assert json.loads(capsys.readouterr().out)["command"] == "simulate"  # a success: the summary alone
+
+
+def test_ctrl_c_while_the_plots_are_drawn_waits_for_them():
+    """A Ctrl-C (SIGINT) inside cli._sigint_deferred, the block that draws a result's plots, lets the block finish and
+    then interrupts (KeyboardInterrupt, exit 130): it stopped the drawing half way, and the new result stood beside
+    part of its plots."""
+    import os
+    import signal
+
+    from planner.cli import _sigint_deferred
+
+    finished = []
+    with pytest.raises(KeyboardInterrupt):
+        with _sigint_deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            finished.append(True)
+    assert finished == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_ctrl_c_casadi_turned_into_a_system_error_is_an_interruption(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C inside a Python callback that CasADi calls comes back as SystemError ("returned a result with an
+    exception set") with the KeyboardInterrupt as its cause: exit 130 and one line, as Ctrl-C elsewhere (it was a
+    traceback and exit 1). Another SystemError is not hidden."""
+    import planner.cli as cli
+
+    def interrupted(args):
+        raise SystemError("<function DM.__array__> returned a result with an exception set") from KeyboardInterrupt()
+
+    monkeypatch.setattr(cli, "_cmd_simulate", interrupted)
+    assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
+    assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+
+    def broken(args):
+        raise SystemError("something else")
+
+    monkeypatch.setattr(cli, "_cmd_simulate", broken)
+    with pytest.raises(SystemError, match="something else"):
+        main(["simulate", "point_mass", "--out", str(tmp_path / "out")])
+
+
+def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
+    """The earlier result's plots are removed before the new result is written: when one cannot be (an immutable
+    file), the command stops (exit 2) with the earlier result and its plots as they were; the new result had
+    replaced it first and stood beside the old plots."""
+    import planner.cli as cli
+
+    out = tmp_path / "out"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "-q"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+
+    def refused(target):
+        raise PermissionError(1, "Operation not permitted", str(target / "states.png"))
+
+    monkeypatch.setattr(cli, "_remove_plots", refused)
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path, z0=0.3), "--out", str(out), "-q"]) == 2
+    assert "Operation not permitted" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before

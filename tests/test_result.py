@@ -459,15 +459,19 @@ def test_a_killed_writers_old_temp_file_is_removed_by_the_next_write(tmp_path):
 
 def test_files_of_two_results_are_refused(tmp_path):
     """check_same_result refuses a summary.json and a trajectory.npz of two different writes (a run stopped between
-    their renames: validate replayed the mix); files of one write, and older files without ids, pass."""
+    their renames: validate replayed the mix), also when only one of them has an id (a summary.json without its id
+    beside another run's trajectory.npz was validated as one result); files of one write, and older files without
+    ids, pass."""
     for name, n in (("a", 2), ("b", 3)):
         write_results(_tiny_result(n), tmp_path / name)
     a, b = (read_summary(tmp_path / name, require=()) for name in ("a", "b"))
     arrays = {name: dict(np.load(tmp_path / name / "trajectory.npz")) for name in ("a", "b")}
     check_same_result(tmp_path / "a", a, arrays["a"])
-    check_same_result(tmp_path / "a", {k: v for k, v in a.items() if k != "result_id"}, arrays["b"])
-    with pytest.raises(InputError, match="files of two different results"):
-        check_same_result(tmp_path / "a", a, arrays["b"])
+    no_id = {k: v for k, v in a.items() if k != "result_id"}
+    check_same_result(tmp_path / "a", no_id, {k: v for k, v in arrays["b"].items() if k != "result_id"})
+    for summary in (a, no_id):
+        with pytest.raises(InputError, match="files of two different results"):
+            check_same_result(tmp_path / "a", summary, arrays["b"])
 
 
 def test_broken_result_files_are_input_errors(tmp_path):
