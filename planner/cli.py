@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         return _stop(args, EXIT_INTERRUPTED, "interrupted")
-    except SystemError as exc:  # a Ctrl-C inside a Python callback CasADi called: "returned a result with an exception set"
+    except SystemError as exc:  # a Ctrl-C in a Python callback CasADi called: "returned a result with an exception set"
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
             return _stop(args, EXIT_INTERRUPTED, "interrupted")
         raise
