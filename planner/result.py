@@ -228,8 +228,8 @@ class Trajectory(ArraysReadOnly):
 
     def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
-        physical time between the ends of the steps whose clock ran (an impact's two samples get the
-        force just before and after it). None without contact_force."""
+        physical time between the ends of the steps whose clock ran, so an impact's two samples get one value there
+        (its impulse is the Impact's, not a force). None without contact_force."""
         if self.contact_force is None or len(self.contact_force) == 0:
             return None
         clock = self.y[1:, -1]
