@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, shown
+from .errors import PATH_ERRNOS, InputError, PlannerError, interruptible, shown
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -195,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
         # restores showwarning for an in-process caller
-        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings():
+        # interruptible: a Ctrl-C that a library swallowed (CasADi's callbacks) is raised once the command returns
+        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), interruptible():
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)

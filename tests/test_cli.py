@@ -929,3 +929,26 @@ def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, c
     assert main(["simulate", "point_mass", "--task", _task(tmp_path, z0=0.3), "--out", str(out), "-q"]) == 2
     assert "Operation not permitted" in capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+
+
+def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C whose KeyboardInterrupt a library catches (CasADi's callbacks swallowed some: the simulation ran to its
+    end and exited 0) is still an interruption once the command returns: exit 130 and one line. The handler that
+    notes it is Python's own again afterwards."""
+    import os
+    import signal
+
+    import planner.cli as cli
+
+    def swallowed(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        except KeyboardInterrupt:
+            pass
+        return cli.EXIT_OK
+
+    monkeypatch.setattr(cli, "_cmd_simulate", swallowed)
+    assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
+    assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
