@@ -404,16 +404,17 @@ def _remove_failed(stale: Path) -> None:
 @contextlib.contextmanager
 def _sigint_deferred():
     """Ctrl-C waits for the block, then interrupts as usual (KeyboardInterrupt after it); off the main thread, where
-    Python takes no signal, the block just runs."""
-    if threading.current_thread() is not threading.main_thread():
+    Python takes no signal, or where Ctrl-C is ignored (a background job's SIG_IGN), the block just runs."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
         yield
         return
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+        signal.signal(signal.SIGINT, previous)
     if caught:
         raise KeyboardInterrupt
 

@@ -874,7 +874,18 @@ def test_json_is_one_object_on_every_exit(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["command"] == "simulate"  # a success: the summary alone
 
 
-def test_ctrl_c_while_the_plots_are_drawn_waits_for_them():
+@pytest.fixture
+def ctrl_c():
+    """Python's own SIGINT handler for the test, the one before restored after: a shell's background job (CI's
+    `bash .ci/run &`) starts Python with SIGINT ignored, and the planner leaves an ignored Ctrl-C ignored."""
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_while_the_plots_are_drawn_waits_for_them(ctrl_c):
     """A Ctrl-C (SIGINT) inside cli._sigint_deferred, the block that draws a result's plots, lets the block finish and
     then interrupts (KeyboardInterrupt, exit 130): it stopped the drawing half way, and the new result stood beside
     part of its plots."""
@@ -931,7 +942,7 @@ def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, c
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
 
 
-def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch):
+def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch, ctrl_c):
     """A Ctrl-C whose KeyboardInterrupt a library catches (CasADi's callbacks swallowed some: the simulation ran to its
     end and exited 0) is still an interruption once the command returns: exit 130 and one line. The handler that
     notes it is Python's own again afterwards."""
