@@ -195,8 +195,10 @@ def main(argv: list[str] | None = None) -> int:
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
         # restores showwarning for an in-process caller
-        # interruptible: a Ctrl-C that a library swallowed (CasADi's callbacks) is raised once the command returns
-        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), interruptible():
+        # a solving command's Ctrl-C that a library swallowed (CasADi's callbacks) is raised once it returns (view's
+        # server ends by Ctrl-C, exit 0)
+        solving = interruptible() if args.command in ("simulate", "plan", "gait") else contextlib.nullcontext()
+        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), solving:
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)

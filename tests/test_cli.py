@@ -945,7 +945,7 @@ def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, c
 def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch, ctrl_c):
     """A Ctrl-C whose KeyboardInterrupt a library catches (CasADi's callbacks swallowed some: the simulation ran to its
     end and exited 0) is still an interruption once the command returns: exit 130 and one line. The handler that
-    notes it is Python's own again afterwards."""
+    notes it is Python's own again afterwards. `view`, whose server ends by Ctrl-C, keeps its exit 0."""
     import os
     import signal
 
@@ -962,4 +962,6 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, m
     assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
     assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    monkeypatch.setattr(cli, "_cmd_view", swallowed)  # view's server ends by Ctrl-C: that is its exit 0
+    assert main(["view", str(tmp_path)]) == 0 and capsys.readouterr().err == ""
 
