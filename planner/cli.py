@@ -13,7 +13,6 @@ import os
 import re
 import signal
 import sys
-import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -358,7 +357,7 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     if args.no_plots:
         return target, lambda: None
     if not background:
-        with _sigint_deferred():  # a Ctrl-C left the new result with part of its plots
+        with interruptible(defer=True):  # a Ctrl-C left the new result with part of its plots
             drawn = _draw(target)
         _plotted(args, result.stats.converged, drawn)
         return target, lambda: None
@@ -401,24 +400,6 @@ def _remove_failed(stale: Path) -> None:
         (stale / name).unlink(missing_ok=True)
     with contextlib.suppress(OSError):  # not empty: the user's own files stay
         stale.rmdir()
-
-
-@contextlib.contextmanager
-def _sigint_deferred():
-    """Ctrl-C waits for the block, then interrupts as usual (KeyboardInterrupt after it); off the main thread, where
-    Python takes no signal, or where Ctrl-C is ignored (a background job's SIG_IGN), the block just runs."""
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or not callable(previous):
-        yield
-        return
-    caught = []
-    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
 
 
 def _draw(target: Path) -> str | None:

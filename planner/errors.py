@@ -58,11 +58,12 @@ class SolveError(PlannerError):
 
 
 @contextlib.contextmanager
-def interruptible():
+def interruptible(defer: bool = False):
     """Around a CasADi solver call: a Ctrl-C during it is raised as KeyboardInterrupt once the call returns. CasADi's
     IPOPT catches the interrupt, stops with NonIpopt_Exception_Thrown and returns as if the NLP had failed, so the
     homotopy went on to its next NLP (a --no-race plan interrupted after 1 s wrote a converged plan, exit 0). Where
-    Ctrl-C is ignored (a race's arms) or off the main thread, nothing changes."""
+    Ctrl-C is ignored (a race's arms, a background job) or off the main thread, nothing changes. defer: the Ctrl-C
+    does not stop the block at all, only follows it (a result's plots, drawn whole)."""
     previous = signal.getsignal(signal.SIGINT)
     if threading.current_thread() is not threading.main_thread() or not callable(previous):
         yield
@@ -71,7 +72,8 @@ def interruptible():
 
     def note(signum, frame):
         caught.append(signum)
-        previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
+        if not defer:
+            previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
 
     signal.signal(signal.SIGINT, note)
     try:

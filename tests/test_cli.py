@@ -886,17 +886,17 @@ def ctrl_c():
 
 
 def test_ctrl_c_while_the_plots_are_drawn_waits_for_them(ctrl_c):
-    """A Ctrl-C (SIGINT) inside cli._sigint_deferred, the block that draws a result's plots, lets the block finish and
-    then interrupts (KeyboardInterrupt, exit 130): it stopped the drawing half way, and the new result stood beside
-    part of its plots."""
+    """A Ctrl-C (SIGINT) inside errors.interruptible(defer=True), around the drawing of a result's plots, lets the block
+    finish and then interrupts (KeyboardInterrupt, exit 130): it stopped the drawing half way, and the new result
+    stood beside part of its plots."""
     import os
     import signal
 
-    from planner.cli import _sigint_deferred
+    from planner.errors import interruptible
 
     finished = []
     with pytest.raises(KeyboardInterrupt):
-        with _sigint_deferred():
+        with interruptible(defer=True):
             os.kill(os.getpid(), signal.SIGINT)
             finished.append(True)
     assert finished == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
