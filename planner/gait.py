@@ -1031,6 +1031,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
     u_paper = -sol.u
     near_T = sol.t[:-1] >= min(sol.t[-1] - 0.1, sol.t[-2])  # the last 100 ms, at least the last step (N <= 15: none)
+    # the smaller of the two feet's mu: each is the stance foot and the landing foot every other step
+    feet_mu = min(c.mu for c in task.contacts if c.point in (g.stance, g.swing))
     summary = {
         "command": "gait", "robot": str(robot.path), "task": task.source, "robot_sha256": robot.sha256,
         "converged": sol.converged, "solve_time_s": sol.solve_time_s,
@@ -1046,10 +1048,9 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "min_normal_force_N": float(np.min(force[:, 1])),
         # where the ground pushes (a pulling ground is a contact violation below, the ratio means nothing there)
         "friction_needed": float(np.max(np.abs(force[:, 0] / force[:, 1]), where=force[:, 1] > 0.0, initial=0.0)),
-        # the smaller of the two feet's: each is the stance foot and the landing foot every other step
-        "friction_mu": min(c.mu for c in task.contacts if c.point in (g.stance, g.swing)),
+        "friction_mu": feet_mu,
         **_impact_contact(model, sol.x[-1]),
-        "impact_friction_mu": min(c.mu for c in task.contacts if c.point in (g.stance, g.swing)),
+        "impact_friction_mu": feet_mu,
         "min_swing_foot_height_m": float(np.min(height[1:-1])),
         "outer_loops": [vars(loop) for loop in sol.loops],
         "walking": walking.to_json() if walking else None,

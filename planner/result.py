@@ -409,13 +409,24 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     lambda_n, lambda_t = samples
     out = []
     for c, (label, contact) in enumerate(zip(contact_labels(task.contacts), task.contacts)):
-        bound = contact.mu * np.maximum(lambda_n[:, c], 0.0)
-        outside = np.abs(lambda_t[:, c]) > CONE_SLACK * bound + CONE_FLOOR_N
-        if contact.mu > 0 and outside.any():
-            worst = int(np.argmax(np.where(outside, np.abs(lambda_t[:, c]), -1.0)))
-            out.append({"point": label, "samples": int(outside.sum()), "max_tangential_N": float(abs(lambda_t[worst, c])),
-                        "mu_normal_N": float(bound[worst])})
+        entry = cone_breach(label, "samples", contact.mu, lambda_t[:, c], lambda_n[:, c])
+        if entry:
+            out.append(entry)
     return out
+
+
+def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=True) -> dict | None:
+    """{point, counted: how many, max_tangential_N, mu_normal_N} of the entries (where True) whose tangential force
+    (n,) [N] leaves the friction cone of mu times the normal force (n,) [N] (CONE_SLACK, CONE_FLOOR_N), the largest
+    one named; None when none does or mu = 0."""
+    tangential = np.abs(tangential)
+    bound = mu * np.maximum(normal, 0.0)
+    outside = where & (tangential > CONE_SLACK * bound + CONE_FLOOR_N)
+    if not (mu > 0 and outside.any()):
+        return None
+    worst = int(np.argmax(np.where(outside, tangential, -1.0)))
+    return {"point": point, counted: int(outside.sum()), "max_tangential_N": float(tangential[worst]),
+            "mu_normal_N": float(bound[worst])}
 
 
 def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None) -> list[str]:

@@ -31,8 +31,8 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible
 from .model import Robot
-from .result import (APPROACH_MPS, CONE_FLOOR_N, CONE_SLACK, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
-                     Trajectory, forces_outside_cone, recover)
+from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory, cone_breach,
+                     forces_outside_cone, recover)
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -672,12 +672,9 @@ def braked_outside_cone(system: TimeFreezingSystem, builder: ImplicitEulerStep, 
     out = []
     for c, contact in enumerate(system.contacts):
         rate = impulses[:, c] / np.where(running, advance, 1.0)[:, None]  # (N, 2) [N]
-        bound = contact.mu * np.maximum(rate[:, 0] + persistent[:, c], 0.0)
-        outside = running & (np.abs(rate[:, 1]) > CONE_SLACK * bound + CONE_FLOOR_N)
-        if contact.mu > 0 and outside.any():
-            worst = int(np.argmax(np.where(outside, np.abs(rate[:, 1]), -1.0)))
-            out.append({"point": system.labels[c], "steps": int(outside.sum()),
-                        "max_tangential_N": float(abs(rate[worst, 1])), "mu_normal_N": float(bound[worst])})
+        entry = cone_breach(system.labels[c], "steps", contact.mu, rate[:, 1], rate[:, 0] + persistent[:, c], running)
+        if entry:
+            out.append(entry)
     return out
 
 
