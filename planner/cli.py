@@ -534,6 +534,10 @@ def _cmd_plan(args) -> int:
             if replanned:  # replan_options sets them after --solve: the JSON was lost likewise
                 raise InputError(f"{', '.join(replanned)} {'is' if len(replanned) == 1 else 'are'} set by --init DIR "
                                  "(a replan's own homotopy from the plan, docs/tasks.md), not by --solve")
+            for key, flag, given in (("ipopt", "--ipopt", args.ipopt), ("warm_ipopt", "--warm-ipopt", args.warm_ipopt),
+                                     ("print_level", "-v", args.verbose)):
+                if key in fields and given:  # the JSON's field replaces the flag's: the flag was lost
+                    raise InputError(f"{key} is set by {flag} too; give it in one of the two")
             solve_options = solve_options_from_dict(fields, solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None

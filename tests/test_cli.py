@@ -61,6 +61,11 @@ def test_check_model_json_contract():
          "--solve: holes, mu_init are set by --init DIR (a replan's own homotopy from the plan, docs/tasks.md), not by "
          "--solve"),
         (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level shows IPOPT's log and -q"),
+        # replace() put the JSON's field in place of the flag's: the flag's IPOPT options or log were lost
+        (["plan", "point_mass", "--ipopt", "max_soc=2", "--solve", '{"ipopt": {"alpha_for_y": "min"}}'],
+         "--solve: ipopt is set by --ipopt too; give it in one of the two"),
+        (["plan", "point_mass", "--warm-ipopt", "max_soc=2", "--solve", '{"warm_ipopt": {}}'], "set by --warm-ipopt too"),
+        (["plan", "point_mass", "-v", "--solve", '{"print_level": 0}'], "print_level is set by -v too"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
          "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
         (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"],
