@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, interruptible, shown
+from .errors import PATH_ERRNOS, InputError, PlannerError, interruptible, options_record, shown
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -586,7 +586,8 @@ def _cmd_plan(args) -> int:
         try:
             problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
         except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only
-            apart = _skips_apart(args.init, start_arrays, task) if "other NLP variables" in str(exc) else ""
+            apart = (_skips_apart(args.init, start_arrays, task) + _options_apart(args.init, problem.options)
+                     if "other NLP variables" in str(exc) else "")
             raise InputError(f"{exc}{apart}") from None
         solve_options = replace(replan_options(solve_options), keep_schedule=held,
                                 schedule_new_impacts=args.allow_new_impacts)
@@ -685,6 +686,22 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
         said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "
                  "step, so plan without --init")
     return said
+
+
+def _options_apart(init: Path, options) -> str:
+    """The ProblemOptions fields (Problem.signature counts them) in which init's plan, by its summary.json, was
+    built otherwise than `options`, as "; ..." text, or "" (none, or no summary to tell)."""
+    from .result import read_summary
+
+    try:
+        recorded = read_summary(init, require=()).get("options", {}).get("problem")
+    except (InputError, AttributeError):
+        return ""
+    if not isinstance(recorded, dict):
+        return ""
+    apart = [k for k, v in options_record(options).items() if k != "clock_guess_running" and recorded.get(k) != v]
+    return (f"; the plan was built with other ProblemOptions ({', '.join(apart)}), so plan without --init or with "
+            "its options" if apart else "")
 
 
 def _start_task(args, arrays: dict):

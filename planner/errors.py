@@ -12,7 +12,8 @@ import signal
 import sys
 import threading
 from collections.abc import Iterable
-from dataclasses import fields
+from dataclasses import fields, is_dataclass
+from enum import Enum
 
 
 # OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be, no
@@ -123,6 +124,17 @@ def plain(value):
     return value.tolist() if type(value).__module__ == "numpy" and hasattr(value, "tolist") else value
 
 
+def options_record(opts) -> dict:
+    """An options dataclass as summary.json records it: Enums by value, tuples as lists, nested dataclasses as dicts."""
+    out = {}
+    for k, v in vars(opts).items():
+        if is_dataclass(v):  # e.g. ProblemOptions.fesd
+            out[k] = options_record(v)
+            continue
+        out[k] = v.value if isinstance(v, Enum) else [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v
+    return out
+
+
 def shown(value, width: int = 60) -> str:
     """repr(value) cut to `width` characters for a message (an int of more than 4300 digits, which Python refuses to
     write out, is named as such)."""
@@ -181,7 +193,9 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             ok = ok and all(representable(v, kind) for v in items)
             ok = ok and (kind == "int" or all(v == v and (inf_ok or abs(v) != float("inf")) for v in items))
         if not ok:
-            what = (f"an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}]" if kind == "int" else kinds[kind] if kind != "float"
+            integers = all(isinstance(v, int) and not isinstance(v, bool) for v in items)  # only too large for C
+            what = (f"an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}]" if kind == "int" and integers
+                    else kinds[kind] if kind != "float"
                     else "a number within a double's range, not nan (inf: no bound)" if inf_ok else "a finite number")
             label = type(options).__name__ if owner is None else owner
             raise error(f"{label + '.' if label else ''}{f.name} = {shown(given, 200)} is not allowed; it must be "

@@ -31,7 +31,7 @@ import io
 import json
 import math
 import time
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import dataclass, fields, replace
 from enum import Enum
 from typing import Callable
 
@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types, enum_field, expect, interruptible, plain
+from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record, plain
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -798,7 +798,7 @@ def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[flo
     its last value)."""
     _check_schedules(problem, options)
     rhos = homotopy_rhos(problem, options) if rhos is None else rhos
-    if not (isinstance(i, int) and 0 <= i < len(rhos)):
+    if not (isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(rhos)):
         raise InputError(f"homotopy_nlp's i = {i!r} is not allowed; the homotopy has NLPs 0 .. {len(rhos) - 1}")
 
     def sched(values, default):
@@ -1382,7 +1382,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
-                      options={"problem": _plain(problem.options), "solve": _plain(options)}, robot_sha256=problem.robot.sha256)
+                      options={"problem": options_record(problem.options), "solve": options_record(options)}, robot_sha256=problem.robot.sha256)
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
@@ -1406,13 +1406,3 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     tau = np.concatenate([[0.0], np.cumsum(lengths[keep])])
     traj = element_trajectory(problem.system, problem.builder, tau, nodes, Ys, Ws, Us, dt, fesd.b, frozen_tol)
     return traj, Ws[:, -1], nodes
-
-
-def _plain(opts) -> dict:
-    out = {}
-    for k, v in vars(opts).items():
-        if is_dataclass(v):  # e.g. ProblemOptions.fesd
-            out[k] = _plain(v)
-            continue
-        out[k] = v.value if isinstance(v, Enum) else [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v
-    return out

@@ -65,8 +65,9 @@ FESDInterval. Blocks and shapes are in `_build_fesd`'s docstring; docs/formulati
 from __future__ import annotations
 
 import hashlib
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import casadi as ca
@@ -281,10 +282,13 @@ class Problem:
 
     @property
     def signature(self) -> str:
-        """A digest of var_names: problems with the same one have the same x, variable by variable (the
-        same N, contacts, discretization and formulation), whatever the task's numbers (target, holes,
-        gains, bounds). A plan's x can start another problem with its signature (planner plan --init)."""
-        return hashlib.sha256("\n".join(self.var_names).encode()).hexdigest()[:16]
+        """A digest of var_names and options: problems with the same one have the same x, variable by variable
+        (the same N, contacts, discretization and ProblemOptions), whatever the task's numbers (target, holes,
+        gains, bounds). A plan's x can start another problem with its signature (planner plan --init). The
+        options count whole (switch_scale and velocity_switch change what lambda0, lambda1 mean, the others
+        the rows a start is read against), but for clock_guess_running: it sets only the default start."""
+        formulation = repr(replace(self.options, clock_guess_running=False))
+        return hashlib.sha256("\n".join((*self.var_names, formulation)).encode()).hexdigest()[:16]
 
     def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
                terminal_weight: float = 0.0, rho_l1: float = 0.0, rho_f_scale: float = 1.0) -> np.ndarray:
@@ -297,6 +301,8 @@ class Problem:
         for name, value in zip(PARAMETERS, values):
             if not (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)):
                 raise InputError(f"Problem.params' {name} must be a number, got {type(value).__name__} {value!r:.60}")
+            if not (math.isfinite(value) and value >= 0):  # (a nan penalty or a negative one was solved)
+                raise InputError(f"Problem.params' {name} must be finite and >= 0, got {value!r}")
         return np.array(values, dtype=float)
 
     def point(self, x) -> np.ndarray:

@@ -943,19 +943,21 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     if not steps:
         return {}
     B = robot.actuation_matrix
-    residual, scale = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv)
+    residual, scale, momentum = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv), 0.0
     for n, i in enumerate(steps):
         M = pin.crba(model, data, q[i + 1])
         M = np.triu(M) + np.triu(M, 1).T  # (Pinocchio fills the upper triangle)
         inertial = M @ (v[i + 1] - v[i]) / (t[i + 1] - t[i])
+        momentum = max(momentum, float(np.abs(M @ v[i + 1]).max()) / (t[i + 1] - t[i]))
         bias = pin.rnea(model, data, q[i + 1], v[i + 1], np.zeros(robot.nv))
         control = B @ u[i + 1]
         residual[n] = inertial + bias - control
         scale = np.maximum(scale, np.abs(inertial) + np.abs(bias) + np.abs(control))
-    # a coordinate on which nothing acts in flight: its terms are rounding, judged on the others' scale or the
-    # robot's weight (an arm hanging at rest has only rounding, ~1e-16, in every term)
+    # a coordinate on which nothing acts in flight: its terms are rounding, judged on the others' scale, the robot's
+    # weight (an arm hanging at rest has only rounding, ~1e-16, in every term) or, without gravity, the momentum a
+    # step carries (a coasting mass in a zero-gravity file has rounding in every term, and had failed at ratio 1)
     weight = pin.computeTotalMass(model) * np.linalg.norm(model.gravity.linear)
-    relative = np.abs(residual) / np.maximum(scale, 1e-6 * max(scale.max(), weight, 1e-12))
+    relative = np.abs(residual) / np.maximum(scale, 1e-6 * max(scale.max(), weight, momentum, 1e-12))
     n, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
     return {"flight_steps": len(steps), "max_flight_residual": float(relative[n, j]),
             "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1])}

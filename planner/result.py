@@ -282,6 +282,7 @@ class SimulationResult(ArraysReadOnly):
     command: str = "simulate"
     extra: dict = field(default_factory=dict)
     robot_sha256: str = ""  # the robot file's contents as simulated (validate refuses the file changed since)
+    options: dict = field(default_factory=dict)  # the SimulateOptions, as summary.json records them
 
     @property
     def ends_in_impact(self) -> bool:
@@ -338,6 +339,7 @@ class SimulationResult(ArraysReadOnly):
             "n_steps": len(self.trajectory.tau) - 1,
             "ends_in_impact": self.ends_in_impact,
             "message": self.stats.message,
+            "options": self.options,
             **{k: v for k, v in self.extra.items() if not k.startswith("_")},
         }
 

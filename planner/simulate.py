@@ -29,7 +29,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect, interruptible
+from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record
 from .model import Robot
 from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory, cone_breach,
                      forces_outside_cone, recover)
@@ -209,7 +209,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     extra["braked_outside_friction_cone"] = braked_outside_cone(system, builder, elements, weights, options.frozen_tol,
                                                                 trajectory)
     return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
-                            stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra)
+                            stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra,
+                            options=options_record(options))
 
 
 def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
@@ -631,7 +632,8 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)
     return Trajectory(tau=tau, y=Y, state_names=system.state_names, sigma=sigma, selector_names=tuple(s.name for s in system.switches),
-                      forces=forces, force_names=system.lam_names, contact_force=_contact_force(system, builder, Y, W, U, forces),
+                      forces=forces, force_names=system.lam_names,
+                      contact_force=_contact_force(system, builder, Y, W, U, dt, forces),
                       t=t, q=q, v=v, u=u, impacts=impacts)
 
 
@@ -683,11 +685,13 @@ def _kinetic(system: TimeFreezingSystem, q, v) -> float:
     return 0.5 * float(v @ np.asarray(system.dyn.mass(q)) @ v)
 
 
-def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, forces) -> np.ndarray | None:
+def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, dt, forces) -> np.ndarray | None:
     """(N, n_contacts, 2) persistent-contact force (normal, tangential) [N] of each step. Several
     contacts: the step's joint forces (zero for points off the ground). One contact: the index-reduced
-    force at the step's end point times the coefficient of the DAE field in F (1 in persistent
-    contact with the wanted selectors, 0 in flight and in a frozen impact). None for elastic contacts."""
+    force at the step's end point times the DAE field's share of the step's physical time, its coefficient in F
+    over the clock's rate (1 in persistent contact, 0 in flight and in a frozen impact; a landing step whose clock
+    ran a sixth of it in stance had read a sixth of the force). dt (N,): the steps' integrated lengths [s].
+    None for elastic contacts."""
     n_c = len(system.contacts)
     if forces is not None:
         out = np.zeros((len(W), n_c, 2))
@@ -704,5 +708,8 @@ def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W,
     lam = terms.lambda_no_slip if no_slip else ca.vertcat(terms.lambda_n, 0)
     lam_fn = ca.Function("contact_force", [system.y, system.u], [lam])
     j = [f.name for f in system.fields].index(f"{'dae_f' if no_slip else 'dae'}[{label}]")
-    return np.array([builder.coefficients(W[k])[j] * np.asarray(lam_fn(Y[k + 1], U[k]), float).ravel()
+    rate = np.diff(Y[:, -1]) / np.asarray(dt, float)  # the clock's advance per unit of the step's numerical time
+    # (the DAE field is one of those that run the clock, so its share is in [0, 1] but for rounding)
+    share = [min(max(builder.coefficients(W[k])[j] / rate[k], 0.0), 1.0) if rate[k] > 0 else 0.0 for k in range(len(W))]
+    return np.array([share[k] * np.asarray(lam_fn(Y[k + 1], U[k]), float).ravel()
                      for k in range(len(W))]).reshape(len(W), 1, 2)

@@ -12,7 +12,8 @@ import pytest
 
 from planner.cli import main
 from planner.errors import InputError
-from planner.model import ROBOTS_DIR, file_sha256
+from planner.model import ROBOTS_DIR, file_sha256, load_robot
+from planner.problem import ProblemOptions, build_problem
 from planner.task import load_task, parse_task
 
 
@@ -488,7 +489,7 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     DIR keeps the task its plan solved (trajectory.npz's task_json, what the replan walks from), so the replan
     needs no task file of it; --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's
     NLP point (a simulation), a plan on another grid (--steps) or with mu = 0 where DIR's was not (its tangential
-    variables skipped: named as the cause), FESD, --keep-schedule, --penalty-replan or
+    variables skipped: named as the cause) or with other ProblemOptions (named), FESD, --keep-schedule, --penalty-replan or
     --allow-new-impacts without --init, --penalty-replan with either of the other two, a plan that did not converge
     and a plan of another robot file are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
@@ -543,6 +544,18 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     shutil.copytree(tmp_path / "hop", failed)
     (failed / "summary.json").write_text(json.dumps({**summary, "converged": False}))
     _one_line_exit_2(capsys, argv[:-1] + [str(failed)], "holds a plan that did not converge")
+    # a plan built through the API with other ProblemOptions (lambda0, lambda1 in other units): it had been a start
+    scaled = tmp_path / "scaled"
+    shutil.copytree(tmp_path / "hop", scaled)
+    options = ProblemOptions(switch_scale=(("c(q)", 100.0),))
+    with np.load(tmp_path / "hop" / "trajectory.npz") as npz:
+        arrays = dict(npz)
+    arrays["nlp_signature"] = np.array(build_problem(load_robot("point_mass"), load_task(tmp_path / "hop.toml"),
+                                                     options).signature)
+    np.savez(scaled / "trajectory.npz", **arrays)
+    problem_record = {**summary["options"]["problem"], "switch_scale": [["c(q)", 100.0]]}
+    (scaled / "summary.json").write_text(json.dumps({**summary, "options": {**summary["options"], "problem": problem_record}}))
+    _one_line_exit_2(capsys, argv[:-1] + [str(scaled)], "the plan was built with other ProblemOptions (switch_scale)")
     heavy_robot = tmp_path / "heavy.xml"
     heavy_robot.write_text(Path(summary["robot"]).read_text().replace('mass="1"', 'mass="2"'))
     heavy = tmp_path / "heavy"

@@ -743,7 +743,10 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     with pytest.raises(InputError, match="Problem.params' rho_f_scale must be a number, got bool True"):
         prob.params(1.0, rho_f_scale=True)
     assert prob.params(np.float64(3.0), 2)[:2].tolist() == [3.0, 2.0]
-    for i in (-1, 99):
+    for bad in (float("nan"), -5.0, float("inf")):  # a nan or negative penalty was solved
+        with pytest.raises(InputError, match=r"Problem.params' rho must be finite and >= 0"):
+            prob.params(bad)
+    for i in (-1, 99, True):  # True ran NLP 2
         with pytest.raises(InputError, match=rf"homotopy_nlp's i = {i} is not allowed"):
             H.homotopy_nlp(prob, H.SolveOptions(), i)
 

@@ -10,7 +10,7 @@ import planner.homotopy as H
 import planner.replan as R
 from planner.errors import InputError
 from planner.model import load_robot
-from planner.problem import build_problem
+from planner.problem import ProblemOptions, build_problem
 from planner.replan import replan
 
 from test_problem import hop_task
@@ -66,8 +66,9 @@ def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
 
 def test_a_plan_in_memory_gives_its_nlp_point_to_a_problem_of_the_same_variables(hop_plan):
     """PlanResult.nlp_point(problem) is the plan's NLP point (what trajectory.npz's nlp_x keeps for --init), a copy,
-    for a problem of the same variables (the moved task's); one of other variables (N = 10) is an InputError naming
-    why (the point was only in the private result.extra["_x"])."""
+    for a problem of the same variables (the moved task's, or one whose only other option is the clock's default
+    guess); one of other variables (N = 10) or other options (switch_scale) is an InputError naming why (the point
+    was only in the private result.extra["_x"])."""
     prob, x0 = hop_plan
     res = H.solve(dataclasses.replace(prob, x0=x0), H.replan_options())
     point = res.nlp_point(_moved(prob, x0, 0.55))
@@ -76,6 +77,11 @@ def test_a_plan_in_memory_gives_its_nlp_point_to_a_problem_of_the_same_variables
     assert res.nlp_point(prob)[0] == res.extra["_x"][0]
     with pytest.raises(InputError, match="are not those of the problem .*same robot contacts, N"):
         res.nlp_point(build_problem(prob.robot, hop_task(N=10)))
+    # the same variables under other options: lambda0, lambda1 in other units (they had been taken as a start)
+    with pytest.raises(InputError, match="are not those of the problem"):
+        res.nlp_point(build_problem(prob.robot, prob.task, ProblemOptions(switch_scale=(("c(q)", 100.0),))))
+    guessed = build_problem(prob.robot, prob.task, ProblemOptions(clock_guess_running=True))  # the guess only
+    np.testing.assert_array_equal(res.nlp_point(guessed), res.extra["_x"])
 
 
 def _steps(res) -> list[str]:

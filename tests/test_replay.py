@@ -597,6 +597,24 @@ def test_controls_that_do_not_give_the_motion_fail_on_a_fully_actuated_robot(poi
     assert unchecked.passed and unchecked.kinematic.max_flight_residual is None
 
 
+def test_a_coasting_flight_without_gravity_passes_its_dynamics(tmp_path):
+    """In a robot file with zero gravity a mass coasting at constant velocity with u = 0 has only rounding in every
+    term of its flight rows: it passes (judged on the momentum a step carries), where the ratio of rounding to
+    rounding had failed it at 1."""
+    robot_file = tmp_path / "no_gravity.xml"
+    robot_file.write_text((ROBOTS_DIR / "point_mass.xml").read_text().replace('gravity="0 0 -9.81"', 'gravity="0 0 0"'))
+    robot = load_robot(robot_file)
+    assert np.linalg.norm(robot.model.gravity.linear) == 0.0
+    t = 0.01 * np.arange(31)
+    q = np.column_stack([t, 1.0 - 0.5 * t])
+    v = np.vstack([[1.0, -0.5], np.diff(q, axis=0) / 0.01])  # constant but for rounding, as a simulation's are
+    assert np.ptp(v[:, 0]) > 0
+    coast = {"t": t, "q": q, "v": v, "u": np.zeros((31, 2)), "impact_times": np.zeros(0)}
+    result = replay.validate_trajectory(robot, _task("point", q0=(0.0, 1.0)), coast, dynamics=True)
+    assert result.passed, result.failures
+    assert result.kinematic.flight_steps == 30 and result.kinematic.max_flight_residual < 1e-6  # rounding, not 1
+
+
 @pytest.mark.parametrize("summary, checked", [
     ({"command": "plan", "options": {"problem": {"discretization": "implicit_euler"}}}, True),
     ({"command": "plan", "options": {"problem": {"discretization": "fesd"}}}, False),

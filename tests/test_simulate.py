@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from planner.discretization import FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import load_robot
@@ -161,7 +162,8 @@ def test_a_task_without_contacts_is_implicit_euler_free_flight():
 def test_contact_force_balances_gravity_after_the_drop():
     """The recorded persistent-contact force (Trajectory.contact_force, written as lambda_n, lambda_t
     for the force plot): 0 in flight, and once the no-slip mass (1 kg) rests on the table the normal
-    force is m g and the tangential one 0; the physical-time samples carry the same values."""
+    force is m g and the tangential one 0; the physical-time samples carry the same values, from the first one after
+    the impact on (the step it ends in read its running share of m g)."""
     r = drop(mu=0.5)
     tr = r.trajectory
     imp = tr.impacts[0]
@@ -173,6 +175,10 @@ def test_contact_force_balances_gravity_after_the_drop():
     lam_n, lam_t = tr.contact_force_samples()
     assert lam_n.shape == lam_t.shape == (len(tr.t), 1)
     np.testing.assert_allclose(lam_n[tr.t > imp.time + 2 * r.h, 0], G, rtol=SELECTOR_TOL)
+    # the step the impact ends in runs its clock in stance only: m g there too, not m g times its running share
+    after = tr.t > imp.time + 1e-12
+    assert 0 < tr.t[after][0] - imp.time < r.h
+    np.testing.assert_allclose(lam_n[after, 0], G, rtol=SELECTOR_TOL)
     np.testing.assert_allclose(lam_n[tr.t < imp.time - r.h, 0], 0.0, atol=SOLVER_TOL)
 
 
@@ -341,6 +347,17 @@ def test_horizon_strategy_agrees_with_stepwise():
     a, b = drop(N=50), drop(N=50, strategy=Strategy.HORIZON)
     np.testing.assert_allclose(b.trajectory.y, a.trajectory.y, atol=SOLVER_TOL)
     assert b.trajectory.impacts[0].time == pytest.approx(a.trajectory.impacts[0].time, abs=SOLVER_TOL)
+
+
+def test_a_simulation_records_its_options():
+    """summary.json's options are the SimulateOptions the run was given, field by field (a notebook run with other
+    options wrote the same keys as a default run's, so its files could not say how to reproduce it), and they build
+    the same options again."""
+    r = drop(N=50, strategy=Strategy.HORIZON)
+    recorded = r.summary()["options"]
+    assert recorded["strategy"] == "horizon" and recorded["max_iter"] == SimulateOptions().max_iter
+    assert SimulateOptions(**{**recorded, "fesd": FESDOptions(**recorded["fesd"])}) == SimulateOptions(
+        strategy=Strategy.HORIZON)
 
 
 def test_initial_state_below_ground_is_input_error():
