@@ -65,6 +65,8 @@ class ModelCheck:
     nv: int
     dof_names: tuple[str, ...]  # (nv,) the joint of each velocity coordinate: the order of a task's vectors
     points: tuple[str, ...]  # the named points a task may use (MJCF sites, URDF links and frames)
+    # (nu,) the joint each control drives, in the order of a task's u vectors: MJCF <actuator> order, URDF joint order
+    controls: tuple[str, ...]
     backend: str  # "pinocchio.casadi" or "symbolic"
     samples: int
     seed: int
@@ -106,7 +108,7 @@ class ModelCheck:
 
     def to_json(self) -> dict:
         out = asdict(self)
-        out["dof_names"], out["points"] = list(self.dof_names), list(self.points)  # as JSON reads them back
+        out["dof_names"], out["points"], out["controls"] = list(self.dof_names), list(self.points), list(self.controls)
         if out["mujoco"] is not None:
             for key in ("missing_sites", "differences"):  # as JSON reads them back
                 out["mujoco"][key] = list(out["mujoco"][key])
@@ -135,7 +137,8 @@ class ModelCheck:
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
                 f"{self.samples} samples, seed {self.seed}): {'PASSED' if self.passed else 'FAILED'} (tolerance {TOLERANCE:g})",
-                f"  coordinates:  {', '.join(self.dof_names)}; points: {', '.join(self.points)}",
+                f"  coordinates:  {', '.join(self.dof_names)}; points: {', '.join(self.points)}; controls (u) drive: "
+                f"{', '.join(self.controls) or 'none'}",
                 f"  vs Pinocchio: {pinocchio}",
                 f"  vs MuJoCo:    {mujoco}",
                 f"  timing:       build {t.build_s * 1e3:.1f} ms (+{t.point_build_s * 1e3:.1f} ms for {t.point}); "
@@ -209,6 +212,7 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
         nv=robot.nv,
         dof_names=robot.dof_names,
         points=robot.points,
+        controls=tuple(robot.dof_names[a.dof] for a in robot.actuators),
         backend=dyn.backend,
         samples=samples,
         seed=seed,

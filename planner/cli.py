@@ -13,7 +13,9 @@ import os
 import re
 import signal
 import sys
+import tempfile
 import time
+import uuid
 import warnings
 from collections.abc import Callable
 from dataclasses import replace
@@ -32,10 +34,20 @@ FESD_RHO_MAX = 1e5
 
 
 class UsageParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line and exit code 2."""
+    """argparse, but a usage error is one line and exit code 2 (UsageExit: main adds --json's object)."""
 
     def error(self, message):
-        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+        text = f"{message} (see --help)"
+        print(f"{self.prog}: error: {text}", file=sys.stderr)
+        raise UsageExit(text)
+
+
+class UsageExit(SystemExit):
+    """Exit code 2 of a command-line error, with its text."""
+
+    def __init__(self, text: str):
+        super().__init__(EXIT_INPUT)
+        self.text = text
 
 
 def path_argument(text: str) -> Path:
@@ -163,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  planner validate results/capler --json")
     p.add_argument("dir", type=path_argument, help="a result directory written by `planner plan` or `planner simulate`")
-    p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default="joint_pd",
+    p.add_argument("--controller", choices=("joint_pd", "stance_retarget"), default=None,
                    help="feedback law of the tracking replay (default joint_pd; docs/validation.md)")
     p.add_argument("--window", type=float, default=None, metavar="SECONDS",
                    help="length of the windows in which the tracking replay restarts from the plan [s] "
@@ -180,11 +192,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)
+    parser.commands = tuple(sub.choices)  # (a usage error's --json object names the command given)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except UsageExit as exc:  # argparse stops before --json is read: the JSON object was missing
+        if "--json" in argv:
+            command = next((a for a in argv if a in parser.commands), None)
+            print(json.dumps({"command": command, "exit_code": EXIT_INPUT, "error": exc.text}), flush=True)
+        raise
     # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
     # which CasADi writes to sys.stdout, also from the race's forked arms) goes to stderr
     # (None: closed by the shell, >&-)
@@ -301,11 +322,13 @@ def _failure(summary: dict) -> str:
 
 def _emit(args, summary: dict, text: str, written: Path | None = None) -> None:
     """Print the summary (--json) or the text (unless -q). written: the directory the summary went to, whose
-    result_id the printed summary gets too (--json printed summary.json without it)."""
+    result_id the printed summary gets too (--json printed summary.json without it): the one _write made, else (a
+    gait, written by run_gait) the one in written/summary.json."""
     if written is not None:
         from .result import read_summary
 
-        summary = {**summary, "result_id": read_summary(written, require=()).get("result_id")}
+        result_id = getattr(args, "result_id", None) or read_summary(written, require=()).get("result_id")
+        summary = {**summary, "result_id": result_id}
     args.summary = summary  # the -q failure line reads it
     if args.json:
         print(json.dumps(summary), file=args.stdout)
@@ -351,7 +374,9 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
     _remove_plots(target)  # first: one it cannot remove left the new result beside the earlier result's plots
-    write_results(result, target)
+    # this run's id, not read back from DIR: another run writing DIR after it had lent it its id and validation
+    args.result_id = uuid.uuid4().hex
+    write_results(result, target, args.result_id)
     if result.stats.converged:
         _remove_failed(out / "failed")
     if args.no_plots:
@@ -615,12 +640,10 @@ def _cmd_plan(args) -> int:
         text += f"\nthe replan from {args.init} did not converge: the change may be too large for that start; plan without --init"
     if validating:
         from .replay import validate, write_validation
-        from .result import read_summary
 
-        result_id = read_summary(target, require=()).get("result_id")
         try:
             validation = validate(target)
-            write_validation(target, validation, result_id)  # (refused when another run wrote target meanwhile)
+            write_validation(target, validation, args.result_id)  # (refused when another run wrote target meanwhile)
         except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
@@ -748,14 +771,15 @@ def _cmd_validate(args) -> int:
     result_dir(args.dir)
     if not os.access(args.dir, os.W_OK | os.X_OK):  # before the replays: the verdict is written into DIR/summary.json
         raise InputError(f"result directory {args.dir} is not writable: the validation is stored in its summary.json")
-    windowed = {} if args.window is None else {"window_s": args.window}
+    # flags given (a periodic plan refuses them, the defaults spelled out too: they would do nothing), else None
+    given = {k: v for k, v in (("controller", args.controller), ("window_s", args.window)) if v is not None}
     summary = read_summary(args.dir, require=())
     result_id = summary.get("result_id")  # a run writing DIR meanwhile: its verdict is not stored
     if summary.get("robot_sha256", "") == "":  # a result written before the hash (or with it deleted): said, not silent
         _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
                         "the one the result was computed from")
     with _said_of("--controller/--window"):
-        options = ValidationOptions(controller=args.controller, **windowed)
+        options = ValidationOptions(**given) if given else None
     result = validate(args.dir, options)
     write_validation(args.dir, result, result_id)
     _emit(args, result.to_json(), result.report())
@@ -802,7 +826,14 @@ def prepare_out_dir(path: Path, failed: bool = False) -> Path:
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
     if not existing.is_dir():
         raise InputError(f"cannot create output directory {path}: {existing} is a file")
-    if not os.access(existing, os.W_OK | os.X_OK):
+    writable = os.access(existing, os.W_OK | os.X_OK)
+    if writable:  # root passes os.access everywhere (/proc, a chmod 555 directory): a file made there tells
+        try:
+            with tempfile.TemporaryFile(dir=existing):
+                pass
+        except OSError:
+            writable = False
+    if not writable:
         raise InputError(f"output directory {path} is not writable" if existing == path else
                          f"cannot create output directory {path}: {existing} is not writable")
     return path

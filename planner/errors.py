@@ -79,6 +79,9 @@ def interruptible(defer: bool = False):
     signal.signal(signal.SIGINT, note)
     try:
         yield
+    except Exception:  # CasADi may return the Ctrl-C as its own RuntimeError ("... KeyboardInterrupt"): a traceback
+        if not caught:
+            raise
     finally:
         signal.signal(signal.SIGINT, previous)
     if caught:

@@ -265,6 +265,10 @@ class GaitSpec(ArraysReadOnly):
         if ignored:
             raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
                             "whose model walks on the ground z = 0 with the period horizon.tau_f; remove them")
+        if N is None and task.horizon.N < 2:  # (said of the file, as its other values are, not of GaitSpec)
+            raise TaskError(f"{task.source or 'the task'}: horizon.N = {task.horizon.N} is not allowed; a gait's "
+                            f"horizon.N must be an integer in [2, {MAX_STEPS}] (its swing foot's clearance is read at "
+                            "the inner nodes)")
         return cls(T=task.horizon.tau_f, N=task.horizon.N if N is None else N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
                    Q=np.array(g.q_weights, float), R=np.array(g.r_weights, float),
                    desired_input=DesiredInput(g.desired_input), continuation=g.continuation, pronto=g.pronto)
@@ -472,6 +476,9 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
     pu = ocp.pronto_u
     x, u, K = x_emb, u_emb[:, :2], None
     converged, message = False, "outer-loop limit (gait.continuation.max_outer) reached"
+    if len(loops) >= cont.max_outer:  # (its diagnostics read as the robot's motion, which they are not)
+        message += (" in the embedding stage: the trajectory is the embedded system's, driven also by a torso torque "
+                    f"the robot does not have (up to {float(np.max(np.abs(u_emb[:, 2]))):.3g} N m)")
     while len(loops) < cont.max_outer:
         pu.set_parameters(params, np.concatenate([[rho_f], x_target]))
         res = pu.solve(x0, x, u, K)
@@ -1027,7 +1034,10 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     # a gait whose stance leg stops or turns back has no phase variable: the time-indexed LQR replay
     control = WalkControl.PHASE if PhaseReference.applies(sol.x) else WalkControl.LQR
     walking = replay_gait(model, sol, task, g.steps, WalkGains(control=control)) if validate else None
-    force = np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T
+    # at both ends of every interval, its input held: the state before the impact, x_N with u_{N-1}, too (the force
+    # there had been left out: gait 2's smallest normal force read 251 N for 236 N, its friction 0.494 for 0.513)
+    force = np.vstack([np.array(model.stance_force.map(spec.N)(sol.x[:-1].T, sol.u.T)).T,
+                       np.array(model.stance_force(sol.x[-1], sol.u[-1])).ravel()])
     height = np.array(model.swing_height.map(spec.N + 1)(sol.x[:, :3].T)).ravel()
     u_paper = -sol.u
     near_T = sol.t[:-1] >= min(sol.t[-1] - 0.1, sol.t[-2])  # the last 100 ms, at least the last step (N <= 15: none)

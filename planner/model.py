@@ -171,7 +171,8 @@ class Robot:
             tangent_rows += [t @ J] if frictional else []
 
         def rank(rows):
-            return int(np.linalg.matrix_rank(np.array(rows), tol=1e-9)) if rows else 0
+            # (k, nv) also for one degree of freedom, whose rows are scalars: a 1-D array's "rank" is 1 if any is nonzero
+            return int(np.linalg.matrix_rank(np.array(rows).reshape(len(rows), -1), tol=1e-9)) if rows else 0
 
         return on, rank(normal_rows), rank(normal_rows + tangent_rows)
 
@@ -241,7 +242,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
-                "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else "")
+                "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else
+                " (the file's <default> comes after <worldbody>: Pinocchio's MJCF parser reads the classes only before "
+                "their use; move <default> above <worldbody>)" if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
         errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
         said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
@@ -579,6 +582,13 @@ def _parser_message(exc: Exception) -> str:
         text = text.split("message:", 1)[1].strip()
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("From file")]
     return lines[0] if lines else type(exc).__name__
+
+
+def _defaults_late(path: Path) -> bool:
+    """Whether an MJCF file's <default> follows its <worldbody> (MuJoCo compiles that; Pinocchio's parser failed on it
+    with "unordered_map::at")."""
+    tags = [child.tag for child in ET.parse(path).getroot()]
+    return "default" in tags and "worldbody" in tags and tags.index("default") > tags.index("worldbody")
 
 
 @contextlib.contextmanager

@@ -682,9 +682,9 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
 
-        if options is not None and options != ValidationOptions():  # (--window was accepted and did nothing)
+        if options is not None:  # (--window was accepted and did nothing)
             raise InputError("a periodic plan is validated by walking its step in MuJoCo, with no tracking replay: "
-                             "ValidationOptions (--controller, --window) do not apply; leave them at their defaults")
+                             "ValidationOptions (--controller, --window) do not apply; give none")
         validation = validate_walk(robot, task, check_trajectory(robot, traj))
     else:
         contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))

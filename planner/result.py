@@ -744,8 +744,10 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     return np.array(ts), np.array(qs), np.array(vs), np.array(us).reshape(len(ts), nu), tuple(impacts)
 
 
-def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathLike) -> tuple[Path, Path]:
-    """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace)."""
+def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathLike,
+                  result_id: str | None = None) -> tuple[Path, Path]:
+    """Write DIR/trajectory.npz and DIR/summary.json, each atomically (temp file + os.replace), with result_id (None:
+    a new one; the caller that makes it knows its own files from another run's written to DIR after them)."""
     expect(result, (SimulationResult, PlanResult), "write_results' result")
     tr = result.trajectory
     arrays = {
@@ -765,7 +767,7 @@ def write_results(result: SimulationResult | PlanResult, out_dir: str | os.PathL
     sampled = tr.contact_force_samples()
     if sampled is not None:
         arrays.update(lambda_n=sampled[0], lambda_t=sampled[1])
-    return write_files(out_dir, arrays, result.summary())
+    return write_files(out_dir, arrays, result.summary(), result_id)
 
 
 @contextlib.contextmanager
@@ -786,10 +788,10 @@ def directory_lock(out_dir: Path):
         os.close(fd)  # closing releases the lock
 
 
-def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tuple[Path, Path]:
+def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict, result_id: str | None = None) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
-    either is renamed, each with the same `result_id` (check_same_result). DIR is created if missing; an existing file
-    there is an InputError."""
+    either is renamed, each with the same `result_id` (check_same_result; None: a new one). DIR is created if missing;
+    an existing file there is an InputError."""
     expect(out_dir, (str, os.PathLike), "the output directory")
     if os.fspath(out_dir) == "":  # Path("") is the working directory, which the CLI's --out "" refuses too
         raise InputError("the output directory is empty (''); name one, '.' for the working directory")
@@ -801,7 +803,7 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict) -> tupl
     except OSError as exc:  # a parent that is a file, no permission, a read-only file system (a full disk: exit 1)
         raise write_error(out, exc, "cannot create output directory") from None
     # one id in both files: a crash between their renames leaves two results' files, which readers then refuse
-    result_id = uuid.uuid4().hex
+    result_id = uuid.uuid4().hex if result_id is None else result_id
     arrays, summary = {**arrays, "result_id": np.array(result_id)}, {**summary, "result_id": result_id}
     npz, path = out / "trajectory.npz", out / "summary.json"
     for target in (npz, path):  # its rename would fail after the other's: refused before either file is written

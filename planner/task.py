@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tomllib
 import types
 import typing
@@ -451,6 +452,17 @@ class Task:
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
         touching = [i for i, c in enumerate(self.contacts) if c.touches]
+        for i in touching:  # its force solves J M^-1 J^T lambda = ...: singular rows gave NaN in every step
+            c = self.contacts[i]
+            _, normal_rank, rank = robot.contact_rank([(c.point, c.normal, c.mu > 0)], self.initial.q,
+                                                      self.ground_height, touch_tol=math.inf)
+            if rank < 1 + (c.mu > 0):
+                along = "along its plane's normal" if normal_rank == 0 else "along its plane"
+                raise TaskError(f"contacts[{i}] ({c.point}) cannot move {along} at initial.q (its Jacobian's "
+                                f"{'normal row is zero' if normal_rank == 0 else 'normal and tangent rows are dependent'}"
+                                "), so its contact force is undefined there (NaN in the solve): "
+                                + ("give it mu = 0 (no friction) or " if normal_rank == 1 else "")
+                                + "start from another pose")
         on, normal_rank, rank = robot.contact_rank([(self.contacts[i].point, self.contacts[i].normal,
                                                      self.contacts[i].mu > 0) for i in touching],
                                                     self.initial.q, self.ground_height)
@@ -695,7 +707,13 @@ def _build(cls, data, where: str, exclude=frozenset()):
                 raise TaskError(f"missing key {key!r}")
             continue
         kwargs[f.name] = _convert(hints[f.name], data[f.name], key)
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except TaskError as exc:  # an entry's range check names its section ("contacts.mu"): name the entry, contacts[1]
+        section = re.sub(r"\[\d+\]", "", where)
+        if section == where or not str(exc).startswith(f"{section}."):
+            raise
+        raise TaskError(f"{where}{str(exc)[len(section):]}") from None
 
 
 # the keys that may be +-inf in a task file: bounds, where inf means unbounded (e.g. velocity_bounds' lower = -inf)

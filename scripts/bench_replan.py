@@ -122,9 +122,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--values {' '.join(map(repr, args.values))} name the same runs ({', '.join(labels)}): give "
                          "each value once, apart in its first 6 digits")
         task_file = ROOT / "robots" / f"{args.robot}.toml"
-        if not task_file.is_file():
-            known = sorted(p.stem for p in (ROOT / "robots").glob("*.toml"))
-            raise InputError(f"no default task robots/{args.robot}.toml; robots with one: {', '.join(known)}")
+        robot_files = [ROOT / "robots" / f"{args.robot}{ext}" for ext in (".xml", ".urdf")]
+        if not task_file.is_file() or not any(f.is_file() for f in robot_files):  # (point_mass_hop is a task only)
+            known = sorted(p.stem for p in (ROOT / "robots").glob("*.toml")
+                           if any((ROOT / "robots" / f"{p.stem}{ext}").is_file() for ext in (".xml", ".urdf")))
+            raise InputError(f"no robot file with a default task robots/{args.robot}.toml; robots with one: "
+                             f"{', '.join(known)}")
         robot, values, base_text = args.robot, args.values, task_file.read_text()
     moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
     runs = {(value, variant): args.out / f"{variant}_{value:g}" for value in values for variant in args.variants}
@@ -144,7 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     start = args.init
     if start is None:
         start = args.out / "base"
-        if plan(robot, base_task, start, [], False)["exit_code"] != 0:
+        code = plan(robot, base_task, start, [], False)["exit_code"]
+        if code == 2:  # (it was reported as "did not converge", exit 1, with nothing solved)
+            raise InputError("the start plan's command was refused (its error above)")
+        if code != 0:
             raise SystemExit(f"the start plan did not converge: see {start}")
     rows = []
     for value in values:

@@ -17,7 +17,7 @@ SAMPLES = 5  # random states per check here; the CLI default is 20
 TOL_CHECK = TOLERANCE / 10
 
 JSON_KEYS = {
-    "robot", "format", "nq", "nv", "dof_names", "points", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
+    "robot", "format", "nq", "nv", "dof_names", "points", "controls", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
     "failures",
 }
@@ -78,6 +78,20 @@ def test_json_contract():
             assert out["mujoco"] is None
         assert all(type(out[k]) is float for k in JSON_KEYS if k.startswith("max_err"))
         assert out["timing"]["build_s"] > 0 and out["timing"]["mass_us"] > 0 and out["timing"]["point"] == "foot"
+
+
+def test_the_controls_are_listed_in_the_actuators_order(tmp_path):
+    """check-model lists the joint each control drives, in u's order: an MJCF file's <actuator> order, which need not
+    be the joints' (u[0] drove the second joint here, and nothing told the user); Capler's are hip, knee in both files."""
+    for name in ("capler.xml", "capler.urdf"):
+        assert check_model(load_robot(ROBOTS_DIR / name), samples=1).controls == ("hip", "knee")
+    hip = '<motor name="hip_motor" joint="hip" gear="1" ctrlrange="-60 60"/>'
+    knee = '<motor name="knee_motor" joint="knee" gear="1" ctrlrange="-60 60"/>'
+    text = (ROBOTS_DIR / "capler.xml").read_text()
+    assert hip in text and knee in text
+    path = tmp_path / "swapped.xml"
+    path.write_text(text.replace(hip, "HIP").replace(knee, hip).replace("HIP", knee))
+    assert check_model(load_robot(path), samples=1).controls == ("knee", "hip")
 
 
 def test_detects_a_wrong_model():
@@ -143,8 +157,12 @@ URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolu
         ("<mujoco><worldbody>", "malformed XML"),
         (URDF_BROKEN, "valid URDF model: Joint [j] is of type REVOLUTE but it does not specify limits"),
         ('<mujoco><worldbody><body><joint type="hinge"/><geom type="sphere" size="-1"/></body></worldbody></mujoco>', "Pinocchio cannot parse"),
+        # MuJoCo compiles it; Pinocchio's parser said only "unordered_map::at"
+        ('<mujoco><worldbody><body pos="0 0 1"><joint name="z" type="slide" axis="0 0 1"/><geom class="ball" type="sphere" '
+         'size="0.1"/><site name="p"/></body></worldbody><default><default class="ball"><geom mass="1"/></default>'
+         '</default></mujoco>', "move <default> above <worldbody>"),
     ],
-    ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf"],
+    ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf", "late-defaults"],
 )
 def test_bad_robot_files(tmp_path, text, message):
     """A missing, foreign, malformed or unparsable robot file raises RobotFileError (an InputError) with a

@@ -67,6 +67,9 @@ def test_check_model_json_contract():
          "--solve: ipopt is set by --ipopt too; give it in one of the two"),
         (["plan", "point_mass", "--warm-ipopt", "max_soc=2", "--solve", '{"warm_ipopt": {}}'], "set by --warm-ipopt too"),
         (["plan", "point_mass", "-v", "--solve", '{"print_level": 0}'], "print_level is set by -v too"),
+        # root passes os.access there: the error came after the whole solve
+        (["plan", "point_mass", "--out", "/proc/planner-out"], "cannot create output directory /proc/planner-out: /proc is "
+         "not writable"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
          "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
         (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"],
@@ -89,6 +92,23 @@ def test_user_errors_are_one_line_exit_2(argv, fragment, capsys, tmp_path):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
     assert fragment in err and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, command, fragment", [
+    (["validate", "results", "--controller", "foo", "--json"], "validate", "argument --controller: invalid choice: 'foo'"),
+    (["plan", "point_mass", "--bogusflag", "--json"], "plan", "unrecognized arguments: --bogusflag"),
+    (["fly", "--json"], None, "invalid choice: 'fly'"),
+])
+def test_a_usage_error_with_json_prints_the_error_object(argv, command, fragment, capsys):
+    """A command-line error argparse finds, with --json: exit 2, one line on stderr and on stdout the
+    {"command", "exit_code", "error"} object, as for the errors found after parsing (stdout was empty)."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    out, err = capsys.readouterr()
+    assert len(err.strip().splitlines()) == 1 and fragment in err
+    obj = json.loads(out)
+    assert obj["command"] == command and obj["exit_code"] == 2 and fragment in obj["error"]
 
 
 def test_malformed_xml_from_a_subprocess(tmp_path):
@@ -479,6 +499,33 @@ def test_plan_solve_options_from_json(tmp_path, capsys):
 
 HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
             '[horizon]\ntau_f = 1.0\nN = 20\n[plan]\ntarget_q = [{x}, 0.0]\nu_bound = 30.0\n')
+
+
+def test_a_run_knows_its_own_result_from_one_written_after_it(tmp_path, capsys, monkeypatch):
+    """Another run that writes the same --out right after this one: this run prints its own result_id (it read the
+    other's back from disk), and its validation, which MuJoCo then ran on the other run's files, is refused (exit 2)
+    instead of being stored and reported as this plan's (a passing plan exited 1 on the other's failed tracking)."""
+    import planner.result
+
+    (tmp_path / "hop.toml").write_text(HOP_TOML.format(x=0.5))
+    other = tmp_path / "other"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(other), "--no-plots", "-q"]) == 0
+    real, ids = planner.result.write_results, []
+
+    def then_the_other_run(result, out_dir, result_id=None):
+        ids.append(result_id)
+        written = real(result, out_dir, result_id)
+        for name in ("trajectory.npz", "summary.json"):
+            shutil.copy(other / name, Path(out_dir) / name)
+        return written
+
+    monkeypatch.setattr(planner.result, "write_results", then_the_other_run)
+    argv = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--no-race", "--no-plots", "--json"]
+    capsys.readouterr()
+    assert main(argv + ["--out", str(tmp_path / "a"), "--no-validate"]) == 0
+    printed = json.loads(capsys.readouterr().out)["result_id"]
+    assert printed == ids[-1] != json.loads((other / "summary.json").read_text())["result_id"]
+    _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "b"), "-q"], "was written by another run while it was validated")
 
 
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
@@ -918,6 +965,26 @@ def test_ctrl_c_while_the_plots_are_drawn_waits_for_them(ctrl_c):
             os.kill(os.getpid(), signal.SIGINT)
             finished.append(True)
     assert finished == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_ctrl_c_casadi_raised_as_its_own_error_is_an_interruption(ctrl_c):
+    """A Ctrl-C inside errors.interruptible whose block then raises another error (CasADi's "Error in Function::call
+    ... KeyboardInterrupt" RuntimeError, 1 in 15 interrupts of an FESD simulate) is a KeyboardInterrupt (exit 130):
+    the RuntimeError had escaped as a traceback and exit 1. Without a Ctrl-C the block's error is not hidden."""
+    import os
+    import signal
+
+    from planner.errors import interruptible
+
+    with pytest.raises(KeyboardInterrupt):
+        with interruptible():
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+            except KeyboardInterrupt:
+                raise RuntimeError("Error in Function::call for 'fesd_collocated' [IpoptInterface]: KeyboardInterrupt")
+    with pytest.raises(RuntimeError, match="not an interrupt"):
+        with interruptible():
+            raise RuntimeError("not an interrupt")
 
 
 def test_a_ctrl_c_casadi_turned_into_a_system_error_is_an_interruption(tmp_path, capsys, monkeypatch):

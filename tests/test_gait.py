@@ -276,6 +276,11 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
     for t_imp in data["impact_times"]:
         assert np.sum(data["t"] == t_imp) == 2  # exactly: 10.709999999999999 and 10.71 were one impact's samples
     assert res.walk.q.shape[1] == robot.nq
+    # the stance force is judged at both ends of every interval, the input held: the state before the impact too
+    # (left out, gait 2's smallest normal force read 251 N for 236 N)
+    sol, model = res.solution, PinnedBiped(robot, layout=find_layout(robot, task.gait.stance, task.gait.swing))
+    lam_t, lam_n = np.array(model.stance_force(sol.x[-1], sol.u[-1])).ravel()
+    assert summary["min_normal_force_N"] <= lam_n and summary["friction_needed"] >= abs(lam_t / lam_n)
 
 
 def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
@@ -293,6 +298,10 @@ def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
         (tmp_path / name).write_bytes(data)
     res = run_gait(robot, short, tmp_path, validate=False)
     assert not res.summary["converged"] and json.loads((tmp_path / "failed" / "summary.json").read_text())["converged"] is False
+    # its one loop was the embedding's: the saved trajectory is the embedded system's, and the message says so
+    assert [loop.stage for loop in res.solution.loops] == ["embedding"]
+    assert res.summary["message"].startswith("outer-loop limit (gait.continuation.max_outer) reached in the embedding "
+                                             "stage: the trajectory is the embedded system's")
     for name, data in earlier.items():
         assert (tmp_path / name).read_bytes() == data
     toml = tmp_path / "short.toml"
@@ -382,6 +391,9 @@ def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
     for N in (0, 1, -5, 2.5, "20", True):
         with pytest.raises(InputError, match=r"GaitSpec.N = .* an integer in \[2, 10000000\]"):
             GaitSpec.from_task(task, N)
+    one = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=1))  # said of the file, not GaitSpec
+    with pytest.raises(TaskError, match=r"biped_gait1.toml: horizon.N = 1 is not allowed; a gait's horizon.N must be"):
+        GaitSpec.from_task(one)
     spec = GaitSpec.from_task(task)
     with pytest.raises(ValueError, match="read-only"):
         spec.x0[0] = 9.0
