@@ -601,6 +601,14 @@ def _cmd_plan(args) -> int:
         from .replay import build_scene
 
         build_scene(robot, task)
+        if task.plan is not None and task.plan.periodic is not None:  # its validation walks it (after the solve)
+            from .gait import check_walkable
+
+            try:
+                check_walkable(robot, task)
+            except InputError as exc:
+                raise InputError(f"{exc} (the validation walks a periodic plan in MuJoCo; --no-validate plans it "
+                                 "without)") from None
     problem = build_problem(robot, task, problem_options)
     if args.init is not None:
         from .homotopy import replan_options

@@ -134,7 +134,8 @@ def options_record(opts) -> dict:
         if is_dataclass(v):  # e.g. ProblemOptions.fesd
             out[k] = options_record(v)
             continue
-        out[k] = v.value if isinstance(v, Enum) else [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v
+        out[k] = (v.value if isinstance(v, Enum) else
+                  [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v)
     return out
 
 

@@ -1112,6 +1112,24 @@ def landing_first(robot: Robot, task: Task, arrays: dict) -> tuple[np.ndarray, .
             np.vstack([v[k:], v[before][:, perm]]), np.vstack([u[k:], u[before][:, motors]]))
 
 
+def check_walkable(robot: Robot, task: Task) -> list[str]:
+    """The two feet of a periodic plan MuJoCo can walk (`planner plan` checks it before the solve: it was refused after
+    the plan was solved and written). TaskError for a task without plan.periodic, not two contacts, or a swap that is
+    not the leg hinges; InputError when the robot is not the floating planar biped."""
+    per = task.plan.periodic if task.plan is not None else None
+    if per is None:
+        raise TaskError(f"{task.source or 'the task'} has no [plan.periodic]: only a periodic plan can be walked")
+    points = [c.point for c in task.contacts]
+    if len(points) != 2:
+        raise TaskError(f"walking a periodic plan needs two contact points (the feet); the task has {points}")
+    lay = find_layout(robot, points[0], points[1])  # (either foot's stance: the same two leg hinges)
+    hinges = {robot.dof_names[lay.stance_hinge], robot.dof_names[lay.swing_hinge]}
+    if len(per.swap) != 1 or set(per.swap[0]) != hinges:
+        raise TaskError(f"plan.periodic.swap must be [{sorted(hinges)}] (the leg hinges) to walk the plan; it is "
+                        f"{[list(p) for p in per.swap]}")
+    return points
+
+
 def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, PinnedGait]:
     """A periodic plan's step (result arrays t (P,), q (P, nq), v (P, nv), u (P, nu)) on the pinned model.
 
@@ -1123,22 +1141,13 @@ def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, Pinn
     sample i-1 to i (planner.result.recover). Raises TaskError for a task without plan.periodic, not
     two contacts, or another swap; InputError when the robot is not the floating planar biped.
     """
-    per = task.plan.periodic if task.plan is not None else None
-    if per is None:
-        raise TaskError(f"{task.source or 'the task'} has no [plan.periodic]: only a periodic plan can be walked")
-    points = [c.point for c in task.contacts]
-    if len(points) != 2:
-        raise TaskError(f"walking a periodic plan needs two contact points (the feet); the task has {points}")
+    points = check_walkable(robot, task)
     t, q, v, u = landing_first(robot, task, arrays)
     dyn = Dynamics(robot)
     travel = [np.ptp(np.array(dyn.point_position(p).map(len(t))(q.T))[0]) for p in points]
     stance, swing = (points[0], points[1]) if travel[0] <= travel[1] else (points[1], points[0])
     model = PinnedBiped(robot, dyn, find_layout(robot, stance, swing))
     lay = model.layout
-    hinges = {robot.dof_names[lay.stance_hinge], robot.dof_names[lay.swing_hinge]}
-    if len(per.swap) != 1 or set(per.swap[0]) != hinges:
-        raise TaskError(f"plan.periodic.swap must be [{sorted(hinges)}] (the leg hinges) to walk the plan; it is "
-                        f"{[list(p) for p in per.swap]}")
     keep = np.append(np.diff(t) > 0, True)  # the last sample of each physical time
     t, q, v, u = t[keep], q[keep], v[keep], u[keep]
     rows = [lay.stance_hinge, lay.swing_hinge]

@@ -857,6 +857,9 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         raise InputError("SolveOptions.polish = hybrid is not allowed with discretization fesd; it must be one of ['none', 'active_set']")
     if problem.fesd is not None and options.fesd_start is FESDStart.IMPLICIT_EULER:
         return _solve_through_implicit_euler(problem, options, progress)
+    if options.fesd_start is not FESDStart.HINT_FREE:  # (accepted, ignored and recorded as done before)
+        raise InputError(f"SolveOptions.fesd_start = {options.fesd_start.value} applies to discretization fesd only; "
+                         "this problem is implicit Euler")
     if options.fesd_rho_schedule != SolveOptions.fesd_rho_schedule:  # (accepted and ignored before)
         raise InputError(f"SolveOptions.fesd_rho_schedule = {options.fesd_rho_schedule} applies to discretization fesd "
                          "with fesd_start implicit_euler only; this solve's penalties are rho_schedule's")
@@ -975,7 +978,9 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
     implicit_euler = {"converged": first.stats.converged, "ipopt_iterations": first.stats.ipopt_iterations,
                       "solve_time_s": first.stats.solve_time_s,
                       "complementarity_residual": first.stats.complementarity_residual}
-    return replace(result, stats=stats, nlps=nlps, timings=timings,
+    # the options the caller gave (the record said fesd_start hint_free: the inner FESD solve's own)
+    recorded = {**result.options, "solve": options_record(options)}
+    return replace(result, stats=stats, nlps=nlps, timings=timings, options=recorded,
                    extra={**result.extra, "implicit_euler": implicit_euler})
 
 
@@ -1382,7 +1387,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
-                      options={"problem": options_record(problem.options), "solve": options_record(options)}, robot_sha256=problem.robot.sha256)
+                      options={"problem": options_record(problem.options), "solve": options_record(options)},
+                      robot_sha256=problem.robot.sha256)
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):

@@ -171,7 +171,7 @@ class Robot:
             tangent_rows += [t @ J] if frictional else []
 
         def rank(rows):
-            # (k, nv) also for one degree of freedom, whose rows are scalars: a 1-D array's "rank" is 1 if any is nonzero
+            # (k, nv) also for one degree of freedom, whose rows are scalars: a 1-D array's rank is 1 if any is nonzero
             return int(np.linalg.matrix_rank(np.array(rows).reshape(len(rows), -1), tol=1e-9)) if rows else 0
 
         return on, rank(normal_rows), rank(normal_rows + tangent_rows)
@@ -244,7 +244,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
                 "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else
                 " (the file's <default> comes after <worldbody>: Pinocchio's MJCF parser reads the classes only before "
-                "their use; move <default> above <worldbody>)" if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
+                "their use; move <default> above <worldbody>)"
+                if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
         errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
         said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")

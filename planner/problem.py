@@ -993,6 +993,13 @@ def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X,
         rows.add("periodic", [term_res], 0.0, 0.0)
     elif options.terminal_velocity:
         target_v = np.zeros(nv) if plan.target_v is None else np.array(plan.target_v, float)
+        A, lower, upper = task.velocity_rows(robot)  # they hold at y_N too: no plan exists (IPOPT said "infeasible")
+        rate = A @ target_v
+        outside = np.flatnonzero((rate < lower) | (rate > upper))
+        if outside.size:
+            r, omitted = outside[0], " (omitted: zeros)" if plan.target_v is None else ""
+            raise InputError(f"plan.velocity_bounds[{r}] = [{lower[r]:g}, {upper[r]:g}] excludes the end velocity, "
+                             f"{rate[r]:g} by plan.target_v{omitted}, which the last node must meet")
         target = np.concatenate([np.array(plan.target_q, float), target_v])
         rows.add("terminal", [y_N[: nq + nv]], target, target)
         term_res = y_N[: nq + nv] - target

@@ -788,7 +788,8 @@ def directory_lock(out_dir: Path):
         os.close(fd)  # closing releases the lock
 
 
-def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict, result_id: str | None = None) -> tuple[Path, Path]:
+def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict,
+                result_id: str | None = None) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
     either is renamed, each with the same `result_id` (check_same_result; None: a new one). DIR is created if missing;
     an existing file there is an InputError."""

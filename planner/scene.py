@@ -3,7 +3,9 @@
 `analyze_scene(robot, task)` returns a frozen `Skips` record; `build_problem` builds only what it
 keeps (`ProblemOptions.scene_analysis = False` builds everything, for comparison) and the record
 goes to `Problem.skips` and to summary.json ("scene"). Each skip drops machinery that cannot change
-the solution:
+the OCP's solutions (the same state trajectories are feasible and cost the same), though the homotopy, a local
+method, may reach another of them (a session-50 tester: 2 of 3 frictionless tasks with holes or a wall ended at other
+plans, one of them dearer):
 
 * frictionless: an inelastic contact with mu = 0 gets no tangential switch zeta = theta(t^T v), no
   tangential jump field a_t and hence no lifted products with zeta, no complementarity pairs of zeta
@@ -42,6 +44,7 @@ import numpy as np
 from .dynamics import _expand
 from .model import Robot
 from .task import Task
+from .timefreezing import contact_labels
 
 REVOLUTE = ("revolute", "revolute_unbounded")
 
@@ -80,8 +83,9 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
         return Skips(enabled=False, elastic_state=elastic, reasons=tuple(reasons + ["scene analysis off: everything is built"]))
     never = tuple(c.point for c in task.contacts if not c.touches)
     reasons += [f"{p}: touches = false, no contact machinery, only gap >= 0 (and the holes)" for p in never]
-    touching = [c for c in task.contacts if c.touches]
-    frictionless = tuple(c.point for c in touching if c.mu == 0 and c.restitution == 0)
+    # by contact label: a point on a rough floor and a frictionless wall was listed as frictionless (point#2 is)
+    frictionless = tuple(label for label, c in zip(contact_labels(task.contacts), task.contacts)
+                         if c.touches and c.mu == 0 and c.restitution == 0)
     reasons += [f"{p}: mu = 0, no tangential switch, jump field or pairs" for p in frictionless]
     dropped = []
     holes = task.plan.holes if task.plan is not None else ()
@@ -93,8 +97,9 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
             for i, e in enumerate(holes):
                 if hi[0] < e.x - e.a or lo[0] > e.x + e.a or hi[2] < e.z - e.b or lo[2] > e.z + e.b:
                     dropped.append((point, i))
-                    reasons.append(f"{point}: hole {i} at x = {e.x:g} m is out of reach (x in [{lo[0]:.3g}, {hi[0]:.3g}] m, "
-                                   f"z in [{lo[2]:.3g}, {hi[2]:.3g}] m by the joint bounds)")
+                    reasons.append(f"{point}: hole {i} at (x, z) = ({e.x:g}, {e.z:g}) m, half-axes ({e.a:g}, {e.b:g}) m, "
+                                   f"is out of reach (x in [{lo[0]:.3g}, {hi[0]:.3g}] m, z in [{lo[2]:.3g}, "
+                                   f"{hi[2]:.3g}] m by the joint bounds)")
     return Skips(enabled=True, frictionless=frictionless, never_touching=never, dropped_holes=tuple(dropped),
                  elastic_state=elastic, reasons=tuple(reasons))
 

@@ -17,7 +17,8 @@ SAMPLES = 5  # random states per check here; the CLI default is 20
 TOL_CHECK = TOLERANCE / 10
 
 JSON_KEYS = {
-    "robot", "format", "nq", "nv", "dof_names", "points", "controls", "backend", "samples", "seed", "max_err_mass", "max_err_bias",
+    "robot", "format", "nq", "nv", "dof_names", "points", "controls", "backend", "samples", "seed", "max_err_mass",
+    "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
     "failures",
 }
@@ -82,7 +83,8 @@ def test_json_contract():
 
 def test_the_controls_are_listed_in_the_actuators_order(tmp_path):
     """check-model lists the joint each control drives, in u's order: an MJCF file's <actuator> order, which need not
-    be the joints' (u[0] drove the second joint here, and nothing told the user); Capler's are hip, knee in both files."""
+    be the joints' (u[0] drove the second joint here, and nothing told the user); Capler's are hip, knee in both
+    files."""
     for name in ("capler.xml", "capler.urdf"):
         assert check_model(load_robot(ROBOTS_DIR / name), samples=1).controls == ("hip", "knee")
     hip = '<motor name="hip_motor" joint="hip" gear="1" ctrlrange="-60 60"/>'
@@ -158,9 +160,9 @@ URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolu
         (URDF_BROKEN, "valid URDF model: Joint [j] is of type REVOLUTE but it does not specify limits"),
         ('<mujoco><worldbody><body><joint type="hinge"/><geom type="sphere" size="-1"/></body></worldbody></mujoco>', "Pinocchio cannot parse"),
         # MuJoCo compiles it; Pinocchio's parser said only "unordered_map::at"
-        ('<mujoco><worldbody><body pos="0 0 1"><joint name="z" type="slide" axis="0 0 1"/><geom class="ball" type="sphere" '
-         'size="0.1"/><site name="p"/></body></worldbody><default><default class="ball"><geom mass="1"/></default>'
-         '</default></mujoco>', "move <default> above <worldbody>"),
+        ('<mujoco><worldbody><body pos="0 0 1"><joint name="z" type="slide" axis="0 0 1"/><geom class="ball" '
+         'type="sphere" size="0.1"/><site name="p"/></body></worldbody><default><default class="ball"><geom mass="1"/>'
+         '</default></default></mujoco>', "move <default> above <worldbody>"),
     ],
     ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf", "late-defaults"],
 )

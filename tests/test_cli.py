@@ -65,11 +65,12 @@ def test_check_model_json_contract():
         # replace() put the JSON's field in place of the flag's: the flag's IPOPT options or log were lost
         (["plan", "point_mass", "--ipopt", "max_soc=2", "--solve", '{"ipopt": {"alpha_for_y": "min"}}'],
          "--solve: ipopt is set by --ipopt too; give it in one of the two"),
-        (["plan", "point_mass", "--warm-ipopt", "max_soc=2", "--solve", '{"warm_ipopt": {}}'], "set by --warm-ipopt too"),
+        (["plan", "point_mass", "--warm-ipopt", "max_soc=2", "--solve", '{"warm_ipopt": {}}'],
+         "set by --warm-ipopt too"),
         (["plan", "point_mass", "-v", "--solve", '{"print_level": 0}'], "print_level is set by -v too"),
         # root passes os.access there: the error came after the whole solve
-        (["plan", "point_mass", "--out", "/proc/planner-out"], "cannot create output directory /proc/planner-out: /proc is "
-         "not writable"),
+        (["plan", "point_mass", "--out", "/proc/planner-out"],
+         "cannot create output directory /proc/planner-out: /proc is not writable"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
          "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
         (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"],
@@ -95,7 +96,8 @@ def test_user_errors_are_one_line_exit_2(argv, fragment, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("argv, command, fragment", [
-    (["validate", "results", "--controller", "foo", "--json"], "validate", "argument --controller: invalid choice: 'foo'"),
+    (["validate", "results", "--controller", "foo", "--json"], "validate",
+     "argument --controller: invalid choice: 'foo'"),
     (["plan", "point_mass", "--bogusflag", "--json"], "plan", "unrecognized arguments: --bogusflag"),
     (["fly", "--json"], None, "invalid choice: 'fly'"),
 ])
@@ -397,6 +399,30 @@ def test_plan_rejects_an_unknown_fesd_start(tmp_path, capsys):
                      "hint_free")
 
 
+def test_a_periodic_plan_that_cannot_be_walked_is_refused_before_the_solve(tmp_path, capsys):
+    """A periodic task on a robot whose validation cannot walk it (one contact point) is exit 2 before any solve, with
+    the way out (--no-validate): the whole homotopy ran and wrote its result first."""
+    task = tmp_path / "periodic.toml"
+    task.write_text(HOP_TOML.format(x=0.5).replace("target_q = [0.5, 0.0]\n", "") + "[plan.periodic]\nstep = 0.2\n")
+    out = tmp_path / "o"
+    _one_line_exit_2(capsys, ["plan", "point_mass", "--task", str(task), "--out", str(out), "--no-race"],
+                     "walking a periodic plan needs two contact points (the feet); the task has ['point'] (the "
+                     "validation walks a periodic plan in MuJoCo; --no-validate plans it without)")
+    assert not out.exists()
+
+
+def test_a_plan_through_implicit_euler_records_the_options_given(tmp_path, capsys):
+    """`plan --discretization fesd --fesd-start implicit_euler`: summary.json's solve options are those the command
+    ran with, fesd_start implicit_euler among them (they were the inner FESD solve's: fesd_start hint_free, its own
+    rho schedule, monotone barrier and enforced holes)."""
+    argv = ["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "5", "--discretization",
+            "fesd", "--stages", "1", "--elements", "2", "--fesd-start", "implicit_euler", "--out", str(tmp_path / "o"),
+            "--no-plots", "--no-validate", "--json"]
+    assert main(argv) == 0
+    solve = json.loads(capsys.readouterr().out)["options"]["solve"]
+    assert solve["fesd_start"] == "implicit_euler" and solve["holes"] != "enforced" and solve["rho_schedule"] is None
+
+
 @pytest.mark.parametrize("argv, flags", [(["plan", "point_mass", "--stages", "3"], "--stages sets"),
                                          (["plan", "point_mass", "--elements", "2", "--fesd-start", "implicit_euler"],
                                           "--elements and --fesd-start set"),
@@ -525,7 +551,8 @@ def test_a_run_knows_its_own_result_from_one_written_after_it(tmp_path, capsys, 
     assert main(argv + ["--out", str(tmp_path / "a"), "--no-validate"]) == 0
     printed = json.loads(capsys.readouterr().out)["result_id"]
     assert printed == ids[-1] != json.loads((other / "summary.json").read_text())["result_id"]
-    _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "b"), "-q"], "was written by another run while it was validated")
+    _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "b"), "-q"],
+                     "was written by another run while it was validated")
 
 
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
@@ -536,7 +563,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     DIR keeps the task its plan solved (trajectory.npz's task_json, what the replan walks from), so the replan
     needs no task file of it; --allow-new-impacts reaches SolveOptions.schedule_new_impacts. A DIR without a plan's
     NLP point (a simulation), a plan on another grid (--steps) or with mu = 0 where DIR's was not (its tangential
-    variables skipped: named as the cause) or with other ProblemOptions (named), FESD, --keep-schedule, --penalty-replan or
+    variables skipped: named as the cause) or with other ProblemOptions (named), FESD, --keep-schedule,
+    --penalty-replan or
     --allow-new-impacts without --init, --penalty-replan with either of the other two, a plan that did not converge
     and a plan of another robot file are exit 2, one line each."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
@@ -601,7 +629,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
                                                      options).signature)
     np.savez(scaled / "trajectory.npz", **arrays)
     problem_record = {**summary["options"]["problem"], "switch_scale": [["c(q)", 100.0]]}
-    (scaled / "summary.json").write_text(json.dumps({**summary, "options": {**summary["options"], "problem": problem_record}}))
+    options_record = {**summary["options"], "problem": problem_record}
+    (scaled / "summary.json").write_text(json.dumps({**summary, "options": options_record}))
     _one_line_exit_2(capsys, argv[:-1] + [str(scaled)], "the plan was built with other ProblemOptions (switch_scale)")
     heavy_robot = tmp_path / "heavy.xml"
     heavy_robot.write_text(Path(summary["robot"]).read_text().replace('mass="1"', 'mass="2"'))

@@ -149,6 +149,9 @@ def hop():
     (lambda r, t, p: solve(replace(p, ubg=p.ubg[:-1]), SolveOptions()), r"problem.ubg has .* entries, the problem"),
     # accepted and ignored: only an FESD solve through implicit Euler reads it
     (lambda r, t, p: solve(p, SolveOptions(fesd_rho_schedule=(1e4,))), "fesd_rho_schedule = .* applies to discretization fesd"),
+    # ran the hint-free homotopy and recorded fesd_start implicit_euler
+    (lambda r, t, p: solve(p, SolveOptions(fesd_start="implicit_euler")),
+     "fesd_start = implicit_euler applies to discretization fesd only"),
 ])
 def test_api_calls_with_an_argument_of_the_wrong_kind_are_input_errors(hop, call, message):
     """A public function given an argument of the wrong kind (a path for a Robot, a SolveOptions for a ProblemOptions,

@@ -251,6 +251,19 @@ def test_velocity_bounds_rows_are_the_joint_rate_sums():
     assert fesd.g_blocks["velocity_bounds"].shape == (4, 4) and fesd.g_blocks["velocity_bounds_y0"].shape == (1, 2)
 
 
+def test_an_end_velocity_outside_the_velocity_bounds_is_an_input_error():
+    """The velocity bounds hold at the last node, where v_N = target_v (zeros when omitted): a bound that excludes it
+    leaves no plan (IPOPT ended "infeasible" after the whole homotopy, naming the terminal row). An InputError names
+    the bound and the velocity; target_v inside it, or terminal_velocity off, builds."""
+    robot, task = load_robot("point_mass"), hop_task(N=5)
+    bounded = dataclasses.replace(task.plan, velocity_bounds=(VelocityBound(("x",), lower=0.1),))
+    with pytest.raises(InputError, match=r"plan.velocity_bounds\[0\] = \[0.1, inf\] excludes the end velocity, 0 by "
+                                         r"plan.target_v \(omitted: zeros\)"):
+        build_problem(robot, dataclasses.replace(task, plan=bounded))
+    build_problem(robot, dataclasses.replace(task, plan=dataclasses.replace(bounded, target_v=(0.5, 0.0))))
+    build_problem(robot, dataclasses.replace(task, plan=bounded), ProblemOptions(terminal_velocity=False))
+
+
 @pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
 def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     """A task whose target puts a contact point inside a hole (Capler's base at x = 2.6 m stands the foot in the

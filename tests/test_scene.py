@@ -200,9 +200,21 @@ def test_scene_record_and_option(point_mass):
     assert rec["enabled"] and rec["dropped_holes"] == [{"contact": "point", "hole": 1}, {"contact": "point", "hole": 2}]
     assert rec["elastic_state"] == [] and any("elastic state p: not built" in r for r in rec["reasons"])
     assert sum("out of reach" in r for r in rec["reasons"]) == 2
+    # the hole's place and size are said (one out of reach in z was named by its x only, inside the x range)
+    assert "point: hole 1 at (x, z) = (1.5, 0) m, half-axes (0.25, 0.1) m, is out of reach (x in [-0.1, 0.6] m" in (
+        " ".join(rec["reasons"]))
     assert pb.system.ny == 2 * 2 + 1  # q, v, clock: no p
     with pytest.raises(InputError, match="scene_analysis"):
         ProblemOptions(scene_analysis="yes")
+
+
+def test_a_frictionless_wall_beside_a_rough_floor_is_named_by_its_contact(point_mass):
+    """A point on a rough floor and a frictionless wall: the scene lists the wall's contact label (point#2) as
+    frictionless, not the point, whose floor contact keeps its friction."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [1.0, 0.0, 0.0]}],
+                       "initial": {"q": [0.1, 0.0]}, "horizon": {"tau_f": 0.3, "N": 3}})
+    skips = analyze_scene(point_mass, task)
+    assert skips.frictionless == ("point#2",) and any(r.startswith("point#2: mu = 0") for r in skips.reasons)
 
 
 def test_summary_carries_the_scene(point_mass):

@@ -982,7 +982,8 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.stress", "--robot", "point_mass", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"],
      "--workers sets the local processes; a Dask --scheduler has its own workers"),
     (["scripts.bench_replan", "capler", "--values", "3.1", "--out", "{file}"], "is a file, not a directory"),
-    (["scripts.bench_replan", "nosuch", "--values", "1"], "no robot file with a default task robots/nosuch.toml"),  # a traceback
+    # a traceback
+    (["scripts.bench_replan", "nosuch", "--values", "1"], "no robot file with a default task robots/nosuch.toml"),
     # a task file without a robot file: its start plan was refused, then reported as "did not converge", exit 1
     (["scripts.bench_replan", "point_mass_hop", "--values", "0.6"], "robots with one: biped, capler, point_mass"),
     (["scripts.bench_replan", "capler", "--values", "3.1", "3.1000001"], "name the same runs (3.1, 3.1)"),  # deleted one

@@ -75,7 +75,8 @@ def _with(path: str, value):
         ("contacts", [{"point": "foot", "a_t": 1e9}], r"contacts\[0\].a_t = 1000000000.0 .* in \(0, 1e\+06\]"),  # flight sped up
         # a range error names the entry, as a type error does (with two contacts the user could not tell which)
         ("contacts", [{"point": "foot"}, {"point": "base", "mu": -1.0}], r"^contacts\[1\].mu = -1.0 is not allowed"),
-        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1.0, "a": 0.1, "b": 0.1}, {"x": 2.0, "a": -1.0, "b": 0.1}]},
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0],
+                  "holes": [{"x": 1.0, "a": 0.1, "b": 0.1}, {"x": 2.0, "a": -1.0, "b": 0.1}]},
          r"^plan.holes\[1\].a = -1.0 is not allowed"),
     ],
 )
@@ -196,17 +197,18 @@ HAMMER = """<mujoco><worldbody><body name="arm" pos="0 0 0.5"><joint name="hinge
 
 
 @pytest.mark.parametrize("mu, q, message", [
-    (0.5, 0.3, r"contacts\[0\] \(head\) cannot move along its plane at initial.q .* give it mu = 0 \(no friction\) or "
-               "start from another pose"),
-    (0.0, math.pi / 2, r"contacts\[0\] \(head\) cannot move along its plane's normal at initial.q \(its Jacobian's normal row "
-               r"is zero\), .*: start from another pose"),
+    (0.5, 0.3, r"contacts\[0\] \(head\) with friction cannot move both along its plane and its normal at initial.q "
+               r"\(its Jacobian's normal and tangent rows are dependent\), .* give it mu = 0 \(no friction\) or start "
+               "from another pose"),
+    (0.5, math.pi / 2, r"contacts\[0\] \(head\) with friction cannot move along its plane's normal at initial.q"),
     (0.0, 0.3, None),
+    (0.0, math.pi / 2, None),  # frictionless: its force is the step's variable, and a simulation of it runs
 ])
 def test_a_contact_whose_force_is_undefined_at_the_start_is_refused(tmp_path, mu, q, message):
     """A one-hinge hammer's head moves along one direction only: with friction its normal and tangent rows are
-    dependent, and with the arm vertical (q = pi / 2) it cannot move along the ground's normal at all; either way its
-    contact force solves a singular system (NaN in every step: a simulation ran 170794 IPOPT iterations, a plan said
-    its start held NaN). A TaskError names the contact and the fix; a frictionless head at a tilt is fine."""
+    dependent (with the arm vertical, q = pi / 2, it cannot move along the ground's normal at all), so its no-slip
+    force solves a singular system (NaN: a simulation ran 170794 IPOPT iterations, a plan said its start held NaN).
+    A TaskError names the contact and the fix; a frictionless head is fine."""
     path = tmp_path / "hammer.xml"
     path.write_text(HAMMER)
     task = parse_task({"contacts": [{"point": "head", "mu": mu}], "initial": {"q": [q]},
