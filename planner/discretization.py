@@ -499,7 +499,9 @@ class FESDOptions:
 
     n_s: Radau IIA stages per element (1..3; order 2 n_s - 1 between switches). n_fe: finite elements
     per step h (>= 1; from 2 on an element boundary per step is free to move onto a switch, and a step holds at
-    most n_fe - 1 switches; n_fe = 1 with n_s = 1 is the implicit-Euler step). rho_h: weight of the step equilibration penalty
+    most n_fe - 1 switches; n_fe = 1 holds none, and is not the implicit-Euler step: `planner simulate point_mass
+    --discretization fesd --stages 1 --elements 1` fails at the impact that implicit Euler passes). rho_h: weight of
+    the step equilibration penalty
     rho_h sum_n ((h_n - h/n_fe) / (h/n_fe))^2, which fixes the lengths that no switch pins (without
     it they are free and the NLP degenerate). The complementarity penalty grows past it in the
     homotopy; with rho_h = 0.1 the point-mass drop started with two elements of length ~0 (free

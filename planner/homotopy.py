@@ -1002,13 +1002,14 @@ def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress:
     return replace(keep, stats=stats, nlps=nlps)
 
 
-def _held(problem, solvers, options, x0, records, progress, label, refuse=None):
+def _held(problem, solvers, options, x0, records, progress, label, refuse=None, failed_note=""):
     """The task's cost with the contact schedule of x0 (ungated) held (SCHEDULE_IPOPT): the accepted point, or None.
-    refuse(x): why an accepted point is set aside (its record's note), or ""."""
+    refuse(x): why an accepted point is set aside (its record's note), or ""; failed_note: the record's note when
+    the point is not accepted."""
     lbx, ubx, x_held = active_set_bounds(problem, x0)
     x, _, _, rec = _run(problem, solvers, x_held, None, None, problem.params(0.0, 1.0), lbx, ubx, label, schedule=True)
     accepted = _accepted(problem, options, x, rec)
-    note = refuse(x) if accepted and refuse is not None else ""
+    note = (refuse(x) if refuse is not None else "") if accepted else failed_note
     rec = replace(rec, note=note) if note else rec
     records.append(rec)
     if progress:
@@ -1016,20 +1017,24 @@ def _held(problem, solvers, options, x0, records, progress, label, refuse=None):
     return x if accepted and not note else None
 
 
-def _held_scaled(problem, solvers, options, x0, records, progress, label):
+def _held_scaled(problem, solvers, options, x0, records, progress, label, **held):
     """_held from x0 (ungated), the variables scaled by x0's own magnitudes as the replan's schedule NLP is
-    (VariableScaling.START): (x0 ungated, the accepted point or None)."""
+    (VariableScaling.START): (x0 ungated, the accepted point or None). held: _held's refuse, failed_note."""
     if "gates" in problem.notes:
         x0 = ungate(problem, x0)
     solvers.set_scale(variable_scale(problem, x0, stages=True))
-    return x0, _held(problem, solvers, options, x0, records, progress, label)
+    return x0, _held(problem, solvers, options, x0, records, progress, label, **held)
 
 
 def _reoptimize(problem, solvers, options, x0, records, progress):
-    """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None."""
-    x0, x = _held_scaled(problem, solvers, options, x0, records, progress, "reoptimize")
+    """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None.
+    Its record's note says when the polished plan is kept (a failed last row read as the plan's source)."""
     f, p = _nlp_fn(problem, "f"), problem.params(0.0, 1.0)
-    return x if x is not None and float(f(x, p)) < float(f(x0, p)) else None
+    start = ungate(problem, x0) if "gates" in problem.notes else x0
+    dearer = (lambda x: "" if float(f(x, p)) < float(f(start, p)) else
+              "not taken: no cheaper than the polished plan, which is kept")
+    return _held_scaled(problem, solvers, options, x0, records, progress, "reoptimize", refuse=dearer,
+                        failed_note="not taken: the polished plan is kept")[1]
 
 
 def _keep_schedule(problem, solvers, options, x0, records, progress):

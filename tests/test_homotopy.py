@@ -594,10 +594,21 @@ def test_reoptimize_makes_the_polished_plan_the_cheapest_on_its_schedule(hop, mo
         assert cost[res] < cost[plain]
     else:
         np.testing.assert_array_equal(res.extra["_x"], plain.extra["_x"])
-    monkeypatch.setattr(H, "_held", lambda problem, solvers, options, x0, records, progress, label: x0)  # not cheaper
-    kept = H.solve(prob, H.SolveOptions())
+    def no_cheaper(problem, solvers, options, x0, records, progress, label, refuse=None, failed_note=""):
+        return None if refuse(x0) else x0  # the polished plan itself: refused as no cheaper
+
+    with monkeypatch.context() as patch:
+        patch.setattr(H, "_held", no_cheaper)
+        kept = H.solve(prob, H.SolveOptions())
     assert kept.stats.message == "ok (active-set polished)"
     np.testing.assert_array_equal(kept.extra["_x"], plain.extra["_x"])
+    # a re-optimization that fails says on its row that the polished plan is kept (it read as the plan's source)
+    real = H._accepted
+    monkeypatch.setattr(H, "_accepted", lambda problem, options, x, rec: rec.label != "reoptimize" and real(
+        problem, options, x, rec))
+    failed = H.solve(prob, H.SolveOptions())
+    assert failed.nlps[-1].label == "reoptimize" and failed.nlps[-1].note == "not taken: the polished plan is kept"
+    assert failed.stats.converged and failed.stats.message == "ok (active-set polished)"
 
 
 def test_keep_schedule_moves_the_plan_with_its_impacts_on_their_steps(hop, monkeypatch):
