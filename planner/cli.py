@@ -320,15 +320,12 @@ def _failure(summary: dict) -> str:
     return ""
 
 
-def _emit(args, summary: dict, text: str, written: Path | None = None) -> None:
-    """Print the summary (--json) or the text (unless -q). written: the directory the summary went to, whose
-    result_id the printed summary gets too (--json printed summary.json without it): the one _write made, else (a
-    gait, written by run_gait) the one in written/summary.json."""
-    if written is not None:
-        from .result import read_summary
-
-        result_id = getattr(args, "result_id", None) or read_summary(written, require=()).get("result_id")
-        summary = {**summary, "result_id": result_id}
+def _emit(args, summary: dict, text: str, written: bool = False) -> None:
+    """Print the summary (--json) or the text (unless -q). written: the command wrote a result, whose result_id
+    the printed summary gets too (--json printed summary.json without it): args.result_id, the one this run wrote
+    (read back from DIR, it could be another run's written after it)."""
+    if written:
+        summary = {**summary, "result_id": args.result_id}
     args.summary = summary  # the -q failure line reads it
     if args.json:
         print(json.dumps(summary), file=args.stdout)
@@ -507,7 +504,7 @@ def _cmd_simulate(args) -> int:
     result = simulate(robot, task, options)
     target, _ = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
-    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", written=target)
+    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", written=True)
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
@@ -616,8 +613,11 @@ def _cmd_plan(args) -> int:
 
         start_arrays = read_trajectory(args.init)
         _check_start(args.init, robot, start_arrays)
+        # a plan written before session 50 digested its variables only: its options by its summary.json instead
+        signature = (problem.variables_signature if str(start_arrays.get("nlp_signature")) == problem.variables_signature
+                     and not _options_apart(args.init, problem.options) else problem.signature)
         try:
-            problem = replace(problem, x0=read_start(args.init, problem.signature, problem.nx, start_arrays))
+            problem = replace(problem, x0=read_start(args.init, signature, problem.nx, start_arrays))
         except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only
             apart = (_skips_apart(args.init, start_arrays, task) + _options_apart(args.init, problem.options)
                      if "other NLP variables" in str(exc) else "")
@@ -660,7 +660,7 @@ def _cmd_plan(args) -> int:
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
     plots_drawn()
-    _emit(args, summary, text, written=target)
+    _emit(args, summary, text, written=True)
     return EXIT_OK if ok else EXIT_FAILED
 
 
@@ -731,8 +731,8 @@ def _options_apart(init: Path, options) -> str:
     if not isinstance(recorded, dict):
         return ""
     apart = [k for k, v in options_record(options).items() if k != "clock_guess_running" and recorded.get(k) != v]
-    return (f"; the plan was built with other ProblemOptions ({', '.join(apart)}), so plan without --init or with "
-            "its options" if apart else "")
+    return (f"; the plan was built with other ProblemOptions ({', '.join(apart)}): plan without --init, or replan "
+            "it with those options (the Python API sets the fields no flag sets)" if apart else "")
 
 
 def _start_task(args, arrays: dict):
@@ -757,7 +757,9 @@ def _cmd_gait(args) -> int:
         raise InputError("planner gait needs --task (e.g. robots/biped_gait1.toml)")
     robot = load_robot(args.robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait", failed=True)
-    result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()), validate=not args.no_validate)
+    args.result_id = uuid.uuid4().hex  # (_emit prints this run's, not one another run wrote into DIR after it)
+    result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()),
+                      validate=not args.no_validate, result_id=args.result_id)
     converged = bool(result.summary["converged"])
     if converged:
         _remove_failed(out / "failed")
@@ -768,7 +770,7 @@ def _cmd_gait(args) -> int:
     valid = walked and not result.summary.get("contact_violations")
     verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
                else "converged, but the gait violates its contacts") if converged else "FAILED"
-    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}", written=target)
+    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}", written=True)
     return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 
 
@@ -839,7 +841,9 @@ def prepare_out_dir(path: Path, failed: bool = False) -> Path:
         try:
             with tempfile.TemporaryFile(dir=existing):
                 pass
-        except OSError:
+        except OSError as exc:
+            if exc.errno not in PATH_ERRNOS:  # (a full disk, too many open files: not the user's path)
+                raise
             writable = False
     if not writable:
         raise InputError(f"output directory {path} is not writable" if existing == path else

@@ -1001,7 +1001,8 @@ def _require_feet(layout: BipedLayout, contacts) -> None:
 
 
 def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, out_dir: str | os.PathLike | None,
-             progress: Callable[[OuterLoop], None] | None = None, validate: bool = True) -> GaitRunResult:
+             progress: Callable[[OuterLoop], None] | None = None, validate: bool = True,
+             result_id: str | None = None) -> GaitRunResult:
     """Solve a task's [gait] with paper 001's strategy and write the results contract to out_dir.
 
     robot: a Robot or a robot file path; task: a Task or a task file path. progress(OuterLoop) is
@@ -1010,7 +1011,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     out_dir (None: write nothing) receives trajectory.npz (tau, y, t, q, v, u, impact_times and the
     pinned gait: gait_t, gait_x, gait_u, gait_xd, gait_ud) and summary.json (command "gait"); a gait that did not
     converge writes them under out_dir/failed instead, so a good earlier result in out_dir stays (as `planner plan`).
-    Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
+    result_id: both files' (result.write_files; None: a new one). Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
     """
     from .model import load_robot
     from .task import load_task
@@ -1074,7 +1075,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                   "gait_x_embedded": sol.x_emb, "gait_u_embedded": sol.u_emb,
                   "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str),
                   "task_json": np.array(task_to_json(task))}  # the task solved: view and validate read it from any directory
-        write_files(Path(out_dir) if summary["converged"] else Path(out_dir) / "failed", arrays, summary)
+        write_files(Path(out_dir) if summary["converged"] else Path(out_dir) / "failed", arrays, summary, result_id)
     return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)
 
 

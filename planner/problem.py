@@ -290,6 +290,11 @@ class Problem:
         formulation = repr(replace(self.options, clock_guess_running=False))
         return hashlib.sha256("\n".join((*self.var_names, formulation)).encode()).hexdigest()[:16]
 
+    @property
+    def variables_signature(self) -> str:
+        """A digest of var_names only: Problem.signature before session 50, which plans written then carry."""
+        return hashlib.sha256("\n".join(self.var_names).encode()).hexdigest()[:16]
+
     def params(self, rho: float, hole_scale: float = 1.0, an_scale: float = 1.0, at_scale: float = 1.0,
                terminal_weight: float = 0.0, rho_l1: float = 0.0, rho_f_scale: float = 1.0) -> np.ndarray:
         """The parameter vector p (7,): penalty rho, hole scale r, auxiliary gain scales (only with
@@ -349,6 +354,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
     task.check_against(robot)
+    task.check_no_slip_forces(robot)
     plan, hz = task.plan, task.horizon
     skips = analyze_scene(robot, task, options.scene_analysis)
     contacts = tuple(c for c in task.contacts if c.point not in skips.never_touching)
@@ -995,11 +1001,13 @@ def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X,
         target_v = np.zeros(nv) if plan.target_v is None else np.array(plan.target_v, float)
         A, lower, upper = task.velocity_rows(robot)  # they hold at y_N too: no plan exists (IPOPT said "infeasible")
         rate = A @ target_v
-        outside = np.flatnonzero((rate < lower) | (rate > upper))
+        slack = 1e-9 * np.maximum(1.0, np.abs(rate))  # (0.1 + 0.2 against an upper bound of 0.3 meets it)
+        outside = np.flatnonzero((rate < lower - slack) | (rate > upper + slack))
         if outside.size:
             r, omitted = outside[0], " (omitted: zeros)" if plan.target_v is None else ""
             raise InputError(f"plan.velocity_bounds[{r}] = [{lower[r]:g}, {upper[r]:g}] excludes the end velocity, "
-                             f"{rate[r]:g} by plan.target_v{omitted}, which the last node must meet")
+                             f"{rate[r]:g} by plan.target_v{omitted}, which the last node must meet: widen the bound "
+                             "or give a plan.target_v inside it")
         target = np.concatenate([np.array(plan.target_q, float), target_v])
         rows.add("terminal", [y_N[: nq + nv]], target, target)
         term_res = y_N[: nq + nv] - target

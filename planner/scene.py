@@ -54,7 +54,8 @@ class Skips:
     """The scene analysis' decisions, with one reason per decision.
 
     enabled: False when ProblemOptions.scene_analysis is off (then nothing is skipped).
-    frictionless (n,): contact points (mu = 0, inelastic) without tangential machinery.
+    frictionless (n,): contact labels (timefreezing.contact_labels: a point, or point#k for one on several planes) of
+      the contacts (mu = 0, inelastic) without tangential machinery.
     never_touching (n,): contact points with touches = false: no contact machinery, gap >= 0 (and the holes) only.
     dropped_holes (n,): (contact point, hole index into task.plan.holes) pairs left out.
     elastic_state (n,): contact points that get an elastic state p (empty: no p is built).
@@ -97,9 +98,9 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
             for i, e in enumerate(holes):
                 if hi[0] < e.x - e.a or lo[0] > e.x + e.a or hi[2] < e.z - e.b or lo[2] > e.z + e.b:
                     dropped.append((point, i))
-                    reasons.append(f"{point}: hole {i} at (x, z) = ({e.x:g}, {e.z:g}) m, half-axes ({e.a:g}, {e.b:g}) m, "
-                                   f"is out of reach (x in [{lo[0]:.3g}, {hi[0]:.3g}] m, z in [{lo[2]:.3g}, "
-                                   f"{hi[2]:.3g}] m by the joint bounds)")
+                    reasons.append(f"{point}: hole {i} at (x, z) = ({e.x:g}, {e.z:g}) m, half-axes ({e.a:g}, "
+                                   f"{e.b:g}) m, is out of reach (x in [{lo[0]:.3g}, {hi[0]:.3g}] m, z in "
+                                   f"[{lo[2]:.3g}, {hi[2]:.3g}] m by the joint bounds)")
     return Skips(enabled=True, frictionless=frictionless, never_touching=never, dropped_holes=tuple(dropped),
                  elastic_state=elastic, reasons=tuple(reasons))
 

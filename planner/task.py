@@ -159,7 +159,8 @@ class JointBound:
 
     def __post_init__(self):
         _typed(self, "plan.joint_bounds")
-        _require(self.lower <= self.upper, f"plan.joint_bounds.{self.joint}.lower", self.lower, f"<= upper ({self.upper})")
+        _require(self.lower <= self.upper, "plan.joint_bounds.lower", self.lower,
+                 f"<= upper ({self.upper}) of joint {self.joint!r}")
 
 
 @dataclass(frozen=True)
@@ -416,6 +417,25 @@ class Task:
                  "the same touches on every entry of a point (touches = false says the point never touches any "
                  "plane)")
 
+    def check_no_slip_forces(self, robot) -> None:
+        """TaskError for a touching contact with friction whose point cannot move along its plane and its normal
+        independently at initial.q: its no-slip force solves [n t]^T M^-1 [n t] lambda = ..., singular there, NaN in
+        every step (a one-hinge hammer's head: a simulation ran 170794 IPOPT iterations). Simulations and plans only:
+        a replay needs no force, and a frictionless point that cannot move along its normal (an arm hanging straight
+        down) simulates, its force the step's variable."""
+        for i, c in enumerate(self.contacts):
+            if not c.touches or c.mu == 0:
+                continue
+            _, normal_rank, rank = robot.contact_rank([(c.point, c.normal, True)], self.initial.q, self.ground_height,
+                                                      touch_tol=math.inf)
+            if rank == 2:
+                continue
+            how = ("cannot move at all" if rank == 0 else "cannot move along its plane's normal" if normal_rank == 0
+                   else "cannot move along its plane independently of its normal")
+            raise TaskError(f"contacts[{i}] ({c.point}) with friction {how} at initial.q, so its no-slip force is "
+                            "undefined there (NaN in the solve): give it mu = 0 (no friction), start from another "
+                            "pose, or give the robot a degree of freedom that moves it so")
+
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
         is what the planner models (no passive joint forces, contact points in the x-z plane)."""
@@ -452,17 +472,6 @@ class Task:
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
         touching = [i for i, c in enumerate(self.contacts) if c.touches]
-        for i in touching:  # a no-slip force solves [n t]^T J M^-1 J^T [n t] lambda = ...: NaN where that is singular
-            c = self.contacts[i]
-            if c.mu == 0:  # (a frictionless point that cannot move along its normal, an arm hanging straight down, ran)
-                continue
-            _, normal_rank, rank = robot.contact_rank([(c.point, c.normal, True)], self.initial.q, self.ground_height,
-                                                      touch_tol=math.inf)
-            if rank < 2:  # a one-hinge hammer's head: a simulation ran 170794 IPOPT iterations to NaN
-                along = "along its plane's normal" if normal_rank == 0 else "both along its plane and its normal"
-                raise TaskError(f"contacts[{i}] ({c.point}) with friction cannot move {along} at initial.q (its "
-                                "Jacobian's normal and tangent rows are dependent), so its no-slip force is undefined "
-                                "there (NaN in the solve): give it mu = 0 (no friction) or start from another pose")
         on, normal_rank, rank = robot.contact_rank([(self.contacts[i].point, self.contacts[i].normal,
                                                      self.contacts[i].mu > 0) for i in touching],
                                                     self.initial.q, self.ground_height)

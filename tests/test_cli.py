@@ -68,7 +68,7 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--warm-ipopt", "max_soc=2", "--solve", '{"warm_ipopt": {}}'],
          "set by --warm-ipopt too"),
         (["plan", "point_mass", "-v", "--solve", '{"print_level": 0}'], "print_level is set by -v too"),
-        # root passes os.access there: the error came after the whole solve
+        # root passes os.access there: the error came after the whole solve (as another user, os.access refuses it)
         (["plan", "point_mass", "--out", "/proc/planner-out"],
          "cannot create output directory /proc/planner-out: /proc is not writable"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
@@ -632,6 +632,15 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     options_record = {**summary["options"], "problem": problem_record}
     (scaled / "summary.json").write_text(json.dumps({**summary, "options": options_record}))
     _one_line_exit_2(capsys, argv[:-1] + [str(scaled)], "the plan was built with other ProblemOptions (switch_scale)")
+    # a plan written before session 50, whose digest had its variables only: a start when its options are these
+    old = tmp_path / "old"
+    shutil.copytree(tmp_path / "hop", old)
+    plain = build_problem(load_robot("point_mass"), load_task(tmp_path / "hop.toml"))
+    np.savez(old / "trajectory.npz", **{**arrays, "nlp_signature": np.array(plain.variables_signature)})
+    assert main(argv[:-1] + [str(old)]) == 0
+    capsys.readouterr()
+    (old / "summary.json").write_text(json.dumps({**summary, "options": options_record}))  # another switch_scale
+    _one_line_exit_2(capsys, argv[:-1] + [str(old)], "the plan was built with other ProblemOptions (switch_scale)")
     heavy_robot = tmp_path / "heavy.xml"
     heavy_robot.write_text(Path(summary["robot"]).read_text().replace('mass="1"', 'mass="2"'))
     heavy = tmp_path / "heavy"

@@ -389,7 +389,7 @@ def test_simulate_task_keys_are_validated():
     for second in (0.2, 0.5):  # two entries at one time would leave which acts to the order
         with pytest.raises(TaskError, match=r"simulate.schedule .*strictly increasing t"):
             parse_task({**base, "simulate": {"schedule": [{"t": 0.5, "u": [0, 1]}, {"t": second, "u": [0, 0]}]}})
-    with pytest.raises(TaskError, match="simulate.schedule.t"):
+    with pytest.raises(TaskError, match=r"simulate.schedule\[0\].t = -0.5"):
         parse_task({**base, "simulate": {"schedule": [{"t": -0.5, "u": [0, 1]}]}})
     with pytest.raises(TaskError, match="unknown key 'simulate.schedule\\[0\\].force'|unknown key"):
         parse_task({**base, "simulate": {"schedule": [{"t": 0.5, "force": [0, 1]}]}})

@@ -11,6 +11,7 @@ import pytest
 
 from planner.errors import InputError, RobotFileError, TaskError, UnknownNameError
 from planner.model import load_robot
+from planner.simulate import simulate
 from planner.task import (Contact, Ellipse, GaitPronto, Homotopy, Horizon, Initial, Periodic, Plan, Task, load_task, parse_task,
                           task_to_json, tasks_apart, tasks_between)
 
@@ -78,6 +79,8 @@ def _with(path: str, value):
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0],
                   "holes": [{"x": 1.0, "a": 0.1, "b": 0.1}, {"x": 2.0, "a": -1.0, "b": 0.1}]},
          r"^plan.holes\[1\].a = -1.0 is not allowed"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.5}]},
+         r"^plan.joint_bounds\[0\].lower = 1.0 is not allowed; it must be <= upper \(0.5\) of joint 'hip'$"),
     ],
 )
 def test_bad_values_are_named(path, value, message):
@@ -197,9 +200,9 @@ HAMMER = """<mujoco><worldbody><body name="arm" pos="0 0 0.5"><joint name="hinge
 
 
 @pytest.mark.parametrize("mu, q, message", [
-    (0.5, 0.3, r"contacts\[0\] \(head\) with friction cannot move both along its plane and its normal at initial.q "
-               r"\(its Jacobian's normal and tangent rows are dependent\), .* give it mu = 0 \(no friction\) or start "
-               "from another pose"),
+    (0.5, 0.3, r"contacts\[0\] \(head\) with friction cannot move along its plane independently of its normal at "
+               r"initial.q, so its no-slip force is undefined there \(NaN in the solve\): give it mu = 0 \(no friction\), "
+               "start from another pose"),
     (0.5, math.pi / 2, r"contacts\[0\] \(head\) with friction cannot move along its plane's normal at initial.q"),
     (0.0, 0.3, None),
     (0.0, math.pi / 2, None),  # frictionless: its force is the step's variable, and a simulation of it runs
@@ -208,16 +211,21 @@ def test_a_contact_whose_force_is_undefined_at_the_start_is_refused(tmp_path, mu
     """A one-hinge hammer's head moves along one direction only: with friction its normal and tangent rows are
     dependent (with the arm vertical, q = pi / 2, it cannot move along the ground's normal at all), so its no-slip
     force solves a singular system (NaN: a simulation ran 170794 IPOPT iterations, a plan said its start held NaN).
-    A TaskError names the contact and the fix; a frictionless head is fine."""
+    Task.check_no_slip_forces, which simulate and build_problem call, raises a TaskError naming the contact and the
+    fixes; a frictionless head is fine, and check_against (a replay's check) does not judge it."""
     path = tmp_path / "hammer.xml"
     path.write_text(HAMMER)
+    robot = load_robot(path)
     task = parse_task({"contacts": [{"point": "head", "mu": mu}], "initial": {"q": [q]},
                        "horizon": {"tau_f": 0.3, "N": 30}})
+    task.check_against(robot)
     if message is None:
-        task.check_against(load_robot(path))
+        task.check_no_slip_forces(robot)
     else:
         with pytest.raises(TaskError, match=message):
-            task.check_against(load_robot(path))
+            task.check_no_slip_forces(robot)
+        with pytest.raises(TaskError, match=message):  # what `planner simulate` says, before any step
+            simulate(robot, task)
 
 
 def test_a_point_in_a_corner_is_told_which_contact_to_change(tmp_path):
