@@ -614,8 +614,9 @@ def _cmd_plan(args) -> int:
         start_arrays = read_trajectory(args.init)
         _check_start(args.init, robot, start_arrays)
         # a plan written before session 50 digested its variables only: its options by its summary.json instead
-        signature = (problem.variables_signature if str(start_arrays.get("nlp_signature")) == problem.variables_signature
-                     and not _options_apart(args.init, problem.options) else problem.signature)
+        old = str(start_arrays.get("nlp_signature")) == problem.variables_signature
+        signature = (problem.variables_signature if old and not _options_apart(args.init, problem.options)
+                     else problem.signature)
         try:
             problem = replace(problem, x0=read_start(args.init, signature, problem.nx, start_arrays))
         except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only

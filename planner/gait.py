@@ -1011,7 +1011,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     out_dir (None: write nothing) receives trajectory.npz (tau, y, t, q, v, u, impact_times and the
     pinned gait: gait_t, gait_x, gait_u, gait_xd, gait_ud) and summary.json (command "gait"); a gait that did not
     converge writes them under out_dir/failed instead, so a good earlier result in out_dir stays (as `planner plan`).
-    result_id: both files' (result.write_files; None: a new one). Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
+    result_id: both files' (result.write_files; None: a new one).
+    Raises TaskError (no [gait], inconsistent initial state), SolveError (diverged projection).
     """
     from .model import load_robot
     from .task import load_task
