@@ -613,14 +613,14 @@ def _cmd_plan(args) -> int:
 
         start_arrays = read_trajectory(args.init)
         _check_start(args.init, robot, start_arrays)
+        options_apart = _options_apart(args.init, problem.options)
         # a plan written before session 50 digested its variables only: its options by its summary.json instead
         old = str(start_arrays.get("nlp_signature")) == problem.variables_signature
-        signature = (problem.variables_signature if old and not _options_apart(args.init, problem.options)
-                     else problem.signature)
+        signature = problem.variables_signature if old and not options_apart else problem.signature
         try:
             problem = replace(problem, x0=read_start(args.init, signature, problem.nx, start_arrays))
         except InputError as exc:  # contacts, N and options the same: said as "other NLP variables" only
-            apart = (_skips_apart(args.init, start_arrays, task) + _options_apart(args.init, problem.options)
+            apart = (_skips_apart(args.init, start_arrays, task) + options_apart
                      if "other NLP variables" in str(exc) else "")
             raise InputError(f"{exc}{apart}") from None
         solve_options = replace(replan_options(solve_options), keep_schedule=held,

@@ -1004,12 +1004,12 @@ def _retry(problem: Problem, options: SolveOptions, first: PlanResult, progress:
 
 def _held(problem, solvers, options, x0, records, progress, label, refuse=None, failed_note=""):
     """The task's cost with the contact schedule of x0 (ungated) held (SCHEDULE_IPOPT): the accepted point, or None.
-    refuse(x): why an accepted point is set aside (its record's note), or ""; failed_note: the record's note when
-    the point is not accepted."""
+    refuse(x0, x): why an accepted point x is set aside (its record's note), or ""; failed_note: the record's note
+    when the point is not accepted."""
     lbx, ubx, x_held = active_set_bounds(problem, x0)
     x, _, _, rec = _run(problem, solvers, x_held, None, None, problem.params(0.0, 1.0), lbx, ubx, label, schedule=True)
     accepted = _accepted(problem, options, x, rec)
-    note = (refuse(x) if refuse is not None else "") if accepted else failed_note
+    note = (refuse(x0, x) if refuse is not None else "") if accepted else failed_note
     rec = replace(rec, note=note) if note else rec
     records.append(rec)
     if progress:
@@ -1030,8 +1030,7 @@ def _reoptimize(problem, solvers, options, x0, records, progress):
     """SolveOptions.reoptimize: the held-schedule NLP from the polished plan x0; its point if cheaper, else None.
     Its record's note says when the polished plan is kept (a failed last row read as the plan's source)."""
     f, p = _nlp_fn(problem, "f"), problem.params(0.0, 1.0)
-    start = ungate(problem, x0) if "gates" in problem.notes else x0
-    dearer = (lambda x: "" if float(f(x, p)) < float(f(start, p)) else
+    dearer = (lambda start, x: "" if float(f(x, p)) < float(f(start, p)) else
               "not taken: no cheaper than the polished plan, which is kept")
     return _held_scaled(problem, solvers, options, x0, records, progress, "reoptimize", refuse=dearer,
                         failed_note="not taken: the polished plan is kept")[1]
@@ -1042,7 +1041,7 @@ def _keep_schedule(problem, solvers, options, x0, records, progress):
     if "gates" in problem.notes:
         x0 = ungate(problem, x0)
     return _held(problem, solvers, options, x0, records, progress, "schedule",
-                 None if options.schedule_new_impacts else lambda x: _new_impacts(problem, options, x0, x))
+                 None if options.schedule_new_impacts else lambda start, x: _new_impacts(problem, options, start, x))
 
 
 def _new_impacts(problem, options, x0, x) -> str:

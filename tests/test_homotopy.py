@@ -595,7 +595,7 @@ def test_reoptimize_makes_the_polished_plan_the_cheapest_on_its_schedule(hop, mo
     else:
         np.testing.assert_array_equal(res.extra["_x"], plain.extra["_x"])
     def no_cheaper(problem, solvers, options, x0, records, progress, label, refuse=None, failed_note=""):
-        return None if refuse(x0) else x0  # the polished plan itself: refused as no cheaper
+        return None if refuse(x0, x0) else x0  # the polished plan itself: refused as no cheaper
 
     with monkeypatch.context() as patch:
         patch.setattr(H, "_held", no_cheaper)
