@@ -246,10 +246,13 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 " (the file's <default> comes after <worldbody>: Pinocchio's MJCF parser reads the classes only before "
                 "their use; move <default> above <worldbody>)"
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
-        errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
-        said = [ln for ln in dict.fromkeys(errors) if ln]  # urdfdom's lines, once each
+        said = _parser_errors(printed)
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
+    said = _parser_errors(printed)
+    if said:  # urdfdom returns a model without what it could not read (a thigh's `<mass value="1,782"/>`: no mass)
+        raise RobotFileError(f"Pinocchio's URDF parser could not read part of {path}: {'; '.join(said)}; its model "
+                             "would lack that element")
     if model.nv == 0 and fmt is RobotFormat.MJCF:  # (MuJoCo's reading, needed for the cause, is made below otherwise)
         import mujoco
 
@@ -271,6 +274,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         if inverted:  # MuJoCo reads such a joint as unlimited (check-model named that, not the swap)
             raise RobotFileError(f"{path}: joint {', '.join(inverted)}: its <limit lower> is above its upper; "
                                  "swap them")
+        locked = [f"{name!r} ({lower[i]:g})" for name, i in one if lower[i] == upper[i]]
+        if locked:  # (no lower and upper read as 0: the reading differences named MuJoCo's unlimited joint, no fix)
+            raise RobotFileError(f"{path}: joint {', '.join(locked)}: its <limit lower> equals its upper (both are 0 "
+                                 "when not given): Pinocchio locks the joint there, MuJoCo ignores the limit; give "
+                                 "lower < upper")
         passive += _urdf_couplings(path)
         if any(True for _ in ET.parse(path).getroot().iter("transmission")):
             warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
@@ -361,12 +369,23 @@ def _second_tree(path: Path, mj, model: pin.Model) -> str | None:
             "geoms and sites of <worldbody> itself")
 
 
+def _parser_errors(printed: list[str]) -> list[str]:
+    """The parser's "Error:" lines in what it printed (`_quiet`), once each, without the prefix."""
+    errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
+    return [ln for ln in dict.fromkeys(errors) if ln]
+
+
 def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
     """RobotFileError naming a body whose mass is negative or whose rotational inertia is not positive semi-definite
     (a URDF ixx = -1, a mass of -5 kg): its dynamics were garbage (check-model: mass errors of 1e115); or one whose
     principal moments break the triangle inequality, which MuJoCo refuses."""
     for jid in range(1, model.njoints):
         inertia = model.inertias[jid]
+        if not (np.isfinite(inertia.mass) and np.all(np.isfinite(inertia.inertia)) and np.all(np.isfinite(inertia.lever))):
+            # (an MJCF `pos="0,0,0.1"` is read as 2e243 by Pinocchio: eigvalsh raised LinAlgError on the nan inertia)
+            raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has a mass or inertia that is not finite "
+                                 f"as Pinocchio reads the file (mass {inertia.mass:g} kg, centre of mass "
+                                 f"{np.asarray(inertia.lever).tolist()} m): is a number written with commas?")
         if not (inertia.mass >= 0.0 and np.all(np.linalg.eigvalsh(inertia.inertia) >= -1e-12)):
             raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has mass {inertia.mass:g} kg and rotational "
                                  f"inertia eigenvalues {np.round(np.linalg.eigvalsh(inertia.inertia), 9).tolist()} kg m^2; "
@@ -511,6 +530,20 @@ MASSLESS_LINK_KG = 1e-12
 MASSLESS_LINK_INERTIA = 1e-12
 
 
+@contextlib.contextmanager
+def mujoco_warnings(handler):
+    """MuJoCo's warnings go to handler(message) instead of its own, which prints them on stderr, through `-q`, and
+    appends them to MUJOCO_LOG.TXT in the caller's working directory. The previous handler is restored."""
+    import mujoco
+
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(handler)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
 def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = True):
     """The robot file as MuJoCo reads it, as an editable mujoco.MjSpec (the file is untouched).
 
@@ -523,10 +556,14 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
     """
     import mujoco
 
+    said: list[str] = []
     try:
-        spec = mujoco.MjSpec.from_file(str(robot.path))
+        with mujoco_warnings(said.append):
+            spec = mujoco.MjSpec.from_file(str(robot.path))
     except ValueError as exc:
         raise RobotFileError(mujoco_failure(robot.path, exc, "read")) from None
+    for message in dict.fromkeys(said):
+        warnings.warn(f"MuJoCo reading {robot.path}: {message}", stacklevel=2)
     if robot.format is RobotFormat.MJCF:
         return spec
     # MuJoCo loads a mesh when it compiles (a URDF's package:// paths are not files); the planner models no link's

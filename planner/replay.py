@@ -41,7 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, enum_field, expect, shown
-from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec
+from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
 from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
                      real_array, result_dir, write_atomically)
 from .task import Task
@@ -160,8 +160,8 @@ class TrackingGains:
 
     By default each actuated joint gets a critically damped loop of `frequency_hz` on its own
     inertia: kp = M_ii w^2, kd = 2 zeta M_ii w, w = 2 pi f, M_ii the joint's diagonal entry of the
-    mass matrix at the initial posture [kg m^2 or kg]. Explicit kp, kd (nu,) override it
-    [N m/rad, N m s/rad for hinges; N/m, N s/m for slides].
+    mass matrix at the initial posture [kg m^2 or kg]. Explicit kp, kd (nu,) override it, each on its
+    own (kp alone keeps the rule's kd) [N m/rad, N m s/rad for hinges; N/m, N s/m for slides].
     """
 
     frequency_hz: float = 20.0  # well above a hopper's stance dynamics, well below 1 / timestep
@@ -1053,15 +1053,16 @@ class _Reference:
 
 
 def resolve_gains(scene: Scene, gains: TrackingGains, q0: np.ndarray) -> ResolvedGains:
-    """Per-actuator kp, kd (see TrackingGains) with the mass matrix at posture q0 (nq,)."""
+    """Per-actuator kp, kd (see TrackingGains) with the mass matrix at posture q0 (nq,): a gain given
+    explicitly replaces the rule's, the other keeps the rule's (one given alone is not the other at 0)."""
     names = tuple(scene.model.actuator(i).name or f"actuator_{i}" for i in range(scene.model.nu))
     nu = scene.model.nu
-    if gains.kp is not None or gains.kd is not None:
-        kp = np.asarray(gains.kp if gains.kp is not None else np.zeros(nu), dtype=float)
-        kd = np.asarray(gains.kd if gains.kd is not None else np.zeros(nu), dtype=float)
-        if kp.shape != (nu,) or kd.shape != (nu,):
-            raise InputError(f"gains kp and kd need {nu} entries (one per actuator), got {kp.size} and {kd.size}")
-        return ResolvedGains(names, tuple(map(float, kp)), tuple(map(float, kd)), None, None)
+    for key in ("kp", "kd"):
+        values = getattr(gains, key)
+        if values is not None and len(values) != nu:
+            raise InputError(f"gains {key} needs {nu} entries (one per actuator), got {len(values)}")
+    if gains.kp is not None and gains.kd is not None:
+        return ResolvedGains(names, tuple(map(float, gains.kp)), tuple(map(float, gains.kd)), None, None)
     data = mujoco.MjData(scene.model)
     data.qpos[:] = q0
     mujoco.mj_forward(scene.model, data)
@@ -1069,8 +1070,8 @@ def resolve_gains(scene: Scene, gains: TrackingGains, q0: np.ndarray) -> Resolve
     mujoco.mj_fullM(scene.model, data, mass)
     inertia = mass[scene.dof_adr, scene.dof_adr]
     omega = 2 * math.pi * gains.frequency_hz
-    kp = inertia * omega**2
-    kd = 2 * gains.damping_ratio * inertia * omega
+    kp = inertia * omega**2 if gains.kp is None else np.asarray(gains.kp, dtype=float)
+    kd = 2 * gains.damping_ratio * inertia * omega if gains.kd is None else np.asarray(gains.kd, dtype=float)
     return ResolvedGains(names, tuple(map(float, kp)), tuple(map(float, kd)), gains.frequency_hz, gains.damping_ratio)
 
 
@@ -1107,7 +1108,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                    ctrl=np.zeros((steps, model.nu)), diverged=False)
     dist = np.zeros((steps + 1, C))
     lower, upper = scene.ctrl_lower, scene.ctrl_upper
-    with _mujoco_warnings_held():
+    with mujoco_warnings(lambda message: None):  # the rollout reads them from data.warning
         for k in range(steps + 1):
             rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
             if k < steps:
@@ -1127,18 +1128,6 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
         if w not in _BAD_STATE_WARNINGS and data.warning[w].number > 0:
             warnings.warn(f"MuJoCo: {mujoco.mju_warningText(w, data.warning[w].lastinfo)}", stacklevel=2)
     return rec
-
-
-@contextlib.contextmanager
-def _mujoco_warnings_held():
-    """MuJoCo's own handler prints its warnings to stderr, through `-q`, and appends them to MUJOCO_LOG.TXT in the
-    caller's working directory; the rollout reads them from data.warning instead. The previous handler is restored."""
-    previous = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(lambda message: None)
-    try:
-        yield
-    finally:
-        mujoco.set_mju_user_warning(previous)
 
 
 def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned: list[tuple[str, float, bool]],

@@ -508,10 +508,11 @@ LANDING_SLACK_S = 1e-9
 def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
-    does not move (HOP_MIN_TRAVEL_M) is left out."""
+    does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's height (ON_PLANE_M: a
+    slide), is left out."""
     clock = traj.y[:, -1]
-    # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; the point's gap
-    # cannot tell them apart: a one-step hop over a hole starts and ends on the ground, session 48)
+    # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
+    # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
     air = np.asarray(flight, float).ravel() > 0.5
     hops, k, N = [], 0, len(air)
     while k < N:
@@ -524,6 +525,8 @@ def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
         # steps a..k-1 end in flight: nodes a..k; node a is the last on the ground
         seg = point_xyz[a : k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
+            continue
+        if k - a >= 2 and np.abs(seg[:, 2] - seg[0, 2]).max() <= ON_PLANE_M:
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
@@ -734,8 +737,12 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
                                   impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
                                   v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
-        # a landing at a node: that node's sample is already the pre-impact one (an impact is two samples at one time)
-        repeated = at_node and ts[-1] == t_imp and np.array_equal(qs[-1], q_imp) and np.array_equal(vs[-1], v_pre)
+        # a landing at a node: that node's sample is already the pre-impact one (an impact is two samples at one time);
+        # so is it when implicit Euler's first step froze whole without advancing the clock: its end less the step's
+        # increment is the node's state to rounding (a Capler plan had three samples at one time, 4e-10 m/s apart)
+        repeated = ts[-1] == t_imp and (
+            (at_node and np.array_equal(qs[-1], q_imp) and np.array_equal(vs[-1], v_pre))
+            or (fully[a] and not switch_at_start))
         for vel in (v_pre, v_post)[int(repeated):]:
             ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
         if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock

@@ -479,11 +479,17 @@ class Task:
         rows = len(on) + sum(self.contacts[i].mu > 0 for i in on)
         if rank < rows:  # (checked where the task starts: later double stances are not seen)
             names = ", ".join(f"contacts[{i}] ({self.contacts[i].point})" for i in on)
-            fix = ("their normals alone are dependent: remove one of them" if normal_rank < len(on) else
-                   "give mu = 0 to one of them with friction")
-            warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
-                          "independently, so their forces together are not unique (e.g. two sticking points of one "
-                          f"rigid body) and the solver may fail; {fix}")
+            if len(on) == 1:  # (its own normal and friction direction: "remove one of them" named no other contact)
+                fix = ("it cannot move along its normal: start from another pose" if normal_rank < 1 else
+                       "it cannot slide independently of its normal: give it mu = 0")
+                warnings.warn(f"{names} on its plane at initial.q constrains {rows} directions but only {rank} "
+                              f"independently, so its forces are not unique and the solver may fail; {fix}")
+            else:
+                fix = ("their normals alone are dependent: remove one of them" if normal_rank < len(on) else
+                       "give mu = 0 to one of them with friction")
+                warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
+                              "independently, so their forces together are not unique (e.g. two sticking points of "
+                              f"one rigid body) and the solver may fail; {fix}")
         robot.check_inertia(self.initial.q)
         for key, u in self._constant_controls():
             _length(key, u, robot.nu)

@@ -366,7 +366,7 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     """A URDF planar joint (Pinocchio: x-y about z; MuJoCo: its own three joints) and a URDF <mujoco> block's gravity
     (MuJoCo applies it, Pinocchio does not) fail check-model and are refused by a task's check; the planar joint's
     check said PASSED ("skipped"). A revolute joint with <limit> but no lower and upper (Pinocchio: locked at 0;
-    MuJoCo: unlimited) is named."""
+    MuJoCo: unlimited) is refused when the file is read, naming the fix."""
     from planner.check import reading_differences
 
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()
@@ -380,4 +380,5 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     assert urdf.count(hip) == 1
     unlimited = tmp_path / "unlimited.urdf"
     unlimited.write_text(urdf.replace(hip, '<limit effort="60" velocity="100"/>'))
-    assert "joint 'hip': range [-inf, inf] in MuJoCo, [0, 0] in Pinocchio" in reading_differences(load_robot(unlimited))
+    with pytest.raises(RobotFileError, match=r"joint 'hip' \(0\): its <limit lower> equals its upper .* give lower < upper"):
+        load_robot(unlimited)

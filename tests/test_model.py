@@ -285,6 +285,43 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
         load_robot(impossible)
 
 
+def test_what_a_parser_could_not_read_is_refused(tmp_path):
+    """A URDF element urdfdom cannot read (a thigh's `<mass value="1,782"/>`) is refused with urdfdom's reason: it printed
+    an error and returned the model without the element (simulate ran a robot 1.78 kg light, exit 0). An MJCF number
+    Pinocchio reads as 2e243 (`pos="0,0,0.1"`) is refused naming the body, not a LinAlgError traceback."""
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    assert urdf.count('<mass value="1.782"/>') == 1
+    typo = tmp_path / "typo.urdf"
+    typo.write_text(urdf.replace('<mass value="1.782"/>', '<mass value="1,782"/>'))
+    with pytest.raises(RobotFileError, match=r"could not read part of .*Could not parse inertial element for Link \[thigh\]"):
+        load_robot(typo)
+    mjcf = (ROBOTS_DIR / "point_mass.xml").read_text()
+    assert mjcf.count('<inertial pos="0 0 0"') == 1
+    comma = tmp_path / "comma.xml"
+    comma.write_text(mjcf.replace('<inertial pos="0 0 0"', '<inertial pos="0,0,0.1"'))
+    with pytest.raises(RobotFileError, match=r"mass or inertia that is not finite .* commas"):
+        load_robot(comma)
+
+
+def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
+    """What MuJoCo warns while reading a robot file is a Python warning (`-q` hides it), not a line on stderr and an
+    entry in MUJOCO_LOG.TXT in the working directory (a hip of equal limits, which load_robot refuses before)."""
+    import dataclasses
+
+    from planner.model import mujoco_spec
+
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    hip = '<limit lower="-1.1780972450961724" upper="1.1780972450961724"'
+    assert urdf.count(hip) == 1
+    monkeypatch.chdir(tmp_path)
+    equal = tmp_path / "equal.urdf"
+    equal.write_text(urdf.replace(hip, '<limit lower="0" upper="0"'))
+    robot = dataclasses.replace(load_robot(ROBOTS_DIR / "capler.urdf"), path=equal)
+    with pytest.warns(UserWarning, match=r"MuJoCo reading .*equal.urdf: joint 'hip' has equal lower and upper limits"):
+        mujoco_spec(robot)
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
 def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     """A hinge's range with a ref is MuJoCo's (Pinocchio's parser shifted it by -ref, refusing targets MuJoCo allows); a
     joint's actuatorfrcrange bounds its one motor's control as forcerange does (the plan used the motor's +-20 where

@@ -968,6 +968,23 @@ def test_validation_options_refuse_what_would_fake_a_verdict(build, key):
         build()
 
 
+def test_one_explicit_gain_keeps_the_rules_other_gain():
+    """kp (or kd) given alone replaces only that gain: the other is the critically damped rule's at `frequency_hz`, as
+    when neither is given (the other was set to 0, a P-only or D-only loop that flipped the verdict, and the frequency
+    was ignored); a gain of the wrong length is an InputError."""
+    scene = replay.build_scene(load_robot("capler"), load_task(ROBOTS_DIR / "capler.toml"))
+    q0 = np.array(load_task(ROBOTS_DIR / "capler.toml").initial.q)
+    rule = replay.resolve_gains(scene, replay.TrackingGains(frequency_hz=5.0), q0)
+    kp_only = replay.resolve_gains(scene, replay.TrackingGains(frequency_hz=5.0, kp=(400.0, 300.0)), q0)
+    kd_only = replay.resolve_gains(scene, replay.TrackingGains(frequency_hz=5.0, kd=(1.0, 2.0)), q0)
+    assert kp_only.kp == (400.0, 300.0) and kp_only.kd == rule.kd and min(rule.kd) > 0
+    assert kd_only.kd == (1.0, 2.0) and kd_only.kp == rule.kp and min(rule.kp) > 0
+    both = replay.resolve_gains(scene, replay.TrackingGains(kp=(1.0, 1.0), kd=(2.0, 2.0)), q0)
+    assert (both.kp, both.kd, both.frequency_hz) == ((1.0, 1.0), (2.0, 2.0), None)
+    with pytest.raises(InputError, match="kd needs 2 entries"):
+        replay.resolve_gains(scene, replay.TrackingGains(kd=(1.0,)), q0)
+
+
 def test_a_window_below_the_sample_step_is_refused(ground_truth, capsys):
     """A window shorter than the replay's sample step is an InputError (it ran one sample per window while the
     report named the asked length); the CLI says so in one line, exit 2."""

@@ -14,9 +14,9 @@ import pytest
 
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
-from planner.result import (TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result, read_robot, read_start,
-                            hops_of, read_summary, read_task, read_trajectory, recover, tap_flags, write_atomically,
-                            write_files, write_results)
+from planner.result import (ON_PLANE_M, TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result,
+                            hops_of, read_robot, read_start, read_summary, read_task, read_trajectory, recover,
+                            tap_flags, write_atomically, write_files, write_results)
 from planner.simulate import simulate
 from planner.task import default_task_path, load_task, parse_task, task_to_json
 
@@ -126,7 +126,10 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
     (impact,) = impacts
     assert (impact.time, impact.v_pre[0], impact.v_post[0], impact.impulse) == pytest.approx((0.1, -2.0, 0.0, 2.0))
     assert (impact.tau_start, impact.tau_end) == pytest.approx((0.1, 0.3))
-    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.1, 0.19992, 0.29992], atol=EXACT)
+    # the node at t = 0.1 is the pre-impact sample (the step froze whole without advancing the clock): two samples at
+    # the impact's time, as every implicit-Euler impact (it was repeated, three)
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.19992, 0.29992], atol=EXACT)
+    np.testing.assert_allclose(vs[:3, 0], [-1.0, -2.0, 0.0], atol=EXACT)
     over = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1, ("foot",),
                    approach=np.where(np.arange(4)[:, None] == 2, 0.0, approach))[4]  # at rest on its plane at 0.1
     assert [(im.v_post[0], im.impulse, im.tau_end) for im in over] == [pytest.approx((-0.1, 1.9, 0.2))]
@@ -213,6 +216,20 @@ def test_hops_leave_out_flight_phases_where_the_point_does_not_move():
     ledge[5:, 0], ledge[5:, 2] = 0.7, -0.2  # the second phase moves down and forward
     assert [round(h.distance, 12) for h in hops_of(traj, flight, ledge)] == [0.5, 0.2]
     assert hops_of(traj, flight, ledge)[1].apex == 0.0
+
+
+def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
+    """A flight phase (beta > 0.5) of two steps or more whose nodes all keep the point's height is a slide, no hop (a
+    point mass sliding 0.5 m with z = 0 at every node was a hop of apex 0); a one-step phase that moves along the
+    ground is kept (a hop over a hole starts and ends on the ground), and so is a phase that leaves the plane."""
+    clock = 0.1 * np.arange(6)
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    xyz = np.zeros((6, 3))
+    xyz[:, 0] = 0.1 * np.arange(6)  # moving forward at every node, on the ground
+    assert hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz) == []
+    assert len(hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz)) == 1
+    xyz[2, 2] = 10 * ON_PLANE_M
+    assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz)) == 1
 
 
 def test_write_results_follows_the_contract(tmp_path):

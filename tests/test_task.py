@@ -228,6 +228,19 @@ def test_a_contact_whose_force_is_undefined_at_the_start_is_refused(tmp_path, mu
             simulate(robot, task)
 
 
+def test_one_contact_of_dependent_rows_is_told_of_itself(tmp_path):
+    """The hammer's head on the ground with friction: its own normal and tangent rows are dependent, and the warning
+    speaks of that one contact (it said "remove one of them" of contacts that were one)."""
+    path = tmp_path / "hammer.xml"
+    path.write_text(HAMMER)
+    head_z = 0.5 - 0.4 * math.sin(0.3)  # the arm turned by q about +y from its pivot at z = 0.5
+    task = parse_task({"ground_height": head_z, "contacts": [{"point": "head", "mu": 0.5}], "initial": {"q": [0.3]},
+                       "horizon": {"tau_f": 0.3, "N": 30}})
+    with pytest.warns(UserWarning, match=r"^contacts\[0\] \(head\) on its plane at initial.q constrains 2 directions "
+                                         r"but only 1 .* it cannot slide independently of its normal: give it mu = 0$"):
+        task.check_against(load_robot(path))
+
+
 def test_a_point_in_a_corner_is_told_which_contact_to_change(tmp_path):
     """A point in a corner, a rough floor and a frictionless wall: 3 rows on 2 degrees of freedom; the warning names
     both planes' contacts by index (the same point) and asks for mu = 0 on the one with friction, not on the wall."""
