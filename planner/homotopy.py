@@ -399,6 +399,16 @@ class SolveOptions:
             (self.keep_schedule or not self.schedule_only, "schedule_only", self.schedule_only, "False unless keep_schedule is True"),
             (self.keep_schedule or not self.schedule_new_impacts, "schedule_new_impacts", self.schedule_new_impacts,
              "False unless keep_schedule is True"),
+            # (read by their polish only: accepted, recorded and ignored before)
+            (self.polish is Polish.HYBRID or self.hybrid_ratio == SolveOptions.hybrid_ratio, "hybrid_ratio",
+             self.hybrid_ratio, f"{SolveOptions.hybrid_ratio!r} (the default) unless polish is hybrid"),
+            (self.polish is Polish.HYBRID or self.hybrid_rho == SolveOptions.hybrid_rho, "hybrid_rho",
+             self.hybrid_rho, f"{SolveOptions.hybrid_rho!r} (the default) unless polish is hybrid"),
+            (self.polish is not Polish.NONE or self.polish_starts == SolveOptions.polish_starts, "polish_starts",
+             self.polish_starts, f"{SolveOptions.polish_starts!r} (the default) unless there is a polish"),
+            (self.polish is not Polish.NONE or self.polish_after_failure == SolveOptions.polish_after_failure,
+             "polish_after_failure", self.polish_after_failure,
+             f"{SolveOptions.polish_after_failure!r} (the default) unless there is a polish"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -1378,8 +1388,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
         message += f"; on the way, IPOPT stopped early in {', '.join(capped)}"
     infeasible = [r.label for r in records if r.status == "Infeasible_Problem_Detected"]
     if infeasible and not converged:  # (the failure line named the last NLP's status only)
+        never = problem.skips.never_touching  # (their rows are as binding as the holes')
         message += (f"; IPOPT found {', '.join(infeasible)} locally infeasible: the target may be out of reach in the "
-                    "horizon with these control bounds, holes and joint limits")
+                    "horizon with these control bounds, holes and joint limits"
+                    + (f", and {', '.join(never)} kept off the ground (touches = false)" if never else ""))
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]

@@ -383,10 +383,17 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     states = {"initial.q": y0}
     if plan.target_q is not None:  # the terminal row holds q_N there, where the gap rows forbid it: no plan exists
         states["plan.target_q"] = system.initial_state(np.array(plan.target_q, float), np.zeros(nv))
+    never = [c for c in task.contacts if c.point in skips.never_touching]
     for key, y in states.items():
-        for c, gap in zip(contacts, np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel()):
+        gaps = list(np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel())
+        for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
+            axis = plane_axes(c.normal)[0]
+            point = np.asarray(dyn.point_position(c.point)(y[:nq]), float).ravel()[:3]
+            gaps.append(float(axis @ point - axis[2] * task.ground_height))
+        for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -1e-9:
-                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}")
+                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}"
+                                 + (" (touches = false)" if c in never else ""))
     _check_outside_holes(dyn, task.contacts, task)
 
     if options.discretization is Discretization.FESD:

@@ -57,6 +57,7 @@ CONTACT_GAP_TOL_M = 1e-3  # a point "is in contact" when its gap is below this [
 # The trajectory's own flight dynamics (_flight_residual), relative: the planner's implicit-Euler plans and
 # simulations 6e-16 to 2.3e-2 (docs/validation.md, session 45), controls set to zero ~1
 FLIGHT_RESIDUAL_TOL = 0.1
+IMPACT_TIME_AGREE_S = 1e-9  # summary.json's impact times against trajectory.npz's: the same floats, written twice
 WINDOW_S = 0.1  # length of the windowed tracking replays [s]: the window of the re-simulation
 #   defect (scripts/bench_work_precision.py), short against a hop's flight (~0.3 s)
 WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans the window statistics
@@ -459,6 +460,8 @@ class KinematicReport:
     max_flight_residual: float | None = None
     flight_residual_dof: str | None = None
     flight_residual_time_s: float | None = None
+    # or, when larger, |(q+ - q)/dt - v+| relative to the fastest |(q+ - q)/dt| + |v+| (the step's positions)
+    flight_residual_positions: bool = False
 
     @property
     def contacts_agree(self) -> bool:
@@ -687,7 +690,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
                              "ValidationOptions (--controller, --window) do not apply; give none")
         validation = validate_walk(robot, task, check_trajectory(robot, traj))
     else:
-        contacts, taps = _impact_points(summary, task, len(np.atleast_1d(traj["impact_times"])))
+        contacts, taps = _impact_points(summary, task, np.atleast_1d(traj["impact_times"]), out_dir)
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
                                          holes=summary.get("command") == "plan",  # a simulation has no holes
                                          dynamics=_stepped_by_implicit_euler(summary))
@@ -761,10 +764,11 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
         if point is not None and point not in scene.points:  # it stood for the lowest point, silently
             raise UnknownNameError("contact point", point, scene.points)
 
+    reference = _Reference(arrays, scene.settings.timestep)
+    _window_samples(reference, options)  # (a window too short was refused after the first two replays)
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None,
                            arrays if dynamics else None)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
-    reference = _Reference(arrays, scene.settings.timestep)
     gains = resolve_gains(scene, options.gains, reference.q[0])
     tracking = _replay(scene, reference, gains, planned, options, options.controller)
     windows = _windows(scene, reference, gains, options, planned)
@@ -783,10 +787,12 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
     if kinematic.max_flight_residual is not None and not kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
-        failures.append(f"the trajectory's own dynamics: in flight its controls do not give its motion (M a + h - B u "
-                        f"is {kinematic.max_flight_residual:.3g} of its terms in {kinematic.flight_residual_dof!r} at "
-                        f"t = {kinematic.flight_residual_time_s:.4g} s > {FLIGHT_RESIDUAL_TOL}); the tracking replay's "
-                        "feedback can hide that on a robot whose every coordinate has a motor")
+        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is" if kinematic.flight_residual_positions
+                else "its controls do not give its motion (M a + h - B u is")
+        failures.append(f"the trajectory's own dynamics: in flight {what} {kinematic.max_flight_residual:.3g} of its terms "
+                        f"in {kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
+                        f"{FLIGHT_RESIDUAL_TOL}); the tracking replay's feedback can hide that on a robot whose every "
+                        "coordinate has a motor")
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -866,12 +872,19 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
     return out
 
 
-def _impact_points(summary: dict, task: Task, n_impacts: int) -> tuple[list[str | None] | None, list[bool] | None]:
+def _impact_points(summary: dict, task: Task, impact_times: np.ndarray,
+                   out_dir: Path) -> tuple[list[str | None] | None, list[bool] | None]:
     """The point of each planned impact and whether it is a tap, from summary['impacts'] when it matches
-    impact_times (a summary written before taps were marked has none)."""
+    impact_times (I,) [s] (a summary written before taps were marked has none). InputError when their times differ:
+    the two files no longer say the same (impact_times moved by 0.1 s validated against the moved times)."""
     impacts = summary.get("impacts")
-    if not isinstance(impacts, list) or len(impacts) != n_impacts:
+    if not isinstance(impacts, list) or len(impacts) != len(impact_times):
         return None, None
+    for i, (item, when) in enumerate(zip(impacts, impact_times)):
+        said = item.get("time") if isinstance(item, dict) else None
+        if isinstance(said, (int, float)) and not isinstance(said, bool) and not abs(said - when) <= IMPACT_TIME_AGREE_S:
+            raise InputError(f"{out_dir}: trajectory.npz's impact_times[{i}] = {when:.9g} s, summary.json's impacts[{i}] "
+                             f"time {said:.9g} s: the two files disagree (was one edited?)")
     names = [c.point for c in task.contacts]
     points: list[str | None] = []
     taps = [isinstance(item, dict) and item.get("tap") is True for item in impacts]
@@ -944,7 +957,11 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
         return {}
     B = robot.actuation_matrix
     residual, scale, momentum = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv), 0.0
+    drift, speed = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv)  # the step's q+ = q + dt v+ [m/s, rad/s]
     for n, i in enumerate(steps):
+        chord = pin.difference(model, q[i], q[i + 1]) / (t[i + 1] - t[i])
+        drift[n] = chord - v[i + 1]
+        speed = np.maximum(speed, np.abs(chord) + np.abs(v[i + 1]))
         M = pin.crba(model, data, q[i + 1])
         M = np.triu(M) + np.triu(M, 1).T  # (Pinocchio fills the upper triangle)
         inertial = M @ (v[i + 1] - v[i]) / (t[i + 1] - t[i])
@@ -958,9 +975,17 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     # step carries (a coasting mass in a zero-gravity file has rounding in every term, and had failed at ratio 1)
     weight = pin.computeTotalMass(model) * np.linalg.norm(model.gravity.linear)
     relative = np.abs(residual) / np.maximum(scale, 1e-6 * max(scale.max(), weight, momentum, 1e-12))
+    # the samples' positions against their velocities (v zeroed, or z raised 5 cm over a flight, passed: the momentum
+    # equation reads v and u only); a coordinate at rest is judged on the fastest one's speed, which the solver's
+    # tolerance (~1e-8 m per step) cannot reach at 1e-3 of it
+    moved = np.abs(drift) / np.maximum(speed, 1e-3 * max(speed.max(), 1e-9))
     n, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
-    return {"flight_steps": len(steps), "max_flight_residual": float(relative[n, j]),
-            "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1])}
+    nq_, jq = np.unravel_index(int(np.argmax(moved)), moved.shape)
+    positions = bool(moved[nq_, jq] > relative[n, j])
+    n, j = (nq_, jq) if positions else (n, j)
+    return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative)[n, j]),
+            "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1]),
+            "flight_residual_positions": positions}
 
 
 def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:
@@ -1177,6 +1202,22 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
     )
 
 
+def _window_samples(ref: _Reference, options: ValidationOptions) -> tuple[int, int]:
+    """The replay's samples per window and per stride of the windowed tracking; InputError for a window in which the
+    planned impacts cannot be timed (checked before any replay runs)."""
+    for key in ("window_s", "window_stride_s"):  # shorter, a window ran one sample and was reported at its asked length
+        _check(getattr(options, key) >= ref.dt, key, getattr(options, key), f">= the replay's sample step {ref.dt:g} s")
+    span = (ref.steps + 1) * ref.dt  # a window or stride beyond the plan is the plan (1e308 s overflowed int())
+    per = max(1, int(round(min(options.window_s, span) / ref.dt)))
+    stride = max(1, int(round(min(options.window_stride_s, span) / ref.dt)))
+    # an impact is timed in the window started one to two strides before it: shorter, the window ended before the
+    # impact and its landings read "none" (MuJoCo saw no landing) at --window 0.03
+    _check(per >= ref.steps or per >= 3 * stride, "window_s", options.window_s,
+           f">= 3 window_stride_s = {3 * options.window_stride_s:g} s (an impact is timed in the window started one to "
+           "two strides before it, which must run a stride past it), or the plan's length")
+    return per, stride
+
+
 def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: ValidationOptions,
              planned: Sequence[tuple[str, float, bool]] = ()) -> WindowReport:
     """The tracking replay restarted from the reference in overlapping windows (WindowReport).
@@ -1185,11 +1226,7 @@ def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: Valid
     (point, time [s], tap), taps too, is matched (_match_impacts) to the MuJoCo impacts of the window that
     started window_stride_s to twice that before it (the first window if none did).
     """
-    for key in ("window_s", "window_stride_s"):  # shorter, a window ran one sample and was reported at its asked length
-        _check(getattr(options, key) >= ref.dt, key, getattr(options, key), f">= the replay's sample step {ref.dt:g} s")
-    span = (ref.steps + 1) * ref.dt  # a window or stride beyond the plan is the plan (1e308 s overflowed int())
-    per = max(1, int(round(min(options.window_s, span) / ref.dt)))
-    stride = max(1, int(round(min(options.window_stride_s, span) / ref.dt)))
+    per, stride = _window_samples(ref, options)
     starts, errors, onsets, diverged = [], [], [], False
     base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
     # a window as long as the plan is the one window the report names (30 more, each clipped to the plan's end, ran)

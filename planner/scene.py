@@ -78,11 +78,13 @@ class Skips:
 def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
     """The Skips of `task` on `robot` (module docstring); enabled = False records the decisions as
     not taken (everything is built) and keeps only the facts (elastic_state)."""
-    elastic = tuple(c.point for c in task.contacts if c.restitution > 0)
-    reasons = [f"elastic state p: {'built for ' + ', '.join(elastic) if elastic else 'not built (no contact has restitution > 0)'}"]
+    # a touches = false point gets no contact machinery, so no p either (the record said "built for" it)
+    elastic = tuple(dict.fromkeys(c.point for c in task.contacts if c.restitution > 0 and (c.touches or not enabled)))
+    reasons = ["elastic state p: " + ("built for " + ", ".join(elastic) if elastic else
+                                      "not built (no contact that may touch has restitution > 0)")]
     if not enabled:
         return Skips(enabled=False, elastic_state=elastic, reasons=tuple(reasons + ["scene analysis off: everything is built"]))
-    never = tuple(c.point for c in task.contacts if not c.touches)
+    never = tuple(dict.fromkeys(c.point for c in task.contacts if not c.touches))  # a corner's point once
     reasons += [f"{p}: touches = false, no contact machinery, only gap >= 0 (and the holes)" for p in never]
     # by contact label: a point on a rough floor and a frictionless wall was listed as frictionless (point#2 is)
     frictionless = tuple(label for label, c in zip(contact_labels(task.contacts), task.contacts)

@@ -264,7 +264,8 @@ def fam_homotopy(b: Base, t: dict, rng, k: int) -> dict:
     """The task's homotopy: rho0 log-uniform in [1e-2, 1e3], kappa in [2, 100], n_nlp in 1..8 (the solve's
     rho_min / rho_max then drop and extend the schedule, planner.homotopy.task_rho_schedule)."""
     hom = {"rho0": _log_uniform(rng, 1e-2, 1e3), "kappa": _log_uniform(rng, 2.0, 100.0), "n_nlp": int(rng.integers(1, 9))}
-    t["plan"]["homotopy"] = hom
+    # the base task's other homotopy keys stay (Capler's scale_variables = true was dropped: an unscaled solve too)
+    t["plan"]["homotopy"] = {**t["plan"].get("homotopy", {}), **hom}
     return dict(hom)
 
 

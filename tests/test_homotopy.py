@@ -153,6 +153,18 @@ def test_bad_options(kwargs, key):
         H.SolveOptions(**kwargs)
 
 
+@pytest.mark.parametrize("kwargs, key", [({"hybrid_rho": 5.0}, "hybrid_rho = 5.0"), ({"hybrid_ratio": 3.0}, "hybrid_ratio"),
+                                         ({"polish": "none", "polish_starts": 5}, "polish_starts = 5"),
+                                         ({"polish": "none", "polish_after_failure": False}, "polish_after_failure")])
+def test_options_of_a_polish_not_run_are_refused(kwargs, key):
+    """The hybrid polish's options without polish = hybrid, and the polish's starts and after-failure switch with
+    polish = none, are InputErrors naming the option: they were accepted, recorded in summary.json and ignored. With
+    their polish they are taken."""
+    with pytest.raises(InputError, match=re.escape(key) + r".* unless"):
+        H.SolveOptions(**kwargs)
+    H.SolveOptions(**{**kwargs, "polish": "hybrid"})
+
+
 def test_edge_options_are_accepted():
     """The boundary values that mean something are allowed: no soft-terminal NLP, zero l1 weights, no refinement
     penalties, rho_min = rho_max (one NLP), and the options solve() itself derives (replan, FESD)."""

@@ -597,6 +597,24 @@ def test_controls_that_do_not_give_the_motion_fail_on_a_fully_actuated_robot(poi
     assert unchecked.passed and unchecked.kinematic.max_flight_residual is None
 
 
+def test_positions_that_do_not_move_at_the_velocities_fail(point_mass):
+    """The flight check also holds the samples' positions to their velocities, q+ = q + dt v+ as the planner steps:
+    five samples raised 5 cm (their v and u untouched), or the velocities zeroed with controls that only hold the
+    weight, fail naming positions against velocities; both had passed (the momentum rows read v and u only)."""
+    task = _task("point", q0=(0.0, 1.0))
+    raised = _pushed_flight()
+    raised["q"] = raised["q"].copy()
+    raised["q"][20:25, 1] += 0.05
+    held = {**_pushed_flight(), "v": np.zeros((51, 2)), "u": np.tile([0.0, 9.81], (51, 1))}
+    for arrays, dof in ((raised, "z"), (held, "x")):
+        bad = replay.validate_trajectory(point_mass, task, arrays, dynamics=True)
+        assert bad.kinematic.flight_residual_positions and bad.kinematic.flight_residual_dof == dof
+        assert not bad.passed and any(f.startswith("the trajectory's own dynamics: in flight its positions do not move "
+                                                   "at its velocities") for f in bad.failures), bad.failures
+    good = replay.validate_trajectory(point_mass, task, _pushed_flight(), dynamics=True)
+    assert good.passed and good.kinematic.max_flight_residual < 1e-9
+
+
 def test_a_coasting_flight_without_gravity_passes_its_dynamics(tmp_path):
     """In a robot file with zero gravity a mass coasting at constant velocity with u = 0 has only rounding in every
     term of its flight rows: it passes (judged on the momentum a step carries), where the ratio of rounding to
@@ -796,7 +814,15 @@ def test_missing_and_garbled_files(ground_truth, tmp_path):
     d = copy("shifted_impacts")  # impact times 100 s late were matched against nothing: passed
     np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
              impact_times=np.atleast_1d(traj["impact_times"]) + 100.0)
+    summary = json.loads((good / "summary.json").read_text())
+    (d / "summary.json").write_text(json.dumps({**summary, "impacts": [{**i, "time": i["time"] + 100.0}
+                                                                       for i in summary["impacts"]]}))
     with pytest.raises(InputError, match=r"impact time .* s lies outside its samples' span"):
+        replay.validate(d)
+    d = copy("impacts_moved")  # impact_times 0.01 s early (within the span) beside summary.json's: validated, passed
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
+             impact_times=np.atleast_1d(traj["impact_times"]) - 0.01)
+    with pytest.raises(InputError, match=r"impact_times\[0\] = .* summary.json's impacts\[0\] time .* disagree"):
         replay.validate(d)
     d = copy("complex")  # replayed the real part, with a ComplexWarning
     np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "v", "u", "impact_times")}, "q": traj["q"] + 1j})
@@ -986,13 +1012,18 @@ def test_one_explicit_gain_keeps_the_rules_other_gain():
 
 
 def test_a_window_below_the_sample_step_is_refused(ground_truth, capsys):
-    """A window shorter than the replay's sample step is an InputError (it ran one sample per window while the
-    report named the asked length); the CLI says so in one line, exit 2."""
+    """A window shorter than the replay's sample step, or than three strides (the impacts' windows ended before them),
+    is an InputError (it ran one sample per window while the report named the asked length); the CLI says so in one
+    line, exit 2."""
     from planner.cli import main
 
     _, out = ground_truth
     assert main(["validate", str(out), "--window", "1e-9"]) == 2
     assert "window_s = 1e-09 is not allowed" in capsys.readouterr().err
+    # an impact is timed in the window started 25-50 ms before it: a 50 ms window ended before it ("none": MuJoCo saw
+    # no landing), and it is refused before any replay runs
+    assert main(["validate", str(out), "--window", "0.05"]) == 2
+    assert "window_s = 0.05 is not allowed; it must be >= 3 window_stride_s = 0.075 s" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("controller", list(replay.TrackingController))

@@ -124,6 +124,41 @@ def test_a_never_touching_point_stays_out_of_the_holes(capler):
         build_problem(capler, dataclasses.replace(with_hole, plan=dataclasses.replace(with_hole.plan, holes=(inside,))))
 
 
+def test_a_never_touching_point_in_the_ground_at_the_start_or_target_is_refused(capler):
+    """touches = false keeps a point's gap >= 0 row from node 1 on; a start or target that puts the point in the ground
+    is an InputError, as for a touching point (the start was planned, exit 0, MuJoCo then saw 30 mm penetration; the
+    target ran 16 NLPs to "out of reach"). Its restitution builds no elastic state and the record says so."""
+    knee_in_ground = (0.0, 0.05, 1.1, 1.5)  # knee 4 cm below the ground, foot 13 cm above it
+    task = knee_task(3)
+    with pytest.raises(InputError, match=r"initial.q puts contact point 'knee' 0.0407\d* m below .* \(touches = false\)"):
+        build_problem(capler, dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=knee_in_ground)))
+    with pytest.raises(InputError, match=r"plan.target_q puts contact point 'knee' .* \(touches = false\)"):
+        build_problem(capler, dataclasses.replace(task, plan=dataclasses.replace(task.plan, target_q=knee_in_ground)))
+    elastic_knee = dataclasses.replace(task, contacts=(task.contacts[0], dataclasses.replace(task.contacts[1],
+                                                                                               restitution=0.5)))
+    skips = analyze_scene(capler, elastic_knee)
+    assert skips.elastic_state == () and "elastic state p: not built" in skips.reasons[0]
+    assert analyze_scene(capler, elastic_knee, enabled=False).elastic_state == ("knee",)
+
+
+def test_an_infeasible_plan_names_the_never_touching_points(tmp_path, point_mass):
+    """A plan IPOPT finds locally infeasible lists what may make it so: the never-touching points' rows too (a point
+    starting on the ground, moving into it at 2 m/s, that no control within u_bound keeps off it in one step; the
+    message named the control bounds, holes and joint limits only)."""
+    xml = point_mass.path.read_text()
+    assert xml.count('<site name="point"') == 1
+    path = tmp_path / "probe.xml"
+    path.write_text(xml.replace('<site name="point"', '<site name="probe" pos="0.1 0 -0.05" size="0.01"/>'
+                                '<site name="point"'))
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "probe", "mu": 0.5, "touches": False}],
+                       "initial": {"q": [0.0, 0.05], "v": [0.0, -2.0]}, "horizon": {"tau_f": 0.5, "N": 10},
+                       "plan": {"target_q": [0.2, 0.05], "u_bound": 30.0}})
+    result = solve(build_problem(load_robot(path), task))
+    assert not result.stats.converged
+    assert "locally infeasible" in result.stats.message
+    assert "and probe kept off the ground (touches = false)" in result.stats.message
+
+
 def test_touches_key_is_checked(capler):
     """contacts.touches must be a boolean; a task whose every contact is touches = false cannot be planned."""
     with pytest.raises(TaskError, match="contacts\\[0\\].touches must be true or false"):

@@ -201,6 +201,14 @@ def test_stress_generator_is_seeded(stress):
         stress.generate(0, solve_options={"max_iter": 0})
 
 
+def test_stress_homotopy_family_keeps_the_base_tasks_other_homotopy_keys(stress):
+    """The homotopy family draws rho0, kappa and n_nlp and keeps the rest of the base task's [plan.homotopy]: Capler's
+    scale_variables = true (it was dropped, so each of those tasks also ran the unscaled solve)."""
+    for spec in stress.generate(0, ["homotopy"], 2, "capler"):
+        hom = spec["task"]["plan"]["homotopy"]
+        assert hom["scale_variables"] is True and set(hom) >= {"rho0", "kappa", "n_nlp"}
+
+
 def test_stress_point_mass_impacts_within_the_friction_cone_and_torque_expectations(stress):
     """The point-mass tasks keep a_t <= mu a_n (an impact's tangential impulse within mu times its normal
     one: MuJoCo's Coulomb contact), Capler keeps the paper's a_t = 600; point-mass torque bounds below
