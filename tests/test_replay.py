@@ -395,7 +395,8 @@ def test_an_impact_planned_in_a_stance_finds_no_landing_in_its_window(ground_tru
 def test_a_landing_marked_tap_is_matched_in_the_windows(ground_truth, capler, tmp_path):
     """A landing whose impulse falls below TAP_SHARE (the main job's light landing at 1.086 s) is listed without a
     match in the whole replay but matched in the windows, where MuJoCo starts from the plan's state before it: its
-    onset there is the landing's (difference 0), reported as "tap +0.0 ms"."""
+    onset there is the landing's (difference 0), reported as "tap +0.0 ms"; in a window started more than two strides
+    before it (one window as long as the plan) it is listed as in the whole replay."""
     traj, _ = ground_truth
     out = _write_result(tmp_path / "light", traj, capler[0].path, ROBOTS_DIR / "capler.toml", ["foot"])
     summary = json.loads((out / "summary.json").read_text())
@@ -405,6 +406,10 @@ def test_a_landing_marked_tap_is_matched_in_the_windows(ground_truth, capler, tm
     assert result.tracking.impacts[0].tap and result.tracking.impacts[0].difference_s is None
     assert result.windows.impacts[0].tap and result.windows.impacts[0].difference_s == pytest.approx(0.0, abs=1e-12)
     assert "tap +0.0 ms" in result.report()
+    # one window as long as the plan started 0.1 s before the tap, as the whole replay: the tap is listed, not matched
+    # (there it took another hop's landing, -56.9 ms on the main job)
+    whole = replay.validate(out, replay.ValidationOptions(window_s=1.0))
+    assert len(whole.windows.starts_s) == 1 and whole.windows.impacts[0].difference_s is None
 
 
 PUSH_OFF_AFTER_S = 0.015  # [s] a planned impact this long after the landing: its window starts before the landing
@@ -676,6 +681,11 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     assert "deepest into a hole between samples: ellipse metric 0.00" in validation(0.2625).report()
     for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
         assert not any("goes through" in f for f in unchecked.failures)
+    # the second sample itself inside the hole: the plan's node, not the grid (it blamed the grid, "plan on a finer grid")
+    at_node = validation(0.5)
+    assert at_node.kinematic.hole_at_sample and not crossed.kinematic.hole_at_sample
+    assert any("'point' goes through plan.holes[0] near t = 0.1 s (ellipse metric 1.6e-07 < 0.25) at a sample of the "
+               "trajectory: the plan's own node is inside the hole" in f for f in at_node.failures), at_node.failures
 
 
 def _kinematic_with_hole_reach(metric: float | None) -> replay.KinematicReport:
