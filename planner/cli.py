@@ -312,8 +312,11 @@ def _failure(summary: dict) -> str:
     """Why a command's summary says it failed, as ": reason" (the -q failure line), or "" when it does not say."""
     if summary.get("converged") is False:
         return f": {summary.get('message') or 'did not converge'}"
-    if summary.get("contact_violations"):  # planner gait
-        return ": " + "; ".join(summary["contact_violations"])
+    if summary.get("command") == "gait":
+        from .gait import gait_violations
+
+        if gait_violations(summary):
+            return ": " + "; ".join(gait_violations(summary))
     validation = summary.get("validation", summary)
     if isinstance(validation, dict) and validation.get("passed") is False:
         return ": " + "; ".join(validation.get("failures") or ["the validation failed"])
@@ -751,7 +754,7 @@ def _start_task(args, arrays: dict):
 
 
 def _cmd_gait(args) -> int:
-    from .gait import run_gait
+    from .gait import gait_violations, run_gait
     from .model import load_robot
 
     if args.task is None:
@@ -767,10 +770,11 @@ def _cmd_gait(args) -> int:
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
     _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
-    # a gait that asks the ground to pull (or to hold beyond friction) is no motion of the robot: it fails as a fall
-    valid = walked and not result.summary.get("contact_violations")
+    # a gait that asks the ground to pull (or to hold beyond friction), or its motors beyond their range, is no motion
+    # of the robot: it fails as a fall
+    valid = walked and not gait_violations(result.summary)
     verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
-               else "converged, but the gait violates its contacts") if converged else "FAILED"
+               else "converged, but the gait violates its contacts or motor ranges") if converged else "FAILED"
     _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}", written=True)
     return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 

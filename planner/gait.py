@@ -940,7 +940,7 @@ class GaitRunResult:
         lines = [f"gait {Path(self.robot).name} ({Path(self.task).name}): {'converged' if s.converged else 'NOT converged'} "
                  f"in {s.solve_time_s:.2f} s, {len(s.loops)} outer loops, {s.pronto_iterations} PRONTO iterations; "
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
-        lines += [f"  {violation}" for violation in self.summary.get("contact_violations", ())]
+        lines += [f"  {violation}" for violation in gait_violations(self.summary)]
         if self.walking is not None:
             w = self.walking
             lines.append(f"MuJoCo ({w.gains.control.value} control): walked {w.steps_walked} of {w.steps_asked} steps"
@@ -964,6 +964,11 @@ def _impact_contact(model: PinnedBiped, x_minus) -> dict:
 # a gait's contact quantities beyond these bounds are violations (contact_violations): the solver's accuracy, far
 # below the shipped gaits' margins (normal force >= 195 N, impulse 20 N s, lift-off +0.33 m/s)
 CONTACT_FORCE_TOL_N, CONTACT_IMPULSE_TOL_N_S, LIFT_OFF_TOL_M_S = 1e-6, 1e-9, 1e-9
+
+
+def gait_violations(summary: dict) -> list[str]:
+    """A gait summary's contact and motor violations, the lines that make a converged gait no motion of the robot."""
+    return [*summary.get("contact_violations", ()), *summary.get("motor_violations", ())]
 
 
 def contact_violations(summary: dict) -> list[str]:
@@ -991,6 +996,43 @@ def contact_violations(summary: dict) -> list[str]:
         out.append(f"the trailing foot moves down at {summary['trailing_foot_lift_off_m_s']:.3g} m/s right after the "
                    "impact: it would not lift off (a double support the gait does not have)")
     return out
+
+
+def motor_violations(robot: Robot, layout: BipedLayout, u: np.ndarray) -> list[str]:
+    """The gait's motor commands u (N, 2) [N m] beyond the robot file's control ranges, as one line (the gait's OCP
+    has no input bounds; MuJoCo clamps the commands). Each motor drives both roles as the legs swap every step, so
+    every command is held to both motors' ranges."""
+    motors = [robot.actuators[layout.stance_motor], robot.actuators[layout.swing_motor]]
+    lo, hi = max(m.lower for m in motors), min(m.upper for m in motors)
+    low, high = float(np.min(u)), float(np.max(u))
+    if lo - CONTACT_FORCE_TOL_N <= low and high <= hi + CONTACT_FORCE_TOL_N:
+        return []
+    return [f"the motors need commands from {low:.4g} to {high:.4g} N m, beyond the robot file's control range "
+            f"[{lo:g}, {hi:g}] of {', '.join(repr(m.name) for m in motors)} (each drives both legs' roles as they "
+            "swap): MuJoCo clamps them"]
+
+
+MIRROR_TOL = 1e-9  # relative: the two stance models of mirror-image legs agree to rounding (measured 8e-15)
+MIRROR_SAMPLES = 5  # seeded random states at which they are compared
+
+
+def check_mirror_legs(model: PinnedBiped) -> None:
+    """TaskError unless the legs are mirror images: the periodic gait swaps them every step (the walk relabels the
+    state and hands each motor the other's command), so the pinned model with the other foot as stance must be the
+    same functions (mass matrix, bias, actuation, impact map) at seeded random states. A leg 0.5 kg heavier, or of
+    gear 2, converged to a "periodic" walk that was no motion of the robot."""
+    lay = model.layout
+    other = PinnedBiped(model.robot, model.dyn, find_layout(model.robot, lay.swing_foot, lay.stance_foot))
+    rng = np.random.default_rng(0)
+    for _ in range(MIRROR_SAMPLES):
+        theta, rate = rng.uniform(-0.5, 0.5, 3), rng.uniform(-2.0, 2.0, 3)
+        for name, attr, args in (("mass matrix", "mass", (theta,)), ("bias forces", "bias", (theta, rate)),
+                                 ("actuation", "actuation", (theta,)), ("impact map", "impact", (theta,))):
+            a, b = (np.array(getattr(m, attr)(*args), float) for m in (model, other))
+            if np.abs(a - b).max() > MIRROR_TOL * max(np.abs(a).max(), 1.0):
+                raise TaskError(f"{model.robot.path}: the legs are not mirror images: with {lay.swing_foot!r} as the "
+                                f"stance foot the {name} differs by {np.abs(a - b).max():.3g} (the gait swaps the legs "
+                                "every step); give both legs the same masses, inertias, lengths and motor gears")
 
 
 def _require_feet(layout: BipedLayout, contacts) -> None:
@@ -1026,12 +1068,34 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     g = task.gait
     model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
     _require_feet(model.layout, [c.point for c in task.contacts])  # before the solve: the replay refused it after
+    check_mirror_legs(model)
+    if validate and spec.x0[3] <= 0:  # (the mirror of gait 1 converged, then its walk "fell" at once: exit 1)
+        raise TaskError(f"gait.x0 has the stance leg turning at {spec.x0[3]:g} rad/s: the gait walks towards -x, and "
+                        "the MuJoCo walk replays gaits that walk towards +x (theta1 increasing: its phase variable and "
+                        "its step count); mirror the task (negate x0, jump_angle and the initial state's x "
+                        "components) or do not validate (`planner gait --no-validate`)")
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:
         raise TaskError(f"initial.q/initial.v must be the floating state of gait.x0 with {g.stance!r} at the origin: "
                         f"q = {np.round(q0, 9).tolist()}, v = {np.round(v0, 9).tolist()}")
-    sol = solve_gait(model, spec, progress)
+    loops: list[OuterLoop] = []
+
+    def record(loop: OuterLoop) -> None:
+        loops.append(loop)
+        if progress is not None:
+            progress(loop)
+
+    try:
+        sol = solve_gait(model, spec, record)
+    except SolveError as exc:  # (a diverged projection wrote nothing: exit 1 without the loops' diagnostics)
+        if out_dir is None:
+            raise
+        failed = Path(out_dir) / "failed"
+        write_files(failed, {"task_json": np.array(task_to_json(task))},
+                    {"command": "gait", "robot": str(robot.path), "task": task.source, "robot_sha256": robot.sha256,
+                     "converged": False, "message": str(exc), "outer_loops": [vars(loop) for loop in loops]}, result_id)
+        raise SolveError(f"{exc} (the outer loops before it: {failed / 'summary.json'})") from None
     walk = periodic_walk(model, sol, g.steps)
     # a gait whose stance leg stops or turns back has no phase variable: the time-indexed LQR replay
     control = WalkControl.PHASE if PhaseReference.applies(sol.x) else WalkControl.LQR
@@ -1068,6 +1132,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         "walking": walking.to_json() if walking else None,
     }
     summary["contact_violations"] = contact_violations(summary)
+    summary["motor_violations"] = motor_violations(robot, model.layout, sol.u)
     if out_dir is not None:
         arrays = {"tau": walk.t, "y": np.hstack([walk.q, walk.v, walk.t[:, None]]), "t": walk.t, "q": walk.q, "v": walk.v,
                   "u": walk.u, "impact_times": np.array([i[0] for i in walk.impacts]),

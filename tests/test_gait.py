@@ -152,6 +152,81 @@ def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
         (line,) = contact_violations({**good, **change})
         assert message in line
 
+def test_motor_commands_beyond_the_files_range_are_a_violation(tmp_path):
+    """The gait's OCP has no input bounds: commands beyond the robot file's control range (gait 1 needs 72 N m, a
+    file of +-30) are a motor violation naming both motors and the range (exit 0 with --no-validate, no word before);
+    each motor is held to the other's range too, as the legs swap every step. Within the range: none."""
+    from planner.gait import find_layout, gait_violations, motor_violations
+
+    xml = (ROBOTS_DIR / "biped.xml").read_text()
+    assert xml.count('ctrlrange="-500 500"') == 2
+    path = tmp_path / "weak.xml"
+    path.write_text(xml.replace('ctrlrange="-500 500"', 'ctrlrange="-30 30"', 1))  # hip_1 only
+    robot = load_robot(path)
+    layout = find_layout(robot)
+    u = np.array([[71.96, -10.0], [5.0, 62.26]])
+    (line,) = motor_violations(robot, layout, u)
+    assert line.startswith("the motors need commands from -10 to 71.96 N m, beyond the robot file's control range "
+                           "[-30, 30] of 'hip_1', 'hip_2'"), line
+    assert motor_violations(robot, layout, np.clip(u, -30.0, 30.0)) == []
+    assert gait_violations({"contact_violations": ["a"], "motor_violations": [line]}) == ["a", line]
+
+
+@pytest.mark.parametrize("old, new, differs", [('mass="5"', 'mass="5.5"', "mass matrix"),
+                                                ('gear="1"', 'gear="2"', "actuation")])
+def test_a_biped_whose_legs_differ_is_refused(tmp_path, old, new, differs):
+    """The periodic gait swaps the legs every step, so they must be mirror images: leg 2 0.5 kg heavier, or its motor
+    of gear 2, is a TaskError naming what differs (it converged to a 10-step "periodic" walk that was no motion of the
+    robot, exit 0); the shipped biped passes."""
+    from planner.gait import check_mirror_legs
+
+    xml = (ROBOTS_DIR / "biped.xml").read_text()
+    leg_2 = xml.index('<body name="leg_2"') if old.startswith("mass") else xml.index('<motor name="hip_2"')
+    cut = xml.index(old, leg_2)
+    path = tmp_path / "uneven.xml"
+    path.write_text(xml[:cut] + new + xml[cut + len(old):])
+    with pytest.raises(TaskError, match=rf"the legs are not mirror images: with 'foot_2' as the stance foot the {differs} "
+                                        r"differs by .* give both legs the same"):
+        check_mirror_legs(PinnedBiped(load_robot(path)))
+    check_mirror_legs(PinnedBiped(load_robot("biped")))
+
+
+def test_a_diverged_projection_still_writes_its_diagnostics(tmp_path):
+    """A PRONTO projection that diverges (no state feedback, 8 s period) is a SolveError (exit 1) that still writes
+    DIR/failed/summary.json, converged false with the message and the outer loops before it, and says where (it
+    wrote nothing)."""
+    from planner.errors import SolveError
+    from planner.gait import run_gait
+
+    text = (ROBOTS_DIR / "biped_gait1.toml").read_text()
+    assert text.count("\ntau_f = 1.53\n") == 1 and text.count("\nN = 153\n") == 1
+    task = tmp_path / "diverge.toml"
+    task.write_text(text.replace("\ntau_f = 1.53\n", "\ntau_f = 8.0\n").replace("\nN = 153\n", "\nN = 20\n")
+                    + "[gait.pronto]\nfeedback_q = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\nfeedback_r = [1e6, 1e6]\n")
+    with pytest.raises(SolveError, match=r"not finite .* \(the outer loops before it: .*failed/summary.json\)"):
+        run_gait("biped", task, tmp_path / "out", validate=False)
+    summary = json.loads((tmp_path / "out" / "failed" / "summary.json").read_text())
+    assert summary["converged"] is False and "not finite" in summary["message"] and summary["command"] == "gait"
+    assert isinstance(summary["outer_loops"], list) and not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_a_gait_towards_minus_x_is_not_walked(tmp_path):
+    """The MuJoCo walk replays gaits towards +x (theta1 increasing indexes its reference, a landing in front of the
+    stance foot counts a step): the mirror image of gait 1 (x0 negated) is refused before the solve when it is to be
+    validated, naming the fix (it converged, and its walk then "fell" at step 0: exit 1 for a valid gait)."""
+    from planner.gait import run_gait
+
+    text = (ROBOTS_DIR / "biped_gait1.toml").read_text()
+    x0 = "x0 = [-0.39269908169872414, 0.39269908169872414, 0.3490658503988659, 0.8726646259971648, 0.0, 1.5707963267948966]"
+    assert text.count(x0) == 1
+    mirrored = x0.replace("[-0.392", "[0.392").replace(", 0.392", ", -0.392").replace(", 0.349", ", -0.349") \
+        .replace(", 0.872", ", -0.872").replace(", 1.57", ", -1.57")
+    task = tmp_path / "mirror.toml"
+    task.write_text(text.replace(x0, mirrored))
+    with pytest.raises(TaskError, match=r"the gait walks towards -x, .* mirror the task .*`planner gait --no-validate`"):
+        run_gait("biped", task, None)
+
+
 def test_desired_curve_meets_the_boundary_states_and_is_differentiated(biped):
     """The desired curve starts at x0 and ends at Delta^-1(x0) in angles and rates (paper Sec. 2.2:
     x_d(0) = x0, x_d(T) = x_f), and its rates are the time derivative of its angles."""
