@@ -557,7 +557,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         x0[nx - 1] = float(np.max(np.asarray(ca.Function("p0", [X], [prods])(x0)), initial=0.0))
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
                    x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(),
-                   x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.blocks, pairs=tuple(pairs),
+                   x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs),
                    pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
                    notes=notes, skips=skips, stages=stages)
 
@@ -880,7 +880,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
              "penalty": ca.Function("penalty_cost", [X, P], [penalty])}
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
                    x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(), x0=x0, var_names=tuple(names),
-                   var_blocks=var_blocks, g_blocks=rows.blocks, pairs=tuple(pairs), pair_scale=pair_scale, objective_parts=parts,
+                   var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale, objective_parts=parts,
                    products=products, build_time_s=time.perf_counter() - start, notes=notes, skips=skips, fesd=fesd)
 
 
@@ -960,6 +960,10 @@ class _Rows:
         self.hi.append(np.broadcast_to(hi, (m,)).astype(float))
         self.blocks[name] = np.arange(self.row, self.row + m).reshape(len(rows), m // len(rows))
         self.row += m
+
+    def named(self) -> dict[str, np.ndarray]:
+        """The blocks that hold rows (lift_products=False left a `lifting` of shape (N, 0), reported as 0)."""
+        return {name: rows for name, rows in self.blocks.items() if rows.size}
 
     def g(self):
         return ca.vertcat(*self.parts)
