@@ -68,6 +68,12 @@ def report(out: Path, results, table: str, as_json: bool, printed=None) -> int:
     return 0
 
 
+def drop_results(out: Path) -> None:
+    """Remove out/results.json before a run replaces the run directories it describes: an interrupted rerun left it
+    naming directories the new run had already emptied."""
+    (out / "results.json").unlink(missing_ok=True)
+
+
 def out_dir(text: str) -> Path:
     """An --out argument: refused at once, as `planner` refuses it, when empty (an unset shell variable: results.json
     went to the working directory), when no directory can be made there (a file, an unwritable place; found only

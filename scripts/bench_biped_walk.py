@@ -26,7 +26,7 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.result import write_atomically
-from scripts._report import out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
+from scripts._report import drop_results, out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TASK = ROOT / "robots" / "biped.toml"
@@ -130,7 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     if not all(0 < s < 2 for s in args.step):
         parser.error(f"--step {args.step}: give lengths in (0, 2) m (the legs are 1 m long)")
     pairs = [(lower, step) for step in args.step for lower in lowers]
+    runs = [(None if lower == "none" else float(lower), step) for lower, step in pairs]
+    if len(set(runs)) != len(runs):  # (the later run deleted the earlier one's plan, two rows for one directory)
+        parser.error(f"--lower {' '.join(lowers)} --step {' '.join(map(str, args.step))} name the same run twice: give "
+                     "each value once")
     check_tasks(pairs)
+    drop_results(args.out)
     rows = [run(lower, step, args.out, args.quick) for lower, step in pairs]
     return report(args.out, {"task": str(TASK), "quick": args.quick, "runs": rows}, table(rows), args.json, printed=rows)
 

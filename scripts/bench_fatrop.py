@@ -134,6 +134,11 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", action="store_true", help="FATROP: IPOPT's gradient-based scaling (objective, rows) computed at x0")
     ap.add_argument("--out", default=None, help="write the JSON record to this file (FATROP prints its log to stdout)")
     a = ap.parse_args(argv)
+    fatrop_only = [flag for flag, given in (("--fatrop-opt", a.fatrop_opt), ("--convexify", a.convexify),
+                                            ("--scale", a.scale), ("--drop-free", a.drop_free)) if given]
+    if fatrop_only and "fatrop" not in a.solvers:  # (ignored, and written into the record as if used)
+        ap.error(f"{', '.join(fatrop_only)} appl{'ies' if len(fatrop_only) == 1 else 'y'} to FATROP, which --solvers "
+                 f"{' '.join(a.solvers)} does not run")
     if a.out is not None:  # each found only after the whole run before, or (empty) nothing written at all
         target = Path(a.out)
         if not a.out.strip() or target.is_dir():

@@ -399,6 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.full_only and fixed:  # no fixed-iteration run: they were recorded in results.json as if they had applied
         parser.error(f"{', '.join(fixed)} set{'s' if len(fixed) == 1 else ''} the fixed-iteration runs, which "
                      "--full-only skips")
+    codegen_only = [flag for flag, key in (("--codegen-flags", "codegen_flags"), ("--cache", "cache"))
+                    if getattr(args, key) != parser.get_default(key)]
+    if codegen_only and not args.codegen:  # (ignored, and the command line recorded as run)
+        parser.error(f"{', '.join(codegen_only)} appl{'ies' if len(codegen_only) == 1 else 'y'} to --codegen only: add it")
     for flag, value in (("--iters", args.iters), ("--repeats", args.repeats)):
         if value is not None and value < 1:
             parser.error(f"{flag} must be >= 1, got {value}")

@@ -29,7 +29,7 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.result import read_summary, read_trajectory, write_atomically
-from scripts._report import out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
+from scripts._report import drop_results, out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET_LINE = re.compile(r"^(target_q = \[)([^,\]]+)", re.MULTILINE)
@@ -142,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise InputError(f"--init {args.init} lies in {replaced}, which this run replaces; copy it elsewhere "
                                  "or give another --out")
     args.out.mkdir(parents=True, exist_ok=True)
+    drop_results(args.out)
     base_task = args.out / "base.toml"
     write_atomically(base_task, base_text)
     start = args.init

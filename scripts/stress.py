@@ -617,6 +617,11 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"stress: error: {exc}", file=sys.stderr)
         return 2
+    if args.rho_schedule is not None and any(spec["family"] == "homotopy" for spec in specs):
+        # (the solve reads rho_schedule, never the task's homotopy: the family's tasks all ran one schedule, their
+        # records still listing the rho0, kappa and n_nlp drawn)
+        parser.error("--rho-schedule replaces the task's homotopy, which the homotopy family varies: leave that family "
+                     "out (--families ...) or the schedule")
     for spec in specs:
         spec["race"] = args.race
     if args.list:

@@ -1012,6 +1012,15 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     *[([f"scripts.{name}", "--quick", "--out", ""], "an empty path is not allowed")
       for name in ("bench_skips", "stress", "bench_replan")],
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--convexify", "bogus"], "invalid choice: 'bogus'"),  # RuntimeError
+    # options of a solver or a step that does not run: ignored, and recorded as used (session 51)
+    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--fatrop-opt", "mu_init=0.5", "--scale"],
+     "--fatrop-opt, --scale apply to FATROP, which --solvers ipopt does not run"),
+    (["scripts.bench_pipeline", "--quick", "--codegen-flags=-O3"], "--codegen-flags applies to --codegen only"),
+    # every homotopy-family task ran the one --rho-schedule, recorded with the schedules drawn
+    (["scripts.stress", "--robot", "point_mass", "--families", "homotopy", "--rho-schedule", "100", "1000", "--list"],
+     "--rho-schedule replaces the task's homotopy, which the homotopy family varies"),
+    # one run directory for both: the later run deleted the earlier one's plan, two rows
+    (["scripts.bench_biped_walk", "--quick", "--step", "0.25", "0.25"], "name the same run twice"),
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--max-iter", "2", "--ipopt-opt", "tol=abc"],
      "given as text: tol=abc"),  # CasADi's "type mismatch" traceback
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--out", "{dir}"], "must name a file to write"),  # after the run
@@ -1600,3 +1609,24 @@ def test_a_ctrl_c_in_a_scripts_planner_command_stops_the_script(monkeypatch, cap
     monkeypatch.setattr(sys, "argv", ["bench_x.py"])
     assert _report.run_main(interrupted) == 130
     assert capsys.readouterr().err == "bench_x: interrupted\n"
+
+
+@pytest.mark.parametrize("script", ["bench_replan", "bench_biped_walk"])
+def test_an_interrupted_rerun_leaves_no_results_json_of_the_runs_it_replaced(tmp_path, monkeypatch, script):
+    """A rerun into an --out removes the earlier run's results.json before it empties the run directories that file
+    describes: interrupted (Ctrl-C in its first `planner plan`), it left the old results.json naming plans it had
+    already deleted."""
+    import importlib
+
+    module = importlib.import_module(f"scripts.{script}")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.json").write_text('{"runs": ["an earlier run"]}\n')
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "planner_command", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        module.main(["--quick", "--out", str(out)])
+    assert not (out / "results.json").exists()
