@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{'converged' if rec['converged'] else 'NOT converged: ' + rec['message']}", file=sys.stderr, flush=True)
 
     start = time.perf_counter()
-    records = run(args.cases or list(CASES), args.quick, log)
+    records = run(list(dict.fromkeys(args.cases or CASES)), args.quick, log)  # a case named twice ran twice
     results = {"command": "python -m scripts.bench_skips " + " ".join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start, "cpu_count": os.cpu_count(),
                "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "load_average": os.getloadavg(), "records": records}

@@ -1630,3 +1630,21 @@ def test_an_interrupted_rerun_leaves_no_results_json_of_the_runs_it_replaced(tmp
     with pytest.raises(KeyboardInterrupt):
         module.main(["--quick", "--out", str(out)])
     assert not (out / "results.json").exists()
+
+
+def test_bench_skips_runs_a_case_named_twice_once(tmp_path, monkeypatch):
+    """`bench_skips --cases A A` runs A once (it ran twice and wrote two records of it)."""
+    import importlib
+
+    module = importlib.import_module("scripts.bench_skips")
+    names = []
+
+    def recorded(cases, quick, log):
+        names.extend(cases)
+        raise KeyboardInterrupt  # (the run itself is not this test's)
+
+    monkeypatch.setattr(module, "run", recorded)
+    case = sorted(module.CASES)[0]
+    with pytest.raises(KeyboardInterrupt):
+        module.main(["--quick", "--cases", case, case, "--out", str(tmp_path / "out")])
+    assert names == [case]
