@@ -1063,8 +1063,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     expect(task, (Task, str, os.PathLike), "run_gait's task")
     robot = robot if isinstance(robot, Robot) else load_robot(robot)
     task = task if isinstance(task, Task) else load_task(task)
+    spec = GaitSpec.from_task(task)  # (first: check_against warned of a ground_height that this then refused)
     task.check_against(robot)
-    spec = GaitSpec.from_task(task)
     g = task.gait
     model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
     _require_feet(model.layout, [c.point for c in task.contacts])  # before the solve: the replay refused it after

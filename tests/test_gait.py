@@ -446,7 +446,11 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
 def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
     """The gait model walks on z = 0 with the period horizon.tau_f: a ground_height, a tilted contact normal or a
     horizon.physical_time are refused before the solve, named (they were ignored: a ground at 0.3 m planned the
-    same gait, and MuJoCo's replay on the moved ground fell after one step)."""
+    same gait, and MuJoCo's replay on the moved ground fell after one step), with no warning before."""
+    import warnings
+
+    from planner.gait import run_gait
+
     task = load_task(ROBOTS_DIR / "biped_gait1.toml")
     tilted = dataclasses.replace(task.contacts[0], normal=(0.1, 0.0, 0.995))
     for changed, said in ((dataclasses.replace(task, ground_height=0.3), "ground_height = 0.3"),
@@ -455,6 +459,11 @@ def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
                            "horizon.physical_time = 1")):
         with pytest.raises(TaskError, match=rf"{re.escape(said)}.* would be ignored by `planner gait`"):
             GaitSpec.from_task(changed)
+    # run_gait refuses it before the robot check, which warned first of the moved ground as if it were used
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(TaskError, match="ground_height = 0.3"):
+            run_gait("biped", dataclasses.replace(task, ground_height=0.3), None)
 
 
 def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
