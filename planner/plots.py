@@ -133,7 +133,8 @@ def _torques(res: Result):
     for r, group in enumerate(groups):
         ax = axes[r, 0]
         for j in group:
-            ax.plot(res.t, res.u[:, j], linewidth=1.3, label=names[j])
+            # u[i] is held from sample i-1 to sample i (zero-order hold): steps, not the ramps a line drew between them
+            ax.plot(res.t, res.u[:, j], linewidth=1.3, label=names[j], drawstyle="steps-pre")
         _mark_impacts(ax, res, legend=r == 0)
         ax.set_ylabel("u" + (f" [{next(iter(units))}]" if len(units) == 1 and "" not in units else ""))
         ax.legend(fontsize="small", loc="best")
@@ -195,7 +196,7 @@ def _foot_path(res: Result):
     """Each contact point's path in the x-z plane, the ground, the holes, and the impact points."""
     from matplotlib.patches import Ellipse, Rectangle
 
-    points = res.contact_points
+    points = tuple(dict.fromkeys(res.contact_points))  # a corner's point once (its legend entry was drawn twice)
     if not points:
         return None
     robot, model = res.robot, res.robot.model

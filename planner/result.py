@@ -894,6 +894,10 @@ def _remove_stale(path: Path) -> None:
 def _stage(path: str | os.PathLike, write) -> str:
     """The temp file beside `path` that write_atomically renames to it, written (write as there); its name."""
     path = Path(path)
+    if path.exists() and not path.is_file() and not path.is_dir():  # (a directory: said by the caller or the rename)
+        # the rename replaces whatever is there: `view --html /dev/full` deleted the device
+        raise InputError(f"cannot write {path}: it is not a regular file (a device, FIFO or socket), which the write "
+                         "would replace; name a file")
     if isinstance(write, (str, bytes)):
         data = write.encode() if isinstance(write, str) else write
         write = lambda f: f.write(data)  # noqa: E731

@@ -1,8 +1,9 @@
 """Meshcat replay of a result directory: a live viewer, or a self-contained static HTML page.
 
 The scene is the robot's own geometry (MJCF geoms or URDF visuals, parsed by Pinocchio's geometry
-models), the ground plane, the task's holes (dark ellipses in the x-z plane), and the task's contact
-points (orange spheres). The replay runs in physical time t; with `slow_motion=True` it runs in
+models), the ground plane, a plan's holes (dark ellipses in the x-z plane), and the task's contact
+points (orange spheres). Known, not built: a contact's other planes (a wall or slope: `normal` other than +z) are
+not drawn. The replay runs in physical time t; with `slow_motion=True` it runs in
 numerical time tau instead, so the frozen intervals (the impacts, where the clock stops and only the
 velocities jump) take visible time and the impacting contact point is highlighted while they last.
 
@@ -86,8 +87,11 @@ class Result(ArraysReadOnly):
 
     @property
     def holes(self) -> tuple:
-        """The task's holes (planner.task.Ellipse: centre x, z and half-axes a, b [m])."""
-        return self.task.plan.holes if self.task is not None and self.task.plan is not None else ()
+        """A plan's holes (planner.task.Ellipse: centre x, z and half-axes a, b [m]); none for a simulation, which has
+        no holes (its task's [plan] ones were drawn, a drop sliding across them)."""
+        if self.task is None or self.task.plan is None or self.summary.get("command") != "plan":
+            return ()
+        return self.task.plan.holes
 
     @property
     def contact_points(self) -> tuple[str, ...]:
@@ -432,7 +436,8 @@ def _draw(vis, res: Result, slow_motion: bool) -> dict:
     vis.set_animation(anim, play=True, repetitions=10**6)  # loop: a replay is watched more than once
     mode = "slow motion (numerical time)" if slow_motion else "physical time"
     return {
-        "title": f"{robot.name}: {mode}",
+        # (a failed run's last iterate looked like a plan)
+        "title": f"{robot.name}: {mode}" + (" (NOT converged)" if res.summary.get("converged") is False else ""),
         "fps": FPS,
         "t": [round(float(x), 4) for x in timeline.t],
         "tau": None if timeline.tau is None else [round(float(x), 4) for x in timeline.tau],

@@ -97,3 +97,28 @@ def test_without_a_task_there_is_no_foot_path(result_dir):
     summary = json.loads((result_dir / "summary.json").read_text())
     (result_dir / "summary.json").write_text(json.dumps({**summary, "task": None}))
     assert {p.name for p in plots.plot_results(result_dir)} == ALL_PLOTS - {"foot_path.png"}
+
+
+def test_torques_are_drawn_as_held_steps(result_dir):
+    """u[i] is held from sample i-1 to sample i (zero-order hold), so the torque plot draws steps ("steps-pre"): midway
+    through a step it reads the held u[i], not the ramp from u[i-1] a line drew (a hop's 7.84 N push read 3.92 N)."""
+    res = view.load_result(result_dir)
+    fig, _ = plots._torques(res)
+    (line, *_) = [ln for ln in fig.axes[0].get_lines() if np.ptp(ln.get_xdata()) > 0]
+    assert line.get_drawstyle() == "steps-pre"
+
+
+def test_a_simulation_draws_no_holes_and_a_corner_point_is_one_path(result_dir):
+    """The holes are a plan's: a simulation (which has none) draws none, where its task's [plan] holes were drawn under
+    a drop sliding across them; a point listed by two contacts (a corner) is one path in the legend, not two."""
+    import dataclasses
+    import json
+
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "command": "simulate"}))
+    res = view.load_result(result_dir)
+    assert res.task.plan.holes and res.holes == ()
+    wall = dataclasses.replace(res.task.contacts[0], normal=(1.0, 0.0, 0.0))
+    corner = dataclasses.replace(res.task, contacts=(*res.task.contacts, wall))
+    fig, _ = plots._foot_path(dataclasses.replace(res, task=corner))
+    assert [ln.get_label() for ln in fig.axes[0].get_lines()].count("foot path") == 1

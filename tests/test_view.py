@@ -328,6 +328,24 @@ def test_render_html_refuses_a_directory_as_the_output(result_dir, tmp_path):
         view.render_html(result_dir, tmp_path)
 
 
+def test_render_html_refuses_a_device_or_fifo_and_titles_a_failed_run(result_dir, tmp_path):
+    """--html onto a FIFO (or a device: `--html /dev/full` deleted it) is an InputError and the node stays as it was
+    (the atomic rename replaced it with a regular file); a run that did not converge says so in the page's title (its
+    last iterate looked like a plan)."""
+    import os
+    import stat
+
+    fifo = tmp_path / "pipe.html"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="is not a regular file"):
+        view.render_html(result_dir, fifo)
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "converged": False}))
+    page = view.render_html(result_dir, tmp_path / "failed.html").read_text()
+    assert "<title>capler: physical time (NOT converged) - planner replay</title>" in page
+
+
 # --- in a real browser ---------------------------------------------------------------------------------
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
