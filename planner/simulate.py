@@ -111,6 +111,13 @@ class SimulateOptions:
             (0 < self.frozen_tol < 1, "frozen_tol", self.frozen_tol, "in (0, 1)"),
             (self.restart_rho0 > 0, "restart_rho0", self.restart_rho0, "> 0"),
             (self.max_passes >= 1, "max_passes", self.max_passes, ">= 1"),
+            # (read by the other strategy only: accepted and ignored before)
+            (self.strategy is Strategy.HORIZON or self.max_passes == SimulateOptions.max_passes, "max_passes",
+             self.max_passes, f"{SimulateOptions.max_passes} (the default) unless strategy is horizon"),
+            (self.strategy is Strategy.STEPWISE or self.restarts == SimulateOptions.restarts, "restarts",
+             self.restarts, f"{SimulateOptions.restarts} (the default) unless strategy is stepwise"),
+            (self.strategy is Strategy.STEPWISE or self.restart_rho0 == SimulateOptions.restart_rho0, "restart_rho0",
+             self.restart_rho0, f"{SimulateOptions.restart_rho0:g} (the default) unless strategy is stepwise"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -184,7 +191,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
         fesd = FESDInterval(builder, options.fesd)
         elements, stats = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
         weights = fesd.b
-        U = elements[4][:, -1]
+        # one row per step, its elements' largest |u| each way: the PD summary counts steps (it counted elements)
+        U = _per_step(elements[4][:, -1], fesd.n_fe)
     else:
         run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
         Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
@@ -282,6 +290,14 @@ def _persistent_weights(system, lam0, lam1) -> np.ndarray:
         if lam0[i] + lam1[i] <= PERSISTENT_TOL and lam1[b] <= PERSISTENT_TOL:
             weights[i] = 1.0
     return weights
+
+
+def _per_step(U: np.ndarray, n_fe: int) -> np.ndarray:
+    """FESD's controls at the element ends U (N n_fe, nu) as one row per step (N, nu): each entry the element value of
+    largest magnitude in its step (what leaves the actuator bounds if any element does)."""
+    steps = U.reshape(len(U) // n_fe, n_fe, U.shape[1])
+    pick = np.argmax(np.abs(steps), axis=1)  # (N, nu)
+    return np.take_along_axis(steps, pick[:, None, :], axis=1)[:, 0, :]
 
 
 def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
@@ -451,8 +467,10 @@ def _first_converged(solver, comp_fn, starts, p, bounds, options, total: dict, w
     """Solve one step's homotopy from each (x0, options) of `starts` (consumed lazily) until one ends
     with complementarity <= options.comp_tol; counts NLPs, iterations and restarts into `total`.
     Returns the solution x, or None with total["ok"] = False and the message naming `where`."""
+    step_nlps = 0  # (the message gave the last attempt's count: "after 8 NLPs (3 restarts)" of a step that ran 32)
     for attempt, (x0, opts) in enumerate(starts):
         x, _, comp, n_nlp, iters, ok, msg = _solve_homotopy(solver, comp_fn, x0, p, *bounds, opts)
+        step_nlps += n_nlp
         total["n_nlp"] += n_nlp
         total["iterations"] += iters
         if ok and comp <= options.comp_tol:
@@ -462,7 +480,8 @@ def _first_converged(solver, comp_fn, starts, p, bounds, options, total: dict, w
     if ok and comp <= options.comp_tol:
         return x
     total["ok"] = False
-    total["message"] = f"{where} did not converge: {_why(msg, comp, options.comp_tol)} after {n_nlp} NLPs ({attempt} restarts)"
+    total["message"] = (f"{where} did not converge: {_why(msg, comp, options.comp_tol)} after {step_nlps} NLPs "
+                        f"({attempt} restarts)")
     return None
 
 
@@ -627,8 +646,11 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
         landed = (gaps <= ON_PLANE_M) & (approach < -APPROACH_MPS)  # (N, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
                                   switch_at_start=switch_at_start, landed=landed, approach=approach)
+    # an impact still frozen at the horizon's end is unfinished: its v_post is partial, no energy to judge (a passive
+    # ball's last, partial bounce was flagged as gaining energy, "a push-off")
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),
-                            kinetic_energy_post=_kinetic(system, imp.q, imp.v_post)) for imp in impacts)
+                            kinetic_energy_post=float("nan") if imp.tau_end >= tau[-1] else
+                            _kinetic(system, imp.q, imp.v_post)) for imp in impacts)
     forces = None
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)

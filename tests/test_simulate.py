@@ -742,3 +742,54 @@ def test_a_joint_beyond_the_files_range_is_reported(tmp_path):
     assert entry == {"joint": "z", "nodes": int(np.sum(z < -0.1)), "farthest": float(z.min()), "lower": -0.1,
                      "upper": 0.1}
     assert f"z left the robot file's range [-0.1, 0.1] at {entry['nodes']} of 11 nodes" in res.report()
+
+
+def test_fesd_pd_summary_counts_steps_not_elements():
+    """Under FESD the PD summary's steps_beyond_actuator_bounds counts steps (at most N), each step's largest element
+    command standing for it, as implicit Euler's does: a saturating PD over 10 steps of 4 elements read 33."""
+    from planner.simulate import Discretization
+
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 0.1, "N": 10},
+                       "simulate": {"pd": {"joints": ["x"], "kp": [20000.0], "kd": [50.0], "q_ref": [0.1]}}})
+    robot = load_robot("point_mass")
+    fesd = simulate(robot, task, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_fe=4)))
+    euler = simulate(robot, task)
+    fesd_pd, euler_pd = fesd.summary()["pd"], euler.summary()["pd"]
+    assert 0 < fesd_pd["steps_beyond_actuator_bounds"] <= task.horizon.N
+    assert fesd_pd["steps_beyond_actuator_bounds"] == pytest.approx(euler_pd["steps_beyond_actuator_bounds"], abs=1)
+
+
+def test_a_failed_step_counts_the_nlps_of_all_its_attempts(monkeypatch):
+    """A step that fails after restarts says how many NLPs the step ran in all its attempts (it said the last
+    attempt's: "after 8 NLPs (3 restarts)" of a step that had run 32)."""
+    import planner.simulate as S
+
+    monkeypatch.setattr(S, "_solve_homotopy", lambda *args, **kw: (None, None, 1.0, 5, 50, True, "Solve_Succeeded"))
+    total = {"n_nlp": 0, "iterations": 0, "restarted_steps": 0, "comp": 0.0, "ok": True}
+    starts = [(None, SimulateOptions())] * 4
+    assert S._first_converged(None, None, iter(starts), None, (None,) * 4, SimulateOptions(), total, "step 7") is None
+    assert total["message"].endswith("after 20 NLPs (3 restarts)") and total["n_nlp"] == 20
+
+
+@pytest.mark.parametrize("kwargs, key", [({"strategy": "stepwise", "max_passes": 1}, "max_passes = 1"),
+                                         ({"strategy": "horizon", "restarts": False}, "restarts = False"),
+                                         ({"strategy": "horizon", "restart_rho0": 5.0}, "restart_rho0 = 5.0")])
+def test_options_of_the_other_strategy_are_refused(kwargs, key):
+    """max_passes (read by the horizon strategy only) and restarts, restart_rho0 (stepwise only) given with the other
+    strategy are InputErrors naming the option (they were accepted and ignored)."""
+    with pytest.raises(InputError, match=key + ".* unless strategy is"):
+        SimulateOptions(**kwargs)
+
+
+def test_an_unfinished_last_impact_is_not_judged_for_energy():
+    """An impact still frozen when the horizon ends is unfinished (its v_post partial): its post-impact kinetic energy
+    is not computed (nan), so it is never flagged as gaining energy (a passive ball's last, partial bounce read
+    "5.8e-17 -> 4.8e-09 J", a push-off); the finished impacts before it keep theirs."""
+    task = parse_task({"contacts": [{"point": "point", "restitution": 0.01, "a_n": 16.0}], "initial": {"q": [0.0, 1.0]},
+                       "horizon": {"tau_f": 0.6, "N": 120}})
+    result = simulate(load_robot("point_mass"), task)
+    assert result.ends_in_impact
+    last = result.trajectory.impacts[-1]
+    assert math.isnan(last.kinetic_energy_post) and not last.gains_energy and last.kinetic_energy_pre > 0
+    assert "gain kinetic energy" not in result.report()
