@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-from .errors import expect
+from .errors import InputError, expect, options_record
 from .homotopy import SCHEDULE_KEPT, SolveOptions, solve
 from .problem import Problem, build_problem
 from .result import PlanResult
@@ -61,7 +61,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
         if apart is None:
             walked, no_walk = _walk(problem, held, penalty, start_task, parts, progress)
             if walked is not None:
-                return _totals(walked, parts, time.perf_counter() - start)
+                return _totals(walked, parts, time.perf_counter() - start, options)
         else:  # said: the --init help promises a walk
             no_walk = f"the two tasks differ in {apart!r}, not only in numbers"
     if no_walk:
@@ -69,7 +69,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     if not result.stats.converged:
         result = solve(problem, penalty, progress)
         parts.append(result)
-    result = _totals(result, parts, time.perf_counter() - start)
+    result = _totals(result, parts, time.perf_counter() - start, options)
     return replace(result, extra={**result.extra, "no_walk": no_walk}) if no_walk else result
 
 
@@ -81,7 +81,10 @@ def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_tas
     while True:
         t = min(1.0, s + step)
         task = tasks_between(start_task, problem.task, t)
-        pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
+        try:
+            pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
+        except InputError as exc:  # (it ended the replan, exit 2, naming a target the user never gave)
+            return None, f"the task {t:g} of the way there is refused ({exc})"
         if pb.signature != problem.signature:  # e.g. mu from 0: the tangential variables appear
             return None, f"the task {t:g} of the way there has other NLP variables (e.g. a mu from 0)"
         result = _labelled(pb, x, held, lambda label, t=t: f"walk {t:.3g}", (s, t), parts, progress)
@@ -114,10 +117,11 @@ def _labelled(problem: Problem, x0, options: SolveOptions, rename, walk: tuple[f
     return result
 
 
-def _totals(result: PlanResult, parts: list[PlanResult], wall: float) -> PlanResult:
+def _totals(result: PlanResult, parts: list[PlanResult], wall: float, given: SolveOptions) -> PlanResult:
     """result with every NLP of the replan (parts, in order) in its records, iterations, solve time and timings
-    (the numbers of every part's timings summed); extra["walk"]: where each accepted step of the walk reached,
-    when the walk made the plan."""
+    (the numbers of every part's timings summed), and the options the replan was given (the last part's, e.g. a
+    re-timing's max_iter 600, were recorded as the run's); extra["walk"]: where each accepted step of the walk
+    reached, when the walk made the plan."""
     records = [r for part in parts for r in part.nlps]
     stats = replace(result.stats, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records))
     if "walk" in result.extra and any(r.label.startswith("retime") for r in records):  # not the start's schedule then
@@ -127,4 +131,5 @@ def _totals(result: PlanResult, parts: list[PlanResult], wall: float) -> PlanRes
     extra = {k: v for k, v in result.extra.items() if k != "walk"}
     if "walk" in result.extra:
         extra["walk"] = [p.extra["walk"][1] for p in parts if "walk" in p.extra and p.stats.converged]
-    return replace(result, nlps=tuple(records), stats=stats, timings=timings, extra=extra)
+    options = {**result.options, "solve": options_record(given)}
+    return replace(result, nlps=tuple(records), stats=stats, timings=timings, extra=extra, options=options)

@@ -156,6 +156,27 @@ def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_pl
                                    extra={**held.extra, "walk": walk})
 
     walk = labelled("walk 1", (0.5, 1.0))
-    retimed = R._totals(walk, [labelled("retime 0.5: reoptimize", (0.0, 0.5)), walk], 1.0)
+    retimed = R._totals(walk, [labelled("retime 0.5: reoptimize", (0.0, 0.5)), walk], 1.0, H.replan_options())
     assert retimed.stats.message == "ok (walked there: the contact schedule re-timed by a penalty replan on the way)"
-    assert R._totals(walk, [labelled("walk 0.5", (0.0, 0.5)), walk], 1.0).stats.message == held.stats.message
+    kept = R._totals(walk, [labelled("walk 0.5", (0.0, 0.5)), walk], 1.0, H.replan_options())
+    assert kept.stats.message == held.stats.message
+
+
+def test_a_task_between_that_cannot_be_built_ends_the_walk_not_the_replan(hop_plan, basin, monkeypatch):
+    """A task between the start's and the new one that build_problem refuses (its target inside a hole, which a target
+    moved across the hole passes through) ends the walk, said in no_walk, and the penalty replan runs: it raised the
+    InputError, exit 2, naming a target the user never gave. The result records the options the replan was given,
+    not its last part's (a re-timing's max_iter 600, or schedule_only)."""
+    prob, x0 = hop_plan
+    real = R.build_problem
+
+    def refused(robot, task, *args, **kw):
+        raise InputError("plan.target_q puts contact point 'point' inside plan.holes[0]")
+
+    monkeypatch.setattr(R, "build_problem", refused)
+    given = dataclasses.replace(H.replan_options(), max_iter=2500)
+    res = replan(_moved(prob, x0, 0.8), given, prob.task)
+    monkeypatch.setattr(R, "build_problem", real)
+    assert "the task 0.5 of the way there is refused (plan.target_q puts" in res.extra["no_walk"]
+    assert _steps(res)[:2] == ["schedule", "homotopy 1"]
+    assert res.options["solve"]["max_iter"] == 2500 and res.options["solve"]["schedule_only"] is False
