@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -285,22 +286,21 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
         load_robot(impossible)
 
 
-def test_what_a_parser_could_not_read_is_refused(tmp_path):
+@pytest.mark.parametrize("robot, old, new, message", [
+    ("capler.urdf", '<mass value="1.782"/>', '<mass value="1,782"/>',
+     r"could not read part of .*Could not parse inertial element for Link \[thigh\]"),
+    ("point_mass.xml", '<inertial pos="0 0 0"', '<inertial pos="0,0,0.1"', r"mass or inertia that is not finite .* commas"),
+])
+def test_what_a_parser_could_not_read_is_refused(tmp_path, robot, old, new, message):
     """A URDF element urdfdom cannot read (a thigh's `<mass value="1,782"/>`) is refused with urdfdom's reason: it printed
     an error and returned the model without the element (simulate ran a robot 1.78 kg light, exit 0). An MJCF number
     Pinocchio reads as 2e243 (`pos="0,0,0.1"`) is refused naming the body, not a LinAlgError traceback."""
-    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
-    assert urdf.count('<mass value="1.782"/>') == 1
-    typo = tmp_path / "typo.urdf"
-    typo.write_text(urdf.replace('<mass value="1.782"/>', '<mass value="1,782"/>'))
-    with pytest.raises(RobotFileError, match=r"could not read part of .*Could not parse inertial element for Link \[thigh\]"):
+    text = (ROBOTS_DIR / robot).read_text()
+    assert text.count(old) == 1
+    typo = tmp_path / f"typo{Path(robot).suffix}"
+    typo.write_text(text.replace(old, new))
+    with pytest.raises(RobotFileError, match=message):
         load_robot(typo)
-    mjcf = (ROBOTS_DIR / "point_mass.xml").read_text()
-    assert mjcf.count('<inertial pos="0 0 0"') == 1
-    comma = tmp_path / "comma.xml"
-    comma.write_text(mjcf.replace('<inertial pos="0 0 0"', '<inertial pos="0,0,0.1"'))
-    with pytest.raises(RobotFileError, match=r"mass or inertia that is not finite .* commas"):
-        load_robot(comma)
 
 
 def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
