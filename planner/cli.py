@@ -122,9 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
                         "solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between DIR's task and "
                         "this one, every number of the task file moved part of the way (the biped's step 0.25 -> 0.30 m: "
-                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule keeps DIR's "
-                        "timing; a walk that stalls may re-time it on the way (a penalty replan of the task between, named "
-                        "\"retime\"). Implicit Euler only; finds the plan next to DIR's, not a new hint-free search")
+                        "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule keeps "
+                        "DIR's timing; a walk that stalls may re-time it on the way (a penalty replan of the task "
+                        "between, named \"retime\"). Implicit Euler only; finds the plan next to DIR's, not a new "
+                        "hint-free search")
     p.add_argument("--keep-schedule", action="store_true",
                    help="with --init: what --init does by default (the held schedule first); kept so that older commands run")
     p.add_argument("--penalty-replan", action="store_true",

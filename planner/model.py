@@ -381,10 +381,10 @@ def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
     principal moments break the triangle inequality, which MuJoCo refuses."""
     for jid in range(1, model.njoints):
         inertia = model.inertias[jid]
-        if not (np.isfinite(inertia.mass) and np.all(np.isfinite(inertia.inertia)) and np.all(np.isfinite(inertia.lever))):
+        if not all(np.all(np.isfinite(x)) for x in (inertia.mass, inertia.inertia, inertia.lever)):
             # (an MJCF `pos="0,0,0.1"` is read as 2e243 by Pinocchio: eigvalsh raised LinAlgError on the nan inertia)
-            raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has a mass or inertia that is not finite "
-                                 f"as Pinocchio reads the file (mass {inertia.mass:g} kg, centre of mass "
+            raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has a mass or inertia that is not "
+                                 f"finite as Pinocchio reads the file (mass {inertia.mass:g} kg, centre of mass "
                                  f"{np.asarray(inertia.lever).tolist()} m): is a number written with commas?")
         if not (inertia.mass >= 0.0 and np.all(np.linalg.eigvalsh(inertia.inertia) >= -1e-12)):
             raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has mass {inertia.mass:g} kg and rotational "

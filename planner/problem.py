@@ -880,8 +880,9 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
              "penalty": ca.Function("penalty_cost", [X, P], [penalty])}
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
                    x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(), x0=x0, var_names=tuple(names),
-                   var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale, objective_parts=parts,
-                   products=products, build_time_s=time.perf_counter() - start, notes=notes, skips=skips, fesd=fesd)
+                   var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale,
+                   objective_parts=parts, products=products, build_time_s=time.perf_counter() - start, notes=notes,
+                   skips=skips, fesd=fesd)
 
 
 def fesd_start_from_implicit_euler(fesd_problem: Problem, euler_problem: Problem, x_euler) -> np.ndarray:

@@ -82,7 +82,8 @@ def _walk(problem: Problem, held: SolveOptions, penalty: SolveOptions, start_tas
         t = min(1.0, s + step)
         task = tasks_between(start_task, problem.task, t)
         try:
-            pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options, dynamics=problem.system.dyn)
+            pb = problem if t == 1.0 else build_problem(problem.robot, task, problem.options,
+                                                        dynamics=problem.system.dyn)
         except InputError as exc:  # (it ended the replan, exit 2, naming a target the user never gave)
             return None, f"the task {t:g} of the way there is refused ({exc})"
         if pb.signature != problem.signature:  # e.g. mu from 0: the tangential variables appear

@@ -788,10 +788,10 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
     if kinematic.max_flight_residual is not None and not kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
-        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is" if kinematic.flight_residual_positions
-                else "its controls do not give its motion (M a + h - B u is")
-        failures.append(f"the trajectory's own dynamics: in flight {what} {kinematic.max_flight_residual:.3g} of its terms "
-                        f"in {kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
+        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is"
+                if kinematic.flight_residual_positions else "its controls do not give its motion (M a + h - B u is")
+        failures.append(f"the trajectory's own dynamics: in flight {what} {kinematic.max_flight_residual:.3g} of its "
+                        f"terms in {kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
                         f"{FLIGHT_RESIDUAL_TOL}); the tracking replay's feedback can hide that on a robot whose every "
                         "coordinate has a motor")
     return Validation(
@@ -883,9 +883,10 @@ def _impact_points(summary: dict, task: Task, impact_times: np.ndarray,
         return None, None
     for i, (item, when) in enumerate(zip(impacts, impact_times)):
         said = item.get("time") if isinstance(item, dict) else None
-        if isinstance(said, (int, float)) and not isinstance(said, bool) and not abs(said - when) <= IMPACT_TIME_AGREE_S:
-            raise InputError(f"{out_dir}: trajectory.npz's impact_times[{i}] = {when:.9g} s, summary.json's impacts[{i}] "
-                             f"time {said:.9g} s: the two files disagree (was one edited?)")
+        numeric = isinstance(said, (int, float)) and not isinstance(said, bool)
+        if numeric and not abs(said - when) <= IMPACT_TIME_AGREE_S:
+            raise InputError(f"{out_dir}: trajectory.npz's impact_times[{i}] = {when:.9g} s, summary.json's "
+                             f"impacts[{i}] time {said:.9g} s: the two files disagree (was one edited?)")
     names = [c.point for c in task.contacts]
     points: list[str | None] = []
     taps = [isinstance(item, dict) and item.get("tap") is True for item in impacts]
@@ -1034,11 +1035,11 @@ def hole_failure(kinematic: KinematicReport) -> str | None:
     k = kinematic
     if k.min_hole_metric is None or k.min_hole_metric >= HOLE_PASS_METRIC:
         return None
-    where = f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse metric " \
-            f"{k.min_hole_metric:.3g} < {HOLE_PASS_METRIC})"
+    where = (f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse "
+             f"metric {k.min_hole_metric:.3g} < {HOLE_PASS_METRIC})")
     if k.hole_at_sample:  # (the grid was blamed for a node the OCP itself keeps out: an edited or unconverged plan)
-        return (f"{where} at a sample of the trajectory: the plan's own node is inside the hole, which a converged plan's "
-                "hole rows forbid")
+        return (f"{where} at a sample of the trajectory: the plan's own node is inside the hole, which a converged "
+                "plan's hole rows forbid")
     return (f"{where} between the plan's nodes: the hole is narrower than a step's travel; plan on a finer grid (more "
             "steps: the task's horizon.N, or `planner plan --steps`)")
 

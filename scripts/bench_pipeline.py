@@ -402,7 +402,8 @@ def main(argv: list[str] | None = None) -> int:
     codegen_only = [flag for flag, key in (("--codegen-flags", "codegen_flags"), ("--cache", "cache"))
                     if getattr(args, key) != parser.get_default(key)]
     if codegen_only and not args.codegen:  # (ignored, and the command line recorded as run)
-        parser.error(f"{', '.join(codegen_only)} appl{'ies' if len(codegen_only) == 1 else 'y'} to --codegen only: add it")
+        verb = "applies" if len(codegen_only) == 1 else "apply"
+        parser.error(f"{', '.join(codegen_only)} {verb} to --codegen only: add it")
     for flag, value in (("--iters", args.iters), ("--repeats", args.repeats)):
         if value is not None and value < 1:
             parser.error(f"{flag} must be >= 1, got {value}")

@@ -380,5 +380,6 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     assert urdf.count(hip) == 1
     unlimited = tmp_path / "unlimited.urdf"
     unlimited.write_text(urdf.replace(hip, '<limit effort="60" velocity="100"/>'))
-    with pytest.raises(RobotFileError, match=r"joint 'hip' \(0\): its <limit lower> equals its upper .* give lower < upper"):
+    with pytest.raises(RobotFileError,
+                       match=r"joint 'hip' \(0\): its <limit lower> equals its upper .* give lower < upper"):
         load_robot(unlimited)

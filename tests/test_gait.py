@@ -185,8 +185,8 @@ def test_a_biped_whose_legs_differ_is_refused(tmp_path, old, new, differs):
     cut = xml.index(old, leg_2)
     path = tmp_path / "uneven.xml"
     path.write_text(xml[:cut] + new + xml[cut + len(old):])
-    with pytest.raises(TaskError, match=rf"the legs are not mirror images: with 'foot_2' as the stance foot the {differs} "
-                                        r"differs by .* give both legs the same"):
+    with pytest.raises(TaskError, match=rf"the legs are not mirror images: with 'foot_2' as the stance foot the "
+                                        rf"{differs} differs by .* give both legs the same"):
         check_mirror_legs(PinnedBiped(load_robot(path)))
     check_mirror_legs(PinnedBiped(load_robot("biped")))
 
@@ -217,13 +217,14 @@ def test_a_gait_towards_minus_x_is_not_walked(tmp_path):
     from planner.gait import run_gait
 
     text = (ROBOTS_DIR / "biped_gait1.toml").read_text()
-    x0 = "x0 = [-0.39269908169872414, 0.39269908169872414, 0.3490658503988659, 0.8726646259971648, 0.0, 1.5707963267948966]"
+    x0 = ("x0 = [-0.39269908169872414, 0.39269908169872414, 0.3490658503988659, 0.8726646259971648, 0.0, "
+          "1.5707963267948966]")
     assert text.count(x0) == 1
     mirrored = x0.replace("[-0.392", "[0.392").replace(", 0.392", ", -0.392").replace(", 0.349", ", -0.349") \
         .replace(", 0.872", ", -0.872").replace(", 1.57", ", -1.57")
     task = tmp_path / "mirror.toml"
     task.write_text(text.replace(x0, mirrored))
-    with pytest.raises(TaskError, match=r"the gait walks towards -x, .* mirror the task .*`planner gait --no-validate`"):
+    with pytest.raises(TaskError, match=r"walks towards -x, .* mirror the task .*`planner gait --no-validate`"):
         run_gait("biped", task, None)
 
 

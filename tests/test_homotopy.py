@@ -153,7 +153,8 @@ def test_bad_options(kwargs, key):
         H.SolveOptions(**kwargs)
 
 
-@pytest.mark.parametrize("kwargs, key", [({"hybrid_rho": 5.0}, "hybrid_rho = 5.0"), ({"hybrid_ratio": 3.0}, "hybrid_ratio"),
+@pytest.mark.parametrize("kwargs, key", [({"hybrid_rho": 5.0}, "hybrid_rho = 5.0"),
+                                         ({"hybrid_ratio": 3.0}, "hybrid_ratio"),
                                          ({"polish": "none", "polish_starts": 5}, "polish_starts = 5"),
                                          ({"polish": "none", "polish_after_failure": False}, "polish_after_failure")])
 def test_options_of_a_polish_not_run_are_refused(kwargs, key):

@@ -289,12 +289,13 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
 @pytest.mark.parametrize("robot, old, new, message", [
     ("capler.urdf", '<mass value="1.782"/>', '<mass value="1,782"/>',
      r"could not read part of .*Could not parse inertial element for Link \[thigh\]"),
-    ("point_mass.xml", '<inertial pos="0 0 0"', '<inertial pos="0,0,0.1"', r"mass or inertia that is not finite .* commas"),
+    ("point_mass.xml", '<inertial pos="0 0 0"', '<inertial pos="0,0,0.1"',
+     r"mass or inertia that is not finite .* commas"),
 ])
 def test_what_a_parser_could_not_read_is_refused(tmp_path, robot, old, new, message):
-    """A URDF element urdfdom cannot read (a thigh's `<mass value="1,782"/>`) is refused with urdfdom's reason: it printed
-    an error and returned the model without the element (simulate ran a robot 1.78 kg light, exit 0). An MJCF number
-    Pinocchio reads as 2e243 (`pos="0,0,0.1"`) is refused naming the body, not a LinAlgError traceback."""
+    """A URDF element urdfdom cannot read (a thigh's `<mass value="1,782"/>`) is refused with urdfdom's reason: it
+    printed an error and returned the model without the element (simulate ran a robot 1.78 kg light, exit 0). An MJCF
+    number Pinocchio reads as 2e243 (`pos="0,0,0.1"`) is refused naming the body, not a LinAlgError traceback."""
     text = (ROBOTS_DIR / robot).read_text()
     assert text.count(old) == 1
     typo = tmp_path / f"typo{Path(robot).suffix}"

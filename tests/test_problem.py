@@ -83,8 +83,9 @@ def test_mass_matrix_and_explicit_forms_agree_at_a_point():
 
 def test_substituted_products_give_the_same_nlp(capler_small):
     """ProblemOptions(lift_products=False) drops the lifted products' variables and lifting rows (4 per
-    Capler step; no empty `lifting` block is left in g_blocks), and at a random point (seeded, products consistent) the objective and every other
-    constraint block (gates, friction and impact cones included) equal the lifted NLP's."""
+    Capler step; no empty `lifting` block is left in g_blocks), and at a random point (seeded, products consistent)
+    the objective and every other constraint block (gates, friction and impact cones included) equal the lifted
+    NLP's."""
     import casadi as ca
 
     robot, task, a = capler_small

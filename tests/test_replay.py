@@ -681,7 +681,7 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     assert "deepest into a hole between samples: ellipse metric 0.00" in validation(0.2625).report()
     for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
         assert not any("goes through" in f for f in unchecked.failures)
-    # the second sample itself inside the hole: the plan's node, not the grid (it blamed the grid, "plan on a finer grid")
+    # the second sample itself inside the hole: the plan's node, not the grid (it said "plan on a finer grid")
     at_node = validation(0.5)
     assert at_node.kinematic.hole_at_sample and not crossed.kinematic.hole_at_sample
     assert any("'point' goes through plan.holes[0] near t = 0.1 s (ellipse metric 1.6e-07 < 0.25) at a sample of the "

@@ -130,7 +130,8 @@ def test_a_never_touching_point_in_the_ground_at_the_start_or_target_is_refused(
     target ran 16 NLPs to "out of reach"). Its restitution builds no elastic state and the record says so."""
     knee_in_ground = (0.0, 0.05, 1.1, 1.5)  # knee 4 cm below the ground, foot 13 cm above it
     task = knee_task(3)
-    with pytest.raises(InputError, match=r"initial.q puts contact point 'knee' 0.0407\d* m below .* \(touches = false\)"):
+    with pytest.raises(InputError,
+                       match=r"initial.q puts contact point 'knee' 0.0407\d* m below .* \(touches = false\)"):
         build_problem(capler, dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=knee_in_ground)))
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'knee' .* \(touches = false\)"):
         build_problem(capler, dataclasses.replace(task, plan=dataclasses.replace(task.plan, target_q=knee_in_ground)))

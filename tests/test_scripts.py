@@ -1013,7 +1013,8 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
       for name in ("bench_skips", "stress", "bench_replan")],
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--convexify", "bogus"], "invalid choice: 'bogus'"),  # RuntimeError
     # options of a solver or a step that does not run: ignored, and recorded as used (session 51)
-    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--fatrop-opt", "mu_init=0.5", "--scale"],
+    (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--fatrop-opt", "mu_init=0.5",
+      "--scale"],
      "--fatrop-opt, --scale apply to FATROP, which --solvers ipopt does not run"),
     (["scripts.bench_pipeline", "--quick", "--codegen-flags=-O3"], "--codegen-flags applies to --codegen only"),
     # every homotopy-family task ran the one --rho-schedule, recorded with the schedules drawn
