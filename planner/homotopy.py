@@ -1399,7 +1399,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
     # the robot flies when every contact point does (one contact: its beta)
-    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot)
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,

@@ -630,8 +630,9 @@ class Validation:
                if k.min_hole_metric < 1.0 else  # outside every hole: "deepest into" and "in" read as an entry
                f"; closest to a hole between samples: ellipse metric {k.min_hole_metric:.2f} (outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
-            + ("" if k.max_flight_residual is None else f"; own dynamics over {k.flight_steps} flight steps to "
-               f"{k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
+            + ("" if k.max_flight_residual is None else
+               f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} over {k.flight_steps} flight "
+               f"steps to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "

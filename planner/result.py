@@ -286,11 +286,15 @@ class SimulationResult(ArraysReadOnly):
 
     @property
     def ends_in_impact(self) -> bool:
-        """The horizon ends while the last impact is still frozen (its clock never ran again): a simulation has no
+        """The horizon ends while the last impact is still frozen (its clock never ran again, to FROZEN_TOL of a step;
+        its post-impact kinetic energy is then not computed, nan): a simulation has no
         terminal state to end it, so that impact is unfinished and its impulse and v_post are partial (a 100 kg point
         mass landing at 4.4 m/s stays frozen for ~m |v_n| / a_n = 2.2 s of numerical time at a_n = 200)."""
         tr = self.trajectory  # (a failed run's last node is where it stopped, not the horizon's end)
-        return bool(self.stats.converged and tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1])
+        if not (self.stats.converged and tr.impacts and tr.impacts[-1].tau_end >= tr.tau[-1]):
+            return False
+        # and the clock did not run after it (a landing inside the last step, the clock running after it, is finished)
+        return bool(tr.y[-1, -1] - tr.impacts[-1].time <= FROZEN_TOL * (tr.tau[-1] - tr.tau[-2]))
 
     def report(self) -> str:
         """A few human-readable lines for the terminal."""
@@ -505,11 +509,11 @@ APPROACH_MPS = 1e-3
 LANDING_SLACK_S = 1e-9
 
 
-def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0)) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
-    does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's height (ON_PLANE_M: a
-    slide), is left out."""
+    does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
+    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -526,7 +530,7 @@ def hops_of(traj: Trajectory, flight, point_xyz) -> list[Hop]:
         seg = point_xyz[a : k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
-        if k - a >= 2 and np.abs(seg[:, 2] - seg[0, 2]).max() <= ON_PLANE_M:
+        if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen

@@ -191,8 +191,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
         fesd = FESDInterval(builder, options.fesd)
         elements, stats = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
         weights = fesd.b
-        # one row per step, its elements' largest |u| each way: the PD summary counts steps (it counted elements)
-        U = _per_step(elements[4][:, -1], fesd.n_fe)
+        U = elements[4][:, -1]  # (N n_fe, nu): at each element's end
     else:
         run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
         Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
@@ -204,7 +203,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     solve = SolveStats(converged=converged, solve_time_s=stats["solve_time_s"], n_nlp=stats["n_nlp"],
                        ipopt_iterations=stats["iterations"], complementarity_residual=stats["comp"], message=stats["message"])
     # the task as simulated (one built in code has no file; one on disk may change), for validate(DIR)
-    extra = {"_task": task} if law is None else {"pd": _pd_summary(robot, task, law, U), "_task": task}
+    per_step = options.fesd.n_fe if options.discretization is Discretization.FESD else 1
+    extra = {"_task": task} if law is None else {"pd": _pd_summary(robot, task, law, U, per_step), "_task": task}
     if options.discretization is Discretization.FESD:
         extra["discretization"] = {"name": "fesd", "n_s": options.fesd.n_s, "n_fe": options.fesd.n_fe, "rho_h": options.fesd.rho_h,
                                    "velocity_switch": builder.velocity_switch.value}
@@ -217,9 +217,14 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
     extra["braked_outside_friction_cone"] = braked_outside_cone(system, builder, elements, weights, options.frozen_tol,
                                                                 trajectory)
-    return SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
-                            stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra,
-                            options=options_record(options))
+    result = SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
+                              stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra,
+                              options=options_record(options))
+    if result.ends_in_impact:  # unfinished: its v_post is partial, no energy to judge (a passive ball's last, partial
+        # bounce was flagged as gaining energy, "a push-off"); a plan's terminal rows finish its last impact
+        last = replace(trajectory.impacts[-1], kinetic_energy_post=float("nan"))
+        result = replace(result, trajectory=replace(trajectory, impacts=(*trajectory.impacts[:-1], last)))
+    return result
 
 
 def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
@@ -292,19 +297,13 @@ def _persistent_weights(system, lam0, lam1) -> np.ndarray:
     return weights
 
 
-def _per_step(U: np.ndarray, n_fe: int) -> np.ndarray:
-    """FESD's controls at the element ends U (N n_fe, nu) as one row per step (N, nu): each entry the element value of
-    largest magnitude in its step (what leaves the actuator bounds if any element does)."""
-    steps = U.reshape(len(U) // n_fe, n_fe, U.shape[1])
-    pick = np.argmax(np.abs(steps), axis=1)  # (N, nu)
-    return np.take_along_axis(steps, pick[:, None, :], axis=1)[:, 0, :]
-
-
-def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray) -> dict:
-    """What summary.json says about the joint PD: gains, reference, and how often the (unsaturated)
-    controls U (steps, nu) left the actuator bounds."""
+def _pd_summary(robot: Robot, task: Task, law: PDLaw, U: np.ndarray, per_step: int = 1) -> dict:
+    """What summary.json says about the joint PD: gains, reference, and in how many steps the (unsaturated)
+    controls U (steps per_step, nu) left the actuator bounds (per_step: FESD's elements per step, each a row of U: a
+    step counts once, where its elements were counted, 33 of 10 steps)."""
     pd = task.simulate.pd
-    beyond = np.any((U < robot.u_lower) | (U > robot.u_upper), axis=1) if len(U) else np.zeros(0, bool)
+    outside = np.any((U < robot.u_lower) | (U > robot.u_upper), axis=1) if len(U) else np.zeros(0, bool)
+    beyond = outside.reshape(len(outside) // per_step, per_step).any(axis=1)
     return {"joints": list(pd.joints), "kp": list(pd.kp), "kd": list(pd.kd),
             "q_ref": [float(law.q_ref[iq]) for iq, _, _ in task.pd_actuators(robot)],
             "max_abs_u": np.abs(U).max(axis=0).tolist() if len(U) else [0.0] * robot.nu,
@@ -646,11 +645,8 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
         landed = (gaps <= ON_PLANE_M) & (approach < -APPROACH_MPS)  # (N, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
                                   switch_at_start=switch_at_start, landed=landed, approach=approach)
-    # an impact still frozen at the horizon's end is unfinished: its v_post is partial, no energy to judge (a passive
-    # ball's last, partial bounce was flagged as gaining energy, "a push-off")
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),
-                            kinetic_energy_post=float("nan") if imp.tau_end >= tau[-1] else
-                            _kinetic(system, imp.q, imp.v_post)) for imp in impacts)
+                            kinetic_energy_post=_kinetic(system, imp.q, imp.v_post)) for imp in impacts)
     forces = None
     if system.n_lambda:
         forces = np.array([W[k][builder.w_blocks["forces"]][builder.lam_slice] for k in range(N)]).reshape(N, system.n_lambda)

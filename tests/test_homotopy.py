@@ -796,3 +796,14 @@ def test_a_schedule_of_more_than_a_hundred_nlps_is_refused():
     assert H.task_rho_schedule(Homotopy(rho0=1.0, kappa=10.0, n_nlp=5), 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     exactly = H.task_rho_schedule(Homotopy(rho0=1.0, kappa=2.0, n_nlp=5), rho_max=2.0**99)  # 2^0 .. 2^99: 100 NLPs
     assert len(exactly) == 100 and exactly[-1] == 2.0**99
+
+
+def test_a_plans_last_landing_keeps_its_post_impact_energy():
+    """A plan's impacts all have their kinetic energy after the impact: the terminal rows finish the last one, so the
+    simulation's rule for an impact still frozen at the horizon's end (nan) does not apply (the point-mass hop's
+    landing, and the biped's heel strike at tau_f, had read null)."""
+    from test_problem import hop_task
+
+    result = H.solve(build_problem(load_robot("point_mass"), hop_task(N=20)), H.SolveOptions())
+    assert result.stats.converged and result.trajectory.impacts
+    assert all(np.isfinite(i.kinetic_energy_post) for i in result.trajectory.impacts)

@@ -616,6 +616,7 @@ def test_positions_that_do_not_move_at_the_velocities_fail(point_mass):
         assert bad.kinematic.flight_residual_positions and bad.kinematic.flight_residual_dof == dof
         assert not bad.passed and any(f.startswith("the trajectory's own dynamics: in flight its positions do not move "
                                                    "at its velocities") for f in bad.failures), bad.failures
+        assert "; own dynamics (positions) over 50 flight steps to " in bad.report()
     good = replay.validate_trajectory(point_mass, task, _pushed_flight(), dynamics=True)
     assert good.passed and good.kinematic.max_flight_residual < 1e-9
 

@@ -219,9 +219,10 @@ def test_hops_leave_out_flight_phases_where_the_point_does_not_move():
 
 
 def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
-    """A flight phase (beta > 0.5) of two steps or more whose nodes all keep the point's height is a slide, no hop (a
-    point mass sliding 0.5 m with z = 0 at every node was a hop of apex 0); a one-step phase that moves along the
-    ground is kept (a hop over a hole starts and ends on the ground), and so is a phase that leaves the plane."""
+    """A flight phase (beta > 0.5) of two steps or more whose nodes all keep the point's distance from its contact plane
+    is a slide, no hop (a point mass sliding 0.5 m with z = 0 at every node was a hop of apex 0; on a slope too); a
+    one-step phase that moves along the ground is kept (a hop over a hole starts and ends on the ground), and so is a
+    phase that leaves the plane."""
     clock = 0.1 * np.arange(6)
     traj = SimpleNamespace(y=clock[:, None], impacts=())
     xyz = np.zeros((6, 3))
@@ -230,6 +231,11 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert len(hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz)) == 1
     xyz[2, 2] = 10 * ON_PLANE_M
     assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz)) == 1
+    # down a 30-degree slope (its normal (sin, 0, cos)): the same slide, judged by the distance from the plane
+    slope = np.column_stack([0.1 * np.arange(6), np.zeros(6), -0.1 * np.arange(6) * np.tan(np.pi / 6)])
+    normal = (np.sin(np.pi / 6), 0.0, np.cos(np.pi / 6))
+    assert hops_of(traj, np.array([0, 1, 1, 1, 0]), slope, normal) == []
+    assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), slope)) == 1  # (by its height it would be a hop)
 
 
 def test_write_results_follows_the_contract(tmp_path):

@@ -793,3 +793,19 @@ def test_an_unfinished_last_impact_is_not_judged_for_energy():
     last = result.trajectory.impacts[-1]
     assert math.isnan(last.kinetic_energy_post) and not last.gains_energy and last.kinetic_energy_pre > 0
     assert "gain kinetic energy" not in result.report()
+
+
+def test_a_step_counts_as_beyond_the_bounds_when_any_of_its_elements_is():
+    """FESD's PD summary judges each element's command against the bounds and counts a step once if any of its
+    elements left them: with a range [0, 5] the elements (-0.5, 3.0) of one step are beyond (a reduction to the
+    largest |u| kept 3.0 and counted none)."""
+    from types import SimpleNamespace
+
+    from planner.simulate import _pd_summary
+
+    robot = SimpleNamespace(u_lower=np.array([0.0]), u_upper=np.array([5.0]), nu=1)
+    pd = SimpleNamespace(joints=("x",), kp=(1.0,), kd=(1.0,))
+    task = SimpleNamespace(simulate=SimpleNamespace(pd=pd), pd_actuators=lambda robot: [])
+    U = np.array([[-0.5], [3.0], [2.0], [1.0]])  # two steps of two elements
+    assert _pd_summary(robot, task, None, U, per_step=2)["steps_beyond_actuator_bounds"] == 1
+    assert _pd_summary(robot, task, None, U)["steps_beyond_actuator_bounds"] == 1  # four steps of one element
