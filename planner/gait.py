@@ -998,6 +998,9 @@ def contact_violations(summary: dict) -> list[str]:
     return out
 
 
+MOTOR_TOL_NM = 1e-6  # commands this far beyond a range are the solver's rounding, not a violation [N m]
+
+
 def motor_violations(robot: Robot, layout: BipedLayout, u: np.ndarray) -> list[str]:
     """The gait's motor commands u (N, 2) [N m] beyond the robot file's control ranges, as one line (the gait's OCP
     has no input bounds; MuJoCo clamps the commands). Each motor drives both roles as the legs swap every step, so
@@ -1005,7 +1008,7 @@ def motor_violations(robot: Robot, layout: BipedLayout, u: np.ndarray) -> list[s
     motors = [robot.actuators[layout.stance_motor], robot.actuators[layout.swing_motor]]
     lo, hi = max(m.lower for m in motors), min(m.upper for m in motors)
     low, high = float(np.min(u)), float(np.max(u))
-    if lo - CONTACT_FORCE_TOL_N <= low and high <= hi + CONTACT_FORCE_TOL_N:
+    if lo - MOTOR_TOL_NM <= low and high <= hi + MOTOR_TOL_NM:
         return []
     return [f"the motors need commands from {low:.4g} to {high:.4g} N m, beyond the robot file's control range "
             f"[{lo:g}, {hi:g}] of {', '.join(repr(m.name) for m in motors)} (each drives both legs' roles as they "

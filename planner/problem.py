@@ -387,9 +387,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     for key, y in states.items():
         gaps = list(np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel())
         for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
-            axis = plane_axes(c.normal)[0]
-            point = np.asarray(dyn.point_position(c.point)(y[:nq]), float).ravel()[:3]
-            gaps.append(float(axis @ point - axis[2] * task.ground_height))
+            gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -1e-9:
                 raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}"
@@ -680,11 +678,8 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
                 lam = ws[builder.w_blocks["forces"]][builder.mm.lam_index[ct.point]]
                 lam_n, lam_t = lam[0], lam[1]
             cone += [weight * (ct.mu * lam_n - lam_t), weight * (ct.mu * lam_n + lam_t)]
-    clearance = []  # touches = false: the gap of the point's plane, c = s^T p - s_z ground
-    for ct in task.contacts:
-        if ct.point in skips.never_touching:
-            s = plane_axes(ct.normal)[0]
-            clearance.append(ca.dot(ca.DM(s), dyn.point_position(ct.point)(q_sym)[:3]) - s[2] * ground)
+    # touches = false: the gap of the point's plane
+    clearance = [_plane_gap(dyn, ct, q_sym, ground) for ct in task.contacts if ct.point in skips.never_touching]
     impact = []
     if options.impact_cone and len(contacts) == 1:  # the contacts the system is built for (planner.scene)
         for ct, model in zip(contacts, system.models):
@@ -974,6 +969,14 @@ class _Rows:
 
     def ub(self) -> np.ndarray:
         return np.concatenate(self.hi)
+
+
+def _plane_gap(dyn: Dynamics, contact, q, ground: float):
+    """The gap c = s^T p(q) - s_z ground [m] of a contact's point from its plane (s its unit normal), for q (nq,)
+    numbers or CasADi symbols."""
+    s = plane_axes(contact.normal)[0]
+    p = dyn.point_position(contact.point)(q)
+    return s[0] * p[0] + s[1] * p[1] + s[2] * p[2] - s[2] * ground
 
 
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
