@@ -767,13 +767,13 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
             raise UnknownNameError("contact point", point, scene.points)
 
     reference = _Reference(arrays, scene.settings.timestep)
-    _window_samples(reference, options)  # (a window too short was refused after the first two replays)
+    samples = _window_samples(reference, options)  # (a window too short was refused after the first two replays)
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None,
                            arrays if dynamics else None)
     planned = _planned_impacts(scene, arrays, impact_points, impact_taps)
     gains = resolve_gains(scene, options.gains, reference.q[0])
     tracking = _replay(scene, reference, gains, planned, options, options.controller)
-    windows = _windows(scene, reference, gains, options, planned)
+    windows = _windows(scene, reference, gains, options, samples, planned)
     open_loop = _replay(scene, reference, None, planned, options)
 
     failures = []
@@ -1227,14 +1227,15 @@ def _window_samples(ref: _Reference, options: ValidationOptions) -> tuple[int, i
 
 
 def _windows(scene: Scene, ref: _Reference, gains: ResolvedGains, options: ValidationOptions,
-             planned: Sequence[tuple[str, float, bool]] = ()) -> WindowReport:
-    """The tracking replay restarted from the reference in overlapping windows (WindowReport).
+             samples: tuple[int, int], planned: Sequence[tuple[str, float, bool]] = ()) -> WindowReport:
+    """The tracking replay restarted from the reference in overlapping windows (WindowReport) of samples = (samples
+    per window, per stride) (_window_samples).
 
     A window shorter than half of window_s at the end of the plan is not started. Each planned impact
     (point, time [s], tap), taps too, is matched (_match_impacts) to the MuJoCo impacts of the window that
     started window_stride_s to twice that before it (the first window if none did).
     """
-    per, stride = _window_samples(ref, options)
+    per, stride = samples
     starts, errors, onsets, diverged = [], [], [], False
     base, sites = _planned_positions(scene, ref.q)  # once, not per window: the windows overlap four times
     # a window as long as the plan is the one window the report names (30 more, each clipped to the plan's end, ran)
