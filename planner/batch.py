@@ -133,7 +133,12 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
     ("tcp://host:8786"), a dask.distributed.Client is used as it is; `workers` is then ignored.
     progress(index, result) is called as each job finishes (in completion order).
     """
-    items = list(items)
+    if not callable(fn):  # (workers=0 made every job a Crashed record; the pool refused it otherwise)
+        raise InputError(f"run_batch's fn must be callable, got {shown(fn)}")
+    try:
+        items = list(items)
+    except TypeError:
+        raise InputError(f"run_batch's items must be iterable, got {shown(items)}") from None
     if not items:
         return []
     if scheduler is not None:

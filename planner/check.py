@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import time
+import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, shown
-from .model import Robot, mujoco_failure, mujoco_spec, order_hint
+from .model import Robot, RobotFormat, mujoco_failure, mujoco_spec, order_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -317,9 +318,15 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
             out.append(f"tendon {name(mujoco.mjtObj.mjOBJ_TENDON, t)!r}: {', '.join(terms)}")
     if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):
         out.append(f"fluid forces (<option> density {mj.opt.density:g}, viscosity {mj.opt.viscosity:g}, wind {np.round(mj.opt.wind, 9).tolist()})")
+    if robot.format is RobotFormat.MJCF:  # (the mass gap alone was named, "masses MuJoCo rescales" among its causes)
+        out += [f"<compiler settotalmass=\"{c.get('settotalmass')}\">: MuJoCo rescales the masses, Pinocchio does not"
+                for c in ET.parse(robot.path).getroot().iter("compiler") if float(c.get("settotalmass", -1)) > 0]
     lower, upper = robot.q_lower, robot.q_upper
     for j in range(mj.njnt):
         joint, i = name(mujoco.mjtObj.mjOBJ_JOINT, j), int(mj.jnt_qposadr[j])
+        if mj.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE and mj.qpos0[i]:  # (only "point 'foot' is 0.2 m apart")
+            out.append(f"joint {joint!r}: ref {mj.qpos0[i]:g} m, which MuJoCo's slide joint reads and Pinocchio's "
+                       "does not (its points are that far apart); remove ref")
         if mj.jnt_actfrclimited[j]:  # MuJoCo clamps the joint's summed actuator force: fine where the motors stay inside
             drives = [a for a in robot.actuators if a.dof == int(mj.jnt_dofadr[j])]
             reach = (sum(min(a.gear * a.lower, a.gear * a.upper) for a in drives),  # a negative gear swaps its ends

@@ -74,7 +74,7 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
     if verbose:  # only the commands that run IPOPT have more to show
         verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output" + (
             " (a racing plan: each line starts with its arm's name, [default] or [alternate])" if racing else ""))
-    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors" + (
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings" + (
         ", a one-line failure notice (exit 1)" if p.prog.split()[-1] in EXIT_1_COMMANDS else "") + " and --json")
 
 
@@ -658,9 +658,14 @@ def _cmd_plan(args) -> int:
         try:
             validation = validate(target)
             write_validation(target, validation, args.result_id)  # (refused when another run wrote target meanwhile)
-        except BaseException:  # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
+        # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
+        except BaseException as exc:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
+            if isinstance(exc, (KeyboardInterrupt, PlannerError)):  # (only "interrupted": the earlier result, gone,
+                # seemed kept)
+                print(f"planner plan: {'converged' if ok else 'FAILED'}: results in {target}, not validated",
+                      file=args.stderr or sys.stderr)
             raise
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed

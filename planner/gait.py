@@ -67,9 +67,9 @@ def find_layout(robot: Robot, stance_foot: str = "foot_1", swing_foot: str = "fo
     is its leg hinge, driven by exactly one motor. Raises InputError when the file is not laid out so.
     """
     model = robot.model
-    for foot in (stance_foot, swing_foot):
-        if foot not in robot.points:
-            raise UnknownNameError("point", foot, robot.points)
+    for key, foot in (("gait.stance", stance_foot), ("gait.swing", swing_foot)):
+        if foot not in robot.points:  # (the task key named, as the task's other names are)
+            raise UnknownNameError("point", foot, robot.points, key)
     if robot.nq != robot.nv or robot.nq != 5:
         raise InputError(f"{robot.path}: the gait needs the floating planar biped (slide x, slide z, torso hinge, two leg "
                          f"hinges: nq = nv = 5); this robot has nq = {robot.nq}, nv = {robot.nv}")
@@ -260,11 +260,14 @@ class GaitSpec(ArraysReadOnly):
         ignored = [f"ground_height = {task.ground_height:g}"] if task.ground_height != 0 else []
         ignored += [f"contacts[{i}].normal = {list(c.normal)}" for i, c in enumerate(task.contacts)
                     if c.normal != (0.0, 0.0, 1.0)]
+        ignored += [f"contacts[{i}].restitution = {c.restitution:g}" for i, c in enumerate(task.contacts)
+                    if c.restitution]
         if task.horizon.physical_time is not None:
             ignored.append(f"horizon.physical_time = {task.horizon.physical_time:g}")
         if ignored:
             raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
-                            "whose model walks on the ground z = 0 with the period horizon.tau_f; remove them")
+                            "whose model walks on the ground z = 0 with the period horizon.tau_f and lands with paper "
+                            "001's inelastic impact map; remove them")
         if N is None and task.horizon.N < 2:  # (said of the file, as its other values are, not of GaitSpec)
             raise TaskError(f"{task.source or 'the task'}: horizon.N = {task.horizon.N} is not allowed; a gait's "
                             f"horizon.N must be an integer in [2, {MAX_STEPS}] (its swing foot's clearance is read at "
@@ -1072,6 +1075,11 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     model = PinnedBiped(robot, layout=find_layout(robot, g.stance, g.swing))
     _require_feet(model.layout, [c.point for c in task.contacts])  # before the solve: the replay refused it after
     check_mirror_legs(model)
+    geared = [f"{a.name!r} (gear {a.gear:g})" for a in robot.actuators if a.gear != 1.0]
+    if geared:  # (gear 2 converged to another gait, cost 8.48 for 14.14, its "N m" fields half the torques)
+        raise TaskError(f"{robot.path}: motor {', '.join(geared)}: paper 001's gait weighs (R) and reports (N m) the "
+                        "hinge torques, which are the motor commands with gear 1 only; give the motors gear 1 (their "
+                        "ctrlrange in N m)")
     if validate and spec.x0[3] <= 0:  # (the mirror of gait 1 converged, then its walk "fell" at once: exit 1)
         raise TaskError(f"gait.x0 has the stance leg turning at {spec.x0[3]:g} rad/s: the gait walks towards -x, and "
                         "the MuJoCo walk replays gaits that walk towards +x (theta1 increasing: its phase variable and "

@@ -409,6 +409,19 @@ class SolveOptions:
             (self.polish is not Polish.NONE or self.polish_after_failure == SolveOptions.polish_after_failure,
              "polish_after_failure", self.polish_after_failure,
              f"{SolveOptions.polish_after_failure!r} (the default) unless there is a polish"),
+            (self.polish is not Polish.NONE or self.polish_projection == SolveOptions.polish_projection,
+             "polish_projection", self.polish_projection, f"{SolveOptions.polish_projection!r} (the default) unless "
+             "there is a polish"),
+            (self.linear_solver == "mumps" or self.mumps_ordering is MumpsOrdering.AUTO, "mumps_ordering",
+             self.mumps_ordering, "auto (the default) unless linear_solver is 'mumps'"),
+            (self.soft_terminal_nlps >= 1 or self.soft_terminal_weight == SolveOptions.soft_terminal_weight,
+             "soft_terminal_weight", self.soft_terminal_weight,
+             f"{SolveOptions.soft_terminal_weight!r} (the default) unless soft_terminal_nlps >= 1"),
+            # (IPOPT reads its barrier's start with the monotone strategy only, docs/formulation.md round 7)
+            (self.mu_strategy is MuStrategy.MONOTONE or self.mu_init == SolveOptions.mu_init, "mu_init", self.mu_init,
+             f"{SolveOptions.mu_init!r} (the default) unless mu_strategy is monotone"),
+            (self.mu_strategy is MuStrategy.MONOTONE or self.warm_mu_init is None, "warm_mu_init", self.warm_mu_init,
+             "None (the default) unless mu_strategy is monotone"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:
@@ -585,11 +598,18 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
     (planner plan --init DIR) the task's cost with the plan's contact schedule held comes first."""
     expect(options, (SolveOptions, type(None)), "replan_options' options")
+    given = [k for k in REPLAN_FIELDS if options is not None and getattr(options, k) != getattr(SolveOptions, k)]
+    if given:  # (they were replaced without a word)
+        raise InputError(f"replan_options sets {', '.join(given)}: leave {'it' if len(given) == 1 else 'them'} at "
+                         "the default (a replan's own homotopy from the plan, docs/tasks.md)")
     fields = dict(rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0, early_stop_comp=REPLAN_STOP_COMP,
                   holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
                   mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
                   bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
-    return replace(options or SolveOptions(), **fields)
+    try:
+        return replace(options or SolveOptions(), **fields)
+    except InputError as exc:  # an option the replan's settings leave unread (soft_terminal_weight)
+        raise InputError(f"{exc} (a replan solves with soft_terminal_nlps = 0)") from None
 
 
 # the SolveOptions fields replan_options sets (`planner plan --init DIR --solve` may not: they were replaced)
@@ -1139,6 +1159,9 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
                           f"{hom.kappa!r} schedule {count} NLPs, more than {MAX_NLPS}; raise plan.homotopy.kappa or narrow "
                           "[rho_min, rho_max]")
 
+    if rho_max is not None and hom.rho0 > rho_max:  # (1e200 ran 3000 iterations to objective -1e192, "out of reach")
+        raise InputError(f"the task's plan.homotopy.rho0 = {hom.rho0!r} is above rho_max = {rho_max!r}, the largest "
+                         "penalty the homotopy goes to; lower rho0 (or raise rho_max)")
     rhos = [hom.rho0 * hom.kappa**i for i in range(hom.n_nlp)]
     if rho_max is not None and hom.kappa > 1:
         # counted before listed: kappa = 1.0001 continued the schedule to 92109 NLPs, and rho0 = 1e-300 with kappa =

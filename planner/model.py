@@ -248,6 +248,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
         said = _parser_errors(printed)
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
+        if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
+            hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
     said = _parser_errors(printed)
     if said:  # urdfdom returns a model without what it could not read (a thigh's `<mass value="1,782"/>`: no mass)
@@ -257,15 +259,15 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         import mujoco
 
         with contextlib.suppress(ValueError):  # a file MuJoCo cannot compile: said where its reading is needed
-            said = _second_tree(path, mujoco.MjModel.from_xml_path(str(path)), model)
+            said = _second_tree(path, _mujoco_model(path), model)
             if said:
                 raise RobotFileError(said)
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
-    world_sites, unread_sites, ground_z = (), (), None
+    world_sites, unread_sites, ground_z, unnamed = (), (), None, ()
     if fmt is RobotFormat.MJCF:
-        actuators, dof_names, passive, world_sites, unread_sites, ground_z = _mjcf_info(path, model)
+        actuators, dof_names, passive, world_sites, unread_sites, ground_z, unnamed = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
         lower, upper = model.lowerPositionLimit, model.upperPositionLimit
@@ -288,7 +290,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         format=fmt,
         model=model,
         actuators=actuators,
-        points=tuple(_point_frames(model)),
+        points=tuple(p for p in _point_frames(model) if p not in unnamed),
         dof_names=dof_names,
         sha256=file_sha256(path),
         passive=passive,
@@ -414,11 +416,12 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
-                                                     tuple[str, ...], tuple[str, ...], float | None]:
+                                                     tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...]]:
     """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
-    (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites) and the ground plane's
+    (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites), the ground plane's
     height (Robot.ground_z) read from MuJoCo's compiled model of the same
-    file; Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
+    file, and the names Pinocchio made up for unnamed sites (no points: MuJoCo's replay has no site of
+    that name); Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -426,13 +429,15 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     import mujoco
 
     try:
-        mj = mujoco.MjModel.from_xml_path(str(path))
+        mj = _mujoco_model(path)
     except ValueError as exc:
         raise RobotFileError(mujoco_failure(path, exc)) from None
     if mj.nv != model.nv:
+        unnamed = ("" if all(mj.body(b).name for b in range(1, mj.nbody))
+                   else ", nor a body without a name: name every <body>")
         raise RobotFileError(_second_tree(path, mj, model) or (
             f"{path}: MuJoCo has {mj.nv} DoF but Pinocchio {model.nv} (a body or joint inside a <frame>, or an "
-            "<include>, is not read by Pinocchio's MJCF parser)"))
+            f"<include>, is not read by Pinocchio's MJCF parser{unnamed})"))
     if mj.neq:  # Pinocchio's model has no such coupling: the planner's motion would break it
         raise RobotFileError(f"{path}: {mj.neq} <equality> constraint(s); the planner models kinematic trees without "
                              "equality constraints")
@@ -491,7 +496,8 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     ground = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground")
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
-    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z
+    unnamed = tuple(f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME and f.name not in site_names)
+    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed
 
 
 def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
@@ -542,6 +548,16 @@ def mujoco_warnings(handler):
         yield
     finally:
         mujoco.set_mju_user_warning(previous)
+
+
+def _mujoco_model(path: Path):
+    """MuJoCo's compiled model of the MJCF file at path, its warnings held back: MuJoCo printed them raw (a deprecated
+    `settotalmass` went to stderr and into MUJOCO_LOG.TXT in the working directory), and mujoco_spec's reading of the
+    same file, which the commands make too, says them as Python warnings."""
+    import mujoco
+
+    with mujoco_warnings(lambda message: None):
+        return mujoco.MjModel.from_xml_path(str(path))
 
 
 def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = True):
@@ -600,6 +616,8 @@ def order_hint(robot: Robot, mujoco_names) -> str:
     if planar:
         return (f" (URDF planar joint {', '.join(map(repr, planar))}: MuJoCo reads it as three joints, Pinocchio as "
                 "one; write it as two prismatic joints and a revolute one)")
+    if not all(mujoco_names):  # (Pinocchio names them dof_0 ...: "MuJoCo orders the joints ('', '')" said no fix)
+        return " (joints without a name: the two readings are matched by name; name every <joint>)"
     if robot.format is RobotFormat.URDF and sorted(mujoco_names) == sorted(robot.dof_names):
         return (" (Pinocchio's URDF parser orders sibling branches by their joints' names, MuJoCo as the file lists "
                 "them: write the <joint> elements of each link's children in the order of their names)")

@@ -341,7 +341,7 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     if tilted:
         raise InputError(f"contact point(s) {', '.join(tilted)} touch a tilted plane (contacts.normal); the MuJoCo "
                          "validation models the ground plane only (`planner plan --no-validate` plans without it)")
-    site_names = [original.site(i).name for i in range(original.nsite)]
+    site_names = [original.site(i).name for i in range(original.nsite) if original.site(i).name]
     site_ids = []
     for contact in task.contacts:
         sid = mujoco.mj_name2id(original, mujoco.mjtObj.mjOBJ_SITE, contact.point)
@@ -684,6 +684,9 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
     traj = read_trajectory(out_dir, required=REQUIRED_ARRAYS)
     check_same_result(out_dir, summary, traj)
     task = read_task(out_dir, traj, summary)
+    if summary.get("command") not in ("plan", "simulate"):  # (the hole and own-dynamics checks were skipped unsaid)
+        raise InputError(f"{out_dir}/summary.json: command {shown(summary.get('command'))} is none of 'plan', "
+                         "'simulate' (was the file edited?)")
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
         from .gait import validate_walk
 
@@ -692,7 +695,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
                              "ValidationOptions (--controller, --window) do not apply; give none")
         validation = validate_walk(robot, task, check_trajectory(robot, traj))
     else:
-        contacts, taps = _impact_points(summary, task, np.atleast_1d(traj["impact_times"]), out_dir)
+        contacts, taps = _impact_points(summary, task, check_trajectory(robot, traj)["impact_times"], out_dir)
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
                                          holes=summary.get("command") == "plan",  # a simulation has no holes
                                          dynamics=_stepped_by_implicit_euler(summary))
@@ -880,8 +883,11 @@ def _impact_points(summary: dict, task: Task, impact_times: np.ndarray,
     impact_times (I,) [s] (a summary written before taps were marked has none). InputError when their times differ:
     the two files no longer say the same (impact_times moved by 0.1 s validated against the moved times)."""
     impacts = summary.get("impacts")
-    if not isinstance(impacts, list) or len(impacts) != len(impact_times):
+    if not isinstance(impacts, list):
         return None, None
+    if len(impacts) != len(impact_times):  # (an impact added or removed validated against the npz's alone)
+        raise InputError(f"{out_dir}: trajectory.npz has {len(impact_times)} impact time(s), summary.json "
+                         f"{len(impacts)} impact(s): the two files disagree (was one edited?)")
     for i, (item, when) in enumerate(zip(impacts, impact_times)):
         said = item.get("time") if isinstance(item, dict) else None
         numeric = isinstance(said, (int, float)) and not isinstance(said, bool)
@@ -1213,14 +1219,16 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
 def _window_samples(ref: _Reference, options: ValidationOptions) -> tuple[int, int]:
     """The replay's samples per window and per stride of the windowed tracking; InputError for a window in which the
     planned impacts cannot be timed (checked before any replay runs)."""
-    for key in ("window_s", "window_stride_s"):  # shorter, a window ran one sample and was reported at its asked length
-        _check(getattr(options, key) >= ref.dt, key, getattr(options, key), f">= the replay's sample step {ref.dt:g} s")
+    # shorter, a window ran one sample and was reported at its asked length
+    _check(options.window_stride_s >= ref.dt, "window_stride_s", options.window_stride_s,
+           f">= the replay's sample step {ref.dt:g} s")
     span = (ref.steps + 1) * ref.dt  # a window or stride beyond the plan is the plan (1e308 s overflowed int())
     per = max(1, int(round(min(options.window_s, span) / ref.dt)))
     stride = max(1, int(round(min(options.window_stride_s, span) / ref.dt)))
     # an impact is timed in the window started one to two strides before it: shorter, the window ended before the
     # impact and its landings read "none" (MuJoCo saw no landing) at --window 0.03
-    _check(per >= ref.steps or per >= 3 * stride, "window_s", options.window_s,
+    # (one limit said: the sample step's was named, then the strides' refused what it allowed)
+    _check(options.window_s >= ref.dt and (per >= ref.steps or per >= 3 * stride), "window_s", options.window_s,
            f">= 3 window_stride_s = {3 * options.window_stride_s:g} s (an impact is timed in the window started one to "
            "two strides before it, which must run a stride past it), or the plan's length")
     return per, stride

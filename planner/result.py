@@ -26,6 +26,7 @@ import tempfile
 import threading
 import time
 import uuid
+import zipfile
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
@@ -39,7 +40,8 @@ from .task import Task, load_task, parse_task, task_to_json
 def _read_only(obj) -> None:
     """Store each array field of a frozen dataclass as a read-only view of a read-only copy: a result is frozen through
     its arrays too (`trajectory.t[0] = 1` raised no error and changed physical_duration), and numpy refuses to make
-    such a view writable again (a view of the caller's array could be); the caller's own arrays stay writable. A dict
+    such a view or its base writable again (a view of the caller's array could be, and an owning copy through `.base`:
+    the arrays are views of immutable bytes); the caller's own arrays stay writable. A dict
     field becomes a ReadOnlyDict, its arrays and dicts frozen the same way (`result.extra["_x"][0] = 123` changed
     the nlp_x written and the replan's start), its lists ReadOnlyLists."""
     for f in fields(obj):
@@ -50,9 +52,12 @@ def _read_only(obj) -> None:
 
 def _frozen(value):
     if isinstance(value, np.ndarray):
-        frozen = np.array(value)
-        frozen.flags.writeable = False
-        return frozen.view()
+        if value.dtype.hasobject:
+            frozen = np.array(value)
+            frozen.flags.writeable = False
+            return frozen.view()
+        # over immutable bytes: an owning copy could be made writable again through the view's .base
+        return np.frombuffer(value.tobytes(), dtype=value.dtype).reshape(value.shape)
     if isinstance(value, dict):
         return ReadOnlyDict({k: _frozen(v) for k, v in value.items()})
     if isinstance(value, list):  # summary.json's lists (extra["race"], the scene's reasons): a list still, read-only
@@ -196,7 +201,8 @@ class Trajectory(ArraysReadOnly):
     tau (K,) numerical time grid [s]; y (K, ny) states, clock last; state_names (ny,);
     sigma (K-1, n_sigma) selectors of each step (at its end point), selector_names;
     t (P,) physical times [s]; q (P, nq), v (P, nv), u (P, nu) physical-time samples; an impact is
-    two samples with the same time (pre- and post-impact velocity); impacts (Impact, ...).
+    two samples with the same time (pre- and post-impact velocity; three with FESD, which repeats the
+    flight element's end too); impacts (Impact, ...).
     forces (K-1, n_lambda), force_names: the index-reduced contact forces [N] of each step (at its end
     point) when the system has several contact points (zero for points off the ground), else None.
     contact_force (K-1, n_contacts, 2): the persistent-contact force (normal, tangential) [N] each
@@ -652,7 +658,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
     clock runs again); a frozen step after a partly frozen one that is not the run's first starts the
     next run. A run that ends with a fully frozen step whose contact (the one taking the run's first step's largest
-    normal impulse) still moves into its plane at the step's end takes the next step too when that froze more than
+    normal impulse) still moves into its plane at the step's end, or a run of one step whose landing inside it is still
+    on there, takes the next step too when that froze more than
     TAIL_SHARE of it (the impact's end, below frozen_tol); approach (K-1, n_contacts) [m/s]: each contact's normal
     velocity at the start of each step, moving into its plane below -APPROACH_MPS (None: no such step is
     taken). A run is an impact when the numerical time it froze, sum(h s - clock advance), is at least
@@ -684,7 +691,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     u0 = u_steps[0] if n_steps else np.zeros(nu)
     ts, qs, vs, us = [clock[0]], [y[0, :nq]], [y[0, nq : nq + nv]], [u0]
     impacts = []
-    k = 0
+    k, run_end = 0, -1  # run_end: the last step of the previous frozen run
     while k < n_steps:
         if not frozen[k]:
             ts.append(clock[k + 1]); qs.append(y[k + 1, :nq]); vs.append(y[k + 1, nq : nq + nv]); us.append(u_steps[k])
@@ -708,9 +715,17 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # and impulse are the impact's end (a drop whose last step ran the clock for 99.2 % of it kept v_post moving
         # into the ground at 7.8 mm/s). A stance's drift correction after an impact that ended at the step's end is
         # not (a replan's push-off was counted into its landing). Implicit Euler: FESD ends impacts on element bounds.
-        tail = not switch_at_start and approach is not None and fully[b] and b + 1 < n_steps
+        # So does a landing inside the run's first step still on at its end (the clock ran before the impact; a_n = 1e4
+        # at h = 0.02 had its v_post moving into the ground at 2 m/s, the next step freezing 0.99 % of it)
+        tail = (not switch_at_start and approach is not None and (fully[b] or (b == a and not at_node))
+                and b + 1 < n_steps)
         if tail and approach[b + 1][lander] < -APPROACH_MPS and advance[b + 1] < (1 - TAIL_SHARE) * dt_steps[b + 1]:
             b += 1
+        # a landing at a node that began in the step before (it froze less than frozen_tol, so no frozen step, and
+        # more than TAIL_SHARE): that step's increment and impulse are the impact's start (a_n = 1e4 at h = 0.01 read
+        # v_pre -3.4 m/s for -4.4 and 23 % of the impulse missing); the node's sample becomes the pre-impact one
+        head = at_node and a - 1 > run_end and advance[a - 1] < (1 - TAIL_SHARE) * dt_steps[a - 1]
+        first = a - 1 if head else a
         if np.sum(dt_steps[a : b + 1] - advance[a : b + 1]) < min_frozen:
             # a FESD sliver: an element of ~1e-8 s between two switches leaks its clock like a frozen one
             # (the biped's second landing at h = 0.01 had one: a false 8e-5 N s impact); run on through it
@@ -727,11 +742,14 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             # for a point mass at rest). An implicit-Euler landing at a node: likewise the step's end state, since
             # v_pre plus the step's increment is no state of the plan (it lumps the push-off the step runs after it)
             v_post = y[b + 1, nq : nq + nv]
+            if head:
+                v_pre = v_pre - dv_aux[a - 1]
+                vs[-1] = v_pre
         else:
             t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
             v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
             v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
-        imp = np.sum(np.asarray(impulses)[a : b + 1], axis=0)  # (n_contacts, 2)
+        imp = np.sum(np.asarray(impulses)[first : b + 1], axis=0)  # (n_contacts, 2)
         order = np.argsort(-np.abs(imp[:, 0]), kind="stable") if len(contacts) else np.zeros(1, int)
         # one Impact per contact that took a normal impulse in this frozen interval, the largest first;
         # with one contact (or none) exactly one Impact, as before
@@ -740,7 +758,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         for c in hit:
             impacts.append(Impact(time=float(t_imp), contact=contacts[c] if contacts else "", impulse=float(imp[c, 0]) if len(contacts) else 0.0,
                                   impulse_tangential=float(imp[c, 1]) if len(contacts) else 0.0, q=q_imp.copy(),
-                                  v_pre=v_pre, v_post=v_post, tau_start=float(tau[a]), tau_end=float(tau[b + 1])))
+                                  v_pre=v_pre, v_post=v_post, tau_start=float(tau[first]), tau_end=float(tau[b + 1])))
         # a landing at a node: that node's sample is already the pre-impact one (an impact is two samples at one time);
         # so is it when implicit Euler's first step froze whole without advancing the clock: its end less the step's
         # increment is the node's state to rounding (a Capler plan had three samples at one time, 4e-10 m/s apart)
@@ -751,7 +769,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
         if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock
             ts.append(clock[b + 1]); qs.append(y[b + 1, :nq]); vs.append(y[b + 1, nq : nq + nv]); us.append(u_steps[b])
-        k = b + 1
+        k, run_end = b + 1, b
     return np.array(ts), np.array(qs), np.array(vs), np.array(us).reshape(len(ts), nu), tuple(impacts)
 
 
@@ -805,6 +823,7 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict,
     either is renamed, each with the same `result_id` (check_same_result; None: a new one). DIR is created if missing;
     an existing file there is an InputError."""
     expect(out_dir, (str, os.PathLike), "the output directory")
+    expect(result_id, (str, type(None)), "result_id")  # (an int 123 was written, and its readers compared '123')
     if os.fspath(out_dir) == "":  # Path("") is the working directory, which the CLI's --out "" refuses too
         raise InputError("the output directory is empty (''); name one, '.' for the working directory")
     out = Path(out_dir)
@@ -1025,6 +1044,9 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     path = result_dir(out_dir) / "trajectory.npz"
     if not path.is_file():
         raise InputError(f"{path} not found{_failed_hint(out_dir)}")
+    if not zipfile.is_zipfile(path):  # (numpy read any other file as pickled data and said to allow pickles)
+        raise InputError(f"{path} is not a readable .npz file: it is no zip archive (a Git LFS pointer, a truncated "
+                         "or another file?)")
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: np.asarray(npz[k]) for k in npz.files}

@@ -229,7 +229,8 @@ class Plan:
     def __post_init__(self):
         _typed(self, "plan")
         joints = [b.joint for b in self.joint_bounds]
-        _require(len(set(joints)) == len(joints), "plan.joint_bounds", joints, "one entry per joint (the last one won)")
+        _require(len(set(joints)) == len(joints), "plan.joint_bounds", joints, "one entry per joint (which one "
+                                                                                  "would hold?)")
         if self.periodic is None and self.target_q is None:
             raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
         if self.periodic is not None:
@@ -468,6 +469,12 @@ class Task:
             warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "
                           "task's ground_height: the planner uses the task's and MuJoCo's replay moves the plane "
                           "there; set ground_height to the file's if that is the ground meant")
+        flat = all(c.normal == (0.0, 0.0, 1.0) for c in self.contacts)
+        for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ()):
+            if e.z + e.b <= self.ground_height:  # (ground_height 0.3 with z omitted: a hole that did nothing)
+                warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
+                              f"ground_height {self.ground_height:g} m): no contact point goes into it; its z is the "
+                              "centre's height [m], 0 when omitted")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
@@ -532,13 +539,25 @@ class Task:
 
     def warn_controls_beyond_range(self, robot) -> None:
         """Warn for each constant simulate.u or schedule control beyond its actuator's range (MuJoCo's replay clamps
-        it; the simulation does not). For `simulate` only: plan and validate do not use these controls. Lengths are
+        it; the simulation does not), for each simulate.pd.q_ref beyond its joint's range and each schedule entry at
+        or after the horizon's end. For `simulate` only: plan and validate do not use these controls. Lengths are
         check_against's."""
         for key, u in self._constant_controls():
             for j, (uj, a) in enumerate(zip(u, robot.actuators)):
                 if not a.lower <= uj <= a.upper:  # a PD's controls are counted in summary.json instead
                     warnings.warn(f"{key}[{j}] = {uj:g} ({a.name}) is beyond the actuator's range [{a.lower:g}, "
                                   f"{a.upper:g}], to which MuJoCo's replay clamps it")
+        for i, change in enumerate(self.simulate.schedule):
+            if change.t >= self.horizon.tau_f:  # (physical time never gets there: t = 100 for 0.1 s went unsaid)
+                warnings.warn(f"simulate.schedule[{i}].t = {change.t:g} s is not before the horizon's end (tau_f = "
+                              f"{self.horizon.tau_f:g} s of numerical time, physical time at most that): it never acts")
+        pd = self.simulate.pd
+        if pd is not None and pd.q_ref is not None:  # (degrees for radians: a failed step 0, exit 1, unwarned)
+            for j, (iq, _, _) in enumerate(self.pd_actuators(robot)):
+                lo, hi = robot.q_lower[iq], robot.q_upper[iq]
+                if not lo <= pd.q_ref[j] <= hi:
+                    warnings.warn(f"simulate.pd.q_ref[{j}] = {pd.q_ref[j]:g} ({pd.joints[j]}) is beyond the joint's "
+                                  f"range [{lo:g}, {hi:g}] [rad or m]")
 
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with
@@ -621,13 +640,15 @@ def load_task(path: str | Path) -> Task:
     expect(path, (str, os.PathLike), "load_task's path")
     path = Path(path)
     if not path.is_file():
-        raise TaskError(f"task file {path} is a directory" if path.is_dir() else f"task file not found: {path}")
+        raise TaskError(f"task file {path} is a directory" if path.is_dir() else f"task file {path} is not a regular "
+                        "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (some editors) is not TOML
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's limit on reading one
-        raise TaskError(f"{path}: {exc}") from None
+        said = str(exc).split(";")[0]  # (without Python's advice to call sys.set_int_max_str_digits)
+        raise TaskError(f"{path}: {said}; no task value needs such an integer") from None
     except RecursionError:
         raise TaskError(f"{path}: nested too deeply to be a task") from None
     except OSError as exc:

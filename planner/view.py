@@ -182,13 +182,16 @@ def load_result(out_dir) -> Result:
         (a["t"].ndim == 1 and P >= 1, "t must be (P,) with P >= 1"),
         (a["q"].shape == (P, robot.nq), f"q must be (P, nq) = ({P}, {robot.nq})"),
         (a["v"].shape == (P, robot.nv), f"v must be (P, nv) = ({P}, {robot.nv})"),
-        (a["u"].ndim == 2 and a["u"].shape[0] == P, f"u must be (P, nu) with P = {P}"),
+        (a["u"].shape == (P, robot.nu), f"u must be (P, nu) = ({P}, {robot.nu})"),  # (4 panels for 2 motors)
         (bool(np.all(np.diff(a["t"]) >= 0)), "t must be non-decreasing"),
         (bool(np.all(np.diff(a["tau"]) >= 0)), "tau must be non-decreasing"),
     ]
     for key in ("lambda_n", "lambda_t"):
         if key in a:
             checks.append((a[key].ndim == 2 and a[key].shape[0] == P, f"{key} must be (P, n_contacts) with P = {P}"))
+    if "lambda_n" in a and "lambda_t" in a:  # (the contact-force plot's IndexError)
+        checks.append((a["lambda_t"].shape == a["lambda_n"].shape,
+                       f"lambda_t must have lambda_n's shape {a['lambda_n'].shape}, got {a['lambda_t'].shape}"))
     for ok, message in checks:
         if not ok:
             raise InputError(f"{npz_path}: {message}")

@@ -34,6 +34,7 @@ import dataclasses
 import json
 import math
 import os
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -499,6 +500,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--n-fe, --n-s and --max-iter must be >= 1")
     if not args.variants and not args.planner:
         parser.error("nothing to run: give --variants hint-free and/or hint, or --planner")
+    args.variants = list(dict.fromkeys(args.variants or []))  # (a variant named twice ran twice)
     return args
 
 
@@ -552,7 +554,8 @@ def main(argv: list[str] | None = None) -> int:
     hinted = next((r for r in records if r["solver"] == "nosnoc" and r["variant"] == "hint"), None)
     if ref is not None and hinted is not None:
         needs_hint = (not ref["converged"]) and bool(hinted["converged"])
-    results = {"benchmark": "bench_nosnoc", "command": "python -m scripts.bench_nosnoc " + " ".join(argv if argv is not None else sys.argv[1:]),
+    results = {"benchmark": "bench_nosnoc", "command": "python -m scripts.bench_nosnoc "
+               + shlex.join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "task": dataclasses.asdict(task),
                "machine": {**machine_info(), "nosnoc": _nosnoc_version(nosnoc) if nosnoc else None},
                "previous_machines": previous_machines, "run": run_info(),

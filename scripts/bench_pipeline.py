@@ -40,6 +40,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shlex
 import shutil
 import statistics
 import subprocess
@@ -382,8 +383,10 @@ def main(argv: list[str] | None = None) -> int:
     prepare_out_dir(args.out)  # before the runs: an --out that is a file was refused only after them
     problem_options = ProblemOptions(step_form=StepForm(args.step_form), lift_products=not args.no_lift)
     cases = args.cases or (["hop"] if args.quick else ["capler50", "capler125", "hop"])
-    cases = [c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))]
-    variants = [] if args.full_only else ["baseline"] + [v for v in (args.variants or VARIANTS) if v != "baseline"]
+    # each once (a case or variant named twice, or capler125 beside capler_set, ran twice)
+    cases = list(dict.fromkeys(c for name in cases for c in (CAPLER_SET if name == "capler_set" else (name,))))
+    variants = [] if args.full_only else ["baseline"] + list(dict.fromkeys(v for v in (args.variants or VARIANTS)
+                                                                            if v != "baseline"))
     full = []
     if (args.solve != parser.get_default("solve") or args.race) and not (args.full or args.full_only):  # they apply to the full solves only
         parser.error("--solve and --race apply to the full solves: add --full or --full-only")
@@ -421,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     load_before, start = os.getloadavg(), time.perf_counter()
     records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race, problem_options)
                for c in cases]
-    results = {"command": "python -m scripts.bench_pipeline " + " ".join(argv if argv is not None else sys.argv[1:]),
+    results = {"command": "python -m scripts.bench_pipeline " + shlex.join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {**machine_info(), "keep_freed_memory": heap_kept, "load_average_before": load_before,
                            "load_average_after": os.getloadavg()},

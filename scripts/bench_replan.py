@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     args = parser.parse_args(argv)
+    args.variants = list(dict.fromkeys(args.variants))  # a variant named twice ran twice, into one directory
     refuse_with_quick(parser, args, ["robot", "values"], "the point-mass hop to 0.52 m")
     if args.quick:
         robot, values, base_text = "point_mass", [0.52], QUICK_TASK

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -163,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
 
     start = time.perf_counter()
     records = run(list(dict.fromkeys(args.cases or CASES)), args.quick, log)  # a case named twice ran twice
-    results = {"command": "python -m scripts.bench_skips " + " ".join(argv if argv is not None else sys.argv[1:]),
+    results = {"command": "python -m scripts.bench_skips " + shlex.join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start, "cpu_count": os.cpu_count(),
                "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "load_average": os.getloadavg(), "records": records}
     return report(args.out, results, table(records), args.json)

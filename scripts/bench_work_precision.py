@@ -47,6 +47,7 @@ import dataclasses
 import json
 import math
 import os
+import shlex
 import statistics
 import sys
 import time
@@ -842,7 +843,8 @@ def main(argv: list[str] | None = None) -> int:
     machine = {**machine_info(), "load_average_before": load_before, "load_average_after": os.getloadavg()}
     orders = convergence_orders(records, None if args.suite == "simulate" else OCP_ORDER_KEYS)
     out.mkdir(parents=True, exist_ok=True)
-    results = {"command": "python -m scripts.bench_work_precision " + " ".join(argv if argv is not None else sys.argv[1:]),
+    results = {"command": "python -m scripts.bench_work_precision "
+               + shlex.join(argv if argv is not None else sys.argv[1:]),
                "suite": args.suite, "quick": args.quick, "repeat": args.repeat, "total_wall_time_s": time.perf_counter() - start,
                "machine": machine, "references": refs, "orders": orders, "records": records, "run": run_info()}
     write_atomically(out / "results.json", json.dumps(_strict(results), indent=1, allow_nan=False) + "\n")

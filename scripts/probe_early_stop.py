@@ -15,6 +15,7 @@ accept it, the plan's control cost and impacts, and in how many selectors the po
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -136,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     if max(at) > n_nlps:  # those NLPs are never run: an empty table, exit 0
         raise InputError(f"--at {max(at)}:...: the homotopy of case {case} has NLPs 1 to {n_nlps}")
     records = probe(problem, options, at)
-    results = {"command": "python -m scripts.probe_early_stop " + " ".join(argv if argv is not None else sys.argv[1:]),
+    results = {"command": "python -m scripts.probe_early_stop "
+               + shlex.join(argv if argv is not None else sys.argv[1:]),
                "case": case, "arm": args.arm, "records": records}
     return report(args.out, results, table(records), args.json)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import collections
 import re
+import shlex
 import sys
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 from planner.homotopy import SolveOptions, ipopt_options
 from planner.problem import ProblemOptions, build_problem
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import out_dir, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
@@ -150,11 +151,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=out_dir, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
+    if args.top < 1:  # (Counter.most_common listed nothing, exit 0)
+        parser.error(f"--top must be >= 1, got {args.top}")
+    refuse_with_quick(parser, args, ["case"], "the hop with N = 6")
     case = "hop" if args.quick else args.case
     robot, task = CASES[case](args.quick)
     problem = build_problem(robot, task, ProblemOptions(lift_products=not args.no_lift))
     records = probe(problem, args.nlps, args.top)
-    results = {"command": "python -m scripts.probe_steps " + " ".join(argv if argv is not None else sys.argv[1:]), "case": case,
+    results = {"command": "python -m scripts.probe_steps "
+               + shlex.join(argv if argv is not None else sys.argv[1:]), "case": case,
                "lift_products": not args.no_lift, "cut_ratio": CUT_RATIO, "records": records}
     return report(args.out, results, table(records), args.json)
 

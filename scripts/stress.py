@@ -34,6 +34,7 @@ import dataclasses
 import json
 import math
 import os
+import shlex
 import sys
 import time
 import tomllib
@@ -647,12 +648,14 @@ def main(argv: list[str] | None = None) -> int:
         where = f" at {rec['stage']}" if rec["outcome"] == CRASHED else ""
         print(f"{rec['id']:<20} {rec['outcome']}{where}  {(rec.get('message') or '')[:120]}", file=sys.stderr, flush=True)
 
-    command = "python -m scripts.stress " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python -m scripts.stress " + shlex.join(argv if argv is not None else sys.argv[1:])
     workers = args.workers
     if workers is None and args.race and args.scheduler is None:
         from planner.race import usable_cpus  # (planner.race loads CasADi: not for --list)
 
         workers = max(1, usable_cpus() // 2)  # each task's race takes two CPUs
+    elif workers is None and args.scheduler is None:  # run_batch's own default, resolved (results.json said null)
+        workers = max(1, min(os.cpu_count() or 1, len(specs)))
     start = time.perf_counter()
     try:
         raw = run_batch(run_task, specs, scheduler=args.scheduler, workers=workers, progress=log)

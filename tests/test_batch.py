@@ -104,6 +104,16 @@ def test_rejects_lambda_and_negative_workers():
             run_batch(square_or_raise, [1], workers=bad)
 
 
+def test_rejects_what_is_no_function_or_no_items():
+    """A fn that is not callable is an InputError with workers=0 too (each job was a Crashed record of "'int' object
+    is not callable"), and items that are not iterable are one (a bare TypeError)."""
+    for workers in (0, None):
+        with pytest.raises(InputError, match="run_batch's fn must be callable, got 3"):
+            run_batch(3, [1], workers=workers)
+    with pytest.raises(InputError, match="run_batch's items must be iterable, got None"):
+        run_batch(square_or_raise, None)
+
+
 def test_dask_local_cluster_matches_serial():
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:

@@ -338,13 +338,16 @@ OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio=
     ("</worldbody>", '</worldbody><tendon><fixed name="t" limited="true" range="-1 0.2"><joint joint="x" coef="1"/></fixed>'
      '</tendon>', "tendon 't': range [-1, 0.2]"),
     (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "point 'point' is up to 0.3 m apart"),
+    (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "joint 'x': ref 0.3 m, which MuJoCo's slide"),
+    (OPTION, '<compiler settotalmass="2"/>' + OPTION, '<compiler settotalmass="2">: MuJoCo rescales the masses'),
     ('<site name="point"', '<body name="load"><geom type="sphere" size="0.02" mass="2"/></body><site name="point"',
      "mass matrix [kg, kg m, kg m^2] differs by up to 2 (e.g. masses MuJoCo infers from geoms"),
 ])
 def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, named):
     """A robot file MuJoCo reads with physics Pinocchio's reading lacks (gravity compensation, [option] flags, fluid
-    forces, tendon springs and limits, a slide joint's ref, a mass MuJoCo infers from a geom) fails check-model, naming
-    it (the ref's and the geom mass's as its sites and mass errors), and simulate and plan refuse it naming it
+    forces, tendon springs and limits, a slide joint's ref, settotalmass, a mass MuJoCo infers from a geom) fails
+    check-model, naming it (the geom mass's as its mass error only; the ref and settotalmass were named by their site
+    and mass errors alone), and simulate and plan refuse it naming it
     (Task.check_against): each of them had planned, and its MuJoCo validation PASSED, for physics the replay does not
     have (a gravity-compensated point mass that never falls)."""
     from planner.check import reading_differences
@@ -360,6 +363,17 @@ def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, name
     assert not result.passed and (numeric or named in result.report())
     with pytest.raises(RobotFileError, match="MuJoCo reads other physics from this file than Pinocchio"):
         load_task(ROBOTS_DIR / "point_mass.toml").check_against(robot)
+
+
+def test_mujoco_prints_no_warning_of_its_own_when_a_robot_is_read(tmp_path, capfd, monkeypatch):
+    """Reading a robot file MuJoCo warns about (a deprecated settotalmass) prints nothing raw on stderr and writes no
+    MUJOCO_LOG.TXT into the working directory (both went through -q); the check says it as a Python warning."""
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "variant.xml"
+    path.write_text(POINT_MASS.replace(OPTION, '<compiler settotalmass="2"/>' + OPTION))
+    with pytest.warns(UserWarning, match="settotalmass"):
+        check_model(load_robot(path), samples=2)
+    assert "settotalmass" not in capfd.readouterr().err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
 def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):

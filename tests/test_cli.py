@@ -1046,6 +1046,24 @@ def test_a_ctrl_c_casadi_turned_into_a_system_error_is_an_interruption(tmp_path,
         main(["simulate", "point_mass", "--out", str(tmp_path / "out")])
 
 
+def test_a_ctrl_c_in_the_validation_says_the_result_was_written(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C during a plan's validation, after the new result replaced the earlier one, says where the result is and
+    that it is not validated before the interruption's line (exit 130): "interrupted" alone let the earlier result
+    seem kept."""
+    import planner.replay as replay
+
+    def interrupted(target, options=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(replay, "validate", interrupted)
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "--no-plots", "-q", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, not validated",
+                                                    "planner plan: interrupted"]
+    assert (out / "summary.json").is_file()
+
+
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
     """The earlier result's plots are removed before the new result is written: when one cannot be (an immutable
     file), the command stops (exit 2) with the earlier result and its plots as they were; the new result had

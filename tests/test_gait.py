@@ -191,6 +191,19 @@ def test_a_biped_whose_legs_differ_is_refused(tmp_path, old, new, differs):
     check_mirror_legs(PinnedBiped(load_robot("biped")))
 
 
+def test_a_biped_whose_motors_are_geared_is_refused(tmp_path):
+    """Both motors of gear 2 (mirror images still) are a TaskError before the solve naming them and the fix: the gait
+    weighs and reports the commands as hinge torques, and such a robot converged to another gait (cost 8.48 for 14.14)
+    whose "N m" fields were half its torques."""
+    from planner.gait import run_gait
+
+    path = tmp_path / "geared.xml"
+    path.write_text((ROBOTS_DIR / "biped.xml").read_text().replace('gear="1"', 'gear="2"'))
+    with pytest.raises(TaskError, match=r"motor 'hip_1' \(gear 2\), 'hip_2' \(gear 2\): .* give the motors gear 1"):
+        run_gait(path, ROBOTS_DIR / "biped_gait1.toml", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_diverged_projection_still_writes_its_diagnostics(tmp_path):
     """A PRONTO projection that diverges (no state feedback, 8 s period) is a SolveError (exit 1) that still writes
     DIR/failed/summary.json, converged false with the message and the outer loops before it, and says where (it
@@ -445,7 +458,8 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
 
 
 def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
-    """The gait model walks on z = 0 with the period horizon.tau_f: a ground_height, a tilted contact normal or a
+    """The gait model walks on z = 0 with the period horizon.tau_f and lands inelastically: a ground_height, a tilted
+    contact normal, a restitution (a converged gait exited on friction only, the elastic contact unsaid) or a
     horizon.physical_time are refused before the solve, named (they were ignored: a ground at 0.3 m planned the
     same gait, and MuJoCo's replay on the moved ground fell after one step), with no warning before."""
     import warnings
@@ -454,8 +468,11 @@ def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
 
     task = load_task(ROBOTS_DIR / "biped_gait1.toml")
     tilted = dataclasses.replace(task.contacts[0], normal=(0.1, 0.0, 0.995))
+    elastic = dataclasses.replace(task.contacts[1], restitution=0.8)
     for changed, said in ((dataclasses.replace(task, ground_height=0.3), "ground_height = 0.3"),
                           (dataclasses.replace(task, contacts=(tilted, *task.contacts[1:])), "contacts[0].normal"),
+                          (dataclasses.replace(task, contacts=(task.contacts[0], elastic)),
+                           "contacts[1].restitution = 0.8"),
                           (dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=1.0)),
                            "horizon.physical_time = 1")):
         with pytest.raises(TaskError, match=rf"{re.escape(said)}.* would be ignored by `planner gait`"):
@@ -545,3 +562,6 @@ def test_a_foot_that_is_not_on_a_motor_driven_leg_is_named(robot):
         find_layout(robot, "torso_top", "foot_2")
     with pytest.raises(InputError, match=r"the swing foot 'torso_top' is not on a motor-driven leg hinge"):
         find_layout(robot, "foot_1", "torso_top")
+    # an unknown point is said of its [gait] key, as the task's other names are
+    with pytest.raises(InputError, match=r"^gait.swing: unknown point 'foot_3'; valid points: "):
+        find_layout(robot, "foot_1", "foot_3")

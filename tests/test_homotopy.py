@@ -156,7 +156,8 @@ def test_bad_options(kwargs, key):
 @pytest.mark.parametrize("kwargs, key", [({"hybrid_rho": 5.0}, "hybrid_rho = 5.0"),
                                          ({"hybrid_ratio": 3.0}, "hybrid_ratio"),
                                          ({"polish": "none", "polish_starts": 5}, "polish_starts = 5"),
-                                         ({"polish": "none", "polish_after_failure": False}, "polish_after_failure")])
+                                         ({"polish": "none", "polish_after_failure": False}, "polish_after_failure"),
+                                         ({"polish": "none", "polish_projection": False}, "polish_projection")])
 def test_options_of_a_polish_not_run_are_refused(kwargs, key):
     """The hybrid polish's options without polish = hybrid, and the polish's starts and after-failure switch with
     polish = none, are InputErrors naming the option: they were accepted, recorded in summary.json and ignored. With
@@ -164,6 +165,31 @@ def test_options_of_a_polish_not_run_are_refused(kwargs, key):
     with pytest.raises(InputError, match=re.escape(key) + r".* unless"):
         H.SolveOptions(**kwargs)
     H.SolveOptions(**{**kwargs, "polish": "hybrid"})
+
+
+@pytest.mark.parametrize("kwargs, key, needs", [
+    ({"mu_init": 1e-6}, "mu_init = 1e-06", {"mu_strategy": "monotone"}),
+    ({"warm_mu_init": 1e-6}, "warm_mu_init = 1e-06", {"mu_strategy": "monotone"}),
+    ({"linear_solver": "spral", "mumps_ordering": "amd"}, "mumps_ordering", {"linear_solver": "mumps"}),
+    ({"soft_terminal_nlps": 0, "soft_terminal_weight": 1e6}, "soft_terminal_weight", {"soft_terminal_nlps": 1})])
+def test_options_their_solve_does_not_read_are_refused(kwargs, key, needs):
+    """A barrier start under the adaptive strategy (IPOPT reads mu_init with monotone only), a MUMPS ordering for
+    another linear solver and a soft-terminal weight with no soft-terminal NLP are InputErrors naming the option: each
+    was accepted, recorded in summary.json and gave the same iterations and plan as the solve without it. With what
+    reads them they are taken."""
+    with pytest.raises(InputError, match=re.escape(key) + r".* unless"):
+        H.SolveOptions(**kwargs)
+    H.SolveOptions(**{**kwargs, **needs})
+
+
+def test_replan_options_refuse_what_they_replace():
+    """replan_options refuses options it would replace (rho_schedule 1e5 came back (1e4, 1e6) without a word) and a
+    soft-terminal weight its soft_terminal_nlps = 0 leaves unread, naming them; the rest it keeps."""
+    with pytest.raises(InputError, match=r"replan_options sets rho_schedule, holes: leave them at the default"):
+        H.replan_options(H.SolveOptions(rho_schedule=(1e5,), holes="enforced"))
+    with pytest.raises(InputError, match=r"soft_terminal_weight .* \(a replan solves with soft_terminal_nlps = 0"):
+        H.replan_options(H.SolveOptions(soft_terminal_weight=1e6))
+    assert H.replan_options(H.SolveOptions(max_iter=77)).max_iter == 77
 
 
 def test_edge_options_are_accepted():
@@ -390,14 +416,17 @@ def test_aux_continuation_scale_one_is_the_task():
 
 
 def test_task_rho_schedule():
-    """rho_min drops the weak penalties, rho_max continues the task's geometric schedule, refine
-    sorts extra values in (only inside the schedule's range)."""
+    """rho_min drops the weak penalties, rho_max continues the task's geometric schedule (and refuses a rho0 above
+    it), refine sorts extra values in (only inside the schedule's range)."""
     from types import SimpleNamespace
     hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
     assert H.task_rho_schedule(hom) == [1.0, 10.0, 100.0, 1000.0, 10000.0]
     assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     assert H.task_rho_schedule(hom, 1e9) == [1e4]
     assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
+    # a rho0 above rho_max ran its NLP anyway (1e200: 3000 iterations to objective -1e192, blamed on the target)
+    with pytest.raises(InputError, match=r"plan.homotopy.rho0 = 1e\+200 is above rho_max = 1000000.0"):
+        H.task_rho_schedule(SimpleNamespace(rho0=1e200, kappa=10.0, n_nlp=1), None, 1e6)
 
 
 def test_homotopy_nlp_is_what_solve_hands_ipopt():

@@ -259,6 +259,55 @@ def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checke
         task.check_against(sideways)
 
 
+def test_an_unnamed_site_is_no_point(tmp_path):
+    """A site without a name is no contact point: Pinocchio names it ("massSite_0") and simulate planned on it, then
+    validate refused the result (MuJoCo has no site of that name). Named sites stay points."""
+    from planner.errors import UnknownNameError
+    from planner.task import parse_task
+
+    path = tmp_path / "unnamed.xml"
+    path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/>'
+                    '<joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" '
+                    'diaginertia="0.01 0.01 0.01"/><site pos="0.1 0 0"/><site name="foot"/></body>'
+                    '</worldbody></mujoco>')
+    robot = load_robot(path)
+    assert "massSite_0" in [f.name for f in robot.model.frames]  # (Pinocchio's made-up name, which was offered)
+    assert robot.sites == ("foot",) and "massSite_0" not in robot.points
+    task = parse_task({"contacts": [{"point": "massSite_0"}], "initial": {"q": [0.0, 0.3]},
+                       "horizon": {"tau_f": 0.4, "N": 4}})
+    with pytest.raises(UnknownNameError, match="unknown contact point 'massSite_0'; valid contact points: foot"):
+        task.check_against(robot)
+
+
+def test_unnamed_joints_and_bodies_are_named_as_the_cause(tmp_path):
+    """Joints without a name (Pinocchio calls them dof_0 ..., MuJoCo '') fail check-model and the task's check with
+    the fix "name every <joint>", and bodies without a name (Pinocchio's parser finds no body, or reads no joints in
+    the root) are named as the cause: the messages blamed the joints' order, a <frame> or an <include>, or none."""
+    from planner.check import check_model
+    from planner.task import parse_task
+
+    body = ('<body{name}><joint{j} type="slide" axis="1 0 0"/><joint{k} type="slide" axis="0 0 1"/>'
+            '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/><site name="foot"/></body>')
+    joints = tmp_path / "joints.xml"
+    joints.write_text("<mujoco><worldbody>" + body.format(name=' name="a"', j="", k="") + "</worldbody></mujoco>")
+    report = check_model(load_robot(joints))
+    assert not report.passed and any("name every <joint>" in f for f in report.failures)
+    task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.3]},
+                       "horizon": {"tau_f": 0.4, "N": 4}})
+    with pytest.raises(RobotFileError, match="name every <joint>"):
+        task.check_against(load_robot(joints))
+    bodies = tmp_path / "bodies.xml"
+    named = body.format(name="", j=' name="x"', k=' name="z"')
+    bodies.write_text("<mujoco><worldbody>" + named + "</worldbody></mujoco>")
+    with pytest.raises(RobotFileError, match=r"no body found .*reads named bodies only: name every <body>"):
+        load_robot(bodies)
+    child = ('<body pos="0 0 -0.2"><joint name="h" type="hinge" axis="0 1 0"/><inertial pos="0 0 0" mass="1" '
+             'diaginertia="0.01 0.01 0.01"/></body>')
+    bodies.write_text("<mujoco><worldbody>" + named.replace("</body>", child + "</body>") + "</worldbody></mujoco>")
+    with pytest.raises(RobotFileError, match="nor a body without a name: name every <body>"):
+        load_robot(bodies)
+
+
 def test_couplings_and_negative_inertias_are_refused(tmp_path):
     """A URDF <mimic> joint (Pinocchio: an independent joint; MuJoCo: an equality constraint, so the replay and the
     plan disagreed and both passed) is refused by simulate and plan (Task.check_against) naming the joint, as passive

@@ -806,6 +806,9 @@ def test_missing_and_garbled_files(ground_truth, tmp_path):
     (d / "trajectory.npz").write_bytes(b"this is not a zip file")
     with pytest.raises(InputError, match="npz"):
         replay.validate(d)
+    (d / "trajectory.npz").write_bytes(b"version https://git-lfs.github.com/spec/v1\noid sha256:4d7a\nsize 14948\n")
+    with pytest.raises(InputError, match="not a readable .npz file: it is no zip archive"):  # (said: allow pickles)
+        replay.validate(d)
     d = copy("missing_array")
     np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "impact_times")})
     with pytest.raises(InputError, match="'u'|u"):
@@ -834,6 +837,20 @@ def test_missing_and_garbled_files(ground_truth, tmp_path):
     np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
              impact_times=np.atleast_1d(traj["impact_times"]) - 0.01)
     with pytest.raises(InputError, match=r"impact_times\[0\] = .* summary.json's impacts\[0\] time .* disagree"):
+        replay.validate(d)
+    d = copy("no_command")  # validated without the hole and own-dynamics checks, passed
+    (d / "summary.json").write_text(json.dumps({**json.loads((good / "summary.json").read_text()), "command": "foo"}))
+    with pytest.raises(InputError, match=r"summary.json: command 'foo' is none of 'plan', 'simulate'"):
+        replay.validate(d)
+    d = copy("impact_added")  # one impact more in the npz than in summary.json: validated, "point@0.300s: none", passed
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
+             impact_times=np.append(traj["impact_times"], 0.3))
+    with pytest.raises(InputError, match=r"trajectory.npz has 2 impact time\(s\), summary.json 1 impact\(s\)"):
+        replay.validate(d)
+    d = copy("impact_times_2d")  # a traceback (the impacts' points were read before the arrays were checked)
+    np.savez(d / "trajectory.npz", **{k: traj[k] for k in ("t", "q", "v", "u")},
+             impact_times=np.atleast_2d(traj["impact_times"]))
+    with pytest.raises(InputError, match=r"'impact_times' must have shape \(I,\)"):
         replay.validate(d)
     d = copy("complex")  # replayed the real part, with a ComplexWarning
     np.savez(d / "trajectory.npz", **{**{k: traj[k] for k in ("t", "v", "u", "impact_times")}, "q": traj["q"] + 1j})
@@ -1025,12 +1042,13 @@ def test_one_explicit_gain_keeps_the_rules_other_gain():
 def test_a_window_below_the_sample_step_is_refused(ground_truth, capsys):
     """A window shorter than the replay's sample step, or than three strides (the impacts' windows ended before them),
     is an InputError (it ran one sample per window while the report named the asked length); the CLI says so in one
-    line, exit 2."""
+    line, exit 2, naming the one limit."""
     from planner.cli import main
 
     _, out = ground_truth
     assert main(["validate", str(out), "--window", "1e-9"]) == 2
-    assert "window_s = 1e-09 is not allowed" in capsys.readouterr().err
+    # the one limit said (the sample step was named, then a window at it refused for the strides')
+    assert "window_s = 1e-09 is not allowed; it must be >= 3 window_stride_s = 0.075 s" in capsys.readouterr().err
     # an impact is timed in the window started 25-50 ms before it: a 50 ms window ended before it ("none": MuJoCo saw
     # no landing), and it is refused before any replay runs
     assert main(["validate", str(out), "--window", "0.05"]) == 2

@@ -546,9 +546,18 @@ def test_written_files_have_the_umasks_mode_and_os_errors_are_input_errors(tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "summary.json"]
 
 
+def test_a_result_id_is_a_string(tmp_path):
+    """write_files refuses a result_id that is not a string before writing: an int 123 was written to summary.json and
+    its readers, comparing it with the npz's '123', refused the directory as two results' files."""
+    with pytest.raises(InputError, match="result_id must be a str or None, got int 123"):
+        write_files(tmp_path / "out", {"t": np.zeros(2)}, {"command": "x"}, result_id=123)
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_result_is_frozen_through_its_arrays(tmp_path):
     """A Trajectory's and an Impact's arrays are read-only (writing raises ValueError), so a result cannot be changed
-    in place (`trajectory.t[0] = 123` changed physical_duration): not after `flags.writeable = True`, nor in a pickled
+    in place (`trajectory.t[0] = 123` changed physical_duration): not after `flags.writeable = True` on them or on
+    their `.base`, nor in a pickled
     or deep-copied result (they came back writable, a cached `taps` too); the
     arrays the caller built stay writable and are not shared."""
     robot = load_robot("point_mass")
@@ -561,6 +570,9 @@ def test_a_result_is_frozen_through_its_arrays(tmp_path):
                 array[0] = 123.0
             with pytest.raises(ValueError, match="WRITEABLE"):
                 array.flags.writeable = True
+            if array.base is not None:  # (an owning copy behind the view was made writable through it)
+                with pytest.raises(ValueError, match="WRITEABLE"):
+                    array.base.flags.writeable = True
     own = np.zeros(3)
     impact = replace(result.trajectory.impacts[0], q=own)
     own[0] = 1.0

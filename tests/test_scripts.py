@@ -6,6 +6,7 @@ import dataclasses
 import importlib.util
 import json
 import math
+import shlex
 import shutil
 import subprocess
 import sys
@@ -293,7 +294,7 @@ def test_stress_reduced_run(stress, tmp_path, capsys):
 def test_stress_race_solves_each_task_as_planner_plan_does(stress, tmp_path, capsys):
     """--race: each task is the race of planner.race.default_arms on two CPUs (its record lists both arms, the
     winner's iterations are the record's), one task per two CPUs unless --workers says otherwise; without it
-    the record has no race."""
+    the record has no race, and results.json names the processes used."""
     from planner.race import usable_cpus
 
     if usable_cpus() < 2:
@@ -310,10 +311,11 @@ def test_stress_race_solves_each_task_as_planner_plan_does(stress, tmp_path, cap
     assert set(arms) == {"default", "alternate"}
     won = [a for a in arms.values() if a["outcome"] == "won"]
     assert len(won) == 1 and won[0]["iterations"] == rec["ipopt_iterations"]
-    assert stress.main(argv + ["--workers", "0", "--out", str(tmp_path / "plain")]) == 0
+    assert stress.main(argv + ["--out", str(tmp_path / "plain")]) == 0
     capsys.readouterr()
     plain = json.loads((tmp_path / "plain" / "results.json").read_text())
     assert plain["race"] is False and "race" not in plain["records"][0]
+    assert plain["workers"] == 1  # the processes run_batch used for the one task (null was recorded)
 
 
 def _one(stress):
@@ -640,15 +642,19 @@ def test_bench_skips_quick_run(tmp_path, capsys):
 
 
 def test_probe_steps_quick_run(tmp_path, capsys):
-    """--quick --json: a record per NLP (1 and 2 of the hop) with the documented fields, the same in results.json; the
-    NLPs are the homotopy's own (as many iterations as solve()'s NLPs 1 and 2), and no more steps are cut than taken."""
+    """--quick --json: a record per NLP (1 and 2 of the hop) with the documented fields, the same in results.json, whose
+    command is shell-quoted; the NLPs are the homotopy's own (as many iterations as solve()'s NLPs 1 and 2), and no
+    more steps are cut than taken."""
     from scripts import probe_steps
 
     robot, task = probe_steps.CASES["hop"](True)
     homotopy = H.solve(build_problem(robot, task)).nlps
-    assert probe_steps.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    out = tmp_path / "with space"
+    assert probe_steps.main(["--quick", "--json", "--out", str(out)]) == 0
     rec = json.loads(capsys.readouterr().out)
-    assert rec == json.loads((tmp_path / "results.json").read_text()) and rec["case"] == "hop"
+    assert rec == json.loads((out / "results.json").read_text()) and rec["case"] == "hop"
+    # the command as the shell reads it (an --out with a space, a --solve JSON were pasted back broken)
+    assert shlex.split(rec["command"])[-1] == str(out)
     assert [r["nlp"] for r in rec["records"]] == ["NLP 1", "NLP 2"]
     assert [r["iterations"] for r in rec["records"]] == [n.iterations for n in homotopy[:2]]
     for r in rec["records"]:
@@ -1025,6 +1031,8 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--solvers", "ipopt", "--max-iter", "2", "--ipopt-opt", "tol=abc"],
      "given as text: tol=abc"),  # CasADi's "type mismatch" traceback
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--out", "{dir}"], "must name a file to write"),  # after the run
+    (["scripts.probe_steps", "--quick", "--case", "capler50"], "--quick runs the hop with N = 6: give no --case"),
+    (["scripts.probe_steps", "--quick", "--top", "0"], "--top must be >= 1, got 0"),  # listed nothing, exit 0
     pytest.param(["scripts.bench_pipeline", "--quick", "--codegen", "--codegen-flags=-Obogus", "--variants", "baseline",
                   "--cache", "{dir}/cache"], "gcc refused --codegen-flags -Obogus",  # CalledProcessError
                  marks=pytest.mark.skipif(shutil.which("gcc") is None, reason="the codegen variant needs gcc")),
@@ -1631,6 +1639,33 @@ def test_an_interrupted_rerun_leaves_no_results_json_of_the_runs_it_replaced(tmp
     with pytest.raises(KeyboardInterrupt):
         module.main(["--quick", "--out", str(out)])
     assert not (out / "results.json").exists()
+
+
+def test_bench_pipeline_and_replan_run_a_name_given_twice_once(tmp_path, monkeypatch):
+    """bench_pipeline's cases and variants and bench_replan's variants named twice run once each (they ran twice, the
+    replan's second run deleting the first one's plan); capler125 beside capler_set, which holds it, runs once."""
+    import contextlib
+    import importlib
+
+    pipeline = importlib.import_module("scripts.bench_pipeline")
+    seen = []
+    monkeypatch.setattr(pipeline, "run_case", lambda name, quick, iters, repeats, variants, *rest: seen.append(
+        (name, tuple(variants))) or {"case": name, "variants": []})
+    monkeypatch.setattr(pipeline, "table", lambda records, *rest: "")
+    argv = ["--cases", "hop", "hop", "capler125", "capler_set", "--variants", "baseline", "spral", "spral",
+            "--out", str(tmp_path / "pipe"), "--json"]
+    with contextlib.suppress(Exception):  # (the report of the stubbed records is not this test's)
+        pipeline.main(argv)
+    assert [name for name, _ in seen] == list(dict.fromkeys(["hop", "capler125", *pipeline.CAPLER_SET]))
+    assert all(variants == ("baseline", "spral") for _, variants in seen)
+    replan = importlib.import_module("scripts.bench_replan")
+    runs = []
+    monkeypatch.setattr(replan, "plan", lambda robot, task, out, extra, validate: runs.append(extra)
+                        or {"exit_code": 0})
+    monkeypatch.setattr(replan, "table", lambda rows: "")
+    replan.main(["--quick", "--variants", "keep_schedule", "keep_schedule", "--out", str(tmp_path / "replan"),
+                 "--json"])
+    assert len([r for r in runs if "--init" in r]) == 1
 
 
 def test_bench_skips_runs_a_case_named_twice_once(tmp_path, monkeypatch):

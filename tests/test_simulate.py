@@ -809,3 +809,22 @@ def test_a_step_counts_as_beyond_the_bounds_when_any_of_its_elements_is():
     U = np.array([[-0.5], [3.0], [2.0], [1.0]])  # two steps of two elements
     assert _pd_summary(robot, task, None, U, per_step=2)["steps_beyond_actuator_bounds"] == 1
     assert _pd_summary(robot, task, None, U)["steps_beyond_actuator_bounds"] == 1  # four steps of one element
+
+
+STRADDLE_IMPULSE_RTOL = 1e-3  # the impulse m |v_pre| against the drop's: gravity over the frozen part, solver tolerance
+
+
+@pytest.mark.parametrize("z0, v0, N", [(1.032, 0.0, 35), (1.005, 1.0, 70)])
+def test_a_stiff_landing_across_a_node_is_one_whole_impact(z0, v0, N):
+    """With a_n = 1e4 a landing straddles a node, one of its two steps freezing under frozen_tol (1 %): the impact is
+    still whole, v_pre the fall's sqrt(2 g z0) (within g h), v_post at rest on the ground and the impulse
+    m |v_pre|. At z0 = 1.032 the second step froze 0.99 % and v_post kept moving into the ground at 2 m/s (44 % of the
+    impulse missing); at z0 = 1.005 the first froze 0.998 % and v_pre read -3.4 m/s (23 % missing)."""
+    task = parse_task({"contacts": [{"point": "point", "a_n": 1e4}], "initial": {"q": [0.0, z0], "v": [v0, 0.0]},
+                       "horizon": {"tau_f": 0.7, "N": N}})
+    impacts = simulate(load_robot("point_mass"), task).trajectory.impacts
+    assert len(impacts) == 1
+    imp, fall = impacts[0], math.sqrt(2 * G * z0)
+    assert abs(-imp.v_pre[1] - fall) <= G * 0.7 / N  # implicit Euler's speed is the fall's within one step's g h
+    assert abs(imp.v_post[1]) < GAP_TOL and imp.v_post[0] == pytest.approx(v0, abs=GAP_TOL)
+    assert imp.impulse == pytest.approx(-imp.v_pre[1], rel=STRADDLE_IMPULSE_RTOL)

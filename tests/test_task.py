@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -134,8 +135,9 @@ def test_robot_dependent_errors():
 
 def test_constant_controls_beyond_the_actuators_range_warn():
     """simulate.u and a schedule's u beyond an actuator's range warn, naming the entry, the actuator and its range:
-    MuJoCo's replay clamps them (a 200 N push on a 30 N motor went 56 m and failed validation at 46 m unexplained).
-    The checks that plan and validate share stay silent: those commands do not use these controls."""
+    MuJoCo's replay clamps them (a 200 N push on a 30 N motor went 56 m and failed validation at 46 m unexplained); a
+    joint PD's q_ref beyond its joint's range and a schedule entry at or after tau_f warn likewise. The checks that
+    plan and validate share stay silent: those commands do not use these controls."""
     capler = load_robot("capler")
     pushed = parse_task(_with("simulate", {"u": [100.0, 0.0]}))
     with warnings.catch_warnings():
@@ -147,7 +149,38 @@ def test_constant_controls_beyond_the_actuators_range_warn():
     schedule = {"schedule": [{"t": 0.5, "u": [0.0, -61.0]}]}
     with pytest.warns(UserWarning, match=r"simulate.schedule\[0\].u\[1\] = -61 \(knee_motor\)"):
         parse_task(_with("simulate", schedule)).warn_controls_beyond_range(capler)
+    # a PD target in degrees (a failed step 0, exit 1, unwarned); one inside the joint's range stays silent
+    pd = {"joints": ["hip", "knee"], "kp": [100.0, 100.0], "kd": [2.0, 2.0]}
+    with pytest.warns(UserWarning, match=r"simulate.pd.q_ref\[0\] = 45 \(hip\) is beyond the joint's range "
+                                         r"\[-1.178.*, 1.178.*\] \[rad or m\]"):
+        parse_task(_with("simulate", {"pd": {**pd, "q_ref": [45.0, -0.5]}})).warn_controls_beyond_range(capler)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parse_task(_with("simulate", {"pd": {**pd, "q_ref": [0.5, -0.5]}})).warn_controls_beyond_range(capler)
+    late = {"schedule": [{"t": 100.0, "u": [0.0, 0.0]}]}  # (never acted, unsaid: a value meant in ms?)
+    with pytest.warns(UserWarning, match=r"simulate.schedule\[0\].t = 100 s is not before the horizon's end"):
+        parse_task(_with("simulate", late)).warn_controls_beyond_range(capler)
 
+
+
+def test_a_hole_wholly_below_the_ground_warns():
+    """A hole whose top (z + b) is at or below ground_height warns naming it and its z's meaning: with ground_height
+    0.3 and z left out (0) the hole did nothing and the plan was the hole-free one, unsaid. A hole reaching above the
+    ground is silent."""
+    robot = load_robot("point_mass")
+    base = {"ground_height": 0.3, "contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.3]},
+            "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.3], "u_bound": 30.0}}
+    below = parse_task({**base, "plan": {**base["plan"], "holes": [{"x": 0.25, "a": 0.1, "b": 0.1}]}})
+    above = parse_task({**base, "plan": {**base["plan"], "holes": [{"x": 0.25, "z": 0.3, "a": 0.1, "b": 0.1}]}})
+    said = []
+    for task in (below, above):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            task.check_against(robot)
+        said.append([str(w.message) for w in caught if "hole" in str(w.message)])
+    assert len(said[0]) == 1 and said[1] == []
+    assert re.match(r"plan.holes\[0\] lies wholly below the ground \(its top z \+ b = 0.1 m, ground_height 0.3 m\).* "
+                    r"0 when omitted", said[0][0])
 
 
 def test_a_ground_height_other_than_the_files_ground_plane_warns(tmp_path):
@@ -501,6 +534,22 @@ def test_a_task_file_that_is_not_utf8_is_named(tmp_path):
     path.write_bytes(b"\xff\xfe[horizon]\n")
     with pytest.raises(TaskError, match=r"binary.toml: not valid TOML"):
         load_task(path)
+
+
+def test_a_task_path_that_is_no_regular_file_is_said_so():
+    """A task path that exists but is no regular file (/dev/null) is said to be one, not "not found"."""
+    with pytest.raises(TaskError, match=r"task file /dev/null is not a regular file"):
+        load_task("/dev/null")
+
+
+def test_an_integer_too_long_to_read_is_named_without_pythons_advice(tmp_path):
+    """An integer of more than 4300 digits (Python's limit on reading one) is a TaskError naming the file and the
+    limit, without Python's advice to call sys.set_int_max_str_digits (no option of a task file)."""
+    path = tmp_path / "long.toml"
+    path.write_text("N = 1" + "0" * 5000 + "\n")
+    with pytest.raises(TaskError, match=r"long.toml: Exceeds the limit \(4300 digits\).*; no task value needs") as err:
+        load_task(path)
+    assert "set_int_max_str_digits" not in str(err.value)
 
 
 HUGE_INT = 10**400  # beyond a double's 1.8e308: converting it to a float raises OverflowError

@@ -202,6 +202,10 @@ def _nan_q(d: Path) -> None:
     (lambda d: _changed(d, "impact_times", lambda t: np.array(["soon"] * t.size)), "impact_times must hold numbers"),
     (lambda d: (d / "summary.json").write_text(json.dumps({"robot": "/nowhere/r.xml"})), "was not found"),
     (lambda d: _changed(d, "q", lambda q: q + 1j), "q must hold real numbers"),  # drawn from the real part, with a warning
+    # four control panels for two motors were drawn; lambda_t narrower than lambda_n raised the plot's IndexError
+    (lambda d: _changed(d, "u", lambda u: np.hstack([u, u])), "u must be (P, nu)"),
+    (lambda d: _changed(d, "lambda_t", lambda lt: np.zeros((lt.shape[0], lt.shape[1] + 1))), "lambda_t must have "
+                                                                                             "lambda_n's shape"),
 ])
 def test_load_result_rejects_a_bad_directory_in_one_line(result_dir, damage, message):
     """A broken result directory is an InputError (exit 2 in the CLI) whose one line says what is wrong."""
