@@ -662,8 +662,7 @@ def _cmd_plan(args) -> int:
         except BaseException as exc:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
-            if isinstance(exc, (KeyboardInterrupt, PlannerError)):  # (only "interrupted": the earlier result, gone,
-                # seemed kept)
+            if isinstance(exc, KeyboardInterrupt):  # (only "interrupted": the earlier result, gone, seemed kept)
                 print(f"planner plan: {'converged' if ok else 'FAILED'}: results in {target}, not validated",
                       file=args.stderr or sys.stderr)
             raise
