@@ -119,8 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", type=path_argument, metavar="DIR",
                    help="replan from the plan in DIR (a `planner plan` result with the same contacts, N and options) after a "
                         "change of target, bounds or holes that DIR's plan nearly meets: first one smooth NLP with DIR's contact "
-                        "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: 31 iterations, ~1 s of "
-                        "solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between DIR's task and "
+                        "schedule held (its impacts on the same steps; Capler's target moved 0.1 m: ~30 iterations, "
+                        "~1 s of solve; 3.0 -> 3.4 m in ~4 s); if that is refused, a walk there through tasks between "
+                        "DIR's task and "
                         "this one, every number of the task file moved part of the way (the biped's step 0.25 -> 0.30 m: "
                         "~10 s); if the walk stalls, the penalty replan (--penalty-replan). The held schedule keeps "
                         "DIR's timing; a walk that stalls may re-time it on the way (a penalty replan of the task "
@@ -708,8 +709,8 @@ def _remove_plots(target: Path) -> None:
 
 
 def _skips_apart(init: Path, arrays: dict, task) -> str:
-    """Why a start's NLP variables may differ though its robot, contacts, N and options are this task's: a scene skip
-    one task has and the other not (mu = 0 drops a contact's tangential variables), or horizon.physical_time (a speed
+    """Why a start's NLP variables differ from this task's: another N, a contact in one task only, a scene skip one
+    task has and the other not (mu = 0 drops a contact's tangential variables), or horizon.physical_time (a speed
     of time per step) in one of them, as "; ..." text, or ""."""
     from .result import read_task
 
@@ -717,11 +718,16 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
         start = read_task(init, arrays)
     except InputError:
         return ""
-    mu = {c.point: c.mu for c in start.contacts}
-    apart = [f"{c.point!r} has mu {mu[c.point]:g} there and {c.mu:g} here" for c in task.contacts
-             if c.point in mu and (mu[c.point] == 0) != (c.mu == 0)]
+    # contact by contact: a wall added on the ground's point was said to change the ground contact's mu
+    apart = [f"{c.point!r} has mu {old.mu:g} there and {c.mu:g} here" for old, c in zip(start.contacts, task.contacts)
+             if (old.mu == 0) != (c.mu == 0)]
     said = (f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init"
-            if apart else "")
+            if apart and len(start.contacts) == len(task.contacts) else "")
+    if len(start.contacts) != len(task.contacts):
+        said += (f"; {len(start.contacts)} contact(s) there and {len(task.contacts)} here: each contact has its own "
+                 "variables, so plan without --init")
+    if start.horizon.N != task.horizon.N:  # (the list of causes named N among others)
+        said += f"; horizon.N is {start.horizon.N} there and {task.horizon.N} here (--steps included)"
     timed = [t.horizon.physical_time is not None for t in (start, task)]
     if timed[0] != timed[1]:  # (the message's list of causes named neither)
         said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "
@@ -845,6 +851,10 @@ def prepare_out_dir(path: Path, failed: bool = False) -> Path:
         if (path / name).is_dir():
             raise InputError(f"--out {path}: {path / name} is a directory, where the result's file goes")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())  # the root always exists
+    dangling = next((p for p in path.absolute().parents if p.is_symlink() and not p.exists()), None)
+    if dangling is not None:  # below it: "File exists" after the whole solve
+        raise InputError(f"cannot create output directory {path}: {dangling} is a symbolic link to nothing (dangling "
+                         "or a loop)")
     if not existing.is_dir():
         raise InputError(f"cannot create output directory {path}: {existing} is a file")
     writable = os.access(existing, os.W_OK | os.X_OK)

@@ -581,6 +581,15 @@ SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9
 SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
 
 
+def _users_last(opts: dict, options: SolveOptions, warm: bool) -> None:
+    """The user's own IPOPT options (SolveOptions.ipopt, and warm_ipopt for a warm NLP) over those an NLP's own settings
+    put into opts: `--ipopt acceptable_iter=10` reached every NLP but the held-schedule and projection ones, whose
+    settings replaced it while summary.json recorded it."""
+    opts["ipopt"].update(options.ipopt)
+    if warm:
+        opts["ipopt"].update(options.warm_ipopt)
+
+
 def _small_mu_ipopt(options: SolveOptions) -> dict:
     """The IPOPT options of an NLP whose barrier starts at mu = 1e-9: SMALL_MU_MUMPS with MUMPS, else none."""
     return dict(SMALL_MU_MUMPS) if options.linear_solver == "mumps" else {}
@@ -612,9 +621,10 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
         raise InputError(f"{exc} (a replan solves with soft_terminal_nlps = 0)") from None
 
 
-# the SolveOptions fields replan_options sets (`planner plan --init DIR --solve` may not: they were replaced)
+# the SolveOptions fields replan_options sets (`planner plan --init DIR --solve` may not: they were replaced), and
+# those that act on the task's schedule only, which its rho_schedule replaces (rho_max 1e5 was recorded, 1e6 run)
 REPLAN_FIELDS = ("rho_schedule", "soft_terminal_nlps", "early_stop_comp", "holes", "variable_scaling", "mu_strategy",
-                 "mu_init", "bound_push", "bound_frac")
+                 "mu_init", "bound_push", "bound_frac", "rho_min", "rho_max", "rho_refine")
 
 
 def _distance(x, x_ref):
@@ -761,6 +771,7 @@ class _Solvers:
                 # FESD Capler's gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke
                 # lambda >= 0 by 4.3e-3 against the verdict's constraint_tol 1e-6 (docs/formulation.md)
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
+            _users_last(opts, self.options, False)
             opts.update(self.derivatives(scaled, projection=True))
             self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
             self.setup_time_s += time.perf_counter() - t0
@@ -774,6 +785,7 @@ class _Solvers:
             opts["ipopt"].update(_small_mu_ipopt(self.options))
             if self.scale is not None:  # IPOPT's bound relaxation (1e-8 in xs) is 1e-8 D in x: Capler target 2.8 m broke a bound by 9.8e-6
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
+            _users_last(opts, self.options, warm)
         scaled = self.sees_scale(warm, schedule)
         key = ("scaled" if scaled else "") + repr(sorted(opts["ipopt"].items()))  # one IPOPT per option set (~1-4 s each)
         if key not in self.cache:

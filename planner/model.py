@@ -595,8 +595,12 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
         spec.body(name).add_site(name=name, pos=[0.0, 0.0, 0.0])
     for body in spec.bodies:
         if body.joints and body.mass == 0.0:
-            body.mass, body.inertia = MASSLESS_LINK_KG, [MASSLESS_LINK_INERTIA] * 3
-            body.fullinertia = [np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]  # unset (a URDF's full inertia): MuJoCo refuses both
+            body.mass = MASSLESS_LINK_KG
+            full = np.nan_to_num(np.asarray(body.fullinertia, float))
+            if not np.any(body.inertia) and not np.any(full):  # (a link's own inertia, which Pinocchio keeps, stays)
+                body.inertia = [MASSLESS_LINK_INERTIA] * 3
+                # unset (a URDF's full inertia): MuJoCo refuses both
+                body.fullinertia = [np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
     for a in robot.actuators:
         spec.add_actuator(name=a.name, target=a.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[a.gear, 0, 0, 0, 0, 0],
                           ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))

@@ -17,6 +17,7 @@ from .view import Result, load_result
 MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
 DPI = 110
 IMPACT_STYLE = dict(color="tab:red", linestyle="--", linewidth=0.9, alpha=0.8)
+TAP_STYLE = dict(color="tab:red", linestyle=":", linewidth=0.8, alpha=0.45)  # a tap (result.TAP_SHARE): no landing
 
 
 PLOT_FILES = ("states.png", "torques.png", "contact_forces.png", "clock.png", "foot_path.png")  # all plot_results may write
@@ -68,9 +69,16 @@ def _figure(rows: int, cols: int, width: float, row_height: float, **kwargs):
 
 
 def _mark_impacts(ax, res: Result, legend: bool) -> None:
-    """Dashed vertical lines at the impact times; `legend`: name them in this panel's legend."""
-    for k, ti in enumerate(res.impact_times):
-        ax.axvline(ti, label="impact" if legend and k == 0 else None, **IMPACT_STYLE)
+    """Dashed vertical lines at the impact times, dotted fainter ones at the taps (summary.json's "tap": the report
+    counts them apart, and 13 alike lines read as 13 impacts for its 9); `legend`: name them in this panel's legend."""
+    said = res.summary.get("impacts") or []
+    taps = ([isinstance(i, dict) and i.get("tap") is True for i in said] if len(said) == len(res.impact_times)
+            else [False] * len(res.impact_times))
+    named = set()
+    for ti, tap in zip(res.impact_times, taps):
+        kind = "tap" if tap else "impact"
+        ax.axvline(ti, label=kind if legend and kind not in named else None, **(TAP_STYLE if tap else IMPACT_STYLE))
+        named.add(kind)
 
 
 def _groups(n: int) -> list[list[int]]:
@@ -154,13 +162,17 @@ def _contact_forces(res: Result):
     rows = 2 if res.lambda_t is not None else 1
     fig, axes = _figure(rows, 1, 9.0, 2.4, sharex=True)
     for i in range(n_contacts):
-        line, = axes[0, 0].plot(res.t, res.lambda_n[:, i], linewidth=1.3, label=names[i])
+        # a sample's force is its step's (the step ending there): steps, as the torques (a take-off's ramp drew 4.9 N
+        # on a point mass already in the air)
+        line, = axes[0, 0].plot(res.t, res.lambda_n[:, i], linewidth=1.3, label=names[i], drawstyle="steps-pre")
         if rows == 2:
-            axes[1, 0].plot(res.t, res.lambda_t[:, i], linewidth=1.3, color=line.get_color(), label=names[i])
+            axes[1, 0].plot(res.t, res.lambda_t[:, i], linewidth=1.3, color=line.get_color(), label=names[i],
+                            drawstyle="steps-pre")
             if mus is not None and mus[i] > 0:
                 for sign in (1, -1):
                     axes[1, 0].plot(res.t, sign * mus[i] * res.lambda_n[:, i], color=line.get_color(), linewidth=0.8,
-                                    linestyle=":", label=f"±μ λn ({names[i]})" if sign == 1 else None)
+                                    linestyle=":", label=f"±μ λn ({names[i]})" if sign == 1 else None,
+                                    drawstyle="steps-pre")
     axes[0, 0].set_ylabel("normal λn [N]")
     if rows == 2:
         axes[1, 0].set_ylabel("tangential λt [N]")
@@ -187,7 +199,7 @@ def _clock(res: Result):
     ax.set_xlabel("numerical time τ [s]")
     ax.set_ylabel("physical time t [s]")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="small", loc="upper left")
+    ax.legend(fontsize="small", loc="best")  # (upper left hid the first frozen band)
     fig.suptitle(f"{res.robot.name}: clock")
     return fig, "clock.png"
 

@@ -50,6 +50,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     expect(problem, Problem, "replan's problem")
     expect(options, SolveOptions, "replan's options")
     expect(start_task, (Task, type(None)), "replan's start_task")
+    options = replace(options, keep_schedule=True)  # what runs first, recorded so (as the CLI's; False was recorded)
     start = time.perf_counter()
     held = replace(options, keep_schedule=True, schedule_only=True)
     penalty = replace(options, keep_schedule=False, schedule_only=False, schedule_new_impacts=False)

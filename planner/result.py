@@ -582,7 +582,7 @@ class PlanResult(ArraysReadOnly):
             raise InputError("this plan holds no NLP point to start from")
         if self.extra["_signature"] != problem.signature:
             raise InputError(f"this plan's NLP variables ({self.extra['_signature'][:16]!r}) are not those of the "
-                             f"problem ({problem.signature!r}): a start needs the same robot contacts, N, "
+                             f"problem ({problem.signature!r}): a start needs the same robot, contacts, N, "
                              "discretization and options")
         return np.array(self.extra["_x"], dtype=float)
 
@@ -1072,7 +1072,7 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
                  f"variables {str(arrays['nlp_signature'])[:16]!r} against this problem's {signature!r}" if x.ndim == 1 else
                  f"an array of shape {x.shape} against this problem's ({nx},)")
         raise InputError(f"the plan in {out_dir} has other NLP variables ({which}): "
-                         "a start needs the same robot contacts, N, discretization and options")
+                         "a start needs the same robot, contacts, N, discretization and options")
     if not np.all(np.isfinite(x)):
         raise InputError(f"the NLP point in {Path(out_dir) / 'trajectory.npz'} is not finite")
     return x

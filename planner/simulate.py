@@ -31,8 +31,8 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record
 from .model import Robot
-from .result import (APPROACH_MPS, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory, cone_breach,
-                     forces_outside_cone, recover)
+from .result import (APPROACH_MPS, COLLAPSED, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats, Trajectory,
+                     cone_breach, forces_outside_cone, recover)
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -456,9 +456,14 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
         left = np.concatenate([w_guess[lam0], w_guess[lam1]])
     n_s, nw = fesd.n_s, builder.nw
     # the element count given, not -1: a robot without actuators (nu = 0) has empty controls to reshape
-    shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)  # noqa: E731
-    elements = (np.concatenate([[0.0], np.cumsum(lengths)]), np.array(bounds, float).reshape(-1, ny), shape(Ys, ny),
-                shape(Ws, nw), shape(Us, nu), np.array(lengths, float))
+    shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)[keep]  # noqa: E731
+    # an element of length ~0 or a hair below it (IPOPT's bound relaxation, -1.3e-9 s) carries nothing: left out as
+    # the plans leave it (plan_trajectory), so tau increases (the converged run's own writer refused it, exit 2)
+    lengths = np.array(lengths, float)
+    keep = lengths > COLLAPSED * lengths.max(initial=0.0)
+    nodes = np.array(bounds, float).reshape(-1, ny)
+    elements = (np.concatenate([[0.0], np.cumsum(lengths[keep])]), np.vstack([nodes[:1], nodes[1:][keep]]),
+                shape(Ys, ny), shape(Ws, nw), shape(Us, nu), lengths[keep])
     return elements, total
 
 

@@ -706,6 +706,9 @@ def _between(a, b, s: float, key: str):
     """key: the dotted path of a and b in the task ("plan.holes[0].a"), which _Apart names."""
     if key == "source":
         return b
+    if key == "plan.target_v" and (a is None) != (b is None):  # omitted is zeros (the walk was refused: not numbers)
+        zeros = tuple(0.0 for _ in (a or b))
+        return b if s == 1.0 else _between(zeros if a is None else a, zeros if b is None else b, s, key)
     if is_dataclass(a) and type(a) is type(b):
         return type(a)(**{f.name: _between(getattr(a, f.name), getattr(b, f.name), s, _join(key, f.name))
                           for f in fields(a)})

@@ -164,6 +164,11 @@ def run_main(main) -> int:
     except PlannerError as exc:  # not the input's fault (a full disk): exit 1, as `planner`'s
         print(f"{Path(sys.argv[0]).stem}: failed: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # `... --list | head`: the reader left; that is no failure (it said "failed", exit 1)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # what is still buffered is dropped at exit
+        os.close(devnull)
+        return 0
     except OSError as exc:  # e.g. --out in /proc: what the checks before the run cannot see
         name = Path(sys.argv[0]).stem
         if exc.errno in PATH_ERRNOS and exc.filename:  # a path refused: the user's input

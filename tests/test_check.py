@@ -365,6 +365,18 @@ def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, name
         load_task(ROBOTS_DIR / "point_mass.toml").check_against(robot)
 
 
+def test_a_urdf_link_of_no_mass_keeps_its_inertia_for_mujoco(tmp_path):
+    """A URDF link with a joint, mass 0 and an inertia of its own gets MASSLESS_LINK_KG for MuJoCo and keeps that
+    inertia, as Pinocchio does: its inertia was replaced too, and check-model failed by the link's 1e-3 kg m^2 blaming
+    masses MuJoCo infers or rescales."""
+    path = tmp_path / "thigh0.urdf"
+    text = (ROBOTS_DIR / "capler.urdf").read_text()
+    assert text.count('<mass value="1.782"/>') == 1
+    path.write_text(text.replace('<mass value="1.782"/>', '<mass value="0"/>'))
+    result = check_model(load_robot(path), samples=2)
+    assert result.passed, result.failures
+
+
 def test_mujoco_prints_no_warning_of_its_own_when_a_robot_is_read(tmp_path, capfd, monkeypatch):
     """Reading a robot file MuJoCo warns about (a deprecated settotalmass) prints nothing raw on stderr and writes no
     MUJOCO_LOG.TXT into the working directory (both went through -q); the check says it as a Python warning."""

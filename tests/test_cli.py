@@ -604,11 +604,18 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
-    _one_line_exit_2(capsys, argv + ["--steps", "10"], "other NLP variables")
+    _one_line_exit_2(capsys, argv + ["--steps", "10"], "; horizon.N is 20 there and 10 here")  # (N among others)
     (tmp_path / "slippery.toml").write_text(HOP_TOML.format(x=0.55).replace("mu = 0.5", "mu = 0.0"))
     slippery = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv]
     _one_line_exit_2(capsys, slippery,
                      "contact 'point' has mu 0.5 there and 0 here: mu = 0 drops a contact's tangential variables")
+    # a wall added on the ground contact's point was said to change the ground contact's mu
+    (tmp_path / "wall.toml").write_text(HOP_TOML.format(x=0.55)
+                                        + '[[contacts]]\npoint = "point"\nnormal = [1.0, 0.0, 0.0]\n')
+    walled = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "wall.toml") for a in argv]
+    assert main(walled) == 2  # (a line warning of the two contacts' rank comes first)
+    assert capsys.readouterr().err.splitlines()[-1].endswith("; 1 contact(s) there and 2 here: each contact has its "
+                                                              "own variables, so plan without --init")
     (tmp_path / "timed.toml").write_text(HOP_TOML.format(x=0.55).replace("N = 20\n", "N = 20\nphysical_time = 0.9\n"))
     timed = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "timed.toml") for a in argv]
     _one_line_exit_2(capsys, timed, "horizon.physical_time is set here only: it adds a speed of time per step")
@@ -873,7 +880,8 @@ def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
 
 def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
     """What a robustness tester found (session 44), each now one line and exit 2 before any work, or read as the file
-    means it: an --out that is a symbolic-link loop (refused after the whole solve as "File exists"); an --out whose
+    means it: an --out that is a symbolic-link loop or below a dangling one (refused after the whole solve as "File
+    exists"); an --out whose
     failed/ is a file (a failed solve's diagnostics were lost); `view --html` onto the result's own summary.json (it
     replaced it); a summary.json with a 5000-digit integer, a trajectory whose t is 0-d, `--window 1e308` (three
     tracebacks); an --init whose converged is "no" (read as converged); a task file with a byte-order mark (refused
@@ -883,6 +891,9 @@ def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
     (tmp_path / "loopA").symlink_to(tmp_path / "loopB")
     (tmp_path / "loopB").symlink_to(tmp_path / "loopA")
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "loopA")], "symbolic link to nothing")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")  # below it (session 52: refused after the solve too)
+    _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "dangling" / "sub")],
+                     "dangling is a symbolic link to nothing")
     (tmp_path / "q2").mkdir()
     (tmp_path / "q2" / "failed").write_text("hi")
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--out", str(tmp_path / "q2")], "failed is not a directory")

@@ -189,6 +189,8 @@ def test_replan_options_refuse_what_they_replace():
         H.replan_options(H.SolveOptions(rho_schedule=(1e5,), holes="enforced"))
     with pytest.raises(InputError, match=r"soft_terminal_weight .* \(a replan solves with soft_terminal_nlps = 0"):
         H.replan_options(H.SolveOptions(soft_terminal_weight=1e6))
+    with pytest.raises(InputError, match=r"replan_options sets rho_max: leave it at the default"):  # (1e6 was run)
+        H.replan_options(H.SolveOptions(rho_max=1e5))
     assert H.replan_options(H.SolveOptions(max_iter=77)).max_iter == 77
 
 
@@ -292,10 +294,11 @@ def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
 
 def test_replan_fields_are_the_ones_replan_options_sets():
     """homotopy.REPLAN_FIELDS, which `planner plan --init DIR --solve` refuses (they were replaced silently), are
-    exactly the SolveOptions fields replan_options changes."""
+    exactly the SolveOptions fields replan_options changes and those that act on the task's schedule only, which its
+    rho_schedule replaces."""
     default, replan = H.SolveOptions(), H.replan_options()
     changed = {f.name for f in dataclasses.fields(default) if getattr(default, f.name) != getattr(replan, f.name)}
-    assert changed == set(H.REPLAN_FIELDS)
+    assert changed | {"rho_min", "rho_max", "rho_refine"} == set(H.REPLAN_FIELDS)
 
 
 def test_acceptable_tol_below_tol_is_refused():
@@ -347,6 +350,26 @@ def test_ipopt_pass_through_reaches_the_cold_and_the_warm_nlps():
     opts = H.SolveOptions(ipopt={"max_soc": 0, "alpha_for_y": "min"})
     assert opts.ipopt == (("alpha_for_y", "min"), ("max_soc", 0))
     assert H.ipopt_options(opts, warm=False)["ipopt"]["alpha_for_y"] == "min"
+
+
+def test_the_users_ipopt_options_reach_the_schedule_and_projection_nlps(monkeypatch):
+    """SolveOptions.ipopt (and warm_ipopt for a warm NLP) win over the held-schedule and projection NLPs' own IPOPT
+    settings: `--ipopt acceptable_iter=10 accept_every_trial_step=no mumps_permuting_scaling=7` was recorded and
+    replaced there (IPOPT's list of user options showed 2, yes and 0)."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    seen, real = {}, H.ca.nlpsol
+
+    def spy(name, solver, nlp, opts):
+        seen[name] = dict(opts["ipopt"])
+        return real(name, solver, nlp, opts)
+
+    monkeypatch.setattr(H.ca, "nlpsol", spy)
+    given = {"acceptable_iter": 10, "accept_every_trial_step": "no", "mumps_permuting_scaling": 7}
+    solvers = H._Solvers(problem, H.SolveOptions(ipopt=given, warm_ipopt={"acceptable_iter": 11}))
+    solvers.get(True, schedule=True)
+    solvers.projection()
+    assert {k: seen["tf_ocp_schedule"][k] for k in given} == {**given, "acceptable_iter": 11}
+    assert {k: seen["tf_ocp_projection"][k] for k in given} == given
 
 
 def test_gating_and_ungate_keep_the_trajectory():

@@ -99,6 +99,28 @@ def test_without_a_task_there_is_no_foot_path(result_dir):
     assert {p.name for p in plots.plot_results(result_dir)} == ALL_PLOTS - {"foot_path.png"}
 
 
+def test_contact_forces_are_drawn_as_held_steps(result_dir):
+    """A sample's contact force is its step's (the step ending there), so the force plot draws steps ("steps-pre"), as
+    the torques: a ramp from a stance's 9.8 N to a flight step's 0 drew 4.9 N on a foot already in the air."""
+    fig, _ = plots._contact_forces(view.load_result(result_dir))
+    lines = [ln for ax in fig.axes for ln in ax.get_lines() if np.ptp(ln.get_xdata()) > 0]
+    assert lines and all(ln.get_drawstyle() == "steps-pre" for ln in lines)
+
+
+def test_taps_are_marked_apart_from_impacts(result_dir):
+    """An impact summary.json marks as a tap is drawn dotted and labelled "tap", not as one more "impact" line (13
+    alike lines for a report of 9 impacts and 4 taps)."""
+    import json
+
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "impacts": [{**i, "tap": True}
+                                                                               for i in summary["impacts"]]}))
+    fig, _ = plots._states(view.load_result(result_dir))
+    verticals = [ln for ln in fig.axes[0].get_lines() if np.ptp(ln.get_xdata()) == 0]
+    assert verticals and all(ln.get_linestyle() == ":" for ln in verticals)
+    assert "tap" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+
+
 def test_torques_are_drawn_as_held_steps(result_dir):
     """u[i] is held from sample i-1 to sample i (zero-order hold), so the torque plot draws steps ("steps-pre"): midway
     through a step it reads the held u[i], not the ramp from u[i-1] a line drew (a hop's 7.84 N push read 3.92 N)."""

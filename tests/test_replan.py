@@ -51,7 +51,8 @@ def _moved(prob, x0, target_x: float):
 def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
     """The hop moved 0.5 -> 0.6 m with a held schedule that reaches 0.06 m: the direct one is refused, the walk's
     task halfway (0.55 m) and then the task itself are accepted. The result is the task's converged, exactly
-    complementary plan at its target; its records are the three NLPs in order, and its iterations their sum."""
+    complementary plan at its target; its records are the three NLPs in order, and its iterations their sum; its
+    options say keep_schedule."""
     prob, x0 = hop_plan
     seen = []
     res = replan(_moved(prob, x0, 0.6), H.replan_options(), prob.task, progress=seen.append)
@@ -60,6 +61,8 @@ def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
     assert res.extra["walk"] == [0.5, 1.0]
     assert res.stats.complementarity_residual == 0.0 and res.terminal_error <= TERMINAL_TOL
     assert res.trajectory.q[-1, 0] == pytest.approx(0.6, abs=TERMINAL_TOL)
+    # what ran first is recorded, as the CLI records it (keep_schedule false was recorded for the held schedule)
+    assert res.options["solve"]["keep_schedule"] is True
     assert (res.stats.n_nlp, res.stats.ipopt_iterations) == (3, sum(r.iterations for r in res.nlps))
     assert res.timings["ipopt_s"] == pytest.approx(sum(r.time_s for r in res.nlps))
 
@@ -75,7 +78,7 @@ def test_a_plan_in_memory_gives_its_nlp_point_to_a_problem_of_the_same_variables
     np.testing.assert_array_equal(point, res.extra["_x"])
     point[0] += 1.0
     assert res.nlp_point(prob)[0] == res.extra["_x"][0]
-    with pytest.raises(InputError, match="are not those of the problem .*same robot contacts, N"):
+    with pytest.raises(InputError, match="are not those of the problem .*same robot, contacts, N"):
         res.nlp_point(build_problem(prob.robot, hop_task(N=10)))
     # the same variables under other options: lambda0, lambda1 in other units (they had been taken as a start)
     with pytest.raises(InputError, match="are not those of the problem"):

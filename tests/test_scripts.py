@@ -1684,3 +1684,14 @@ def test_bench_skips_runs_a_case_named_twice_once(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         module.main(["--quick", "--cases", case, case, "--out", str(tmp_path / "out")])
     assert names == [case]
+
+
+def test_a_script_whose_reader_left_exits_0():
+    """`python -m scripts.stress --list | head -1`: the reader leaving is no failure (it printed "stress: failed: Broken
+    pipe" and exited 1, which docs/stability.md keeps for a crashed task)."""
+    proc = subprocess.Popen([sys.executable, "-m", "scripts.stress", "--list", "--per-family", "20"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=SCRIPTS.parent)
+    proc.stdout.readline()
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait() == 0 and "failed" not in err, err

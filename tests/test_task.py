@@ -466,6 +466,11 @@ def test_tasks_between_moves_every_number_and_nothing_else():
             tasks_between(a, b, s)
     with pytest.raises(InputError, match="tasks_between's start must be a Task, got str 'a'"):
         tasks_between("a", "a", 0.5)  # returned 'a'
+    # an omitted target_v is zeros (docs/tasks.md): a start without it and a task with 0.2 m/s had no tasks between
+    assert a.plan.target_v is None
+    moving = replace(a, plan=replace(a.plan, target_v=(0.2, 0.0, 0.0, 0.0)))
+    assert tasks_between(a, moving, 0.5).plan.target_v == pytest.approx((0.1, 0.0, 0.0, 0.0), abs=ROUNDING)
+    assert tasks_between(a, moving, 1.0) == moving and tasks_between(moving, a, 1.0) == a
 
 
 @pytest.mark.parametrize("toml", sorted(ROBOTS.glob("*.toml")), ids=lambda p: p.stem)
