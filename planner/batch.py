@@ -123,6 +123,11 @@ def _call(fn, item):
         return crashed_record(exc)
 
 
+def default_workers(n_items: int) -> int:
+    """The local processes run_batch starts for n_items jobs when given no `workers`: min(cpu count, n_items)."""
+    return min(os.cpu_count() or 1, n_items)
+
+
 def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = None, workers: int | None = None,
               progress: Callable[[int, Any], None] | None = None) -> list[Any]:
     """fn(item) for every item, results in item order; a job that raised gives a `Crashed` record.
@@ -153,7 +158,7 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
                 progress(i, out[-1])
         return out
     ref = _FnRef.of(fn)
-    n = min(workers or os.cpu_count() or 1, len(items))
+    n = min(workers, len(items)) if workers else default_workers(len(items))
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (IPOPT, MuJoCo, BLAS)
     results: list[Any] = [None] * len(items)
     lost: list[int] = []

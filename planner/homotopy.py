@@ -607,14 +607,16 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
     the old plan (the same contact sequence, moved), not a new hint-free search. With keep_schedule
     (planner plan --init DIR) the task's cost with the plan's contact schedule held comes first."""
     expect(options, (SolveOptions, type(None)), "replan_options' options")
-    given = [k for k in REPLAN_FIELDS if options is not None and getattr(options, k) != getattr(SolveOptions, k)]
-    if given:  # (they were replaced without a word)
-        raise InputError(f"replan_options sets {', '.join(given)}: leave {'it' if len(given) == 1 else 'them'} at "
-                         "the default (a replan's own homotopy from the plan, docs/tasks.md)")
     fields = dict(rho_schedule=(REPLAN_RHO, REPLAN_RHO_MAX), soft_terminal_nlps=0, early_stop_comp=REPLAN_STOP_COMP,
                   holes=HoleSchedule.ENFORCED, variable_scaling=VariableScaling.START,
                   mu_strategy=MuStrategy.MONOTONE, mu_init=REPLAN_MU_INIT,
                   bound_push=REPLAN_BOUND_PUSH, bound_frac=REPLAN_BOUND_PUSH)
+    # a value of the replan's own (mu_strategy monotone, under which warm_mu_init is read) is no conflict
+    given = [k for k in REPLAN_FIELDS if options is not None
+             and getattr(options, k) not in (getattr(SolveOptions, k), fields.get(k, getattr(SolveOptions, k)))]
+    if given:  # (they were replaced without a word)
+        raise InputError(f"replan_options sets {', '.join(given)}: leave {'it' if len(given) == 1 else 'them'} at "
+                         "the default (a replan's own homotopy from the plan, docs/tasks.md)")
     try:
         return replace(options or SolveOptions(), **fields)
     except InputError as exc:  # an option the replan's settings leave unread (soft_terminal_weight)
@@ -1009,6 +1011,7 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
     x0 = fesd_start_from_implicit_euler(problem, euler, first.extra["_x"])
     fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule,
                            fesd_rho_schedule=done, holes=HoleSchedule.ENFORCED, soft_terminal_nlps=0,
+                           soft_terminal_weight=SolveOptions.soft_terminal_weight,  # (the Euler stage's, read there)
                            retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
     result = solve(replace(problem, x0=x0), fesd_options, progress)
     nlps = tuple(replace(r, label=f"implicit Euler: {r.label}") for r in first.nlps) + result.nlps
@@ -1173,7 +1176,8 @@ def task_rho_schedule(hom, rho_min: float | None = None, rho_max: float | None =
 
     if rho_max is not None and hom.rho0 > rho_max:  # (1e200 ran 3000 iterations to objective -1e192, "out of reach")
         raise InputError(f"the task's plan.homotopy.rho0 = {hom.rho0!r} is above rho_max = {rho_max!r}, the largest "
-                         "penalty the homotopy goes to; lower rho0 (or raise rho_max)")
+                         "penalty the homotopy goes to; lower rho0 (or raise SolveOptions.rho_max, `--solve "
+                         "'{\"rho_max\": ...}'`: 1e6 by default, 1e5 for `planner plan --discretization fesd`)")
     rhos = [hom.rho0 * hom.kappa**i for i in range(hom.n_nlp)]
     if rho_max is not None and hom.kappa > 1:
         # counted before listed: kappa = 1.0001 continued the schedule to 92109 NLPs, and rho0 = 1e-300 with kappa =

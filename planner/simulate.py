@@ -189,9 +189,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     start = time.perf_counter()
     if options.discretization is Discretization.FESD:
         fesd = FESDInterval(builder, options.fesd)
-        elements, stats = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
+        elements, stats, U = _stepwise_fesd(system, fesd, y0, task, h, N, options, law)
         weights = fesd.b
-        U = elements[4][:, -1]  # (N n_fe, nu): at each element's end
     else:
         run = _stepwise if options.strategy is Strategy.STEPWISE else _horizon
         Y, W, U, stats = run(system, builder, y0, task, h, N, options, law)
@@ -405,7 +404,9 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
 
     Returns the elements (tau (K+1,), Y (K+1, ny) element boundaries, stage states (K, n_s, ny),
     stage algebraic variables (K, n_s, nw), stage controls (K, n_s, nu), lengths (K,)) with K = n_fe
-    times the steps solved, and the stats dict of _stepwise. A step that fails is restarted from the
+    times the steps solved less the elements collapsed to length ~0, the stats dict of _stepwise, and the controls
+    at every element's end (n_fe times the steps solved, nu), collapsed ones too (the PD summary counts steps). A
+    step that fails is restarted from the
     selectors of its own start state and with a stronger first penalty (_fesd_starts)."""
     builder = fesd.step
     ny, nu, n = system.ny, system.nu, system.n_sigma
@@ -456,15 +457,15 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
         left = np.concatenate([w_guess[lam0], w_guess[lam1]])
     n_s, nw = fesd.n_s, builder.nw
     # the element count given, not -1: a robot without actuators (nu = 0) has empty controls to reshape
-    shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)[keep]  # noqa: E731
     # an element of length ~0 or a hair below it (IPOPT's bound relaxation, -1.3e-9 s) carries nothing: left out as
     # the plans leave it (plan_trajectory), so tau increases (the converged run's own writer refused it, exit 2)
     lengths = np.array(lengths, float)
     keep = lengths > COLLAPSED * lengths.max(initial=0.0)
+    shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)  # noqa: E731
     nodes = np.array(bounds, float).reshape(-1, ny)
     elements = (np.concatenate([[0.0], np.cumsum(lengths[keep])]), np.vstack([nodes[:1], nodes[1:][keep]]),
-                shape(Ys, ny), shape(Ws, nw), shape(Us, nu), lengths[keep])
-    return elements, total
+                shape(Ys, ny)[keep], shape(Ws, nw)[keep], shape(Us, nu)[keep], lengths[keep])
+    return elements, total, shape(Us, nu)[:, -1]
 
 
 def _first_converged(solver, comp_fn, starts, p, bounds, options, total: dict, where: str):

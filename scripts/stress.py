@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.batch import Crashed, run_batch, stage
+from planner.batch import Crashed, default_workers, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
 from scripts._report import machine_info as shared_machine_info
@@ -655,7 +655,7 @@ def main(argv: list[str] | None = None) -> int:
 
         workers = max(1, usable_cpus() // 2)  # each task's race takes two CPUs
     elif workers is None and args.scheduler is None:  # run_batch's own default, resolved (results.json said null)
-        workers = max(1, min(os.cpu_count() or 1, len(specs)))
+        workers = max(1, default_workers(len(specs)))
     start = time.perf_counter()
     try:
         raw = run_batch(run_task, specs, scheduler=args.scheduler, workers=workers, progress=log)

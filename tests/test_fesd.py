@@ -351,9 +351,14 @@ def test_a_collapsed_element_is_left_out_of_a_simulation():
     the point-mass slide with mu = 0.5 at 6 elements per step) keeps numerical and physical time increasing: the
     element is left out as the plans leave it, so the converged run's writer, validate and view take the result
     (it exited 2, "t must be non-decreasing")."""
-    task = parse_task({"contacts": [{"point": "point", "mu": 0.5, "a_n": 100.0}],
-                       "initial": {"q": [0.0, 1.0], "v": [1.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 50}})
-    res = simulate(load_robot("point_mass"), task,
-                   SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(2, 6)))
+    data = {"contacts": [{"point": "point", "mu": 0.5, "a_n": 100.0}], "initial": {"q": [0.0, 1.0], "v": [1.0, 0.0]},
+            "horizon": {"tau_f": 1.0, "N": 50}}
+    task = parse_task(data)
+    options = SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(2, 6))
+    res = simulate(load_robot("point_mass"), task, options)
     tr = res.trajectory
     assert res.stats.converged and np.all(np.diff(tr.tau) > 0) and np.all(np.diff(tr.t) >= 0)
+    assert len(tr.tau) - 1 < 50 * 6  # (an element was left out: the case this test is about)
+    # the PD summary counts steps from every element's controls, collapsed ones too (it reshaped the kept ones)
+    held = parse_task({**data, "simulate": {"pd": {"joints": ["x"], "kp": [0.0], "kd": [0.0]}}})
+    assert simulate(load_robot("point_mass"), held, options).extra["pd"]["steps_beyond_actuator_bounds"] == 0

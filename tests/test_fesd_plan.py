@@ -251,3 +251,29 @@ def test_active_set_reads_cross_multipliers():
     assert (lbx[sig[0, 2, 0, i]], ubx[sig[0, 2, 0, i]]) == (0.0, 1.0)  # interior: free
     assert ubx[l0[0, 2, 0, i]] == ubx[l1[0, 2, 0, i]] == 0.0
     assert np.all(xc >= lbx) and np.all(xc <= ubx)
+
+
+def test_the_fesd_stage_after_implicit_euler_takes_a_given_soft_terminal_weight(monkeypatch):
+    """FESDStart.IMPLICIT_EULER with a soft_terminal_weight of the user's (read by the implicit-Euler stage) derives
+    the FESD stage's options without refusing it there (soft_terminal_nlps = 0 there: the refusal of a weight no NLP
+    reads fired after the whole implicit-Euler solve, exit 2)."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4), fesd_options(2, 2))
+    given = []
+
+    class Stub:
+        extra, nlps = {"_x": None}, ()
+        stats = H.SolveStats(converged=True, solve_time_s=0.0, n_nlp=0, ipopt_iterations=0,
+                             complementarity_residual=0.0, message="")
+
+    def solved(prob, options, progress=None):
+        given.append(options)
+        if len(given) == 2:
+            raise KeyboardInterrupt  # (the FESD stage's own solve is not this test's)
+        return Stub()
+
+    monkeypatch.setattr(H, "solve", solved)
+    monkeypatch.setattr("planner.problem.fesd_start_from_implicit_euler", lambda *args: None)
+    with pytest.raises(KeyboardInterrupt):
+        H._solve_through_implicit_euler(problem, H.SolveOptions(soft_terminal_weight=1e3,
+                                                                fesd_start=H.FESDStart.IMPLICIT_EULER), None)
+    assert given[0].soft_terminal_weight == 1e3 and given[1].soft_terminal_nlps == 0

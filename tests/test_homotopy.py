@@ -185,13 +185,15 @@ def test_options_their_solve_does_not_read_are_refused(kwargs, key, needs):
 def test_replan_options_refuse_what_they_replace():
     """replan_options refuses options it would replace (rho_schedule 1e5 came back (1e4, 1e6) without a word) and a
     soft-terminal weight its soft_terminal_nlps = 0 leaves unread, naming them; the rest it keeps."""
-    with pytest.raises(InputError, match=r"replan_options sets rho_schedule, holes: leave them at the default"):
-        H.replan_options(H.SolveOptions(rho_schedule=(1e5,), holes="enforced"))
+    with pytest.raises(InputError, match=r"replan_options sets rho_schedule, bound_push: leave them at the default"):
+        H.replan_options(H.SolveOptions(rho_schedule=(1e5,), bound_push=0.1))
     with pytest.raises(InputError, match=r"soft_terminal_weight .* \(a replan solves with soft_terminal_nlps = 0"):
         H.replan_options(H.SolveOptions(soft_terminal_weight=1e6))
     with pytest.raises(InputError, match=r"replan_options sets rho_max: leave it at the default"):  # (1e6 was run)
         H.replan_options(H.SolveOptions(rho_max=1e5))
     assert H.replan_options(H.SolveOptions(max_iter=77)).max_iter == 77
+    # the replan's own monotone barrier given too is no conflict: warm_mu_init, read under it, stays (it was refused)
+    assert H.replan_options(H.SolveOptions(mu_strategy="monotone", warm_mu_init=1e-5)).warm_mu_init == 1e-5
 
 
 def test_edge_options_are_accepted():
