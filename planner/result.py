@@ -659,14 +659,13 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     clock runs again); a frozen step after a partly frozen one that is not the run's first starts the
     next run. A run that ends with a fully frozen step whose contact (the one taking the run's first step's largest
     normal impulse) still moves into its plane at the step's end, or a run of one step whose landing inside it is still
-    on there, takes the next step too when that froze more than
-    TAIL_SHARE of it (the impact's end, below frozen_tol). A landing at a node (below) whose step before froze more
-    than TAIL_SHARE of it (and less than frozen_tol) began there: that step's increment and impulse are the impact's
-    start, the node's sample becomes its pre-impact one, and tau_start is that step's. approach (K-1, n_contacts)
-    [m/s]: each contact's normal
-    velocity at the start of each step, moving into its plane below -APPROACH_MPS (None: no such step is
-    taken). A run is an impact when the numerical time it froze, sum(h s - clock advance), is at least
-    frozen_tol times the longest step (so a FESD element a few 1e-8 s long is none).
+    on there, takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
+    A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
+    there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
+    tau_start is that step's. approach (K-1, n_contacts) [m/s]: each contact's normal velocity at the start of each
+    step, moving into its plane below -APPROACH_MPS (None: no such step is taken). A run is an impact when the
+    numerical time it froze, sum(h s - clock advance), is at least frozen_tol times the longest step (so a FESD element
+    a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
     the largest (the largest first; one contact: always one Impact), all with the interval's time,
     posture and pre-/post-impact velocities, and one pair of samples.

@@ -456,11 +456,11 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
         y, w_guess = Yk[-1, -1], Wk[-1, -1]
         left = np.concatenate([w_guess[lam0], w_guess[lam1]])
     n_s, nw = fesd.n_s, builder.nw
-    # the element count given, not -1: a robot without actuators (nu = 0) has empty controls to reshape
     # an element of length ~0 or a hair below it (IPOPT's bound relaxation, -1.3e-9 s) carries nothing: left out as
     # the plans leave it (plan_trajectory), so tau increases (the converged run's own writer refused it, exit 2)
     lengths = np.array(lengths, float)
     keep = lengths > COLLAPSED * lengths.max(initial=0.0)
+    # the element count given, not -1: a robot without actuators (nu = 0) has empty controls to reshape
     shape = lambda parts, m: np.array(parts, float).reshape(len(lengths), n_s, m)  # noqa: E731
     nodes = np.array(bounds, float).reshape(-1, ny)
     elements = (np.concatenate([[0.0], np.cumsum(lengths[keep])]), np.vstack([nodes[:1], nodes[1:][keep]]),
