@@ -155,9 +155,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked by IPOPT (SolveOptions.ipopt)")
     p.add_argument("--warm-ipopt", action="append", default=[], metavar="NAME=VALUE",
                    help="the same for NLP 2 and later only (SolveOptions.warm_ipopt)")
-    p.add_argument("--solve", metavar="JSON",
+    p.add_argument("--solve", metavar="JSON", action="append", default=[],
                    help="SolveOptions fields as a JSON object, over the flags above, e.g. --solve '{\"rho_f_schedule\": [10]}' "
-                        "(enums by value, lists for tuples; an unknown field or value is an error; planner.homotopy.SolveOptions)")
+                        "(enums by value, lists for tuples; an unknown field or value is an error; repeatable, "
+                        "each field once; planner.homotopy.SolveOptions)")
     p.add_argument("--no-race", action="store_true",
                    help="solve with the default variant only (deterministic). Without it a hint-free implicit-Euler plan "
                         "races a second variant (multipliers carried between NLPs, the inertia correction started from its "
@@ -214,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     # (None: closed by the shell, >&-)
     out, err = (None if stream is None else _ReaderMayLeave(stream) for stream in (sys.stdout, sys.stderr))
     args.stdout, args.stderr = out, err
-    redirect = getattr(args, "json", False) or getattr(args, "verbose", False)
+    redirect = getattr(args, "json", False) or getattr(args, "verbose", False) or _asks_ipopt_log(args)
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
         # restores showwarning for an in-process caller
@@ -254,6 +255,17 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
             return _stop(args, EXIT_INTERRUPTED, "interrupted")
         raise
+
+
+def _asks_ipopt_log(args) -> bool:
+    """Whether a --solve object sets print_level > 0: IPOPT's log, which goes to stderr as -v's does (it went to
+    stdout, into the command's summary)."""
+    for text in getattr(args, "solve", None) or ():
+        with contextlib.suppress(ValueError, AttributeError, RecursionError):  # (not JSON or no object: said later)
+            level = json.loads(text).get("print_level")
+            if isinstance(level, int) and level > 0:
+                return True
+    return False
 
 
 class _ReaderMayLeave:
@@ -379,7 +391,14 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     _remove_plots(target)  # first: one it cannot remove left the new result beside the earlier result's plots
     # this run's id, not read back from DIR: another run writing DIR after it had lent it its id and validation
     args.result_id = uuid.uuid4().hex
-    write_results(result, target, args.result_id)
+    try:
+        write_results(result, target, args.result_id)
+    except KeyboardInterrupt:  # held until both files were in place: then they are this run's, the earlier gone
+        with contextlib.suppress(OSError, ValueError):
+            if json.loads((target / "summary.json").read_text()).get("result_id") == args.result_id:
+                print(f"planner {args.command}: {'converged' if result.stats.converged else 'FAILED'}: results in "
+                      f"{target}, without plots or validation", file=args.stderr or sys.stderr)
+        raise
     if result.stats.converged:
         _remove_failed(out / "failed")
     if args.no_plots:
@@ -551,9 +570,14 @@ def _cmd_plan(args) -> int:
         solve_options = SolveOptions(print_level=5 if args.verbose else 0, ipopt=_ipopt_args("--ipopt", args.ipopt),
                                      warm_ipopt=_ipopt_args("--warm-ipopt", args.warm_ipopt))
     fields = {}
-    if args.solve is not None:
+    if args.solve:
         try:
-            fields = solve_fields_from_json(args.solve)
+            for text in args.solve:  # (a second --solve replaced the first, its fields dropped unsaid)
+                more = solve_fields_from_json(text)
+                twice = sorted(set(fields) & set(more))
+                if twice:
+                    raise InputError(f"{', '.join(twice)} given by two --solve objects; give each field once")
+                fields.update(more)
             owned = sorted(set(fields) & set(FLAG_OWNED))  # a replan's flags set them after --solve: the JSON was lost
             if owned:
                 raise InputError(f"{', '.join(owned)} {'is' if len(owned) == 1 else 'are'} set by "

@@ -77,14 +77,27 @@ def interruptible(defer: bool = False):
             previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
 
     signal.signal(signal.SIGINT, note)
+    _PENDING.append((caught, defer))
     try:
         yield
     except Exception:  # CasADi may return the Ctrl-C as its own RuntimeError ("... KeyboardInterrupt"): a traceback
         if not caught:
             raise
     finally:
+        _PENDING.pop()
         signal.signal(signal.SIGINT, previous)
     if caught:
+        raise KeyboardInterrupt
+
+
+_PENDING: list = []  # (caught signals, defer) of each interruptible block entered, the innermost last
+
+
+def check_interrupted() -> None:
+    """KeyboardInterrupt when a Ctrl-C came during the innermost interruptible block (not a deferring one) and a
+    library swallowed it: for loops of many CasADi calls (a MuJoCo replay's controller), which otherwise ran to their
+    end (`planner gait` walked all its steps and printed its summary, then exited 130)."""
+    if _PENDING and _PENDING[-1][0] and not _PENDING[-1][1]:
         raise KeyboardInterrupt
 
 

@@ -262,6 +262,7 @@ class GaitSpec(ArraysReadOnly):
                     if c.normal != (0.0, 0.0, 1.0)]
         ignored += [f"contacts[{i}].restitution = {c.restitution:g}" for i, c in enumerate(task.contacts)
                     if c.restitution]
+        ignored += [f"contacts[{i}].touches = false" for i, c in enumerate(task.contacts) if not c.touches]
         if task.horizon.physical_time is not None:
             ignored.append(f"horizon.physical_time = {task.horizon.physical_time:g}")
         if ignored:
@@ -306,7 +307,7 @@ class OuterLoop:
 
 
 @dataclass(frozen=True, eq=False)
-class GaitSolution:
+class GaitSolution(ArraysReadOnly):
     """A gait: t (N+1,) [s], x (N+1, 6), u (N, 2) [N m, motor convention]; the desired curve
     xd (N+1, 6), ud (N, 2); the step-2 (embedding) trajectory x_emb (N+1, 6), u_emb (N, 3);
     xf = Delta^-1(x0) (6,); the outer loops and totals."""
@@ -331,7 +332,7 @@ class GaitSolution:
 
 
 @dataclass(frozen=True, eq=False)
-class PinnedGait:
+class PinnedGait(ArraysReadOnly):
     """One step of a gait on the pinned model, what the walk replay needs (a GaitSolution is one too):
     t (N+1,) [s] increasing, not necessarily uniform; x (N+1, 6) pinned states from the post-impact
     state of the last landing to the pre-impact state of the next; u (N, 2) [N m, motor convention]
@@ -513,7 +514,7 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
 
 
 @dataclass(frozen=True, eq=False)
-class IpoptGait:
+class IpoptGait(ArraysReadOnly):
     """The same discretized OCP (5) solved directly by IPOPT (multiple shooting on the same RK4 grid,
     hard constraint x_N = Delta^-1(x0)), initialized with the desired curve and its input.
     x (N+1, 6), u (N, 2); cost as GaitSolution.cost; final_error ||x_N - x_f||."""
@@ -567,7 +568,7 @@ def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = N
 # ==================================================================================================
 
 @dataclass(frozen=True, eq=False)
-class Walk:
+class Walk(ArraysReadOnly):
     """`steps` periods of a gait on the floating robot, in the results contract's arrays.
 
     t (P,) [s], q (P, nq), v (P, nv), u (P, nu) [robot motor order]; each impact is two samples at
@@ -716,7 +717,7 @@ def _output_control(model: PinnedBiped) -> ca.Function:
 
 
 @dataclass(frozen=True)
-class WalkReport:
+class WalkReport(ArraysReadOnly):
     """How the floating robot in MuJoCo walked the gait.
 
     steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
@@ -927,7 +928,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
 
 
 @dataclass(frozen=True, eq=False)
-class GaitRunResult:
+class GaitRunResult(ArraysReadOnly):
     """What `run_gait` returns (and wrote): the solution, its walk, the MuJoCo report, the summary."""
 
     robot: str
@@ -1235,7 +1236,7 @@ def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, Pinn
 
 
 @dataclass(frozen=True, eq=False)
-class WalkValidation:
+class WalkValidation(ArraysReadOnly):
     """MuJoCo validation of a periodic plan: its step repeated `steps` times on the floating robot
     with the phase-indexed controller (`replay_gait`, WalkControl.PHASE), legs swapped per step.
 
@@ -1292,6 +1293,9 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     and the landing detection are armed from its last apex: the time-freezing plan lets the knee-less
     swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking")."""
     from .replay import MAX_PENETRATION_M, _kinematic, build_scene, hole_failure
+
+    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 1:  # (0: an IndexError)
+        raise InputError(f"validate_walk's steps must be an int >= 1, got {steps!r:.60}")
 
     model, step = plan_step(robot, task, arrays)
     if not PhaseReference.applies(step.x):

@@ -866,7 +866,10 @@ def _check_bounds(problem: Problem) -> None:
     a lower bound of +inf (upper -inf). CasADi's assertion on an edited Problem's bounds came out as a traceback."""
     names = {"x": problem.var_names, "g": None}
     for kind, n in (("x", problem.nx), ("g", problem.ng)):
-        lower, upper = (np.asarray(getattr(problem, f"{side}{kind}"), float).ravel() for side in ("lb", "ub"))
+        try:
+            lower, upper = (np.asarray(getattr(problem, f"{side}{kind}"), float).ravel() for side in ("lb", "ub"))
+        except (TypeError, ValueError) as error:
+            raise InputError(f"problem.lb{kind}/ub{kind} must be {n} numbers each ({error})") from None
         for side, bound in (("lb", lower), ("ub", upper)):
             if bound.size != n:
                 raise InputError(f"problem.{side}{kind} has {bound.size} entries, the problem {n}")
@@ -876,6 +879,9 @@ def _check_bounds(problem: Problem) -> None:
             what = f"{names[kind][i]}, entry {i}" if names[kind] else f"entry {i}"
             raise InputError(f"problem.lb{kind}/ub{kind} at {what}: [{lower[i]:g}, {upper[i]:g}] is no interval (a "
                              "NaN, lower above upper, or an infinite bound on the wrong side)")
+        # as float vectors: a tuple (no .copy()) or a (1, nx) array (2-D indexing) passed here, then broke the polish
+        setattr(problem, f"lb{kind}", lower)
+        setattr(problem, f"ub{kind}", upper)
 
 
 def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Progress | None = None) -> PlanResult:
@@ -894,6 +900,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         bad = int(np.flatnonzero(~np.isfinite(start))[0])
         raise InputError(f"problem.x0 holds NaN or inf (first at {problem.var_names[bad]}, entry {bad}): a start "
                          "must be finite")
+    problem.x0 = start  # (nx,) floats, whatever sequence the caller put there
     _check_bounds(problem)
     _check_schedules(problem, options)
     if problem.fesd is not None and options.polish is Polish.HYBRID:
@@ -1343,11 +1350,13 @@ def active_set_bounds(problem: Problem, x, ratio: float | None = None) -> tuple[
 
 
 def terminal_error(problem: Problem, x) -> float:
-    """max |terminal residual| (q, and v when imposed) [m, rad, m/s, rad/s] at x (nx,)."""
+    """The terminal rows' (q, and v when imposed) largest distance outside [lbg, ubg] at x (nx,) [m, rad, m/s, rad/s]:
+    max |terminal residual| for the built rows (lbg = ubg = the target)."""
     g_fn = _nlp_fn(problem, "g")
     g = np.asarray(g_fn(problem.point(x), problem.params(0.0, 1.0)), float).ravel()
     rows = _terminal_rows(problem)
-    return float(np.max(np.abs(g[rows] - problem.lbg[rows])))
+    # the distance outside [lbg, ubg]: an edited row's range (or a freed row) is met anywhere inside it
+    return float(np.max(np.maximum(problem.lbg[rows] - g[rows], g[rows] - problem.ubg[rows]), initial=0.0))
 
 
 def _terminal_rows(problem: Problem) -> np.ndarray:

@@ -250,6 +250,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
+        if not hint and fmt is RobotFormat.MJCF:  # MuJoCo names the element (an unknown class: "unordered_map::at")
+            try:
+                _mujoco_model(path)
+            except ValueError as mj:
+                hint = f" ({mujoco_failure(path, mj, 'read')})"
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
     said = _parser_errors(printed)
     if said:  # urdfdom returns a model without what it could not read (a thigh's `<mass value="1,782"/>`: no mass)
@@ -454,7 +459,11 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     actuators = []
     for i in range(mj.nu):
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
-        if mj.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:
+        # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only)
+        kind = int(mj.jnt_type[mj.actuator_trnid[i, 0]])  # (numpy's int is no member of a tuple of mjtJoint values)
+        one_dof = kind in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+        if not (mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT
+                or mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINTINPARENT and one_dof):
             raise RobotFileError(f"{path}: actuator {name!r} does not act on a joint; only joint motors are supported")
         # a <position>, <velocity> or <general> actuator is a servo or has dynamics: its force is not gear * ctrl
         if (mj.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE or mj.actuator_biastype[i] != mujoco.mjtBias.mjBIAS_NONE
@@ -583,7 +592,9 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
     if robot.format is RobotFormat.MJCF:
         return spec
     # MuJoCo loads a mesh when it compiles (a URDF's package:// paths are not files); the planner models no link's
-    # geometry and takes inertias from <inertial> only, so meshes go and links without <inertial> stay massless
+    # geometry and takes inertias from <inertial> only, so meshes go and links without <inertial> stay massless (a
+    # primitive <collision> on such a link weighed 0.113 kg in MuJoCo, mass inferred from the geom, 0 in Pinocchio)
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
     for geom in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]:
         spec.delete(geom)
     for mesh in list(spec.meshes):

@@ -67,6 +67,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from enum import Enum
 
@@ -684,6 +685,11 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
     if options.impact_cone and len(contacts) == 1:  # the contacts the system is built for (planner.scene)
         for ct, model in zip(contacts, system.models):
             if model is ContactModel.NO_SLIP and ct.a_t <= ct.mu * ct.a_n:
+                if ct.a_t < ct.mu * ct.a_n:  # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m)
+                    warnings.warn(f"contact {ct.point}: a_t = {ct.a_t:g} < mu a_n = {ct.mu * ct.a_n:g}, so a plan may "
+                                  f"slide along the ground braked at a_t / a_n = {ct.a_t / ct.a_n:.3g} of its normal "
+                                  f"force, less than mu = {ct.mu:g}; a_t = mu a_n makes that sliding Coulomb's",
+                                  stacklevel=2)
                 p_an, p_at = coef[field_names.index(f"a_n[{ct.point}]")], coef[field_names.index(f"a_t[{ct.point}]")]
                 impact += [ct.mu * ct.a_n * p_an - ct.a_t * p_at, ct.mu * ct.a_n * p_an + ct.a_t * p_at]
     path_fn = {
@@ -1027,6 +1033,9 @@ def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X,
         rows.add("terminal", [y_N[: nq + nv]], target, target)
         term_res = y_N[: nq + nv] - target
     else:
+        if plan.target_v is not None:  # (built without it, silently: the task's end velocity dropped)
+            raise InputError(f"plan.target_v = {list(plan.target_v)} needs the terminal velocity rows, which "
+                             "ProblemOptions(terminal_velocity=False) leaves out: drop target_v or keep the rows")
         target_q = np.array(plan.target_q, float)
         rows.add("terminal", [y_N[:nq]], target_q, target_q)
         term_res = y_N[:nq] - target_q

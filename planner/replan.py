@@ -58,6 +58,10 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     result = parts[-1]
     no_walk = None
     if not result.stats.converged and start_task is not None:
+        if start_task.plan is not None and problem.task.plan is not None:
+            # the homotopy's settings are the solve's, not the scene's: the walk solves with the task's own (the
+            # start's n_nlp 5 against the task's 6 had refused the walk, though the held schedule reads neither)
+            start_task = replace(start_task, plan=replace(start_task.plan, homotopy=problem.task.plan.homotopy))
         apart = tasks_apart(start_task, problem.task)
         if apart is None:
             walked, no_walk = _walk(problem, held, penalty, start_task, parts, progress)

@@ -40,10 +40,11 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError, check_field_types, enum_field, expect, shown
+from .errors import (InputError, RobotFileError, UnknownNameError, check_field_types, check_interrupted, enum_field,
+                     expect, shown)
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
-from .result import (Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task, read_trajectory,
-                     real_array, result_dir, write_atomically)
+from .result import (ArraysReadOnly, Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task,
+                     read_trajectory, real_array, result_dir, write_atomically)
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -435,7 +436,7 @@ class Thresholds:
 
 
 @dataclass(frozen=True)
-class KinematicReport:
+class KinematicReport(ArraysReadOnly):
     """qpos set along the plan's samples (P of them)."""
 
     samples: int
@@ -470,7 +471,7 @@ class KinematicReport:
 
 
 @dataclass(frozen=True)
-class ImpactMatch:
+class ImpactMatch(ArraysReadOnly):
     """A planned impact and the nearest MuJoCo impact of the same point (None: MuJoCo has none)."""
 
     point: str
@@ -481,7 +482,7 @@ class ImpactMatch:
 
 
 @dataclass(frozen=True)
-class RolloutReport:
+class RolloutReport(ArraysReadOnly):
     """A dynamic replay (tracking or open loop) over [t_0, t_end] in MuJoCo steps."""
 
     duration_s: float
@@ -502,7 +503,7 @@ class RolloutReport:
 
 
 @dataclass(frozen=True)
-class WindowReport:
+class WindowReport(ArraysReadOnly):
     """The tracking replay restarted from the plan's state (q, v) in overlapping windows.
 
     Window j starts at starts_s[j] (every stride_s) and runs the same controller for window_s from
@@ -566,7 +567,7 @@ class ResolvedGains:
 
 
 @dataclass(frozen=True)
-class Validation:
+class Validation(ArraysReadOnly):
     """Result of a MuJoCo validation. `to_json()` is the contract's `validation` object.
 
     max_tracking_error_m / final_tracking_error_m: the base position error [m] of the tracking
@@ -688,12 +689,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         raise InputError(f"{out_dir}/summary.json: command {shown(summary.get('command'))} is none of 'plan', "
                          "'simulate' (was the file edited?)")
     if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
-        from .gait import validate_walk
-
-        if options is not None:  # (--window was accepted and did nothing)
-            raise InputError("a periodic plan is validated by walking its step in MuJoCo, with no tracking replay: "
-                             "ValidationOptions (--controller, --window) do not apply; give none")
-        validation = validate_walk(robot, task, check_trajectory(robot, traj))
+        validation = _walk(robot, task, traj, options)
     else:
         contacts, taps = _impact_points(summary, task, check_trajectory(robot, traj)["impact_times"], out_dir)
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
@@ -705,6 +701,16 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
             f"the {'simulation' if summary.get('command') == 'simulate' else 'plan'} did not converge (summary.json"
             f"{said}): MuJoCo replayed its last iterate",))
     return validation
+
+
+def _walk(robot: Robot, task: Task, arrays: Mapping[str, np.ndarray], options: ValidationOptions | None):
+    """A periodic plan's validation: its step walked in MuJoCo (planner.gait.validate_walk)."""
+    from .gait import validate_walk
+
+    if options is not None:  # (--window was accepted and did nothing)
+        raise InputError("a periodic plan is validated by walking its step in MuJoCo, with no tracking replay: "
+                         "ValidationOptions (--controller, --window) do not apply; give none")
+    return validate_walk(robot, task, check_trajectory(robot, arrays))
 
 
 def _stepped_by_implicit_euler(summary: dict) -> bool:
@@ -723,15 +729,18 @@ def _stepped_by_implicit_euler(summary: dict) -> bool:
 
 
 def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: ValidationOptions | None = None,
-                  dynamics: bool = False) -> Validation:
+                  dynamics: bool = False):
     """validate_trajectory of a solved plan's Trajectory, in memory: its physical-time samples, and its impacts'
     contact points and taps as `validate(DIR)` reads them from summary.json. dynamics: the trajectory is the planner's
-    implicit-Euler steps, so its own flight dynamics are checked (validate(DIR) reads that from summary.json)."""
+    implicit-Euler steps, so its own flight dynamics are checked (validate(DIR) reads that from summary.json). A
+    periodic plan (task plan.periodic) is walked as `validate(DIR)` walks it: a planner.gait.WalkValidation."""
     _expect_inputs(robot, task, "validate_plan")
     expect(trajectory, Trajectory, "validate_plan's trajectory (PlanResult.trajectory; arrays: validate_trajectory)")
     expect(options, (ValidationOptions, type(None)), "validate_plan's options")
     expect(dynamics, bool, "validate_plan's dynamics")
     arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
+    if task.plan is not None and task.plan.periodic is not None:  # (it was tracked, and failed where validate passed)
+        return _walk(robot, task, arrays, options)
     return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
                                impact_taps=trajectory.taps, dynamics=dynamics)
 
@@ -1149,6 +1158,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
     lower, upper = scene.ctrl_lower, scene.ctrl_upper
     with mujoco_warnings(lambda message: None):  # the rollout reads them from data.warning
         for k in range(steps + 1):
+            check_interrupted()
             rec.qpos[k], rec.qvel[k] = data.qpos, data.qvel
             if k < steps:
                 u = command(k, data)

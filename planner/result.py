@@ -599,7 +599,8 @@ class PlanResult(ArraysReadOnly):
             lines.append("race: " + race_arms_text(self.extra["race"]))
         if self.extra.get("no_walk"):  # planner.replan
             lines.append(f"  ({self.extra['no_walk']})")
-        if not st.converged:
+        # a replan's last NLP held a schedule: whose, the start's or a re-timed one, is in the message (summary.json's)
+        if not st.converged or self.nlps and self.nlps[-1].label.startswith(("schedule", "walk")):
             lines.append(f"  {st.message}")
         return "\n".join(lines)
 
@@ -898,8 +899,10 @@ def write_atomically(path: str | os.PathLike, write) -> None:
     file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
     or bytes is written as it is (str as UTF-8). The file gets the mode a plain open() would give (0666 less the
     umask), not mkstemp's private 0600. An OSError (no permission, a read-only directory) is an InputError naming
-    the path."""
-    _replace([(_stage(path, write), Path(path))])
+    the path. A symbolic link is written through: its target gets the file (`view --html LINK` replaced the link by a
+    file, the page it pointed at left stale)."""
+    path = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
+    _replace([(_stage(path, write), path)])
 
 
 # A temp file of a write older than this [s] is a killed writer's (SIGKILL, or the plot process ended at exit): the
@@ -1065,6 +1068,10 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
     Problem.signature is `signature` from it; InputError when out_dir holds no plan's point or one of
     other variables (another N, contact set, discretization or formulation). arrays: out_dir's trajectory
     arrays when already read."""
+    expect(out_dir, (str, os.PathLike), "read_start's out_dir")
+    expect(signature, str, "read_start's signature (Problem.signature)")
+    if not isinstance(nx, (int, np.integer)) or isinstance(nx, bool):  # ("5" read as "291 against this problem's 5")
+        raise InputError(f"read_start's nx (Problem.nx) must be an int, got {type(nx).__name__} {nx!r:.60}")
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")

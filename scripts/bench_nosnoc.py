@@ -500,6 +500,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--n-fe, --n-s and --max-iter must be >= 1")
     if not args.variants and not args.planner:
         parser.error("nothing to run: give --variants hint-free and/or hint, or --planner")
+    nosnoc_flags = (("--n-fe", "n_fe"), ("--n-s", "n_s"), ("--a-t", "a_t"), ("--max-iter", "max_iter"))
+    unread = [flag for flag, dest in nosnoc_flags if getattr(args, dest) != parser.get_default(dest)]
+    if unread and not args.variants:  # (a --max-iter 7 was recorded in the command and ran the planner unchanged)
+        parser.error(f"{', '.join(unread)} set nosnoc's solve, and no nosnoc variant runs (--variants none)")
     args.variants = list(dict.fromkeys(args.variants or []))  # (a variant named twice ran twice)
     return args
 

@@ -462,7 +462,8 @@ def resimulation_defect(robot, dyn: Dynamics, task, traj, scene, refinement: int
     h_ref = task.horizon.h / refinement
     n_steps = max(1, math.ceil(DEFECT_TAU_MARGIN * window / h_ref))
     gap_fns = [dyn.point_position(c.point) for c in task.contacts]
-    base_err, point_err, failed, per_window, start = 0.0, 0.0, [], [], time.perf_counter()
+    # None until a window is measured: a plan of no measurable window read as a defect of 0 (perfect)
+    base_err, point_err, failed, per_window, start = None, None, [], [], time.perf_counter()
     for i0 in _window_starts(t, window):
         t0, t1 = float(t[i0]), min(float(t[i0]) + window, float(t[-1]))
         low = min(float(np.asarray(f(q[i0])).ravel()[2]) for f in gap_fns) - task.ground_height
@@ -483,7 +484,8 @@ def resimulation_defect(robot, dyn: Dynamics, task, traj, scene, refinement: int
         base_p, pts_p = replay._planned_positions(scene, q[keep])
         base_s, pts_s = replay._planned_positions(scene, q_sim)
         per_window.append((t0, float(np.linalg.norm(base_p - base_s, axis=1).max()), float(np.linalg.norm(pts_p - pts_s, axis=2).max())))
-        base_err, point_err = max(base_err, per_window[-1][1]), max(point_err, per_window[-1][2])
+        base_err, point_err = (per_window[-1][j] if err is None else max(err, per_window[-1][j])
+                               for j, err in ((1, base_err), (2, point_err)))
     return {"defect_base_m": base_err, "defect_points_m": point_err, "windows": len(per_window), "failed_windows": failed,
             "per_window": [{"t0": a, "base_m": b, "points_m": c} for a, b, c in per_window],
             "h_ref": h_ref, "window_s": window, "wall_time_s": time.perf_counter() - start}

@@ -38,8 +38,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if not 0.0 <= args.at < 1e6:  # nan gave a ValueError traceback
         ap.error(f"--at must be a number of seconds in [0, 1e6), got {args.at}")
+    from planner.result import read_trajectory
     from planner.view import render_html
 
+    end = float(read_trajectory(args.result)["t"][-1])
+    if args.at > end:  # (the page showed its last frame, labelled with it, and the command said nothing)
+        ap.error(f"--at {args.at:g} s is past the end of {args.result}'s replay, {end:.4g} s")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         print("readme_figures: needs chromium on PATH (Debian: apt-get install chromium)", file=sys.stderr)

@@ -377,6 +377,35 @@ def test_a_urdf_link_of_no_mass_keeps_its_inertia_for_mujoco(tmp_path):
     assert result.passed, result.failures
 
 
+def test_a_urdf_link_with_a_collision_and_no_inertial_stays_massless_for_mujoco(tmp_path):
+    """A URDF link without <inertial> is massless (the URDF spec, Pinocchio), also when it has a primitive <collision>
+    (a sensor on a fixed joint): MuJoCo inferred 0.113 kg from the sphere, and every plan of the file was refused
+    ("mass matrix differs by up to 0.113")."""
+    path = tmp_path / "sensor.urdf"
+    path.write_text((ROBOTS_DIR / "capler.urdf").read_text().replace("</robot>", (
+        '<link name="sensor"><collision><geometry><sphere radius="0.03"/></geometry></collision></link>'
+        '<joint name="mount" type="fixed"><parent link="foot"/><child link="sensor"/></joint></robot>')))
+    result = check_model(load_robot(path), samples=2)
+    assert result.passed, result.failures
+
+
+def test_an_included_compiler_is_named_as_a_possible_cause(tmp_path):
+    """An MJCF file whose <include> holds <compiler angle="radian">: MuJoCo reads a body's euler="0 0.3 0" in
+    radians, Pinocchio (which reads no included <compiler>) in degrees. The differences found end with the include
+    as their possible cause (they blamed "masses MuJoCo infers from geoms" in a file without geoms)."""
+    from planner.check import reading_differences
+
+    (tmp_path / "comp.xml").write_text('<mujoco><compiler angle="radian"/></mujoco>')
+    path = tmp_path / "tilted.xml"
+    path.write_text('<mujoco><include file="comp.xml"/><worldbody><body name="base"><joint name="x" type="slide" '
+                    'axis="1 0 0"/><inertial pos="0 0 0" mass="2" diaginertia="0.01 0.01 0.01"/><body name="leg" '
+                    'euler="0 0.3 0"><joint name="hip" type="hinge" axis="0 1 0"/><inertial pos="0 0 -0.2" mass="0.5" '
+                    'diaginertia="0.005 0.005 0.001"/><site name="foot" pos="0 0 -0.4"/></body></body></worldbody>'
+                    '</mujoco>')
+    found = reading_differences(load_robot(path))
+    assert len(found) >= 2 and found[-1].startswith("the file has an <include>, whose <compiler> and <default>"), found
+
+
 def test_mujoco_prints_no_warning_of_its_own_when_a_robot_is_read(tmp_path, capfd, monkeypatch):
     """Reading a robot file MuJoCo warns about (a deprecated settotalmass) prints nothing raw on stderr and writes no
     MUJOCO_LOG.TXT into the working directory (both went through -q); the check says it as a Python warning."""

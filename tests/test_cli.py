@@ -497,6 +497,17 @@ def test_verbose_json_keeps_stdout_one_json_object(tmp_path):
     assert "EXIT: Optimal Solution Found" in proc.stderr or "Number of Iterations" in proc.stderr
 
 
+def test_a_solve_print_level_puts_ipopts_log_on_stderr(tmp_path):
+    """`--solve '{"print_level": 5}'` shows IPOPT's log as -v does, on stderr: stdout keeps the command's summary only
+    (the log went to stdout, 1187 lines mixed with the summary)."""
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TOML.format(x=0.5))
+    proc = run("plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-plots", "--no-validate",
+               "--steps", "8", "--no-race", "--solve", '{"print_level": 5}')
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Ipopt" not in proc.stdout and "Number of Iterations" in proc.stderr
+
+
 @pytest.mark.parametrize("command", ["plan", "simulate"])
 def test_verbose_puts_ipopts_log_on_stderr(tmp_path, command):
     """`-v` without --json prints IPOPT's log on stderr, as the README says, and keeps stdout to the command's summary
@@ -512,15 +523,21 @@ def test_verbose_puts_ipopts_log_on_stderr(tmp_path, command):
 
 def test_plan_solve_options_from_json(tmp_path, capsys):
     """`plan --solve JSON` sets SolveOptions fields over the flags: the summary's solve options carry them (a list as
-    the tuple, an enum by its value) beside the --ipopt option, which the JSON did not name."""
+    the tuple, an enum by its value) beside the --ipopt option, which the JSON did not name; repeated, the objects'
+    fields add up, each given once."""
     task = tmp_path / "hop.toml"
     task.write_text(HOP_TOML.format(x=0.5))
     argv = ["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "--json", "--no-race",
-            "--ipopt", "alpha_for_y=primal", "--solve", '{"rho_f_schedule": [10], "holes": "enforced", "reoptimize": false}']
+            "--ipopt", "alpha_for_y=primal", "--solve", '{"rho_f_schedule": [10], "holes": "enforced"}',
+            "--solve", '{"reoptimize": false}']
     assert main(argv) == 0
     solve = json.loads(capsys.readouterr().out)["options"]["solve"]
     assert solve["rho_f_schedule"] == [10] and solve["holes"] == "enforced" and solve["reoptimize"] is False
     assert ["alpha_for_y", "primal"] in solve["ipopt"]
+    # two --solve objects add up (the second replaced the first unsaid); a field in both is refused
+    assert main(argv + ["--solve", '{"holes": "relaxed_first"}']) == 2
+    assert capsys.readouterr().err.strip() == ("planner plan: error: --solve: holes given by two --solve objects; give "
+                                               "each field once")
 
 
 HOP_TOML = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
@@ -1073,6 +1090,26 @@ def test_a_ctrl_c_in_the_validation_says_the_result_was_written(tmp_path, capsys
     assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, not validated",
                                                     "planner plan: interrupted"]
     assert (out / "summary.json").is_file()
+
+
+def test_a_ctrl_c_held_while_the_result_is_written_says_it_was_written(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C during the write is held until both files are in place (result.write_files) and then raised: the
+    command says the result is there, without plots or validation, before the interruption's line (exit 130), as a
+    Ctrl-C in the validation does; "interrupted" alone let the earlier, replaced result seem kept."""
+    import planner.result as result_module
+
+    real = result_module.write_results
+
+    def held(result, target, result_id=None):
+        real(result, target, result_id)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(result_module, "write_results", held)
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "-q", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, without plots or "
+                                                    "validation", "planner plan: interrupted"]
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):

@@ -10,7 +10,7 @@ import pytest
 from planner.discretization import FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError, PlannerError, check_field_types
-from planner.gait import WalkGains, run_gait
+from planner.gait import WalkGains, run_gait, validate_walk
 from planner.homotopy import SolveOptions, solve, solve_options_from_dict
 from planner.model import load_robot
 from planner.problem import ProblemOptions, build_problem
@@ -18,7 +18,7 @@ from planner.pronto import ProntoOptions
 from planner.race import race
 from planner.replan import replan
 from planner.replay import ContactSettings, TrackingGains, ValidationOptions, validate, validate_plan
-from planner.result import write_results
+from planner.result import read_start, write_results
 from planner.simulate import SimulateOptions, simulate
 from planner.task import load_task, parse_task
 from planner.view import load_result, render_html, serve
@@ -138,6 +138,11 @@ def hop():
     (lambda r, t, p: load_result(5), "load_result's out_dir must be a str or PathLike"),
     (lambda r, t, p: serve("results", slow_motion="yes"), "serve's slow_motion must be a bool"),
     (lambda r, t, p: validate_plan(r, t, {"q": 1}), "validate_plan's trajectory .* must be a Trajectory"),
+    (lambda r, t, p: read_start(3, p.signature, p.nx), "read_start's out_dir must be a str or PathLike"),
+    (lambda r, t, p: read_start("results", p.signature, str(p.nx)), "read_start's nx .* must be an int, got str"),
+    (lambda r, t, p: read_start("results", None, p.nx), "read_start's signature .* must be a str"),
+    # an IndexError
+    (lambda r, t, p: validate_walk(r, t, {}, steps=0), "validate_walk's steps must be an int >= 1, got 0"),
     # the whole homotopy ran on NaN
     (lambda r, t, p: solve(replace(p, x0=np.full(p.nx, np.nan)), SolveOptions()),
      r"problem.x0 holds NaN or inf \(first at .*, entry 0\): a start must be finite"),

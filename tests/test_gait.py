@@ -347,7 +347,7 @@ def test_an_x0_whose_landing_is_off_the_ground_is_refused(biped):
 
 def test_run_gait_writes_the_contract(tmp_path, robot):
     """run_gait writes trajectory.npz and summary.json with the contract's names, one progress record
-    per outer loop, and impacts as repeated time samples (coarse grid, no MuJoCo)."""
+    per outer loop, and impacts as repeated time samples (coarse grid, no MuJoCo); the result is read-only."""
     task = load_task(ROBOTS_DIR / "biped_gait2.toml")
     task = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=COARSE_N))
     records = []
@@ -370,6 +370,11 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
     sol, model = res.solution, PinnedBiped(robot, layout=find_layout(robot, task.gait.stance, task.gait.swing))
     lam_t, lam_n = np.array(model.stance_force(sol.x[-1], sol.u[-1])).ravel()
     assert summary["min_normal_force_N"] <= lam_n and summary["friction_needed"] >= abs(lam_t / lam_n)
+    # frozen through its arrays and dicts, as a plan's result is (`res.walk.q[:] = 0` and summary edits went through)
+    for write in (lambda: res.solution.x.__setitem__((0, 0), 99.0), lambda: res.walk.q.__setitem__(0, 0.0),
+                  lambda: res.summary.__setitem__("converged", False)):
+        with pytest.raises((ValueError, TypeError), match="read-only"):
+            write()
 
 
 def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
@@ -459,9 +464,10 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
 
 def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
     """The gait model walks on z = 0 with the period horizon.tau_f and lands inelastically: a ground_height, a tilted
-    contact normal, a restitution (a converged gait exited on friction only, the elastic contact unsaid) or a
-    horizon.physical_time are refused before the solve, named (they were ignored: a ground at 0.3 m planned the
-    same gait, and MuJoCo's replay on the moved ground fell after one step), with no warning before."""
+    contact normal, a restitution (a converged gait exited on friction only, the elastic contact unsaid), a foot that
+    never touches (it walked on it) or a horizon.physical_time are refused before the solve, named (they were
+    ignored: a ground at 0.3 m planned the same gait, and MuJoCo's replay on the moved ground fell after one step),
+    with no warning before."""
     import warnings
 
     from planner.gait import run_gait
@@ -474,7 +480,9 @@ def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
                           (dataclasses.replace(task, contacts=(task.contacts[0], elastic)),
                            "contacts[1].restitution = 0.8"),
                           (dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=1.0)),
-                           "horizon.physical_time = 1")):
+                           "horizon.physical_time = 1"),
+                          (dataclasses.replace(task, contacts=(task.contacts[0], dataclasses.replace(
+                              task.contacts[1], touches=False))), "contacts[1].touches = false")):
         with pytest.raises(TaskError, match=rf"{re.escape(said)}.* would be ignored by `planner gait`"):
             GaitSpec.from_task(changed)
     # run_gait refuses it before the robot check, which warned first of the moved ground as if it were used

@@ -861,3 +861,34 @@ def test_a_plans_last_landing_keeps_its_post_impact_energy():
     result = H.solve(build_problem(load_robot("point_mass"), hop_task(N=20)), H.SolveOptions())
     assert result.stats.converged and result.trajectory.impacts
     assert all(np.isfinite(i.kinetic_energy_post) for i in result.trajectory.impacts)
+
+
+def test_an_edited_terminal_row_is_met_anywhere_in_its_range():
+    """terminal_error is the terminal rows' distance outside [lbg, ubg], not |g - lbg|: a hop whose final x-velocity
+    row is freed (lbg = -inf, ubg = inf) converges (it ended "NOT converged ... terminal error inf", the polish
+    refused), a range around the plan's end reads 0 and a range beside it its distance."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
+    rows = prob.g_blocks["terminal"].ravel()  # q_x, q_z, v_x, v_z
+    prob.lbg[rows[2]], prob.ubg[rows[2]] = -np.inf, np.inf
+    res = H.solve(prob)
+    assert res.stats.converged and res.terminal_error <= TERMINAL_TOL, res.stats.message
+    x = res.extra["_x"]
+    prob.lbg[rows[0]], prob.ubg[rows[0]] = 0.0, 0.6  # the plan ends at x = 0.5
+    assert H.terminal_error(prob, x) <= TERMINAL_TOL
+    prob.lbg[rows[0]], prob.ubg[rows[0]] = 0.7, 0.8
+    assert H.terminal_error(prob, x) == pytest.approx(0.2, abs=TERMINAL_TOL)
+
+
+def test_bounds_and_start_as_any_sequence_are_solved_as_float_vectors():
+    """A Problem's x0, lbx/ubx and lbg/ubg given as tuples, lists or a (1, n) array are solved as the (n,) float
+    vectors they hold (a tuple x0 or lbx was an AttributeError, a (1, nx) lbx an IndexError in the polish after the
+    whole homotopy), and a bound that is no numbers is an InputError."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
+    odd = dataclasses.replace(prob, x0=tuple(prob.x0), lbx=tuple(prob.lbx), ubx=prob.ubx.reshape(1, -1),
+                              lbg=list(prob.lbg))
+    res = H.solve(odd)
+    assert res.stats.converged and res.polished, res.stats.message
+    for name in ("x0", "lbx", "ubx", "lbg", "ubg"):
+        assert getattr(odd, name).shape == (getattr(prob, "nx" if name[-1] != "g" else "ng"),)
+    with pytest.raises(InputError, match=rf"problem.lbx/ubx must be {prob.nx} numbers each"):
+        H.solve(dataclasses.replace(prob, lbx=["a"] * prob.nx))

@@ -308,6 +308,17 @@ def test_unnamed_joints_and_bodies_are_named_as_the_cause(tmp_path):
         load_robot(bodies)
 
 
+def test_a_file_pinocchio_cannot_parse_gets_mujocos_reason(tmp_path):
+    """A joint of an undefined <default> class: Pinocchio's parser says only "unordered_map::at"; the refusal adds
+    MuJoCo's reading, which names the class, the element and its line."""
+    path = tmp_path / "class.xml"
+    path.write_text('<mujoco><worldbody><body name="a"><joint name="x" class="nope" type="slide" axis="1 0 0"/>'
+                    '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body></worldbody></mujoco>')
+    with pytest.raises(RobotFileError, match=r"Pinocchio cannot parse .* \(MuJoCo cannot read .*unknown default class "
+                                             r"name 'nope'; Element 'joint', line 1\)"):
+        load_robot(path)
+
+
 def test_couplings_and_negative_inertias_are_refused(tmp_path):
     """A URDF <mimic> joint (Pinocchio: an independent joint; MuJoCo: an equality constraint, so the replay and the
     plan disagreed and both passed) is refused by simulate and plan (Task.check_against) naming the joint, as passive
@@ -399,6 +410,9 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
         load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
                            extra='<tendon><fixed name="t"><joint joint="hip" coef="1"/></fixed></tendon>'))
+    # jointinparent on a hinge is a joint motor (refused as "does not act on a joint")
+    inparent = load_robot(_hopper(tmp_path, actuator='<general name="g" jointinparent="hip" ctrlrange="-1 1"/>'))
+    assert [(a.name, inparent.dof_names[a.dof], a.gear) for a in inparent.actuators] == [("g", "hip", 1.0)]
 
 
 def test_a_joint_of_several_dof_names_each(tmp_path):

@@ -143,7 +143,8 @@ def test_physical_time_adds_speed_and_constraint():
 def test_target_v_is_the_terminal_velocity():
     """plan.target_v = (0.3, 0) m/s (point mass): the terminal rows pin y_N's (q, v) to (target_q, target_v), so the
     v_x row's bounds are exactly 0.3 (an omitted target_v means zeros; a target_v read and dropped ends every plan at
-    rest, silently), and the row evaluates y_N's velocity."""
+    rest, silently), and the row evaluates y_N's velocity; built without the velocity rows, a target_v is an
+    InputError."""
     import casadi as ca
 
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
@@ -157,6 +158,9 @@ def test_target_v_is_the_terminal_velocity():
     x = np.random.default_rng(4).normal(size=prob.nx)
     g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g[rows.tolist()]])(x, prob.params(1.0)), float).ravel()
     np.testing.assert_array_equal(g, x[prob.var_blocks["y"][-1, : 2 * robot.nq]])
+    # without the velocity rows a given target_v is refused (it was dropped unsaid: the q rows only)
+    with pytest.raises(InputError, match=r"plan.target_v = \[0.3, 0.0\] needs the terminal velocity rows"):
+        build_problem(robot, task, ProblemOptions(terminal_velocity=False))
 
 
 def test_control_cost_is_h_times_the_sum_of_squared_controls():
@@ -221,6 +225,25 @@ def test_impact_cone_only_where_a_t_is_within_mu_a_n():
     x[sig["alpha[point]"]], x[sig["beta[point]"]], x[sig["gamma[point]"]], x[sig["zeta[point]"]] = 0.0, 0.0, 0.0, 0.0
     x[prob.var_blocks["w"][0]] = prob.builder.w_from(x[prob.var_blocks["sigma"][0]], np.zeros(len(sig)), np.zeros(len(sig)))
     assert np.allclose(np.asarray(g(x, prob.params(1.0))).ravel(), [0.5 * 200 - 100, 0.5 * 200 + 100])
+
+
+
+def test_a_t_below_mu_a_n_warns_of_sliding_below_coulomb():
+    """With a_t < mu a_n the impact cone lets a plan slide on the ground braked at a_t / a_n of its normal force, less
+    than mu (a hop task with a_n = 200, a_t = 50, mu = 0.5 slid 0.5 m where Coulomb friction lets it slide 0.07 m, and
+    MuJoCo's tracking passed it): the build warns, naming the ratio; a_t = mu a_n (Coulomb) builds without a word."""
+    import warnings
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = {"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 50.0}], "initial": {"q": [0.0, 0.0]},
+            "horizon": {"tau_f": 1.0, "N": 3}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
+    with pytest.warns(UserWarning, match=r"contact point: a_t = 50 < mu a_n = 100, so a plan may slide along the "
+                                         r"ground braked at a_t / a_n = 0.25 of its normal force, less than mu = 0.5"):
+        build_problem(robot, parse_task(task))
+    task["contacts"][0]["a_t"] = 100.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        build_problem(robot, parse_task(task))
 
 
 def test_velocity_bounds_rows_are_the_joint_rate_sums():

@@ -67,6 +67,19 @@ def test_walk_reaches_the_task_through_the_one_halfway(hop_plan, basin):
     assert res.timings["ipopt_s"] == pytest.approx(sum(r.time_s for r in res.nlps))
 
 
+def test_the_homotopy_settings_do_not_stop_the_walk(hop_plan, basin):
+    """Tasks that differ in plan.homotopy (n_nlp 6 against 5: integers, not numbers a walk moves) besides the target
+    are walked: the homotopy's settings are the solve's, which the held schedule does not read (the walk was refused,
+    "the two tasks differ in 'plan.homotopy.n_nlp'", and the penalty replan ran instead)."""
+    prob, x0 = hop_plan
+    moved = _moved(prob, x0, 0.6)
+    task = dataclasses.replace(moved.task, plan=dataclasses.replace(
+        moved.task.plan, homotopy=dataclasses.replace(moved.task.plan.homotopy, n_nlp=6)))
+    res = replan(dataclasses.replace(build_problem(prob.robot, task), x0=x0), H.replan_options(), prob.task)
+    assert res.stats.converged and "no_walk" not in res.extra, res.extra.get("no_walk")
+    assert [r.label for r in res.nlps] == ["schedule", "walk 0.5", "walk 1"]
+
+
 def test_a_plan_in_memory_gives_its_nlp_point_to_a_problem_of_the_same_variables(hop_plan):
     """PlanResult.nlp_point(problem) is the plan's NLP point (what trajectory.npz's nlp_x keeps for --init), a copy,
     for a problem of the same variables (the moved task's, or one whose only other option is the clock's default
@@ -149,7 +162,7 @@ def test_schedule_only_stops_after_the_held_schedule(hop_plan):
 def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_plan):
     """A walk whose last, held-schedule NLP follows a re-timing (a penalty replan on the way) ends on the re-timed
     schedule, not on the start's: its message says so (it said "the start's contact schedule kept", from the last
-    NLP's label). A walk of held schedules only keeps that message."""
+    NLP's label). A walk of held schedules only keeps that message. The report's last line is that message."""
     prob, x0 = hop_plan
     held = replan(_moved(prob, x0, 0.52), H.replan_options(), prob.task)
     assert held.stats.converged and held.stats.message == "ok" + H.SCHEDULE_KEPT
@@ -163,6 +176,9 @@ def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_pl
     assert retimed.stats.message == "ok (walked there: the contact schedule re-timed by a penalty replan on the way)"
     kept = R._totals(walk, [labelled("walk 0.5", (0.0, 0.5)), walk], 1.0, H.replan_options())
     assert kept.stats.message == held.stats.message
+    # the report says it too (only summary.json did): how the plan's schedule came about
+    assert held.report().splitlines()[-1] == "  ok" + H.SCHEDULE_KEPT
+    assert retimed.report().splitlines()[-1] == "  " + retimed.stats.message
 
 
 def test_a_task_between_that_cannot_be_built_ends_the_walk_not_the_replan(hop_plan, basin, monkeypatch):

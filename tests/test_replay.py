@@ -137,6 +137,33 @@ def test_coulomb_cone_sticks_inside_and_slides_outside(point_mass):
     assert abs(traj["v"][-1, 0] - 2.0) <= SLIDING_VEL_TOL * 2.0
 
 
+def test_a_ctrl_c_a_controller_swallowed_stops_the_rollout(point_mass):
+    """A Ctrl-C that a library inside the controller swallowed (CasADi's functions in the biped's walk) stops a MuJoCo
+    rollout at its next step when it runs in an interruptible block (the commands' solving ones): `planner gait`
+    walked all its steps and printed its summary before exiting 130."""
+    import os
+    import signal
+
+    from planner.errors import interruptible
+
+    scene = replay.build_scene(point_mass, _task("point", mu=0.8, q0=(0.0, 0.0)))
+    calls = []
+
+    def control(t, q, v):
+        calls.append(t)
+        if len(calls) == 3:
+            try:  # the signal arrives inside the "library", which drops it
+                os.kill(os.getpid(), signal.SIGINT)
+                signal.sigtimedwait([], 0)  # (a point where Python runs the handler)
+            except KeyboardInterrupt:
+                pass
+        return [0.0, 0.0]
+
+    with pytest.raises(KeyboardInterrupt), interruptible():
+        replay.mujoco_rollout(scene, [0.0, 0.0], [0.0, 0.0], 1.0, control)
+    assert len(calls) == 3
+
+
 @pytest.mark.parametrize("restitution", [0.5, 0.9, 1.0])
 def test_elastic_drop_exit_velocity(point_mass, restitution):
     """The point leaves the ground at about `restitution` times the impact speed, up to a perfectly elastic 1: at 0.9
@@ -432,7 +459,8 @@ def test_a_window_gives_its_onset_to_the_nearest_planned_impact(ground_truth, ca
 
 def test_validate_plan_is_validate_of_the_written_result(point_mass, tmp_path):
     """replay.validate_plan of a result's Trajectory in memory gives what `planner validate DIR` gives from the files
-    write_results wrote (the same samples, impact points and taps), every number but the replays' wall times."""
+    write_results wrote (the same samples, impact points and taps), every number but the replays' wall times; the
+    Validation is read-only."""
     simulate = pytest.importorskip("planner.simulate")
     from planner.result import write_results
 
@@ -449,9 +477,13 @@ def test_validate_plan_is_validate_of_the_written_result(point_mass, tmp_path):
             replay_json.pop("wall_time_s")
         return out
 
-    in_memory = numbers(replay.validate_plan(point_mass, task, result.trajectory, dynamics=True))  # implicit Euler
+    validation = replay.validate_plan(point_mass, task, result.trajectory, dynamics=True)  # implicit Euler
+    in_memory = numbers(validation)
     assert len(in_memory["tracking"]["impacts"]) == len(result.trajectory.impacts) >= 1
     assert in_memory == numbers(replay.validate(tmp_path / "drop"))
+    # read-only through its reports' dicts, which to_json and report read (they could be edited)
+    with pytest.raises(TypeError, match="read-only"):
+        validation.kinematic.penetration_by_point_m["point"] = 0.0
 
 
 def test_validate_refuses_a_gait_result(ground_truth, tmp_path):
@@ -773,6 +805,29 @@ def test_a_periodic_plan_that_did_not_converge_does_not_pass(tmp_path, monkeypat
     for options in ({"window_s": 0.3}, {"controller": "stance_retarget"}, {}):
         with pytest.raises(InputError, match="periodic plan is validated by walking .* do not apply"):
             replay.validate(tmp_path, replay.ValidationOptions(**options))
+
+
+def test_validate_plan_walks_a_periodic_plan_as_validate_does(monkeypatch):
+    """replay.validate_plan of a periodic plan (task plan.periodic) walks its step as `validate(DIR)` does and returns
+    that WalkValidation (it tracked the step instead: the biped's plan failed at 39 mm where validate(DIR) walked 10
+    of 10 steps); tracking options are refused there as in validate. The walk itself is stubbed."""
+    import planner.gait
+    from planner.result import Trajectory
+    from planner.task import load_task
+
+    robot, task = load_robot(ROBOTS_DIR / "biped.xml"), load_task(ROBOTS_DIR / "biped.toml")
+    P = 3
+    traj = Trajectory(tau=np.zeros(2), y=np.zeros((2, 1)), state_names=("t",), sigma=np.zeros((1, 0)),
+                      selector_names=(), t=np.linspace(0.0, 0.1, P), q=np.tile(task.initial.q, (P, 1)),
+                      v=np.zeros((P, robot.nv)), u=np.zeros((P, robot.nu)))
+    walked = planner.gait.WalkValidation(passed=True, robot=str(robot.path), stance_foot="foot_1", swing_foot="foot_2",
+                                         period_s=0.1, max_penetration_m=0.0, walking=None, failures=())
+    seen = []
+    monkeypatch.setattr(planner.gait, "validate_walk", lambda robot, task, arrays: seen.append(arrays) or walked)
+    assert replay.validate_plan(robot, task, traj, dynamics=True) is walked
+    assert np.array_equal(seen[0]["q"], traj.q) and len(seen) == 1
+    with pytest.raises(InputError, match="periodic plan is validated by walking .* do not apply"):
+        replay.validate_plan(robot, task, traj, replay.ValidationOptions())
 
 
 def test_missing_and_garbled_files(ground_truth, tmp_path):

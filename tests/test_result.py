@@ -7,6 +7,7 @@ import os
 import pickle
 import shutil
 from dataclasses import replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -328,6 +329,17 @@ def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
         write_atomically(path, crash)
     assert path.read_text() == '{"good": 1}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+def test_write_atomically_writes_through_a_symbolic_link(tmp_path):
+    """A path that is a symbolic link (`view --html LINK`) keeps the link: its target gets the new file (the link was
+    replaced by a file, the page it pointed at left stale)."""
+    (tmp_path / "pages").mkdir()
+    target, link = tmp_path / "pages" / "real.html", tmp_path / "link.html"
+    target.write_text("old")
+    link.symlink_to(Path("pages") / "real.html")
+    write_atomically(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
 
 
 def _tiny_result(n: int = 1) -> SimulationResult:

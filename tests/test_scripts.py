@@ -108,6 +108,21 @@ def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_resimulation_defect_of_no_measured_window_is_none(bench, monkeypatch):
+    """A plan whose windows all simulate nothing past their start (here every simulation stops at once) has no
+    re-simulation defect: None, not 0.0, which the table and the plot read as a perfect re-simulation."""
+    from types import SimpleNamespace
+
+    from planner.dynamics import Dynamics
+
+    robot, task = load_robot("point_mass"), load_task(Path("robots") / "point_mass_hop.toml")
+    stopped = SimpleNamespace(stats=SimpleNamespace(converged=False), trajectory=SimpleNamespace(t=np.zeros(1)))
+    monkeypatch.setattr(bench, "simulate", lambda *args, **kwargs: stopped)
+    traj = SimpleNamespace(t=np.linspace(0.0, 0.1, 3), q=np.zeros((3, 2)), v=np.zeros((3, 2)), u=np.zeros((3, 2)))
+    defect = bench.resimulation_defect(robot, Dynamics(robot), task, traj, scene=None)
+    assert defect["defect_base_m"] is None and defect["defect_points_m"] is None and defect["windows"] == 1
+
+
 def test_open_loop_schedule_replays_the_plan_controls(bench):
     """The plan's zero-order-hold controls (u[i] acts on [t[i-1], t[i]), an impact repeats a time)
     become a simulate.schedule in the window's own clock: the piece running at the window start
@@ -442,6 +457,10 @@ def test_bench_nosnoc_task_and_arguments(bench_nosnoc):
     assert args.quick and args.planner and args.variants == ["hint"] and str(args.out) == "x"
     with pytest.raises(SystemExit):
         b.parse_args(["--n-fe", "0"])
+    # nosnoc's settings with only the planner running: refused (recorded in the command, and unread)
+    with pytest.raises(SystemExit):
+        b.parse_args(["--planner", "--variants", "--max-iter", "7"])
+    assert b.parse_args(["--planner", "--variants"]).variants == []
 
 
 def test_bench_nosnoc_model_and_hint(bench_nosnoc):
@@ -597,7 +616,8 @@ def test_bench_nosnoc_planner_side_races_as_planner_plan_does(bench_nosnoc, monk
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium: apt-get install -y chromium")
 def test_readme_figures_photograph_the_replay(tmp_path):
     """The README's pictures come from the project's code: a result directory gives replay.png (an
-    800 x 600 screenshot of the meshcat page that is not blank) and copies of its plots."""
+    800 x 600 screenshot of the meshcat page that is not blank) and copies of its plots; a time past the end is
+    refused."""
     from PIL import Image
 
     from planner.cli import main as cli
@@ -609,6 +629,9 @@ def test_readme_figures_photograph_the_replay(tmp_path):
     img = np.asarray(Image.open(tmp_path / "img" / "replay.png").convert("RGB")).astype(float)
     assert img.shape[:2] == (600, 800) and img.std() > 5.0  # 5 levels: the blank-page bound of tests/test_view.py
     assert (tmp_path / "img" / "foot_path.png").is_file() and (tmp_path / "img" / "states.png").is_file()
+    with pytest.raises(SystemExit) as stop:  # a time past the replay's end (it photographed the last frame, unsaid)
+        figures.main([str(result), "--out", str(tmp_path / "img"), "--at", "100"])
+    assert stop.value.code == 2
 
 
 Z_TOL = 1e-6  # [m] the plan's start and terminal rows hold to IPOPT's tolerance (1e-8) and the verdict's 1e-6
