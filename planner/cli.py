@@ -671,7 +671,8 @@ def _cmd_plan(args) -> int:
         start_id = str(start_arrays["result_id"]) if "result_id" in start_arrays else None
         result = replace(result, options={**result.options, "init": str(args.init.absolute()),
                                           "init_result_id": start_id})
-    validating = not args.no_validate and result.trajectory.t.size > 1
+    # a last iterate whose clock never ran spans no physical time to replay (validate refused it: exit 2, no report)
+    validating = not args.no_validate and result.trajectory.physical_duration > 0
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"

@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from .result import TAP_SHARE, write_atomically
+from .timefreezing import contact_labels
 from .view import Result, load_result
 
 MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
@@ -135,7 +136,7 @@ def _torques(res: Result):
         [f"u[{j}]" for j in range(res.u.shape[1])]
     _, v_units = _units(robot.model)
     force_units = {"m": "N", "rad": "N m"}
-    units = {force_units.get(v_units[a.dof], "") for a in robot.actuators} if len(robot.actuators) == res.u.shape[1] else {""}
+    known = len(robot.actuators) == res.u.shape[1]
     groups = _groups(res.u.shape[1])
     fig, axes = _figure(len(groups), 1, 9.0, 2.2, sharex=True)
     for r, group in enumerate(groups):
@@ -144,6 +145,8 @@ def _torques(res: Result):
             # u[i] is held from sample i-1 to sample i (zero-order hold): steps, not the ramps a line drew between them
             ax.plot(res.t, res.u[:, j], linewidth=1.3, label=names[j], drawstyle="steps-pre")
         _mark_impacts(ax, res, legend=r == 0)
+        # per panel, as the states' (a slide's N beside a hinge's N m left both panels without a unit)
+        units = {force_units.get(v_units[robot.actuators[j].dof], "") for j in group} if known else {""}
         ax.set_ylabel("u" + (f" [{next(iter(units))}]" if len(units) == 1 and "" not in units else ""))
         ax.legend(fontsize="small", loc="best")
         ax.grid(alpha=0.3)
@@ -157,8 +160,12 @@ def _contact_forces(res: Result):
     if res.lambda_n is None:
         return None
     n_contacts = res.lambda_n.shape[1]
-    names = list(res.contact_points) if len(res.contact_points) == n_contacts else [f"contact {i}" for i in range(n_contacts)]
-    mus = [c.mu for c in res.task.contacts] if res.task is not None and len(res.task.contacts) == n_contacts else None
+    # the forces' columns are the contacts that touch (touches = false has none), labelled as the report labels them
+    # (point#1, point#2 for one point on two planes): "contact 0" and no cone lines, or one name twice, before
+    touching = [c for c in res.task.contacts if c.touches] if res.task is not None else []
+    named = len(touching) == n_contacts
+    names = list(contact_labels(touching)) if named else [f"contact {i}" for i in range(n_contacts)]
+    mus = [c.mu for c in touching] if named else None
     rows = 2 if res.lambda_t is not None else 1
     fig, axes = _figure(rows, 1, 9.0, 2.4, sharex=True)
     for i in range(n_contacts):

@@ -427,13 +427,14 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     return out
 
 
-def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=True) -> dict | None:
+def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=True,
+                floor: float = CONE_FLOOR_N) -> dict | None:
     """{point, counted: how many, max_tangential_N, mu_normal_N} of the entries (where True) whose tangential force
-    (n,) [N] leaves the friction cone of mu times the normal force (n,) [N] (CONE_SLACK, CONE_FLOOR_N), the largest
-    one named; None when none does or mu = 0."""
+    (n,) [N] leaves the friction cone of mu times the normal force (n,) [N] by more than floor [N] (CONE_SLACK), the
+    largest one named; None when none does or mu = 0."""
     tangential = np.abs(tangential)
     bound = mu * np.maximum(normal, 0.0)
-    outside = where & (tangential > CONE_SLACK * bound + CONE_FLOOR_N)
+    outside = where & (tangential > CONE_SLACK * bound + floor)
     if not (mu > 0 and outside.any()):
         return None
     worst = int(np.argmax(np.where(outside, tangential, -1.0)))
@@ -602,6 +603,10 @@ class PlanResult(ArraysReadOnly):
         # a replan's last NLP held a schedule: whose, the start's or a re-timed one, is in the message (summary.json's)
         if not st.converged or self.nlps and self.nlps[-1].label.startswith(("schedule", "walk")):
             lines.append(f"  {st.message}")
+        elif early := [r.label for r in self.nlps if r.label.startswith("homotopy") and not r.success]:
+            # the table's status column shows it; the verdict is the returned point's (only summary.json said so)
+            lines.append(f"  on the way, IPOPT stopped early in {', '.join(early)}; the verdict is the returned "
+                         "point's")
         return "\n".join(lines)
 
     def summary(self) -> dict:

@@ -1112,6 +1112,28 @@ def test_a_ctrl_c_held_while_the_result_is_written_says_it_was_written(tmp_path,
                                                     "validation", "planner plan: interrupted"]
 
 
+def test_a_failed_plan_that_spans_no_physical_time_is_reported_not_validated(tmp_path, capsys):
+    """A plan stopped after 3 IPOPT iterations per NLP whose last iterate never runs the clock (a box on two corners)
+    spans no physical time: it is reported as failed (exit 1, its diagnostics in DIR/failed) without a validation,
+    which refused such a trajectory as an input error (exit 2, no report)."""
+    robot = tmp_path / "box.xml"
+    robot.write_text(
+        '<mujoco><option gravity="0 0 -9.81"/><worldbody><body name="box"><joint name="x" type="slide" axis="1 0 0"/>'
+        '<joint name="z" type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/>'
+        '<inertial pos="0 0 0" mass="2" diaginertia="0.01 0.01 0.01"/><site name="left" pos="-0.1 0 -0.05"/>'
+        '<site name="right" pos="0.1 0 -0.05"/></body></worldbody><actuator><motor name="fx" joint="x" '
+        'ctrlrange="-50 50"/><motor name="fz" joint="z" ctrlrange="-50 50"/><motor name="tp" joint="pitch" '
+        'ctrlrange="-10 10"/></actuator></mujoco>')
+    task = tmp_path / "box.toml"
+    task.write_text('[[contacts]]\npoint = "left"\nmu = 0.5\n[[contacts]]\npoint = "right"\nmu = 0.5\n[initial]\n'
+                    'q = [0.0, 0.05, 0.0]\n[horizon]\ntau_f = 0.6\nN = 12\n[plan]\ntarget_q = [0.2, 0.05, 0.0]\n')
+    out = tmp_path / "out"
+    assert main(["plan", str(robot), "--task", str(task), "--out", str(out), "--solve", '{"max_iter": 3}', "--no-race",
+                 "--no-plots"]) == 1
+    printed = capsys.readouterr().out
+    assert f"FAILED: results in {out / 'failed'}" in printed
+
+
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
     """The earlier result's plots are removed before the new result is written: when one cannot be (an immutable
     file), the command stops (exit 2) with the earlier result and its plots as they were; the new result had

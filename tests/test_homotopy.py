@@ -892,3 +892,14 @@ def test_bounds_and_start_as_any_sequence_are_solved_as_float_vectors():
         assert getattr(odd, name).shape == (getattr(prob, "nx" if name[-1] != "g" else "ng"),)
     with pytest.raises(InputError, match=rf"problem.lbx/ubx must be {prob.nx} numbers each"):
         H.solve(dataclasses.replace(prob, lbx=["a"] * prob.nx))
+
+
+def test_a_converged_report_names_the_nlps_that_stopped_early(hop):
+    """A converged plan's report says which homotopy NLPs IPOPT stopped early (their status column shows it; the
+    note was in summary.json's message only) and that the verdict is the returned point's; a plan whose NLPs all
+    succeeded says nothing of it."""
+    _, res, _ = hop
+    marked = dataclasses.replace(res, nlps=tuple(dataclasses.replace(r, success=False, status="Restoration_Failed")
+                                                 if r.label == "homotopy 2" else r for r in res.nlps))
+    assert "  on the way, IPOPT stopped early in homotopy 2; the verdict is the returned point's" in marked.report()
+    assert "on the way" not in res.report()

@@ -144,3 +144,39 @@ def test_a_simulation_draws_no_holes_and_a_corner_point_is_one_path(result_dir):
     corner = dataclasses.replace(res.task, contacts=(*res.task.contacts, wall))
     fig, _ = plots._foot_path(dataclasses.replace(res, task=corner))
     assert [ln.get_label() for ln in fig.axes[0].get_lines()].count("foot path") == 1
+
+
+def test_contact_force_legends_name_the_touching_contacts_as_the_report_does(result_dir):
+    """The force columns are the contacts that touch: beside a touches = false contact the foot keeps its name and its
+    ±μ λn lines ("contact 0" and none before); one point on two planes is foot#1 and foot#2 (the report's labels),
+    not "foot" twice."""
+    import dataclasses
+
+    res = view.load_result(result_dir)
+    foot = res.task.contacts[0]
+    never = dataclasses.replace(foot, point="knee", touches=False)
+    fig, _ = plots._contact_forces(dataclasses.replace(res, task=dataclasses.replace(res.task, contacts=(foot, never))))
+    labels = [ln.get_label() for ax in fig.axes for ln in ax.get_lines()]
+    assert "foot" in labels and "±μ λn (foot)" in labels and "contact 0" not in labels
+    wall = dataclasses.replace(foot, normal=(1.0, 0.0, 0.0))
+    corner = dataclasses.replace(res, task=dataclasses.replace(res.task, contacts=(foot, wall)),
+                                 lambda_n=np.tile(res.lambda_n, 2), lambda_t=np.tile(res.lambda_t, 2))
+    fig, _ = plots._contact_forces(corner)
+    assert [ln.get_label() for ln in fig.axes[0].get_lines()][:2] == ["foot#1", "foot#2"]
+
+
+def test_torque_panels_carry_their_own_units(result_dir, tmp_path):
+    """A robot with slide and hinge motors: each torque panel says its own unit (N for the slides, N m for the hinge),
+    as the states' panels do; a panel set's mixed units left every panel without one."""
+    import dataclasses
+
+    path = tmp_path / "cart.xml"
+    path.write_text('<mujoco><worldbody><body name="cart"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
+                    'type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/><body '
+                    'name="pole"><joint name="twist" type="hinge" axis="0 1 0"/><inertial pos="0 0 -0.1" mass="0.1" '
+                    'diaginertia="0.001 0.001 0.001"/></body></body></worldbody><actuator><motor name="push" '
+                    'joint="x"/><motor name="lift" joint="z"/><motor name="turn" joint="twist"/></actuator></mujoco>')
+    res = view.load_result(result_dir)
+    cart = dataclasses.replace(res, robot=load_robot(path), u=np.zeros((len(res.t), 3)))
+    fig, _ = plots._torques(cart)
+    assert [ax.get_ylabel() for ax in fig.axes] == ["u [N]", "u [N]", "u [N m]"]

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from planner.discretization import FESDOptions
+from planner.discretization import Discretization, FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import load_robot
@@ -212,6 +212,40 @@ def test_contact_breaking_under_pull():
     late = tr.t > t1 + 0.2
     exact = (force - G) * (tr.t[late] - t1) ** 2 / 2
     np.testing.assert_allclose(tr.q[late, 1], exact, atol=(force - G) * (tr.t[-1] - t1) * 2 * h)
+
+
+FESD_PULL_TOL = 1e-4  # [m] FESD's flight after the pull-off is exact to the step solves' tolerance (measured 1e-6)
+
+
+def test_fesd_pulls_a_resting_mass_off_the_table_at_a_scheduled_step():
+    """FESD: a mass resting on the table, pulled up by 20 N > m g from the step at t1 = 0.3 s (the schedule's rule):
+    the step after the control's jump starts from the multipliers of its own switching functions, so it converges
+    (the previous step's, of the old control, left it no solution: "complementarity residual 5", exit 1) and the
+    flight is z = (20 - g)(t - t1)^2 / 2."""
+    t1, force = 0.3, 20.0
+    t = task({"a_n": 100.0}, (0.0, 0.0), (0.0, 0.0), 0.6, 30, schedule=[{"t": t1, "u": [0.0, force]}])
+    result = simulate(robot(), t, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions()),
+                      dynamics=dynamics())
+    assert result.stats.converged, result.stats.message
+    tr = result.trajectory
+    assert tr.impacts == ()
+    assert tr.q[-1, 1] == pytest.approx((force - G) * (tr.t[-1] - t1) ** 2 / 2, abs=FESD_PULL_TOL)
+
+
+FESD_IMPULSE_RTOL = 1e-4  # the landing's impulse against m sqrt(2 g h0): measured 5e-6 (the step solves' tolerance)
+
+
+def test_fesd_flight_selectors_leaks_are_no_braking_outside_the_cone():
+    """FESD with friction (mu = 0.5, 6 elements): the thrown mass's flight elements leak the tangential field by ~1e-6
+    N, which is no braking beyond the cone (the report flagged 1.95e-6 N "where mu normal = 0 N"; the floor is 1e-5 of
+    the robot's weight); the landing's impulse is still m |v_pre|."""
+    t = task({"mu": 0.5, "a_n": 100.0}, (0.0, 1.0), (1.0, 0.0), 0.6, 30)
+    result = simulate(robot(), t, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_fe=6)),
+                      dynamics=dynamics())
+    assert result.stats.converged, result.stats.message
+    assert result.extra["braked_outside_friction_cone"] == []
+    (impact,) = result.trajectory.impacts
+    assert impact.impulse == pytest.approx(math.sqrt(2 * G), rel=FESD_IMPULSE_RTOL)
 
 
 # --- elastic impacts (Sec. 4.5) -------------------------------------------------------------------
@@ -708,8 +742,6 @@ def test_fesd_simulates_a_robot_without_actuators(tmp_path):
     """The FESD simulation of a robot without actuators (the point mass without its motors: nu = 0) drops it from
     z = 0.2 m to one impact and converges: reshaping its element controls, an empty array, to (-1, n_s, 0) raised
     "ValueError: cannot reshape array of size 0" after the last step."""
-    from planner.discretization import Discretization, FESDOptions
-
     source = robot().path.read_text()
     start, end = source.index("<actuator>"), source.index("</actuator>") + len("</actuator>")
     passive = tmp_path / "passive.xml"
