@@ -248,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
             return _stop(args, EXIT_INPUT, f"error: {exc.strerror}{where}")
         return _stop(args, EXIT_FAILED, f"failed: {exc.strerror or exc}{where}")  # e.g. a full disk
     except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
-        return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large?)")
+        return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large, or the "
+                     "physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         return _stop(args, EXIT_INTERRUPTED, "interrupted")
     except SystemError as exc:  # a Ctrl-C in a Python callback CasADi called: "returned a result with an exception set"
@@ -405,7 +406,10 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
         return target, lambda: None
     if not background:
         with interruptible(defer=True):  # a Ctrl-C left the new result with part of its plots
-            drawn = _draw(target)
+            try:
+                drawn = _draw(target)
+            except Exception as exc:  # one line, as the background drawing's (a singular matrix was a traceback)
+                raise PlannerError(f"the plots of {target} failed: {type(exc).__name__}: {exc}") from None
         _plotted(args, result.stats.converged, drawn)
         return target, lambda: None
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
@@ -585,7 +589,8 @@ def _cmd_plan(args) -> int:
             replanned = sorted(set(fields) & set(REPLAN_FIELDS)) if args.init is not None else []
             if replanned:  # replan_options sets them after --solve: the JSON was lost likewise
                 raise InputError(f"{', '.join(replanned)} {'is' if len(replanned) == 1 else 'are'} set by --init DIR "
-                                 "(a replan's own homotopy from the plan, docs/tasks.md), not by --solve")
+                                 "(a replan's own homotopy from the plan, homotopy.REPLAN_FIELDS; README), not by "
+                                 "--solve")
             for key, flag, given in (("ipopt", "--ipopt", args.ipopt), ("warm_ipopt", "--warm-ipopt", args.warm_ipopt),
                                      ("print_level", "-v", args.verbose)):
                 if key in fields and given:  # the JSON's field replaces the flag's: the flag was lost

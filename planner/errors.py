@@ -77,27 +77,28 @@ def interruptible(defer: bool = False):
             previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
 
     signal.signal(signal.SIGINT, note)
-    _PENDING.append((caught, defer))
+    entry = (caught, defer)
+    _PENDING.append(entry)
     try:
         yield
     except Exception:  # CasADi may return the Ctrl-C as its own RuntimeError ("... KeyboardInterrupt"): a traceback
         if not caught:
             raise
     finally:
-        _PENDING.pop()
+        _PENDING[:] = [e for e in _PENDING if e is not entry]  # its own, should blocks end out of order
         signal.signal(signal.SIGINT, previous)
     if caught:
         raise KeyboardInterrupt
 
 
-_PENDING: list = []  # (caught signals, defer) of each interruptible block entered, the innermost last
+_PENDING: list = []  # (caught signals, defer) of each interruptible block entered (main thread only)
 
 
 def check_interrupted() -> None:
-    """KeyboardInterrupt when a Ctrl-C came during the innermost interruptible block (not a deferring one) and a
-    library swallowed it: for loops of many CasADi calls (a MuJoCo replay's controller), which otherwise ran to their
-    end (`planner gait` walked all its steps and printed its summary, then exited 130)."""
-    if _PENDING and _PENDING[-1][0] and not _PENDING[-1][1]:
+    """KeyboardInterrupt when a Ctrl-C came during an interruptible block that does not defer it and a library
+    swallowed it: for loops of many CasADi calls (a MuJoCo replay's controller), which otherwise ran to their end
+    (`planner gait` walked all its steps and printed its summary, then exited 130). Off the main thread: nothing."""
+    if threading.current_thread() is threading.main_thread() and any(c and not d for c, d in list(_PENDING)):
         raise KeyboardInterrupt
 
 

@@ -616,7 +616,7 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
              and getattr(options, k) not in (getattr(SolveOptions, k), fields.get(k, getattr(SolveOptions, k)))]
     if given:  # (they were replaced without a word)
         raise InputError(f"replan_options sets {', '.join(given)}: leave {'it' if len(given) == 1 else 'them'} at "
-                         "the default (a replan's own homotopy from the plan, docs/tasks.md)")
+                         "the default (a replan's own homotopy from the plan, homotopy.REPLAN_FIELDS; README)")
     try:
         return replace(options or SolveOptions(), **fields)
     except InputError as exc:  # an option the replan's settings leave unread (soft_terminal_weight)

@@ -460,10 +460,11 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     for i in range(mj.nu):
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
         # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only)
-        kind = int(mj.jnt_type[mj.actuator_trnid[i, 0]])  # (numpy's int is no member of a tuple of mjtJoint values)
-        one_dof = kind in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
-        if not (mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT
-                or mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINTINPARENT and one_dof):
+        # (the joint's type only of a joint transmission: a site's or tendon's id is no joint's; numpy's int is no
+        # member of a tuple of mjtJoint values)
+        one_dof = mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINTINPARENT and int(
+            mj.jnt_type[mj.actuator_trnid[i, 0]]) in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+        if not (mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT or one_dof):
             raise RobotFileError(f"{path}: actuator {name!r} does not act on a joint; only joint motors are supported")
         # a <position>, <velocity> or <general> actuator is a servo or has dynamics: its force is not gear * ctrl
         if (mj.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE or mj.actuator_biastype[i] != mujoco.mjtBias.mjBIAS_NONE

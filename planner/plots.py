@@ -160,9 +160,11 @@ def _contact_forces(res: Result):
     if res.lambda_n is None:
         return None
     n_contacts = res.lambda_n.shape[1]
-    # the forces' columns are the contacts that touch (touches = false has none), labelled as the report labels them
-    # (point#1, point#2 for one point on two planes): "contact 0" and no cone lines, or one name twice, before
-    touching = [c for c in res.task.contacts if c.touches] if res.task is not None else []
+    # the forces' columns are a plan's contacts that touch (touches = false has none; a simulation reads touches
+    # nowhere), labelled as the report labels them (point#1, point#2 for one point on two planes): "contact 0" and no
+    # cone lines, or one name twice, before
+    plan = res.summary.get("command") == "plan"
+    touching = [c for c in res.task.contacts if c.touches or not plan] if res.task is not None else []
     named = len(touching) == n_contacts
     names = list(contact_labels(touching)) if named else [f"contact {i}" for i in range(n_contacts)]
     mus = [c.mu for c in touching] if named else None

@@ -685,7 +685,8 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
     if options.impact_cone and len(contacts) == 1:  # the contacts the system is built for (planner.scene)
         for ct, model in zip(contacts, system.models):
             if model is ContactModel.NO_SLIP and ct.a_t <= ct.mu * ct.a_n:
-                if ct.a_t < ct.mu * ct.a_n:  # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m)
+                # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m); a_t = mu a_n to rounding is it
+                if ct.a_t < ct.mu * ct.a_n * (1.0 - 1e-9):
                     warnings.warn(f"contact {ct.point}: a_t = {ct.a_t:g} < mu a_n = {ct.mu * ct.a_n:g}, so a plan may "
                                   f"slide along the ground braked at a_t / a_n = {ct.a_t / ct.a_n:.3g} of its normal "
                                   f"force, less than mu = {ct.mu:g}; a_t = mu a_n makes that sliding Coulomb's",

@@ -478,7 +478,7 @@ class NlpRecord:
     time_s: float  # wall time of the IPOPT call [s]
     status: str  # IPOPT return status
     success: bool
-    terminal_error: float  # max |terminal residual| [m, rad (, m/s, rad/s)]
+    terminal_error: float  # the terminal rows' largest distance outside [lbg, ubg] [m, rad (, m/s, rad/s)]
     # why the planner set aside the NLP's point though IPOPT succeeded (a held schedule that adds an impact), or ""
     note: str = ""
 
@@ -600,11 +600,14 @@ class PlanResult(ArraysReadOnly):
             lines.append("race: " + race_arms_text(self.extra["race"]))
         if self.extra.get("no_walk"):  # planner.replan
             lines.append(f"  ({self.extra['no_walk']})")
+        # the table's status column shows them; the verdict is the returned point's (only summary.json said so, by
+        # the same rule: an unpolished plan's point is its last homotopy NLP's, whose status is the verdict's)
+        hom = [r for r in self.nlps if r.label.startswith("homotopy")]
+        early = [r.label for r in hom if not r.success and (self.polished or r is not hom[-1])]
         # a replan's last NLP held a schedule: whose, the start's or a re-timed one, is in the message (summary.json's)
         if not st.converged or self.nlps and self.nlps[-1].label.startswith(("schedule", "walk")):
             lines.append(f"  {st.message}")
-        elif early := [r.label for r in self.nlps if r.label.startswith("homotopy") and not r.success]:
-            # the table's status column shows it; the verdict is the returned point's (only summary.json said so)
+        elif early:
             lines.append(f"  on the way, IPOPT stopped early in {', '.join(early)}; the verdict is the returned "
                          "point's")
         return "\n".join(lines)

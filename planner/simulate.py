@@ -437,21 +437,30 @@ def _stepwise_fesd(system, fesd: FESDInterval, y0, task, h, N, options, law=None
     u_prev = task.simulate.controls_at(0.0, nu)
     for k in range(N):
         u = task.simulate.controls_at(y[-1] + 0.5 * h, nu)
+        lefts = [left]
         if not np.array_equal(u, u_prev):  # the schedule's jump moves the switching functions (gamma's, with
-            # lambda_n): the last stage's multipliers belong to the old control (a pull-off's step found no solution)
+            # lambda_n): when the last stage's multipliers, the old control's, leave the step no solution (a
+            # pull-off's), those of the switching functions at y with the new control (tried second: a robot standing
+            # through the jump kept its contact with the old ones, and took an impact with these)
             guess = builder.guess(y, _applied(law, system, u, y))
-            left = np.concatenate([guess[lam0], guess[lam1]])
+            lefts.append(np.concatenate([guess[lam0], guess[lam1]]))
         u_prev = u
-        starts = ((np.concatenate([fesd.guess(h, y, w), [0.0]]), opts) for w, opts in _fesd_starts(builder, law, system, y, u, w_guess, options))
-        weights = np.zeros(n)
-        if collocated:  # options.velocity_switch COLLOCATED: everywhere; None: the contacts in persistent contact
-            weights = np.ones(n) if weights_fixed else _persistent_weights(system, left[:n], left[n:])
-        kind = "collocated" if weights.any() else "point"
+        for attempt, left in enumerate(lefts):
+            said = {key: total[key] for key in ("comp", "ok", "message")}
+            starts = ((np.concatenate([fesd.guess(h, y, w), [0.0]]), opts)
+                      for w, opts in _fesd_starts(builder, law, system, y, u, w_guess, options))
+            weights = np.zeros(n)
+            if collocated:  # options.velocity_switch COLLOCATED: everywhere; None: the contacts in persistent contact
+                weights = np.ones(n) if weights_fixed else _persistent_weights(system, left[:n], left[n:])
+            kind = "collocated" if weights.any() else "point"
+            solver, comp_fn = nlps[kind]
+            p = np.concatenate([y, u, left] + ([weights] if kind == "collocated" else []))
+            x = _first_converged(solver, comp_fn, starts, p, (lbx, ubx, lbg, ubg), options, total,
+                                 f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s)")
+            if x is not None or attempt == len(lefts) - 1:
+                break
+            total.update(said)  # the first boundary's failure is not the step's
         total["collocated_steps"] += kind == "collocated"
-        solver, comp_fn = nlps[kind]
-        p = np.concatenate([y, u, left] + ([weights] if kind == "collocated" else []))
-        x = _first_converged(solver, comp_fn, starts, p, (lbx, ubx, lbg, ubg), options, total,
-                             f"step {k} (tau = {k * h:.4g} s, t = {y[-1]:.4g} s)")
         if x is None:
             break
         hk, Yk, Wk = fesd.unpack(x)

@@ -179,7 +179,7 @@ class VelocityBound:
         _require(len(self.joints) > 0 and len(set(self.joints)) == len(self.joints), "plan.velocity_bounds.joints",
                  list(self.joints), "one or more different joint names")
         _require(self.lower <= self.upper, "plan.velocity_bounds.lower", self.lower, f"<= upper ({self.upper})")
-        _require(math.isfinite(self.lower) or math.isfinite(self.upper), "plan.velocity_bounds",
+        _require(math.isfinite(self.lower) or math.isfinite(self.upper), "plan.velocity_bounds.lower/upper",
                  [self.lower, self.upper], "a finite lower or upper bound")
 
 
@@ -526,11 +526,14 @@ class Task:
         if self.plan.target_v is not None:
             _length("plan.target_v", self.plan.target_v, robot.nv)
         lower, upper = self.q_bounds(robot)
+        bounded = {b.joint: r for r, b in enumerate(self.plan.joint_bounds)}  # (the task's, named as such)
         for key, q in (("initial.q", self.initial.q), ("plan.target_q", self.plan.target_q)):
             # the plan's first node is bounded too: a start outside jumped onto the bound in one step
             for i, (qi, lo, hi) in enumerate(zip(q, lower, upper)):
                 if not lo <= qi <= hi:
-                    raise TaskError(f"{key}[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint limits [{lo}, {hi}]")
+                    name = robot.dof_names[i]
+                    whose = f"plan.joint_bounds[{bounded[name]}]" if name in bounded else "the robot file's limits"
+                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds [{lo}, {hi}] ({whose})")
 
     def _constant_controls(self) -> list[tuple[str, tuple[float, ...]]]:
         """(task key, controls (nu,)) of simulate.u and each schedule entry."""

@@ -59,8 +59,8 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"fesd_start": "implicit_euler"}'], "set by --fesd-start"),  # was ignored
         # replan_options sets these after --solve with --init DIR: they were replaced silently
         (["plan", "point_mass", "--init", "{dir}", "--solve", '{"mu_init": 0.1, "holes": "relaxed_first"}'],
-         "--solve: holes, mu_init are set by --init DIR (a replan's own homotopy from the plan, docs/tasks.md), not by "
-         "--solve"),
+         "--solve: holes, mu_init are set by --init DIR (a replan's own homotopy from the plan, "
+         "homotopy.REPLAN_FIELDS; README), not by --solve"),
         (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level shows IPOPT's log and -q"),
         # replace() put the JSON's field in place of the flag's: the flag's IPOPT options or log were lost
         (["plan", "point_mass", "--ipopt", "max_soc=2", "--solve", '{"ipopt": {"alpha_for_y": "min"}}'],
@@ -1132,6 +1132,40 @@ def test_a_failed_plan_that_spans_no_physical_time_is_reported_not_validated(tmp
                  "--no-plots"]) == 1
     printed = capsys.readouterr().out
     assert f"FAILED: results in {out / 'failed'}" in printed
+
+
+def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch):
+    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) is one line,
+    exit 1, naming both causes (it named N only, which was 20)."""
+    import planner.replay as replay
+
+    def exhausted(target, options=None):
+        raise MemoryError
+
+    monkeypatch.setattr(replay, "validate", exhausted)
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "--no-plots", "-q", "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("planner plan: failed: out of memory (is horizon.N or --steps far too large, or the physical "
+                       "time MuJoCo replays, e.g. tau_f = 1e8 s?)")
+
+
+def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):
+    """An unexpected error while a simulation's plots are drawn in the command's own process (a singular matrix of a
+    ground at 1e15 m) is one "failed:" line, exit 1, as in the plotting child of a validating plan: it was a
+    traceback."""
+    import numpy as np
+
+    import planner.plots as plots
+
+    def singular(target):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(plots, "plot_results", singular)
+    out = tmp_path / "out"
+    assert main(["simulate", "point_mass", "--out", str(out), "-q"]) == 1
+    assert capsys.readouterr().err.strip() == (f"planner simulate: failed: the plots of {out} failed: LinAlgError: "
+                                               "Singular matrix")
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):

@@ -410,6 +410,9 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     with pytest.raises(RobotFileError, match="actuator 'tm' does not act on a joint"):
         load_robot(_hopper(tmp_path, actuator='<motor name="tm" tendon="t"/>',
                            extra='<tendon><fixed name="t"><joint joint="hip" coef="1"/></fixed></tendon>'))
+    sites = '<site name="foot" pos="0 0 -0.3"/>' + "".join(f'<site name="s{i}"/>' for i in range(1, 5))
+    with pytest.raises(RobotFileError, match="actuator 'sm' does not act on a joint"):  # (site 4: IndexError)
+        load_robot(_hopper(tmp_path, actuator='<motor name="sm" site="s4"/>', foot=sites))
     # jointinparent on a hinge is a joint motor (refused as "does not act on a joint")
     inparent = load_robot(_hopper(tmp_path, actuator='<general name="g" jointinparent="hip" ctrlrange="-1 1"/>'))
     assert [(a.name, inparent.dof_names[a.dof], a.gear) for a in inparent.actuators] == [("g", "hip", 1.0)]

@@ -163,6 +163,11 @@ def test_contact_force_legends_name_the_touching_contacts_as_the_report_does(res
                                  lambda_n=np.tile(res.lambda_n, 2), lambda_t=np.tile(res.lambda_t, 2))
     fig, _ = plots._contact_forces(corner)
     assert [ln.get_label() for ln in fig.axes[0].get_lines()][:2] == ["foot#1", "foot#2"]
+    # a simulation reads touches nowhere: its columns are every contact's
+    both = dataclasses.replace(corner, task=dataclasses.replace(res.task, contacts=(foot, never)),
+                               summary={**res.summary, "command": "simulate"})
+    fig, _ = plots._contact_forces(both)
+    assert [ln.get_label() for ln in fig.axes[0].get_lines()][:2] == ["foot", "knee"]
 
 
 def test_torque_panels_carry_their_own_units(result_dir, tmp_path):

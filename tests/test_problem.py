@@ -227,7 +227,6 @@ def test_impact_cone_only_where_a_t_is_within_mu_a_n():
     assert np.allclose(np.asarray(g(x, prob.params(1.0))).ravel(), [0.5 * 200 - 100, 0.5 * 200 + 100])
 
 
-
 def test_a_t_below_mu_a_n_warns_of_sliding_below_coulomb():
     """With a_t < mu a_n the impact cone lets a plan slide on the ground braked at a_t / a_n of its normal force, less
     than mu (a hop task with a_n = 200, a_t = 50, mu = 0.5 slid 0.5 m where Coulomb friction lets it slide 0.07 m, and
@@ -240,10 +239,11 @@ def test_a_t_below_mu_a_n_warns_of_sliding_below_coulomb():
     with pytest.warns(UserWarning, match=r"contact point: a_t = 50 < mu a_n = 100, so a plan may slide along the "
                                          r"ground braked at a_t / a_n = 0.25 of its normal force, less than mu = 0.5"):
         build_problem(robot, parse_task(task))
-    task["contacts"][0]["a_t"] = 100.0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        build_problem(robot, parse_task(task))
+        for mu, a_t in ((0.5, 100.0), (0.07, 14.0)):  # 0.07 * 200 is 14.000000000000002: a_t = mu a_n to rounding
+            task["contacts"][0].update(mu=mu, a_t=a_t)
+            build_problem(robot, parse_task(task))
 
 
 def test_velocity_bounds_rows_are_the_joint_rate_sums():

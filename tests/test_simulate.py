@@ -232,6 +232,21 @@ def test_fesd_pulls_a_resting_mass_off_the_table_at_a_scheduled_step():
     assert tr.q[-1, 1] == pytest.approx((force - G) * (tr.t[-1] - t1) ** 2 / 2, abs=FESD_PULL_TOL)
 
 
+def test_fesd_keeps_a_standing_robots_contact_through_a_control_jump():
+    """FESD: Capler standing under its joint PD while the schedule's feed-forward jumps (0 -> (1, -1) -> 0 N m): its
+    foot stays in persistent contact, no impact, as implicit Euler has it. The boundary multipliers of the new
+    control's switching functions are the fallback of a step the last stage's cannot solve (used first, they gave a
+    0.22 N s "impact" at the jump that gained kinetic energy)."""
+    capler = load_robot("capler")
+    t = parse_task({"contacts": [{"point": "foot", "mu": 0.8, "a_n": 200.0, "a_t": 600.0}],
+                    "initial": {"q": [0.0, 0.4, 0.0, 0.0]}, "horizon": {"tau_f": 0.5, "N": 25},
+                    "simulate": {"schedule": [{"t": 0.1, "u": [1.0, -1.0]}, {"t": 0.3, "u": [0.0, 0.0]}],
+                                 "pd": {"joints": ["hip", "knee"], "kp": [100.0, 100.0], "kd": [2.0, 2.0]}}})
+    result = simulate(capler, t, SimulateOptions(discretization=Discretization.FESD, fesd=FESDOptions()))
+    assert result.stats.converged, result.stats.message
+    assert result.trajectory.impacts == ()
+
+
 FESD_IMPULSE_RTOL = 1e-4  # the landing's impulse against m sqrt(2 g h0): measured 5e-6 (the step solves' tolerance)
 
 

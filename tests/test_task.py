@@ -123,10 +123,13 @@ def test_robot_dependent_errors():
     with pytest.raises(TaskError, match="initial.q has 2 entries; the robot needs 4"):
         parse_task(_with("initial.q", [0.0, 1.0])).check_against(capler)
     outside = _with("plan", {"target_q": [3.0, 0.4, 2.0, 0.0]})
-    with pytest.raises(TaskError, match=r"target_q\[2\] = 2.0 \(hip\) is outside the joint limits"):
+    with pytest.raises(TaskError, match=r"target_q\[2\] = 2.0 \(hip\) is outside the joint bounds .* \(the robot "
+                                        r"file's limits\)"):
         parse_task(outside).check_against(capler)
     start_outside = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "base_x", "lower": 0.2}]})
-    with pytest.raises(TaskError, match=r"initial.q\[0\] = 0.0 \(base_x\) is outside the joint limits \[0.2, inf\]"):
+    # the task's bound, named as such (it said "the joint limits", sending the user to the robot file)
+    with pytest.raises(TaskError, match=r"initial.q\[0\] = 0.0 \(base_x\) is outside the joint bounds \[0.2, inf\] "
+                                        r"\(plan.joint_bounds\[0\]\)"):
         parse_task(start_outside).check_against(capler)
     inverted = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.0}]})
     with pytest.raises(TaskError, match="lower = 1.0 .* <= upper"):
@@ -377,7 +380,7 @@ def test_bad_periodic_values_are_named(changes, message):
         ({"joints": [], "lower": 0.1}, r"plan.velocity_bounds\[0\].joints = \[\] .* one or more different joint names"),
         ({"joints": ["torso", "torso"], "lower": 0.1}, r"plan.velocity_bounds\[0\].joints .* different joint names"),
         ({"joints": ["torso"], "lower": 1.0, "upper": 0.5}, r"plan.velocity_bounds\[0\].lower = 1.0 .* <= upper \(0.5\)"),
-        ({"joints": ["torso"]}, r"plan.velocity_bounds = \[-inf, inf\] .* a finite lower or upper bound"),
+        ({"joints": ["torso"]}, r"plan.velocity_bounds\[0\].lower/upper = \[-inf, inf\] .* a finite lower or upper"),
         ({"joint": "torso", "lower": 0.1}, r"unknown key 'plan.velocity_bounds\[0\].joint'; valid keys: joints, lower, upper"),
     ],
 )
