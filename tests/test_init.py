@@ -32,3 +32,32 @@ def test_the_same_blas_kernels_on_every_avx2_cpu_unless_the_caller_chose():
         flags = []
     assert _seen("OPENBLAS_CORETYPE", None) == ("Haswell" if {"avx2", "fma"} <= set(flags) else "unset")
     assert _seen("OPENBLAS_CORETYPE", "Zen") == "Zen"
+
+
+# the modules planner imports that come from another distribution than their name says, or only with an extra
+PROVIDED_BY = {"pinocchio": "pin", "umsgpack": "meshcat", "zmq": "meshcat"}  # (meshcat's own dependencies)
+OPTIONAL = {"dask"}  # the batch extra, imported where used with an error naming the install
+
+
+def test_every_library_planner_imports_is_a_core_dependency():
+    """Every third-party module planner/ imports (at any depth: in functions too) is installed by the package's core
+    dependencies, pyproject.toml's [project] dependencies, or is an optional extra's: scipy was in the test extra
+    only, so the README's install crashed `planner gait` with ModuleNotFoundError after its solve."""
+    import ast
+    import re
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    core = {re.split(r"[<>=!~\[ ;]", d, maxsplit=1)[0].lower()
+            for d in tomllib.loads((root / "pyproject.toml").read_text())["project"]["dependencies"]}
+    imported = set()
+    for path in (root / "planner").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported |= {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                imported.add(node.module.split(".")[0])
+    third_party = imported - set(sys.stdlib_module_names) - {"planner", "__future__"} - OPTIONAL
+    missing = sorted(m for m in third_party if PROVIDED_BY.get(m, m).replace("_", "-") not in core)
+    assert not missing, f"imported by planner/ but not in pyproject.toml's dependencies: {missing}"
