@@ -23,7 +23,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, shown
-from .model import Robot, RobotFormat, _included, mujoco_failure, mujoco_spec, order_hint
+from .model import Robot, RobotFormat, included_files, mujoco_failure, mujoco_spec, order_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -404,7 +404,7 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
-    if out and robot.format is RobotFormat.MJCF and _included(robot.path, robot.path.parent, {robot.path.resolve()}):
+    if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
         # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
         out.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: "
                    "the differences above may be theirs; write them into the file")

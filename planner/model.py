@@ -242,7 +242,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
-                "the file)" if fmt is RobotFormat.MJCF and _included(path, path.parent, {path.resolve()}) else
+                "the file)" if fmt is RobotFormat.MJCF and included_files(path) else
                 " (the file's <default> comes after <worldbody>: Pinocchio's MJCF parser reads the classes only before "
                 "their use; move <default> above <worldbody>)"
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
@@ -313,9 +313,14 @@ def file_sha256(path: Path) -> str:
     bytes alone (the hash results have kept since robot_sha256 was added)."""
     path = Path(path)
     digest = hashlib.sha256(path.read_bytes())
-    for name, data in _included(path, path.parent, {path.resolve()}):
+    for name, data in included_files(path):
         digest.update(b"\0" + name.encode() + b"\0" + data)
     return digest.hexdigest()
+
+
+def included_files(path: Path) -> list[tuple[str, bytes]]:
+    """(file attribute, contents) of each file the MJCF file at path includes, recursively, depth first."""
+    return _included(path, path.parent, {path.resolve()})
 
 
 def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]:
@@ -459,8 +464,8 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     actuators = []
     for i in range(mj.nu):
         name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
-        # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only)
-        # (the joint's type only of a joint transmission: a site's or tendon's id is no joint's; numpy's int is no
+        # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only); the
+        # joint's type is read for it alone (a site's or tendon's id is no joint's), as an int (numpy's int is no
         # member of a tuple of mjtJoint values)
         one_dof = mj.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINTINPARENT and int(
             mj.jnt_type[mj.actuator_trnid[i, 0]]) in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
