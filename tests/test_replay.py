@@ -159,8 +159,13 @@ def test_a_ctrl_c_a_controller_swallowed_stops_the_rollout(point_mass):
                 pass
         return [0.0, 0.0]
 
-    with pytest.raises(KeyboardInterrupt), interruptible():
-        replay.mujoco_rollout(scene, [0.0, 0.0], [0.0, 0.0], 1.0, control)
+    # Python's own Ctrl-C handler, as in a terminal: a background job (CI's) starts with SIGINT ignored
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt), interruptible():
+            replay.mujoco_rollout(scene, [0.0, 0.0], [0.0, 0.0], 1.0, control)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert len(calls) == 3
 
 
