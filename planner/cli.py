@@ -11,6 +11,7 @@ import json
 import multiprocessing
 import os
 import re
+import shutil
 import signal
 import sys
 import tempfile
@@ -206,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parser.parse_args(argv)
     except UsageExit as exc:  # argparse stops before --json is read: the JSON object was missing
-        if "--json" in argv:
+        if any(len(a) > 2 and "--json".startswith(a) for a in argv):  # (argparse takes --js for --json too)
             command = next((a for a in argv if a in parser.commands), None)
             print(json.dumps({"command": command, "exit_code": EXIT_INPUT, "error": exc.text}), flush=True)
         raise
@@ -251,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large, or the "
                      "physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
+        _written_line(args)
         return _stop(args, EXIT_INTERRUPTED, "interrupted")
     except SystemError as exc:  # a Ctrl-C in a Python callback CasADi called: "returned a result with an exception set"
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
@@ -316,6 +318,23 @@ def _stop(args, code: int, text: str) -> int:
             print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout,
                   flush=True)
     return code
+
+
+def _written_line(args) -> None:
+    """After a Ctrl-C: when this run's result had replaced DIR's (its result_id in DIR's summary.json; a Ctrl-C held
+    over the write is raised once both files are in place), one line that says so and what it lacks, before
+    "interrupted": that alone let the earlier, replaced result seem kept (also after the validation was stored)."""
+    from .plots import PLOT_FILES
+
+    target = getattr(args, "written", None)
+    summary = _summary_of(target, args.result_id) if target is not None else None
+    if summary is None:
+        return
+    missing = [what for what, gone in (
+        ("plots", not getattr(args, "no_plots", True) and not any((target / n).exists() for n in PLOT_FILES)),
+        ("validation", not getattr(args, "no_validate", True) and "validation" not in summary)) if gone]
+    print(f"planner {args.command}: {'converged' if summary.get('converged') else 'FAILED'}: results in {target}"
+          + (f", without {' or '.join(missing)}" if missing else ""), file=getattr(args, "stderr", None) or sys.stderr)
 
 
 def _progress(args, line: str) -> None:
@@ -389,17 +408,15 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
-    _remove_plots(target)  # first: one it cannot remove left the new result beside the earlier result's plots
+    # first: one it cannot move left the new result beside the earlier result's plots; back if the write fails (a
+    # full disk deleted them)
+    aside = _plots_aside(target)
     # this run's id, not read back from DIR: another run writing DIR after it had lent it its id and validation
-    args.result_id = uuid.uuid4().hex
+    args.result_id, args.written = uuid.uuid4().hex, target  # (a Ctrl-C from here on: _written_line)
     try:
         write_results(result, target, args.result_id)
-    except KeyboardInterrupt:  # held until both files were in place: then they are this run's, the earlier gone
-        with contextlib.suppress(OSError, ValueError):
-            if json.loads((target / "summary.json").read_text()).get("result_id") == args.result_id:
-                print(f"planner {args.command}: {'converged' if result.stats.converged else 'FAILED'}: results in "
-                      f"{target}, without plots or validation", file=args.stderr or sys.stderr)
-        raise
+    finally:  # (a Ctrl-C held over the write is raised once both files are in place: then they are this run's)
+        _plots_back(aside, target, restore=_summary_of(target, args.result_id) is None)
     if result.stats.converged:
         _remove_failed(out / "failed")
     if args.no_plots:
@@ -604,7 +621,8 @@ def _cmd_plan(args) -> int:
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
-    elif discretization is Discretization.FESD and "rho_max" not in fields:  # (--solve's wins: it was replaced)
+    elif discretization is Discretization.FESD and "rho_max" not in fields and solve_options.rho_schedule is None:
+        # (--solve's wins: it was replaced; a rho_schedule replaces the task's schedule, which rho_max changes)
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
     if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
         raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
@@ -693,9 +711,6 @@ def _cmd_plan(args) -> int:
         except BaseException as exc:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
-            if isinstance(exc, KeyboardInterrupt):  # (only "interrupted": the earlier result, gone, seemed kept)
-                print(f"planner plan: {'converged' if ok else 'FAILED'}: results in {target}, not validated",
-                      file=args.stderr or sys.stderr)
             raise
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
@@ -729,6 +744,47 @@ def _check_start(start: Path, robot, arrays: dict) -> None:
                          "starts from a plan of the same robot")
 
 
+def _summary_of(target: Path, result_id: str) -> dict | None:
+    """target's summary.json when it is the result result_id's, else None."""
+    try:
+        summary = json.loads((target / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) and summary.get("result_id") == result_id else None
+
+
+def _plots_aside(target: Path) -> Path | None:
+    """The plots of an earlier result in `target` (it holds a summary.json: other PNGs are the user's) moved into a
+    hidden directory there, which is returned (None: none), so that they do not mix in with the new result's files;
+    a plot that cannot be moved (an immutable file) puts the others back and raises."""
+    from .plots import PLOT_FILES
+
+    old = [n for n in PLOT_FILES if (target / n).exists()] if (target / "summary.json").is_file() else []
+    if not old:
+        return None
+    aside = Path(tempfile.mkdtemp(prefix=".planner-earlier-plots-", dir=target))
+    moved = []
+    try:
+        for name in old:
+            os.replace(target / name, aside / name)
+            moved.append(name)
+    except BaseException:
+        _plots_back(aside, target, restore=True, names=moved)
+        raise
+    return aside
+
+
+def _plots_back(aside: Path | None, target: Path, restore: bool, names=None) -> None:
+    """_plots_aside's directory removed, its plots first put back into `target` when `restore` (the write failed)."""
+    if aside is None:
+        return
+    if restore:
+        for name in os.listdir(aside) if names is None else names:
+            with contextlib.suppress(OSError):
+                os.replace(aside / name, target / name)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
 def _remove_plots(target: Path) -> None:
     """An earlier result's plots in `target` (--no-plots now, a plot this robot has not, a gait that draws none) would
     mix in with the new result's files."""
@@ -740,8 +796,8 @@ def _remove_plots(target: Path) -> None:
 
 def _skips_apart(init: Path, arrays: dict, task) -> str:
     """Why a start's NLP variables differ from this task's: another N, a contact in one task only, a scene skip one
-    task has and the other not (mu = 0 drops a contact's tangential variables), or horizon.physical_time (a speed
-    of time per step) in one of them, as "; ..." text, or ""."""
+    task has and the other not (mu = 0 drops a contact's tangential variables, touches = false its complementarity
+    variables), or horizon.physical_time (a speed of time per step) in one of them, as "; ..." text, or ""."""
     from .result import read_task
 
     try:
@@ -749,10 +805,16 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
     except InputError:
         return ""
     # contact by contact: a wall added on the ground's point was said to change the ground contact's mu
-    apart = [f"{c.point!r} has mu {old.mu:g} there and {c.mu:g} here" for old, c in zip(start.contacts, task.contacts)
+    pairs = list(zip(start.contacts, task.contacts)) if len(start.contacts) == len(task.contacts) else []
+    apart = [f"{c.point!r} has mu {old.mu:g} there and {c.mu:g} here" for old, c in pairs
              if (old.mu == 0) != (c.mu == 0)]
-    said = (f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init"
-            if apart and len(start.contacts) == len(task.contacts) else "")
+    said = f"; contact {', '.join(apart)}: mu = 0 drops a contact's tangential variables, so plan without --init" \
+        if apart else ""
+    apart = [f"{c.point!r} has touches = {str(old.touches).lower()} there and {str(c.touches).lower()} here"
+             for old, c in pairs if old.touches != c.touches]
+    if apart:  # touches = false is the larger skip: the contact keeps only its gap rows
+        said += (f"; contact {', '.join(apart)}: touches = false drops a contact's complementarity variables, so "
+                 "plan without --init")
     if len(start.contacts) != len(task.contacts):
         said += (f"; {len(start.contacts)} contact(s) there and {len(task.contacts)} here: each contact has its own "
                  "variables, so plan without --init")

@@ -186,7 +186,7 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
     and what is allowed, not a TypeError or a silent nan from a range check later (values from JSON: `planner plan
     --solve`; `x > 0` is False for nan but True for inf). owner: how the message names the dataclass, as its own range
     checks do (e.g. "contact" for ValidationOptions.contact, "" for none); default its class name. A list given for a
-    tuple field is stored as a tuple."""
+    tuple field is stored as a tuple, an int given for a float as a float."""
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]
@@ -218,6 +218,8 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             label = type(options).__name__ if owner is None else owner
             raise error(f"{label + '.' if label else ''}{f.name} = {shown(given, 200)} is not allowed; it must be "
                         + (f"a tuple of which each is {what}" if many else what))
+        if kind == "float":  # an int stored as given made equal options' reprs, so Problem.signature, differ
+            value = [float(v) for v in value] if many else float(value)
         if many:  # stored as the tuple it is typed (a list field made hash() raise), of Python numbers
             object.__setattr__(options, f.name, tuple(value))
         elif value is not given:

@@ -39,7 +39,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import CONE_SLACK, ArraysReadOnly, real_array, write_files
-from .task import MAX_STEPS, GaitContinuation, GaitPronto, Task, task_to_json
+from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
 RELABEL = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -263,8 +263,12 @@ class GaitSpec(ArraysReadOnly):
         ignored += [f"contacts[{i}].restitution = {c.restitution:g}" for i, c in enumerate(task.contacts)
                     if c.restitution]
         ignored += [f"contacts[{i}].touches = false" for i, c in enumerate(task.contacts) if not c.touches]
+        # (the time-freezing gains and `simulate`'s table were dropped unsaid too)
+        ignored += [f"contacts[{i}].{key} = {getattr(c, key):g}" for i, c in enumerate(task.contacts)
+                    for key in ("a_n", "a_t") if getattr(c, key) != getattr(Contact, key)]
         if task.horizon.physical_time is not None:
             ignored.append(f"horizon.physical_time = {task.horizon.physical_time:g}")
+        ignored += ["[simulate]"] * (task.simulate != Simulate())  # ([plan] beside [gait] is refused by parse_task)
         if ignored:
             raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
                             "whose model walks on the ground z = 0 with the period horizon.tau_f and lands with paper "
@@ -278,12 +282,16 @@ class GaitSpec(ArraysReadOnly):
                    desired_input=DesiredInput(g.desired_input), continuation=g.continuation, pronto=g.pronto)
 
 
+STOPPED = "stop: max_outer"  # an outer loop's action when it is the last one gait.continuation.max_outer allows
+
+
 @dataclass(frozen=True)
 class OuterLoop:
     """One outer loop of the strategy (one PRONTO solve): the progress record.
 
     stage: "embedding" (step 2) or "final_state" (step 3); action: what the loop does next
-    ("rho_emb x factor", "rho_f x factor", "newton x_T", "done"); emb_max max |u_emb| [N m];
+    ("rho_emb x factor", "drop u_emb", "rho_f x factor", "newton x_T", "done", or STOPPED: the last loop of
+    max_outer); emb_max max |u_emb| [N m];
     final_error ||x(T) - Delta^-1(x0)|| (2-norm over rad, rad/s).
     """
 
@@ -470,7 +478,7 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         out_of_loops = len(loops) + 1 >= cont.max_outer
         record(stage="embedding", rho_emb=rho_emb, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
                pronto_converged=res.converged, emb_max=emb, final_error=float(np.linalg.norm(x[-1] - xf)),
-               action="drop u_emb" if done or out_of_loops else f"rho_emb x{cont.factor:g}")
+               action=STOPPED if out_of_loops else "drop u_emb" if done else f"rho_emb x{cont.factor:g}")
         if done or out_of_loops:
             break
         rho_emb *= cont.factor
@@ -495,10 +503,14 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
             action = f"rho_f x{cont.factor:g}"
         else:
             action = "newton x_T"
+        if action != "done" and len(loops) + 1 >= cont.max_outer:  # (the action it named never ran)
+            action = STOPPED
         record(stage="final_state", rho_emb=None, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
                pronto_converged=res.converged, emb_max=None, final_error=err, action=action)
         if action == "done":
             converged, message = True, "final-state constraint met"
+            break
+        if action == STOPPED:  # (x_target stays the one this loop solved for)
             break
         if action == "newton x_T":
             D = pu.terminal_response(x, u, res.K, -rho_f**2 * np.eye(6))  # d x_N / d x_T
@@ -944,6 +956,8 @@ class GaitRunResult(ArraysReadOnly):
         lines = [f"gait {Path(self.robot).name} ({Path(self.task).name}): {'converged' if s.converged else 'NOT converged'} "
                  f"in {s.solve_time_s:.2f} s, {len(s.loops)} outer loops, {s.pronto_iterations} PRONTO iterations; "
                  f"||x(T) - Delta^-1(x0)|| = {s.final_error:.2e}; cost {s.cost:.6g}"]
+        if not s.converged and s.message:  # (only -q's failure line said why)
+            lines.append(f"  {s.message}")
         lines += [f"  {violation}" for violation in gait_violations(self.summary)]
         if self.walking is not None:
             w = self.walking

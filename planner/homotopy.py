@@ -175,7 +175,7 @@ class SolveOptions:
     in (0, 1), the a_n field carrying part of the weight) and is a physical step, not an impact
     (docs/formulation.md, "Periodic walking").
     rho_schedule: the penalties of the homotopy's NLPs (None: the task's rho0 kappa^i, n_nlp).
-    rho_min, rho_max: applied to the task's schedule (not to rho_schedule): drop the NLPs with
+    rho_min, rho_max: applied to the task's schedule (left at their defaults beside a rho_schedule): drop the NLPs with
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
     rho_i = rho0 kappa^i past n_nlp until rho_max is reached. rho_refine: extra penalties sorted into
     the task's schedule: the honest hopping motion appears between rho = 1e3 and 1e4, where a step
@@ -399,6 +399,9 @@ class SolveOptions:
             (self.keep_schedule or not self.schedule_only, "schedule_only", self.schedule_only, "False unless keep_schedule is True"),
             (self.keep_schedule or not self.schedule_new_impacts, "schedule_new_impacts", self.schedule_new_impacts,
              "False unless keep_schedule is True"),
+            # (they change the task's schedule, which rho_schedule replaces: accepted, recorded and ignored before)
+            *[(self.rho_schedule is None or getattr(self, k) == getattr(SolveOptions, k), k, getattr(self, k),
+               f"{getattr(SolveOptions, k)!r} (the default) unless rho_schedule is None") for k in _TASK_RHO_FIELDS],
             # (read by their polish only: accepted, recorded and ignored before)
             (self.polish is Polish.HYBRID or self.hybrid_ratio == SolveOptions.hybrid_ratio, "hybrid_ratio",
              self.hybrid_ratio, f"{SolveOptions.hybrid_ratio!r} (the default) unless polish is hybrid"),
@@ -627,6 +630,7 @@ def replan_options(options: SolveOptions | None = None) -> SolveOptions:
 # those that act on the task's schedule only, which its rho_schedule replaces (rho_max 1e5 was recorded, 1e6 run)
 REPLAN_FIELDS = ("rho_schedule", "soft_terminal_nlps", "early_stop_comp", "holes", "variable_scaling", "mu_strategy",
                  "mu_init", "bound_push", "bound_frac", "rho_min", "rho_max", "rho_refine")
+_TASK_RHO_FIELDS = ("rho_min", "rho_max", "rho_refine")  # read by task_rho_schedule, unread beside a rho_schedule
 
 
 def _distance(x, x_ref):
@@ -1017,6 +1021,7 @@ def _solve_through_implicit_euler(problem: Problem, options: SolveOptions, progr
                   euler_progress)
     x0 = fesd_start_from_implicit_euler(problem, euler, first.extra["_x"])
     fesd_options = replace(options, fesd_start=FESDStart.HINT_FREE, rho_schedule=options.fesd_rho_schedule,
+                           **{k: getattr(SolveOptions, k) for k in _TASK_RHO_FIELDS},  # (read by the Euler stage)
                            fesd_rho_schedule=done, holes=HoleSchedule.ENFORCED, soft_terminal_nlps=0,
                            soft_terminal_weight=SolveOptions.soft_terminal_weight,  # (the Euler stage's, read there)
                            retry_terminal_weight=None, **FESD_FROM_EULER_IPOPT)
@@ -1447,7 +1452,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
     # the robot flies when every contact point does (one contact: its beta)
-    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal)
+    gap = [float(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float).ravel()[0]) for y in nodes]
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
+                   gap)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,

@@ -681,16 +681,17 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
             cone += [weight * (ct.mu * lam_n - lam_t), weight * (ct.mu * lam_n + lam_t)]
     # touches = false: the gap of the point's plane
     clearance = [_plane_gap(dyn, ct, q_sym, ground) for ct in task.contacts if ct.point in skips.never_touching]
+    for ct, model in zip(contacts, system.models):  # the contacts the system is built for (planner.scene)
+        # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m); a_t = mu a_n to rounding is it. Any count
+        # of contacts, with or without impact_cone (a box's two corners were not warned of)
+        if model is ContactModel.NO_SLIP and ct.a_t < ct.mu * ct.a_n * (1.0 - 1e-9):
+            warnings.warn(f"contact {ct.point}: a_t = {ct.a_t:g} < mu a_n = {ct.mu * ct.a_n:g}, so a plan may slide "
+                          f"along the ground braked at a_t / a_n = {ct.a_t / ct.a_n:.3g} of its normal force, less "
+                          f"than mu = {ct.mu:g}; a_t = mu a_n makes that sliding Coulomb's", stacklevel=2)
     impact = []
-    if options.impact_cone and len(contacts) == 1:  # the contacts the system is built for (planner.scene)
+    if options.impact_cone and len(contacts) == 1:
         for ct, model in zip(contacts, system.models):
             if model is ContactModel.NO_SLIP and ct.a_t <= ct.mu * ct.a_n:
-                # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m); a_t = mu a_n to rounding is it
-                if ct.a_t < ct.mu * ct.a_n * (1.0 - 1e-9):
-                    warnings.warn(f"contact {ct.point}: a_t = {ct.a_t:g} < mu a_n = {ct.mu * ct.a_n:g}, so a plan may "
-                                  f"slide along the ground braked at a_t / a_n = {ct.a_t / ct.a_n:.3g} of its normal "
-                                  f"force, less than mu = {ct.mu:g}; a_t = mu a_n makes that sliding Coulomb's",
-                                  stacklevel=2)
                 p_an, p_at = coef[field_names.index(f"a_n[{ct.point}]")], coef[field_names.index(f"a_t[{ct.point}]")]
                 impact += [ct.mu * ct.a_n * p_an - ct.a_t * p_at, ct.mu * ct.a_n * p_an + ct.a_t * p_at]
     path_fn = {

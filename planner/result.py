@@ -516,11 +516,13 @@ APPROACH_MPS = 1e-3
 LANDING_SLACK_S = 1e-9
 
 
-def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0)) -> list[Hop]:
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
     does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
-    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out."""
+    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out. gap (N+1,), the point's
+    distance from its plane at the nodes [m], when given: a phase from node 0 off the plane is a fall, no hop, and a
+    phase whose last node is off the plane lands in the next step (partly frozen), whose end node it takes too."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -534,7 +536,10 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0)) -> list
         while k < N and air[k]:
             k += 1
         # steps a..k-1 end in flight: nodes a..k; node a is the last on the ground
-        seg = point_xyz[a : k + 1]
+        if a == 0 and gap is not None and gap[0] > ON_PLANE_M:  # (a drop was a hop with takeoff 0.0)
+            continue
+        # (the landing step's travel was left out of the distance: a drop with a_n = 20 landed 1 cm past it)
+        seg = point_xyz[a : k + 2 if gap is not None and gap[k] > ON_PLANE_M and k < N else k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
         if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
@@ -654,6 +659,14 @@ TAIL_SHARE = 1e-6
 IMPULSE_SHARE = 1e-2
 
 
+def _at_rest(approach, k: int, contact: int) -> bool:
+    """Contact `contact` neither moves into nor leaves its plane at the start of step k (approach (K-1, n_contacts)
+    [m/s], None: unknown): an inelastic impact that was on in the step before is over there. A partly frozen stance
+    step after it (its auxiliary field carrying part of the weight) was lumped into it: a Coulomb slide's v_post read
+    +0.22 m/s off the ground, the next step's support in front of its gravity."""
+    return approach is not None and abs(approach[k][contact]) <= APPROACH_MPS
+
+
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
             frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False,
             landed=None, approach=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
@@ -665,10 +678,11 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s, fully frozen
     when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
     frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
-    clock runs again); a frozen step after a partly frozen one that is not the run's first starts the
-    next run. A run that ends with a fully frozen step whose contact (the one taking the run's first step's largest
-    normal impulse) still moves into its plane at the step's end, or a run of one step whose landing inside it is still
-    on there, takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
+    clock runs again; not when the contact is at rest on its plane at that step's start, by approach: the impact was
+    over); a frozen step after a partly frozen one that is not the run's first starts the next run. A run that ends
+    with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse) still moves
+    into its plane at the step's end, or a run of one step whose landing inside it is still on there, takes the next
+    step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
     A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
     tau_start is that step's. approach (K-1, n_contacts) [m/s]: each contact's normal velocity at the start of each
@@ -719,7 +733,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # (the contact that takes the step's largest normal impulse: another foot's stance drift is no landing)
         lander = int(np.argmax(np.abs(np.asarray(impulses)[a, :, 0]))) if len(contacts) else 0
         at_node = landed is not None and bool(landed[a][lander]) and not switch_at_start and not fully[a]
-        while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node) or fully[b]):
+        while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node and not _at_rest(approach, b + 1, lander))
+                                                     or fully[b]):
             b += 1
         # an impact still on at the end of a fully frozen step (its contact still moving into its plane there) ends
         # in the next one, however little of it that step froze (below frozen_tol it is no frozen step): its increment

@@ -519,6 +519,11 @@ class Task:
             if b.lower < lo or b.upper > hi:  # (an unlimited joint reads +-inf here: never wider)
                 warnings.warn(f"plan.joint_bounds[{r}] ({b.joint}: [{b.lower:g}, {b.upper:g}]) goes beyond the robot "
                               f"file's range [{lo:g}, {hi:g}], which MuJoCo's replay enforces; the plan may leave it")
+        wider = [f"{a.name} [{a.lower:g}, {a.upper:g}]" for a in robot.actuators
+                 if self.plan.u_bound is not None and (-self.plan.u_bound < a.lower or self.plan.u_bound > a.upper)]
+        if wider:  # (as joint_bounds: the replay's saturation was the first a user heard of it)
+            warnings.warn(f"plan.u_bound = {self.plan.u_bound:g} goes beyond the robot file's control range of "
+                          f"{', '.join(wider)}, which MuJoCo's replay clamps to; the plan may use more")
         if self.plan.periodic is not None:
             self.periodic_map(robot)
             return
@@ -574,8 +579,11 @@ class Task:
         for pair in per.swap:
             i, j = (robot.dof_index(name, "plan.periodic.swap") for name in pair)
             perm[i], perm[j] = j, i
-        along = robot.dof_index(per.along, "plan.periodic.along")
-        fixed = np.array([robot.dof_index(name, "plan.periodic.fixed") for name in per.fixed], dtype=int)
+        # (a robot whose forward base joint is not named x was told of an 'x' its task file does not have)
+        by_default = " (by default 'x', the forward base joint: name yours in along and fixed)"
+        along = robot.dof_index(per.along, "plan.periodic.along" + (by_default if per.along == Periodic.along else ""))
+        key = "plan.periodic.fixed" + (by_default if per.fixed == Periodic.fixed else "")
+        fixed = np.array([robot.dof_index(name, key) for name in per.fixed], dtype=int)
         lower, upper = self.q_bounds(robot)
         for i, (qi, lo, hi) in enumerate(zip(self.initial.q, lower, upper)):
             if not lo <= qi <= hi:
@@ -665,6 +673,10 @@ def load_task(path: str | Path) -> Task:
 
 def parse_task(data: dict, source: str = "") -> Task:
     """Build a Task from a TOML-like dict (the same rules as `load_task`)."""
+    if isinstance(data, dict) and data.get("plan") is not None and data.get("gait") is not None:  # (each command
+        # ignored the other's table; task_to_json writes null for a table the task has not)
+        raise TaskError("a task has a [plan] (for `planner plan`) or a [gait] (for `planner gait`, which reads no "
+                        "[plan]: its bounds are the robot file's), not both")
     task = _build(Task, dict(data) if isinstance(data, dict) else data, "", exclude={"source"})  # not a dict: TaskError
     return Task(**{**{f.name: getattr(task, f.name) for f in fields(Task)}, "source": source})
 

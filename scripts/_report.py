@@ -92,7 +92,15 @@ class _ScriptParser(UsageParser):
         global _command
         words = sys.argv[1:] if args is None else list(args)
         _command = shlex.join(["python", "-m", f"scripts.{self.prog}", *map(str, words)])
-        return super().parse_known_args(args, namespace)
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:  # argparse converts string defaults only: a Path default --out was never checked
+            default = action.default
+            if action.type is out_dir and default is not None and getattr(namespace, action.dest) is default:
+                try:
+                    setattr(namespace, action.dest, out_dir(str(default)))
+                except argparse.ArgumentTypeError as exc:
+                    self.error(f"argument {'/'.join(action.option_strings)} (default): {exc}")
+        return namespace, extras
 
 
 def script_parser(doc: str, **kwargs) -> UsageParser:
@@ -129,12 +137,16 @@ def nonnegative_float(text: str) -> float:
 def refuse_with_quick(parser, args, dests: list[str], runs: str) -> None:
     """--quick runs its own settings (`runs`, said in the error): an argument of `dests` given beside it was dropped
     silently before, so it is a usage error."""
-    if not args.quick:
-        return
+    if args.quick:
+        refuse_beside(parser, args, dests, f"--quick runs {runs}")
+
+
+def refuse_beside(parser, args, dests: list[str], why: str) -> None:
+    """A usage error "`why`: give no ... with it" naming the arguments of `dests` given (not at their defaults)."""
     given = [a.option_strings[0] if a.option_strings else a.dest for a in parser._actions
              if a.dest in dests and getattr(args, a.dest) != a.default]
     if given:
-        parser.error(f"--quick runs {runs}: give no {' or '.join(given)} with it")
+        parser.error(f"{why}: give no {' or '.join(given)} with it")
 
 
 def planner_command(argv: list[str]) -> int:

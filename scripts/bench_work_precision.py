@@ -753,8 +753,11 @@ def plot(records: list[dict], path: Path, panels=PANELS) -> None:
             for r in runs:
                 ax.plot(r["wall_time_s"], r["errors"][key], marker[r["h"]], color=color, markersize=6)
         ax.set(xscale="log", yscale="log", xlabel="wall time [s]", ylabel=title.split("\n")[0])
-        # (times within ~1.5 decades got labelled minor ticks, 2x10^-1 3x10^-1 ..., overlapping)
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        # (times within ~1.5 decades got labelled minor ticks, 2x10^-1 3x10^-1 ..., overlapping; times between two
+        # powers of ten keep them: they are the axis' only numbers, 2.4 and 8.2 s had none)
+        lo, hi = ax.get_xlim()
+        if math.floor(math.log10(hi)) > math.floor(math.log10(lo)):
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(title, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()

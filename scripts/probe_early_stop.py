@@ -62,8 +62,8 @@ def selector_modes(problem, x) -> np.ndarray:
 
 
 def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[dict]:
-    """One record per tried point: the checkpoints of each NLP in `at`, then that NLP's end; the NLPs are solve()'s
-    (planner.homotopy.homotopy_nlp)."""
+    """One record per tried point: the checkpoints of each NLP in `at` it reaches, then that NLP's end; the NLPs are
+    solve()'s (planner.homotopy.homotopy_nlp)."""
     H.keep_freed_memory()
     # the held NLPs get their own solvers: each scales by its start's magnitudes (_held_scaled), which would replace
     # the scale the homotopy's warm NLPs see
@@ -93,6 +93,8 @@ def probe(problem, options: H.SolveOptions, at: dict[int, list[int]]) -> list[di
         tried = []
         for j in at.get(i + 1, []):
             x_j, _, _, rec_j = run(i, x, lam_x, lam_g, cap=j)
+            if rec_j.iterations < j:  # the NLP ended before it: its end's row (a row "5000" read as run that long)
+                break
             tried.append((j, held(x_j, rec_j)))
         x, lam_x, lam_g, rec = run(i, x, lam_x, lam_g)
         if i == 0 and scaled:

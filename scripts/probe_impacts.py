@@ -47,7 +47,7 @@ from planner.contact import plane_axes
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from planner.result import read_summary
-from scripts._report import out_dir, report, run_main, script_parser
+from scripts._report import out_dir, refuse_beside, report, run_main, script_parser
 from scripts.probe_replay import plan_problem
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -162,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plan", nargs=argparse.REMAINDER, metavar="ARGS",
                         help="run `planner plan ARGS` with the secant impulses instead (last option)")
     args = parser.parse_args(argv)
-    if args.plan is not None:
+    if args.plan is not None:  # (its plan directory, --out and --json were dropped, no results.json written)
+        refuse_beside(parser, args, ["plan_dir", "out", "json"],
+                      "--plan runs `planner plan ARGS`, which writes its --out")
         from planner.cli import main as cli
 
         with secant_impulses():

@@ -36,7 +36,8 @@ import casadi as ca
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
 from scripts import bench_work_precision as wp
-from scripts._report import nonnegative_float, out_dir, refuse_with_quick, report, run_main, script_parser
+from scripts._report import (nonnegative_float, out_dir, refuse_beside, refuse_with_quick, report, run_main,
+                             script_parser)
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = ("pm_drop_frictionless", "pm_drop_noslip", "capler_pd_drop")
@@ -108,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plan", nargs=argparse.REMAINDER, metavar="ARGS", help="run `planner plan ARGS` with the rule instead (last option)")
     args = parser.parse_args(argv)
     refuse_with_quick(parser, args, ["cases", "plan"], "the frictionless point mass at two steps")
-    if args.plan is not None:
+    if args.plan is not None:  # (the cases, --out and --json were dropped, no results.json written)
+        refuse_beside(parser, args, ["cases", "out", "json"], "--plan runs `planner plan ARGS`, which writes its --out")
         from planner.cli import main as cli
 
         with trapezoid_positions(args.power):

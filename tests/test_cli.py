@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -43,7 +44,7 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--task", "{dir}"], "is a directory"),  # "not found"
         (["plan", "{dir}"], "robot file {dir} is a directory"),
         (["check-model", "capler", "--seed", "-1"], "--seed must be >= 0, got -1"),
-        (["plan", "point_mass", "--solve", '{"rho_min": -1}'], "SolveOptions.rho_min = -1 is not allowed; it must be > 0"),
+        (["plan", "point_mass", "--solve", '{"rho_min": -1}'], "SolveOptions.rho_min = -1.0 is not allowed; it must be > 0"),
         (["check-model"], "the following arguments are required: robot"),
         (["fly", "capler"], "invalid choice: 'fly'"),
         (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),
@@ -100,10 +101,12 @@ def test_user_errors_are_one_line_exit_2(argv, fragment, capsys, tmp_path):
      "argument --controller: invalid choice: 'foo'"),
     (["plan", "point_mass", "--bogusflag", "--json"], "plan", "unrecognized arguments: --bogusflag"),
     (["fly", "--json"], None, "invalid choice: 'fly'"),
+    (["plan", "point_mass", "--js", "--steps", "x"], "plan", "argument --steps: invalid int value: 'x'"),
 ])
 def test_a_usage_error_with_json_prints_the_error_object(argv, command, fragment, capsys):
-    """A command-line error argparse finds, with --json: exit 2, one line on stderr and on stdout the
-    {"command", "exit_code", "error"} object, as for the errors found after parsing (stdout was empty)."""
+    """A command-line error argparse finds, with --json (or a prefix argparse takes for it, --js: stdout was empty):
+    exit 2, one line on stderr and on stdout the {"command", "exit_code", "error"} object, as for the errors found
+    after parsing (stdout was empty)."""
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
     assert exit_info.value.code == 2
@@ -466,9 +469,12 @@ def test_solves_rho_max_wins_over_fesds_default(tmp_path, monkeypatch):
     monkeypatch.setattr(H, "solve", record)
     argv = ["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "4", "--no-race",
             "--no-validate", "--discretization", "fesd", "--out", str(tmp_path / "o")]
-    for extra, rho_max in (([], FESD_RHO_MAX), (["--solve", '{"rho_max": 1e6}'], 1e6)):
+    # a rho_schedule replaces the task's schedule that rho_max extends: FESD's rho_max is not set beside it (refused)
+    for extra, rho_max in (([], FESD_RHO_MAX), (["--solve", '{"rho_max": 1e6}'], 1e6),
+                           (["--solve", '{"rho_schedule": [1e3, 1e5]}'], H.SolveOptions.rho_max)):
         assert main(argv + extra) == 130
-    assert seen == [FESD_RHO_MAX, 1e6]
+    assert seen == [FESD_RHO_MAX, 1e6, H.SolveOptions.rho_max]
+
 
 def test_plan_steps_overrides_the_horizon(tmp_path, capsys):
     """`plan --steps N` plans the task on N steps of h = tau_f / N instead of the task's own N (the hop's
@@ -570,6 +576,25 @@ def test_a_run_knows_its_own_result_from_one_written_after_it(tmp_path, capsys, 
     assert printed == ids[-1] != json.loads((other / "summary.json").read_text())["result_id"]
     _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "b"), "-q"],
                      "was written by another run while it was validated")
+
+
+def test_init_variables_apart_names_a_touches_change(tmp_path, monkeypatch):
+    """A start whose task marks a contact touches = false where this task does not (the largest scene skip, 223
+    against 385 variables on Capler) is named as the reason its NLP variables differ, as a mu = 0 change is."""
+    from dataclasses import replace
+
+    import planner.result
+    from planner.cli import _skips_apart
+    from planner.model import ROBOTS_DIR
+    from planner.task import Contact
+
+    capler = load_task(ROBOTS_DIR / "capler.toml")
+    here = replace(capler, contacts=capler.contacts + (Contact(point="knee", mu=0.8),))
+    there = replace(capler, contacts=capler.contacts + (Contact(point="knee", mu=0.8, touches=False),))
+    monkeypatch.setattr(planner.result, "read_task", lambda init, arrays: there)
+    assert _skips_apart(tmp_path, {}, here) == (
+        "; contact 'knee' has touches = false there and true here: touches = false drops a contact's complementarity "
+        "variables, so plan without --init")
 
 
 def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
@@ -1076,20 +1101,35 @@ def test_a_ctrl_c_casadi_turned_into_a_system_error_is_an_interruption(tmp_path,
 
 def test_a_ctrl_c_in_the_validation_says_the_result_was_written(tmp_path, capsys, monkeypatch):
     """A Ctrl-C during a plan's validation, after the new result replaced the earlier one, says where the result is and
-    that it is not validated before the interruption's line (exit 130): "interrupted" alone let the earlier result
-    seem kept."""
+    that it is without validation before the interruption's line (exit 130): "interrupted" alone let the earlier result
+    seem kept; right after the verdict was stored it says the result is there, nothing missing."""
     import planner.replay as replay
 
     def interrupted(target, options=None):
         raise KeyboardInterrupt
 
+    real_validate = replay.validate
     monkeypatch.setattr(replay, "validate", interrupted)
     out = tmp_path / "out"
     assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
                  "--no-plots", "-q", "--out", str(out)]) == 130
-    assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, not validated",
+    assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, without validation",
                                                     "planner plan: interrupted"]
     assert (out / "summary.json").is_file()
+    # a Ctrl-C right after the verdict was stored: the result is there, validated (it said "not validated")
+    real = replay.write_validation
+
+    def then_interrupted(*a, **k):
+        real(*a, **k)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(replay, "validate", real_validate)
+    monkeypatch.setattr(replay, "write_validation", then_interrupted)
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "--no-plots", "-q", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}",
+                                                    "planner plan: interrupted"]
+    assert "validation" in json.loads((out / "summary.json").read_text())
 
 
 def test_a_ctrl_c_held_while_the_result_is_written_says_it_was_written(tmp_path, capsys, monkeypatch):
@@ -1110,6 +1150,14 @@ def test_a_ctrl_c_held_while_the_result_is_written_says_it_was_written(tmp_path,
                  "-q", "--out", str(out)]) == 130
     assert capsys.readouterr().err.splitlines() == [f"planner plan: converged: results in {out}, without plots or "
                                                     "validation", "planner plan: interrupted"]
+    # simulate's foreground plots: a Ctrl-C held over their drawing (only "interrupted", DIR replaced)
+    import planner.cli as cli_module
+
+    monkeypatch.setattr(result_module, "write_results", real)
+    monkeypatch.setattr(cli_module, "_plotted", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    assert main(["simulate", "point_mass", "-q", "--out", str(tmp_path / "sim")]) == 130
+    assert capsys.readouterr().err.splitlines() == [f"planner simulate: converged: results in {tmp_path / 'sim'}",
+                                                    "planner simulate: interrupted"]
 
 
 def test_a_failed_plan_that_spans_no_physical_time_is_reported_not_validated(tmp_path, capsys):
@@ -1169,22 +1217,44 @@ def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatc
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
-    """The earlier result's plots are removed before the new result is written: when one cannot be (an immutable
-    file), the command stops (exit 2) with the earlier result and its plots as they were; the new result had
-    replaced it first and stood beside the old plots."""
+    """The earlier result's plots are set aside before the new result is written: when one cannot be (an immutable
+    file), the command stops (exit 2) with the earlier result and its plots as they were (the new result had replaced
+    it first and stood beside the old plots); when the write fails (a full disk), the plots are put back (they were
+    deleted); PNGs in a directory that held no result are the user's, left alone (--no-plots deleted them)."""
+    import errno
+
     import planner.cli as cli
+    import planner.result as result_module
 
     out = tmp_path / "out"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "-q"]) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    real_replace = os.replace
 
-    def refused(target):
-        raise PermissionError(1, "Operation not permitted", str(target / "states.png"))
+    def refused(src, dst):
+        if Path(src).name == "torques.png":
+            raise PermissionError(1, "Operation not permitted", str(src))
+        real_replace(src, dst)
 
-    monkeypatch.setattr(cli, "_remove_plots", refused)
+    monkeypatch.setattr(cli.os, "replace", refused)
     assert main(["simulate", "point_mass", "--task", _task(tmp_path, z0=0.3), "--out", str(out), "-q"]) == 2
     assert "Operation not permitted" in capsys.readouterr().err
-    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # (no hidden directory left either)
+    monkeypatch.setattr(cli.os, "replace", real_replace)
+
+    def full(*args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(result_module, "write_results", full)
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path, z0=0.3), "--out", str(out), "-q"]) == 1
+    assert "No space left on device" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.undo()
+    mine = tmp_path / "figures"
+    mine.mkdir()
+    (mine / "states.png").write_bytes(b"my own figure")
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(mine), "-q", "--no-plots"]) == 0
+    assert (mine / "states.png").read_bytes() == b"my own figure"
 
 
 def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch, ctrl_c):

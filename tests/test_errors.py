@@ -12,7 +12,7 @@ from planner.dynamics import Dynamics
 from planner.errors import InputError, PlannerError, check_field_types
 from planner.gait import WalkGains, run_gait, validate_walk
 from planner.homotopy import SolveOptions, solve, solve_options_from_dict
-from planner.model import load_robot
+from planner.model import ROBOTS_DIR, load_robot
 from planner.problem import ProblemOptions, build_problem
 from planner.pronto import ProntoOptions
 from planner.race import race
@@ -81,6 +81,20 @@ def test_numpy_numbers_and_arrays_are_read_as_the_python_values_they_hold():
                 {"scale": np.complex128(1j)}):
         with pytest.raises(InputError, match=f"_Typed.{next(iter(bad))} = "):
             _Typed(**bad)
+
+
+def test_an_int_for_a_float_is_stored_as_a_float():
+    """An int given for a float field is stored as the float it stands for, so options that compare equal have one
+    repr and the problems built with them one signature (ProblemOptions(clock_weight=0) refused the plan of the default
+    options as "other NLP variables"; FESDOptions(rho_h=1) likewise)."""
+    typed = _Typed(scale=2, items=(1, 2.5), limit=3)
+    assert (type(typed.scale), type(typed.items[0]), type(typed.limit)) == (float, float, float)
+    assert repr(typed) == repr(_Typed(scale=2.0, items=(1.0, 2.5), limit=3.0))
+    robot, task = load_robot("point_mass"), load_task(ROBOTS_DIR / "point_mass_hop.toml")
+    for given, default in ((ProblemOptions(clock_weight=0), ProblemOptions(clock_weight=0.0)),
+                           (ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1)),
+                            ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1.0)))):
+        assert build_problem(robot, task, given).signature == build_problem(robot, task, default).signature
 
 
 @pytest.mark.parametrize("cls, field, value, owner", [

@@ -5,15 +5,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import tomllib
 
 import numpy as np
 import pytest
 
 from planner.errors import InputError, TaskError
-from planner.gait import (GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, find_layout, replay_gait,
-                          run_gait, solve_gait, solve_gait_ipopt)
+from planner.gait import (STOPPED, GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, find_layout,
+                          replay_gait, run_gait, solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
-from planner.task import load_task, parse_task
+from planner.task import Simulate, load_task, parse_task
 
 M_LEG, M_HIP, M_TORSO, R_LEG, L_TORSO, G = 5.0, 15.0, 10.0, 1.0, 0.5, 9.81
 CLOSED_FORM_TOL = 1e-9  # the issue's bound; derivation and closed form differ by round-off only (~1e-14)
@@ -379,8 +380,8 @@ def test_run_gait_writes_the_contract(tmp_path, robot):
 
 def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
     """A gait that does not converge (one outer loop of one PRONTO iteration) writes its files under DIR/failed and
-    leaves a good gait in DIR byte for byte (it overwrote it, summary and trajectory); `planner gait` exits 1 naming
-    DIR/failed."""
+    leaves a good gait in DIR byte for byte (it overwrote it, summary and trajectory), its report says why; `planner
+    gait` exits 1 naming DIR/failed."""
     from planner.cli import main
     from planner.task import GaitContinuation, GaitPronto
 
@@ -393,9 +394,10 @@ def test_a_failed_gait_keeps_the_good_one(tmp_path, robot):
     res = run_gait(robot, short, tmp_path, validate=False)
     assert not res.summary["converged"] and json.loads((tmp_path / "failed" / "summary.json").read_text())["converged"] is False
     # its one loop was the embedding's: the saved trajectory is the embedded system's, and the message says so
-    assert [loop.stage for loop in res.solution.loops] == ["embedding"]
+    assert [(loop.stage, loop.action) for loop in res.solution.loops] == [("embedding", STOPPED)]  # (not "drop u_emb")
     assert res.summary["message"].startswith("outer-loop limit (gait.continuation.max_outer) reached in the embedding "
                                              "stage: the trajectory is the embedded system's")
+    assert res.report().splitlines()[1] == f"  {res.summary['message']}"  # (only -q's failure line said why)
     for name, data in earlier.items():
         assert (tmp_path / name).read_bytes() == data
     toml = tmp_path / "short.toml"
@@ -465,9 +467,10 @@ def test_paper_grid_gaits_walk_in_mujoco(biped):
 def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
     """The gait model walks on z = 0 with the period horizon.tau_f and lands inelastically: a ground_height, a tilted
     contact normal, a restitution (a converged gait exited on friction only, the elastic contact unsaid), a foot that
-    never touches (it walked on it) or a horizon.physical_time are refused before the solve, named (they were
-    ignored: a ground at 0.3 m planned the same gait, and MuJoCo's replay on the moved ground fell after one step),
-    with no warning before."""
+    never touches (it walked on it), a horizon.physical_time, the time-freezing gains a_n, a_t or a [simulate] table
+    are refused before the solve, named (they were ignored: a ground at 0.3 m planned the same gait, and MuJoCo's
+    replay on the moved ground fell after one step), with no warning before; a [plan] beside the [gait] is refused
+    when the task is read."""
     import warnings
 
     from planner.gait import run_gait
@@ -482,9 +485,18 @@ def test_a_gait_task_with_what_the_gait_model_ignores_is_refused():
                           (dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=1.0)),
                            "horizon.physical_time = 1"),
                           (dataclasses.replace(task, contacts=(task.contacts[0], dataclasses.replace(
-                              task.contacts[1], touches=False))), "contacts[1].touches = false")):
+                              task.contacts[1], touches=False))), "contacts[1].touches = false"),
+                          # (the time-freezing gains and simulate's table were dropped unsaid too)
+                          (dataclasses.replace(task, contacts=(dataclasses.replace(task.contacts[0], a_t=50.0),
+                                                               task.contacts[1])), "contacts[0].a_t = 50"),
+                          (dataclasses.replace(task, simulate=Simulate(rho_f=2.0)), "[simulate]")):
         with pytest.raises(TaskError, match=rf"{re.escape(said)}.* would be ignored by `planner gait`"):
             GaitSpec.from_task(changed)
+    # a [plan] beside [gait] (its u_bound = 30 walked at 72 N m; without a target: "missing key 'plan.target_q'")
+    data = tomllib.loads((ROBOTS_DIR / "biped_gait1.toml").read_text())
+    for plan in ({"u_bound": 30.0}, {"periodic": {"step": 0.25}}):
+        with pytest.raises(TaskError, match=r"^a task has a \[plan\] \(for `planner plan`\) or a \[gait\]"):
+            parse_task({**data, "plan": plan})
     # run_gait refuses it before the robot check, which warned first of the moved ground as if it were used
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -171,12 +171,15 @@ def test_options_of_a_polish_not_run_are_refused(kwargs, key):
     ({"mu_init": 1e-6}, "mu_init = 1e-06", {"mu_strategy": "monotone"}),
     ({"warm_mu_init": 1e-6}, "warm_mu_init = 1e-06", {"mu_strategy": "monotone"}),
     ({"linear_solver": "spral", "mumps_ordering": "amd"}, "mumps_ordering", {"linear_solver": "mumps"}),
-    ({"soft_terminal_nlps": 0, "soft_terminal_weight": 1e6}, "soft_terminal_weight", {"soft_terminal_nlps": 1})])
+    ({"soft_terminal_nlps": 0, "soft_terminal_weight": 1e6}, "soft_terminal_weight", {"soft_terminal_nlps": 1}),
+    ({"rho_schedule": (1e2, 1e4), "rho_min": 5e3}, "rho_min = 5000.0", {"rho_schedule": None}),
+    ({"rho_schedule": (1e2, 1e4), "rho_max": 2e4}, "rho_max = 20000.0", {"rho_schedule": None}),
+    ({"rho_schedule": (1e2, 1e4), "rho_refine": (7e3,)}, "rho_refine = (7000.0,)", {"rho_schedule": None})])
 def test_options_their_solve_does_not_read_are_refused(kwargs, key, needs):
     """A barrier start under the adaptive strategy (IPOPT reads mu_init with monotone only), a MUMPS ordering for
-    another linear solver and a soft-terminal weight with no soft-terminal NLP are InputErrors naming the option: each
-    was accepted, recorded in summary.json and gave the same iterations and plan as the solve without it. With what
-    reads them they are taken."""
+    another linear solver, a soft-terminal weight with no soft-terminal NLP and the changes of the task's penalty
+    schedule beside a rho_schedule that replaces it are InputErrors naming the option: each was accepted, recorded in
+    summary.json and gave the same iterations and plan as the solve without it. With what reads them they are taken."""
     with pytest.raises(InputError, match=re.escape(key) + r".* unless"):
         H.SolveOptions(**kwargs)
     H.SolveOptions(**{**kwargs, **needs})

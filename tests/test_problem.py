@@ -230,15 +230,22 @@ def test_impact_cone_only_where_a_t_is_within_mu_a_n():
 def test_a_t_below_mu_a_n_warns_of_sliding_below_coulomb():
     """With a_t < mu a_n the impact cone lets a plan slide on the ground braked at a_t / a_n of its normal force, less
     than mu (a hop task with a_n = 200, a_t = 50, mu = 0.5 slid 0.5 m where Coulomb friction lets it slide 0.07 m, and
-    MuJoCo's tracking passed it): the build warns, naming the ratio; a_t = mu a_n (Coulomb) builds without a word."""
+    MuJoCo's tracking passed it): the build warns, naming the ratio, with any count of contacts and without the impact
+    cone too; a_t = mu a_n (Coulomb) builds without a word."""
     import warnings
 
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
     task = {"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 50.0}], "initial": {"q": [0.0, 0.0]},
             "horizon": {"tau_f": 1.0, "N": 3}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
-    with pytest.warns(UserWarning, match=r"contact point: a_t = 50 < mu a_n = 100, so a plan may slide along the "
-                                         r"ground braked at a_t / a_n = 0.25 of its normal force, less than mu = 0.5"):
+    slow = r"contact point: a_t = 50 < mu a_n = 100, so a plan may slide along the ground braked at a_t / a_n = 0.25"
+    with pytest.warns(UserWarning, match=slow + r" of its normal force, less than mu = 0.5"):
         build_problem(robot, parse_task(task))
+    # without the impact cone, and beside another contact (a wall), as well (a box's two corners were not warned of)
+    with pytest.warns(UserWarning, match=slow):
+        build_problem(robot, parse_task(task), ProblemOptions(impact_cone=False))
+    walled = {**task, "contacts": task["contacts"] + [{"point": "point", "normal": [1.0, 0.0, 0.0]}]}
+    with pytest.warns(UserWarning, match=slow):
+        build_problem(robot, parse_task(walled))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         for mu, a_t in ((0.5, 100.0), (0.07, 14.0)):  # 0.07 * 200 is 14.000000000000002: a_t = mu a_n to rounding

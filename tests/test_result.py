@@ -142,6 +142,23 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
     assert (impact.v_post[0], impact.tau_end) == pytest.approx((0.0, 0.2))
 
 
+def test_recover_ends_a_landing_inside_a_step_where_the_point_is_at_rest():
+    """An implicit-Euler impact in a run's first step (a landing inside it) goes on into the next frozen step only while
+    the point still moves into its plane at that step's start: at rest there (normal velocity 0, approach per step's
+    start) the impact is over, and the next partly frozen step, whose auxiliary field carries part of the weight, is
+    an impact of its own. Lumped in, v_post added that step's support before its gravity: a Coulomb slide's 'impacts'
+    read v_post +0.22 m/s off the ground where the plan's nodes have 0. Unknown approach: as before."""
+    clock = [0.0, 0.095, 0.19, 0.29]
+    y = np.column_stack([np.zeros(4), [0.0, 0.0, 0.0, 0.0], clock])  # on the ground, v_n = 0 at every node
+    dv = np.array([[0.93], [0.93], [0.0]])  # each partly frozen step's support against its gravity, -0.93 m/s
+    imp = dv.reshape(3, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    args = (0.1 * np.arange(4), y, np.zeros((3, 1)), np.full(3, 0.1), dv, imp, 1, 1, ("foot",))
+    impacts = recover(*args, approach=y[:3, 1:2])[4]
+    assert [(im.v_pre[0], im.v_post[0], im.impulse) for im in impacts] == [pytest.approx((-0.93, 0.0, 0.93))] * 2
+    (lumped,) = recover(*args)[4]
+    assert (lumped.v_pre[0], lumped.v_post[0]) == pytest.approx((-0.93, 0.93))
+
+
 def test_recover_dates_a_landing_at_a_node_there():
     """The same four partly frozen steps, the first starting with the point on its plane moving into it (landed[1, 0]: a
     landing that ended a flight step at the node at t = 0.1): its impact is at that node, posture and pre-impact
@@ -217,6 +234,23 @@ def test_hops_leave_out_flight_phases_where_the_point_does_not_move():
     ledge[5:, 0], ledge[5:, 2] = 0.7, -0.2  # the second phase moves down and forward
     assert [round(h.distance, 12) for h in hops_of(traj, flight, ledge)] == [0.5, 0.2]
     assert hops_of(traj, flight, ledge)[1].apex == 0.0
+
+
+def test_hops_know_a_fall_from_the_start_and_a_landing_inside_a_step():
+    """With the point's gaps at the nodes: a flight phase from node 0 with the point off its plane is a fall, no hop (a
+    point mass dropped from 1 m was "1 hop" with takeoff 0.0), and a phase whose last node is still in the air lands in
+    the next, partly frozen step: its distance runs to that step's end node (it stopped at the last flight node, 1 cm
+    short of where a drop with a_n = 20 landed). Without gaps, as before."""
+    clock = 0.1 * np.arange(6)
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    xyz = np.zeros((6, 3))
+    xyz[:, 0], xyz[:3, 2] = 0.1 * np.arange(6), (0.3, 0.2, 0.1)  # falls from 0.3 m, lands in step 2
+    fall = np.array([1, 1, 0, 0, 0])
+    assert hops_of(traj, fall, xyz, gap=xyz[:, 2]) == [] and len(hops_of(traj, fall, xyz)) == 1
+    xyz[:, 2] = (0.0, 0.1, 0.05, 0.0, 0.0, 0.0)  # takes off at node 0, still 5 cm up at node 2, landed at node 3
+    (hop,) = hops_of(traj, fall, xyz, gap=xyz[:, 2])
+    assert abs(hop.distance - 0.3) < EXACT and abs(hop.apex - 0.1) < EXACT
+    assert abs(hops_of(traj, fall, xyz)[0].distance - 0.2) < EXACT
 
 
 def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():

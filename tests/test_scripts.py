@@ -6,6 +6,7 @@ import dataclasses
 import importlib.util
 import json
 import math
+import os
 import shlex
 import shutil
 import subprocess
@@ -692,7 +693,8 @@ def test_probe_early_stop_quick_run(tmp_path, capsys):
     many iterations as solve() takes in it), its checkpoint is that NLP's iterate 5, the held schedule from the NLP's
     end is accepted (the hop converges) and its modes differ from themselves nowhere; selector_modes reads every
     selector of the converged plan as at 0, at 1 or inside; a malformed --at is a usage error; with a per-NLP
-    schedule (the regularizer's factor) the probe's NLP 2 is still solve()'s (homotopy_nlp builds both)."""
+    schedule (the regularizer's factor) the probe's NLP 2 is still solve()'s (homotopy_nlp builds both); a checkpoint
+    past the NLP's end gives no row."""
     from dataclasses import replace
 
     from planner.race import default_arms
@@ -711,6 +713,8 @@ def test_probe_early_stop_quick_run(tmp_path, capsys):
     modes = pes.selector_modes(problem, plan.extra["_x"])
     assert modes.shape == problem.var_blocks["sigma"].shape and set(np.unique(modes)) <= set(pes.MODES.values())
     assert pes.parse_at(["3:40,20"]) == {3: [20, 40]}
+    # a checkpoint past the NLP's end is none (a row "5000" beside the end's 88 read as an NLP run that long)
+    assert [r["at"] for r in pes.probe(problem, alternate, {2: [5, 10**6]})] == [5, None]
     weighted = replace(alternate, rho_f_schedule=(10.0, 1.0))
     end_weighted = pes.probe(problem, weighted, {2: []})[-1]
     assert end_weighted["nlp_iterations"] == H.solve(problem, weighted).nlps[1].iterations != end["nlp_iterations"]
@@ -1007,6 +1011,17 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     assert proc.stderr.strip() == "bench_skips: error: unrecognized arguments: --bogus (see --help)"  # as run_main names it
 
 
+def test_a_scripts_default_out_is_checked_before_running(tmp_path):
+    """A script's default --out (a Path, which argparse does not pass through its type) is checked up front as a
+    given one is: its results.json a directory was found only after the whole run (bench_skips --quick: six solves)."""
+    (tmp_path / "results" / "bench" / "skips" / "results.json").mkdir(parents=True)
+    proc = subprocess.run([sys.executable, "-m", "scripts.bench_skips", "--quick"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(SCRIPTS.parent)})
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        "bench_skips: error: argument --out (default): results/bench/skips/results.json is a directory; results.json "
+        "is written there (see --help)"), proc.stderr
+
+
 @pytest.mark.parametrize("argv, fragment", [
     (["scripts.stress", "--robot", "point_mass", "--seed", "-1"], "stress: error: --seed must be >= 0"),  # numpy's traceback
     (["scripts.stress", "--robot", "point_mass", "--rho-schedule", "nan"], "SolveOptions.rho_schedule"),  # every task crashed
@@ -1056,6 +1071,9 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
     (["scripts.bench_fatrop", "--case", "hop", "--N", "6", "--out", "{dir}"], "must name a file to write"),  # after the run
     (["scripts.probe_steps", "--quick", "--case", "capler50"], "--quick runs the hop with N = 6: give no --case"),
     (["scripts.probe_steps", "--quick", "--top", "0"], "--top must be >= 1, got 0"),  # listed nothing, exit 0
+    # --plan runs `planner plan`: the probe's own arguments were dropped, no results.json written
+    (["scripts.probe_impacts", "{dir}", "--json", "--plan", "point_mass"], "give no plan_dir or --json with it"),
+    (["scripts.probe_positions", "--cases", "pm_drop_noslip", "--plan", "point_mass"], "give no --cases with it"),
     pytest.param(["scripts.bench_pipeline", "--quick", "--codegen", "--codegen-flags=-Obogus", "--variants", "baseline",
                   "--cache", "{dir}/cache"], "gcc refused --codegen-flags -Obogus",  # CalledProcessError
                  marks=pytest.mark.skipif(shutil.which("gcc") is None, reason="the codegen variant needs gcc")),
@@ -1234,6 +1252,30 @@ def test_bench_pipeline_plot_keeps_its_legend_inside_the_figure(tmp_path, monkey
     box, frame = legend.get_window_extent(renderer), fig.bbox
     assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1, (box, frame)
     assert len(legend.get_texts()) == len(bench.CALLBACKS) + 1
+
+def test_work_precision_plot_labels_walls_between_two_powers_of_ten(tmp_path, monkeypatch):
+    """The work-precision panels label their wall-time axis where the walls lie between two powers of ten (the OCP
+    quick run's 2.4 and 8.2 s had no number on it: the minor labels were switched off, and no major tick fell inside),
+    and keep the minor labels off where a decade is marked (they overlapped)."""
+    bench = _load("bench_work_precision")
+    shown = []
+    monkeypatch.setattr(bench, "save_figure", lambda fig, path, dpi: shown.append(fig))
+    errors = {"defect_base_m": 1e-3, "tracking_window_mean_m": 2e-3, "flight_error_m": 1e-4}
+    for walls in ((2.39, 8.24), (0.3, 40.0)):
+        bench.plot([{"case": "ocp_pm_hop", "variant": "default", "h": h, "converged": True, "wall_time_s": w,
+                     "errors": errors} for h, w in zip((0.05, 0.025), walls)], tmp_path / "wp.png", bench.OCP_PANELS)
+        fig = shown[-1]
+        fig.draw(fig.canvas.get_renderer())
+        for ax in fig.axes[:len(bench.OCP_PANELS)]:
+            lo, hi = ax.get_xlim()
+            labelled = {(which, t.get_text()) for which in ("major", "minor")
+                        for t, x in zip(ax.xaxis.get_ticklabels(which=which),
+                                        ax.xaxis.get_ticklocs(minor=which == "minor"))
+                        if t.get_text() and lo <= x <= hi}
+            assert labelled, walls
+            if walls[0] < 1:  # 10^0 and 10^1 inside
+                assert {which for which, _ in labelled} == {"major"}, labelled
+
 
 @pytest.mark.parametrize("flag", ["--iters", "--repeats"])
 def test_bench_pipeline_rejects_a_count_below_one(capsys, flag):

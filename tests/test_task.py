@@ -305,6 +305,21 @@ def test_joint_bounds_beyond_the_files_range_warn():
         parse_task(inside).check_against(capler)
 
 
+def test_a_u_bound_beyond_the_files_control_range_warns():
+    """plan.u_bound replaces the file's control bounds, but MuJoCo's replay clamps to the file's: a bound beyond them
+    (30 N on a box's +-5 N motor: a 277 s plan, then "saturation 73 %" and a failed validation; inf) warns naming the
+    actuators and their range, as joint_bounds beyond the file's range does; a bound within every range does not."""
+    capler = load_robot("capler")  # motors +-60 N m
+    for u_bound, shown in ((90.0, "90"), (float("inf"), "inf")):
+        with pytest.warns(UserWarning, match=rf"plan.u_bound = {shown} goes beyond the robot file's control range of "
+                                             r"hip_motor \[-60, 60\], knee_motor \[-60, 60\], which MuJoCo's replay"):
+            parse_task(_with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "u_bound": u_bound})).check_against(capler)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for u_bound in (60.0, 10.0):
+            parse_task(_with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "u_bound": u_bound})).check_against(capler)
+
+
 def test_plan_needs_actuators(tmp_path):
     """A task with a [plan] on a robot without motors is refused with a clear message."""
     xml = tmp_path / "passive.xml"
@@ -426,12 +441,22 @@ def test_plan_without_target_or_periodic():
 
 
 def test_periodic_robot_dependent_errors():
-    """Unknown coordinate names list the valid ones; initial.q (the guess of q(0)) must lie in the bounds."""
+    """Unknown coordinate names list the valid ones (an 'x' of along's or fixed's default said to be the default's);
+    initial.q (the guess of q(0)) must lie in the bounds."""
     robot = load_robot(ROBOTS / "biped.xml")
     with pytest.raises(UnknownNameError, match="hinge_3"):
         parse_task(_periodic(**{"periodic.swap": [["hinge_1", "hinge_3"]]})).check_against(robot)
-    with pytest.raises(UnknownNameError, match="y"):
+    with pytest.raises(UnknownNameError, match=r"^plan.periodic.along: unknown joint 'y'"):
         parse_task(_periodic(**{"periodic.along": "y"})).check_against(robot)
+    # a robot whose forward base joint is not x: the 'x' is the default's, not the file's (it read as the user's)
+    capler_periodic = {"contacts": [{"point": "foot", "mu": 0.8}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"periodic": {"step": 0.3}}}
+    with pytest.raises(UnknownNameError, match=r"^plan.periodic.along \(by default 'x', the forward base joint: name "
+                                               r"yours in along and fixed\): unknown joint 'x'"):
+        parse_task(capler_periodic).check_against(load_robot("capler"))
+    capler_periodic["plan"]["periodic"]["along"] = "base_x"
+    with pytest.raises(UnknownNameError, match=r"^plan.periodic.fixed \(by default 'x'"):
+        parse_task(capler_periodic).check_against(load_robot("capler"))
     bounds = [{"joint": "torso", "lower": 0.1, "upper": 0.2}]
     with pytest.raises(TaskError, match=r"initial.q\[2\] = 0.0 \(torso\) is outside the joint bounds"):
         parse_task(_periodic(joint_bounds=bounds)).check_against(robot)
