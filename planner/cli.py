@@ -819,7 +819,8 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
         said += (f"; {len(start.contacts)} contact(s) there and {len(task.contacts)} here: each contact has its own "
                  "variables, so plan without --init")
     if start.horizon.N != task.horizon.N:  # (the list of causes named N among others)
-        said += f"; horizon.N is {start.horizon.N} there and {task.horizon.N} here (--steps included)"
+        said += (f"; horizon.N is {start.horizon.N} there and {task.horizon.N} here (--steps included): give "
+                 f"--steps {start.horizon.N} to replan from it, or plan without --init")
     timed = [t.horizon.physical_time is not None for t in (start, task)]
     if timed[0] != timed[1]:  # (the message's list of causes named neither)
         said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "
@@ -897,7 +898,7 @@ def _cmd_validate(args) -> int:
     if summary.get("robot_sha256", "") == "":  # a result written before the hash (or with it deleted): said, not silent
         _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
                         "the one the result was computed from")
-    with _said_of("--controller/--window"):
+    with _said_of("/".join(f for f, k in (("--controller", "controller"), ("--window", "window_s")) if k in given)):
         options = ValidationOptions(**given) if given else None
     result = validate(args.dir, options)
     write_validation(args.dir, result, result_id)

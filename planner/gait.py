@@ -38,7 +38,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
                      interruptible, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import CONE_SLACK, ArraysReadOnly, real_array, write_files
+from .result import CONE_SLACK, ArraysReadOnly, real_array, task_path, write_files
 from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -1119,8 +1119,9 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
             raise
         failed = Path(out_dir) / "failed"
         write_files(failed, {"task_json": np.array(task_to_json(task))},
-                    {"command": "gait", "robot": str(robot.path), "task": task.source, "robot_sha256": robot.sha256,
-                     "converged": False, "message": str(exc), "outer_loops": [vars(loop) for loop in loops]}, result_id)
+                    {"command": "gait", "robot": str(robot.path), "task": task_path(task.source),
+                     "robot_sha256": robot.sha256, "converged": False, "message": str(exc),
+                     "outer_loops": [vars(loop) for loop in loops]}, result_id)
         raise SolveError(f"{exc} (the outer loops before it: {failed / 'summary.json'})") from None
     walk = periodic_walk(model, sol, g.steps)
     # a gait whose stance leg stops or turns back has no phase variable: the time-indexed LQR replay
@@ -1136,7 +1137,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     # the smaller of the two feet's mu: each is the stance foot and the landing foot every other step
     feet_mu = min(c.mu for c in task.contacts if c.point in (g.stance, g.swing))
     summary = {
-        "command": "gait", "robot": str(robot.path), "task": task.source, "robot_sha256": robot.sha256,
+        "command": "gait", "robot": str(robot.path), "task": task_path(task.source), "robot_sha256": robot.sha256,
         "converged": sol.converged, "solve_time_s": sol.solve_time_s,
         "n_nlp": len(sol.loops), "ipopt_iterations": sol.pronto_iterations, "iterations_solver": "pronto",
         "complementarity_residual": None,  # no complementarity: the contact sequence is fixed

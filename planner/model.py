@@ -590,7 +590,11 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
     said: list[str] = []
     try:
         with mujoco_warnings(said.append):
-            spec = mujoco.MjSpec.from_file(str(robot.path))
+            # MuJoCo picks its reader by the file name's ending (a URDF named .URDF, or with none: "could not find
+            # decoder for resource"); a URDF includes no files, so its text reads the same
+            by_name = robot.format is RobotFormat.MJCF or robot.path.suffix in (".urdf", ".xml")
+            spec = mujoco.MjSpec.from_file(str(robot.path)) if by_name else mujoco.MjSpec.from_string(
+                robot.path.read_text())
     except ValueError as exc:
         raise RobotFileError(mujoco_failure(robot.path, exc, "read")) from None
     for message in dict.fromkeys(said):
@@ -610,14 +614,16 @@ def mujoco_spec(robot: Robot, sites: Sequence[str] = (), check_order: bool = Tru
         if name not in links:
             raise UnknownNameError("URDF link", name, links)
         spec.body(name).add_site(name=name, pos=[0.0, 0.0, 0.0])
-    for body in spec.bodies:
-        if body.joints and body.mass == 0.0:
+    for body in (b for b in spec.bodies if b.joints):
+        if body.mass == 0.0:
             body.mass = MASSLESS_LINK_KG
-            full = np.nan_to_num(np.asarray(body.fullinertia, float))
-            if not np.any(body.inertia) and not np.any(full):  # (a link's own inertia, which Pinocchio keeps, stays)
-                body.inertia = [MASSLESS_LINK_INERTIA] * 3
-                # unset (a URDF's full inertia): MuJoCo refuses both
-                body.fullinertia = [np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
+        full = np.nan_to_num(np.asarray(body.fullinertia, float))
+        # (a link's own inertia, which Pinocchio keeps, stays; a point mass's zero inertia, which MuJoCo refused to
+        # compile, gets the massless link's)
+        if not np.any(body.inertia) and not np.any(full):
+            body.inertia = [MASSLESS_LINK_INERTIA] * 3
+            # unset (a URDF's full inertia): MuJoCo refuses both
+            body.fullinertia = [np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
     for a in robot.actuators:
         spec.add_actuator(name=a.name, target=a.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[a.gear, 0, 0, 0, 0, 0],
                           ctrlrange=[a.lower, a.upper], ctrllimited=bool(np.isfinite([a.lower, a.upper]).all()))

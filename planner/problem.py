@@ -554,6 +554,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         parts["clock"] = ca.Function("clock_cost", [X, P], [clock_cost])
     if linf:
         x0[nx - 1] = float(np.max(np.asarray(ca.Function("p0", [X], [prods])(x0)), initial=0.0))
+    notes["hint_free_x0"] = x0.copy()  # (replan refuses it as a start: it is no plan)
     return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
                    x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(),
                    x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs),

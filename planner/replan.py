@@ -21,6 +21,8 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+import numpy as np
+
 from .errors import InputError, expect, options_record
 from .homotopy import SCHEDULE_KEPT, SolveOptions, solve
 from .problem import Problem, build_problem
@@ -50,6 +52,11 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     expect(problem, Problem, "replan's problem")
     expect(options, SolveOptions, "replan's options")
     expect(start_task, (Task, type(None)), "replan's start_task")
+    guess = problem.notes.get("hint_free_x0")
+    if guess is not None and np.array_equal(np.asarray(problem.x0, float), guess):  # (it held the guess's
+        # "schedules", each to its cap, then re-timed, and said "walked there")
+        raise InputError("replan's problem.x0 is build_problem's hint-free guess, not a plan of start_task: give it "
+                         "the plan's NLP point, dataclasses.replace(problem, x0=result.nlp_point(problem)) (README)")
     options = replace(options, keep_schedule=True)  # what runs first, recorded so (as the CLI's; False was recorded)
     start = time.perf_counter()
     held = replace(options, keep_schedule=True, schedule_only=True)
@@ -68,7 +75,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
             if walked is not None:
                 return _totals(walked, parts, time.perf_counter() - start, options)
         else:  # said: the --init help promises a walk
-            no_walk = f"the two tasks differ in {apart!r}, not only in numbers"
+            no_walk = f"the two tasks differ in {apart!r} by more than a finite number's change"  # (inf too)
     if no_walk:
         no_walk = f"no walk from the start's task: {no_walk}; the penalty replan instead"
     if not result.stats.converged:

@@ -1239,7 +1239,8 @@ def _window_samples(ref: _Reference, options: ValidationOptions) -> tuple[int, i
     # impact and its landings read "none" (MuJoCo saw no landing) at --window 0.03
     # (one limit said: the sample step's was named, then the strides' refused what it allowed)
     _check(options.window_s >= ref.dt and (per >= ref.steps or per >= 3 * stride), "window_s", options.window_s,
-           f">= 3 window_stride_s = {3 * options.window_stride_s:g} s (an impact is timed in the window started one to "
+           f">= 3 x window_stride_s ({options.window_stride_s:g} s) = {3 * options.window_stride_s:g} s (an impact is "
+           "timed in the window started one to "
            "two strides before it, which must run a stride past it), or the plan's length")
     return per, stride
 

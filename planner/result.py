@@ -122,6 +122,11 @@ def _no_negative_zero(obj, name: str) -> None:
         object.__setattr__(obj, name, 0.0)
 
 
+# An impact whose normal impulse is below -PULL_SHARE of the largest |normal impulse| pulls its point to the plane:
+# far above rounding, far below the biped's -16.7 N s next to +18.6 (and the -0.3 next to +1.4 of formulation.md)
+PULL_SHARE = 1e-3
+
+
 def tap_flags(impulse_norms) -> np.ndarray:
     """(I,) bool: which of the impacts with these impulse norms (I,) [N s] are taps (TAP_SHARE)."""
     norms = np.abs(np.asarray(impulse_norms, float))
@@ -354,13 +359,19 @@ class SimulationResult(ArraysReadOnly):
         }
 
 
+def task_path(source: str) -> str:
+    """A task's source as summary.json stores it: the absolute path of its file when it names one (a --task given
+    relative to the working directory meant nothing from another; the robot's path is absolute), else as given."""
+    return str(Path(source).absolute()) if source and Path(source).is_file() else source
+
+
 def _contract_keys(result, terminal_error: float | None) -> dict:
     """The keys every summary.json holds (design.md, "The contract"), in the contract's order."""
     tr, st = result.trajectory, result.stats
     return {
         "command": result.command,
         "robot": result.robot,
-        "task": result.task,
+        "task": task_path(result.task),
         "converged": st.converged,
         "solve_time_s": st.solve_time_s,
         "n_nlp": st.n_nlp,
@@ -445,13 +456,20 @@ def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=T
 def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None) -> list[str]:
     """Terminal lines for the physical duration and each impact (those outside the friction cone flagged)."""
     taps, outside = tr.taps, outside_cone(tr, task)
-    n_taps = f" ({int(taps.sum())} tap(s): below {TAP_SHARE:.0%} of the largest impulse)" if taps.any() else ""
+    largest = max((abs(imp.impulse) for imp in tr.impacts), default=0.0)
+    pulls = [imp.impulse < -PULL_SHARE * largest for imp in tr.impacts]
+    n_taps = f" ({int(taps.sum())} tap(s): below {TAP_SHARE:.0%} of the largest impulse, by norm)" if taps.any() else ""
     lines = [f"physical time {tr.physical_duration:.4f} s of numerical time {tr.tau[-1]:.4f} s; {len(tr.impacts)} impact(s){n_taps}{extra}"]
     lines += [f"  {'tap' if tap else 'impact'} at t = {imp.time:.4f} s on {imp.contact}: impulse {imp.impulse:.4g} N s normal, "
               f"{imp.impulse_tangential:.4g} N s tangential" + (" (outside the friction cone)" if out else "")
+              + (" (pulls the point to its plane)" if pull else "")
               + (f" (kinetic energy {imp.kinetic_energy_pre:.4g} -> {imp.kinetic_energy_post:.4g} J)"
                  if imp.gains_energy else "")
-              for imp, tap, out in zip(tr.impacts, taps, outside)]
+              for imp, tap, out, pull in zip(tr.impacts, taps, outside, pulls)]
+    if any(pulls):  # (flagged only as outside the friction cone: a biped's stance foot held by -16.7 N s)
+        lines.append(f"  {sum(pulls)} impact(s) with a negative normal impulse: the contact held its point on the "
+                     "plane where it should lift off, as a landing on another contact can (docs/formulation.md, "
+                     "\"Two planes meeting at an obtuse angle\")")
     gains = [imp for imp in tr.impacts if imp.gains_energy]
     if gains:
         gain = max(i.kinetic_energy_post - i.kinetic_energy_pre for i in gains)

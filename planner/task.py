@@ -422,10 +422,20 @@ class Task:
         """TaskError for a touching contact with friction whose point cannot move along its plane and its normal
         independently at initial.q: its no-slip force solves [n t]^T M^-1 [n t] lambda = ..., singular there, NaN in
         every step (a one-hinge hammer's head: a simulation ran 170794 IPOPT iterations). Simulations and plans only:
-        a replay needs no force, and a frictionless point that cannot move along its normal (an arm hanging straight
-        down) simulates, its force the step's variable."""
+        a replay needs no force. A frictionless point that cannot move along its plane's normal at initial.q is
+        refused too, on its plane or not: its force divides by n^T M^-1 n = 0 (Capler's massless carriage as a contact
+        wrote lambda_n = inf with exit 0; an arm hanging straight down, its tip 0.2 m up, stopped at step 0 on IPOPT's
+        Invalid_Number_Detected)."""
         for i, c in enumerate(self.contacts):
-            if not c.touches or c.mu == 0:
+            if not c.touches:
+                continue
+            if c.mu == 0:
+                _, normal_rank, _ = robot.contact_rank([(c.point, c.normal, False)], self.initial.q,
+                                                       self.ground_height, touch_tol=math.inf)
+                if normal_rank == 0:
+                    raise TaskError(f"contacts[{i}] ({c.point}) cannot move along its plane's normal at initial.q, so "
+                                    "its contact force is undefined there (a division by zero in the solve): start "
+                                    "from another pose, or give the robot a degree of freedom that moves it so")
                 continue
             _, normal_rank, rank = robot.contact_rank([(c.point, c.normal, True)], self.initial.q, self.ground_height,
                                                       touch_tol=math.inf)

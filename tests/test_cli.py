@@ -167,6 +167,7 @@ def test_no_plots_writes_the_contract_without_pngs(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     (out / "states.png").write_bytes(b"an earlier result's plot")
+    (out / "summary.json").write_text('{"converged": true}')  # (a PNG where no result was is the user's: kept)
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--no-plots", "-q"]) == 0
     names = {p.name for p in out.iterdir()}
     assert {"trajectory.npz", "summary.json"} <= names and not any(n.endswith(".png") for n in names), names
@@ -578,6 +579,16 @@ def test_a_run_knows_its_own_result_from_one_written_after_it(tmp_path, capsys, 
                      "was written by another run while it was validated")
 
 
+def test_summary_names_the_task_file_by_its_absolute_path(tmp_path, monkeypatch, capsys):
+    """summary.json's task is the task file's absolute path, as its robot's is: a --task given relative to the
+    working directory was stored as typed and meant nothing from another one."""
+    monkeypatch.chdir(tmp_path)
+    Path("hop.toml").write_text(HOP_TOML.format(x=0.5))
+    assert main(["simulate", "point_mass", "--task", "hop.toml", "--out", "o", "--no-plots", "-q"]) == 0
+    stored = json.loads(Path("o/summary.json").read_text())["task"]
+    assert Path(stored).is_absolute() and Path(stored).resolve() == (tmp_path / "hop.toml").resolve()
+
+
 def test_init_variables_apart_names_a_touches_change(tmp_path, monkeypatch):
     """A start whose task marks a contact touches = false where this task does not (the largest scene skip, 223
     against 385 variables on Capler) is named as the reason its NLP variables differ, as a mu = 0 change is."""
@@ -646,7 +657,9 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "drop")]) == 0
     capsys.readouterr()
     _one_line_exit_2(capsys, argv[:-1] + [str(tmp_path / "drop")], "holds no NLP point")
-    _one_line_exit_2(capsys, argv + ["--steps", "10"], "; horizon.N is 20 there and 10 here")  # (N among others)
+    _one_line_exit_2(capsys, argv + ["--steps", "10"],  # (N among others; said with what to do, as the others)
+                     "; horizon.N is 20 there and 10 here (--steps included): give --steps 20 to replan from it, or "
+                     "plan without --init")
     (tmp_path / "slippery.toml").write_text(HOP_TOML.format(x=0.55).replace("mu = 0.5", "mu = 0.0"))
     slippery = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "slippery.toml") for a in argv]
     _one_line_exit_2(capsys, slippery,

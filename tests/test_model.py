@@ -473,3 +473,37 @@ def test_urdf_transmissions_are_not_read_and_say_so(tmp_path):
                        "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.4, 0.0, 0.0]}})
     with pytest.raises(TaskError, match=r"no actuators to plan with \(a URDF joint is actuated by its <limit effort>"):
         task.check_against(robot)
+
+
+def test_a_urdf_is_read_by_mujoco_whatever_its_name_ends_in(tmp_path):
+    """MuJoCo picks its reader by a file name's ending: a URDF named .URDF, or with no ending, which Pinocchio and
+    simulate read, could never be validated or planned ("could not find decoder for resource"). mujoco_spec reads
+    it as it reads robots/capler.urdf: the same compiled model."""
+    from planner.model import mujoco_spec
+
+    text = (ROBOTS_DIR / "capler.urdf").read_text()
+    reference = mujoco_spec(load_robot(ROBOTS_DIR / "capler.urdf")).compile()
+    for name in ("capler.URDF", "capler_urdf"):
+        (tmp_path / name).write_text(text)
+        model = mujoco_spec(load_robot(tmp_path / name)).compile()
+        assert (model.nq, model.nv, model.nu) == (reference.nq, reference.nv, reference.nu)
+        np.testing.assert_array_equal(model.body_mass, reference.body_mass)
+
+
+def test_a_urdf_point_mass_without_rotational_inertia_compiles_in_mujoco(tmp_path):
+    """A URDF link of 1 kg with zero inertia on prismatic joints (a point mass: the inertia acts on nothing), which
+    Pinocchio and simulate read, compiles in MuJoCo with the massless link's 1e-12 kg m² (MuJoCo refused it: "mass and
+    inertia of moving bodies must be larger than mjMINVAL", so no plan of it could be validated); its mass stays."""
+    from planner.model import MASSLESS_LINK_INERTIA, mujoco_spec
+
+    zero = '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>'
+    limit = '<limit lower="-10" upper="10" effort="100" velocity="100"/>'
+    (tmp_path / "pm.urdf").write_text(
+        f'<robot name="pm"><link name="world"/><link name="carriage"/>'
+        f'<link name="point"><inertial><mass value="1"/>{zero}</inertial></link>'
+        f'<joint name="x" type="prismatic"><parent link="world"/><child link="carriage"/><axis xyz="1 0 0"/>{limit}'
+        f'</joint><joint name="z" type="prismatic"><parent link="carriage"/><child link="point"/><axis xyz="0 0 1"/>'
+        f'{limit}</joint></robot>')
+    model = mujoco_spec(load_robot(tmp_path / "pm.urdf"), sites=("point",)).compile()
+    point = model.body("point")
+    assert point.mass[0] == 1.0 and np.all(point.inertia == MASSLESS_LINK_INERTIA)

@@ -141,7 +141,7 @@ def test_without_a_walk_the_penalty_replan_starts_from_the_plan(hop_plan, basin,
     apart = dataclasses.replace(prob.task, horizon=dataclasses.replace(prob.task.horizon, N=prob.task.horizon.N + 1))
     unwalked = replan(moved, H.replan_options(), apart)
     assert _steps(unwalked) == _steps(plain)
-    assert "differ in 'horizon.N', not only in numbers" in unwalked.extra["no_walk"]
+    assert "differ in 'horizon.N' by more than a finite number's change" in unwalked.extra["no_walk"]
     assert "(no walk from the start's task" in unwalked.report() and "no_walk" not in plain.extra
 
 
@@ -199,3 +199,15 @@ def test_a_task_between_that_cannot_be_built_ends_the_walk_not_the_replan(hop_pl
     assert "the task 0.5 of the way there is refused (plan.target_q puts" in res.extra["no_walk"]
     assert _steps(res)[:2] == ["schedule", "homotopy 1"]
     assert res.options["solve"]["max_iter"] == 2500 and res.options["solve"]["schedule_only"] is False
+
+
+def test_a_problem_still_at_its_hint_free_guess_is_no_start(hop_plan):
+    """replan's problem.x0 must be a plan (README: dataclasses.replace(problem, x0=result.nlp_point(problem))): the
+    hint-free guess build_problem gives is refused, naming the fix (it held the guess's "schedules", each to its cap,
+    then re-timed for 1229 iterations and said "walked there")."""
+    prob, x0 = hop_plan
+    fresh = build_problem(prob.robot, prob.task)
+    with pytest.raises(InputError, match=r"problem.x0 is build_problem's hint-free guess, not a plan of start_task: "
+                                         r"give it the plan's NLP point"):
+        replan(fresh, H.replan_options(), prob.task)
+    assert replan(dataclasses.replace(fresh, x0=x0), H.replan_options(), prob.task).stats.converged

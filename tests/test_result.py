@@ -724,6 +724,23 @@ def test_an_impact_outside_the_friction_cone_is_flagged():
     assert simulate(robot, frictionless).summary()["impacts"][0]["outside_friction_cone"] is False
 
 
+def test_an_impact_that_pulls_its_point_to_the_plane_is_said():
+    """An impact with a negative normal impulse (a contact holding its point on the plane where it should lift off: a
+    biped's stance foot took -16.7 N s next to the landing foot's +18.6, flagged only as outside the friction cone) is
+    said on its line and in a line of its own; positive impulses are not."""
+    import dataclasses
+
+    from planner.result import _trajectory_lines
+
+    tr = small_result().trajectory
+    assert not any("pulls" in line or "negative normal" in line for line in _trajectory_lines(tr))
+    (imp,) = tr.impacts
+    pulled = dataclasses.replace(tr, impacts=(imp, dataclasses.replace(imp, impulse=-0.9 * imp.impulse)))
+    lines = _trajectory_lines(pulled)
+    assert lines[2].endswith("(pulls the point to its plane)") and "pulls" not in lines[1]
+    assert lines[-1].startswith("  1 impact(s) with a negative normal impulse: the contact held its point on the plane")
+
+
 def _hop_plan():
     """A converged plan of the point mass's hop on 10 steps (~0.5 s): a PlanResult with every dict field filled."""
     from planner.homotopy import SolveOptions, solve

@@ -241,14 +241,17 @@ HAMMER = """<mujoco><worldbody><body name="arm" pos="0 0 0.5"><joint name="hinge
                "start from another pose"),
     (0.5, math.pi / 2, r"contacts\[0\] \(head\) with friction cannot move along its plane's normal at initial.q"),
     (0.0, 0.3, None),
-    (0.0, math.pi / 2, None),  # frictionless: its force is the step's variable, and a simulation of it runs
+    # frictionless too: its force divides by n^T M^-1 n, 0 there (an arm hanging straight down failed on NaN)
+    (0.0, math.pi / 2, r"contacts\[0\] \(head\) cannot move along its plane's normal at initial.q, so its contact "
+                       "force is undefined there"),
 ])
 def test_a_contact_whose_force_is_undefined_at_the_start_is_refused(tmp_path, mu, q, message):
     """A one-hinge hammer's head moves along one direction only: with friction its normal and tangent rows are
     dependent (with the arm vertical, q = pi / 2, it cannot move along the ground's normal at all), so its no-slip
     force solves a singular system (NaN: a simulation ran 170794 IPOPT iterations, a plan said its start held NaN).
     Task.check_no_slip_forces, which simulate and build_problem call, raises a TaskError naming the contact and the
-    fixes; a frictionless head is fine, and check_against (a replay's check) does not judge it."""
+    fixes; a frictionless head is fine where it can move along the normal, and check_against (a replay's check) does
+    not judge it."""
     path = tmp_path / "hammer.xml"
     path.write_text(HAMMER)
     robot = load_robot(path)
@@ -262,6 +265,25 @@ def test_a_contact_whose_force_is_undefined_at_the_start_is_refused(tmp_path, mu
             task.check_no_slip_forces(robot)
         with pytest.raises(TaskError, match=message):  # what `planner simulate` says, before any step
             simulate(robot, task)
+
+
+def test_a_frictionless_contact_that_cannot_leave_its_plane_is_refused(tmp_path):
+    """A frictionless point that cannot move along its plane's normal at initial.q (the hammer's head at the bottom of
+    its arc) has a contact force that divides by n^T M^-1 n = 0: refused like the frictional ones, on the ground or
+    above it (Capler's massless carriage as a contact simulated to lambda_n = inf with exit 0; an arm hanging with its
+    tip 0.2 m up stopped at step 0 on IPOPT's Invalid_Number_Detected); the head off the bottom is fine."""
+    path = tmp_path / "hammer.xml"
+    path.write_text(HAMMER)
+    robot = load_robot(path)
+    for ground, q, refused in ((0.5 - 0.4, math.pi / 2, True), (0.0, math.pi / 2, True), (0.0, 0.3, False)):
+        task = parse_task({"ground_height": ground, "contacts": [{"point": "head"}], "initial": {"q": [q]},
+                           "horizon": {"tau_f": 0.3, "N": 30}})
+        if not refused:
+            task.check_no_slip_forces(robot)
+            continue
+        with pytest.raises(TaskError, match=r"^contacts\[0\] \(head\) cannot move along its plane's normal at "
+                                            r"initial.q, so its contact force is undefined there"):
+            task.check_no_slip_forces(robot)
 
 
 def test_one_contact_of_dependent_rows_is_told_of_itself(tmp_path):
