@@ -332,7 +332,7 @@ def _written_line(args) -> None:
         return
     missing = [what for what, gone in (
         ("plots", not getattr(args, "no_plots", True) and not any((target / n).exists() for n in PLOT_FILES)),
-        ("validation", not getattr(args, "no_validate", True) and "validation" not in summary)) if gone]
+        ("validation", getattr(args, "validating", False) and "validation" not in summary)) if gone]
     print(f"planner {args.command}: {'converged' if summary.get('converged') else 'FAILED'}: results in {target}"
           + (f", without {' or '.join(missing)}" if missing else ""), file=getattr(args, "stderr", None) or sys.stderr)
 
@@ -408,12 +408,12 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
-    # first: one it cannot move left the new result beside the earlier result's plots; back if the write fails (a
-    # full disk deleted them)
-    aside = _plots_aside(target)
     # this run's id, not read back from DIR: another run writing DIR after it had lent it its id and validation
-    args.result_id, args.written = uuid.uuid4().hex, target  # (a Ctrl-C from here on: _written_line)
+    args.result_id, args.written, aside = uuid.uuid4().hex, target, None  # (a Ctrl-C from here on: _written_line)
     try:
+        # first: one it cannot move left the new result beside the earlier result's plots; back if the write fails
+        # (a full disk deleted them)
+        aside = _plots_aside(target)
         write_results(result, target, args.result_id)
     finally:  # (a Ctrl-C held over the write is raised once both files are in place: then they are this run's)
         _plots_back(aside, target, restore=_summary_of(target, args.result_id) is None)
@@ -695,7 +695,7 @@ def _cmd_plan(args) -> int:
         result = replace(result, options={**result.options, "init": str(args.init.absolute()),
                                           "init_result_id": start_id})
     # a last iterate whose clock never ran spans no physical time to replay (validate refused it: exit 2, no report)
-    validating = not args.no_validate and result.trajectory.physical_duration > 0
+    validating = args.validating = not args.no_validate and result.trajectory.physical_duration > 0
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
@@ -867,13 +867,15 @@ def _cmd_gait(args) -> int:
     robot = load_robot(args.robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait", failed=True)
     args.result_id = uuid.uuid4().hex  # (_emit prints this run's, not one another run wrote into DIR after it)
+    held = {d: (d / "summary.json").is_file() for d in (out, out / "failed")}  # (other PNGs there are the user's)
     result = run_gait(robot, args.task, out, progress=lambda loop: _progress(args, loop.line()),
                       validate=not args.no_validate, result_id=args.result_id)
     converged = bool(result.summary["converged"])
     if converged:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
-    _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
+    if held[target]:
+        _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
     # a gait that asks the ground to pull (or to hold beyond friction), or its motors beyond their range, is no motion
     # of the robot: it fails as a fall

@@ -1452,7 +1452,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
     # the robot flies when every contact point does (one contact: its beta)
-    gap = [float(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float).ravel()[0]) for y in nodes]
+    # (the robot flies when every contact point does: the smallest gap, not the first contact's)
+    gap = [float(np.min(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float), initial=np.inf))
+           for y in nodes]
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
                    gap)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,

@@ -90,6 +90,12 @@ def _groups(n: int) -> list[list[int]]:
     return [list(g) for g in np.array_split(np.arange(n), count)]
 
 
+def _title(res: Result, what: str) -> str:
+    """A plot's title: the robot and what is drawn, marked when the run did not converge (a failed run's last iterate
+    looked like a plan; the HTML replay's title said so, the plots did not)."""
+    return f"{res.robot.name}: {what}" + (" (NOT converged)" if res.summary.get("converged") is False else "")
+
+
 def _states(res: Result):
     """q (left) and v (right) against physical time, one panel per coordinate (or group)."""
     robot = res.robot
@@ -123,7 +129,7 @@ def _states(res: Result):
         axes[0, c].set_title("positions q" if kind == "position" else "velocities v (they jump at impacts)")
     if len(res.impact_times):
         axes[0, 0].legend(fontsize="x-small", loc="best")
-    fig.suptitle(f"{robot.name}: states")
+    fig.suptitle(_title(res, "states"))
     return fig, "states.png"
 
 
@@ -137,21 +143,25 @@ def _torques(res: Result):
     _, v_units = _units(robot.model)
     force_units = {"m": "N", "rad": "N m"}
     known = len(robot.actuators) == res.u.shape[1]
+    # the joint's torque or force is gear u (a gear-2 motor's u = 1 was drawn as 1 N)
+    gears = [robot.actuators[j].gear if known else 1.0 for j in range(res.u.shape[1])]
     groups = _groups(res.u.shape[1])
     fig, axes = _figure(len(groups), 1, 9.0, 2.2, sharex=True)
     for r, group in enumerate(groups):
         ax = axes[r, 0]
         for j in group:
             # u[i] is held from sample i-1 to sample i (zero-order hold): steps, not the ramps a line drew between them
-            ax.plot(res.t, res.u[:, j], linewidth=1.3, label=names[j], drawstyle="steps-pre")
+            label = names[j] if gears[j] == 1.0 else f"{names[j]} (gear {gears[j]:g} x u)"
+            ax.plot(res.t, gears[j] * res.u[:, j], linewidth=1.3, label=label, drawstyle="steps-pre")
         _mark_impacts(ax, res, legend=r == 0)
         # per panel, as the states' (a slide's N beside a hinge's N m left both panels without a unit)
         units = {force_units.get(v_units[robot.actuators[j].dof], "") for j in group} if known else {""}
-        ax.set_ylabel("u" + (f" [{next(iter(units))}]" if len(units) == 1 and "" not in units else ""))
+        what = "u" if all(gears[j] == 1.0 for j in group) else "gear x u"
+        ax.set_ylabel(what + (f" [{next(iter(units))}]" if len(units) == 1 and "" not in units else ""))
         ax.legend(fontsize="small", loc="best")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("physical time t [s]")
-    fig.suptitle(f"{robot.name}: controls (motor torques or forces)")
+    fig.suptitle(_title(res, "controls (motor torques or forces)"))
     return fig, "torques.png"
 
 
@@ -190,7 +200,7 @@ def _contact_forces(res: Result):
         ax.legend(fontsize="small", loc="best")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("physical time t [s]")
-    fig.suptitle(f"{res.robot.name}: contact forces (impacts are impulses, not shown as forces)")
+    fig.suptitle(_title(res, "contact forces (impacts are impulses, not shown as forces)"))
     return fig, "contact_forces.png"
 
 
@@ -209,7 +219,7 @@ def _clock(res: Result):
     ax.set_ylabel("physical time t [s]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc="best")  # (upper left hid the first frozen band)
-    fig.suptitle(f"{res.robot.name}: clock")
+    fig.suptitle(_title(res, "clock"))
     return fig, "clock.png"
 
 
@@ -262,7 +272,7 @@ def _foot_path(res: Result):
     ax.set_ylabel("z [m]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc="upper right", ncols=2)
-    ax.set_title(f"{robot.name}: contact point path (o start, □ end)")
+    ax.set_title(_title(res, "contact point path (o start, □ end)"))
     return fig, "foot_path.png"
 
 

@@ -538,9 +538,10 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
     does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
-    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out. gap (N+1,), the point's
-    distance from its plane at the nodes [m], when given: a phase from node 0 off the plane is a fall, no hop, and a
-    phase whose last node is off the plane lands in the next step (partly frozen), whose end node it takes too."""
+    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out. gap (N+1,), the smallest
+    distance of the contact points from their planes at the nodes [m], when given: a phase from node 0 off the planes
+    is a fall, no hop, and a phase whose last node is off them lands in the next step (partly frozen), whose end node
+    it takes too."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -679,9 +680,9 @@ IMPULSE_SHARE = 1e-2
 
 def _at_rest(approach, k: int, contact: int) -> bool:
     """Contact `contact` neither moves into nor leaves its plane at the start of step k (approach (K-1, n_contacts)
-    [m/s], None: unknown): an inelastic impact that was on in the step before is over there. A partly frozen stance
-    step after it (its auxiliary field carrying part of the weight) was lumped into it: a Coulomb slide's v_post read
-    +0.22 m/s off the ground, the next step's support in front of its gravity."""
+    [m/s], None: unknown): an inelastic impact that was on in the step before is over there (a partly frozen step
+    after it was lumped into it: a Coulomb slide's v_post read +0.22 m/s off the ground), and a partly frozen step
+    at rest at both ends is support."""
     return approach is not None and abs(approach[k][contact]) <= APPROACH_MPS
 
 
@@ -697,7 +698,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
     frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
     clock runs again; not when the contact is at rest on its plane at that step's start, by approach: the impact was
-    over); a frozen step after a partly frozen one that is not the run's first starts the next run. A run that ends
+    over); a frozen step after a partly frozen one that is not the run's first starts the next run. A partly frozen
+    step whose contact is at rest at both its ends (approach) is support, no frozen step. A run that ends
     with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse) still moves
     into its plane at the step's end, or a run of one step whose landing inside it is still on there, takes the next
     step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
@@ -729,6 +731,13 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     # a FESD element collapsed to length ~0 (no switch to pin it) advances nothing and is no impact
     frozen = (advance < (1.0 - frozen_tol) * dt_steps) & (dt_steps > COLLAPSED * np.max(dt_steps, initial=0.0))
     fully = advance < frozen_tol * dt_steps  # the clock (nearly) stood still over the whole step
+    # a partly frozen step whose contact (the one taking its largest normal impulse) is at rest on its plane at both
+    # ends is support, not an impact: its auxiliary field carried part of the weight (a Coulomb slide read as 13
+    # impacts, a physical_time stance as 12 to 25 that MuJoCo never saw); its end is a physical sample
+    for k in range(n_steps - 1 if approach is not None and not switch_at_start and len(contacts) else 0):
+        c = int(np.argmax(np.abs(np.asarray(impulses)[k, :, 0])))
+        if frozen[k] and not fully[k] and _at_rest(approach, k, c) and _at_rest(approach, k + 1, c):
+            frozen[k] = False
     min_frozen = frozen_tol * np.max(dt_steps, initial=0.0)  # [s] of numerical time
     nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
     u0 = u_steps[0] if n_steps else np.zeros(nu)

@@ -138,6 +138,9 @@ class Result(ArraysReadOnly):
             return (self.contact_points[contact],)
         if isinstance(contact, str) and contact in self.contact_points:
             return (contact,)
+        point, _, k = contact.rpartition("#") if isinstance(contact, str) else ("", "", "")
+        if k.isdigit() and point in self.contact_points:  # a corner's plane (timefreezing.contact_labels): its point
+            return (point,)
         return self.contact_points  # unnamed or unknown: do not guess which point hit
 
 

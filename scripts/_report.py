@@ -93,7 +93,10 @@ class _ScriptParser(UsageParser):
         words = sys.argv[1:] if args is None else list(args)
         _command = shlex.join(["python", "-m", f"scripts.{self.prog}", *map(str, words)])
         namespace, extras = super().parse_known_args(args, namespace)
-        for action in self._actions:  # argparse converts string defaults only: a Path default --out was never checked
+        # argparse converts string defaults only: a Path default --out was never checked (not where it goes unused:
+        # --plan runs `planner plan` with its own --out, --list writes nothing)
+        writes = getattr(namespace, "plan", None) is None and not getattr(namespace, "list", False)
+        for action in self._actions if writes else ():
             default = action.default
             if action.type is out_dir and default is not None and getattr(namespace, action.dest) is default:
                 try:

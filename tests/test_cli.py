@@ -44,7 +44,8 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--task", "{dir}"], "is a directory"),  # "not found"
         (["plan", "{dir}"], "robot file {dir} is a directory"),
         (["check-model", "capler", "--seed", "-1"], "--seed must be >= 0, got -1"),
-        (["plan", "point_mass", "--solve", '{"rho_min": -1}'], "SolveOptions.rho_min = -1.0 is not allowed; it must be > 0"),
+        (["plan", "point_mass", "--solve", '{"rho_min": -1}'],
+         "SolveOptions.rho_min = -1.0 is not allowed; it must be > 0"),
         (["check-model"], "the following arguments are required: robot"),
         (["fly", "capler"], "invalid choice: 'fly'"),
         (["plan", "point_mass", "--ipopt", "alpha_for_y=sideways"], "Valid: primal, bound-mult"),

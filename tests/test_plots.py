@@ -185,3 +185,35 @@ def test_torque_panels_carry_their_own_units(result_dir, tmp_path):
     cart = dataclasses.replace(res, robot=load_robot(path), u=np.zeros((len(res.t), 3)))
     fig, _ = plots._torques(cart)
     assert [ax.get_ylabel() for ax in fig.axes] == ["u [N]", "u [N]", "u [N m]"]
+
+
+def test_a_geared_motor_is_drawn_as_its_joint_force(result_dir, tmp_path):
+    """A motor with gear 2 acts on its joint with 2 u: its panel draws gear x u in N, says so in its label, and a
+    gear-1 motor beside it stays u (u = 1 of a gear-2 motor was drawn as 1 N where the mass felt 2 N)."""
+    import dataclasses
+
+    path = tmp_path / "geared.xml"
+    path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
+                    'type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>'
+                    '</worldbody><actuator><motor name="push" joint="x" gear="2"/><motor name="lift" joint="z"/>'
+                    '</actuator></mujoco>')
+    res = view.load_result(result_dir)
+    geared = dataclasses.replace(res, robot=load_robot(path), u=np.ones((len(res.t), 2)))
+    fig, _ = plots._torques(geared)
+    (push,), (lift,) = (ax.get_lines()[:1] for ax in fig.axes)
+    assert [ax.get_ylabel() for ax in fig.axes] == ["gear x u [N]", "u [N]"]
+    assert push.get_label() == "push (gear 2 x u)" and np.all(push.get_ydata() == 2.0)
+    assert lift.get_label() == "lift" and np.all(lift.get_ydata() == 1.0)
+
+
+def test_a_failed_runs_plots_say_it_did_not_converge(result_dir):
+    """A failed run's plots (DIR/failed) are titled NOT converged, as its HTML replay is (its last iterate looked like
+    a plan); a converged run's are not."""
+    import dataclasses
+
+    res = view.load_result(result_dir)
+    for converged, marked in ((True, False), (False, True)):
+        shown = dataclasses.replace(res, summary={**res.summary, "converged": converged})
+        for draw in (plots._states, plots._torques, plots._clock):
+            fig, _ = draw(shown)
+            assert fig._suptitle.get_text().endswith(" (NOT converged)") is marked

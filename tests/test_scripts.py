@@ -1013,13 +1013,19 @@ def test_a_scripts_usage_error_is_one_line_and_exit_2():
 
 def test_a_scripts_default_out_is_checked_before_running(tmp_path):
     """A script's default --out (a Path, which argparse does not pass through its type) is checked up front as a
-    given one is: its results.json a directory was found only after the whole run (bench_skips --quick: six solves)."""
+    given one is: its results.json a directory was found only after the whole run (bench_skips --quick: six solves);
+    not where the run does not write it (stress --list)."""
     (tmp_path / "results" / "bench" / "skips" / "results.json").mkdir(parents=True)
     proc = subprocess.run([sys.executable, "-m", "scripts.bench_skips", "--quick"], cwd=tmp_path, capture_output=True,
                           text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(SCRIPTS.parent)})
     assert proc.returncode == 2 and proc.stderr.strip() == (
         "bench_skips: error: argument --out (default): results/bench/skips/results.json is a directory; results.json "
         "is written there (see --help)"), proc.stderr
+    (tmp_path / "results" / "stress" / "results.json").mkdir(parents=True)  # (--list writes nothing: not checked)
+    listed = subprocess.run([sys.executable, "-m", "scripts.stress", "--robot", "point_mass", "--list"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "PYTHONPATH": str(SCRIPTS.parent)})
+    assert listed.returncode == 0, listed.stderr
 
 
 @pytest.mark.parametrize("argv, fragment", [

@@ -148,6 +148,23 @@ def test_taps_are_apart_from_the_impacts(result_dir):
     assert view.load_result(result_dir).impacts(taps=True) == []
 
 
+def test_an_impact_on_a_corners_plane_marks_its_point_only(result_dir):
+    """An impact on one plane of a point listed with several (a corner: labels `foot#1`, `foot#2`) marks that point
+    only; it marked every contact point (the knee glowed at each of the foot's impacts). An unknown label still marks
+    every point (no guess)."""
+    import dataclasses
+
+    summary = json.loads((result_dir / "summary.json").read_text())
+    summary["impacts"][0]["contact"] = "foot#2"
+    (result_dir / "summary.json").write_text(json.dumps(summary))
+    res = view.load_result(result_dir)
+    (floor,) = res.task.contacts
+    corner = (floor, dataclasses.replace(floor, normal=(-1.0, 0.0, 0.0)), dataclasses.replace(floor, point="knee"))
+    res = dataclasses.replace(res, task=dataclasses.replace(res.task, contacts=corner))
+    assert res.impacts() == [(T_IMPACT, ("foot",))]
+    assert res._hit("hand#1") == res._hit("foot#x") == ("foot", "foot", "knee")
+
+
 def test_frozen_intervals_from_the_clock_or_from_the_summary(result_dir):
     """Without tau_start/tau_end in summary.json, the frozen interval is where the clock stops; with
     them (as planner.result writes), they are used. Extra arrays (string names) are ignored."""
