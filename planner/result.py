@@ -705,8 +705,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
     A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
-    tau_start is that step's. approach (K-1, n_contacts) [m/s]: each contact's normal velocity at the start of each
-    step, moving into its plane below -APPROACH_MPS (None: no such step is taken). A run is an impact when the
+    tau_start is that step's. approach (K-1 or K, n_contacts) [m/s]: each contact's normal velocity at the start of
+    each step (and at the last node), moving into its plane below -APPROACH_MPS (None: no such step is taken). A run is an impact when the
     numerical time it froze, sum(h s - clock advance), is at least frozen_tol times the longest step (so a FESD element
     a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
@@ -734,7 +734,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     # a partly frozen step whose contact (the one taking its largest normal impulse) is at rest on its plane at both
     # ends is support, not an impact: its auxiliary field carried part of the weight (a Coulomb slide read as 13
     # impacts, a physical_time stance as 12 to 25 that MuJoCo never saw); its end is a physical sample
-    for k in range(n_steps - 1 if approach is not None and not switch_at_start and len(contacts) else 0):
+    for k in range(min(n_steps, len(approach) - 1) if approach is not None and not switch_at_start and len(contacts)
+                   else 0):
         c = int(np.argmax(np.abs(np.asarray(impulses)[k, :, 0])))
         if frozen[k] and not fully[k] and _at_rest(approach, k, c) and _at_rest(approach, k + 1, c):
             frozen[k] = False

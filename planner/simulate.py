@@ -663,8 +663,10 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     landed = approach = None
     if not switch_at_start and n_c:  # a step that starts with a point on its plane moving into it: its impact first
         gaps = np.array([np.asarray(system.gap_fn(Y[k], U[k]), float).ravel() for k in range(N)])
-        approach = np.array([np.asarray(system.normal_velocity_fn(Y[k], U[k]), float).ravel() for k in range(N)])
-        landed = (gaps <= ON_PLANE_M) & (approach < -APPROACH_MPS)  # (N, n_c)
+        # (N + 1, n_c): the last node's too, where the last step ends (support or impact, result.recover)
+        approach = np.array([np.asarray(system.normal_velocity_fn(Y[k], U[min(k, N - 1)]), float).ravel()
+                             for k in range(N + 1)])
+        landed = (gaps <= ON_PLANE_M) & (approach[:N] < -APPROACH_MPS)  # (N, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
                                   switch_at_start=switch_at_start, landed=landed, approach=approach)
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),

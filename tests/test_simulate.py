@@ -194,6 +194,18 @@ def test_fig5_regularization_keeps_wanted_selectors():
     np.testing.assert_allclose(tr.q[:, 1], 0.0, atol=GAP_TOL)
 
 
+def test_fig5_without_regularization_runs_the_clock_slow_but_has_no_impact():
+    """Fig. 5 with rho_f = 0: the selectors drift (beta ~0.55) and the clock runs at 0.9729 in every step, each step
+    partly frozen while the point stays at rest on the ground (z = 0, v_z = 0 at every node). Those steps are support,
+    not impacts: none is recovered (50 spurious impacts of 0.2164 N s in session 46, 100 of half that after session
+    54's first rule, then one in the last step)."""
+    r = run((("a_n", 200.0),), (0.0, 0.0), (5.0, 0.0), 2.0, 100, rho_f=0.0)
+    tr = r.trajectory
+    assert tr.impacts == ()
+    assert np.all(np.diff(tr.y[:, -1]) / r.h < 1.0 - 1e-3)  # every step partly frozen (the rate ~0.9729)
+    np.testing.assert_allclose(tr.q[:, 1], 0.0, atol=GAP_TOL)
+
+
 def test_contact_breaking_under_pull():
     """A mass resting on the table is pulled up by 15 N > m g from t1 = 0.3 s: it rests (z = 0, v = 0)
     until t1, leaves the table at t1 (within one step), and then follows z = (15 - g)(t - t1)^2 / 2
