@@ -678,17 +678,24 @@ TAIL_SHARE = 1e-6
 IMPULSE_SHARE = 1e-2
 
 
-def _at_rest(approach, k: int, contact: int) -> bool:
-    """Contact `contact` neither moves into nor leaves its plane at the start of step k (approach (K-1, n_contacts)
-    [m/s], None: unknown): an inelastic impact that was on in the step before is over there (a partly frozen step
-    after it was lumped into it: a Coulomb slide's v_post read +0.22 m/s off the ground), and a partly frozen step
-    at rest at both ends is support."""
-    return approach is not None and abs(approach[k][contact]) <= APPROACH_MPS
+def _at_rest(resting, k: int, step_impulses) -> bool:
+    """Every contact that took a share of a step's normal impulse (step_impulses (n_contacts, 2) [N s]; IMPULSE_SHARE
+    of the largest) rests on its plane at node k (resting (K-1 or K, n_contacts) bool; None: unknown): an inelastic
+    impact that was on in the step before is over there (a partly frozen step after it was lumped into it: a Coulomb
+    slide's v_post read +0.22 m/s off the ground), and a partly frozen step at rest at both ends is support. (Not the
+    largest impulse's contact alone: a plank resting on one end takes 2.9 times the impulse of its other end landing
+    at 6.4 m/s.)"""
+    if resting is None or k >= len(resting):
+        return False
+    normal = np.abs(np.asarray(step_impulses, float)[:, 0])
+    involved = normal >= IMPULSE_SHARE * normal.max() if normal.max() > 0 else np.arange(len(normal)) == 0
+    return bool(np.all(np.asarray(resting[k])[involved]))
 
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
             frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False,
-            landed=None, approach=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
+            landed=None, approach=None, resting=None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
 
     tau (K,), y (K, ny) with the clock last; for each step k (K-1 of them, from y_k to y_{k+1}):
@@ -697,16 +704,18 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s, fully frozen
     when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
     frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
-    clock runs again; not when the contact is at rest on its plane at that step's start, by approach: the impact was
+    clock runs again; not when its contacts rest on their planes at that step's start, by `resting`: the impact was
     over); a frozen step after a partly frozen one that is not the run's first starts the next run. A partly frozen
-    step whose contact is at rest at both its ends (approach) is support, no frozen step. A run that ends
-    with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse) still moves
-    into its plane at the step's end, or a run of one step whose landing inside it is still on there, takes the next
-    step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
+    step whose contacts (those taking its normal impulse) rest at both its ends is support, no frozen step. A run
+    that ends with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse)
+    still moves into its plane at the step's end, or a run of one step whose landing inside it is still on there,
+    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
     A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
     tau_start is that step's. approach (K-1 or K, n_contacts) [m/s]: each contact's normal velocity at the start of
-    each step (and at the last node), moving into its plane below -APPROACH_MPS (None: no such step is taken). A run is an impact when the
+    each step (and at the last node), moving into its plane below -APPROACH_MPS (None: no such step is taken).
+    resting (K-1 or K, n_contacts) bool: each contact on its plane (ON_PLANE_M) and at rest along its normal
+    (APPROACH_MPS) there (None: no step is read as support, no impact ended by it). A run is an impact when the
     numerical time it froze, sum(h s - clock advance), is at least frozen_tol times the longest step (so a FESD element
     a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
@@ -731,13 +740,12 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     # a FESD element collapsed to length ~0 (no switch to pin it) advances nothing and is no impact
     frozen = (advance < (1.0 - frozen_tol) * dt_steps) & (dt_steps > COLLAPSED * np.max(dt_steps, initial=0.0))
     fully = advance < frozen_tol * dt_steps  # the clock (nearly) stood still over the whole step
-    # a partly frozen step whose contact (the one taking its largest normal impulse) is at rest on its plane at both
-    # ends is support, not an impact: its auxiliary field carried part of the weight (a Coulomb slide read as 13
-    # impacts, a physical_time stance as 12 to 25 that MuJoCo never saw); its end is a physical sample
-    for k in range(min(n_steps, len(approach) - 1) if approach is not None and not switch_at_start and len(contacts)
-                   else 0):
-        c = int(np.argmax(np.abs(np.asarray(impulses)[k, :, 0])))
-        if frozen[k] and not fully[k] and _at_rest(approach, k, c) and _at_rest(approach, k + 1, c):
+    # a partly frozen step whose contacts (those taking its normal impulse) rest on their planes at both ends is
+    # support, not an impact: its auxiliary field carried part of the weight (a Coulomb slide read as 13 impacts, a
+    # physical_time stance as 12 to 25 that MuJoCo never saw); its end is a physical sample
+    impulses = np.asarray(impulses, float)
+    for k in range(n_steps if resting is not None and not switch_at_start and len(contacts) else 0):
+        if frozen[k] and not fully[k] and _at_rest(resting, k, impulses[k]) and _at_rest(resting, k + 1, impulses[k]):
             frozen[k] = False
     min_frozen = frozen_tol * np.max(dt_steps, initial=0.0)  # [s] of numerical time
     nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
@@ -761,8 +769,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # (the contact that takes the step's largest normal impulse: another foot's stance drift is no landing)
         lander = int(np.argmax(np.abs(np.asarray(impulses)[a, :, 0]))) if len(contacts) else 0
         at_node = landed is not None and bool(landed[a][lander]) and not switch_at_start and not fully[a]
-        while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node and not _at_rest(approach, b + 1, lander))
-                                                     or fully[b]):
+        over = _at_rest(resting, b + 1, impulses[b])  # (a landing inside step a that ended there)
+        while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node and not over) or fully[b]):
             b += 1
         # an impact still on at the end of a fully frozen step (its contact still moving into its plane there) ends
         # in the next one, however little of it that step froze (below frozen_tol it is no frozen step): its increment

@@ -660,15 +660,17 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     dv_aux, impulses = _auxiliary_parts(system, builder, Ys, Ws, Us, dt, b)
     sigma = np.array([Ws[k, -1][builder.w_blocks["sigma"]] for k in range(N)]).reshape(N, system.n_sigma)
     W, U = Ws[:, -1], Us[:, -1]
-    landed = approach = None
+    landed = approach = resting = None
     if not switch_at_start and n_c:  # a step that starts with a point on its plane moving into it: its impact first
-        gaps = np.array([np.asarray(system.gap_fn(Y[k], U[k]), float).ravel() for k in range(N)])
-        # (N + 1, n_c): the last node's too, where the last step ends (support or impact, result.recover)
-        approach = np.array([np.asarray(system.normal_velocity_fn(Y[k], U[min(k, N - 1)]), float).ravel()
-                             for k in range(N + 1)])
-        landed = (gaps <= ON_PLANE_M) & (approach[:N] < -APPROACH_MPS)  # (N, n_c)
+        # at every node, the last too, where the last step ends (support or impact, result.recover); (neither reads u)
+        u0 = np.zeros(system.nu)
+        gaps = np.array([np.asarray(system.gap_fn(y, u0), float).ravel() for y in Y[: N + 1]]).reshape(-1, n_c)
+        approach = np.array([np.asarray(system.normal_velocity_fn(y, u0), float).ravel()
+                             for y in Y[: N + 1]]).reshape(-1, n_c)
+        landed = (gaps[:N] <= ON_PLANE_M) & (approach[:N] < -APPROACH_MPS)  # (N, n_c)
+        resting = (gaps <= ON_PLANE_M) & (np.abs(approach) <= APPROACH_MPS)  # (N + 1, n_c)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
-                                  switch_at_start=switch_at_start, landed=landed, approach=approach)
+                                  switch_at_start=switch_at_start, landed=landed, approach=approach, resting=resting)
     impacts = tuple(replace(imp, kinetic_energy_pre=_kinetic(system, imp.q, imp.v_pre),
                             kinetic_energy_post=_kinetic(system, imp.q, imp.v_post)) for imp in impacts)
     forces = None

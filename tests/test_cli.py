@@ -702,6 +702,13 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     np.savez(old / "trajectory.npz", **{**arrays, "nlp_signature": np.array(plain.variables_signature)})
     assert main(argv[:-1] + [str(old)]) == 0
     capsys.readouterr()
+    # one that recorded the FESD elements' default for an implicit-Euler plan (the CLI did until session 48): fesd is
+    # unread there, so no reason to refuse (it said "replan it with those options", which nothing can set)
+    fesd_record = {**summary["options"]["problem"], "fesd": {**summary["options"]["problem"]["fesd"], "n_fe": 3}}
+    fesd_summary = {**summary, "options": {**summary["options"], "problem": fesd_record}}
+    (old / "summary.json").write_text(json.dumps(fesd_summary))
+    assert main(argv[:-1] + [str(old)]) == 0
+    capsys.readouterr()
     (old / "summary.json").write_text(json.dumps({**summary, "options": options_record}))  # another switch_scale
     _one_line_exit_2(capsys, argv[:-1] + [str(old)], "the plan was built with other ProblemOptions (switch_scale)")
     heavy_robot = tmp_path / "heavy.xml"

@@ -528,7 +528,7 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     coarse grid (N = 15: no sample in the last 100 ms) writes its result with the task it solved (task_json, which
     `view` reads from any directory) instead of a ValueError traceback; a task without both feet as contacts is
     refused before the solve (after it, or not at all with --no-validate); an earlier plan's plots in --out are removed
-    (a gait draws none)."""
+    (a gait draws none), PNGs in a directory that held no result are left alone."""
     import planner.gait
     from planner.cli import main
 
@@ -541,8 +541,13 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     assert main(["gait", "biped", "--task", str(slippery), "--out", str(tmp_path / "fell"), "-q"]) == 1
     (tmp_path / "coarse").mkdir()
     (tmp_path / "coarse" / "states.png").write_bytes(b"an earlier plan's plot")
+    (tmp_path / "coarse" / "summary.json").write_text('{"converged": true}')
     assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "coarse"), "--no-validate", "-q"]) == 0
     assert not (tmp_path / "coarse" / "states.png").exists()  # it read as the gait's
+    (tmp_path / "mine").mkdir()  # a directory that held no result: its PNGs are the user's (they were deleted)
+    (tmp_path / "mine" / "states.png").write_bytes(b"my own figure")
+    assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "mine"), "--no-validate", "-q"]) == 0
+    assert (tmp_path / "mine" / "states.png").read_bytes() == b"my own figure"
     with np.load(tmp_path / "coarse" / "trajectory.npz") as npz:
         assert load_task(coarse).gait == parse_task(json.loads(str(npz["task_json"]))).gait
     capsys.readouterr()

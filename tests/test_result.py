@@ -143,27 +143,34 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
 
 
 def test_recover_reads_a_partly_frozen_step_at_rest_as_support_and_ends_an_impact_there():
-    """A partly frozen step whose point is at rest on its plane at both ends (normal velocity 0 there, approach per
-    step's start) is support, no impact: its auxiliary field carried part of the weight (a Coulomb slide was 13
-    impacts whose v_post read +0.22 m/s off the ground; a physical_time stance 12, MuJoCo saw none). An impact in a
-    run's first step (a landing inside it) goes on into the next frozen step only while the point still moves into
-    its plane at that step's start: at rest there the impact is over, and that step (a push-off: moving off at its
-    end) is an impact of its own. Unknown approach: as before, one run."""
+    """A partly frozen step whose contacts (those taking its normal impulse) rest on their planes at both ends (on the
+    plane, normal velocity 0: `resting`, per node) is support, no impact: its auxiliary field carried part of the
+    weight (a Coulomb slide was 13 impacts whose v_post read +0.22 m/s off the ground; a physical_time stance 12,
+    MuJoCo saw none). Not when another contact takes part of the impulse landing (a plank resting on one end took 2.9
+    times the impulse of its other end landing at 6.4 m/s: no impact was left). An impact in a run's first step (a
+    landing inside it) goes on into the next frozen step only while its contacts are not at rest at that step's
+    start: at rest there the impact is over, and that step (a push-off: moving off at its end) is an impact of its
+    own. Unknown resting: as before, one run."""
     clock = [0.0, 0.095, 0.19, 0.29]
     y = np.column_stack([np.zeros(4), [0.0, 0.0, 0.0, 0.0], clock])  # on the ground, v_n = 0 at every node
     dv = np.array([[0.93], [0.93], [0.0]])  # each partly frozen step's support against its gravity, -0.93 m/s
     imp = dv.reshape(3, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
     args = (0.1 * np.arange(4), y, np.zeros((3, 1)), np.full(3, 0.1), dv, imp, 1, 1, ("foot",))
-    t, _, _, _, impacts = recover(*args, approach=y[:3, 1:2])
+    t, _, _, _, impacts = recover(*args, resting=np.ones((4, 1), bool))
     assert impacts == () and t == pytest.approx(clock)
     (lumped,) = recover(*args)[4]
     assert (lumped.v_pre[0], lumped.v_post[0]) == pytest.approx((-0.93, 0.93))
+    # the same steps with a second contact that takes part of the impulse while landing (not at rest at node 0)
+    two = np.concatenate([imp, 0.35 * imp], axis=1)  # (3, 2, 2): the resting contact's and the lander's
+    landing = np.column_stack([np.ones(4, bool), [False, True, True, True]])
+    both = recover(*args[:5], two, 1, 1, ("rest", "land"), resting=landing)[4]  # (one Impact per contact)
+    assert [(im.contact, im.time) for im in both] == [("rest", pytest.approx(0.095)), ("land", pytest.approx(0.095))]
     # a landing inside step 0 (at rest at node 1), then a partly frozen push-off (moving off at node 2)
     y = np.column_stack([np.zeros(4), [-1.0, 0.0, 0.5, 0.5], clock])
     dv = np.array([[1.0], [0.6], [0.0]])
     imp = dv.reshape(3, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
     args = (0.1 * np.arange(4), y, np.zeros((3, 1)), np.full(3, 0.1), dv, imp, 1, 1, ("foot",))
-    landing, push = recover(*args, approach=y[:3, 1:2])[4]
+    landing, push = recover(*args, approach=y[:3, 1:2], resting=(y[:, 1:2] == 0.0))[4]
     assert (landing.v_pre[0], landing.v_post[0], landing.impulse) == pytest.approx((-1.0, 0.0, 1.0))
     assert (push.v_pre[0], push.v_post[0], push.impulse) == pytest.approx((-0.1, 0.5, 0.6))
     (lumped,) = recover(*args)[4]

@@ -887,3 +887,37 @@ def test_a_stiff_landing_across_a_node_is_one_whole_impact(z0, v0, N):
     assert abs(-imp.v_pre[1] - fall) <= G * 0.7 / N  # implicit Euler's speed is the fall's within one step's g h
     assert abs(imp.v_post[1]) < GAP_TOL and imp.v_post[0] == pytest.approx(v0, abs=GAP_TOL)
     assert imp.impulse == pytest.approx(-imp.v_pre[1], rel=STRADDLE_IMPULSE_RTOL)
+
+
+PLANK_XML = ('<mujoco><worldbody><body name="plank"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
+             'type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/><inertial pos="0 0 0" '
+             'mass="1" diaginertia="0.01 0.01 0.01"/><site name="A" pos="1 0 -0.49"/><site name="B" pos="-0.3 0 -0.5"/>'
+             '</body></worldbody></mujoco>')
+MOMENTUM_TOL = 1e-3  # [N s] the impulses against M dv_z: the steps' solver tolerance, far below the 1.5 N s
+
+
+def test_a_landing_beside_a_resting_contact_is_an_impact(tmp_path):
+    """A plank resting on its end B (frictionless) whose other end A swings down and lands at ~6.4 m/s: the landing
+    is an impact of both ends (B takes 2.9 times A's impulse, as the rigid LCP), whose normal impulses sum to the
+    plank's vertical momentum change. Read by the larger impulse's contact (B at rest on the ground at both ends of
+    the steps) it was support, and no impact was left."""
+    path = tmp_path / "plank.xml"
+    path.write_text(PLANK_XML)
+    plank = parse_task({"contacts": [{"point": "A", "a_n": 200.0}, {"point": "B", "a_n": 200.0}],
+                        "initial": {"q": [0.0, 0.5, 0.0], "v": [0.0, -1.5, 5.0]}, "horizon": {"tau_f": 0.2, "N": 20}})
+    result = simulate(load_robot(path), plank)
+    assert result.stats.converged
+    impacts = result.trajectory.impacts
+    assert {im.contact for im in impacts} == {"A", "B"}
+    before, after = (result.trajectory.v[result.trajectory.t == impacts[0].time][i, 1] for i in (0, -1))
+    assert sum(im.impulse for im in impacts) == pytest.approx(after - before, abs=MOMENTUM_TOL)
+
+
+def test_a_simulation_that_fails_at_its_first_step_returns_its_diagnostics():
+    """A simulation whose very first step does not converge (here: one IPOPT iteration per NLP; a tester's point 0.1 mm
+    up thrown up at 0.3 m/s) returns a failed result, as any failed step's (it raised an IndexError reading the last
+    node of no steps)."""
+    t = parse_task({"contacts": [{"point": "point", "a_n": 200.0}], "initial": {"q": [0.0, 1e-4], "v": [0.0, 0.3]},
+                    "horizon": {"tau_f": 0.2, "N": 10}})
+    result = simulate(robot(), t, SimulateOptions(max_iter=1))
+    assert not result.stats.converged and "step 0" in result.stats.message
