@@ -173,33 +173,33 @@ def test_contact_force_legends_name_the_touching_contacts_as_the_report_does(res
 def test_torque_panels_carry_their_own_units(result_dir, tmp_path):
     """A robot with slide and hinge motors: each torque panel says its own unit (N for the slides, N m for the hinge),
     as the states' panels do; a panel set's mixed units left every panel without one."""
+    fig = _torques_of(result_dir, tmp_path / "cart.xml", 0.0, (
+        '<mujoco><worldbody><body name="cart"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" type="slide" '
+        'axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/><body name="pole"><joint '
+        'name="twist" type="hinge" axis="0 1 0"/><inertial pos="0 0 -0.1" mass="0.1" diaginertia="0.001 0.001 0.001"/>'
+        '</body></body></worldbody><actuator><motor name="push" joint="x"/><motor name="lift" joint="z"/><motor '
+        'name="turn" joint="twist"/></actuator></mujoco>'))
+    assert [ax.get_ylabel() for ax in fig.axes] == ["u [N]", "u [N]", "u [N m]"]
+
+
+def _torques_of(result_dir, path, u: float, xml: str):
+    """The torques figure of result_dir's result on the robot file `xml` (written to path), every control u."""
     import dataclasses
 
-    path = tmp_path / "cart.xml"
-    path.write_text('<mujoco><worldbody><body name="cart"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
-                    'type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/><body '
-                    'name="pole"><joint name="twist" type="hinge" axis="0 1 0"/><inertial pos="0 0 -0.1" mass="0.1" '
-                    'diaginertia="0.001 0.001 0.001"/></body></body></worldbody><actuator><motor name="push" '
-                    'joint="x"/><motor name="lift" joint="z"/><motor name="turn" joint="twist"/></actuator></mujoco>')
+    path.write_text(xml)
     res = view.load_result(result_dir)
-    cart = dataclasses.replace(res, robot=load_robot(path), u=np.zeros((len(res.t), 3)))
-    fig, _ = plots._torques(cart)
-    assert [ax.get_ylabel() for ax in fig.axes] == ["u [N]", "u [N]", "u [N m]"]
+    robot = load_robot(path)
+    fig, _ = plots._torques(dataclasses.replace(res, robot=robot, u=np.full((len(res.t), robot.nu), u)))
+    return fig
 
 
 def test_a_geared_motor_is_drawn_as_its_joint_force(result_dir, tmp_path):
     """A motor with gear 2 acts on its joint with 2 u: its panel draws gear x u in N, says so in its label, and a
     gear-1 motor beside it stays u (u = 1 of a gear-2 motor was drawn as 1 N where the mass felt 2 N)."""
-    import dataclasses
-
-    path = tmp_path / "geared.xml"
-    path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
-                    'type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>'
-                    '</worldbody><actuator><motor name="push" joint="x" gear="2"/><motor name="lift" joint="z"/>'
-                    '</actuator></mujoco>')
-    res = view.load_result(result_dir)
-    geared = dataclasses.replace(res, robot=load_robot(path), u=np.ones((len(res.t), 2)))
-    fig, _ = plots._torques(geared)
+    fig = _torques_of(result_dir, tmp_path / "geared.xml", 1.0, (
+        '<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" type="slide" '
+        'axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body></worldbody><actuator>'
+        '<motor name="push" joint="x" gear="2"/><motor name="lift" joint="z"/></actuator></mujoco>'))
     (push,), (lift,) = (ax.get_lines()[:1] for ax in fig.axes)
     assert [ax.get_ylabel() for ax in fig.axes] == ["gear x u [N]", "u [N]"]
     assert push.get_label() == "push (gear 2 x u)" and np.all(push.get_ydata() == 2.0)
