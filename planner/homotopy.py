@@ -1451,8 +1451,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     beta = W[:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
-    # the robot flies when every contact point does (one contact: its beta)
-    # (the robot flies when every contact point does: the smallest gap, not the first contact's)
+    # the robot flies when every contact point does (one contact: its beta): so its gap is the smallest
     gap = [float(np.min(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float), initial=np.inf))
            for y in nodes]
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,

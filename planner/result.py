@@ -767,7 +767,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
         # an implicit-Euler landing at a node ran the clock after its impact already in step a (one that froze the
         # whole step is the same instant either way: dated as before, so the biped's plans keep their samples)
         # (the contact that takes the step's largest normal impulse: another foot's stance drift is no landing)
-        lander = int(np.argmax(np.abs(np.asarray(impulses)[a, :, 0]))) if len(contacts) else 0
+        lander = int(np.argmax(np.abs(impulses[a, :, 0]))) if len(contacts) else 0
         at_node = landed is not None and bool(landed[a][lander]) and not switch_at_start and not fully[a]
         over = _at_rest(resting, b + 1, impulses[b])  # (a landing inside step a that ended there)
         while b + 1 < n_steps and frozen[b + 1] and ((b == a and not at_node and not over) or fully[b]):
@@ -811,7 +811,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
             v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
             v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
-        imp = np.sum(np.asarray(impulses)[first : b + 1], axis=0)  # (n_contacts, 2)
+        imp = np.sum(impulses[first : b + 1], axis=0)  # (n_contacts, 2)
         order = np.argsort(-np.abs(imp[:, 0]), kind="stable") if len(contacts) else np.zeros(1, int)
         # one Impact per contact that took a normal impulse in this frozen interval, the largest first;
         # with one contact (or none) exactly one Impact, as before
