@@ -43,8 +43,8 @@ import pinocchio as pin
 from .errors import (InputError, RobotFileError, UnknownNameError, check_field_types, check_interrupted, enum_field,
                      expect, shown)
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
-from .result import (ArraysReadOnly, Trajectory, check_same_result, directory_lock, read_robot, read_summary, read_task,
-                     read_trajectory, real_array, result_dir, write_atomically)
+from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
+                     read_summary, read_task, read_trajectory, real_array, result_dir, write_atomically)
 from .task import Task
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
@@ -58,7 +58,6 @@ CONTACT_GAP_TOL_M = 1e-3  # a point "is in contact" when its gap is below this [
 # The trajectory's own flight dynamics (_flight_residual), relative: the planner's implicit-Euler plans and
 # simulations 6e-16 to 2.3e-2 (docs/validation.md, session 45), controls set to zero ~1
 FLIGHT_RESIDUAL_TOL = 0.1
-IMPACT_TIME_AGREE_S = 1e-9  # summary.json's impact times against trajectory.npz's: the same floats, written twice
 WINDOW_S = 0.1  # length of the windowed tracking replays [s]: the window of the re-simulation
 #   defect (scripts/bench_work_precision.py), short against a hop's flight (~0.3 s)
 WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans the window statistics
@@ -894,15 +893,7 @@ def _impact_points(summary: dict, task: Task, impact_times: np.ndarray,
     impacts = summary.get("impacts")
     if not isinstance(impacts, list):
         return None, None
-    if len(impacts) != len(impact_times):  # (an impact added or removed validated against the npz's alone)
-        raise InputError(f"{out_dir}: trajectory.npz has {len(impact_times)} impact time(s), summary.json "
-                         f"{len(impacts)} impact(s): the two files disagree (was one edited?)")
-    for i, (item, when) in enumerate(zip(impacts, impact_times)):
-        said = item.get("time") if isinstance(item, dict) else None
-        numeric = isinstance(said, (int, float)) and not isinstance(said, bool)
-        if numeric and not abs(said - when) <= IMPACT_TIME_AGREE_S:
-            raise InputError(f"{out_dir}: trajectory.npz's impact_times[{i}] = {when:.9g} s, summary.json's "
-                             f"impacts[{i}] time {said:.9g} s: the two files disagree (was one edited?)")
+    check_impacts_agree(out_dir, impacts, impact_times)
     names = [c.point for c in task.contacts]
     points: list[str | None] = []
     taps = [isinstance(item, dict) and item.get("tap") is True for item in impacts]

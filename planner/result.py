@@ -931,6 +931,27 @@ def check_same_result(out_dir: str | os.PathLike, summary: dict, arrays: dict) -
                          "between writing them?); run the plan or simulation again")
 
 
+# summary.json's impact times against trajectory.npz's: the same floats, written twice
+IMPACT_TIME_AGREE_S = 1e-9
+
+
+def check_impacts_agree(out_dir: str | os.PathLike, impacts, impact_times) -> None:
+    """InputError when summary.json's impacts (a list) and trajectory.npz's impact_times (I,) [s] differ in number or
+    in a (numeric) time: the two files no longer say the same (impact_times moved by 0.1 s validated against the moved
+    times; an edited summary was drawn by view)."""
+    if not isinstance(impacts, list):
+        return
+    if len(impacts) != len(impact_times):  # (an impact added or removed validated against the npz's alone)
+        raise InputError(f"{out_dir}: trajectory.npz has {len(impact_times)} impact time(s), summary.json "
+                         f"{len(impacts)} impact(s): the two files disagree (was one edited?)")
+    for i, (item, when) in enumerate(zip(impacts, impact_times)):
+        said = item.get("time") if isinstance(item, dict) else None
+        numeric = isinstance(said, (int, float)) and not isinstance(said, bool)
+        if numeric and not abs(said - when) <= IMPACT_TIME_AGREE_S:
+            raise InputError(f"{out_dir}: trajectory.npz's impact_times[{i}] = {when:.9g} s, summary.json's "
+                             f"impacts[{i}] time {said:.9g} s: the two files disagree (was one edited?)")
+
+
 def _json_default(obj):
     if isinstance(obj, np.generic):
         return obj.item()

@@ -32,8 +32,8 @@ import pinocchio as pin
 
 from .errors import InputError, PlannerError, expect
 from .model import Robot, RobotFormat
-from .result import (ArraysReadOnly, check_same_result, read_robot, read_summary, read_task, read_trajectory, real_array,
-                     result_dir, write_atomically)
+from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, read_robot, read_summary, read_task,
+                     read_trajectory, real_array, result_dir, write_atomically)
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -172,6 +172,8 @@ def load_result(out_dir) -> Result:
     if not isinstance(impacts, list) or not all(
             isinstance(i, dict) and isinstance(i.get("time"), (int, float)) for i in impacts):
         raise InputError(f"{summary_path}: impacts must be a list of objects with a numeric time")
+    if "impacts" in summary:  # (an edited summary's impact was drawn where the trajectory has none; validate refused)
+        check_impacts_agree(directory, impacts, arrays["impact_times"])
 
     a = arrays
     for key in ("t", "tau"):  # a 0-d array had no shape[0]: an IndexError

@@ -141,6 +141,9 @@ def test_taps_are_apart_from_the_impacts(result_dir):
     summary = json.loads((result_dir / "summary.json").read_text())
     summary["impacts"].append({"time": T_END / 2, "contact": "foot", "impulse": 0.1, "tap": True})
     (result_dir / "summary.json").write_text(json.dumps(summary))
+    with np.load(result_dir / "trajectory.npz") as npz:  # (the two files say the same impacts)
+        arrays = {k: npz[k] for k in npz.files}
+    np.savez(result_dir / "trajectory.npz", **{**arrays, "impact_times": np.array([T_IMPACT, T_END / 2])})
     res = view.load_result(result_dir)
     assert res.impacts() == [(T_IMPACT, ("foot",))] and res.impacts(taps=True) == [(T_END / 2, ("foot",))]
     del summary["impacts"][1]["tap"]
@@ -163,6 +166,17 @@ def test_an_impact_on_a_corners_plane_marks_its_point_only(result_dir):
     res = dataclasses.replace(res, task=dataclasses.replace(res.task, contacts=corner))
     assert res.impacts() == [(T_IMPACT, ("foot",))]
     assert res._hit("hand#1") == res._hit("foot#x") == ("foot", "foot", "knee")
+
+
+def test_a_result_whose_two_files_disagree_on_its_impacts_is_refused(result_dir):
+    """summary.json's impacts and trajectory.npz's impact_times must say the same (result.check_impacts_agree), as
+    validate refuses: an edited summary's impact time was drawn by view where the trajectory has none."""
+    summary = json.loads((result_dir / "summary.json").read_text())
+    summary["impacts"][0]["time"] = T_IMPACT + 0.3
+    (result_dir / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(InputError, match=r"impact_times\[0\] = .* summary.json's impacts\[0\] time .* the two files "
+                                         r"disagree"):
+        view.load_result(result_dir)
 
 
 def test_frozen_intervals_from_the_clock_or_from_the_summary(result_dir):
