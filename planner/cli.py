@@ -763,23 +763,21 @@ def _plots_aside(target: Path) -> Path | None:
     if not old:
         return None
     aside = Path(tempfile.mkdtemp(prefix=".planner-earlier-plots-", dir=target))
-    moved = []
     try:
         for name in old:
             os.replace(target / name, aside / name)
-            moved.append(name)
-    except BaseException:
-        _plots_back(aside, target, restore=True, names=moved)
+    except BaseException:  # (the ones moved so far are the directory's)
+        _plots_back(aside, target, restore=True)
         raise
     return aside
 
 
-def _plots_back(aside: Path | None, target: Path, restore: bool, names=None) -> None:
+def _plots_back(aside: Path | None, target: Path, restore: bool) -> None:
     """_plots_aside's directory removed, its plots first put back into `target` when `restore` (the write failed)."""
     if aside is None:
         return
     if restore:
-        for name in os.listdir(aside) if names is None else names:
+        for name in os.listdir(aside):
             with contextlib.suppress(OSError):
                 os.replace(aside / name, target / name)
     shutil.rmtree(aside, ignore_errors=True)
