@@ -28,6 +28,9 @@ ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
 # a degree of freedom lighter than this [kg or kg m^2] moves less than the solvers' absolute tolerances resolve: a
 # point-mass drop's height at 0.3 s was off by 3e-5 m at 1e-4 kg, 7e-4 m at 1e-5, 0.01 m at 1e-6, 0.13 m at 1e-7
 MIN_DOF_INERTIA = 1e-4
+# a joint speed limit at or above this [m/s or rad/s] is none: IPOPT's own infinity (nlp_upper_bound_inf), and Pinocchio
+# gives its free-flyer root the largest double
+NO_SPEED_LIMIT = 1e19
 
 
 class RobotFormat(Enum):
@@ -100,6 +103,15 @@ class Robot:
     def q_upper(self) -> np.ndarray:
         """Joint position upper limits (nq,); +inf where the file gives none."""
         return np.array(self.model.upperPositionLimit, dtype=float)
+
+    @property
+    def v_limit(self) -> np.ndarray:
+        """Joint speed limits (nv,) [m/s or rad/s]: a URDF joint's <limit velocity>, +inf where there is none (an
+        MJCF file has none; a URDF's velocity="0", as CAD exporters write an unknown one, is none)."""
+        limit = np.array(self.model.velocityLimit, dtype=float)
+        if self.format is not RobotFormat.URDF:
+            return np.full(self.nv, np.inf)
+        return np.where((limit > 0.0) & (limit < NO_SPEED_LIMIT), limit, np.inf)
 
     @property
     def u_lower(self) -> np.ndarray:
@@ -286,6 +298,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
             raise RobotFileError(f"{path}: joint {', '.join(locked)}: its <limit lower> equals its upper (both are 0 "
                                  "when not given): Pinocchio locks the joint there, MuJoCo ignores the limit; give "
                                  "lower < upper")
+        _refuse_joint_mistakes(path)
         passive += _urdf_couplings(path)
         if any(True for _ in ET.parse(path).getroot().iter("transmission")):
             warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
@@ -357,6 +370,26 @@ def _point_frames(model: pin.Model) -> dict[str, int]:
                                         and model.frames[points[frame.name]].type != pin.FrameType.OP_FRAME):
             points[frame.name] = fid
     return points
+
+
+def _refuse_joint_mistakes(path: Path) -> None:
+    """RobotFileError naming a URDF joint whose <axis xyz> is zero (Pinocchio reads a joint that moves nothing, which
+    simulate and plan refused as a body lighter than MIN_DOF_INERTIA: its thigh weighed 1 kg), or whose <limit> gives
+    one of lower and upper (URDF reads the other as 0, MuJoCo the joint as unlimited: the refusal named MuJoCo's
+    unlimited range, not the missing side)."""
+    for joint in ET.parse(path).getroot().iter("joint"):
+        name, axis, limit = joint.get("name", "?"), joint.find("axis"), joint.find("limit")
+        if joint.get("type") not in ("revolute", "prismatic", "continuous"):
+            continue
+        with contextlib.suppress(ValueError):  # (a malformed one is the parser's error, said before this)
+            if axis is not None and not np.any(np.array(axis.get("xyz", "1 0 0").split(), float)):
+                raise RobotFileError(f"{path}: joint {name!r}: its <axis xyz> is zero; give the direction it turns or "
+                                     "slides along (e.g. \"0 1 0\")")
+        sides = [side for side in ("lower", "upper") if limit is not None and limit.get(side) is not None]
+        if joint.get("type") != "continuous" and len(sides) == 1:
+            missing = "upper" if sides == ["lower"] else "lower"
+            raise RobotFileError(f"{path}: joint {name!r}: its <limit> gives {sides[0]} but no {missing}, which URDF "
+                                 f"reads as 0 and MuJoCo as no limit; give both lower and upper")
 
 
 def _urdf_couplings(path: Path) -> tuple[str, ...]:

@@ -29,6 +29,9 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
     velocity_bounds                   task.plan.velocity_bounds (sums of joint velocities) at y_1 .. y_N
     velocity_bounds_y0 (1, m)         the same at y_0 where it is free (plan.periodic)
+    speed_limits                      |v_j| <= the robot file's joint speed limit (a URDF's <limit velocity>;
+                                      Robot.v_limit) at y_1 .. y_N
+    speed_limits_y0 (1, m)            the same at y_0 where it is free (plan.periodic)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
     periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
@@ -391,7 +394,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -1e-9:
-                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.6g} m {c.beyond(task.ground_height)}"
+                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.10g} m {c.beyond(task.ground_height)}"
                                  + (" (touches = false)" if c in never else ""))
     _check_outside_holes(dyn, task.contacts, task)
 
@@ -939,13 +942,20 @@ def _velocity_bounds(rows: "_Rows", robot, task: Task, nq: int, ends: list, y0) 
     """Blocks velocity_bounds (N, m per state in ends[k]) and velocity_bounds_y0 (1, m; y0 the free
     initial state or None) of task.plan.velocity_bounds: lower <= A v <= upper (Task.velocity_rows)."""
     A, lo, hi = task.velocity_rows(robot)
-    if not len(lo):
-        return
-    rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
     n_states = len(ends) * len(ends[0])
-    rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends], np.tile(lo, n_states), np.tile(hi, n_states))
-    if y0 is not None:
-        rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
+    if len(lo):
+        rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
+        rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends], np.tile(lo, n_states),
+                 np.tile(hi, n_states))
+        if y0 is not None:
+            rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
+    dofs = [int(j) for j in np.flatnonzero(np.isfinite(robot.v_limit))]
+    if dofs:  # (read from the URDF and not applied, a leg's knee limited to 5 rad/s was planned at 14.5)
+        limit, speeds = robot.v_limit[dofs], lambda y: y[[nq + j for j in dofs]]  # noqa: E731
+        rows.add("speed_limits", [ca.vertcat(*[speeds(y) for y in ys]) for ys in ends], np.tile(-limit, n_states),
+                 np.tile(limit, n_states))
+        if y0 is not None:
+            rows.add("speed_limits_y0", [speeds(y0)], -limit, limit)
 
 
 class _Rows:
@@ -1032,6 +1042,11 @@ def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X,
             raise InputError(f"plan.velocity_bounds[{r}] = [{lower[r]:g}, {upper[r]:g}] excludes the end velocity, "
                              f"{rate[r]:g} by plan.target_v{omitted}, which the last node must meet: widen the bound "
                              "or give a plan.target_v inside it")
+        fast = [f"{robot.dof_names[j]} ({target_v[j]:g} beyond {robot.v_limit[j]:g})" for j in range(nv)
+                if abs(target_v[j]) > robot.v_limit[j]]
+        if fast:  # (plan.target_v is read in the robot's units: rad/s or m/s)
+            raise InputError(f"plan.target_v exceeds the robot file's joint speed limit (<limit velocity>) of "
+                             f"{', '.join(fast)}, which every node must meet: give a plan.target_v within it")
         target = np.concatenate([np.array(plan.target_q, float), target_v])
         rows.add("terminal", [y_N[: nq + nv]], target, target)
         term_res = y_N[: nq + nv] - target

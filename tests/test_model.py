@@ -383,6 +383,26 @@ def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
+@pytest.mark.parametrize("edit, said", [
+    (('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>'), r"joint 'hip': its <axis xyz> is zero; give the direction"),
+    (('upper="1.1780972450961724"', ""), r"joint 'hip': its <limit> gives lower but no upper, which URDF reads as 0"),
+    (('lower="-1.1780972450961724"', ""), r"joint 'hip': its <limit> gives upper but no lower, which URDF reads as 0"),
+])
+def test_urdf_joint_mistakes_are_named(tmp_path, edit, said):
+    """A URDF joint with a zero axis (refused as a body lighter than MIN_DOF_INERTIA, though it weighed 1 kg) or a limit
+    with one side (the other read as 0 by Pinocchio and the joint unlimited by MuJoCo: refused for MuJoCo's range) is
+    refused naming the joint and the mistake."""
+    from planner.errors import RobotFileError
+
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    hip = urdf.index('<joint name="hip"')
+    assert urdf[hip:].count(edit[0]) >= 1
+    path = tmp_path / "capler.urdf"
+    path.write_text(urdf[:hip] + urdf[hip:].replace(edit[0], edit[1], 1))
+    with pytest.raises(RobotFileError, match=said):
+        load_robot(path)
+
+
 def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     """A hinge's range with a ref is MuJoCo's (Pinocchio's parser shifted it by -ref, refusing targets MuJoCo allows); a
     joint's actuatorfrcrange bounds its one motor's control as forcerange does (the plan used the motor's +-20 where
