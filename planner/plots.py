@@ -223,9 +223,26 @@ def _clock(res: Result):
     return fig, "clock.png"
 
 
+def _behind(n, z0: float, box) -> list[tuple[float, float]]:
+    """The corners (x [m], z [m]) of the part of box (x_lo, x_hi, z_lo, z_hi) behind the plane through (0, z0) of
+    normal n = (n_x, n_z): where n_x x + n_z (z - z0) <= 0, the box clipped by that half-plane."""
+    x_lo, x_hi, z_lo, z_hi = box
+    corners = [(x_lo, z_lo), (x_hi, z_lo), (x_hi, z_hi), (x_lo, z_hi)]
+    side = [n[0] * x + n[1] * (z - z0) for x, z in corners]
+    out = []
+    for i, (a, da) in enumerate(zip(corners, side)):
+        b, db = corners[(i + 1) % 4], side[(i + 1) % 4]
+        if da <= 0:
+            out.append(a)
+        if (da < 0 < db) or (db < 0 < da):  # the edge crosses the plane: where it does
+            f = da / (da - db)
+            out.append((a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])))
+    return out
+
+
 def _foot_path(res: Result):
     """Each contact point's path in the x-z plane, the ground, the holes, and the impact points."""
-    from matplotlib.patches import Ellipse, Rectangle
+    from matplotlib.patches import Ellipse, Polygon
 
     points = tuple(dict.fromkeys(res.contact_points))  # a corner's point once (its legend entry was drawn twice)
     if not points:
@@ -246,9 +263,16 @@ def _foot_path(res: Result):
     aspect = (z_hi - z_lo) / (x_hi - x_lo)
     fig = _new_figure(10.0, float(np.clip(10.0 * aspect, 2.5, 8.0)) + 0.9)  # equal axes: height follows
     ax = fig.subplots()
-    ax.add_patch(Rectangle((x_lo, z_lo), x_hi - x_lo, z0 - z_lo, facecolor="#d8cfc0", edgecolor="none",
-                           hatch="//", zorder=0, label="ground"))
-    ax.axhline(z0, color="#6b5b45", linewidth=1.2, zorder=1)
+    normals = dict.fromkeys(c.normal for c in res.task.contacts) if res.task is not None else {(0.0, 0.0, 1.0): None}
+    for normal in normals:  # each plane the task's contacts touch, through (0, z0): a slope or wall was drawn as ground
+        behind = _behind(np.array(normal)[[0, 2]], z0, (x_lo, x_hi, z_lo, z_hi))
+        if len(behind) < 3:
+            continue
+        flat = normal == (0.0, 0.0, 1.0)
+        ax.add_patch(Polygon(behind, closed=True, facecolor="#d8cfc0", edgecolor="none", hatch="//", zorder=0,
+                             label="ground" if flat else f"plane, normal ({normal[0]:.3g}, 0, {normal[2]:.3g})"))
+        edge = [v for v in behind if abs(normal[0] * v[0] + normal[2] * (v[1] - z0)) < 1e-9 * (1 + abs(v[0]))]
+        ax.plot(*np.array(edge).T, color="#6b5b45", linewidth=1.2, zorder=1)
     for i, h in enumerate(holes):
         # the hole cuts the ground (white), and its ellipse above the ground is a keep-out zone too
         ax.add_patch(Ellipse((h.x, h.z), 2 * h.a, 2 * h.b, facecolor="white", edgecolor="0.15", linewidth=1.0,

@@ -146,6 +146,27 @@ def test_a_simulation_draws_no_holes_and_a_corner_point_is_one_path(result_dir):
     assert [ln.get_label() for ln in fig.axes[0].get_lines()].count("foot path") == 1
 
 
+def test_foot_path_draws_the_planes_the_contacts_touch(result_dir):
+    """foot_path.png shades what lies behind each plane the task's contacts touch, through (0, ground_height): a
+    slope's shaded region is bounded by its own line (it was always a horizontal ground, which a point sliding down
+    the slope crossed), and a task without the ground normal draws no ground."""
+    import dataclasses
+
+    from matplotlib.patches import Polygon
+
+    res = view.load_result(result_dir)
+    n = np.array([-0.5, 0.0, np.sqrt(3) / 2])
+    slope = dataclasses.replace(res.task, contacts=(dataclasses.replace(res.task.contacts[0], normal=tuple(n)),))
+    fig, _ = plots._foot_path(dataclasses.replace(res, task=slope))
+    (plane,) = [p for p in fig.axes[0].patches if isinstance(p, Polygon)]
+    assert plane.get_label().startswith("plane, normal (-0.5, 0, 0.866)")
+    corners = plane.get_xy()
+    side = n[0] * corners[:, 0] + n[2] * (corners[:, 1] - res.ground_height)
+    assert np.all(side <= POS_TOL) and np.sum(np.abs(side) <= POS_TOL) >= 2  # its edge on the line
+    flat, = [p for p in plots._foot_path(res)[0].axes[0].patches if isinstance(p, Polygon)]
+    assert flat.get_label() == "ground" and np.isclose(flat.get_xy()[:, 1].max(), res.ground_height)
+
+
 def test_contact_force_legends_name_the_touching_contacts_as_the_report_does(result_dir):
     """The force columns are the contacts that touch: beside a touches = false contact the foot keeps its name and its
     ±μ λn lines ("contact 0" and none before); one point on two planes is foot#1 and foot#2 (the report's labels),
