@@ -662,10 +662,10 @@ def _cmd_plan(args) -> int:
     problem = build_problem(robot, task, problem_options)
     if args.init is not None:
         from .homotopy import replan_options
-        from .result import read_start, read_trajectory
+        from .result import check_start, read_start, read_trajectory
 
         start_arrays = read_trajectory(args.init)
-        _check_start(args.init, robot, start_arrays)
+        check_start(args.init, robot, start_arrays)
         options_apart = _options_apart(args.init, problem.options)
         # a plan written before session 50 digested its variables only: its options by its summary.json instead
         old = str(start_arrays.get("nlp_signature")) == problem.variables_signature
@@ -718,30 +718,6 @@ def _cmd_plan(args) -> int:
     plots_drawn()
     _emit(args, summary, text, written=True)
     return EXIT_OK if ok else EXIT_FAILED
-
-
-def _check_start(start: Path, robot, arrays: dict) -> None:
-    """InputError unless `start` (--init DIR) holds one converged plan of the robot's file: a failed plan's last
-    iterate (DIR/failed) was held as a contact schedule, and a plan of another file with the same joint and point
-    names (another mass) was accepted, as the NLP variables' names match."""
-    from .model import file_sha256
-    from .result import check_robot_unchanged, check_same_result, locate_input, read_summary
-
-    summary = read_summary(start, require=())
-    check_same_result(start, summary, arrays)
-    if summary.get("converged") is not True:  # "no" (an edited file) passed as converged
-        raise InputError(f"{start} holds a plan that did not converge (summary.json's converged is "
-                         f"{shown(summary.get('converged'))}): a replan starts from a converged plan")
-    if check_robot_unchanged(summary, robot, start):
-        return
-    named = summary.get("robot")
-    try:  # a result written before summary.json kept robot_sha256
-        path = locate_input(named, start, "robot") if isinstance(named, str) else None
-    except InputError:  # moved since: the variables' names are still compared
-        path = None
-    if path is not None and file_sha256(path) != robot.sha256:
-        raise InputError(f"{start} is a plan of the robot file {named}, whose contents differ from {robot.path}: a replan "
-                         "starts from a plan of the same robot")
 
 
 def _summary_of(target: Path, result_id: str) -> dict | None:
@@ -842,6 +818,9 @@ def _options_apart(init: Path, options) -> str:
     # implicit-Euler plans too, and their --init was refused with a fix no flag can give)
     unread = {"clock_guess_running"} | ({"fesd"} if options.discretization is Discretization.IMPLICIT_EULER else set())
     apart = [k for k, v in options_record(options).items() if k not in unread and recorded.get(k) != v]
+    if "discretization" in apart:  # (replanning it "with those options", --discretization fesd, is refused too)
+        return (f"; the plan was built with discretization {shown(recorded.get('discretization'))}, and --init replans "
+                "implicit-Euler plans only: plan without --init")
     return (f"; the plan was built with other ProblemOptions ({', '.join(apart)}): plan without --init, or replan "
             "it with those options (the Python API sets the fields no flag sets)" if apart else "")
 

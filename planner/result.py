@@ -1143,16 +1143,45 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     return arrays
 
 
-def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndarray] | None = None) -> np.ndarray:
+def check_start(out_dir: Path, robot, arrays: dict) -> None:
+    """InputError unless out_dir (a replan's start: `--init DIR`, read_start's robot) holds one converged plan of the
+    robot's file (planner.model.Robot), arrays its trajectory arrays: a failed plan's last iterate (DIR/failed) was held
+    as a contact schedule, and a plan of another file with the same joint and point names (another mass) was accepted,
+    as the NLP variables' names match."""
+    from .model import file_sha256
+
+    summary = read_summary(out_dir, require=())
+    check_same_result(out_dir, summary, arrays)
+    if summary.get("converged") is not True:  # "no" (an edited file) passed as converged
+        raise InputError(f"{out_dir} holds a plan that did not converge (summary.json's converged is "
+                         f"{shown(summary.get('converged'))}): a replan starts from a converged plan")
+    if check_robot_unchanged(summary, robot, out_dir):
+        return
+    named = summary.get("robot")
+    try:  # a result written before summary.json kept robot_sha256
+        path = locate_input(named, out_dir, "robot") if isinstance(named, str) else None
+    except InputError:  # moved since: the variables' names are still compared
+        path = None
+    if path is not None and file_sha256(path) != robot.sha256:
+        raise InputError(f"{out_dir} is a plan of the robot file {named}, whose contents differ from {robot.path}: a "
+                         "replan starts from a plan of the same robot")
+
+
+def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndarray] | None = None,
+               robot=None) -> np.ndarray:
     """The NLP point (nx,) that a plan stored in out_dir/trajectory.npz, to start a problem whose
     Problem.signature is `signature` from it; InputError when out_dir holds no plan's point or one of
     other variables (another N, contact set, discretization or formulation). arrays: out_dir's trajectory
-    arrays when already read."""
+    arrays when already read. robot: the problem's (planner.model.Robot); given, out_dir must hold a converged plan of
+    that robot file's contents too (check_start, as `planner plan --init DIR`: the API replanned from a failed plan's
+    last iterate, and from a plan of the file before an edit)."""
     expect(out_dir, (str, os.PathLike), "read_start's out_dir")
     expect(signature, str, "read_start's signature (Problem.signature)")
     if not isinstance(nx, (int, np.integer)) or isinstance(nx, bool):  # ("5" read as "291 against this problem's 5")
         raise InputError(f"read_start's nx (Problem.nx) must be an int, got {type(nx).__name__} {nx!r:.60}")
     arrays = read_trajectory(out_dir) if arrays is None else arrays
+    if robot is not None:
+        check_start(out_dir, robot, arrays)
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
         raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
     x = real_array(arrays["nlp_x"], f"{Path(out_dir) / 'trajectory.npz'}: nlp_x")

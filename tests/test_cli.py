@@ -620,7 +620,7 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     variables skipped: named as the cause) or with other ProblemOptions (named), FESD, --keep-schedule,
     --penalty-replan or
     --allow-new-impacts without --init, --penalty-replan with either of the other two, a plan that did not converge
-    and a plan of another robot file are exit 2, one line each."""
+    and a plan of another robot file are exit 2, one line each; read_start given the robot refuses those two as well."""
     for name, x in (("hop.toml", 0.5), ("closer.toml", 0.55)):
         (tmp_path / name).write_text(HOP_TOML.format(x=x))
     first = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "hop"), "--no-validate", "--json"]
@@ -682,6 +682,12 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     shutil.copytree(tmp_path / "hop", failed)
     (failed / "summary.json").write_text(json.dumps({**summary, "converged": False}))
     _one_line_exit_2(capsys, argv[:-1] + [str(failed)], "holds a plan that did not converge")
+    from planner.result import read_start  # the API's start, given the robot, refuses it as --init (it replanned)
+
+    hop_problem = build_problem(load_robot("point_mass"), load_task(tmp_path / "hop.toml"))
+    with pytest.raises(InputError, match="holds a plan that did not converge"):
+        read_start(failed, hop_problem.signature, hop_problem.nx, robot=hop_problem.robot)
+    assert read_start(tmp_path / "hop", hop_problem.signature, hop_problem.nx, robot=hop_problem.robot).shape == (hop_problem.nx,)
     # a plan built through the API with other ProblemOptions (lambda0, lambda1 in other units): it had been a start
     scaled = tmp_path / "scaled"
     shutil.copytree(tmp_path / "hop", scaled)
@@ -695,6 +701,13 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     options_record = {**summary["options"], "problem": problem_record}
     (scaled / "summary.json").write_text(json.dumps({**summary, "options": options_record}))
     _one_line_exit_2(capsys, argv[:-1] + [str(scaled)], "the plan was built with other ProblemOptions (switch_scale)")
+    fesd_start = tmp_path / "fesd_start"  # (it said "replan it with those options": --discretization fesd, refused)
+    shutil.copytree(tmp_path / "hop", fesd_start)
+    np.savez(fesd_start / "trajectory.npz", **{**arrays, "nlp_signature": np.array("FESD variables")})
+    fesd_problem = {**summary["options"], "problem": {**summary["options"]["problem"], "discretization": "fesd"}}
+    (fesd_start / "summary.json").write_text(json.dumps({**summary, "options": fesd_problem}))
+    _one_line_exit_2(capsys, argv[:-1] + [str(fesd_start)], "the plan was built with discretization 'fesd', and --init "
+                     "replans implicit-Euler plans only: plan without --init")
     # a plan written before session 50, whose digest had its variables only: a start when its options are these
     old = tmp_path / "old"
     shutil.copytree(tmp_path / "hop", old)
@@ -720,6 +733,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     # a result written before summary.json kept robot_sha256: the file it names is compared as it is now
     (heavy / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "robot_sha256"} | {"robot": str(heavy_robot)}))
     _one_line_exit_2(capsys, argv[:-1] + [str(heavy)], "whose contents differ from")
+    with pytest.raises(InputError, match="whose contents differ from"):
+        read_start(heavy, hop_problem.signature, hop_problem.nx, robot=hop_problem.robot)
     # the plan's own robot file edited in place since (the heavy file planned, then made the point mass's contents)
     (heavy / "summary.json").write_text(json.dumps({**summary, "robot": str(heavy_robot), "robot_sha256": file_sha256(heavy_robot)}))
     heavy_robot.write_text(Path(summary["robot"]).read_text())

@@ -162,7 +162,8 @@ def test_schedule_only_stops_after_the_held_schedule(hop_plan):
 def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_plan):
     """A walk whose last, held-schedule NLP follows a re-timing (a penalty replan on the way) ends on the re-timed
     schedule, not on the start's: its message says so (it said "the start's contact schedule kept", from the last
-    NLP's label). A walk of held schedules only keeps that message. The report's last line is that message."""
+    NLP's label); one that ends on a re-timing says it after that NLP's message (it said "ok (active-set polished, ..)"
+    only). A walk of held schedules only keeps that message. The report's last line is that message."""
     prob, x0 = hop_plan
     held = replan(_moved(prob, x0, 0.52), H.replan_options(), prob.task)
     assert held.stats.converged and held.stats.message == "ok" + H.SCHEDULE_KEPT
@@ -174,6 +175,9 @@ def test_a_walk_that_was_retimed_does_not_say_the_start_schedule_was_kept(hop_pl
     walk = labelled("walk 1", (0.5, 1.0))
     retimed = R._totals(walk, [labelled("retime 0.5: reoptimize", (0.0, 0.5)), walk], 1.0, H.replan_options())
     assert retimed.stats.message == "ok (walked there: the contact schedule re-timed by a penalty replan on the way)"
+    polished = dataclasses.replace(walk, stats=dataclasses.replace(walk.stats, message="ok (active-set polished)"))
+    last = R._totals(polished, [walk, labelled("retime 1: homotopy 1", (0.5, 1.0))], 1.0, H.replan_options())
+    assert last.stats.message == "ok (active-set polished); walked there, re-timing the contact schedule last"
     kept = R._totals(walk, [labelled("walk 0.5", (0.0, 0.5)), walk], 1.0, H.replan_options())
     assert kept.stats.message == held.stats.message
     # the report says it too (only summary.json did): how the plan's schedule came about
