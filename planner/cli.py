@@ -76,7 +76,8 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
         verbosity.add_argument("-v", "--verbose", action="store_true", help="also show IPOPT's own output" + (
             " (a racing plan: each line starts with its arm's name, [default] or [alternate])" if racing else ""))
     verbosity.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings" + (
-        ", a one-line failure notice (exit 1)" if p.prog.split()[-1] in EXIT_1_COMMANDS else "") + " and --json")
+        ", a one-line failure notice (exit 1)" if p.prog.split()[-1] in EXIT_1_COMMANDS else "")
+        + (", the live viewer's URL" if p.prog.split()[-1] == "view" else "") + " and --json")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -904,6 +905,8 @@ def _cmd_view(args) -> int:
     url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
     try:  # a stop once the URL is out is the normal end
         _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
+        if args.quiet and not args.json:  # the URL is the result: a server left running, none to find it (port 7000+)
+            print(url, file=args.stdout)
         args.stdout.flush()
         while True:
             time.sleep(3600)

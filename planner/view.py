@@ -555,9 +555,14 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     expect(out_dir, (str, os.PathLike), "render_html's out_dir")
     expect(html_path, (str, os.PathLike), "render_html's html_path")
     expect(slow_motion, bool, "render_html's slow_motion")
+    if str(html_path).endswith(("/", os.sep)):  # (Path drops the slash: "DIR/", new, became a file named DIR)
+        raise InputError(f"--html {html_path} names a directory; name the page's file (e.g. {html_path}replay.html)")
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
+    if html_path.suffix and html_path.suffix.lower() not in (".html", ".htm") and not (
+            html_path.is_file() and _is_page(html_path)):  # (a new x.png was written as a page, exit 0)
+        raise InputError(f"--html {html_path} is no HTML file's name ({html_path.suffix}); name an .html file")
     # `--html DIR/summary.json` replaced the result's own file, `--html robot.xml` the robot file the result reads
     if html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm") and not _is_page(html_path):
         raise InputError(f"--html {html_path} would overwrite a file that is not an HTML page; name an .html file")

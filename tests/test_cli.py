@@ -998,7 +998,7 @@ def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):
 def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
     """What a robustness tester found (session 48), each now one line and exit 2 before any work: `view --html` onto a
     file that is not an HTML page (the robot file the result reads was replaced; a page without the .html suffix is
-    written again) or below a file ("File exists");
+    written again; another suffix, or a name ending in /, is refused) or below a file ("File exists");
     an --out whose summary.json is a directory (refused after the whole solve); a --solve field given twice (the last
     won); a file given as a result directory ("afile/trajectory.npz not found", "result directory not found")."""
     out = tmp_path / "drop"
@@ -1010,6 +1010,10 @@ def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
     _one_line_exit_2(capsys, ["view", str(out), "--html", str(robot / "page.html")], "robot.xml is a file, not a")
     for _ in range(2):  # a page written without an .html suffix is a page: written again
         assert main(["view", str(out), "--html", str(tmp_path / "page"), "-q"]) == 0
+    # another suffix, or a directory's name ending in /, new: written as the page, exit 0
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(tmp_path / "x.png")], "is no HTML file's name (.png)")
+    _one_line_exit_2(capsys, ["view", str(out), "--html", str(tmp_path / "newdir") + "/"], "names a directory; name")
+    assert not (tmp_path / "x.png").exists() and not (tmp_path / "newdir").exists()
     (tmp_path / "taken" / "summary.json").mkdir(parents=True)
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "taken")],
                      "summary.json is a directory, where the result's file goes")

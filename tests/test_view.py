@@ -470,23 +470,26 @@ def test_live_view_serves_the_scene_to_a_browser(result_dir, tmp_path, capsys):
 SERVER_START_S = 60  # [s] meshcat's server starts in ~1 s; a command that prints nothing by then is a failure, not a hang
 
 
-def test_live_view_stops_its_server_on_sigterm(result_dir):
+@pytest.mark.parametrize("quiet", [False, True])
+def test_live_view_stops_its_server_on_sigterm(result_dir, quiet):
     """`planner view DIR` started its own meshcat server; a SIGTERM ends the command with exit 0 as Ctrl-C does, and
-    the server process it started is gone (it stayed behind, listening on its port)."""
+    the server process it started is gone (it stayed behind, listening on its port). With -q the URL alone is printed
+    (nothing was: a server running that no one could find)."""
     import os
     import signal
     import subprocess
     import sys
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "view", str(result_dir)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "view", str(result_dir)] + ["-q"] * quiet,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     children = []
     try:
         import select
 
         assert select.select([proc.stdout], [], [], SERVER_START_S)[0], "no URL printed"
-        assert proc.stdout.readline().startswith("meshcat replay: ")
+        line = proc.stdout.readline()
+        assert line.startswith("http://") and line.strip().endswith("/static/") if quiet else line.startswith("meshcat replay: ")
         children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
         assert children  # the meshcat server
         proc.send_signal(signal.SIGTERM)
