@@ -58,6 +58,13 @@ def path_argument(text: str) -> Path:
     return Path(text)
 
 
+def page_argument(text: str) -> Path:
+    """--html's path: path_argument, refused when it ends in / (Path drops the slash: a new "DIR/" became a file)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text} names a directory; name the page's file (e.g. {text}replay.html)")
+    return path_argument(text)
+
+
 def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False,
                 verbose: bool = False, task_help: str = "task file (default: the .toml beside the robot file)") -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
@@ -194,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  planner view results/capler                 # live; prints the URL\n"
                               "  planner view results/capler --html hop.html --slow-motion")
     p.add_argument("dir", type=path_argument, help="a result directory written by `planner plan`, `planner simulate` or `planner gait`")
-    p.add_argument("--html", type=path_argument, help="write a static page that works offline instead of serving")
+    p.add_argument("--html", type=page_argument, help="write a static page that works offline instead of serving")
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)

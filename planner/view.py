@@ -560,12 +560,11 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
-    if html_path.suffix and html_path.suffix.lower() not in (".html", ".htm") and not (
-            html_path.is_file() and _is_page(html_path)):  # (a new x.png was written as a page, exit 0)
-        raise InputError(f"--html {html_path} is no HTML file's name ({html_path.suffix}); name an .html file")
     # `--html DIR/summary.json` replaced the result's own file, `--html robot.xml` the robot file the result reads
     if html_path.is_file() and html_path.suffix.lower() not in (".html", ".htm") and not _is_page(html_path):
         raise InputError(f"--html {html_path} would overwrite a file that is not an HTML page; name an .html file")
+    if html_path.suffix.lower() not in ("", ".html", ".htm") and not html_path.is_file():  # (x.png written, exit 0)
+        raise InputError(f"--html {html_path} is no HTML file's name ({html_path.suffix}); name an .html file")
     existing = next(p for p in html_path.absolute().parents if p.exists())  # the root always exists
     if not existing.is_dir():  # mkdir said "File exists" of the page
         raise InputError(f"cannot write {html_path}: {existing} is a file, not a directory")
