@@ -109,26 +109,33 @@ class Result(ArraysReadOnly):
     def frozen_intervals(self) -> list[tuple[float, float, tuple[str, ...]]]:
         """(tau_start, tau_end [s], contact points) of each frozen interval of numerical time.
 
-        From summary.json's impacts when each gives tau_start and tau_end; otherwise the maximal runs
+        From summary.json's impacts when each gives tau_start and tau_end, without the taps (summary.json's "tap":
+        steps whose clock ran at 0.92-0.96, which clock.png shaded and slow motion labelled "clock frozen: impact",
+        where the other plots and the physical-time replay mark them as taps); otherwise the maximal runs
         of tau steps whose clock rate dt/dtau is below FROZEN_RATE, each matched to the impact nearest
         in physical time (every contact point when none is within 1% of the duration).
         """
         given = self.summary.get("impacts") or []
         if given and all(isinstance(i.get("tau_start"), (int, float)) and isinstance(i.get("tau_end"), (int, float))
                          for i in given):
-            return [(float(i["tau_start"]), float(i["tau_end"]), self._hit(i.get("contact"))) for i in given]
+            return [(float(i["tau_start"]), float(i["tau_end"]), self._hit(i.get("contact"))) for i in given
+                    if i.get("tap") is not True]
         if len(self.tau) < 2:
             return []
         frozen = np.diff(self.y[:, -1]) / np.diff(self.tau) < FROZEN_RATE
         edges = np.flatnonzero(np.diff(np.concatenate([[0], frozen.astype(int), [0]])))
-        impacts, tol = self.impacts(), 0.01 * max(float(self.t[-1] - self.t[0]), 1e-3)
+        marked = [(*imp, False) for imp in self.impacts()] + [(*imp, True) for imp in self.impacts(taps=True)]
+        tol = 0.01 * max(float(self.t[-1] - self.t[0]), 1e-3)
         out = []
         for start, stop in zip(edges[::2], edges[1::2]):  # steps start .. stop-1 are frozen
             clock = float(self.y[start + 1, -1])
             names = self.contact_points
-            if impacts:
-                t_imp, hit = min(impacts, key=lambda imp: abs(imp[0] - clock))
-                names = hit if abs(t_imp - clock) <= tol else names
+            if marked:
+                t_imp, hit, tap = min(marked, key=lambda imp: abs(imp[0] - clock))
+                if abs(t_imp - clock) <= tol:
+                    if tap:
+                        continue
+                    names = hit
             out.append((float(self.tau[start]), float(self.tau[stop]), names))
         return out
 

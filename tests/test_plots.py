@@ -109,7 +109,8 @@ def test_contact_forces_are_drawn_as_held_steps(result_dir):
 
 def test_taps_are_marked_apart_from_impacts(result_dir):
     """An impact summary.json marks as a tap is drawn dotted and labelled "tap", not as one more "impact" line (13
-    alike lines for a report of 9 impacts and 4 taps)."""
+    alike lines for a report of 9 impacts and 4 taps), and clock.png and the slow-motion replay (Result.frozen_intervals)
+    do not shade it as a frozen impact."""
     import json
 
     summary = json.loads((result_dir / "summary.json").read_text())
@@ -119,6 +120,12 @@ def test_taps_are_marked_apart_from_impacts(result_dir):
     verticals = [ln for ln in fig.axes[0].get_lines() if np.ptp(ln.get_xdata()) == 0]
     assert verticals and all(ln.get_linestyle() == ":" for ln in verticals)
     assert "tap" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    clock, _ = plots._clock(view.load_result(result_dir))  # (a tap's step was shaded "frozen (impact)")
+    assert len(clock.axes[0].patches) == 0 and view.load_result(result_dir).frozen_intervals() == []
+    for tap, spans in ((True, 0), (False, 1)):  # as summary.json gives them, with their numerical times
+        timed = [{**i, "tap": tap, "tau_start": 0.3, "tau_end": 0.35} for i in summary["impacts"]]
+        (result_dir / "summary.json").write_text(json.dumps({**summary, "impacts": timed}))
+        assert len(view.load_result(result_dir).frozen_intervals()) == spans
 
 
 def test_torques_are_drawn_as_held_steps(result_dir):
