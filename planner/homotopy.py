@@ -502,8 +502,10 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
             raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; names are strings, values finite "
                              "numbers or strings")
         owner = "warm_mu_init" if (warm and name == "mu_init") else IPOPT_OWNED.get(name)
-        if owner:
-            raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that instead")
+        if owner:  # (IPOPT reads mu_init with the monotone strategy only: the owner set alone was refused next)
+            also = " and mu_strategy 'monotone', which it needs" if owner in ("mu_init", "warm_mu_init") else ""
+            raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that "
+                             f"instead{also}")
     for name, value in pairs:  # CasADi hands IPOPT's integer options int(value): acceptable_iter = 2.5 ran as 2
         if isinstance(value, float) and not value.is_integer() and _ipopt_option_is_integer(name):
             raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; IPOPT's {name} is an integer")

@@ -75,6 +75,8 @@ def test_check_model_json_contract():
          "cannot create output directory /proc/planner-out: /proc is not writable"),
         (["plan", "point_mass", "--ipopt", "tol=1"],
          "SolveOptions.tol owns; set that instead (with --solve '{\"tol\": ...}')"),
+        (["plan", "point_mass", "--warm-ipopt", "mu_init=0.01"],  # (warm_mu_init alone was refused next)
+         "SolveOptions.warm_mu_init owns; set that instead and mu_strategy 'monotone', which it needs"),
         (["simulate", "point_mass", "--discretization", "fesd", "--stages", "4"],
          "--stages/--elements: FESDOptions.n_s = 4"),
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
