@@ -702,8 +702,11 @@ def _cmd_plan(args) -> int:
         start_id = str(start_arrays["result_id"]) if "result_id" in start_arrays else None
         result = replace(result, options={**result.options, "init": str(args.init.absolute()),
                                           "init_result_id": start_id})
-    # a last iterate whose clock never ran spans no physical time to replay (validate refused it: exit 2, no report)
-    validating = args.validating = not args.no_validate and result.trajectory.physical_duration > 0
+    # a failed solve's last iterate is no motion to validate: one whose clock never ran or went back by 1e-9 s was
+    # refused as an input error (exit 2, no failure line), one spanning 980 s replayed for 10 minutes after the failure
+    # (`planner validate DIR/failed` replays it on request)
+    validating = args.validating = (not args.no_validate and result.stats.converged
+                                    and result.trajectory.physical_duration > 0)
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"

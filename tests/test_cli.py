@@ -1227,6 +1227,22 @@ def test_a_failed_plan_that_spans_no_physical_time_is_reported_not_validated(tmp
     assert f"FAILED: results in {out / 'failed'}" in printed
 
 
+def test_a_failed_plan_is_not_replayed_in_mujoco(tmp_path, capsys, monkeypatch):
+    """`plan` reports a failed solve (exit 1, the failure line) without replaying its last iterate: an iterate whose clock
+    went back by 1e-9 s was refused by the validation as an input error (exit 2, no failure line), and one spanning 980
+    s of physical time was replayed for ten minutes after the solve had failed."""
+    import planner.replay as replay
+
+    def replayed(target, options=None):
+        raise AssertionError("a failed plan was replayed")
+
+    monkeypatch.setattr(replay, "validate", replayed)
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--solve", '{"max_iter": 3}',
+                 "--no-race", "--no-plots", "--out", str(out)]) == 1
+    assert f"FAILED: results in {out / 'failed'}" in capsys.readouterr().out
+
+
 def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch):
     """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) is one line,
     exit 1, naming both causes (it named N only, which was 20)."""
