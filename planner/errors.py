@@ -212,7 +212,8 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             ok = ok and (kind == "int" or all(v == v and (inf_ok or abs(v) != float("inf")) for v in items))
         if not ok:
             integers = all(isinstance(v, int) and not isinstance(v, bool) for v in items)  # only too large for C
-            what = (f"an integer in [{-C_INT_MAX - 1}, {C_INT_MAX}]" if kind == "int" and integers
+            what = (f"an integer no larger than {C_INT_MAX} in magnitude (and in its own range, checked next)"
+                    if kind == "int" and integers
                     else kinds[kind] if kind != "float"
                     else "a number within a double's range, not nan (inf: no bound)" if inf_ok else "a finite number")
             label = type(options).__name__ if owner is None else owner

@@ -358,6 +358,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
     task.check_against(robot)
+    task.warn_buried_holes()
     task.check_no_slip_forces(robot)
     plan, hz = task.plan, task.horizon
     skips = analyze_scene(robot, task, options.scene_analysis)

@@ -28,6 +28,10 @@ from .errors import RobotFileError, TaskError, UnknownNameError, check_field_typ
 # point-mass hop running every NLP to its cap for minutes, a_t = 1e9 a free flight gaining 0.2 m/s; the shipped tasks
 # use 200-600
 MAX_AUX_GAIN = 1e6
+# beyond these the solvers' arithmetic overflows: mu = 1e300 filled g with nan, a hole's half-axis 1e-300 its Jacobian
+# with inf (mu = 1e6 and a micrometre plan as expected)
+MAX_MU = 1e6
+MIN_HOLE_AXIS_M = 1e-6
 # steps of a gait's walk (each a MuJoCo replay of one period): 1e8 failed allocating the tiled walk
 MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
@@ -64,7 +68,7 @@ class Contact:
                  "a nonzero vector in the x-z plane (y = 0) of finite length (below 1.8e308)")
         if abs(norm - 1.0) > 4e-16:  # a unit normal to rounding is kept: a task read back from its JSON equals itself
             object.__setattr__(self, "normal", tuple(float(x) / norm for x in self.normal))
-        _require(self.mu >= 0, "contacts.mu", self.mu, ">= 0")
+        _require(0 <= self.mu <= MAX_MU, "contacts.mu", self.mu, f"in [0, {MAX_MU:g}]")
         _require(0.0 <= self.restitution <= 1.0, "contacts.restitution", self.restitution, "in [0, 1]")
         _require(0 < self.a_n <= MAX_AUX_GAIN, "contacts.a_n", self.a_n, f"in (0, {MAX_AUX_GAIN:g}]")
         _require(0 < self.a_t <= MAX_AUX_GAIN, "contacts.a_t", self.a_t, f"in (0, {MAX_AUX_GAIN:g}]")
@@ -118,8 +122,9 @@ class Ellipse:
 
     def __post_init__(self):
         _typed(self, "plan.holes")
-        _require(self.a > 0, "plan.holes.a", self.a, "> 0")
-        _require(self.b > 0, "plan.holes.b", self.b, "> 0")
+        for key in ("a", "b"):
+            _require(getattr(self, key) >= MIN_HOLE_AXIS_M, f"plan.holes.{key}", getattr(self, key),
+                     f">= {MIN_HOLE_AXIS_M:g} (a micrometre)")
 
     def metric(self, x, z):
         """((x - xc)/a)^2 + ((z - zc)/b)^2 of points x, z [m] (floats, arrays or CasADi expressions): 1 on the rim,
@@ -231,6 +236,11 @@ class Plan:
         joints = [b.joint for b in self.joint_bounds]
         _require(len(set(joints)) == len(joints), "plan.joint_bounds", joints, "one entry per joint (which one "
                                                                                   "would hold?)")
+        # (a repeat doubled the rows: dependent constraints handed to IPOPT)
+        _require(len(set(self.above_ground)) == len(self.above_ground), "plan.above_ground", list(self.above_ground),
+                 "each point once")
+        _require(len(set(self.holes)) == len(self.holes), "plan.holes",
+                 [[h.x, h.z, h.a, h.b] for h in self.holes], "each hole once")
         if self.periodic is None and self.target_q is None:
             raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
         if self.periodic is not None:
@@ -405,7 +415,8 @@ class Task:
 
     def __post_init__(self):
         _typed(self, "")
-        planes = [(c.point, c.normal) for c in self.contacts]
+        # (normals normalized apart by rounding, [1, 0, 1] and [3, 0, 3], were two planes: two half impacts)
+        planes = [(c.point, tuple(round(x, 9) + 0.0 for x in c.normal)) for c in self.contacts]
         # a point may touch several planes (a corner), but the same plane twice doubles its contact forces
         _require(len(set(planes)) == len(planes), "contacts", [f"{p} {list(n)}" for p, n in planes],
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
@@ -479,12 +490,6 @@ class Task:
             warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "
                           "task's ground_height: the planner uses the task's and MuJoCo's replay moves the plane "
                           "there; set ground_height to the file's if that is the ground meant")
-        flat = all(c.normal == (0.0, 0.0, 1.0) for c in self.contacts)
-        for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ()):
-            if e.z + e.b <= self.ground_height:  # (ground_height 0.3 with z omitted: a hole that did nothing)
-                warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
-                              f"ground_height {self.ground_height:g} m): no contact point goes into it; its z is the "
-                              "centre's height [m], 0 when omitted")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
@@ -620,6 +625,16 @@ class Task:
                                 f"(actuated joints: {', '.join(robot.dof_names[a.dof] for a in robot.actuators) or 'none'})")
             out.append((dof, dof, drives[0]))
         return tuple(out)
+
+    def warn_buried_holes(self) -> None:
+        """Warn of each plan.holes entry wholly below a flat ground (a plan's check: `simulate` reads no holes, and
+        warned of them before its one-line error)."""
+        flat = all(c.normal == (0.0, 0.0, 1.0) for c in self.contacts)
+        for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ()):
+            if e.z + e.b <= self.ground_height:  # (ground_height 0.3 with z omitted: a hole that did nothing)
+                warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
+                              f"ground_height {self.ground_height:g} m): no contact point goes into it; its z is the "
+                              "centre's height [m], 0 when omitted")
 
     def velocity_rows(self, robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """plan.velocity_bounds as (A (m, nv) of 0/1, lower (m,), upper (m,)): lower <= A v <= upper.

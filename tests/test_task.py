@@ -65,6 +65,19 @@ def _with(path: str, value):
         ("contacts", [{"point": "foot", "a_n": math.inf}], r"contacts\[0\].a_n must be a finite number, got inf"),
         ("contacts", [{"point": "foot"}, {"point": "foot", "normal": [0.0, 0.0, 2.0]}],
          r"contacts = .* one entry per point and plane"),
+        # the same plane by normals that normalize apart by rounding: two half impacts were reported
+        ("contacts", [{"point": "foot", "normal": [1.0, 0.0, 1.0]}, {"point": "foot", "normal": [3.0, 0.0, 3.0]}],
+         r"contacts = .* one entry per point and plane"),
+        # beyond these the solve overflowed: nan in g (mu), inf in the Jacobian (a hole's half-axis)
+        ("contacts", [{"point": "foot", "mu": 1e300}], r"contacts\[0\].mu = 1e\+300 .* in \[0, 1e\+06\]"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1.0, "a": 1e-300, "b": 0.1}]},
+         r"plan.holes\[0\].a = 1e-300 .* >= 1e-06"),
+        # a repeat doubled the rows (dependent constraints)
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "above_ground": ["knee", "knee"]},
+         r"plan.above_ground = \['knee', 'knee'\] .* each point once"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1.0, "a": 0.2, "b": 0.1}] * 2},
+         r"plan.holes = .* each hole once"),
+        ("horizon", {"tau_f": 2.5, "N": 2**31}, r"horizon.N = 2147483648 .* no larger than 2147483647 in magnitude"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": -1.0}, {"joint": "hip"}]},
          r"plan.joint_bounds = \['hip', 'hip'\] .* one entry per joint"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1e200, "n_nlp": 3}},
@@ -169,7 +182,10 @@ def test_constant_controls_beyond_the_actuators_range_warn():
 def test_a_hole_wholly_below_the_ground_warns():
     """A hole whose top (z + b) is at or below ground_height warns naming it and its z's meaning: with ground_height
     0.3 and z left out (0) the hole did nothing and the plan was the hole-free one, unsaid. A hole reaching above the
-    ground is silent."""
+    ground is silent. A plan's check (build_problem) warns; the robot check that `simulate` runs too does not (simulate
+    reads no holes, and warned before its one-line error)."""
+    from planner.problem import build_problem
+
     robot = load_robot("point_mass")
     base = {"ground_height": 0.3, "contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.3]},
             "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.3], "u_bound": 30.0}}
@@ -180,7 +196,10 @@ def test_a_hole_wholly_below_the_ground_warns():
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             task.check_against(robot)
+            checked = len([w for w in caught if "hole" in str(w.message)])
+            build_problem(robot, task)
         said.append([str(w.message) for w in caught if "hole" in str(w.message)])
+        assert checked == 0
     assert len(said[0]) == 1 and said[1] == []
     assert re.match(r"plan.holes\[0\] lies wholly below the ground \(its top z \+ b = 0.1 m, ground_height 0.3 m\).* "
                     r"0 when omitted", said[0][0])
