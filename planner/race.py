@@ -4,8 +4,8 @@
 Why: the homotopy's iteration count is a chaotic function of the arithmetic. Any change of IPOPT's
 warm start, regularization or round-off draws a new count, and on the seven Capler tasks of
 `scripts/bench_pipeline.py --cases capler_set` one variant's count runs from ~2300 to ~8000 while the
-other's is uncorrelated (docs/benchmarks.md, "Full solves and the gap to the 10 s goal", session 17). A second core does not make
-one solve faster (MUMPS gains nothing from it), but it can run a second draw.
+other's is uncorrelated (docs/benchmarks.md, "Full solves and the gap to the 10 s goal", session 17). A
+second core does not make one solve faster (MUMPS gains nothing from it), but it can run a second draw.
 
 The returned plan is the winning arm's own, bit for bit what that arm gives when solved alone; which
 arm wins is a matter of wall time, so two arms that finish close together may swap on another

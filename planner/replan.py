@@ -141,7 +141,7 @@ def _totals(result: PlanResult, parts: list[PlanResult], wall: float, given: Sol
         said = " (walked there: the contact schedule re-timed by a penalty replan on the way)"
         if SCHEDULE_KEPT in stats.message:
             stats = replace(stats, message=stats.message.replace(SCHEDULE_KEPT, said))
-        elif records[-1].label.startswith("retime") and stats.converged:  # (ended on one: "ok (active-set polished ..)")
+        elif records[-1].label.startswith("retime") and stats.converged:  # (it said "ok (active-set polished ..)")
             stats = replace(stats, message=f"{stats.message}; walked there, re-timing the contact schedule last")
     timings = {k: sum(p.timings.get(k, 0.0) for p in parts) if isinstance(v, float) else v for k, v in result.timings.items()}
     extra = {k: v for k, v in result.extra.items() if k != "walk"}

@@ -689,7 +689,8 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     hop_problem = build_problem(load_robot("point_mass"), load_task(tmp_path / "hop.toml"))
     with pytest.raises(InputError, match="holds a plan that did not converge"):
         read_start(failed, hop_problem.signature, hop_problem.nx, robot=hop_problem.robot)
-    assert read_start(tmp_path / "hop", hop_problem.signature, hop_problem.nx, robot=hop_problem.robot).shape == (hop_problem.nx,)
+    start = read_start(tmp_path / "hop", hop_problem.signature, hop_problem.nx, robot=hop_problem.robot)
+    assert start.shape == (hop_problem.nx,)
     # a plan built through the API with other ProblemOptions (lambda0, lambda1 in other units): it had been a start
     scaled = tmp_path / "scaled"
     shutil.copytree(tmp_path / "hop", scaled)
@@ -1228,9 +1229,9 @@ def test_a_failed_plan_that_spans_no_physical_time_is_reported_not_validated(tmp
 
 
 def test_a_failed_plan_is_not_replayed_in_mujoco(tmp_path, capsys, monkeypatch):
-    """`plan` reports a failed solve (exit 1, the failure line) without replaying its last iterate: an iterate whose clock
-    went back by 1e-9 s was refused by the validation as an input error (exit 2, no failure line), and one spanning 980
-    s of physical time was replayed for ten minutes after the solve had failed."""
+    """`plan` reports a failed solve (exit 1, the failure line) without replaying its last iterate: an iterate whose
+    clock went back by 1e-9 s was refused by the validation as an input error (exit 2, no failure line), and one
+    spanning 980 s of physical time was replayed for ten minutes after the solve had failed."""
     import planner.replay as replay
 
     def replayed(target, options=None):

@@ -209,7 +209,8 @@ C_INT_MAX = 2**31 - 1  # IPOPT and CasADi read an int option as a C int
 
 
 @pytest.mark.parametrize("field, value, allowed", [
-    ("max_iter", 2**32 + 3, r"an integer no larger than 2147483647 in magnitude"),  # IPOPT wrapped it around to 3 iterations
+    # IPOPT wrapped it around to 3 iterations
+    ("max_iter", 2**32 + 3, r"an integer no larger than 2147483647 in magnitude"),
     ("tol", 10**400, "a finite number"),  # an int beyond a double: OverflowError inside the solve
     ("max_iter", True, "an integer$"),  # not an int at all: the C int range was named as if it were the field's
     ("max_iter", 1e3, "an integer$"),

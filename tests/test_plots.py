@@ -109,8 +109,8 @@ def test_contact_forces_are_drawn_as_held_steps(result_dir):
 
 def test_taps_are_marked_apart_from_impacts(result_dir):
     """An impact summary.json marks as a tap is drawn dotted and labelled "tap", not as one more "impact" line (13
-    alike lines for a report of 9 impacts and 4 taps), and clock.png and the slow-motion replay (Result.frozen_intervals)
-    do not shade it as a frozen impact."""
+    alike lines for a report of 9 impacts and 4 taps), and clock.png and the slow-motion replay
+    (Result.frozen_intervals) do not shade it as a frozen impact."""
     import json
 
     summary = json.loads((result_dir / "summary.json").read_text())

@@ -362,7 +362,7 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground \(z = 0\)"):
         build_problem(robot, hop(-1.0), options)
     build_problem(robot, hop(0.0), options)
-    with pytest.raises(InputError) as refused:  # the depth it prints, added back, builds (printed to 6 digits, it did not)
+    with pytest.raises(InputError) as refused:  # the depth printed, added back, builds (6 digits did not)
         build_problem(robot, hop(-1.0 / 3.0), options)
     depth = float(re.search(r"'point' (\S+) m below", str(refused.value)).group(1))
     build_problem(robot, hop(-1.0 / 3.0 + depth), options)

@@ -489,7 +489,10 @@ def test_live_view_stops_its_server_on_sigterm(result_dir, quiet):
 
         assert select.select([proc.stdout], [], [], SERVER_START_S)[0], "no URL printed"
         line = proc.stdout.readline()
-        assert line.startswith("http://") and line.strip().endswith("/static/") if quiet else line.startswith("meshcat replay: ")
+        if quiet:
+            assert line.startswith("http://") and line.strip().endswith("/static/")
+        else:
+            assert line.startswith("meshcat replay: ")
         children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
         assert children  # the meshcat server
         proc.send_signal(signal.SIGTERM)
