@@ -86,7 +86,9 @@ class SimulateOptions:
     restarts: bool = True
     restart_rho0: float = 1e4  # holds an exact solution whose switching functions are >= 2 rho_f / 1e4 away from 0
     discretization: Discretization = Discretization.IMPLICIT_EULER
-    fesd: FESDOptions = FESDOptions()  # FESD's; only the default with implicit Euler
+    # FESD's; only the default with implicit Euler. FESDOptions() has 2 elements per step, `planner simulate
+    # --discretization fesd` 4 (an impact step holds its start, the end of the frozen phase and the landing mode)
+    fesd: FESDOptions = FESDOptions()
     velocity_switch: SwitchVelocity | None = None
 
     def __post_init__(self):
