@@ -438,6 +438,7 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
     progress(OuterLoop) is called after every outer loop. Raises TaskError when x0 does not jump
     from the jump set, SolveError when a projection diverges.
     """
+    expect(spec, GaitSpec, "solve_gait's spec (GaitSpec.from_task)")
     start = time.perf_counter()
     cont = spec.continuation
     x0 = spec.x0
@@ -544,6 +545,11 @@ class IpoptGait(ArraysReadOnly):
 def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = None, tol: float = 1e-10,
                      max_iter: int = 3000) -> IpoptGait:
     """Solve OCP (5) on the strategy's grid with IPOPT (MUMPS, exact Hessian) for comparison."""
+    expect(spec, GaitSpec, "solve_gait_ipopt's spec (GaitSpec.from_task)")
+    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and 0 < tol < np.inf):
+        raise InputError(f"solve_gait_ipopt's tol must be a number > 0, got {tol!r:.60}")  # (IPOPT's text, then a crash)
+    if not (isinstance(max_iter, (int, np.integer)) and not isinstance(max_iter, bool) and max_iter >= 1):
+        raise InputError(f"solve_gait_ipopt's max_iter must be an int >= 1, got {max_iter!r:.60}")
     ocp = ocp or GaitOCP(model, spec)
     N = spec.N
     xf = model.delta_inverse(spec.x0)
@@ -596,9 +602,17 @@ class Walk(ArraysReadOnly):
     step_length: float
 
 
+def _check_steps(steps, caller: str) -> None:
+    """InputError unless steps is an int >= 1 (0 was an IndexError, 1.5 a TypeError)."""
+    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 1:
+        raise InputError(f"{caller}'s steps must be an int >= 1, got {steps!r:.60}")
+
+
 def periodic_walk(model: PinnedBiped, sol: GaitSolution, steps: int) -> Walk:
     """Repeat the gait `steps` times: step j has the stance foot at x = j * step_length and, for odd
     j, the legs swapped (the relabelling of the impact map)."""
+    expect(sol, (GaitSolution, PinnedGait), "periodic_walk's sol")
+    _check_steps(steps, "periodic_walk")
     lay, N = model.layout, len(sol.u)
     T = float(sol.t[-1])
     q_end, _ = model.floating(sol.x[-1, :3], sol.x[-1, 3:])
@@ -797,11 +811,19 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     """
     from .replay import ContactSettings, build_scene, mujoco_rollout  # MuJoCo only when replaying
 
-    gains = gains or WalkGains()
+    expect(sol, (GaitSolution, PinnedGait), "replay_gait's sol")
+    expect(gains, (WalkGains, type(None)), "replay_gait's gains")  # ({} was taken as the defaults, {"kp": 1} crashed)
+    expect(settings, (ContactSettings, type(None)), "replay_gait's settings")
+    _check_steps(steps, "replay_gait")
+    if arm_index is not None and not (isinstance(arm_index, (int, np.integer)) and not isinstance(arm_index, bool)
+                                      and 0 <= arm_index < len(sol.t)):  # (-5 armed 5 samples from the end)
+        raise InputError(f"replay_gait's arm_index must be a sample index in [0, {len(sol.t) - 1}] or None, got "
+                         f"{arm_index!r:.60}")
+    gains = WalkGains() if gains is None else gains
     phase = gains.control is WalkControl.PHASE
     # no push-out stiffness: with the positive stance margin, k > 0 would lift the resting foot to the
     # margin's edge, where its contact drops out again; dead-beat damping alone holds it (0.1 um drift per step)
-    settings = settings or ContactSettings(stiffness_ratio=0.0)
+    settings = ContactSettings(stiffness_ratio=0.0) if settings is None else settings
     scene = build_scene(model.robot, task, settings)
     lay, N = model.layout, len(sol.u)
     T, dt = float(sol.t[-1] - sol.t[0]), float(sol.t[1] - sol.t[0])
@@ -1309,8 +1331,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking")."""
     from .replay import MAX_PENETRATION_M, _kinematic, build_scene, hole_failure
 
-    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 1:  # (0: an IndexError)
-        raise InputError(f"validate_walk's steps must be an int >= 1, got {steps!r:.60}")
+    _check_steps(steps, "validate_walk")
 
     model, step = plan_step(robot, task, arrays)
     if not PhaseReference.applies(step.x):
@@ -1319,7 +1340,8 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
                          "over its step (double support or a stance that turns back), so it cannot index the walk's "
                          "reference; the plan was not walked in MuJoCo")
     height = np.array(model.swing_height.map(len(step.t))(step.x[:, :3].T)).ravel()
-    walking = replay_gait(model, step, task, steps, gains or PLAN_WALK_GAINS, arm_index=last_apex(height))
+    walking = replay_gait(model, step, task, steps, PLAN_WALK_GAINS if gains is None else gains,
+                          arm_index=last_apex(height))
     kin = _kinematic(build_scene(robot, task), robot, np.asarray(arrays["t"], float), np.asarray(arrays["q"], float),
                      tol=1e-3, task=task)
     failures = []

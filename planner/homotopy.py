@@ -124,7 +124,7 @@ class VariableScaling(Enum):
 
 class FESDStart(Enum):
     """Where the homotopy of an FESD problem (ProblemOptions.discretization FESD) starts (docs/formulation.md,
-    "FESD in the OCP", "Continuation through implicit Euler"). Ignored for implicit-Euler problems."""
+    "FESD in the OCP", "Continuation through implicit Euler"). An implicit-Euler problem refuses any but the default."""
 
     HINT_FREE = "hint_free"  # the problem's own x0 (y_0 everywhere, u = 0), the task's rho schedule
     # the implicit-Euler OCP of the same task and grid solved from its hint-free start (the default
@@ -178,7 +178,8 @@ class SolveOptions:
     rho_min, rho_max: applied to the task's schedule (left at their defaults beside a rho_schedule): drop the NLPs with
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
     rho_i = rho0 kappa^i past n_nlp until rho_max is reached. rho_refine: extra penalties sorted into
-    the task's schedule: the honest hopping motion appears between rho = 1e3 and 1e4, where a step
+    the task's schedule, those strictly between its first and last penalty (the others are left out: the default
+    3e3 does not apply to a schedule starting at 1e4, which would have refused it): the honest hopping motion appears between rho = 1e3 and 1e4, where a step
     of kappa = 10 left NLP 3 at its iteration cap on the full Capler task while 3e3 in between let
     every NLP converge (docs/formulation.md, "OCP and solve", round 3).
     an_schedule, at_schedule: per-NLP scale of the auxiliary gains a_n, a_t (the last value repeats;

@@ -1026,6 +1026,9 @@ def _terminal(rows: _Rows, robot: Robot, task: Task, options: ProblemOptions, X,
     nq, nv, ny = robot.nq, robot.nv, len(y0)
     y_N = X[var_blocks["y"][-1]]
     if plan.periodic is not None:
+        if not options.terminal_velocity:  # (ignored, yet another Problem.signature: a start refused for no reason)
+            raise InputError("ProblemOptions(terminal_velocity=False) drops the terminal velocity rows, which a "
+                             "periodic plan (plan.periodic) does not have: its end velocity is the relabelled start's")
         perm, along, _ = task.periodic_map(robot)
         shift = np.zeros(nq)
         shift[along] = plan.periodic.step

@@ -10,7 +10,8 @@ import pytest
 from planner.discretization import FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError, PlannerError, check_field_types
-from planner.gait import WalkGains, run_gait, validate_walk
+from planner.gait import (GaitSpec, PinnedGait, WalkGains, periodic_walk, replay_gait, run_gait, solve_gait, solve_gait_ipopt,
+                          validate_walk)
 from planner.homotopy import SolveOptions, solve, solve_options_from_dict
 from planner.model import ROBOTS_DIR, load_robot
 from planner.problem import ProblemOptions, build_problem
@@ -114,6 +115,10 @@ def test_options_check_their_types(cls, field, value, owner):
         cls(**kwargs, **{field: value})
 
 
+# a gait step of three samples (t (3,), x (3, 6), u (2, 2)): what replay_gait checks before it reads the robot
+STEP = PinnedGait(t=np.linspace(0.0, 0.2, 3), x=np.zeros((3, 6)), u=np.zeros((2, 2)))
+
+
 @pytest.fixture(scope="module")
 def hop():
     """The point mass, a short hop task and its built Problem (N = 4: built in ~0.1 s)."""
@@ -133,6 +138,7 @@ def hop():
      "validate's options must be a ValidationOptions or None"),
     (lambda r, t, p: replan(p, None, t), "replan's options must be a SolveOptions"),
     (lambda r, t, p: race(p, [SolveOptions()]), r"race needs one or more \(name, SolveOptions\) arms"),
+    (lambda r, t, p: race(p, SolveOptions()), r"race takes arms, .* race\(problem, default_arms\(options\)\)"),
     (lambda r, t, p: race(p, [("a", SolveOptions())], processes="2"),
      "race processes must be an integer >= 1"),
     (lambda r, t, p: solve_options_from_dict({}, base="x"),
@@ -157,6 +163,17 @@ def hop():
     (lambda r, t, p: read_start("results", None, p.nx), "read_start's signature .* must be a str"),
     # an IndexError
     (lambda r, t, p: validate_walk(r, t, {}, steps=0), "validate_walk's steps must be an int >= 1, got 0"),
+    # gait's lower functions named no argument: an IndexError, a TypeError, an AttributeError, or defaults for {}
+    (lambda r, t, p: replay_gait(None, None, t, 1), "replay_gait's sol must be a GaitSolution or PinnedGait"),
+    (lambda r, t, p: replay_gait(None, STEP, t, 1, gains={}), "replay_gait's gains must be a WalkGains or None"),
+    (lambda r, t, p: replay_gait(None, STEP, t, 1, settings={}), "replay_gait's settings must be a ContactSettings"),
+    (lambda r, t, p: replay_gait(None, STEP, t, 1.5), "replay_gait's steps must be an int >= 1, got 1.5"),
+    (lambda r, t, p: replay_gait(None, STEP, t, 1, arm_index=-5), r"arm_index must be a sample index in \[0, 2\]"),
+    (lambda r, t, p: periodic_walk(None, STEP, 0), "periodic_walk's steps must be an int >= 1, got 0"),
+    (lambda r, t, p: solve_gait(None, None), "solve_gait's spec .* must be a GaitSpec"),
+    (lambda r, t, p: solve_gait_ipopt(None, None), "solve_gait_ipopt's spec .* must be a GaitSpec"),
+    (lambda r, t, p: solve_gait_ipopt(None, GaitSpec.from_task(load_task(ROBOTS_DIR / "biped_gait1.toml"), N=20),
+                                      tol=-1.0), "solve_gait_ipopt's tol must be a number > 0, got -1.0"),
     # the whole homotopy ran on NaN
     (lambda r, t, p: solve(replace(p, x0=np.full(p.nx, np.nan)), SolveOptions()),
      r"problem.x0 holds NaN or inf \(first at .*, entry 0\): a start must be finite"),

@@ -282,6 +282,9 @@ def test_velocity_bounds_rows_are_the_joint_rate_sums():
     np.testing.assert_array_equal(prob.ubg[rows], np.tile([np.inf, 2.0], (5, 1)))
     fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
     assert fesd.g_blocks["velocity_bounds"].shape == (4, 4) and fesd.g_blocks["velocity_bounds_y0"].shape == (1, 2)
+    # a periodic plan has no terminal velocity rows to drop (built alike, with another signature: a start refused)
+    with pytest.raises(InputError, match=r"terminal_velocity=False\) drops the terminal velocity rows, which a periodic"):
+        build_problem(robot, task, ProblemOptions(terminal_velocity=False))
 
 
 def test_an_end_velocity_outside_the_velocity_bounds_is_an_input_error():
