@@ -59,9 +59,11 @@ def path_argument(text: str) -> Path:
 
 
 def page_argument(text: str) -> Path:
-    """--html's path: path_argument, refused when it ends in / (Path drops the slash: a new "DIR/" became a file)."""
-    if text.endswith(("/", os.sep)):
-        raise argparse.ArgumentTypeError(f"{text} names a directory; name the page's file (e.g. {text}replay.html)")
+    """--html's path: path_argument, refused when it ends in / (view.names_a_directory)."""
+    from .view import names_a_directory
+
+    if (named := names_a_directory(text)) is not None:
+        raise argparse.ArgumentTypeError(named)
     return path_argument(text)
 
 
@@ -527,7 +529,8 @@ def _said_of(flags: str):
         yield
     except InputError as exc:
         owner = re.search(r"SolveOptions\.(\w+) owns", str(exc))
-        hint = f" (with --solve '{{\"{owner[1]}\": ...}}')" if owner else ""
+        monotone = ', "mu_strategy": "monotone"' if owner and owner[1] in ("mu_init", "warm_mu_init") else ""
+        hint = f" (with --solve '{{\"{owner[1]}\": ...{monotone}}}')" if owner else ""
         raise InputError(f"{flags}: {exc}{hint}") from None
 
 

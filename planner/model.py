@@ -287,6 +287,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         actuators, dof_names, passive, world_sites, unread_sites, ground_z, unnamed = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
+        root = ET.parse(path).getroot()
+        _refuse_joint_mistakes(path, root)  # (before the limits' checks: "swap them" of a limit without an upper)
         lower, upper = model.lowerPositionLimit, model.upperPositionLimit
         one = [(model.names[j], model.joints[j].idx_q) for j in range(1, model.njoints) if model.joints[j].nq == 1]
         inverted = [f"{name!r} ({lower[i]:g} > {upper[i]:g})" for name, i in one if lower[i] > upper[i]]
@@ -298,9 +300,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
             raise RobotFileError(f"{path}: joint {', '.join(locked)}: its <limit lower> equals its upper (both are 0 "
                                  "when not given): Pinocchio locks the joint there, MuJoCo ignores the limit; give "
                                  "lower < upper")
-        _refuse_joint_mistakes(path)
-        passive += _urdf_couplings(path)
-        if any(True for _ in ET.parse(path).getroot().iter("transmission")):
+        passive += _urdf_couplings(root)
+        if any(True for _ in root.iter("transmission")):
             warnings.warn(f"{path}: its <transmission> elements are not read: a URDF joint's motor is its <limit "
                           "effort> (> 0) with gear 1, and a joint without one is not actuated")
     return Robot(
@@ -372,12 +373,13 @@ def _point_frames(model: pin.Model) -> dict[str, int]:
     return points
 
 
-def _refuse_joint_mistakes(path: Path) -> None:
-    """RobotFileError naming a URDF joint whose <axis xyz> is zero (Pinocchio reads a joint that moves nothing, which
-    simulate and plan refused as a body lighter than MIN_DOF_INERTIA: its thigh weighed 1 kg), or whose <limit> gives
-    one of lower and upper (URDF reads the other as 0, MuJoCo the joint as unlimited: the refusal named MuJoCo's
-    unlimited range, not the missing side)."""
-    for joint in ET.parse(path).getroot().iter("joint"):
+def _refuse_joint_mistakes(path: Path, root) -> None:
+    """RobotFileError naming a joint of the URDF (path, its parsed root element) whose <axis xyz> is zero (Pinocchio
+    reads a joint that moves nothing, which simulate and plan refused as a body lighter than MIN_DOF_INERTIA: its
+    thigh weighed 1 kg), whose <limit> gives one of lower and upper (URDF reads the other as 0, MuJoCo the joint as
+    unlimited: the refusal named MuJoCo's unlimited range, or said "swap them"). (A negative <limit velocity> is
+    Pinocchio's parse error.)"""
+    for joint in root.iter("joint"):
         name, axis, limit = joint.get("name", "?"), joint.find("axis"), joint.find("limit")
         if joint.get("type") not in ("revolute", "prismatic", "continuous"):
             continue
@@ -392,12 +394,13 @@ def _refuse_joint_mistakes(path: Path) -> None:
                                  f"reads as 0 and MuJoCo as no limit; give both lower and upper")
 
 
-def _urdf_couplings(path: Path) -> tuple[str, ...]:
-    """A URDF's <mimic> joints as Robot.passive entries: Pinocchio reads such a joint as independent, MuJoCo as an
-    equality constraint (MJCF's <equality> is refused), so simulate and plan refuse them; check-model compares the
+def _urdf_couplings(root) -> tuple[str, ...]:
+    """A URDF's <mimic> joints (root: its parsed root element) as Robot.passive entries: Pinocchio reads such a joint
+    as independent, MuJoCo as an equality constraint (MJCF's <equality> is refused), so simulate and plan refuse them;
+    check-model compares the
     tree, which both read alike (a gripper's mimic finger)."""
     return tuple(f"joint {j.get('name', '?')!r}: <mimic> (a coupling MuJoCo makes an equality constraint)"
-                 for j in ET.parse(path).getroot().iter("joint") if j.find("mimic") is not None)
+                 for j in root.iter("joint") if j.find("mimic") is not None)
 
 
 def _second_tree(path: Path, mj, model: pin.Model) -> str | None:

@@ -19,6 +19,8 @@ MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a pa
 DPI = 110
 IMPACT_STYLE = dict(color="tab:red", linestyle="--", linewidth=0.9, alpha=0.8)
 TAP_STYLE = dict(color="tab:red", linestyle=":", linewidth=0.8, alpha=0.45)  # a tap (result.TAP_SHARE): no landing
+# a corner of the clipped region this close to its plane (relative to |x| [m]) is on it: the edge drawn as the plane
+ON_PLANE_REL = 1e-9
 
 
 PLOT_FILES = ("states.png", "torques.png", "contact_forces.png", "clock.png", "foot_path.png")  # all plot_results may write
@@ -271,7 +273,7 @@ def _foot_path(res: Result):
         flat = normal == (0.0, 0.0, 1.0)
         ax.add_patch(Polygon(behind, closed=True, facecolor="#d8cfc0", edgecolor="none", hatch="//", zorder=0,
                              label="ground" if flat else f"plane, normal ({normal[0]:.3g}, 0, {normal[2]:.3g})"))
-        edge = [v for v in behind if abs(normal[0] * v[0] + normal[2] * (v[1] - z0)) < 1e-9 * (1 + abs(v[0]))]
+        edge = [v for v in behind if abs(normal[0] * v[0] + normal[2] * (v[1] - z0)) < ON_PLANE_REL * (1 + abs(v[0]))]
         ax.plot(*np.array(edge).T, color="#6b5b45", linewidth=1.2, zorder=1)
     for i, h in enumerate(holes):
         # the hole cuts the ground (white), and its ellipse above the ground is a keep-out zone too

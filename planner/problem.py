@@ -29,9 +29,6 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
     velocity_bounds                   task.plan.velocity_bounds (sums of joint velocities) at y_1 .. y_N
     velocity_bounds_y0 (1, m)         the same at y_0 where it is free (plan.periodic)
-    speed_limits                      |v_j| <= the robot file's joint speed limit (a URDF's <limit velocity>;
-                                      Robot.v_limit) at y_1 .. y_N
-    speed_limits_y0 (1, m)            the same at y_0 where it is free (plan.periodic)
     contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
     periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
@@ -49,7 +46,8 @@ With several contact points the cone is written on each point's joint force vari
 by the clock rate R (the ODE field's coefficient), through which those forces act (docs/formulation.md,
 "Periodic walking").
 
-Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds),
+Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds), the robot file's
+joint speed limits on every v_{k+1} (a URDF's <limit velocity>, Robot.v_limit),
 selectors and lifted products in [0, 1], multipliers >= 0, s_k >= 1, s_c >= 0.
 
 Objective pieces (`Problem.objective_parts`): control = sum_k h u_k^T u_k (int u^2 dtau),
@@ -79,7 +77,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect, plain
+from .errors import InputError, check_field_types, enum_field, expect, plain, shown_up
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -395,7 +393,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -1e-9:
-                raise InputError(f"{key} puts contact point {c.point!r} {-gap:.10g} m {c.beyond(task.ground_height)}"
+                raise InputError(f"{key} puts contact point {c.point!r} {shown_up(-gap)} m {c.beyond(task.ground_height)}"
                                  + (" (touches = false)" if c in never else ""))
     _check_outside_holes(dyn, task.contacts, task)
 
@@ -431,6 +429,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     lbx[var_blocks["u"]], ubx[var_blocks["u"]] = u_lo, u_hi
     yb = var_blocks["y"]
     lbx[yb[:, :nq]], ubx[yb[:, :nq]] = q_lo, q_hi
+    # (read from the URDF and not applied, a leg's knee limited to 5 rad/s was planned at 14.5)
+    lbx[yb[:, nq:nq + nv]], ubx[yb[:, nq:nq + nv]] = -robot.v_limit, robot.v_limit
     lbx[var_blocks["w"]], ubx[var_blocks["w"]] = builder.lbw, builder.ubw
     if timed:
         lbx[var_blocks["s"]] = 1.0
@@ -568,13 +568,14 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
 def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_lo, q_hi, nq: int, nv: int) -> None:
     """Bounds of the free initial state of plan.periodic (x's first ny entries), in place: q within the
-    joint bounds, the fixed coordinates and the clock t_0 pinned to y0, |v| <= v_bound if given."""
+    joint bounds, the fixed coordinates and the clock t_0 pinned to y0, |v| <= v_bound if given and the joint speed
+    limits (Robot.v_limit)."""
     fixed = task.periodic_map(robot)[2]
     lbx[:nq], ubx[:nq] = q_lo, q_hi
     lbx[fixed], ubx[fixed] = y0[fixed], y0[fixed]
     v_bound = task.plan.periodic.v_bound
-    if v_bound is not None:
-        lbx[nq : nq + nv], ubx[nq : nq + nv] = -v_bound, v_bound
+    speed = robot.v_limit if v_bound is None else np.minimum(robot.v_limit, v_bound)
+    lbx[nq : nq + nv], ubx[nq : nq + nv] = -speed, speed
     lbx[len(y0) - 1] = ubx[len(y0) - 1] = y0[-1]
 
 
@@ -824,6 +825,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     q_lo, q_hi = task.q_bounds(robot)
     lbx[var_blocks["u"]], ubx[var_blocks["u"]] = u_lo, u_hi
     lbx[Yi[..., :nq]], ubx[Yi[..., :nq]] = q_lo, q_hi  # every stage state within the joint bounds
+    lbx[Yi[..., nq:nq + nv]], ubx[Yi[..., nq:nq + nv]] = -robot.v_limit, robot.v_limit  # and speed limits
     if timed:
         lbx[var_blocks["s"]] = 1.0
     if linf:
@@ -943,20 +945,13 @@ def _velocity_bounds(rows: "_Rows", robot, task: Task, nq: int, ends: list, y0) 
     """Blocks velocity_bounds (N, m per state in ends[k]) and velocity_bounds_y0 (1, m; y0 the free
     initial state or None) of task.plan.velocity_bounds: lower <= A v <= upper (Task.velocity_rows)."""
     A, lo, hi = task.velocity_rows(robot)
+    if not len(lo):
+        return
+    rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
     n_states = len(ends) * len(ends[0])
-    if len(lo):
-        rate = lambda y: ca.mtimes(ca.DM(A), y[nq:nq + A.shape[1]])  # noqa: E731
-        rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends], np.tile(lo, n_states),
-                 np.tile(hi, n_states))
-        if y0 is not None:
-            rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
-    dofs = [int(j) for j in np.flatnonzero(np.isfinite(robot.v_limit))]
-    if dofs:  # (read from the URDF and not applied, a leg's knee limited to 5 rad/s was planned at 14.5)
-        limit, speeds = robot.v_limit[dofs], lambda y: y[[nq + j for j in dofs]]  # noqa: E731
-        rows.add("speed_limits", [ca.vertcat(*[speeds(y) for y in ys]) for ys in ends], np.tile(-limit, n_states),
-                 np.tile(limit, n_states))
-        if y0 is not None:
-            rows.add("speed_limits_y0", [speeds(y0)], -limit, limit)
+    rows.add("velocity_bounds", [ca.vertcat(*[rate(y) for y in ys]) for ys in ends], np.tile(lo, n_states), np.tile(hi, n_states))
+    if y0 is not None:
+        rows.add("velocity_bounds_y0", [rate(y0)], lo, hi)
 
 
 class _Rows:

@@ -1179,6 +1179,9 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
     expect(signature, str, "read_start's signature (Problem.signature)")
     if not isinstance(nx, (int, np.integer)) or isinstance(nx, bool):  # ("5" read as "291 against this problem's 5")
         raise InputError(f"read_start's nx (Problem.nx) must be an int, got {type(nx).__name__} {nx!r:.60}")
+    from .model import Robot
+
+    expect(robot, (Robot, type(None)), "read_start's robot")
     arrays = read_trajectory(out_dir) if arrays is None else arrays
     if robot is not None:
         check_start(out_dir, robot, arrays)

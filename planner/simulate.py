@@ -30,7 +30,7 @@ import pinocchio as pin
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record
+from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record, shown_up
 from .model import Robot
 from .result import (APPROACH_MPS, COLLAPSED, CONE_FLOOR_N, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
                      Trajectory, cone_breach, forces_outside_cone, recover)
@@ -183,7 +183,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     gaps = np.asarray(system.gap_fn(y0, np.zeros(robot.nu)), float).ravel()
     for c, gap in zip(task.contacts, gaps):
         if gap < -GAP_TOL:
-            raise InputError(f"initial.q puts contact point {c.point!r} {-gap:.10g} m {c.beyond(task.ground_height)}; "
+            raise InputError(f"initial.q puts contact point {c.point!r} {shown_up(-gap)} m {c.beyond(task.ground_height)}; "
                              "the initial state must have every contact on the free side of its plane")
     rho_f = task.simulate.rho_f if options.rho_f is None else options.rho_f
     law = pd_law(robot, task)

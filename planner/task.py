@@ -31,6 +31,8 @@ MAX_AUX_GAIN = 1e6
 # beyond these the solvers' arithmetic overflows: mu = 1e300 filled g with nan, a hole's half-axis 1e-300 its Jacobian
 # with inf (mu = 1e6 and a micrometre plan as expected)
 MAX_MU = 1e6
+# two unit normals of one point this close (each component) are one plane listed twice: rounding of the normalization
+SAME_NORMAL_TOL = 1e-9
 MIN_HOLE_AXIS_M = 1e-6
 # steps of a gait's walk (each a MuJoCo replay of one period): 1e8 failed allocating the tiled walk
 MAX_GAIT_STEPS = 1000
@@ -415,10 +417,12 @@ class Task:
 
     def __post_init__(self):
         _typed(self, "")
-        # (normals normalized apart by rounding, [1, 0, 1] and [3, 0, 3], were two planes: two half impacts)
-        planes = [(c.point, tuple(round(x, 9) + 0.0 for x in c.normal)) for c in self.contacts]
-        # a point may touch several planes (a corner), but the same plane twice doubles its contact forces
-        _require(len(set(planes)) == len(planes), "contacts", [f"{p} {list(n)}" for p, n in planes],
+        planes = [(c.point, c.normal) for c in self.contacts]
+        # a point may touch several planes (a corner), but the same plane twice doubles its contact forces (normals
+        # normalized apart by rounding, [1, 0, 1] and [3, 0, 3], were two planes: two half impacts)
+        twice = any(p == q and max(abs(a - b) for a, b in zip(m, n)) <= SAME_NORMAL_TOL
+                    for i, (p, m) in enumerate(planes) for q, n in planes[i + 1:])
+        _require(not twice, "contacts", [f"{p} {list(n)}" for p, n in planes],
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
         # touches = false drops a point's contact machinery, so it is the point's, not one plane's: false on one plane
         # of a corner dropped the other plane's contact as well, silently

@@ -109,11 +109,11 @@ class Result(ArraysReadOnly):
     def frozen_intervals(self) -> list[tuple[float, float, tuple[str, ...]]]:
         """(tau_start, tau_end [s], contact points) of each frozen interval of numerical time.
 
-        From summary.json's impacts when each gives tau_start and tau_end, without the taps (summary.json's "tap":
-        steps whose clock ran at 0.92-0.96, which clock.png shaded and slow motion labelled "clock frozen: impact",
-        where the other plots and the physical-time replay mark them as taps); otherwise the maximal runs
+        From summary.json's impacts when each gives tau_start and tau_end; otherwise the maximal runs
         of tau steps whose clock rate dt/dtau is below FROZEN_RATE, each matched to the impact nearest
-        in physical time (every contact point when none is within 1% of the duration).
+        in physical time (every contact point when none is within 1% of the duration). Either way without the taps
+        (summary.json's "tap": steps whose clock ran at 0.92-0.96, which clock.png shaded and slow motion labelled
+        "clock frozen: impact", where the other plots and the physical-time replay mark them as taps).
         """
         given = self.summary.get("impacts") or []
         if given and all(isinstance(i.get("tau_start"), (int, float)) and isinstance(i.get("tau_end"), (int, float))
@@ -562,8 +562,8 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     expect(out_dir, (str, os.PathLike), "render_html's out_dir")
     expect(html_path, (str, os.PathLike), "render_html's html_path")
     expect(slow_motion, bool, "render_html's slow_motion")
-    if str(html_path).endswith(("/", os.sep)):  # (Path drops the slash: "DIR/", new, became a file named DIR)
-        raise InputError(f"--html {html_path} names a directory; name the page's file (e.g. {html_path}replay.html)")
+    if (named := names_a_directory(str(html_path))) is not None:
+        raise InputError(f"--html {named}")
     html_path = Path(html_path)
     if html_path.is_dir():
         raise InputError(f"--html {html_path} is a directory, not a file")
@@ -584,6 +584,14 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
     except OSError as exc:
         raise InputError(f"cannot write {html_path}: {exc.strerror}") from None
     return html_path
+
+
+def names_a_directory(text: str) -> str | None:
+    """What is wrong with a page's path `text` that ends in / (Path drops the slash: a new "DIR/" became a file named
+    DIR), else None; render_html and the CLI's --html parser say it."""
+    if not text.endswith(("/", os.sep)):
+        return None
+    return f"{text} names a directory; name the page's file (e.g. {text}replay.html)"
 
 
 def _is_page(path: Path) -> bool:

@@ -138,6 +138,7 @@ def hop():
      "validate's options must be a ValidationOptions or None"),
     (lambda r, t, p: replan(p, None, t), "replan's options must be a SolveOptions"),
     (lambda r, t, p: race(p, [SolveOptions()]), r"race needs one or more \(name, SolveOptions\) arms"),
+    (lambda r, t, p: read_start("results", p.signature, p.nx, robot="point_mass"), "read_start's robot must be a Robot"),
     (lambda r, t, p: race(p, SolveOptions()), r"race takes arms, .* race\(problem, default_arms\(options\)\)"),
     (lambda r, t, p: race(p, [("a", SolveOptions())], processes="2"),
      "race processes must be an integer >= 1"),
@@ -227,7 +228,7 @@ C_INT_MAX = 2**31 - 1  # IPOPT and CasADi read an int option as a C int
 
 @pytest.mark.parametrize("field, value, allowed", [
     # IPOPT wrapped it around to 3 iterations
-    ("max_iter", 2**32 + 3, r"an integer no larger than 2147483647 in magnitude"),
+    ("max_iter", 2**32 + 3, r"a smaller integer \(a C int: at most 2147483647"),
     ("tol", 10**400, "a finite number"),  # an int beyond a double: OverflowError inside the solve
     ("max_iter", True, "an integer$"),  # not an int at all: the C int range was named as if it were the field's
     ("max_iter", 1e3, "an integer$"),

@@ -387,11 +387,15 @@ def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
     (('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>'), r"joint 'hip': its <axis xyz> is zero; give the direction"),
     (('upper="1.1780972450961724"', ""), r"joint 'hip': its <limit> gives lower but no upper, which URDF reads as 0"),
     (('lower="-1.1780972450961724"', ""), r"joint 'hip': its <limit> gives upper but no lower, which URDF reads as 0"),
+    # one side beyond 0 (read as inverted: "swap them") or at 0 (read as locked) was refused for the wrong reason
+    (('lower="-1.1780972450961724" upper="1.1780972450961724"', 'lower="0.2"'), r"gives lower but no upper"),
+    (('lower="-1.1780972450961724" upper="1.1780972450961724"', 'upper="-0.2"'), r"gives upper but no lower"),
+    (('lower="-1.1780972450961724" upper="1.1780972450961724"', 'lower="0"'), r"gives lower but no upper"),
 ])
 def test_urdf_joint_mistakes_are_named(tmp_path, edit, said):
     """A URDF joint with a zero axis (refused as a body lighter than MIN_DOF_INERTIA, though it weighed 1 kg) or a limit
-    with one side (the other read as 0 by Pinocchio and the joint unlimited by MuJoCo: refused for MuJoCo's range) is
-    refused naming the joint and the mistake."""
+    with one side (the other read as 0 by Pinocchio and the joint unlimited by MuJoCo: refused for MuJoCo's range, or
+    as inverted or locked) or a negative speed limit (read as none) is refused naming the joint and the mistake."""
     from planner.errors import RobotFileError
 
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()

@@ -301,10 +301,11 @@ def test_an_end_velocity_outside_the_velocity_bounds_is_an_input_error():
 
 
 def test_a_urdf_joint_speed_limit_bounds_that_joint_at_every_node(capler_small, tmp_path):
-    """A URDF joint's <limit velocity> is the plan's: block speed_limits (N, m) bounds each limited joint's velocity
-    at y_1 .. y_N by it (a leg's knee limited to 5 rad/s was planned at 14.5, the limit read and dropped); velocity="0",
-    as CAD exporters write an unknown limit, and an MJCF file give none; a target_v beyond a limit is an InputError."""
-    import casadi as ca
+    """A URDF joint's <limit velocity> is the plan's: the velocity of each limited joint at y_1 .. y_N (and at every
+    FESD stage) is bounded by it (a leg's knee limited to 5 rad/s was planned at 14.5, the limit read and dropped);
+    velocity="0", as CAD exporters write an unknown limit, and an MJCF file give none; a target_v beyond a limit is an
+    InputError."""
+    from planner.discretization import Discretization, FESDOptions
 
     _, task, mjcf = capler_small
     source = (pathlib.Path(ROBOTS) / "capler.urdf").read_text()
@@ -312,15 +313,16 @@ def test_a_urdf_joint_speed_limit_bounds_that_joint_at_every_node(capler_small, 
     urdf = tmp_path / "capler.urdf"
     urdf.write_text(source.replace('velocity="100"', 'velocity="0"', 2).replace('velocity="100"', 'velocity="5"', 1))
     robot = load_robot(urdf)
-    np.testing.assert_array_equal(robot.v_limit, [np.inf, np.inf, 5.0, 100.0])
-    prob = build_problem(robot, task)
-    rows = prob.g_blocks["speed_limits"]
-    assert rows.shape == (10, 2) and "speed_limits" not in mjcf.g_blocks
-    np.testing.assert_array_equal(prob.ubg[rows], np.tile([5.0, 100.0], (10, 1)))
-    np.testing.assert_array_equal(prob.lbg[rows], -prob.ubg[rows])
-    x = np.random.default_rng(3).normal(size=prob.nx)
-    g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g])(x, prob.params(1.0)), float).ravel()
-    np.testing.assert_array_equal(g[rows], x[prob.var_blocks["y"]][:, robot.nq + 2:robot.nq + 4])
+    limit = [np.inf, np.inf, 5.0, 100.0]
+    np.testing.assert_array_equal(robot.v_limit, limit)
+    nq = robot.nq
+    for options in (ProblemOptions(), ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2))):
+        prob = build_problem(robot, task, options)
+        speeds = prob.var_blocks["Y" if "Y" in prob.var_blocks else "y"][..., nq:2 * nq].reshape(-1, nq)
+        assert len(speeds) == 10 * (2 if "Y" in prob.var_blocks else 1)
+        np.testing.assert_array_equal(prob.ubx[speeds], np.tile(limit, (len(speeds), 1)))
+        np.testing.assert_array_equal(prob.lbx[speeds], -prob.ubx[speeds])
+    assert np.all(np.isinf(mjcf.ubx[mjcf.var_blocks["y"][:, nq:2 * nq]]))
     fast = dataclasses.replace(task.plan, target_v=(0.0, 0.0, 6.0, 0.0))
     with pytest.raises(InputError, match=r"joint speed limit \(<limit velocity>\) of hip \(6 beyond 5\)"):
         build_problem(robot, dataclasses.replace(task, plan=fast))
@@ -365,10 +367,11 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground \(z = 0\)"):
         build_problem(robot, hop(-1.0), options)
     build_problem(robot, hop(0.0), options)
-    with pytest.raises(InputError) as refused:  # the depth printed, added back, builds (6 digits did not)
-        build_problem(robot, hop(-1.0 / 3.0), options)
-    depth = float(re.search(r"'point' (\S+) m below", str(refused.value)).group(1))
-    build_problem(robot, hop(-1.0 / 3.0 + depth), options)
+    for z in (-1.0 / 3.0, -12.345678901234):  # the depth printed, added back, builds (6 digits did not, nor 10 at 12 m)
+        with pytest.raises(InputError) as refused:
+            build_problem(robot, hop(z), options)
+        depth = float(re.search(r"'point' (\S+) m below", str(refused.value)).group(1))
+        build_problem(robot, hop(z + depth), options)
     walled = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [-1.0, 0.0, 0.0]}],
                          "initial": {"q": [-0.5, 0.0]}, "horizon": {"tau_f": 1.0, "N": 4},
                          "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}})
