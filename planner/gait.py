@@ -546,8 +546,8 @@ def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = N
                      max_iter: int = 3000) -> IpoptGait:
     """Solve OCP (5) on the strategy's grid with IPOPT (MUMPS, exact Hessian) for comparison."""
     expect(spec, GaitSpec, "solve_gait_ipopt's spec (GaitSpec.from_task)")
-    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and 0 < tol < np.inf):
-        raise InputError(f"solve_gait_ipopt's tol must be a number > 0, got {tol!r:.60}")  # (IPOPT's text, then a crash)
+    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and 0 < tol < np.inf):  # (IPOPT crashed)
+        raise InputError(f"solve_gait_ipopt's tol must be a number > 0, got {tol!r:.60}")
     if not (isinstance(max_iter, (int, np.integer)) and not isinstance(max_iter, bool) and max_iter >= 1):
         raise InputError(f"solve_gait_ipopt's max_iter must be an int >= 1, got {max_iter!r:.60}")
     ocp = ocp or GaitOCP(model, spec)

@@ -179,8 +179,8 @@ class SolveOptions:
     rho < rho_min (the weak penalties are exploited by cheats, docs/formulation.md) and continue
     rho_i = rho0 kappa^i past n_nlp until rho_max is reached. rho_refine: extra penalties sorted into
     the task's schedule, those strictly between its first and last penalty (the others are left out: the default
-    3e3 does not apply to a schedule starting at 1e4, which would have refused it): the honest hopping motion appears between rho = 1e3 and 1e4, where a step
-    of kappa = 10 left NLP 3 at its iteration cap on the full Capler task while 3e3 in between let
+    3e3 does not apply to a schedule starting at 1e4): the honest hopping motion appears between rho = 1e3 and 1e4,
+    where a step of kappa = 10 left NLP 3 at its iteration cap on the full Capler task while 3e3 in between let
     every NLP converge (docs/formulation.md, "OCP and solve", round 3).
     an_schedule, at_schedule: per-NLP scale of the auxiliary gains a_n, a_t (the last value repeats;
     needs ProblemOptions.aux_continuation; None: 1). soft_terminal_nlps: how many first NLPs replace

@@ -393,7 +393,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
             gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -1e-9:
-                raise InputError(f"{key} puts contact point {c.point!r} {shown_up(-gap)} m {c.beyond(task.ground_height)}"
+                raise InputError(f"{key} puts contact point {c.point!r} {shown_up(-gap)} m "
+                                 f"{c.beyond(task.ground_height)}"
                                  + (" (touches = false)" if c in never else ""))
     _check_outside_holes(dyn, task.contacts, task)
 

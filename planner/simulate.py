@@ -183,7 +183,8 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     gaps = np.asarray(system.gap_fn(y0, np.zeros(robot.nu)), float).ravel()
     for c, gap in zip(task.contacts, gaps):
         if gap < -GAP_TOL:
-            raise InputError(f"initial.q puts contact point {c.point!r} {shown_up(-gap)} m {c.beyond(task.ground_height)}; "
+            raise InputError(f"initial.q puts contact point {c.point!r} {shown_up(-gap)} m "
+                             f"{c.beyond(task.ground_height)}; "
                              "the initial state must have every contact on the free side of its plane")
     rho_f = task.simulate.rho_f if options.rho_f is None else options.rho_f
     law = pd_law(robot, task)

@@ -10,8 +10,8 @@ import pytest
 from planner.discretization import FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError, PlannerError, check_field_types
-from planner.gait import (GaitSpec, PinnedGait, WalkGains, periodic_walk, replay_gait, run_gait, solve_gait, solve_gait_ipopt,
-                          validate_walk)
+from planner.gait import (GaitSpec, PinnedGait, WalkGains, periodic_walk, replay_gait, run_gait, solve_gait,
+                          solve_gait_ipopt, validate_walk)
 from planner.homotopy import SolveOptions, solve, solve_options_from_dict
 from planner.model import ROBOTS_DIR, load_robot
 from planner.problem import ProblemOptions, build_problem
@@ -138,7 +138,8 @@ def hop():
      "validate's options must be a ValidationOptions or None"),
     (lambda r, t, p: replan(p, None, t), "replan's options must be a SolveOptions"),
     (lambda r, t, p: race(p, [SolveOptions()]), r"race needs one or more \(name, SolveOptions\) arms"),
-    (lambda r, t, p: read_start("results", p.signature, p.nx, robot="point_mass"), "read_start's robot must be a Robot"),
+    (lambda r, t, p: read_start("results", p.signature, p.nx, robot="point_mass"),
+     "read_start's robot must be a Robot"),
     (lambda r, t, p: race(p, SolveOptions()), r"race takes arms, .* race\(problem, default_arms\(options\)\)"),
     (lambda r, t, p: race(p, [("a", SolveOptions())], processes="2"),
      "race processes must be an integer >= 1"),
