@@ -511,8 +511,12 @@ class Task:
                 warnings.warn(f"{names} on its plane at initial.q constrains {rows} directions but only {rank} "
                               f"independently, so its forces are not unique and the solver may fail; {fix}")
             else:
-                fix = ("their normals alone are dependent: remove one of them" if normal_rank < len(on) else
-                       "give mu = 0 to one of them with friction")
+                # (counted: "give mu = 0 to one of them" left a point mass in a corner dependent, 3 rows for 2)
+                extra = len(on) - normal_rank
+                fix = (f"their normals alone are dependent: remove {extra} of them" if extra else "")
+                if rows - rank > extra:
+                    fix += (", and " if fix else "") + (f"{rows - rank - extra} friction direction(s) are surplus: give "
+                                                        f"mu = 0 to {rows - rank - extra} contact(s) with friction")
                 warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
                               "independently, so their forces together are not unique (e.g. two sticking points of "
                               f"one rigid body) and the solver may fail; {fix}")

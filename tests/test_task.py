@@ -229,7 +229,8 @@ PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" a
 <site name="right" pos="0.2 0 -0.02"/></body></worldbody><actuator><motor name="m" joint="pz"/></actuator></mujoco>"""
 
 
-@pytest.mark.parametrize("mu_right, z, fix", [(0.6, 0.02, "give mu = 0 to one of them with friction"),
+@pytest.mark.parametrize("mu_right, z, fix", [(0.6, 0.02, "1 friction direction(s) are surplus: give mu = 0 to 1 "
+                                                           "contact(s) with friction"),
                                                (0.0, 0.02, None), (0.6, 0.1, None)])
 def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, fix):
     """Two sticking points of one rigid plank on the ground: 4 contact rows on 3 degrees of freedom, so their forces
@@ -320,13 +321,21 @@ def test_one_contact_of_dependent_rows_is_told_of_itself(tmp_path):
 
 def test_a_point_in_a_corner_is_told_which_contact_to_change(tmp_path):
     """A point in a corner, a rough floor and a frictionless wall: 3 rows on 2 degrees of freedom; the warning names
-    both planes' contacts by index (the same point) and asks for mu = 0 on the one with friction, not on the wall."""
+    both planes' contacts by index (the same point) and asks for mu = 0 on the one with friction, not on the wall; with
+    friction on both it asks for mu = 0 on both (counted)."""
     task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [1.0, 0.0, 0.0]}],
                        "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.3, "N": 30}})
     with pytest.warns(UserWarning, match=r"^contacts\[0\] \(point\), contacts\[1\] \(point\) on their planes at "
-                                         r"initial.q constrain 3 directions but only 2 .* give mu = 0 to one of them "
-                                         r"with friction$"):
+                                         r"initial.q constrain 3 directions but only 2 .* give mu = 0 to 1 "
+                                         r"contact\(s\) with friction$"):
         task.check_against(load_robot("point_mass"))
+    # both with friction: 4 rows on 2, and one mu = 0 left 3 (the warning asked for "one of them")
+    rough = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "point", "normal": [1.0, 0.0, 0.0],
+                                                                     "mu": 0.5}],
+                        "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.3, "N": 30}})
+    with pytest.warns(UserWarning, match=r"constrain 4 directions but only 2 .* give mu = 0 to 2 contact\(s\) with "
+                                         r"friction$"):
+        rough.check_against(load_robot("point_mass"))
 
 
 def test_joint_bounds_beyond_the_files_range_warn():
