@@ -356,6 +356,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if not task.contacts:
         raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
     task.check_against(robot)
+    task.warn_dependent_contacts(robot)
     task.warn_buried_holes()
     task.check_no_slip_forces(robot)
     plan, hz = task.plan, task.horizon

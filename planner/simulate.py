@@ -174,6 +174,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     expect(task, Task, "simulate's task")
     expect(options, SimulateOptions, "simulate's options")
     task.check_against(robot)
+    task.warn_dependent_contacts(robot)
     task.check_no_slip_forces(robot)
     task.warn_controls_beyond_range(robot)
     dyn = dynamics_for(robot, dynamics)

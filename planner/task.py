@@ -497,29 +497,6 @@ class Task:
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)
-        touching = [i for i, c in enumerate(self.contacts) if c.touches]
-        on, normal_rank, rank = robot.contact_rank([(self.contacts[i].point, self.contacts[i].normal,
-                                                     self.contacts[i].mu > 0) for i in touching],
-                                                    self.initial.q, self.ground_height)
-        on = [touching[k] for k in on]
-        rows = len(on) + sum(self.contacts[i].mu > 0 for i in on)
-        if rank < rows:  # (checked where the task starts: later double stances are not seen)
-            names = ", ".join(f"contacts[{i}] ({self.contacts[i].point})" for i in on)
-            if len(on) == 1:  # (its own normal and friction direction: "remove one of them" named no other contact)
-                fix = ("it cannot move along its normal: start from another pose" if normal_rank < 1 else
-                       "it cannot slide independently of its normal: give it mu = 0")
-                warnings.warn(f"{names} on its plane at initial.q constrains {rows} directions but only {rank} "
-                              f"independently, so its forces are not unique and the solver may fail; {fix}")
-            else:
-                # (counted: "give mu = 0 to one of them" left a point mass in a corner dependent, 3 rows for 2)
-                extra = len(on) - normal_rank
-                fix = (f"their normals alone are dependent: remove {extra} of them" if extra else "")
-                if rows - rank > extra:
-                    fix += (", and " if fix else "") + (f"{rows - rank - extra} friction direction(s) are surplus: give "
-                                                        f"mu = 0 to {rows - rank - extra} contact(s) with friction")
-                warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
-                              "independently, so their forces together are not unique (e.g. two sticking points of "
-                              f"one rigid body) and the solver may fail; {fix}")
         robot.check_inertia(self.initial.q)
         for key, u in self._constant_controls():
             _length(key, u, robot.nu)
@@ -633,6 +610,35 @@ class Task:
                                 f"(actuated joints: {', '.join(robot.dof_names[a.dof] for a in robot.actuators) or 'none'})")
             out.append((dof, dof, drives[0]))
         return tuple(out)
+
+    def warn_dependent_contacts(self, robot) -> None:
+        """Warn when the touching contacts on their planes at initial.q constrain more directions than they do
+        independently (their forces are not unique: a plan burnt 433 s at its caps), naming them and counting the fix:
+        the check of the commands that solve (simulate, plan); `validate`, which solves nothing, said "the solver may
+        fail" too."""
+        touching = [i for i, c in enumerate(self.contacts) if c.touches]
+        on, normal_rank, rank = robot.contact_rank([(self.contacts[i].point, self.contacts[i].normal,
+                                                     self.contacts[i].mu > 0) for i in touching],
+                                                    self.initial.q, self.ground_height)
+        on = [touching[k] for k in on]
+        rows = len(on) + sum(self.contacts[i].mu > 0 for i in on)
+        if rank < rows:  # (checked where the task starts: later double stances are not seen)
+            names = ", ".join(f"contacts[{i}] ({self.contacts[i].point})" for i in on)
+            if len(on) == 1:  # (its own normal and friction direction: "remove one of them" named no other contact)
+                fix = ("it cannot move along its normal: start from another pose" if normal_rank < 1 else
+                       "it cannot slide independently of its normal: give it mu = 0")
+                warnings.warn(f"{names} on its plane at initial.q constrains {rows} directions but only {rank} "
+                              f"independently, so its forces are not unique and the solver may fail; {fix}")
+            else:
+                # (counted: "give mu = 0 to one of them" left a point mass in a corner dependent, 3 rows for 2)
+                extra = len(on) - normal_rank
+                fix = (f"their normals alone are dependent: remove {extra} of them" if extra else "")
+                if rows - rank > extra:
+                    fix += (", and " if fix else "") + (f"{rows - rank - extra} friction direction(s) are surplus: give "
+                                                        f"mu = 0 to {rows - rank - extra} contact(s) with friction")
+                warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
+                              "independently, so their forces together are not unique (e.g. two sticking points of "
+                              f"one rigid body) and the solver may fail; {fix}")
 
     def warn_buried_holes(self) -> None:
         """Warn of each plan.holes entry wholly below a flat ground (a plan's check: `simulate` reads no holes, and
