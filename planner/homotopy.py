@@ -1447,6 +1447,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
         never = problem.skips.never_touching  # (their rows are as binding as the holes')
         message += (f"; IPOPT found {', '.join(infeasible)} locally infeasible: the target may be out of reach in the "
                     "horizon with these control bounds, holes and joint limits"
+                    + (", the robot file's joint speed limits" if np.isfinite(problem.robot.v_limit).any() else "")
                     + (f", and {', '.join(never)} kept off the ground (touches = false)" if never else "")
                     + " (a local verdict: some reachable tasks end so, docs/stability.md)")
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),

@@ -31,6 +31,8 @@ MIN_DOF_INERTIA = 1e-4
 # a joint speed limit at or above this [m/s or rad/s] is none: IPOPT's own infinity (nlp_upper_bound_inf), and Pinocchio
 # gives its free-flyer root the largest double
 NO_SPEED_LIMIT = 1e19
+# a URDF joint axis whose components are all below this is zero (MuJoCo's compiler refuses it as "too small")
+MIN_AXIS = 1e-9
 
 
 class RobotFormat(Enum):
@@ -384,9 +386,10 @@ def _refuse_joint_mistakes(path: Path, root) -> None:
         if joint.get("type") not in ("revolute", "prismatic", "continuous"):
             continue
         with contextlib.suppress(ValueError):  # (a malformed one is the parser's error, said before this)
-            if axis is not None and not np.any(np.array(axis.get("xyz", "1 0 0").split(), float)):
-                raise RobotFileError(f"{path}: joint {name!r}: its <axis xyz> is zero; give the direction it turns or "
-                                     "slides along (e.g. \"0 1 0\")")
+            # (1e-200 passed Pinocchio, and MuJoCo found it "too small")
+            if axis is not None and np.max(np.abs(np.array(axis.get("xyz", "1 0 0").split(), float))) < MIN_AXIS:
+                raise RobotFileError(f"{path}: joint {name!r}: its <axis xyz> is zero (every component below "
+                                     f"{MIN_AXIS:g}); give the direction it turns or slides along (e.g. \"0 1 0\")")
         sides = [side for side in ("lower", "upper") if limit is not None and limit.get(side) is not None]
         if joint.get("type") != "continuous" and len(sides) == 1:
             missing = "upper" if sides == ["lower"] else "lower"

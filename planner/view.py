@@ -587,9 +587,9 @@ def render_html(out_dir, html_path, slow_motion: bool = False) -> Path:
 
 
 def names_a_directory(text: str) -> str | None:
-    """What is wrong with a page's path `text` that ends in / (Path drops the slash: a new "DIR/" became a file named
-    DIR), else None; render_html and the CLI's --html parser say it."""
-    if not text.endswith(("/", os.sep)):
+    """What is wrong with a page's path `text` that ends in /, /. or /.. (Path drops the slash: a new "DIR/" became a
+    file named DIR), else None; render_html and the CLI's --html parser say it."""
+    if not text.endswith(("/", os.sep)) and re.split(r"[/\\]", text)[-1] not in (".", ".."):  # ("nd/." is nd too)
         return None
     return f"{text} names a directory; name the page's file (e.g. {text}replay.html)"
 

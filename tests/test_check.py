@@ -431,10 +431,10 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     assert "gravity [0.0, 0.0, -3.0] m/s^2 in MuJoCo (<option gravity>), [0.0, 0.0, -9.81] in Pinocchio" in said, said
     assert any(d.startswith("bias forces") for d in said)
     assert not check_model(load_robot(gravity), samples=1).passed
-    hip = '<limit lower="-1.1780972450961724" upper="1.1780972450961724" effort="60" velocity="100"/>'
+    hip = '<limit lower="-1.1780972450961724" upper="1.1780972450961724" effort="60" velocity="0"/>'
     assert urdf.count(hip) == 1
     unlimited = tmp_path / "unlimited.urdf"
-    unlimited.write_text(urdf.replace(hip, '<limit effort="60" velocity="100"/>'))
+    unlimited.write_text(urdf.replace(hip, '<limit effort="60" velocity="0"/>'))
     with pytest.raises(RobotFileError,
                        match=r"joint 'hip' \(0\): its <limit lower> equals its upper .* give lower < upper"):
         load_robot(unlimited)

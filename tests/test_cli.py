@@ -1015,10 +1015,11 @@ def test_inputs_session_48s_tester_found_each_give_one_line(tmp_path, capsys):
         assert main(["view", str(out), "--html", str(tmp_path / "page"), "-q"]) == 0
     # another suffix, or a directory's name ending in /, new: written as the page, exit 0
     _one_line_exit_2(capsys, ["view", str(out), "--html", str(tmp_path / "x.png")], "is no HTML file's name (.png)")
-    with pytest.raises(SystemExit) as usage:  # (a usage error: argparse exits)
-        main(["view", str(out), "--html", str(tmp_path / "newdir") + "/"])
-    err = capsys.readouterr().err.strip()
-    assert usage.value.code == 2 and "names a directory; name the page's file" in err and len(err.splitlines()) == 1
+    for end in ("/", "/.", "/.."):  # (Path drops them: "nd/." was written as a file nd, "nd/.." failed, exit 1)
+        with pytest.raises(SystemExit) as usage:  # (a usage error: argparse exits)
+            main(["view", str(out), "--html", str(tmp_path / "newdir") + end])
+        err = capsys.readouterr().err.strip()
+        assert usage.value.code == 2 and "names a directory; name the page's file" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "newdir").exists()
     (tmp_path / "taken" / "summary.json").mkdir(parents=True)
     _one_line_exit_2(capsys, ["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(tmp_path / "taken")],

@@ -309,9 +309,10 @@ def test_a_urdf_joint_speed_limit_bounds_that_joint_at_every_node(capler_small, 
 
     _, task, mjcf = capler_small
     source = (pathlib.Path(ROBOTS) / "capler.urdf").read_text()
-    assert source.count('velocity="100"') == 4  # x, z, hip, knee in file order
+    assert source.count('velocity="0"') == 4  # x, z, hip, knee in file order: none (capler.xml has none either)
     urdf = tmp_path / "capler.urdf"
-    urdf.write_text(source.replace('velocity="100"', 'velocity="0"', 2).replace('velocity="100"', 'velocity="5"', 1))
+    urdf.write_text(source.replace('velocity="0"', 'velocity="100"').replace('velocity="100"', 'velocity="0"', 2)
+                    .replace('velocity="100"', 'velocity="5"', 1))
     robot = load_robot(urdf)
     limit = [np.inf, np.inf, 5.0, 100.0]
     np.testing.assert_array_equal(robot.v_limit, limit)
@@ -323,7 +324,8 @@ def test_a_urdf_joint_speed_limit_bounds_that_joint_at_every_node(capler_small, 
         assert len(speeds) == 10 * (2 if "Y" in prob.var_blocks else 1)
         np.testing.assert_array_equal(prob.ubx[speeds], np.tile(limit, (len(speeds), 1)))
         np.testing.assert_array_equal(prob.lbx[speeds], -prob.ubx[speeds])
-    assert np.all(np.isinf(mjcf.ubx[mjcf.var_blocks["y"][:, nq:2 * nq]]))
+    for twin in (mjcf, build_problem(load_robot(pathlib.Path(ROBOTS) / "capler.urdf"), task)):  # the shipped files
+        assert np.all(np.isinf(twin.ubx[twin.var_blocks["y"][:, nq:2 * nq]]))
     fast = dataclasses.replace(task.plan, target_v=(0.0, 0.0, 6.0, 0.0))
     with pytest.raises(InputError, match=r"joint speed limit \(<limit velocity>\) of hip \(6 beyond 5\)"):
         build_problem(robot, dataclasses.replace(task, plan=fast))
