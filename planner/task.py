@@ -633,9 +633,10 @@ class Task:
                 # (counted: "give mu = 0 to one of them" left a point mass in a corner dependent, 3 rows for 2)
                 extra = len(on) - normal_rank
                 fix = (f"their normals alone are dependent: remove {extra} of them" if extra else "")
-                if rows - rank > extra:
-                    fix += (", and " if fix else "") + (f"{rows - rank - extra} friction direction(s) are surplus: give "
-                                                        f"mu = 0 to {rows - rank - extra} contact(s) with friction")
+                surplus = rows - rank - extra
+                if surplus > 0:
+                    fix += (", and " if fix else "") + (f"{surplus} friction direction(s) are surplus: give mu = 0 to "
+                                                        f"{surplus} contact(s) with friction")
                 warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
                               "independently, so their forces together are not unique (e.g. two sticking points of "
                               f"one rigid body) and the solver may fail; {fix}")

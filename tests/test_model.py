@@ -385,7 +385,7 @@ def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("edit, said", [
     (('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>'), r"joint 'hip': its <axis xyz> is zero .*; give the direction"),
-    (('<axis xyz="0 1 0"/>', '<axis xyz="0 1e-200 0"/>'), r"joint 'hip': its <axis xyz> is zero"),  # (MuJoCo: too small)
+    (('<axis xyz="0 1 0"/>', '<axis xyz="0 1e-200 0"/>'), r"joint 'hip': its <axis xyz> is zero"),  # MuJoCo: too small
     (('upper="1.1780972450961724"', ""), r"joint 'hip': its <limit> gives lower but no upper, which URDF reads as 0"),
     (('lower="-1.1780972450961724"', ""), r"joint 'hip': its <limit> gives upper but no lower, which URDF reads as 0"),
     # one side beyond 0 (read as inverted: "swap them") or at 0 (read as locked) was refused for the wrong reason
