@@ -236,7 +236,8 @@ def test_dependent_sticking_contacts_at_the_start_warn(tmp_path, mu_right, z, fi
     """Two sticking points of one rigid plank on the ground: 4 contact rows on 3 degrees of freedom, so their forces
     are not unique (a plan burnt 433 s at its caps, a simulation reported 1e15 N): a warning naming the contacts, the
     counts and the fix, from the check of the commands that solve (Task.warn_dependent_contacts), not from
-    check_against, which validate runs too. One frictionless point (3 rows), or the plank in the air at the start, gives none."""
+    check_against, which validate runs too. One frictionless point (3 rows), or the plank in the air at the start,
+    gives none."""
     path = tmp_path / "plank.xml"
     path.write_text(PLANK)
     task = parse_task({"contacts": [{"point": "left", "mu": 0.6}, {"point": "right", "mu": mu_right}],
