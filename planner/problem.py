@@ -364,7 +364,9 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     contacts = tuple(c for c in task.contacts if c.point not in skips.never_touching)
     if not contacts:
         raise InputError("every [[contacts]] entry has touches = false; the time-freezing OCP needs at least one point that may touch")
-    elastic = [c.point for c in contacts if c.restitution > 0]  # before the system, which says "set mu = 0" to a frictional one
+    # before the system, which says "set mu = 0" to a frictional one; a touches = false one too (scene analysis
+    # dropped it first: accepted with its restitution, refused with scene_analysis off)
+    elastic = [c.point for c in task.contacts if c.restitution > 0]
     if elastic:
         raise InputError(f"contact(s) {', '.join(elastic)}: planning with elastic contacts (restitution > 0) is not supported "
                          "yet; set restitution = 0 (`planner simulate` models frictionless elastic impacts)")

@@ -340,7 +340,8 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     tilted = [c.point for c in task.contacts if c.normal != (0.0, 0.0, 1.0)]
     if tilted:
         raise InputError(f"contact point(s) {', '.join(tilted)} touch a tilted plane (contacts.normal); the MuJoCo "
-                         "validation models the ground plane only (`planner plan --no-validate` plans without it)")
+                         "validation models the ground plane only, so such a result is not validated (`planner plan "
+                         "--no-validate` plans it; `planner simulate` validates nothing)")
     site_names = [original.site(i).name for i in range(original.nsite) if original.site(i).name]
     site_ids = []
     for contact in task.contacts:

@@ -406,3 +406,14 @@ def test_an_elastic_contact_is_refused_naming_the_simulator(mu):
                                          r"\(`planner simulate` models frictionless elastic impacts\)") as err:
         build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), task)
     assert "mu = 0" not in str(err.value)
+
+
+def test_an_elastic_never_touching_contact_is_refused_as_any(capler_small):
+    """restitution > 0 on a touches = false contact is refused as on any contact, with scene analysis on or off (on, it
+    dropped the contact first: the restitution accepted and ignored, while off refused it)."""
+    robot, task, _ = capler_small
+    knee = dataclasses.replace(task.contacts[0], point="knee", touches=False, restitution=0.5, mu=0.7)
+    elastic = dataclasses.replace(task, contacts=(*task.contacts, knee))
+    for options in (ProblemOptions(), ProblemOptions(scene_analysis=False)):
+        with pytest.raises(InputError, match=r"^contact\(s\) knee: planning with elastic contacts"):
+            build_problem(robot, elastic, options)

@@ -591,10 +591,11 @@ def test_contact_point_that_is_not_a_site(capler):
 def test_a_tilted_plane_is_refused_naming_the_way_to_plan_without_validation(point_mass):
     """A contact on a tilted plane (contacts.normal) is refused by the validation, which models the ground plane only,
     and the message names `planner plan --no-validate`, which plans it without the validation (it said only what
-    the validation cannot do)."""
+    the validation cannot do), and that `simulate` validates nothing (a simulation's validation was told to plan)."""
     task = parse_task({"contacts": [{"point": "point", "normal": [0.1, 0.0, 1.0]}], "initial": {"q": [0.0, 1.0]},
                        "horizon": {"tau_f": 1.0, "N": 10}})
-    with pytest.raises(InputError, match=r"point touch a tilted plane .*`planner plan --no-validate` plans without it"):
+    with pytest.raises(InputError, match=r"point touch a tilted plane .*`planner plan --no-validate` plans it; `planner "
+                                         r"simulate` validates nothing\)"):  # (a simulation's said "plans without it")
         replay.build_scene(point_mass, task)
 
 
