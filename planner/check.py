@@ -79,6 +79,9 @@ class ModelCheck:
     mujoco: MujocoCheck | None  # None when skipped (see mujoco_skipped)
     mujoco_skipped: str | None  # why the file was not compared with MuJoCo
     timing: Timing
+    # the file's passive joint terms and couplings (Robot.passive), which fail the check with or without the MuJoCo
+    # comparison (a file with damping passed under --floating, where MuJoCo's was skipped)
+    passive: tuple[str, ...] = ()
 
     @property
     def max_errors(self) -> dict[str, float]:
@@ -100,6 +103,8 @@ class ModelCheck:
             out.append(f"MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}")
         if (self.mujoco_skipped or "").startswith(MUJOCO_FAILED):
             out.append(self.mujoco_skipped.removeprefix(MUJOCO_FAILED))
+        if self.passive and self.mujoco is None:  # (the compared reading names them among its differences)
+            out.append(f"the planner does not model: {'; '.join(self.passive)}")
         return out
 
     @property
@@ -110,6 +115,7 @@ class ModelCheck:
     def to_json(self) -> dict:
         out = asdict(self)
         out["dof_names"], out["points"], out["controls"] = list(self.dof_names), list(self.points), list(self.controls)
+        out["passive"] = list(self.passive)
         if out["mujoco"] is not None:
             for key in ("missing_sites", "differences"):  # as JSON reads them back
                 out["mujoco"][key] = list(out["mujoco"][key])
@@ -134,6 +140,8 @@ class ModelCheck:
         else:
             failed = self.mujoco_skipped.startswith(MUJOCO_FAILED)
             mujoco = self.mujoco_skipped if failed else f"skipped: {self.mujoco_skipped}"
+            if self.passive:
+                mujoco += f"; the planner does not model: {'; '.join(self.passive)}"
         return "\n".join(
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
@@ -221,6 +229,7 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
         mujoco=mujoco_check,
         mujoco_skipped=skipped,
         timing=timing,
+        passive=robot.passive,
     )
 
 

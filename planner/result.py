@@ -324,10 +324,12 @@ class SimulationResult(ArraysReadOnly):
                          f"{brake['mu_normal_N']:.4g} N): a point sliding on its plane brakes at a_t / m whatever mu, "
                          "with no impact and no lambda_t (docs/tasks.md)")
         for force in self.extra.get("forces_outside_friction_cone", ()):
+            pulls = force.get("normal_N", 0.0) < 0  # (it read "mu normal = 0 N" of a normal force of -4.23 N)
+            where = (f"where the normal force pulls, {force['normal_N']:.4g} N" if pulls else
+                     f"where mu normal = {force['mu_normal_N']:.4g} N")
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
-                         f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N where mu "
-                         f"normal = {force['mu_normal_N']:.4g} N): a simulation's no-slip contact holds the point with "
-                         "any tangential force (docs/tasks.md)")
+                         f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N {where}): "
+                         "a simulation's no-slip contact holds the point with any tangential force (docs/tasks.md)")
         if self.ends_in_impact:
             from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 
@@ -440,9 +442,10 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
 
 def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=True,
                 floor: float = CONE_FLOOR_N) -> dict | None:
-    """{point, counted: how many, max_tangential_N, mu_normal_N} of the entries (where True) whose tangential force
-    (n,) [N] leaves the friction cone of mu times the normal force (n,) [N] by more than floor [N] (CONE_SLACK), the
-    largest one named; None when none does or mu = 0."""
+    """{point, counted: how many, max_tangential_N, mu_normal_N, normal_N} of the entries (where True) whose
+    tangential force (n,) [N] leaves the friction cone of mu times the normal force (n,) [N] by more than floor [N]
+    (CONE_SLACK), the largest one named with its normal force (negative: it pulls, where mu_normal_N reads 0); None
+    when none does or mu = 0."""
     tangential = np.abs(tangential)
     bound = mu * np.maximum(normal, 0.0)
     outside = where & (tangential > CONE_SLACK * bound + floor)
@@ -450,7 +453,7 @@ def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=T
         return None
     worst = int(np.argmax(np.where(outside, tangential, -1.0)))
     return {"point": point, counted: int(outside.sum()), "max_tangential_N": float(tangential[worst]),
-            "mu_normal_N": float(bound[worst])}
+            "mu_normal_N": float(bound[worst]), "normal_N": float(normal[worst])}
 
 
 def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None) -> list[str]:

@@ -468,6 +468,13 @@ class Task:
         from .model import Robot, RobotFormat  # here: reading a task needs no Pinocchio
 
         expect(robot, Robot, "check_against's robot")
+        model = robot.model
+        unplanar = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
+        if unplanar:  # (a task without contacts reached a CasADi dimension mismatch: a traceback, exit 1)
+            raise RobotFileError(f"{robot.path}: joint(s) {', '.join(unplanar)} have more coordinates than velocities "
+                                 "(a free or ball joint, Pinocchio's free flyer, or an unbounded hinge): the planner's "
+                                 "robots are planar, with slide and hinge joints (a floating base: slide x, slide z "
+                                 "and a hinge about y)")
         if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
             raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have neither passive joint "
                                  "forces (damping, stiffness, friction) nor couplings between joints; remove them from the robot "

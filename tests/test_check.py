@@ -20,7 +20,7 @@ JSON_KEYS = {
     "robot", "format", "nq", "nv", "dof_names", "points", "controls", "backend", "samples", "seed", "max_err_mass",
     "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
-    "failures",
+    "failures", "passive",
 }
 TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacobian_us", "evaluations"}
 
@@ -59,6 +59,20 @@ def test_solo12_passes_and_is_timed(erd_robot):
     result = check_model(erd_robot("solo12"), samples=SAMPLES)
     assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is None and result.mujoco_skipped
     assert result.timing.point == "FL_FOOT"
+
+
+def test_passive_terms_fail_the_check_without_the_mujoco_comparison(tmp_path):
+    """A file's joint damping fails check-model also where the MuJoCo comparison is skipped (a URDF read with
+    Pinocchio's free flyer): it passed, though simulate and plan refuse it."""
+    urdf = (ROBOTS_DIR / "capler.urdf").read_text()
+    hip = '<axis xyz="0 1 0"/>\n    <limit lower="-1.1780972450961724"'
+    assert urdf.count(hip) == 1
+    damped = tmp_path / "damped.urdf"
+    damped.write_text(urdf.replace(hip, '<dynamics damping="5"/>' + hip))
+    result = check_model(load_robot(damped, floating=True), samples=1)
+    assert result.mujoco is None and not result.passed
+    assert any("the planner does not model: joint 'hip': damping 5" in f for f in result.failures), result.failures
+    assert "the planner does not model: joint 'hip'" in result.report()
 
 
 def test_json_contract():

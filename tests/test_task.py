@@ -205,6 +205,21 @@ def test_a_hole_wholly_below_the_ground_warns():
                     r"0 when omitted", said[0][0])
 
 
+def test_a_free_joint_is_refused_with_or_without_contacts(tmp_path):
+    """A robot with a free joint (more coordinates than velocities) is refused by the task's check naming the joint and
+    the planar alternative: without contacts nothing refused it and simulate crashed in CasADi (a dimension mismatch,
+    a traceback, exit 1); with one, it was refused for a point moving along y."""
+    path = tmp_path / "freebox.xml"
+    path.write_text('<mujoco><worldbody><body name="box" pos="0 0 1"><freejoint name="root"/><geom type="box" '
+                    'size="0.1 0.1 0.1" mass="1"/><site name="c" pos="0 0 -0.1"/></body></worldbody></mujoco>')
+    task = parse_task({"contacts": [], "initial": {"q": [0, 0, 1, 1, 0, 0, 0]}, "horizon": {"tau_f": 0.2, "N": 10}})
+    for contacts in ([], [{"point": "c"}]):
+        with pytest.raises(RobotFileError, match=r"joint\(s\) root have more coordinates than velocities .* slide x, "
+                                                 r"slide z and a hinge about y"):
+            simulate(load_robot(path), replace(task, contacts=tuple(parse_task(
+                {"contacts": contacts, "initial": {"q": [0] * 7}, "horizon": {"tau_f": 0.2, "N": 10}}).contacts)))
+
+
 def test_a_ground_height_other_than_the_files_ground_plane_warns(tmp_path):
     """A task whose ground_height differs from the robot file's ground plane (geom 'ground') warns with the file's:
     the planner plans on the task's and MuJoCo's replay moved the file's plane there without a word (a plane at
