@@ -328,8 +328,9 @@ class SimulationResult(ArraysReadOnly):
             where = (f"where the normal force pulls, {force['normal_N']:.4g} N" if pulls else
                      f"where mu normal = {force['mu_normal_N']:.4g} N")
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
-                         f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N {where}): "
-                         "a simulation's no-slip contact holds the point with any tangential force (docs/tasks.md)")
+                         f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N "
+                         f"{where}): a simulation's no-slip contact holds the point with any tangential force "
+                         "(docs/tasks.md)")
         if self.ends_in_impact:
             from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 

@@ -594,8 +594,8 @@ def test_a_tilted_plane_is_refused_naming_the_way_to_plan_without_validation(poi
     the validation cannot do), and that `simulate` validates nothing (a simulation's validation was told to plan)."""
     task = parse_task({"contacts": [{"point": "point", "normal": [0.1, 0.0, 1.0]}], "initial": {"q": [0.0, 1.0]},
                        "horizon": {"tau_f": 1.0, "N": 10}})
-    with pytest.raises(InputError, match=r"point touch a tilted plane .*`planner plan --no-validate` plans it; `planner "
-                                         r"simulate` validates nothing\)"):  # (a simulation's said "plans without it")
+    with pytest.raises(InputError, match=r"point touch a tilted plane .*`planner plan --no-validate` plans it; "
+                                         r"`planner simulate` validates nothing\)"):  # (simulate's said "plans")
         replay.build_scene(point_mass, task)
 
 

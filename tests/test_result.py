@@ -436,8 +436,8 @@ def test_a_persistent_force_outside_the_friction_cone_is_named():
                  contact_force=np.array([[[10.0, 5.0], [1.0, 9.0]], [[10.0, -7.5], [1.0, 9.0]]]))  # (steps, contacts, n/t)
     task = replace(load_task(default_task_path(resolve_robot_path("capler"))),
                    contacts=(Contact(point="foot", mu=0.5), Contact(point="knee", mu=0.0)))
-    assert forces_outside_cone(tr, task) == [{"point": "foot", "samples": 1, "max_tangential_N": 7.5, "mu_normal_N": 5.0,
-                                              "normal_N": 10.0}]
+    assert forces_outside_cone(tr, task) == [{"point": "foot", "samples": 1, "max_tangential_N": 7.5,
+                                              "mu_normal_N": 5.0, "normal_N": 10.0}]
     assert forces_outside_cone(tr, None) == [] and forces_outside_cone(replace(tr, contact_force=None), task) == []
     flagged = replace(_tiny_result(3), trajectory=tr, extra={"forces_outside_friction_cone": forces_outside_cone(tr, task)})
     assert ("foot's contact force outside its friction cone at 1 of 3 samples (|tangential| up to 7.5 N where mu normal "
@@ -447,7 +447,8 @@ def test_a_persistent_force_outside_the_friction_cone_is_named():
     pulled = replace(tr, contact_force=np.array([[[-4.0, 5.0], [1.0, 9.0]], [[10.0, 1.0], [1.0, 9.0]]]))
     entry = forces_outside_cone(pulled, task)
     assert entry[0]["normal_N"] == -4.0 and entry[0]["mu_normal_N"] == 0.0
-    assert "where the normal force pulls, -4 N)" in replace(flagged, extra={"forces_outside_friction_cone": entry}).report()
+    pulling = replace(flagged, extra={"forces_outside_friction_cone": entry})
+    assert "where the normal force pulls, -4 N)" in pulling.report()
 
 
 def test_a_result_is_written_whole_or_not_at_all(tmp_path):
