@@ -362,6 +362,10 @@ def _failure(summary: dict) -> str:
 
         if gait_violations(summary):
             return ": " + "; ".join(gait_violations(summary))
+        walking = summary.get("walking")  # (its fall printed "planner gait: failed", no reason)
+        if isinstance(walking, dict) and walking.get("fell"):
+            return (f": the MuJoCo walk fell after {walking.get('steps_walked')} of {walking.get('steps_asked')} steps "
+                    f"({walking.get('control')} control)")
     validation = summary.get("validation", summary)
     if isinstance(validation, dict) and validation.get("passed") is False:
         return ": " + "; ".join(validation.get("failures") or ["the validation failed"])

@@ -620,7 +620,9 @@ def periodic_walk(model: PinnedBiped, sol: GaitSolution, steps: int) -> Walk:
     step_length = float(swing_end[0])
     qs = np.array(model.q_of.map(N + 1)(sol.x[:, :3].T)).T
     vs = np.array(model.v_of.map(N + 1)(sol.x[:, :3].T, sol.x[:, 3:].T)).T
-    u_hold = np.vstack([sol.u, sol.u[-1:]])  # the last sample (pre-impact) keeps the last input
+    # u[i] drove sample i-1 to i (the results' contract, drawn as steps-pre): the inputs shift one sample later, the
+    # first (post-impact) sample taking the first (they sat one sample early: the torques were drawn 10 ms early)
+    u_hold = np.vstack([sol.u[:1], sol.u])
     impulse = np.array(model.impulse(sol.x[-1])).ravel()
     ts, q, v, u, impacts = [], [], [], [], []
     for j in range(steps):
@@ -844,7 +846,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     # its contact then switches on when it reaches the ground, armed after its lowest point
     from_below = height[N - 1] < 0.0 and arm_index is None
     if from_below:
-        gate_k = int(np.argmin(height))
+        gate_k = final_low(height)
     if arm_index is not None:
         gate_k = arm_index
     gate = float(sol.t[gate_k])
@@ -1313,6 +1315,16 @@ class WalkValidation(ArraysReadOnly):
                     f"{dt.min() * 1e3:+.1f} to {dt.max() * 1e3:+.1f} ms from the plan's" if steps.size else "none"),
                  f"  kinematic: max penetration {self.max_penetration_m * 1e3:.3f} mm"]
         return "\n".join(lines + [f"  failed: {f}" for f in self.failures])
+
+
+def final_low(height: np.ndarray) -> int:
+    """Index of the lowest point of the swing foot's final approach (height (N+1,)), from which a landing from below is
+    armed: the last local minimum. (The global one was a mid-stance dip of a gait with its torso at 0.2 rad: armed
+    there, the replay read a landing mid-stride, swapped the legs and fell, where the gait walks 10 of 10 steps.)"""
+    k = len(height) - 1
+    while k > 0 and height[k - 1] <= height[k]:
+        k -= 1
+    return k
 
 
 def last_apex(height: np.ndarray) -> int:

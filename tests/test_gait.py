@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError, TaskError
-from planner.gait import (STOPPED, GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, find_layout,
-                          replay_gait, run_gait, solve_gait, solve_gait_ipopt)
+from planner.gait import (STOPPED, GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, final_low,
+                          find_layout, replay_gait, run_gait, solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
 from planner.task import Simulate, load_task, parse_task
 
@@ -67,6 +67,15 @@ def robot():
 @pytest.fixture(scope="module")
 def biped(robot):
     return PinnedBiped(robot)
+
+
+def test_a_landing_from_below_is_armed_at_its_final_approachs_lowest_point():
+    """The walk replay arms a swing foot that lands from below at the lowest point of its final approach, not at its
+    lowest overall: a gait with the torso at 0.2 rad dipped to -7.8 mm at mid-stance and -6.8 mm before landing; armed
+    at the dip, the replay read a landing mid-stride and fell after 1 step (10 of 10 armed at the approach)."""
+    height = np.array([0.0, -7.8, -2.7, 40.0, 124.0, 60.0, 5.0, -6.8, -3.0, 0.0]) * 1e-3  # [m]
+    assert final_low(height) == 7
+    assert final_low(np.array([0.1, 0.05, -0.01, 0.0])) == 2  # one dip: the same as the lowest overall
 
 
 def test_pinned_model_matches_appendix_b(biped):
@@ -272,6 +281,19 @@ def test_gaits_meet_the_final_state_constraint(gaits, biped):
         x0 = biped.delta(sol.x[-1])
         assert np.max(np.abs(x0 - sol.x[0])) < 10 * FINAL_STATE_TOL
         assert np.all(sol.x[:-1, 0] < np.pi / 8)
+
+
+def test_the_walks_inputs_follow_the_results_contract(gaits, biped):
+    """The walk written to trajectory.npz holds u[i] as the input that drove sample i-1 to sample i (the results'
+    contract; plots draw it steps-pre): sample k + 1 of a step holds the gait's u_k (it held u_{k+1}, 10 ms early)."""
+    from planner.gait import periodic_walk
+
+    sol = gaits["biped_gait1.toml"]
+    walk = periodic_walk(biped, sol, 2)
+    N, lay = len(sol.u), biped.layout
+    np.testing.assert_array_equal(walk.u[1:N + 1, lay.stance_motor], sol.u[:, 0])
+    np.testing.assert_array_equal(walk.u[1:N + 1, lay.swing_motor], sol.u[:, 1])
+    np.testing.assert_array_equal(walk.u[N + 2:2 * N + 2, lay.swing_motor], sol.u[:, 0])  # legs swapped
 
 
 def test_gait_findings_of_section_4_2(gaits):
@@ -520,6 +542,17 @@ def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
     with pytest.raises(ValueError, match="read-only"):
         spec.x0[0] = 9.0
     assert spec == spec and spec != GaitSpec.from_task(task) and len({spec, spec}) == 1
+
+
+def test_a_gaits_fall_is_the_quiet_failure_lines_reason():
+    """-q's failure line of a gait whose MuJoCo walk fell, its contacts and motors fine, says so (it printed "planner
+    gait: failed" with no reason)."""
+    from planner.cli import _failure
+
+    walking = {"fell": True, "steps_walked": 1, "steps_asked": 10, "control": "phase"}
+    summary = {"command": "gait", "converged": True, "contact_violations": [], "motor_violations": [], "walking": walking}
+    assert _failure(summary) == ": the MuJoCo walk fell after 1 of 10 steps (phase control)"
+    assert _failure({**summary, "walking": {**walking, "fell": False}}) == ""
 
 
 def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_path, capsys, monkeypatch):
