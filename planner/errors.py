@@ -157,7 +157,11 @@ def options_record(opts) -> dict:
 def shown_up(value: float, decimals: int = 10) -> str:
     """value >= 0 (a depth [m]) rounded up at `decimals` decimals, trailing zeros dropped: added back as printed, it
     clears the 1e-9 m the depth was refused by (0.0187355 of 6 significant digits did not, nor 10 digits at 12 m)."""
-    return f"{math.ceil(value * 10**decimals) / 10**decimals:.{decimals}f}".rstrip("0").rstrip(".")
+    scaled = value * 10**decimals
+    if not math.isfinite(scaled):  # (1e300 m overflowed math.ceil)
+        return f"{value:.17g}"
+    # rounding first: 0.07 printed as 0.0700000001, its float error rounded up as depth
+    return f"{math.ceil(round(scaled, 6)) / 10**decimals:.{decimals}f}".rstrip("0").rstrip(".")
 
 
 def shown(value, width: int = 60) -> str:
@@ -219,7 +223,7 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             ok = ok and (kind == "int" or all(v == v and (inf_ok or abs(v) != float("inf")) for v in items))
         if not ok:
             integers = all(isinstance(v, int) and not isinstance(v, bool) for v in items)  # only too large for C
-            what = (f"a smaller integer (a C int: at most {C_INT_MAX}; its own range is checked next)"
+            what = (f"an integer a C int holds, in [{-C_INT_MAX - 1}, {C_INT_MAX}] (its own range is checked next)"
                     if kind == "int" and integers
                     else kinds[kind] if kind != "float"
                     else "a number within a double's range, not nan (inf: no bound)" if inf_ok else "a finite number")

@@ -31,8 +31,9 @@ MIN_DOF_INERTIA = 1e-4
 # a joint speed limit at or above this [m/s or rad/s] is none: IPOPT's own infinity (nlp_upper_bound_inf), and Pinocchio
 # gives its free-flyer root the largest double
 NO_SPEED_LIMIT = 1e19
-# a URDF joint axis whose components are all below this is zero (MuJoCo's compiler refuses it as "too small")
-MIN_AXIS = 1e-9
+# a URDF joint axis whose components are all below this is zero (MuJoCo's compiler refused 1e-7 as "too small",
+# accepted 2e-7)
+MIN_AXIS = 1e-6
 
 
 class RobotFormat(Enum):
@@ -400,8 +401,7 @@ def _refuse_joint_mistakes(path: Path, root) -> None:
 def _urdf_couplings(root) -> tuple[str, ...]:
     """A URDF's <mimic> joints (root: its parsed root element) as Robot.passive entries: Pinocchio reads such a joint
     as independent, MuJoCo as an equality constraint (MJCF's <equality> is refused), so simulate and plan refuse them;
-    check-model compares the
-    tree, which both read alike (a gripper's mimic finger)."""
+    check-model compares the tree, which both read alike (a gripper's mimic finger)."""
     return tuple(f"joint {j.get('name', '?')!r}: <mimic> (a coupling MuJoCo makes an equality constraint)"
                  for j in root.iter("joint") if j.find("mimic") is not None)
 

@@ -64,8 +64,8 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     wall time [s] at which it finished or was stopped.
     """
     expect(problem, Problem, "race's problem")
-    if isinstance(arms, SolveOptions):  # (one options object given for its arms: "not iterable")
-        raise InputError("race takes arms, (name, SolveOptions) pairs, not one SolveOptions: "
+    if isinstance(arms, SolveOptions) or not isinstance(arms, (list, tuple)):  # (a TypeError: "not iterable")
+        raise InputError(f"race takes arms, a list of (name, SolveOptions) pairs, not a {type(arms).__name__}: "
                          "race(problem, default_arms(options)) races the default two")
     arms = tuple(arms)
     if not arms or not all(isinstance(a, tuple) and len(a) == 2 and isinstance(a[0], str) and isinstance(a[1], SolveOptions)

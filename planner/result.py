@@ -320,13 +320,11 @@ class SimulationResult(ArraysReadOnly):
                          "simulation has no joint limits, MuJoCo's replay enforces them")
         for brake in self.extra.get("braked_outside_friction_cone", ()):
             lines.append(f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in "
-                         f"{brake['steps']} running step(s) (up to {brake['max_tangential_N']:.4g} N where mu normal = "
-                         f"{brake['mu_normal_N']:.4g} N): a point sliding on its plane brakes at a_t / m whatever mu, "
-                         "with no impact and no lambda_t (docs/tasks.md)")
+                         f"{brake['steps']} running step(s) (up to {brake['max_tangential_N']:.4g} N "
+                         f"{_cone_where(brake)}): a point sliding on its plane brakes at a_t / m whatever mu, with no "
+                         "impact and no lambda_t (docs/tasks.md)")
         for force in self.extra.get("forces_outside_friction_cone", ()):
-            pulls = force.get("normal_N", 0.0) < 0  # (it read "mu normal = 0 N" of a normal force of -4.23 N)
-            where = (f"where the normal force pulls, {force['normal_N']:.4g} N" if pulls else
-                     f"where mu normal = {force['mu_normal_N']:.4g} N")
+            where = _cone_where(force)
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
                          f"{len(self.trajectory.t)} samples (|tangential| up to {force['max_tangential_N']:.4g} N "
                          f"{where}): a simulation's no-slip contact holds the point with any tangential force "
@@ -423,9 +421,9 @@ CONE_FLOOR_N = 1e-6
 
 def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     """The contacts whose persistent force leaves their friction cone, one entry each: point, samples (how many of
-    the physical-time samples), max_tangential_N (the largest |lambda_t| outside [N]) and mu_normal_N (mu lambda_n
-    there [N]). A simulation's no-slip contact holds a point with whatever tangential force it takes (the paper's
-    model: no cone); a brick on two corners was held by +-3641 N against a normal force of 0.016 N. [] without the
+    the physical-time samples), max_tangential_N (the largest |lambda_t| outside [N]), mu_normal_N (mu lambda_n
+    there, lambda_n clipped at 0 [N]) and normal_N (lambda_n there [N]). A simulation's no-slip contact holds a
+    point with whatever tangential force it takes (the paper's model: no cone); a brick on two corners was held by +-3641 N against a normal force of 0.016 N. [] without the
     task, the forces or any contact outside."""
     samples = tr.contact_force_samples()
     if task is None or samples is None or samples[0].shape[1] != len(task.contacts):
@@ -439,6 +437,14 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
         if entry:
             out.append(entry)
     return out
+
+
+def _cone_where(entry: dict) -> str:
+    """How a cone_breach entry's normal force reads in a report line: mu times it, or that it pulls (it read "mu normal
+    = 0 N" of a normal force of -4.23 N, the bound clipped at 0); summaries before normal_N: mu times it."""
+    if entry.get("normal_N", 0.0) < -CONE_FLOOR_N:
+        return f"where the normal force pulls, {entry['normal_N']:.4g} N"
+    return f"where mu normal = {entry['mu_normal_N']:.4g} N"
 
 
 def cone_breach(point: str, counted: str, mu: float, tangential, normal, where=True,

@@ -713,8 +713,9 @@ def braked_outside_cone(system: TimeFreezingSystem, builder: ImplicitEulerStep, 
     """The contacts a tangential auxiliary field held beyond their friction cone in steps whose clock ran (no impact,
     no lambda_t): a point sliding on its plane brakes at a_t / m whatever mu (docs/tasks.md). One entry per contact
     with mu > 0: point, steps (how many), max_tangential_N (the field's tangential impulse over the step's physical
-    time [N]) and mu_normal_N (mu times the normal force there: the persistent one at the step's end and the field's
-    [N]). elements: (tau, Y, Ys, Ws, Us, dt) as element_trajectory takes them."""
+    time [N]), mu_normal_N (mu times the normal force there: the persistent one at the step's end and the field's,
+    clipped at 0 [N]) and normal_N (that normal force [N]). elements: (tau, Y, Ys, Ws, Us, dt) as
+    element_trajectory takes them."""
     _, Y, Ys, Ws, Us, dt = elements
     if not len(system.contacts) or not len(Ws):
         return []

@@ -472,9 +472,9 @@ class Task:
         unplanar = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
         if unplanar:  # (a task without contacts reached a CasADi dimension mismatch: a traceback, exit 1)
             raise RobotFileError(f"{robot.path}: joint(s) {', '.join(unplanar)} have more coordinates than velocities "
-                                 "(a free or ball joint, Pinocchio's free flyer, or an unbounded hinge): the planner's "
-                                 "robots are planar, with slide and hinge joints (a floating base: slide x, slide z "
-                                 "and a hinge about y)")
+                                 "(a free, ball or URDF planar joint, Pinocchio's free flyer, or a continuous joint: "
+                                 "make that one revolute with limits): the planner takes slide and hinge joints (a "
+                                 "floating planar base: slide x, slide z and a hinge about y)")
         if robot.passive:  # MuJoCo's replay applies them, the planner's dynamics do not
             raise RobotFileError(f"{robot.path}: {'; '.join(robot.passive)}: the planner's dynamics have neither passive joint "
                                  "forces (damping, stiffness, friction) nor couplings between joints; remove them from the robot "
@@ -639,11 +639,11 @@ class Task:
             else:
                 # (counted: "give mu = 0 to one of them" left a point mass in a corner dependent, 3 rows for 2)
                 extra = len(on) - normal_rank
-                fix = (f"their normals alone are dependent: remove {extra} of them" if extra else "")
+                # (removing a contact drops its friction row too: counted after that, mu = 0 was asked of too many)
                 surplus = rows - rank - extra
-                if surplus > 0:
-                    fix += (", and " if fix else "") + (f"{surplus} friction direction(s) are surplus: give mu = 0 to "
-                                                        f"{surplus} contact(s) with friction")
+                fix = (f"their normals alone are dependent: remove {extra} of them, then check the others' friction"
+                       if extra else f"{surplus} friction direction(s) are surplus: give mu = 0 to {surplus} "
+                       "contact(s) with friction")
                 warnings.warn(f"{names} on their planes at initial.q constrain {rows} directions but only {rank} "
                               "independently, so their forces together are not unique (e.g. two sticking points of "
                               f"one rigid body) and the solver may fail; {fix}")

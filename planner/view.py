@@ -591,7 +591,7 @@ def names_a_directory(text: str) -> str | None:
     file named DIR), else None; render_html and the CLI's --html parser say it."""
     if not text.endswith(("/", os.sep)) and re.split(r"[/\\]", text)[-1] not in (".", ".."):  # ("nd/." is nd too)
         return None
-    return f"{text} names a directory; name the page's file (e.g. {text}replay.html)"
+    return f"{text} names a directory; name the page's file (e.g. {os.path.join(text, 'replay.html')})"
 
 
 def _is_page(path: Path) -> bool:

@@ -141,6 +141,7 @@ def hop():
     (lambda r, t, p: read_start("results", p.signature, p.nx, robot="point_mass"),
      "read_start's robot must be a Robot"),
     (lambda r, t, p: race(p, SolveOptions()), r"race takes arms, .* race\(problem, default_arms\(options\)\)"),
+    (lambda r, t, p: race(p, None), r"race takes arms, a list of \(name, SolveOptions\) pairs, not a NoneType"),
     (lambda r, t, p: race(p, [("a", SolveOptions())], processes="2"),
      "race processes must be an integer >= 1"),
     (lambda r, t, p: solve_options_from_dict({}, base="x"),
@@ -229,7 +230,7 @@ C_INT_MAX = 2**31 - 1  # IPOPT and CasADi read an int option as a C int
 
 @pytest.mark.parametrize("field, value, allowed", [
     # IPOPT wrapped it around to 3 iterations
-    ("max_iter", 2**32 + 3, r"a smaller integer \(a C int: at most 2147483647"),
+    ("max_iter", 2**32 + 3, r"an integer a C int holds, in \[-2147483648, 2147483647\] \(its own range"),
     ("tol", 10**400, "a finite number"),  # an int beyond a double: OverflowError inside the solve
     ("max_iter", True, "an integer$"),  # not an int at all: the C int range was named as if it were the field's
     ("max_iter", 1e3, "an integer$"),

@@ -550,7 +550,8 @@ def test_a_gaits_fall_is_the_quiet_failure_lines_reason():
     from planner.cli import _failure
 
     walking = {"fell": True, "steps_walked": 1, "steps_asked": 10, "control": "phase"}
-    summary = {"command": "gait", "converged": True, "contact_violations": [], "motor_violations": [], "walking": walking}
+    summary = {"command": "gait", "converged": True, "contact_violations": [], "motor_violations": [],
+               "walking": walking}
     assert _failure(summary) == ": the MuJoCo walk fell after 1 of 10 steps (phase control)"
     assert _failure({**summary, "walking": {**walking, "fell": False}}) == ""
 

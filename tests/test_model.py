@@ -396,7 +396,7 @@ def test_mujocos_reading_warnings_are_python_warnings(tmp_path, monkeypatch):
 def test_urdf_joint_mistakes_are_named(tmp_path, edit, said):
     """A URDF joint with a zero axis (refused as a body lighter than MIN_DOF_INERTIA, though it weighed 1 kg) or a limit
     with one side (the other read as 0 by Pinocchio and the joint unlimited by MuJoCo: refused for MuJoCo's range, or
-    as inverted or locked) or a negative speed limit (read as none) is refused naming the joint and the mistake."""
+    as inverted or locked) is refused naming the joint and the mistake."""
     from planner.errors import RobotFileError
 
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()

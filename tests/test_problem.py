@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from planner.discretization import StepForm
-from planner.errors import InputError
+from planner.errors import InputError, shown_up
 from planner.model import load_robot
 from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.task import Horizon, VelocityBound, load_task, parse_task
@@ -370,6 +370,8 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'point' 1 m below the ground \(z = 0\)"):
         build_problem(robot, hop(-1.0), options)
     build_problem(robot, hop(0.0), options)
+    # rounded up at 10 decimals, the float error of 0.07 not taken for depth, 1e300 m printed whole (ceil overflowed)
+    assert (shown_up(0.07), shown_up(1e300), shown_up(1.0 / 3.0)) == ("0.07", "1.0000000000000001e+300", "0.3333333334")
     for z in (-1.0 / 3.0, -12.345678901234):  # the depth printed, added back, builds (6 digits did not, nor 10 at 12 m)
         with pytest.raises(InputError) as refused:
             build_problem(robot, hop(z), options)
