@@ -22,7 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import Dynamics
-from .errors import InputError, RobotFileError, shown
+from .errors import InputError, RobotFileError, is_integer, shown
 from .model import Robot, RobotFormat, included_files, mujoco_failure, mujoco_spec, order_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
@@ -177,12 +177,9 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     point: the named point whose Jacobian is timed; default the first point with "foot" in its
     name, else the last named point. Raises UnknownNameError for an unknown point.
     """
-    def integer(value) -> bool:  # not a bool, a float or nan (nan < 1 is False: it slipped through)
-        return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-    if not integer(samples) or not 1 <= samples <= MAX_SAMPLES:
+    if not is_integer(samples) or not 1 <= samples <= MAX_SAMPLES:
         raise InputError(f"samples must be an integer in [1, {MAX_SAMPLES}], got {shown(samples)}")
-    if not integer(seed) or seed < 0:  # numpy's generators take seeds >= 0 only
+    if not is_integer(seed) or seed < 0:  # numpy's generators take seeds >= 0 only
         raise InputError(f"seed must be an integer >= 0, got {seed!r}")
     if not robot.points:
         raise InputError(f"{robot.path} has no named points (MJCF sites or URDF links) to check")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import math
+import numbers
 import os
 import signal
 import sys
@@ -152,6 +153,11 @@ def options_record(opts) -> dict:
         out[k] = (v.value if isinstance(v, Enum) else
                   [list(e) if isinstance(e, tuple) else e for e in v] if isinstance(v, tuple) else v)
     return out
+
+
+def is_integer(value) -> bool:
+    """An int (numpy's too), not a bool (a float or nan is none: nan < 1 is False, and it slipped through)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
 def shown_up(value: float, decimals: int = 10) -> str:

@@ -35,7 +35,7 @@ import numpy as np
 
 from .dynamics import Dynamics, dynamics_for
 from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_field_types, enum_field, expect,
-                     interruptible, shown)
+                     interruptible, is_integer, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import CONE_SLACK, ArraysReadOnly, real_array, task_path, write_files
@@ -548,7 +548,7 @@ def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = N
     expect(spec, GaitSpec, "solve_gait_ipopt's spec (GaitSpec.from_task)")
     if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and 0 < tol < np.inf):  # (IPOPT crashed)
         raise InputError(f"solve_gait_ipopt's tol must be a number > 0, got {tol!r:.60}")
-    if not (isinstance(max_iter, (int, np.integer)) and not isinstance(max_iter, bool) and max_iter >= 1):
+    if not (is_integer(max_iter) and max_iter >= 1):
         raise InputError(f"solve_gait_ipopt's max_iter must be an int >= 1, got {max_iter!r:.60}")
     ocp = ocp or GaitOCP(model, spec)
     N = spec.N
@@ -604,7 +604,7 @@ class Walk(ArraysReadOnly):
 
 def _check_steps(steps, caller: str) -> None:
     """InputError unless steps is an int >= 1 (0 was an IndexError, 1.5 a TypeError)."""
-    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 1:
+    if not is_integer(steps) or steps < 1:
         raise InputError(f"{caller}'s steps must be an int >= 1, got {steps!r:.60}")
 
 
@@ -817,8 +817,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     expect(gains, (WalkGains, type(None)), "replay_gait's gains")  # ({} was taken as the defaults, {"kp": 1} crashed)
     expect(settings, (ContactSettings, type(None)), "replay_gait's settings")
     _check_steps(steps, "replay_gait")
-    if arm_index is not None and not (isinstance(arm_index, (int, np.integer)) and not isinstance(arm_index, bool)
-                                      and 0 <= arm_index < len(sol.t)):  # (-5 armed 5 samples from the end)
+    if arm_index is not None and not (is_integer(arm_index) and 0 <= arm_index < len(sol.t)):  # (-5: 5 from the end)
         raise InputError(f"replay_gait's arm_index must be a sample index in [0, {len(sol.t) - 1}] or None, got "
                          f"{arm_index!r:.60}")
     gains = WalkGains() if gains is None else gains

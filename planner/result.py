@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect, shown, write_error
+from .errors import InputError, expect, is_integer, shown, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -423,7 +423,8 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     """The contacts whose persistent force leaves their friction cone, one entry each: point, samples (how many of
     the physical-time samples), max_tangential_N (the largest |lambda_t| outside [N]), mu_normal_N (mu lambda_n
     there, lambda_n clipped at 0 [N]) and normal_N (lambda_n there [N]). A simulation's no-slip contact holds a
-    point with whatever tangential force it takes (the paper's model: no cone); a brick on two corners was held by +-3641 N against a normal force of 0.016 N. [] without the
+    point with whatever tangential force it takes (the paper's model: no cone); a brick on two corners was held by
+    +-3641 N against a normal force of 0.016 N. [] without the
     task, the forces or any contact outside."""
     samples = tr.contact_force_samples()
     if task is None or samples is None or samples[0].shape[1] != len(task.contacts):
@@ -1187,7 +1188,7 @@ def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndar
     last iterate, and from a plan of the file before an edit)."""
     expect(out_dir, (str, os.PathLike), "read_start's out_dir")
     expect(signature, str, "read_start's signature (Problem.signature)")
-    if not isinstance(nx, (int, np.integer)) or isinstance(nx, bool):  # ("5" read as "291 against this problem's 5")
+    if not is_integer(nx):  # ("5" read as "291 against this problem's 5")
         raise InputError(f"read_start's nx (Problem.nx) must be an int, got {type(nx).__name__} {nx!r:.60}")
     from .model import Robot
 
