@@ -330,9 +330,11 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     lower, upper = robot.q_lower, robot.q_upper
     for j in range(mj.njnt):
         joint, i = name(mujoco.mjtObj.mjOBJ_JOINT, j), int(mj.jnt_qposadr[j])
-        if mj.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE and mj.qpos0[i]:  # (only "point 'foot' is 0.2 m apart")
-            out.append(f"joint {joint!r}: ref {mj.qpos0[i]:g} m, which MuJoCo's slide joint reads and Pinocchio's "
-                       "does not (its points are that far apart); remove ref")
+        last = j == max(k for k in range(mj.njnt) if mj.jnt_bodyid[k] == mj.jnt_bodyid[j])
+        if mj.qpos0[i] and not last:  # (only "point 'foot' is 0.2 m apart"; a body's last joint's ref Pinocchio reads)
+            unit = "m" if mj.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE else "rad"
+            out.append(f"joint {joint!r}: ref {mj.qpos0[i]:g} {unit}, which Pinocchio's parser ignores on a joint "
+                       "before its body's last; remove ref or make it its body's last joint")
         if mj.jnt_actfrclimited[j]:  # MuJoCo clamps the joint's summed actuator force: fine where the motors stay inside
             drives = [a for a in robot.actuators if a.dof == int(mj.jnt_dofadr[j])]
             reach = (sum(min(a.gear * a.lower, a.gear * a.upper) for a in drives),  # a negative gear swaps its ends
@@ -410,11 +412,51 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
+    if out and robot.format is RobotFormat.MJCF:
+        out += _parser_gaps(ET.parse(robot.path).getroot())
     if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
         # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
         out.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: "
                    "the differences above may be theirs; write them into the file")
     return tuple(out)
+
+
+AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize
+
+
+def _parser_gaps(root: ET.Element) -> list[str]:
+    """MJCF constructs of the file at `root` that MuJoCo reads and Pinocchio's MJCF parser (3.x) reads otherwise, as
+    measured (session 56): they explain a mass, bias or point difference that reading_differences found and the mass
+    message's "e.g." does not."""
+    out = []
+    seq = next((c.get("eulerseq") for c in root.iter("compiler") if c.get("eulerseq")), "xyz")
+    if seq != seq.lower() and any(e.get("euler") for e in root.iter()):
+        out.append(f"<compiler eulerseq=\"{seq}\">: Pinocchio's parser reads an extrinsic (upper-case) sequence as "
+                   "intrinsic; write the orientations as quat or in the lower-case sequence")
+    for e in root.iter():
+        axis = (e.get("axisangle") or "").split()[:3]
+        try:
+            length = float(np.linalg.norm(np.array(axis, float))) if len(axis) == 3 else 1.0
+        except ValueError:  # MuJoCo refuses it first
+            continue
+        if abs(length - 1.0) > AXIS_TOL:
+            out.append(f"<{e.tag} name={e.get('name')!r}> axisangle axis of length {length:.12g}, which Pinocchio's "
+                       "parser does not normalize (MuJoCo does); give a unit axis to full precision, or a quat")
+    for d in root.iter("default"):
+        where = f"<default class={d.get('class')!r}>" if d.get("class") else "<default>"
+        out += [f"{where} gives <{e.tag}> pos, which Pinocchio's parser does not apply; write pos on each {e.tag}"
+                for e in d.findall("*") if e.tag in ("joint", "site") and e.get("pos")]
+
+    def jointless(body):
+        return body.tag == "body" and not body.findall("joint") and not body.findall("freejoint")
+
+    for body in root.iter("body"):
+        inner = [b for b in body.findall("body") if jointless(b) and b.findall("site")]
+        if jointless(body):
+            out += [f"site(s) {[s.get('name') for s in b.findall('site')]} on body {b.get('name')!r}, a body without "
+                    f"joints inside the body without joints {body.get('name')!r}, which Pinocchio's parser places "
+                    "otherwise; merge the two bodies" for b in inner]
+    return out
 
 
 def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | None, str | None]:

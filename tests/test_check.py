@@ -354,7 +354,8 @@ OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio=
     ("</worldbody>", '</worldbody><tendon><fixed name="t" limited="true" range="-1 0.2"><joint joint="x" coef="1"/></fixed>'
      '</tendon>', "tendon 't': range [-1, 0.2]"),
     (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "point 'point' is up to 0.3 m apart"),
-    (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "joint 'x': ref 0.3 m, which MuJoCo's slide"),
+    (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" ref="0.3"/>', "joint 'x': ref 0.3 m, which Pinocchio's parser "
+     "ignores on a joint before its body's last"),
     (OPTION, '<compiler settotalmass="2"/>' + OPTION, '<compiler settotalmass="2">: MuJoCo rescales the masses'),
     ('<site name="point"', '<body name="load"><geom type="sphere" size="0.02" mass="2"/></body><site name="point"',
      "mass matrix [kg, kg m, kg m^2] differs by up to 2 (e.g. masses MuJoCo infers from geoms"),
@@ -379,6 +380,57 @@ def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, name
     assert not result.passed and (numeric or named in result.report())
     with pytest.raises(RobotFileError, match="MuJoCo reads other physics from this file than Pinocchio"):
         load_task(ROBOTS_DIR / "point_mass.toml").check_against(robot)
+
+
+CAPLER = (ROBOTS_DIR / "capler.xml").read_text()
+SHANK = '<body name="shank" pos="0 0 -0.2">'
+KNEE = '<joint name="knee" type="hinge" axis="0 1 0" range="-1.5707963267948966 1.5707963267948966"/>'
+FOOT = '<site name="foot" pos="0 0 -0.2" size="0.012"/>'
+
+
+@pytest.mark.parametrize("edits, named", [
+    ([(SHANK, SHANK[:-1] + ' axisangle="0 2 0 0.3">')], "<body name='shank'> axisangle axis of length 2, which"),
+    ([('autolimits="true"', 'autolimits="true" eulerseq="XYZ"'), (SHANK, SHANK[:-1] + ' euler="0.1 0.3 0.5">')],
+     '<compiler eulerseq="XYZ">: Pinocchio\'s parser reads an extrinsic'),
+    ([(KNEE, KNEE.replace('range', 'ref="0.3" range') + '<joint name="ext" type="slide" axis="0 0 1" range="-0.05 0.05"/>')],
+     "joint 'knee': ref 0.3 rad, which Pinocchio's parser ignores on a joint before its body's last"),
+    ([("</default>", '<default class="tip"><site pos="0 0 -0.2"/></default></default>'),
+      (FOOT, '<site name="foot" class="tip" size="0.012"/>')], "<default class='tip'> gives <site> pos, which"),
+    ([(FOOT, FOOT + '<body name="sole" pos="0 0 -0.2"><body name="spur" pos="0.02 0 0"><site name="tip" '
+      'pos="0.01 0 0"/></body></body>')], "site(s) ['tip'] on body 'spur', a body without joints inside"),
+])
+def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, named):
+    """Capler's MJCF file with a construct MuJoCo reads and Pinocchio's parser reads otherwise (a non-unit axisangle
+    axis, an extrinsic eulerseq, a hinge's ref before its body's last joint, a site's pos from a <default>, a site
+    on a jointless body in a jointless body) differs in its mass matrix or points and is refused naming that construct
+    (session 56's tester: refused with "e.g. masses MuJoCo infers from geoms" in a file of none, or points apart)."""
+    from planner.check import reading_differences
+
+    text = CAPLER
+    for old, new in edits:
+        assert text.count(old) == 1
+        text = text.replace(old, new)
+    path = tmp_path / "variant.xml"
+    path.write_text(text)
+    differences = reading_differences(load_robot(path))
+    assert any(d.startswith(named) for d in differences), differences
+
+
+@pytest.mark.parametrize("joint, ref", [("base_z", "0.1"), ("knee", "0.3")])
+def test_a_ref_on_a_bodys_last_joint_is_read_alike(tmp_path, joint, ref):
+    """A joint's ref on its body's last joint (a slide or a hinge) is read by Pinocchio's parser as MuJoCo reads it
+    (the points and masses agree at every q), so the file passes check-model and is not refused: a slide's was refused
+    as "MuJoCo's slide joint reads and Pinocchio's does not" (session 56's tester)."""
+    from planner.check import reading_differences
+
+    old = f'<joint name="{joint}" type='
+    assert CAPLER.count(old) == 1
+    path = tmp_path / "ref.xml"
+    path.write_text(CAPLER.replace(old, f'<joint name="{joint}" ref="{ref}" type='))
+    robot = load_robot(path)
+    assert reading_differences(robot) == ()
+    result = check_model(robot, samples=2)
+    assert result.passed, result.failures
 
 
 def test_a_urdf_link_of_no_mass_keeps_its_inertia_for_mujoco(tmp_path):
