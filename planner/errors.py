@@ -46,9 +46,10 @@ class RobotFileError(InputError):
 class UnknownNameError(InputError):
     """A name (point, joint, task key, ...) that does not exist; the message lists the valid ones."""
 
-    def __init__(self, kind: str, name: str, valid: Iterable[str], key: str = ""):
-        """key: where the name was given (a task key such as "plan.joint_bounds[0].joint"), said first."""
-        self.kind, self.name, self.valid = kind, name, sorted(valid)
+    def __init__(self, kind: str, name: str, valid: Iterable[str], key: str = "", ordered: bool = False):
+        """key: where the name was given (a task key such as "plan.joint_bounds[0].joint"), said first; ordered: list
+        `valid` as given (joints in coordinate order, the order of the task's vectors), else sorted."""
+        self.kind, self.name, self.valid = kind, name, list(valid) if ordered else sorted(valid)
         super().__init__(f"{key + ': ' if key else ''}unknown {kind} {name!r}; valid {kind}s: {', '.join(self.valid) or '(none)'}")
 
 

@@ -195,7 +195,7 @@ class Robot:
         """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names (and names `key`, the task
         key that gave the joint, when given)."""
         if joint not in self.dof_names:
-            raise UnknownNameError("joint", joint, self.dof_names, key)
+            raise UnknownNameError("joint", joint, self.dof_names, key, ordered=True)
         return self.dof_names.index(joint)
 
 

@@ -86,6 +86,7 @@ from .timefreezing import ContactModel, TimeFreezingSystem
 
 
 HOLE_EDGE_TOL = 1e-9  # a point on a hole's edge (metric 1, e.g. a target at its rim) is outside
+START_GAP_M = 1e-9  # [m] a start or target this far into a contact plane is on it (heights typed to 9 digits)
 PARAMETERS = ("rho", "hole_scale", "an_scale", "at_scale", "terminal_weight", "rho_l1", "rho_f_scale")  # p, in Problem.params' order
 
 
@@ -395,10 +396,11 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
             gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
-            if gap < -1e-9:
+            if gap < -START_GAP_M:
                 raise InputError(f"{key} puts contact point {c.point!r} {shown_up(-gap)} m "
                                  f"{c.beyond(task.ground_height)}"
-                                 + (" (touches = false)" if c in never else ""))
+                                 + (" (touches = false)" if c in never else "")
+                                 + f"; move it out by that much (up to {START_GAP_M:g} m in is allowed)")
     _check_outside_holes(dyn, task.contacts, task)
 
     if options.discretization is Discretization.FESD:
