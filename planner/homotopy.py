@@ -1459,8 +1459,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     # the robot flies when every contact point does (one contact: its beta): so its gap is the smallest
     gap = [float(np.min(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float), initial=np.inf))
            for y in nodes]
+    holes = [(e.x - e.a, e.x + e.a) for e in problem.task.plan.holes]
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
-                   gap)
+                   gap, holes)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
