@@ -24,7 +24,9 @@ import pinocchio as pin
 
 from .errors import RobotFileError, UnknownNameError, expect
 
-ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
+_HERE = Path(__file__).resolve().parent
+# the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
+ROBOTS_DIR = _HERE / "robots" if (_HERE / "robots").is_dir() else _HERE.parent / "robots"
 # a degree of freedom lighter than this [kg or kg m^2] moves less than the solvers' absolute tolerances resolve: a
 # point-mass drop's height at 0.3 s was off by 3e-5 m at 1e-4 kg, 7e-4 m at 1e-5, 0.01 m at 1e-6, 0.13 m at 1e-7
 MIN_DOF_INERTIA = 1e-4
@@ -211,7 +213,9 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
             if candidate.is_file():
                 return candidate
         known = sorted({p.stem for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")})
-        raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}")
+        raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}" if known
+                             else f"robot {str(spec)!r} is not a file, and this install has no robot files in "
+                                  f"{ROBOTS_DIR}; give a robot file's path")
     raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}")
 
 

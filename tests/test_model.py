@@ -42,6 +42,32 @@ def test_bare_name_resolves_to_robots_dir():
         load_robot("no_such_robot")
 
 
+def test_the_robots_ship_inside_the_package():
+    """Every file of robots/ is package data of `planner.robots` (the package robots/ is mapped to), so a wheel (a
+    non-editable install) holds them and robot names work there: the wheel held planner/*.py only, and `planner plan
+    capler` was refused with an empty list of robots (session 56's tester)."""
+    import fnmatch
+    import tomllib
+
+    setup = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "planner.robots" in setup["packages"] and setup["package-dir"]["planner.robots"] == "robots"
+    patterns = setup["package-data"]["planner.robots"]
+    files = [f.name for f in ROBOTS_DIR.iterdir() if f.is_file()]
+    assert "capler.xml" in files and all(any(fnmatch.fnmatch(f, pat) for pat in patterns) for f in files), files
+
+
+def test_an_install_without_robot_files_says_so(tmp_path, monkeypatch):
+    """A bare robot name where the install has no robot files says where it looked and to give a path (it listed
+    no robots after "one of robots/:")."""
+    import planner.model
+
+    monkeypatch.setattr(planner.model, "ROBOTS_DIR", tmp_path)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RobotFileError, match=r"robot 'capler' is not a file, and this install has no robot files in "
+                                             r".*; give a robot file's path$"):
+        load_robot("capler")
+
+
 def test_a_file_of_a_robots_name_in_the_working_directory_is_read_and_said_so(tmp_path, monkeypatch):
     """A file named `capler` in the working directory is the robot `capler` (an existing path wins); when it is not a
     robot file, the error says that it hid robots/capler (a stray notes file made `plan capler` a bare parse error)."""
