@@ -52,16 +52,22 @@ def _check(results):
 
 
 def test_in_process_matches_serial():
+    """workers=0 (jobs run one after the other in this process) returns the serial loop's results in item order, the
+    raising item as a Crashed record naming the innermost stage ("check"), the error and its traceback."""
     _check(run_batch(square_or_raise, ITEMS, workers=0))
 
 
 def test_local_processes_match_serial():
+    """Two local worker processes return the serial loop's results in item order (whatever order the jobs end in),
+    the raising item as a Crashed record, and call progress once for every item index."""
     seen = []
     _check(run_batch(square_or_raise, ITEMS, workers=2, progress=lambda i, r: seen.append(i)))
     assert sorted(seen) == list(range(len(ITEMS)))
 
 
 def test_system_exit_is_a_crash_not_the_end_of_the_sweep():
+    """A job raising SystemExit (not an Exception) in a worker process becomes a Crashed record whose error names
+    SystemExit, and the jobs before and after it still return their results."""
     out = run_batch(exits, [0, 1, 2], workers=1)
     assert out[0] == 0 and out[2] == 2
     assert isinstance(out[1], Crashed) and out[1].error.startswith("SystemExit")
@@ -115,6 +121,8 @@ def test_rejects_what_is_no_function_or_no_items():
 
 
 def test_dask_local_cluster_matches_serial():
+    """A Dask scheduler, given by its address or as a dask.distributed.Client, returns the serial loop's results in
+    item order, the raising item as a Crashed record (skipped when dask.distributed is not installed)."""
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         _check(run_batch(square_or_raise, ITEMS, scheduler=cluster.scheduler_address))
@@ -137,6 +145,8 @@ def test_unreachable_scheduler_is_an_input_error(monkeypatch):
 
 
 def test_missing_dask_says_what_to_install(monkeypatch):
+    """A scheduler given while dask cannot be imported (the import is made to fail) is an InputError that names the
+    pip install 'dask[distributed]' to run, not an ImportError."""
     import builtins
 
     real_import = builtins.__import__

@@ -17,6 +17,8 @@ EXACT_TOL = 1e-12  # closed-form quantities of the point mass: only rounding
 IDENTITY_TOL = 1e-9  # algebraic identities through a symbolic QR solve of a 4x4 mass matrix
 FD_STEP = 1e-6  # central differences: truncation ~ step^2, rounding ~ eps/step
 FD_TOL = 1e-6
+FD2_STEP = 1e-4  # second differences: truncation ~ step^2 |d4p| ~ 1e-8, rounding ~ eps |p| / step^2 ~ 1e-8
+FD2_TOL = 1e-5  # m/s^2 on Capler's drifts (|v| ~ 1 rad/s, so drifts ~ 0.1-1 m/s^2): both errors above, x100
 
 
 @functools.cache
@@ -115,6 +117,42 @@ def test_tilted_plane_gap_is_the_signed_distance_to_the_plane_through_ground_hei
     for x, z in rng.uniform(-2.0, 2.0, size=(10, 2)):
         expected = np.dot(surface, np.array([x, 0.0, z]) - np.array([0.0, 0.0, g]))
         assert ev(gap, np.array([x, z]))[0] == pytest.approx(expected, abs=EXACT_TOL)
+
+
+def test_capler_tilted_plane_velocities_and_drifts_are_derivatives_of_the_position():
+    """Capler's foot on a 20-degree slope (task contact normal s = (-sin 20deg, 0, cos 20deg), in-plane tangent
+    e = (cos 20deg, 0, sin 20deg)): at seeded random states (q, v), the normal and tangential velocities are d/dt of
+    s . p(q + tau v) and e . p(q + tau v) at tau = 0, and the normal and tangent drifts (dJ/dt v, the point's
+    acceleration at fixed v) are their second derivatives, both from central differences of Pinocchio's foot
+    position alone; phi adds n^T f_v to the normal drift. (The tilted drifts were untested: a flipped sign of the
+    tangent drift left the suite green.)"""
+    import casadi as ca
+
+    theta = np.deg2rad(20.0)
+    s_axis = np.array([-np.sin(theta), 0.0, np.cos(theta)])
+    e_axis = np.array([np.cos(theta), 0.0, np.sin(theta)])  # in the plane, x-ward: e . s = 0
+    d = dyn("capler")
+    q, v, u = ca.SX.sym("q", 4), ca.SX.sym("v", 4), ca.SX.sym("u", 2)
+    terms = contact_terms(d, "foot", 0.1, q, v, u, surface=tuple(s_axis))
+    names = ["normal_velocity", "tangential_velocity", "normal_drift", "tangent_drift", "phi", "normal"]
+    f = ca.Function("tilted", [q, v, u], [getattr(terms, name) for name in names])
+    pos = d.point_position("foot")
+    h = FD2_STEP
+    tangent_drifts = []
+    for qk, vk, uk in capler_states(6, seed=4):
+        out = dict(zip(names, (np.asarray(x, dtype=float).ravel() for x in f(qk, vk, uk))))
+        p = {k: ev(pos, qk + k * h * vk) for k in (-1, 0, 1)}
+        for axis, vel, drift in ((s_axis, "normal_velocity", "normal_drift"),
+                                 (e_axis, "tangential_velocity", "tangent_drift")):
+            fd_vel = axis @ (p[1] - p[-1]) / (2 * h)
+            fd_acc = axis @ (p[1] - 2 * p[0] + p[-1]) / h**2
+            assert out[vel][0] == pytest.approx(fd_vel, abs=FD2_TOL), vel
+            assert out[drift][0] == pytest.approx(fd_acc, abs=FD2_TOL), drift
+        fd_normal_acc = s_axis @ (p[1] - 2 * p[0] + p[-1]) / h**2
+        expected_phi = out["normal"] @ ev(d.forward, qk, vk, uk) + fd_normal_acc
+        assert out["phi"][0] == pytest.approx(expected_phi, abs=FD2_TOL), "phi"
+        tangent_drifts.append(abs(out["tangent_drift"][0]))
+    assert max(tangent_drifts) > 100 * FD2_TOL  # the states probe a drift well above the tolerance
 
 
 def test_nq_different_from_nv_is_an_input_error():

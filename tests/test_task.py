@@ -454,6 +454,9 @@ def test_periodic_plan_keys():
     ],
 )
 def test_bad_periodic_values_are_named(changes, message):
+    """Each bad plan.periodic value (an unknown key, a step that is no number, a swap that is no pair of different
+    names or repeats a name, a repeated fixed name, v_bound <= 0) and a target_q given with periodic is a TaskError
+    whose message names the key, its value and what is allowed."""
     with pytest.raises(TaskError, match=message):
         parse_task(_periodic(**changes))
 
@@ -505,6 +508,8 @@ def test_velocity_bounds_as_rows():
 
 
 def test_plan_without_target_or_periodic():
+    """A plan with neither plan.target_q nor plan.periodic is a TaskError naming the missing target_q and saying it
+    is required unless plan.periodic is given."""
     with pytest.raises(TaskError, match=r"missing key 'plan.target_q' \(required unless plan.periodic"):
         parse_task({**BIPED_PERIODIC, "plan": {"rho_f": 1.0}})
 

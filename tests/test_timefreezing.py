@@ -15,10 +15,12 @@ from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import load_robot
 from planner.task import Contact
-from planner.timefreezing import ContactModel, Poly, TimeFreezingSystem, contact_model, oscillator_gains
+from planner.timefreezing import (PUSH_SPEED, ContactModel, Poly, TimeFreezingSystem, contact_model,
+                                  oscillator_gains)
 
 ON_SIGMA_TOL = 1e-9  # tangency of F to Sigma at numerically constructed points on Sigma (QR solves)
 OSC_TOL = 1e-12  # the oscillator's exact solution by the matrix exponential
+FIELD_TOL = 1e-12  # closed-form fields of the point mass (M = I, D = 1): only rounding
 
 
 @functools.cache
@@ -150,17 +152,32 @@ def test_oscillator_gains_give_restitution(eps):
 
 
 def test_elastic_frozen_field_is_the_oscillator():
-    """Elastic model with beta = eta = 0 (c <= 0, p < 0): q and clock frozen, p' = n^T v,
-    (n^T v)' = -k p - c n^T v."""
+    """Elastic model on the point mass (n = (0, 1), M = I, D = 1): at every one of the 8 corners of the selectors
+    (alpha, beta, eta) = (n^T v > 0, c > 0, p >= 0) the field is the one docs/formulation.md's region table puts
+    there: c > 0, p >= 0 flight f_ODE (p' = 0); c > 0, p < 0 f_push (q' = -a_p n / |n|^2, p' = a_p, clock frozen);
+    c <= 0, p < 0 the frozen oscillator f_osc (q and clock frozen, p' = n^T v, (n^T v)' = -k p - c n^T v);
+    c <= 0, p >= 0 f_osc when n^T v < 0 (entry corner), f_ODE when n^T v > 0 (exit corner); alpha matters only
+    there. Each expected field is written in closed form here. (The test probed 2 of the 8 corners: swapping
+    alpha's roles in the ground corner, or the push for the oscillator above the ground, left it green.)"""
     s = system("point_mass", restitution=0.5, a_n=16.0)
     assert s.models == (ContactModel.ELASTIC,) and s.state_names[-2:] == ("p[point]", "t")
+    assert [sw.name for sw in s.switches] == ["alpha[point]", "beta[point]", "eta[point]"]
     k, c = oscillator_gains(0.5, 16.0)
     y, u = np.array([0.2, 0.0, 0.7, -1.5, -0.05, 0.4]), np.array([3.0, 1.0])
-    F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(np.array([0.0, 0.0, 0.0]))])(y, u), dtype=float).ravel()
-    np.testing.assert_allclose(F, [0, 0, 0, -k * -0.05 - c * -1.5, -1.5, 0], atol=1e-12)
-    # flight (beta = eta = 1): f_ODE with p' = 0
-    F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(np.array([0.5, 1.0, 1.0]))])(y, u), dtype=float).ravel()
-    np.testing.assert_allclose(F, [0.7, -1.5, 3.0, 1.0 - 9.81, 0, 1], atol=1e-12)
+    w, p, a_p = y[3], y[4], PUSH_SPEED  # n^T v = v_z; a_p = PUSH_SPEED = 10 m/s (docs/formulation.md)
+    ode = [0.7, -1.5, 3.0, 1.0 - 9.81, 0.0, 1.0]  # (v, M^-1 (B u - h), p' = 0, t' = 1)
+    osc = [0.0, 0.0, 0.0, -k * p - c * w, w, 0.0]  # q, clock frozen; v_z' = (-k p - c w) / D
+    push = [0.0, -a_p, 0.0, 0.0, a_p, 0.0]  # q' = -a_p n / |n|^2, v frozen, p' = a_p
+    expected = {}
+    for alpha in (0.0, 1.0):
+        expected[alpha, 1.0, 1.0] = ode  # flight
+        expected[alpha, 1.0, 0.0] = push  # above the plane with p < 0
+        expected[alpha, 0.0, 0.0] = osc  # the frozen impact
+        expected[alpha, 0.0, 1.0] = ode if alpha == 1.0 else osc  # exit corner / entry corner
+    assert len(expected) == 8
+    for sigma, field in expected.items():
+        F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(np.array(sigma))])(y, u), dtype=float).ravel()
+        np.testing.assert_allclose(F, field, atol=FIELD_TOL, err_msg=f"(alpha, beta, eta) = {sigma}")
 
 
 def test_contact_models_and_unsupported_combinations():
