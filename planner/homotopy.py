@@ -39,7 +39,8 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record, plain
+from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expect, interruptible, options_record,
+                     plain, representable)
 from .problem import Penalty, Problem
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
@@ -99,19 +100,18 @@ class Derivation(Enum):
 
 
 class MumpsOrdering(Enum):
-    """MUMPS's fill-reducing ordering of IPOPT's KKT matrix (IPOPT's mumps_pivot_order: the integer)."""
+    """MUMPS's fill-reducing ordering of IPOPT's KKT matrix (IPOPT's mumps_pivot_order: the integer). SCOTCH (3) and
+    PORD (4) are not built into the CasADi wheel's MUMPS, which then warns and takes its default: not offered."""
 
     AMD = "amd"  # 0
     AMF = "amf"  # 2
-    SCOTCH = "scotch"  # 3
-    PORD = "pord"  # 4
     METIS = "metis"  # 5
     QAMD = "qamd"  # 6
     AUTO = "auto"  # 7, MUMPS chooses by the matrix (IPOPT's default)
 
 
-_MUMPS_PIVOT_ORDER = {MumpsOrdering.AMD: 0, MumpsOrdering.AMF: 2, MumpsOrdering.SCOTCH: 3, MumpsOrdering.PORD: 4,
-                      MumpsOrdering.METIS: 5, MumpsOrdering.QAMD: 6, MumpsOrdering.AUTO: 7}
+_MUMPS_PIVOT_ORDER = {MumpsOrdering.AMD: 0, MumpsOrdering.AMF: 2, MumpsOrdering.METIS: 5, MumpsOrdering.QAMD: 6,
+                      MumpsOrdering.AUTO: 7}
 
 
 class VariableScaling(Enum):
@@ -364,8 +364,9 @@ class SolveOptions:
             (0 < self.bound_push < 0.5, "bound_push", self.bound_push, "in (0, 0.5)"),
             (0 < self.bound_frac <= 0.5, "bound_frac", self.bound_frac, "in (0, 0.5]"),
             (self.linear_solver in LINEAR_SOLVERS, "linear_solver", self.linear_solver, f"one of {list(LINEAR_SOLVERS)}"),
-            (self.nlp_scaling_method in ("gradient-based", "none", "equilibration-based"), "nlp_scaling_method",
-             self.nlp_scaling_method, "gradient-based, equilibration-based or none"),
+            # (equilibration-based needs HSL's MC19, which the CasADi wheel lacks: IPOPT rejected it at the solve)
+            (self.nlp_scaling_method in ("gradient-based", "none"), "nlp_scaling_method", self.nlp_scaling_method,
+             "gradient-based or none"),
             (self.comp_tol > 0, "comp_tol", self.comp_tol, "> 0"),
             (self.terminal_tol > 0, "terminal_tol", self.terminal_tol, "> 0"),
             (self.constraint_tol > 0, "constraint_tol", self.constraint_tol, "> 0"),
@@ -508,8 +509,10 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
             raise InputError(f"SolveOptions.{field} sets IPOPT's {name!r}, which SolveOptions.{owner} owns; set that "
                              f"instead{also}")
     for name, value in pairs:  # CasADi hands IPOPT's integer options int(value): acceptable_iter = 2.5 ran as 2
-        if isinstance(value, float) and not value.is_integer() and _ipopt_option_is_integer(name):
-            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; IPOPT's {name} is an integer")
+        if isinstance(value, (int, float)) and _ipopt_option_is_integer(name) and not (
+                float(value).is_integer() and representable(value, "int")):  # (2**32 + 1 wrapped around to 1)
+            raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; IPOPT's {name} is an integer "
+                             f"a C int holds (at most {C_INT_MAX})")
     if pairs:
         _check_with_ipopt(field, dict(pairs))
     return pairs
@@ -1240,8 +1243,10 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     wall = time.perf_counter() - t0
     st = solver.stats()
     if st.get("return_status") == "Invalid_Option":  # e.g. an HSL solver without its library: no iterate, no counts
-        raise InputError(f"IPOPT rejected its options in {label} (Invalid_Option): is linear_solver "
-                         f"{solvers.options.linear_solver!r} installed? The CasADi wheel ships 'mumps' and 'spral'")
+        raise InputError(f"IPOPT rejected its options in {label} (Invalid_Option): an option needs a library this "
+                         f"install lacks, e.g. linear_solver {solvers.options.linear_solver!r} (the CasADi wheel ships "
+                         "'mumps' and 'spral') or HSL's MC19 (linear_system_scaling 'mc19'); its log says which "
+                         "(print_level 5)")
     solvers.add_evals(solver.name(), st)
     if n_probe:
         sol = dict(sol, x=sol["x"][: problem.nx], lam_x=sol["lam_x"][: problem.nx])

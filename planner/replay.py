@@ -83,6 +83,10 @@ HOLE_PASS_METRIC = 0.25
 HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated, at least
 HOLE_MAX_SUBSAMPLES = 2000  # and at most (a step's travel of 500 quarter half-axes of the narrowest hole)
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
+# MuJoCo's timestep range for the validation [s]: a replay of T seconds takes T / timestep steps (1e-9 s: 1.5e9
+# samples, out of memory), and above 10 ms the one-step penetration v * timestep is centimetres
+MIN_TIMESTEP_S, MAX_TIMESTEP_S = 1e-5, 1e-2
+MAX_SPHERE_M = 0.01  # [m] a contact site's collision sphere: a larger one is a body of its own (1e300 failed)
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,8 @@ class ContactSettings:
 
     def __post_init__(self):
         check_field_types(self, "contact")
-        _check(self.timestep > 0, "contact.timestep", self.timestep, "> 0")
+        _check(MIN_TIMESTEP_S <= self.timestep <= MAX_TIMESTEP_S, "contact.timestep", self.timestep,
+               f"in [{MIN_TIMESTEP_S:g}, {MAX_TIMESTEP_S:g}] s")
         _check(self.cone in ("elliptic", "pyramidal"), "contact.cone", self.cone, "'elliptic' or 'pyramidal'")
         _check(self.impratio >= 1, "contact.impratio", self.impratio, ">= 1")
         _check(self.noslip_iterations >= 0, "contact.noslip_iterations", self.noslip_iterations, ">= 0")
@@ -136,7 +141,8 @@ class ContactSettings:
                and power >= 1, "contact.solimp", self.solimp,
                f"5 numbers (dmin, dmax in [{MIN_IMP}, {MAX_IMP}], width > 0, midpoint in (0, 1), power >= 1)")
         _check(self.elastic_timeconst_steps >= 2, "contact.elastic_timeconst_steps", self.elastic_timeconst_steps, ">= 2")
-        _check(self.sphere_radius > 0, "contact.sphere_radius", self.sphere_radius, "> 0")
+        _check(0 < self.sphere_radius <= MAX_SPHERE_M, "contact.sphere_radius", self.sphere_radius,
+               f"in (0, {MAX_SPHERE_M:g}] m")
 
     def solref(self, restitution: float = 0.0) -> tuple[float, float]:
         """MuJoCo solref of a contact with the given restitution coefficient in [0, 1]."""

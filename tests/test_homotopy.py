@@ -128,6 +128,11 @@ def test_a_list_for_a_tuple_field_is_stored_as_the_tuple():
                                          ({"nlp_scaling_method": "magic"}, "nlp_scaling_method"), ({"comp_tol": -1}, "comp_tol"),
                                          ({"polish": "yes"}, "polish"), ({"warm_start": "dual"}, "warm_start"),
                                          ({"mumps_ordering": "amf2"}, "mumps_ordering"),
+                                         # not built into the wheel's MUMPS, which took its default (session 56)
+                                         ({"mumps_ordering": "pord"}, "mumps_ordering"),
+                                         ({"mumps_ordering": "scotch"}, "mumps_ordering"),
+                                         # needs HSL's MC19: IPOPT refused it at the solve (session 56)
+                                         ({"nlp_scaling_method": "equilibration-based"}, "nlp_scaling_method"),
                                          ({"retry_terminal_weight": 0.0}, "retry_terminal_weight"),
                                          ({"early_stop_comp": 0.0}, "early_stop_comp"),
                                          ({"rho_f_schedule": ()}, "rho_f_schedule"), ({"rho_f_schedule": (10.0, 0.0)}, "rho_f_schedule"),
@@ -293,8 +298,11 @@ def test_an_unknown_or_missing_linear_solver_is_an_input_error(hop):
     with pytest.raises(InputError, match="linear_solver = 'foo' is not allowed"):
         H.SolveOptions(linear_solver="foo")
     prob = hop[0]
-    with pytest.raises(InputError, match="linear_solver 'ma27' installed"):
+    with pytest.raises(InputError, match="an option needs a library this install lacks, e.g. linear_solver 'ma27'"):
         H.solve(prob, H.SolveOptions(linear_solver="ma27"))
+    # HSL's MC19 as the one missing library: the message named the installed linear solver alone (session 56)
+    with pytest.raises(InputError, match="or HSL's MC19"):
+        H.solve(prob, H.SolveOptions(ipopt={"linear_system_scaling": "mc19"}))
 
 
 def test_replan_fields_are_the_ones_replan_options_sets():
@@ -329,6 +337,7 @@ def test_acceptable_tol_below_tol_is_refused():
     ({"ipopt": ["alpha_for_y"]}, "must be a dict of IPOPT options"),
     ({"warm_ipopt": {"acceptable_iter": 2.5}}, "'acceptable_iter' = 2.5 is not allowed; IPOPT's acceptable_iter is an "
                                                "integer"),  # it ran as 2
+    ({"ipopt": {"acceptable_iter": 2**32 + 1}}, "IPOPT's acceptable_iter is an integer a C int holds"),  # ran as 1
 ])
 def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment):
     """SolveOptions.ipopt / warm_ipopt: what IPOPT rejects (unknown name, value outside its list or range), an

@@ -1074,6 +1074,9 @@ NAN = float("nan")
     (lambda: replay.ContactSettings(solimp=(0.9, 0.95, 0.001, 0.5, 0.5)), "power >= 1"),
     (lambda: replay.ContactSettings().solref(2.0), "restitution = 2.0"),  # a negative damping ratio
     (lambda: replay.ContactSettings(timestep=float("inf")), "timestep"),
+    (lambda: replay.ContactSettings(timestep=1e200), "contact.timestep = 1e+200 is not allowed"),  # OverflowError
+    (lambda: replay.ContactSettings(timestep=1e-9), "contact.timestep"),  # 1.5e9 samples: out of memory
+    (lambda: replay.ContactSettings(sphere_radius=1e300), "contact.sphere_radius"),  # a bogus tracking failure
     (lambda: replay.TrackingGains(kp=(NAN, 1.0), kd=(1.0, 1.0)), "kp"),
     (lambda: replay.TrackingGains(kp=(-1.0, 1.0), kd=(1.0, 1.0)), "kp"),
 ])
