@@ -37,6 +37,8 @@ class MujocoCheck:
     max_err_bias: float
     max_err_sites: float  # site positions [m], sites matched to named points by name
     max_err_passive: float = 0.0  # MuJoCo's passive forces [N, N m] (the planner's dynamics have none)
+    # the motors' generalized forces B u against MuJoCo's qfrc_actuator at seeded controls within the bounds [N, N m]
+    max_err_actuation: float = 0.0
     missing_sites: tuple[str, ...] = ()  # MuJoCo sites Pinocchio's reading lacks (e.g. inside a <frame>): a failure
     # what MuJoCo applies that the planner does not model (flags, gravcomp, tendons, fluid, joint passive terms,
     # other joint ranges): a failure, as simulate and plan refuse the file
@@ -130,7 +132,8 @@ class ModelCheck:
         pinocchio = "  ".join(f"{k} {getattr(self, f'max_err_{k}'):.1e}" for k in ("mass", "bias", "frames", "jacobians", "drift"))
         if self.mujoco is not None:
             mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias),
-                                                            ("sites", self.mujoco.max_err_sites), ("passive", self.mujoco.max_err_passive)))
+                                                            ("sites", self.mujoco.max_err_sites), ("passive", self.mujoco.max_err_passive),
+                                                            ("actuation", self.mujoco.max_err_actuation)))
             if self.mujoco.missing_sites:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
                            "(Pinocchio's MJCF parser skips a site inside a <frame>, and every body of <worldbody> "
@@ -349,22 +352,28 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _mujoco_gaps(mj, states, mass, bias, position, points) -> dict[str, float]:
+def _mujoco_gaps(mj, states, mass, bias, position, points, robot: Robot) -> dict[str, float]:
     """Max abs differences at `states` ((q, v) pairs) between MuJoCo's compiled model mj and a reading of the same file
     given as mass(q) (nv, nv), bias(q, v) (nv,) and position(point, q) (3,) callables: "mass" [kg, kg m, kg m^2],
-    "bias" [N, N m], "passive" (MuJoCo's passive forces, which the planner does not have) [N, N m], and per MuJoCo site
+    "bias" [N, N m], "passive" (MuJoCo's passive forces, which the planner does not have) [N, N m], "actuation" (the
+    robot's B u against MuJoCo's actuator forces at seeded controls u within its bounds) [N, N m], and per MuJoCo site
     named as one of `points`, its position [m] (the dict "sites": name -> difference)."""
     import mujoco
 
     data = mujoco.MjData(mj)
+    rng = np.random.default_rng(1)  # (a gear read or applied otherwise had no check: every robot's gear was 1)
+    B, lower, upper = robot.actuation_matrix, robot.u_lower, robot.u_upper
     sites = [(s, mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) for s in range(mj.nsite)]
     sites = [(s, name) for s, name in sites if name in points]
-    err = {"mass": [0.0], "bias": [0.0], "passive": [0.0]}
+    err = {"mass": [0.0], "bias": [0.0], "passive": [0.0], "actuation": [0.0]}
     apart = {name: [0.0] for _, name in sites}
     M = np.zeros((mj.nv, mj.nv))
     for q, v in states:
         data.qpos[:], data.qvel[:] = q, v
+        u = np.clip(10.0 * rng.standard_normal(mj.nu), lower, upper)
+        data.ctrl[:] = u
         mujoco.mj_forward(mj, data)
+        err["actuation"].append(_err(B @ u, data.qfrc_actuator))
         mujoco.mj_fullM(mj, data, M)
         err["mass"].append(_err(mass(q), M))
         err["bias"].append(_err(bias(q, v), data.qfrc_bias))
@@ -402,12 +411,13 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
 
     gaps = _mujoco_gaps(mj, [random_state(model, rng) for _ in range(READING_STATES)],
                         lambda q: _symmetric(pin.crba(model, data, q)),
-                        lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot.points)
+                        lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot.points, robot)
     out = list(named)
     what = {"mass": "mass matrix [kg, kg m, kg m^2] differs by up to {:.3g} (e.g. masses MuJoCo infers from geoms, a "
                     "geom's mass or a mesh's inertia, which Pinocchio's parser reads otherwise, or masses MuJoCo "
                     "rescales)",
-            "bias": "bias forces [N, N m] differ by up to {:.3g}", "passive": "passive forces [N, N m] up to {:.3g}"}
+            "bias": "bias forces [N, N m] differ by up to {:.3g}", "passive": "passive forces [N, N m] up to {:.3g}",
+            "actuation": "the motors' generalized forces [N, N m] differ by up to {:.3g}"}
     for key, text in what.items():
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
@@ -474,10 +484,12 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     mj, kind, why = _compile(robot)
     if mj is None:
         return None, why if kind == SKIPPED else MUJOCO_FAILED + why
-    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot.points)
+    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot.points,
+                        robot)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     missing = tuple(name for name in names if name and name not in robot.points and name not in robot.world_sites)
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
+                       max_err_actuation=gaps["actuation"],
                        max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
                        differences=_named_differences(robot, mj) + robot.passive), None
 

@@ -87,7 +87,8 @@ def test_json_contract():
         assert (out["robot"], out["format"], out["nq"], out["nv"]) == ("capler", name.split(".")[1].replace("xml", "mjcf"), 4, 4)
         assert out["passed"] is True and out["failures"] == [] and out["tolerance"] == TOLERANCE
         if has_mujoco:
-            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "max_err_passive", "missing_sites", "differences"}
+            assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "max_err_passive",
+                                          "max_err_actuation", "missing_sites", "differences"}
             assert out["mujoco"]["missing_sites"] == [] and out["mujoco"]["differences"] == []
         else:
             assert out["mujoco"] is None
@@ -380,6 +381,33 @@ def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, name
     assert not result.passed and (numeric or named in result.report())
     with pytest.raises(RobotFileError, match="MuJoCo reads other physics from this file than Pinocchio"):
         load_task(ROBOTS_DIR / "point_mass.toml").check_against(robot)
+
+
+def test_the_motors_forces_are_compared_with_mujocos(tmp_path, monkeypatch):
+    """check-model and the reading check compare the robot's B u with MuJoCo's actuator forces at seeded controls:
+    Capler with its knee motor at gear 2 (negative for the hip) passes as read; a B that drops the gears (monkeypatched
+    Robot.actuation_matrix) fails both, naming the motors' forces. Every shipped robot has gear 1, and a B of gear 1
+    passed every test (session 56's test audit)."""
+    import planner.model
+    from planner.check import reading_differences
+
+    text = (ROBOTS_DIR / "capler.xml").read_text()
+    for motor, gear in (("knee_motor", "2"), ("hip_motor", "-1.5")):
+        old = f'<motor name="{motor}" joint="{motor[:-6]}" gear="1"'
+        assert text.count(old) == 1
+        text = text.replace(old, old.replace('gear="1"', f'gear="{gear}"'))
+    path = tmp_path / "geared.xml"
+    path.write_text(text)
+    robot = load_robot(path)
+    assert sorted(abs(a.gear) for a in robot.actuators) == [1.5, 2.0]
+    result = check_model(robot, samples=2)
+    assert result.passed and result.mujoco.max_err_actuation <= TOLERANCE, result.failures
+    assert reading_differences(robot) == ()
+    ungeared = property(lambda self: np.eye(self.nv)[:, [a.dof for a in self.actuators]])
+    monkeypatch.setattr(planner.model.Robot, "actuation_matrix", ungeared)
+    robot = load_robot(path)
+    assert any(f.startswith("mujoco_max_err_actuation") for f in check_model(robot, samples=2).failures)
+    assert any(d.startswith("the motors' generalized forces [N, N m] differ by up to") for d in reading_differences(robot))
 
 
 CAPLER = (ROBOTS_DIR / "capler.xml").read_text()
