@@ -713,6 +713,7 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
         crossed = validation(0.2625, a)
         assert crossed.kinematic.min_hole_metric < 0.25 and crossed.kinematic.hole_index == 0
         assert any("'point' goes through plan.holes[0] near t = 0.05" in f for f in crossed.failures), crossed.failures
+        assert any("between the plan's nodes, which alone the OCP keeps out of holes" in f for f in crossed.failures)
     beside = validation(2.0)
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
     assert not any("goes through" in f for f in beside.failures)
