@@ -697,6 +697,14 @@ class WalkGains:
                                   ("speed_integral", self.speed_integral >= 0, ">= 0")):
             if not ok:
                 raise InputError(f"WalkGains.{name} = {getattr(self, name)!r} is not allowed; it must be {allowed}")
+        # (read by one control law only: accepted, recorded in the walk's report and ignored before, session 56)
+        for names, control in ((("bandwidth", "speed_gain", "speed_integral"), WalkControl.PHASE),
+                               (("kp", "kd"), WalkControl.HINGE_PD)):
+            for name in names:
+                if self.control is not control and getattr(self, name) != getattr(WalkGains, name):
+                    raise InputError(f"WalkGains.{name} = {getattr(self, name)!r} is not allowed with control "
+                                     f"{self.control.value!r}: only {control.value!r} reads it (leave it at its "
+                                     f"default {getattr(WalkGains, name)!r})")
 
 
 class PhaseReference:

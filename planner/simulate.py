@@ -121,6 +121,8 @@ class SimulateOptions:
              self.restarts, f"{SimulateOptions.restarts} (the default) unless strategy is stepwise"),
             (self.strategy is Strategy.STEPWISE or self.restart_rho0 == SimulateOptions.restart_rho0, "restart_rho0",
              self.restart_rho0, f"{SimulateOptions.restart_rho0:g} (the default) unless strategy is stepwise"),
+            (self.restarts or self.restart_rho0 == SimulateOptions.restart_rho0, "restart_rho0", self.restart_rho0,
+             f"{SimulateOptions.restart_rho0:g} (the default) unless restarts is on"),
         ]
         for ok, key, value, allowed in checks:
             if not ok:

@@ -455,7 +455,8 @@ def test_phase_reference_interpolates_the_plan(gaits):
 def test_walk_gains_are_validated():
     """An unknown replay control is an InputError naming the valid modes, and a control's value stands for it
     ("phase" was refused as unknown while the message listed it); a bandwidth <= 0 or a negative gain is an InputError
-    naming the field and its value (the message listed every rule)."""
+    naming the field and its value (the message listed every rule); a gain the chosen control does not read is an
+    InputError naming the control that reads it."""
     from planner.gait import WalkControl
 
     with pytest.raises(InputError, match=r"WalkGains.control = 'dance' is not allowed; it must be one of .*'phase'"):
@@ -466,6 +467,12 @@ def test_walk_gains_are_validated():
     for key in ("kp", "kd", "ground_gap", "stance_margin", "speed_gain", "speed_integral"):
         with pytest.raises(InputError, match=rf"^WalkGains.{key} = -0.1 is not allowed; it must be >= 0$"):
             WalkGains(**{key: -0.1})
+    # a gain the chosen control law does not read is refused (it was recorded in the walk's report and ignored)
+    for control, key in (("lqr", "kp"), ("phase", "kd"), ("hinge_pd", "bandwidth"), ("lqr", "speed_gain"),
+                         ("hinge_pd", "speed_integral")):
+        with pytest.raises(InputError, match=rf"^WalkGains.{key} = 1.5 is not allowed with control '{control}'"):
+            WalkGains(control=control, **{key: 1.5})
+    assert WalkGains(control="hinge_pd", kp=1.5, kd=1.5).kp == 1.5 and WalkGains(speed_gain=1.5).speed_gain == 1.5
 
 
 @pytest.mark.slow

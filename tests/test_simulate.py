@@ -839,6 +839,9 @@ def test_options_of_the_other_strategy_are_refused(kwargs, key):
     strategy are InputErrors naming the option (they were accepted and ignored)."""
     with pytest.raises(InputError, match=key + ".* unless strategy is"):
         SimulateOptions(**kwargs)
+    # restart_rho0 without the restarts that read it (session 56's tester: the same drop, accepted)
+    with pytest.raises(InputError, match=r"restart_rho0 = 5.0 .* unless restarts is on"):
+        SimulateOptions(strategy="stepwise", restarts=False, restart_rho0=5.0)
 
 
 def test_an_unfinished_last_impact_is_not_judged_for_energy():
