@@ -212,3 +212,34 @@ def test_guess_with_dependent_contact_rows_is_finite():
     y[1] = 0.4  # base height: the straight leg's foot exactly on the ground
     w = ImplicitEulerStep(s).guess(y, np.zeros(s.nu))
     assert np.all(np.isfinite(w))
+
+
+SWITCH_SCALES = (0.5, 2.0, 100.0, 7.0)  # distinct per switch, below and above 1 (sliced to n_sigma)
+
+
+@pytest.mark.parametrize("robot,mu", [("point_mass", 0.0), ("capler", 0.8)])
+def test_switch_scale_divides_each_switching_function_in_its_stationarity_row(robot, mu):
+    """switch_scale a (n_sigma,) divides the switching functions in the stationarity rows (eq. 24c): row i is
+    h_i(y_{k+1}, u_k) / a_i - lambda1_i + lambda0_i, with h the system's switching function evaluated apart from the
+    step (random seeded point, a distinct scale per switch); the state-based guess with that scale still solves those
+    rows (its multipliers are max(-+h / a, 0)). Audit: the row built without the division, h - lambda1 + lambda0,
+    left every test green."""
+    s = system(robot, mu)
+    scale = np.array(SWITCH_SCALES[: s.n_sigma])
+    b = ImplicitEulerStep(s, switch_scale=scale)
+    yk, yn, u, sp = symbols(s)
+    st = b.build(yk, yn, u, sp, 0.02)
+    rows = ca.Function("st", [yk, yn, u, sp, st.w], [st.g[st.g_blocks["stationarity"]]])
+    rng = np.random.default_rng(6)
+    w = rng.uniform(size=b.nw)
+    y0, y1, uu = rng.normal(size=s.ny), rng.normal(size=s.ny), rng.normal(size=s.nu)
+    y1[1] = abs(y1[1]) + 0.5  # above the ground (Capler: the base above the foot)
+    hval = np.asarray(s.switching_fn(y1, uu), float).ravel()
+    assert np.all(np.abs(hval) > 1e-3)  # every row's scale shows
+    lam0, lam1 = w[b.w_blocks["lambda0"]], w[b.w_blocks["lambda1"]]
+    got = np.asarray(rows(y0, y1, uu, 1.3, w), float).ravel()
+    np.testing.assert_allclose(got, hval / scale - lam1 + lam0, rtol=EVAL_TOL * 1e3, atol=EVAL_TOL * 1e3)
+    # the guess at y_{k+1} itself: its multipliers carry the scale (lambda1 - lambda0 = h / a), its KKT rows are zero
+    guess = b.guess(y1, uu)
+    np.testing.assert_allclose(guess[b.w_blocks["lambda1"]] - guess[b.w_blocks["lambda0"]], hval / scale, rtol=EVAL_TOL)
+    np.testing.assert_allclose(np.asarray(rows(y1, y1, uu, 1.0, guess), float).ravel(), 0.0, atol=EVAL_TOL * 1e3)

@@ -17,6 +17,11 @@ from planner.task import Horizon, VelocityBound, load_task, parse_task
 
 ROBOTS = "robots"
 SUM_ROUNDING_REL = 1e-12  # one sum of a few squares evaluated by CasADi and by NumPy: rounding only
+# M^-1 written symbolically (EXPLICIT) against M times the forward dynamics' solve (MASS_MATRIX), cond(M) ~ 5e3 on
+# Capler: rounding only (measured 5e-14 on rows of size ~10, contact_forces rows 5e-12)
+FORM_TOL = 1e-9
+# the solved plan's rows hold to IPOPT's tolerance (1e-8 scaled; the clock measured 5e-16 off T)
+SOLVED_TOL = 1e-6
 
 
 def hop_task(N: int = 40, holes=()):
@@ -74,13 +79,49 @@ def test_initial_guess_is_hint_free(capler_small):
     assert prob.complementarity_residual(prob.x0) == pytest.approx(0.0, abs=1e-12)
 
 
-def test_mass_matrix_and_explicit_forms_agree_at_a_point():
-    """The MASS_MATRIX transcription has the same dynamics residual as EXPLICIT once its velocity rows
-    are divided by M: checked through the objective (same) and the terminal rows (same)."""
-    robot = load_robot(f"{ROBOTS}/point_mass.xml")
-    a = build_problem(robot, hop_task(N=5), ProblemOptions(step_form=StepForm.EXPLICIT))
-    b = build_problem(robot, hop_task(N=5), ProblemOptions(step_form=StepForm.MASS_MATRIX))
-    assert b.builder.nw > a.builder.nw and "contact_forces" in b.g_blocks and "contact_forces" not in a.g_blocks
+def test_mass_matrix_and_explicit_forms_agree_at_a_point(capler_small):
+    """The MASS_MATRIX transcription (default; Capler, N = 10) is the EXPLICIT one with the velocity rows multiplied
+    by M(q_{k+1}): at a seeded random point with y_{k+1} != y_k (products consistent, the force variables solving
+    their defining rows, contact_forces = 0), step k's dynamics rows are diag(I, M(q_{k+1}), 1) times the explicit
+    step's (M from the robot's dynamics, evaluated apart from the NLP), and the objective and every other block are
+    equal. Audit: this test only compared the variable counts, and a mass-matrix step that left M out of M (v_{k+1} -
+    v_k) passed it (Capler's M is not I, unlike the point mass's 1 kg)."""
+    import casadi as ca
+
+    robot, task, mm = capler_small
+    ex = build_problem(robot, task, ProblemOptions(step_form=StepForm.EXPLICIT))
+    assert mm.options.step_form is StepForm.MASS_MATRIX and mm.builder.nw > ex.builder.nw
+    assert "contact_forces" in mm.g_blocks and "contact_forces" not in ex.g_blocks
+    rng = np.random.default_rng(8)
+    x = rng.uniform(np.maximum(mm.lbx, -1.0), np.minimum(mm.ubx, 1.0))
+    Y = x[mm.var_blocks["y"]]
+    Y[:, 1] = np.abs(Y[:, 1]) + 0.3  # the base above the ground
+    x[mm.var_blocks["y"]] = Y
+    sig, th = mm.var_blocks["sigma"], mm.var_blocks["theta"]
+    for k in range(mm.N):
+        for j, m in enumerate(mm.builder.lifted):
+            x[th[k, j]] = np.prod(x[sig[k, list(m)]])
+        x[mm.var_blocks["forces"][k]] = mm.builder.forces_at(Y[k], x[mm.var_blocks["u"][k]])
+    index = {name: i for i, name in enumerate(mm.var_names)}
+    xe = x[[index[name] for name in ex.var_names]]
+    p = mm.params(1e3)
+    fm, gm = (np.asarray(v, float).ravel() for v in ca.Function("mm", [mm.x, mm.p], [mm.f, mm.g])(x, p))
+    fe, ge = (np.asarray(v, float).ravel() for v in ca.Function("ex", [ex.x, ex.p], [ex.f, ex.g])(xe, p))
+    np.testing.assert_allclose(gm[mm.g_blocks["contact_forces"].ravel()], 0.0, atol=FORM_TOL)
+    nq, ny = robot.nq, mm.system.ny
+    Ys = np.vstack([mm.y0, Y])
+    assert np.min(np.abs(np.diff(Ys[:, nq:2 * nq], axis=0))) > 1e-4  # every step's velocity moves: M dv matters
+    for k in range(mm.N):
+        scale = np.eye(ny)
+        scale[nq:2 * nq, nq:2 * nq] = np.asarray(mm.system.dyn.mass(Ys[k + 1, :nq]), float)
+        assert np.max(np.abs(scale[nq:2 * nq, nq:2 * nq] - np.eye(nq))) > 0.1
+        np.testing.assert_allclose(gm[mm.g_blocks["dynamics"][k]], scale @ ge[ex.g_blocks["dynamics"][k]],
+                                   rtol=FORM_TOL, atol=FORM_TOL, err_msg=f"step {k}")
+    assert fm == pytest.approx(fe, rel=FORM_TOL)
+    for name, rows in ex.g_blocks.items():
+        if name != "dynamics":
+            np.testing.assert_allclose(gm[mm.g_blocks[name].ravel()], ge[rows.ravel()], rtol=FORM_TOL, atol=FORM_TOL,
+                                       err_msg=name)
 
 
 def test_substituted_products_give_the_same_nlp(capler_small):
@@ -140,6 +181,93 @@ def test_physical_time_adds_speed_and_constraint():
     rows = prob.g_blocks["physical_time"].ravel()
     assert np.all(prob.lbg[rows] == 0.8) and np.all(prob.ubg[rows] == 0.8)
     assert prob.var_blocks["s_c"].shape == (1,) and prob.g_blocks["penalty"].shape == (5, 2 * prob.system.n_sigma)
+
+
+def test_physical_time_rows_scale_the_step_by_the_speed_and_pin_the_clock():
+    """With horizon.physical_time (point-mass hop, N = 5, T = 0.8, EXPLICIT steps) step k's dynamics rows are
+    y_{k+1} - y_k - h s_k F(y_{k+1}, sigma_k, u_k), the speed of time s_k times the unlifted field F (the system's
+    vector_field, evaluated apart from the NLP), and the physical_time row is y_N's clock (its last entry), at a seeded
+    random point with s_k in [1, 3]. Audit: a step built with speed 1 (s_k in no row) and a row pinning y_N's v_z
+    instead of its clock both passed the suite, whose test read the bounds only."""
+    import casadi as ca
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = dataclasses.replace(hop_task(N=5), horizon=Horizon(tau_f=1.0, N=5, physical_time=0.8))
+    prob = build_problem(robot, task, ProblemOptions(step_form=StepForm.EXPLICIT))
+    system, builder = prob.system, prob.builder
+    rng = np.random.default_rng(9)
+    x = rng.uniform(np.maximum(prob.lbx, -2.0), np.minimum(prob.ubx, 2.0))
+    S = rng.uniform(1.0, 3.0, size=prob.N)
+    x[prob.var_blocks["s"].ravel()] = S
+    sig, th = prob.var_blocks["sigma"], prob.var_blocks["theta"]
+    for k in range(prob.N):
+        for j, m in enumerate(builder.lifted):
+            x[th[k, j]] = np.prod(x[sig[k, list(m)]])
+    g = np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g])(x, prob.params(1.0)), float).ravel()
+    Y = np.vstack([prob.y0, x[prob.var_blocks["y"]]])
+    assert np.min(np.abs(Y[-1, -1] - Y[-1, :-1])) > 0.05  # the clock differs from every other entry of y_N
+    for k in range(prob.N):
+        u = x[prob.var_blocks["u"][k]]
+        field = np.asarray(system.vector_field(x[sig[k]], Y[k + 1], u), float).ravel()
+        assert np.linalg.norm(field) > 1.0
+        np.testing.assert_allclose(g[prob.g_blocks["dynamics"][k]], Y[k + 1] - Y[k] - prob.h * S[k] * field,
+                                   rtol=FORM_TOL, atol=FORM_TOL, err_msg=f"step {k}")
+    assert system.state_names[-1] == "t"
+    np.testing.assert_array_equal(g[prob.g_blocks["physical_time"].ravel()], [Y[-1, -1]])
+
+
+def test_physical_time_plan_ends_its_clock_at_T():
+    """A physical_time plan's clock ends at T: the point-mass hop (N = 20, T = 0.9 s of tau_f = 1 s; a solve of about
+    1.5 s) converges with y_N's clock and the trajectory's last time at 0.9 s, every speed s_k >= 1 and every step's
+    clock advancing by h s_k R_k (R_k the ODE field's coefficient at its selectors). Audit: with the terminal row on
+    another state than the clock, or the steps built with speed 1, the suite passed."""
+    from planner.homotopy import solve
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = dataclasses.replace(hop_task(N=20), horizon=Horizon(tau_f=1.0, N=20, physical_time=0.9))
+    prob = build_problem(robot, task)
+    res = solve(prob)
+    assert res.stats.converged, res.stats.message
+    parts = prob.split(res.nlp_point(prob))
+    Y, W, S = parts["Y"], parts["W"], parts["S"]
+    assert Y[-1, -1] == pytest.approx(0.9, abs=SOLVED_TOL)
+    assert res.trajectory.t[-1] == pytest.approx(0.9, abs=SOLVED_TOL)
+    assert np.all(S >= 1.0 - SOLVED_TOL)
+    assert prob.system.fields[0].name == "ode"
+    rate = np.array([prob.builder.coefficients(w)[0] for w in W])
+    np.testing.assert_allclose(np.diff(Y[:, -1]), prob.h * S * rate, atol=SOLVED_TOL)
+
+
+def test_switch_scale_divides_the_named_switching_function():
+    """ProblemOptions.switch_scale (("phi", 100),) divides phi, gamma's switching function, in its stationarity rows
+    and no other: at a seeded random point (point-mass hop, N = 3), (row + lambda1 - lambda0) of gamma is the unscaled
+    problem's divided by 100, every other row is the unscaled problem's, and gamma's pairs are reported times 100 (the
+    unscaled units). Audit: the stationarity rows built without the division left every test green."""
+    import casadi as ca
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    plain = build_problem(robot, hop_task(N=3))
+    scaled = build_problem(robot, hop_task(N=3), ProblemOptions(switch_scale=(("phi", 100.0),)))
+    assert plain.var_names == scaled.var_names
+    names = [sw.name for sw in plain.system.switches]
+    i = [sw.function for sw in plain.system.switches].index("phi")
+    assert names[i] == "gamma[point]"
+    x = np.random.default_rng(10).uniform(np.maximum(plain.lbx, -2.0), np.minimum(plain.ubx, 2.0))
+    g0, g1 = (np.asarray(ca.Function("g", [pr.x, pr.p], [pr.g])(x, pr.params(1.0)), float).ravel()
+              for pr in (plain, scaled))
+    rows = plain.g_blocks["stationarity"]
+    lam = x[plain.var_blocks["lambda1"]] - x[plain.var_blocks["lambda0"]]  # (N, n_sigma)
+    hval = g0[rows] + lam  # the unscaled switching functions
+    assert np.all(np.abs(hval[:, i]) > 0.01)  # the scale shows in every row
+    np.testing.assert_allclose(g1[rows][:, i] + lam[:, i], hval[:, i] / 100.0, rtol=FORM_TOL)
+    others = np.delete(np.arange(len(names)), i)
+    np.testing.assert_array_equal(g1[rows][:, others], g0[rows][:, others])
+    for name in set(plain.g_blocks) - {"stationarity"}:
+        np.testing.assert_array_equal(g1[scaled.g_blocks[name].ravel()], g0[plain.g_blocks[name].ravel()], err_msg=name)
+    np.testing.assert_allclose(np.asarray(scaled.products(x), float).ravel(),
+                               np.asarray(plain.products(x), float).ravel() * scaled.pair_scale, rtol=1e-15)
+    assert sorted(set(scaled.pair_scale)) == [1.0, 100.0]
+    assert all((s == 100.0) == (f"[{names[i]}]" in pair.name) for s, pair in zip(scaled.pair_scale, scaled.pairs))
 
 
 def test_target_v_is_the_terminal_velocity():
