@@ -15,6 +15,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
 import uuid
 import warnings
@@ -233,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         # a solving command's Ctrl-C that a library swallowed (CasADi's callbacks) is raised once it returns (view's
         # server ends by Ctrl-C, exit 0)
         solving = interruptible() if args.command in ("simulate", "plan", "gait") else contextlib.nullcontext()
-        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), solving:
+        term = _term_as_ctrl_c() if args.command != "view" else contextlib.nullcontext()  # (view: its own)
+        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), term, solving:
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)
@@ -268,6 +270,31 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
             return _stop(args, EXIT_INTERRUPTED, "interrupted")
         raise
+
+
+@contextlib.contextmanager
+def _term_as_ctrl_c():
+    """SIGTERM (`timeout`, a CI cancellation, systemd) handled as the Ctrl-C it stands for: the results are written
+    whole or not at all, and a good earlier result keeps its plots (a SIGTERM while they were set aside hid them in a
+    temporary directory; one while the new plots were drawn left none). Where Ctrl-C is ignored (a race's arm) the
+    SIGTERM ends the process as before."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def term(signum, frame):
+        handler = signal.getsignal(signal.SIGINT)
+        if callable(handler):
+            handler(signal.SIGINT, frame)
+        else:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    previous = signal.signal(signal.SIGTERM, term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _asks_ipopt_log(args) -> bool:
@@ -497,8 +524,10 @@ def _draw(target: Path) -> str | None:
 
 def _draw_into(target: Path, conn) -> None:
     """_draw in a child process: ("drawn", what it returns) goes back through `conn`, or ("error", one line).
-    Ctrl-C is the parent's to handle: it waits for the plots, then reports the interruption."""
+    Ctrl-C and SIGTERM (`timeout` signals the whole process group) are the parent's to handle: it waits for the plots,
+    then reports the interruption."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         conn.send(("drawn", _draw(target)))
     except Exception as exc:  # an unexpected failure reaches the parent as one line, not as the child's traceback

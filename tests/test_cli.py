@@ -1320,6 +1320,67 @@ def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, c
     assert (mine / "states.png").read_bytes() == b"my own figure"
 
 
+def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
+    """A SIGTERM (timeout, a CI cancellation) during a command is handled as Ctrl-C: inside the deferred block around
+    a result's plots the block finishes first, then exit 130 and one line (SIGTERM killed the process there, the
+    earlier result's plots left hidden in a temporary directory). The SIGTERM handler is the one before afterwards."""
+    import os
+    import signal
+
+    import planner.cli as cli
+    from planner.errors import interruptible
+
+    finished = []
+
+    def plotting(args):
+        with interruptible(defer=True):
+            os.kill(os.getpid(), signal.SIGTERM)
+            finished.append(True)
+        return cli.EXIT_OK
+
+    def unhandled(signum, frame):  # (the default would end the test run itself)
+        raise AssertionError("the command left SIGTERM to the handler before it")
+
+    before = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        monkeypatch.setattr(cli, "_cmd_simulate", plotting)
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
+        assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+        assert signal.getsignal(signal.SIGTERM) is unhandled
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def test_the_plotting_process_finishes_its_plots_through_a_sigterm(tmp_path, monkeypatch):
+    """The child that draws a result's plots while the parent validates ignores SIGTERM as it ignores Ctrl-C: `timeout`
+    signals the whole process group, and the child died with part of the plots written and a temporary file left
+    (the parent, which handles it as Ctrl-C, waits for the plots)."""
+    import multiprocessing
+    import os
+    import signal
+
+    import planner.cli as cli
+
+    def draw(target):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return "drawn whole"
+
+    monkeypatch.setattr(cli, "_draw", draw)
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    reader, writer = multiprocessing.Pipe(duplex=False)
+
+    def unhandled(signum, frame):  # (the default would end the test run itself)
+        raise AssertionError("the plotting process took the SIGTERM")
+
+    signal.signal(signal.SIGTERM, unhandled)
+    try:
+        cli._draw_into(tmp_path, writer)
+        assert reader.recv() == ("drawn", "drawn whole")
+    finally:
+        signal.signal(signal.SIGINT, handlers[0])
+        signal.signal(signal.SIGTERM, handlers[1])
+
+
 def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch, ctrl_c):
     """A Ctrl-C whose KeyboardInterrupt a library catches (CasADi's callbacks swallowed some: the simulation ran to its
     end and exited 0) is still an interruption once the command returns: exit 130 and one line. The handler that
