@@ -700,7 +700,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None):
         contacts, taps = _impact_points(summary, task, check_trajectory(robot, traj)["impact_times"], out_dir)
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
                                          holes=summary.get("command") == "plan",  # a simulation has no holes
-                                         dynamics=_stepped_by_implicit_euler(summary))
+                                         dynamics=_stepped_by_implicit_euler(summary, out_dir))
     if summary.get("converged") is not True:  # a replay of the last iterate tracked is no verdict on a motion
         said = "" if summary.get("converged") is False else f"; its converged is {shown(summary.get('converged'))}"
         return replace(validation, passed=False, failures=validation.failures + (  # ("yes", or none, passed)
@@ -719,19 +719,27 @@ def _walk(robot: Robot, task: Task, arrays: Mapping[str, np.ndarray], options: V
     return validate_walk(robot, task, check_trajectory(robot, arrays))
 
 
-def _stepped_by_implicit_euler(summary: dict) -> bool:
+def _stepped_by_implicit_euler(summary: dict, out_dir) -> bool:
     """Whether a result's samples are the planner's implicit-Euler steps (a plan of that discretization, a `planner
     simulate` run without FESD): what the flight-dynamics check judges. A MuJoCo recording (semi-implicit substeps)
     and FESD's Radau stages meet that step's relation only to O(dt): a Capler drop swinging its legs recorded every
-    2 ms broke it by 0.9 of its terms, an FESD simulation of it (2 stages) by 0.24."""
+    2 ms broke it by 0.9 of its terms, an FESD simulation of it (2 stages) by 0.24. InputError for a summary.json
+    that names an unknown discretization or strategy (an edited one skipped the check unsaid)."""
+    from .discretization import Discretization
     from .simulate import Strategy
 
     if summary.get("command") == "plan":
         options = summary.get("options")
         problem = options.get("problem") if isinstance(options, dict) else None
-        return isinstance(problem, dict) and problem.get("discretization") == "implicit_euler"
-    return (summary.get("command") == "simulate" and "discretization" not in summary  # (FESD's is named there)
-            and summary.get("strategy") in [s.value for s in Strategy])
+        key, value = "options.problem.discretization", problem.get("discretization") if isinstance(problem, dict) else None
+        valid = [d.value for d in Discretization]
+    else:  # (FESD's discretization is named beside the strategy)
+        key, value, valid = "strategy", summary.get("strategy"), [s.value for s in Strategy]
+    if value is None:  # written by other code in the results' format (a MuJoCo recording): not the planner's steps
+        return False
+    if value not in valid:
+        raise InputError(f"{out_dir}/summary.json: {key} {shown(value)} is none of {valid} (was the file edited?)")
+    return value == Discretization.IMPLICIT_EULER.value or (key == "strategy" and "discretization" not in summary)
 
 
 def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: ValidationOptions | None = None,

@@ -22,6 +22,7 @@ import glob
 import json
 import os
 import signal
+import stat
 import tempfile
 import threading
 import time
@@ -1003,10 +1004,19 @@ def write_atomically(path: str | os.PathLike, write) -> None:
 STALE_TEMP_S = 3600.0
 
 
+def _temp_prefix(path: Path) -> str:
+    """The start of the names of `path`'s temp files: "." + its name + ".", the name cut so that the temp's name (14
+    characters more) stays within NAME_MAX = 255 bytes (a valid 245-character name was refused as too long)."""
+    name = path.name
+    while len(f".{name}.XXXXXXXX.tmp".encode()) > 255:
+        name = name[:-1]
+    return f".{name}."
+
+
 def _remove_stale(path: Path) -> None:
     """Remove the temp files of earlier writes of `path` left older than STALE_TEMP_S (nothing else cleaned them)."""
     now = time.time()
-    for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+    for old in path.parent.glob(f"{glob.escape(_temp_prefix(path))}*.tmp"):
         with contextlib.suppress(OSError):  # another process removed it first, or it cannot be: left as it is
             if now - old.lstat().st_mtime > STALE_TEMP_S:
                 old.unlink()
@@ -1024,13 +1034,14 @@ def _stage(path: str | os.PathLike, write) -> str:
         write = lambda f: f.write(data)  # noqa: E731
     _remove_stale(path)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=_temp_prefix(path), suffix=".tmp")
     except OSError as exc:
         raise write_error(path, exc) from None
     try:
         umask = os.umask(0)
         os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
+        # a file replaced keeps its mode (validate made a private summary.json world-readable)
+        os.fchmod(fd, stat.S_IMODE(path.stat().st_mode) if path.is_file() else 0o666 & ~umask)
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()

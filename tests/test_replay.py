@@ -691,8 +691,14 @@ def test_a_coasting_flight_without_gravity_passes_its_dynamics(tmp_path):
 def test_the_flight_dynamics_are_judged_for_the_planners_implicit_euler_samples_only(summary, checked):
     """validate(DIR) checks a result's own flight dynamics when its summary says the planner stepped it by implicit
     Euler: FESD's Radau stages (0.24 of the terms on a Capler drop swinging its legs) and MuJoCo's semi-implicit
-    substeps recorded every 2 ms (0.9) meet that step's relation only to O(dt), and failed valid results."""
-    assert replay._stepped_by_implicit_euler(summary) is checked
+    substeps recorded every 2 ms (0.9) meet that step's relation only to O(dt), and failed valid results. An unknown
+    discretization or strategy is an InputError naming it (an edited "implicit-euler" skipped the check unsaid)."""
+    assert replay._stepped_by_implicit_euler(summary, "DIR") is checked
+    with pytest.raises(InputError, match=r"DIR/summary.json: options.problem.discretization 'implicit-euler' is none of"):
+        replay._stepped_by_implicit_euler({"command": "plan", "options": {"problem": {"discretization": "implicit-euler"}}},
+                                          "DIR")
+    with pytest.raises(InputError, match=r"DIR/summary.json: strategy 'fast' is none of \['stepwise', 'horizon'\]"):
+        replay._stepped_by_implicit_euler({"command": "simulate", "strategy": "fast"}, "DIR")
 
 
 def test_a_path_through_a_hole_between_samples_fails(point_mass):

@@ -386,6 +386,27 @@ def test_write_atomically_keeps_the_old_file_when_the_writer_fails(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
 
 
+def test_write_atomically_keeps_the_mode_and_takes_long_names(tmp_path):
+    """A file replaced keeps its permission bits (`planner validate` made a private summary.json, mode 600,
+    world-readable 644), a new file gets 666 minus the umask, and a name of 245 characters, which the file system takes,
+    is written (its temp file, 14 characters longer, was refused as "File name too long")."""
+    import stat
+
+    path = tmp_path / "summary.json"
+    write_atomically(path, "{}\n")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+    path.chmod(0o600)
+    write_atomically(path, '{"validated": 1}\n')
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600 and path.read_text() == '{"validated": 1}\n'
+    long = tmp_path / ("a" * 240 + ".html")
+    write_atomically(long, "page")
+    write_atomically(long, "page 2")
+    assert long.read_text() == "page 2"
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
 def test_write_atomically_writes_through_a_symbolic_link(tmp_path):
     """A path that is a symbolic link (`view --html LINK`) keeps the link: its target gets the new file (the link was
     replaced by a file, the page it pointed at left stale)."""
