@@ -164,7 +164,7 @@ def is_integer(value) -> bool:
 def shown_up(value: float, decimals: int = 10) -> str:
     """value >= 0 (a depth [m]) rounded up at `decimals` decimals, trailing zeros dropped: added back as printed, it
     clears the 1e-9 m the depth was refused by (0.0187355 of 6 significant digits did not, nor 10 digits at 12 m)."""
-    scaled = value * 10**decimals
+    scaled = float(value) * 10**decimals  # (a numpy float warned of its overflow on the way)
     if not math.isfinite(scaled):  # (1e300 m overflowed math.ceil)
         return f"{value:.17g}"
     # rounding first: 0.07 printed as 0.0700000001, its float error rounded up as depth

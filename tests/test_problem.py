@@ -5,6 +5,7 @@ import dataclasses
 import math
 import pathlib
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -502,6 +503,9 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
     build_problem(robot, hop(0.0), options)
     # rounded up at 10 decimals, the float error of 0.07 not taken for depth, 1e300 m printed whole (ceil overflowed)
     assert (shown_up(0.07), shown_up(1e300), shown_up(1.0 / 3.0)) == ("0.07", "1.0000000000000001e+300", "0.3333333334")
+    with warnings.catch_warnings():  # a numpy depth of 1e300 m: printed whole, without numpy's overflow warning
+        warnings.simplefilter("error")
+        assert shown_up(np.float64(1e300)) == "1.0000000000000001e+300"
     for z in (-1.0 / 3.0, -12.345678901234):  # the depth printed, added back, builds (6 digits did not, nor 10 at 12 m)
         with pytest.raises(InputError) as refused:
             build_problem(robot, hop(z), options)
