@@ -131,9 +131,10 @@ class ModelCheck:
         t = self.timing
         pinocchio = "  ".join(f"{k} {getattr(self, f'max_err_{k}'):.1e}" for k in ("mass", "bias", "frames", "jacobians", "drift"))
         if self.mujoco is not None:
-            mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", self.mujoco.max_err_mass), ("bias", self.mujoco.max_err_bias),
-                                                            ("sites", self.mujoco.max_err_sites), ("passive", self.mujoco.max_err_passive),
-                                                            ("actuation", self.mujoco.max_err_actuation)))
+            m = self.mujoco
+            mujoco = "  ".join(f"{k} {v:.1e}" for k, v in (("mass", m.max_err_mass), ("bias", m.max_err_bias),
+                                                            ("sites", m.max_err_sites), ("passive", m.max_err_passive),
+                                                            ("actuation", m.max_err_actuation)))
             if self.mujoco.missing_sites:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
                            "(Pinocchio's MJCF parser skips a site inside a <frame>, and every body of <worldbody> "

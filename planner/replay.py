@@ -731,8 +731,8 @@ def _stepped_by_implicit_euler(summary: dict, out_dir) -> bool:
     if summary.get("command") == "plan":
         options = summary.get("options")
         problem = options.get("problem") if isinstance(options, dict) else None
-        key, value = "options.problem.discretization", problem.get("discretization") if isinstance(problem, dict) else None
-        valid = [d.value for d in Discretization]
+        key, valid = "options.problem.discretization", [d.value for d in Discretization]
+        value = problem.get("discretization") if isinstance(problem, dict) else None
     else:  # (FESD's discretization is named beside the strategy)
         key, value, valid = "strategy", summary.get("strategy"), [s.value for s in Strategy]
     if value is None:  # written by other code in the results' format (a MuJoCo recording): not the planner's steps

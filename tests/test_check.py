@@ -407,7 +407,8 @@ def test_the_motors_forces_are_compared_with_mujocos(tmp_path, monkeypatch):
     monkeypatch.setattr(planner.model.Robot, "actuation_matrix", ungeared)
     robot = load_robot(path)
     assert any(f.startswith("mujoco_max_err_actuation") for f in check_model(robot, samples=2).failures)
-    assert any(d.startswith("the motors' generalized forces [N, N m] differ by up to") for d in reading_differences(robot))
+    named = "the motors' generalized forces [N, N m] differ by up to"
+    assert any(d.startswith(named) for d in reading_differences(robot))
 
 
 CAPLER = (ROBOTS_DIR / "capler.xml").read_text()
@@ -420,7 +421,8 @@ FOOT = '<site name="foot" pos="0 0 -0.2" size="0.012"/>'
     ([(SHANK, SHANK[:-1] + ' axisangle="0 2 0 0.3">')], "<body name='shank'> axisangle axis of length 2, which"),
     ([('autolimits="true"', 'autolimits="true" eulerseq="XYZ"'), (SHANK, SHANK[:-1] + ' euler="0.1 0.3 0.5">')],
      '<compiler eulerseq="XYZ">: Pinocchio\'s parser reads an extrinsic'),
-    ([(KNEE, KNEE.replace('range', 'ref="0.3" range') + '<joint name="ext" type="slide" axis="0 0 1" range="-0.05 0.05"/>')],
+    ([(KNEE, KNEE.replace('range', 'ref="0.3" range')
+       + '<joint name="ext" type="slide" axis="0 0 1" range="-0.05 0.05"/>')],
      "joint 'knee': ref 0.3 rad, which Pinocchio's parser ignores on a joint before its body's last"),
     ([("</default>", '<default class="tip"><site pos="0 0 -0.2"/></default></default>'),
       (FOOT, '<site name="foot" class="tip" size="0.012"/>')], "<default class='tip'> gives <site> pos, which"),

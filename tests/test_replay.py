@@ -694,9 +694,9 @@ def test_the_flight_dynamics_are_judged_for_the_planners_implicit_euler_samples_
     substeps recorded every 2 ms (0.9) meet that step's relation only to O(dt), and failed valid results. An unknown
     discretization or strategy is an InputError naming it (an edited "implicit-euler" skipped the check unsaid)."""
     assert replay._stepped_by_implicit_euler(summary, "DIR") is checked
-    with pytest.raises(InputError, match=r"DIR/summary.json: options.problem.discretization 'implicit-euler' is none of"):
-        replay._stepped_by_implicit_euler({"command": "plan", "options": {"problem": {"discretization": "implicit-euler"}}},
-                                          "DIR")
+    edited = {"command": "plan", "options": {"problem": {"discretization": "implicit-euler"}}}
+    with pytest.raises(InputError, match=r"DIR/summary.json: options.problem.discretization 'implicit-euler' is none"):
+        replay._stepped_by_implicit_euler(edited, "DIR")
     with pytest.raises(InputError, match=r"DIR/summary.json: strategy 'fast' is none of \['stepwise', 'horizon'\]"):
         replay._stepped_by_implicit_euler({"command": "simulate", "strategy": "fast"}, "DIR")
 

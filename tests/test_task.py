@@ -499,7 +499,8 @@ def test_velocity_bounds_as_rows():
     A, lower, upper = task.velocity_rows(robot)
     assert A.tolist() == [[0, 0, 1, 1, 0], [1, 0, 0, 0, 0]]
     assert lower.tolist() == [0.3, -1.0] and upper.tolist() == [float("inf"), 2.0]
-    with pytest.raises(UnknownNameError, match=r"^plan.velocity_bounds\[0\].joints: unknown joint 'knee'; valid joints: x, z, torso, hinge_1, hinge_2"):
+    with pytest.raises(UnknownNameError, match=r"^plan.velocity_bounds\[0\].joints: unknown joint 'knee'; "
+                                               r"valid joints: x, z, torso, hinge_1, hinge_2"):
         parse_task(_periodic(velocity_bounds=[{"joints": ["knee"], "lower": 0.0}])).check_against(robot)
     with pytest.raises(UnknownNameError, match=r"^plan.joint_bounds\[0\].joint: unknown joint 'knee'"):
         parse_task(_periodic(joint_bounds=[{"joint": "knee", "lower": 0.0, "upper": 1.0}])).check_against(robot)
