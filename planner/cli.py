@@ -932,7 +932,8 @@ def _cmd_validate(args) -> int:
         options = ValidationOptions(**given) if given else None
     result = validate(args.dir, options)
     write_validation(args.dir, result, result_id)
-    _emit(args, result.to_json(), result.report())
+    # (the verdict alone did not say whose: the result it judged is named as summary.json names it)
+    _emit(args, {"command": "validate", "result_id": result_id, **result.to_json()}, result.report())
     return EXIT_OK if result.passed else EXIT_FAILED
 
 

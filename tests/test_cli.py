@@ -918,7 +918,8 @@ FAR_TASK = ('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\
 
 def test_validate_fails_a_plan_whose_controls_were_zeroed(tmp_path, capsys):
     """The point-mass hop (both slides driven) validates; the same result with every control set to zero exits 1 on
-    its own flight dynamics, while the tracking PD still follows it (it passed: the feedback carried the mass)."""
+    its own flight dynamics, while the tracking PD still follows it (it passed: the feedback carried the mass);
+    --json prints the verdict with the command and the judged result's id."""
     hop = tmp_path / "hop.toml"
     hop.write_text(HOP_TASK)
     plan = tmp_path / "plan"
@@ -931,6 +932,9 @@ def test_validate_fails_a_plan_whose_controls_were_zeroed(tmp_path, capsys):
     capsys.readouterr()
     assert main(["validate", str(plan), "--json"]) == 1
     validation = json.loads(capsys.readouterr().out)
+    # --json names the command and the result it judged (the verdict alone did not say whose, session 56)
+    summary = json.loads((plan / "summary.json").read_text())
+    assert validation["command"] == "validate" and validation["result_id"] == summary["result_id"]
     assert validation["max_tracking_error_m"] <= validation["thresholds"]["max_tracking_error_m"]
     assert [f.split(":")[0] for f in validation["failures"]] == ["the trajectory's own dynamics"], \
         validation["failures"]
