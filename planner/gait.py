@@ -1143,15 +1143,20 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         if progress is not None:
             progress(loop)
 
+    start = time.perf_counter()
     try:
         sol = solve_gait(model, spec, record)
     except SolveError as exc:  # (a diverged projection wrote nothing: exit 1 without the loops' diagnostics)
         if out_dir is None:
             raise
         failed = Path(out_dir) / "failed"
+        # the contract's keys as a converged gait's summary has them (they were missing: KeyError in a reader)
         write_files(failed, {"task_json": np.array(task_to_json(task))},
                     {"command": "gait", "robot": str(robot.path), "task": task_path(task.source),
-                     "robot_sha256": robot.sha256, "converged": False, "message": str(exc),
+                     "robot_sha256": robot.sha256, "converged": False, "solve_time_s": time.perf_counter() - start,
+                     "n_nlp": len(loops), "ipopt_iterations": sum(loop.pronto_iterations for loop in loops),
+                     "iterations_solver": "pronto", "complementarity_residual": None, "terminal_error": None,
+                     "physical_duration_s": None, "impacts": [], "message": str(exc),
                      "outer_loops": [vars(loop) for loop in loops]}, result_id)
         raise SolveError(f"{exc} (the outer loops before it: {failed / 'summary.json'})") from None
     walk = periodic_walk(model, sol, g.steps)

@@ -216,8 +216,8 @@ def test_a_biped_whose_motors_are_geared_is_refused(tmp_path):
 
 def test_a_diverged_projection_still_writes_its_diagnostics(tmp_path):
     """A PRONTO projection that diverges (no state feedback, 8 s period) is a SolveError (exit 1) that still writes
-    DIR/failed/summary.json, converged false with the message and the outer loops before it, and says where (it
-    wrote nothing)."""
+    DIR/failed/summary.json, converged false with the message, the outer loops before it and the contract's keys
+    (solve time, loops, iterations, no impacts), and says where (it wrote nothing)."""
     from planner.errors import SolveError
     from planner.gait import run_gait
 
@@ -231,6 +231,10 @@ def test_a_diverged_projection_still_writes_its_diagnostics(tmp_path):
     summary = json.loads((tmp_path / "out" / "failed" / "summary.json").read_text())
     assert summary["converged"] is False and "not finite" in summary["message"] and summary["command"] == "gait"
     assert isinstance(summary["outer_loops"], list) and not (tmp_path / "out" / "summary.json").exists()
+    # the contract's keys too, as a converged gait's summary has them (session 56's tester: KeyError in a reader)
+    assert summary["n_nlp"] == len(summary["outer_loops"]) and summary["impacts"] == [] and summary["solve_time_s"] > 0
+    assert summary["ipopt_iterations"] == sum(loop["pronto_iterations"] for loop in summary["outer_loops"])
+    assert summary["physical_duration_s"] is None and summary["iterations_solver"] == "pronto"
 
 
 def test_a_gait_towards_minus_x_is_not_walked(tmp_path):
