@@ -99,11 +99,19 @@ class _ScriptParser(UsageParser):
         for action in self._actions if writes else ():
             default = action.default
             if action.type is out_dir and default is not None and getattr(namespace, action.dest) is default:
-                try:
-                    setattr(namespace, action.dest, out_dir(str(default)))
-                except argparse.ArgumentTypeError as exc:
-                    self.error(f"argument {'/'.join(action.option_strings)} (default): {exc}")
+                setattr(namespace, action.dest, checked_default(self, "/".join(action.option_strings), default))
         return namespace, extras
+
+
+def checked_default(parser, flag: str, default: Path) -> Path:
+    """The default directory of an out_dir argument `flag`, checked as out_dir checks a given one (a refusal is the
+    usage error "argument FLAG (default): ..."), for a script to call where the run will write it: a default that is
+    never used must not stop a run (a --cache without --codegen), nor one checked only after it (a results.json that
+    is a directory)."""
+    try:
+        return out_dir(str(default))
+    except argparse.ArgumentTypeError as exc:
+        parser.error(f"argument {flag} (default): {exc}")
 
 
 def script_parser(doc: str, **kwargs) -> UsageParser:

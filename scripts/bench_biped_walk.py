@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="lower bounds of leg 1's angular velocity [rad/s], or none (default: none 0.1 ... 0.5)")
     parser.add_argument("--step", type=float, nargs="+", default=[DEFAULT_STEP],
                         help=f"step lengths [m], each with every bound (default {DEFAULT_STEP}: the task's)")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "biped_walk",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/biped_walk"),
                         help="output directory (default results/bench/biped_walk)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, no walk, the default bound")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")

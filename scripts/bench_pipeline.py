@@ -45,6 +45,7 @@ import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -65,7 +66,7 @@ from planner.race import default_arms, race
 from planner.result import race_arms_text
 from planner.task import Horizon, load_task, parse_task
 from planner.plots import save_figure
-from scripts._report import machine_info, out_dir, report, run_main, script_parser
+from scripts._report import checked_default, machine_info, out_dir, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/bench/pipeline")
@@ -167,10 +168,26 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
     if gcc is None:
         return {"so": None, "skipped": "gcc not found on PATH: the codegen variant needs a C compiler (apt-get install gcc)"}
     cache.mkdir(parents=True, exist_ok=True)
+    # CasADi writes the C file into the working directory and takes no path (a C name): it is generated in a private
+    # directory of the cache, made the working directory meanwhile. Written in the cwd and moved, it failed across
+    # filesystems (a --cache in /dev/shm) and was left there; private: two runs sharing a cache write apart
+    work = Path(tempfile.mkdtemp(prefix="nlp_gen_", dir=cache)).resolve()
+    try:
+        return _compile_in(solver, work, cache, flags, gcc)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _compile_in(solver, work: Path, cache: Path, flags: list[str], gcc: str) -> dict:
+    """compile_nlp's work, its C file generated in `work` (an absolute directory the caller removes)."""
     t0 = time.perf_counter()
-    c_file = cache / f"nlp_tmp_{os.getpid()}.c"  # one name per process: two runs in one directory wrote the same file
-    solver.generate_dependencies(c_file.name, {"with_header": False})  # CasADi writes into the cwd
-    Path(c_file.name).replace(c_file)
+    c_file = work / "nlp_tmp.c"
+    here = os.getcwd()
+    os.chdir(work)
+    try:
+        solver.generate_dependencies(c_file.name, {"with_header": False})
+    finally:
+        os.chdir(here)
     generate_s = time.perf_counter() - t0
     source = c_file.read_bytes()
     key = hashlib.sha256(source + " ".join(flags).encode() + ca.__version__.encode()).hexdigest()[:16]
@@ -181,7 +198,6 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
         tmp = so.with_suffix(f".{os.getpid()}.so")
         compiled = subprocess.run([gcc, "-fPIC", "-shared", *flags, str(c_file), "-o", str(tmp)], capture_output=True, text=True)
         if compiled.returncode != 0:
-            c_file.unlink()
             tmp.unlink(missing_ok=True)
             why = " ".join(compiled.stderr.strip().splitlines()[-2:]) or "(no message)"
             if flags != DEFAULT_CODEGEN_FLAGS:  # the user's flags: theirs to fix
@@ -189,7 +205,6 @@ def compile_nlp(solver, cache: Path, flags: list[str]) -> dict:
             raise PlannerError(f"gcc failed on the generated NLP functions: {why}")
         tmp.replace(so)  # atomic: a concurrent run never loads a half-written library
         out["compile_s"] = time.perf_counter() - t0
-    c_file.unlink()
     return out
 
 
@@ -363,8 +378,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--codegen", action="store_true", help="also the generated-and-compiled NLP functions (gcc; minutes for Capler)")
     parser.add_argument("--codegen-flags", type=str.split, default=DEFAULT_CODEGEN_FLAGS, metavar="'FLAGS'",
                         help="gcc flags of --codegen in one argument (default -O1), e.g. --codegen-flags='-O2 -march=native'")
-    parser.add_argument("--cache", type=out_dir, default=DEFAULT_CACHE,
-                        help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
+    # (no default here: _ScriptParser checks a default for every run: a HOME without it refused runs without --codegen)
+    parser.add_argument("--cache", type=out_dir, help=f"compiled NLP cache of --codegen (default {DEFAULT_CACHE})")
     parser.add_argument("--full", action="store_true", help="also solve each case end to end with the default SolveOptions")
     parser.add_argument("--full-only", action="store_true", help="only the end-to-end solve (no fixed-iteration runs)")
     parser.add_argument("--nlp", type=int, choices=(1, 2), default=1,
@@ -412,6 +427,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{flag} must be >= 1, got {value}")
     iters = args.iters or (10 if args.quick else 150)
     repeats = args.repeats or (1 if args.quick else 3)
+    if args.codegen and args.cache is None:  # checked here, where it is used (see --cache)
+        args.cache = checked_default(parser, "--cache", DEFAULT_CACHE)
     codegen = {"cache": args.cache, "flags": [f for f in args.codegen_flags]} if args.codegen else None
 
     def log(case, what, rec):  # progress on stderr: stdout keeps the table or the JSON
@@ -429,12 +446,13 @@ def main(argv: list[str] | None = None) -> int:
                "machine": {**machine_info(), "keep_freed_memory": heap_kept, "load_average_before": load_before,
                            "load_average_after": os.getloadavg()},
                "variants": {v: VARIANTS[v] for v in variants}, "records": records}
-    args.out.mkdir(parents=True, exist_ok=True)
+    # results.json first: a plot that fails loses no run; an earlier run's plot would sit beside these results as
+    # theirs (where this run draws none, or this plot fails)
+    (args.out / "pipeline.png").unlink(missing_ok=True)
+    code = report(args.out, results, table(records), args.json)
     if any(r["variants"] for r in records):
         plot(records, args.out / "pipeline.png")
-    else:  # an earlier run's plot would sit beside these results as theirs
-        (args.out / "pipeline.png").unlink(missing_ok=True)
-    return report(args.out, results, table(records), args.json)
+    return code
 
 
 if __name__ == "__main__":

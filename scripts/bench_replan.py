@@ -25,10 +25,12 @@ import re
 import shutil
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 from planner.errors import InputError
-from planner.result import read_summary, read_trajectory, write_atomically
+from planner.result import read_summary, read_task, read_trajectory, write_atomically
+from planner.task import parse_task
 from scripts._report import drop_results, out_dir, planner_command, refuse_with_quick, report, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -76,6 +78,15 @@ def plan(robot: str, task: Path, out: Path, extra: list[str], validate: bool) ->
     return dict(record(out, code), command_s=time.perf_counter() - started)
 
 
+def _start_N(init: Path, arrays: dict) -> int | None:
+    """horizon.N of the task the --init plan solved, or None when that task cannot be read (`planner plan --init`
+    replans such a start without its walk)."""
+    try:
+        return read_task(init, arrays).horizon.N
+    except InputError:
+        return None
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| value | variant | exit | NLPs (iterations) | IPOPT it. | solve [s] (IPOPT setup) | command [s] | cost | impacts: time [s] / impulse [N s] | MuJoCo |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -104,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the replans to run per value (default replan: --penalty-replan, and keep_schedule: --init's "
                              "default; new_impacts: --allow-new-impacts)")
     parser.add_argument("--validate", action="store_true", help="also validate each replan in MuJoCo")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "replan",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/replan"),
                         help="output directory (default results/bench/replan)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the point-mass hop (N = 20) to 0.52 m")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
@@ -133,10 +144,15 @@ def main(argv: list[str] | None = None) -> int:
     moved_task(base_text, values[0])  # a task without the number to move fails here, before any solve
     runs = {(value, variant): args.out / f"{variant}_{value:g}" for value in values for variant in args.variants}
     if args.init is not None:
-        read_trajectory(args.init, ("nlp_x",))  # a start that is no plan fails here, not in every replan (each a refused row)
+        # a start that is no plan fails here, not in every replan (each a refused row)
+        arrays = read_trajectory(args.init, ("nlp_x",))
         made_for = Path(str(read_summary(args.init, require=("robot",))["robot"])).stem
         if made_for != robot:  # each replan was refused instead, a row each, exit 0
             raise InputError(f"--init {args.init} is a plan of {made_for}, not of {robot}: give a plan of {robot}")
+        start_N, N = _start_N(args.init, arrays), parse_task(tomllib.loads(base_text)).horizon.N
+        if start_N not in (None, N):  # each replan was refused too, exit 0, its advice a --steps this script lacks
+            raise InputError(f"--init {args.init} is a plan with horizon.N = {start_N}, and the tasks replanned here "
+                             f"have N = {N}: give a plan with N = {N}")
         init = args.init.resolve()
         for replaced in runs.values():  # plan() empties each run's directory first: it deleted such a start
             if replaced.resolve() == init or replaced.resolve() in init.parents:

@@ -63,7 +63,6 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from planner import replay
-from planner.cli import prepare_out_dir
 from planner.discretization import Discretization, FESDOptions
 from planner.dynamics import Dynamics
 from planner.homotopy import SolveOptions, solve
@@ -74,7 +73,7 @@ from planner.simulate import SimulateOptions, Strategy, pd_law, simulate
 from planner.task import ControlChange, Horizon, Initial, Simulate, Task, load_task, parse_task
 from planner.plots import save_figure
 from scripts._report import machine_info as shared_machine_info
-from scripts._report import out_dir, run_info, run_main, script_parser
+from scripts._report import checked_default, out_dir, run_info, run_main, script_parser
 
 G = 9.81  # gravity of the robot files [m/s^2]
 DEFAULT_OUT = Path("results/bench/work_precision")
@@ -834,7 +833,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--quick with --suite ocp runs the point-mass hop only: give no Capler --cases or --capler-N with it")
     if args.capler_N and args.cases and not any(c.startswith("ocp_capler") for c in args.cases):
         parser.error("--capler-N sets the grids of the Capler cases, and --cases runs none")  # (it was dropped)
-    out = prepare_out_dir(args.out or (DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP))  # before the runs
+    # before the runs, the suite's default as a given --out (prepare_out_dir let a results.json that is a directory
+    # through: its write failed after the whole run)
+    out = args.out or checked_default(parser, "--out", DEFAULT_OUT if args.suite == "simulate" else DEFAULT_OUT_OCP)
 
     def log(rec):  # progress on stderr: stdout keeps the table or the JSON
         errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["errors"].items() if v is not None)

@@ -29,8 +29,7 @@ from planner.race import default_arms
 from scripts.bench_pipeline import CASES
 from scripts._report import out_dir, refuse_with_quick, report, run_main, script_parser
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_OUT = ROOT / "results" / "probe" / "early_stop"
+DEFAULT_OUT = Path("results/probe/early_stop")
 DEFAULT_AT = ["2:300,600,900", "3:200,400,600,700"]
 MODES = {"at 0": 0, "at 1": 1, "inside": 2}
 
@@ -131,6 +130,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print results.json on stdout instead of the table")
     args = parser.parse_args(argv)
     refuse_with_quick(parser, args, ["case", "at"], "the hop with N = 6, NLP 2 at 5 iterations")
+    named = [nlp for nlp, _ in args.at or ()]
+    if len(set(named)) < len(named):  # dict() kept the last item of an NLP: the others were dropped, recorded as run
+        twice = sorted({nlp for nlp in named if named.count(nlp) > 1})
+        parser.error(f"--at names NLP {', '.join(map(str, twice))} more than once: give its iterations in one item, "
+                     "K:J1,J2,...")
     at = parse_at(["2:5"] if args.quick else DEFAULT_AT) if args.at is None else dict(args.at)
     case = "hop" if args.quick else args.case
     problem = build_problem(*CASES[case](args.quick))

@@ -50,8 +50,7 @@ from planner.result import read_summary
 from scripts._report import out_dir, refuse_beside, report, run_main, script_parser
 from scripts.probe_replay import plan_problem
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_OUT = ROOT / "results" / "probe" / "impacts"
+DEFAULT_OUT = Path("results/probe/impacts")
 
 
 @contextlib.contextmanager

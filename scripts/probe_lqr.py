@@ -36,7 +36,7 @@ from scripts._report import (nonnegative_float, out_dir, planner_command, positi
                              run_main, script_parser)
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_OUT = ROOT / "results" / "probe" / "lqr"
+DEFAULT_OUT = Path("results/probe/lqr")
 FD_STEP = 1e-6  # [m, rad, m/s, rad/s, N m] central differences of the accelerations: O(1e-12) truncation, 1e-10 round-off
 HORIZONS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)  # [s] of physical time from the plan's start
 QUICK_TASK = (ROOT / "robots" / "point_mass_hop.toml").read_text().replace("\nN = 20\n", "\nN = 10\n")

@@ -45,7 +45,6 @@ from planner.simulate import SimulateOptions, _first_converged, _ipopt_options, 
 from scripts._report import finite_float, out_dir, positive_float, refuse_with_quick, report, run_main, script_parser
 from scripts.bench_pipeline import capler_case
 
-ROOT = Path(__file__).resolve().parent.parent
 HIP, KNEE = 2, 3  # Capler's joint coordinates in q = (x_B, z_B, phi_hip, phi_knee)
 STEP_LENGTH = (0.005, 0.25)  # [s] bounds of a phase's step: below, a stance cannot hold its push; above, the grid is too coarse
 FOOTHOLD_MARGIN = 0.02  # [m] a foothold's distance from a hole's edge
@@ -290,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--N", type=int, default=125, help="time-freezing steps over the task's tau_f (default the task's 125)")
     parser.add_argument("--max-iter", type=int, default=3000, help="IPOPT iterations of the hop OCP")
     parser.add_argument("--no-solve", action="store_true", help="stop after the start")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_multiphase",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/probe_multiphase"),
                         help="output directory (default results/bench/probe_multiphase)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 10, one landing, 3 nodes per phase, no solve")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")

@@ -39,7 +39,6 @@ from scripts import bench_work_precision as wp
 from scripts._report import (nonnegative_float, out_dir, refuse_beside, refuse_with_quick, report, run_main,
                              script_parser)
 
-ROOT = Path(__file__).resolve().parent.parent
 CASES = ("pm_drop_frictionless", "pm_drop_noslip", "capler_pd_drop")
 
 
@@ -102,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="p of the weight r^p (0: the plain trapezoid)")
     parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES),
                         help=f"the simulation cases (default all: {', '.join(CASES)})")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_positions",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/probe_positions"),
                         help="output directory (default results/bench/probe_positions)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: the frictionless point mass at h = 0.04, 0.02")
     parser.add_argument("--json", action="store_true", help="print the records as JSON instead of the table")

@@ -36,7 +36,6 @@ from planner.simulate import SimulateOptions, _ipopt_options, _penalized_nlp
 from scripts import probe_multiphase as pm
 from scripts._report import nonnegative_float, out_dir, positive_float, report, run_main, script_parser
 
-ROOT = Path(__file__).resolve().parent.parent
 DEPARTURE_TOL = 1e-3  # [m, rad, m/s, rad/s] the simulator's steps meet IPOPT's tol; 1e-3 is a different branch, not round-off
 FAMILY_RHO = (1e2, 1e3, 1e4, 1e5, 1e6, 1e7)  # the simulator's schedule (rho0 1e2, kappa 10) run to its end, never stopped early
 FAMILY_POINTS = 11  # clock advances 0, h/10, ..., h
@@ -49,6 +48,9 @@ def plan_problem(out_dir: Path, summary: dict | None = None):
     names (summary: that file's contents when already read)."""
     arrays = read_trajectory(out_dir, ("task_json",))
     summary = read_summary(out_dir) if summary is None else summary
+    made_by = summary.get("command")
+    if made_by not in (None, "plan"):  # (a simulate result was refused for its task: "`planner plan` needs [plan]")
+        raise InputError(f"{out_dir} is a `planner {made_by}` result, not a plan: give one of `planner plan`")
     check_same_result(out_dir, summary, arrays)
     problem = build_problem(read_robot(out_dir, summary), read_task(out_dir, arrays))
     return problem, read_start(out_dir, problem.signature, problem.nx, arrays)
@@ -229,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
                         "homotopy or the held-schedule replan")
     parser.add_argument("--family", type=int, metavar="K", help="also solve step K with its clock advance fixed at "
                         f"{FAMILY_POINTS} values in [0, h], from the plan's and from the rollout's state there")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_replay",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/probe_replay"),
                         help="output directory (default results/bench/probe_replay)")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")
     args = parser.parse_args(argv)

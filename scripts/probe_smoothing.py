@@ -30,7 +30,6 @@ from scripts.bench_pipeline import capler_case, nlp1_arguments
 from scripts._report import (nonnegative_float, out_dir, positive_float, refuse_with_quick, report, run_main,
                              script_parser)
 
-ROOT = Path(__file__).resolve().parent.parent
 # smoothing width per switching function at scale 1: a tenth of Capler's speeds, a centimetre of gap, and for phi
 # (the normal acceleration, 100-1000x n^T v on Capler) 5 m/s^2
 EPS = {"n^T v": 0.1, "c(q)": 0.01, "phi": 5.0, "t^T v": 0.1}
@@ -125,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-holes", action="store_true", help="the holes switched off (hole scale 0)")
     parser.add_argument("--N", type=int, default=125, help="steps over the task's tau_f (default the task's 125)")
     parser.add_argument("--max-iter", type=int, default=3000, help="IPOPT iterations per NLP (default 3000)")
-    parser.add_argument("--out", type=out_dir, default=ROOT / "results" / "bench" / "probe_smoothing",
+    parser.add_argument("--out", type=out_dir, default=Path("results/bench/probe_smoothing"),
                         help="output directory (default results/bench/probe_smoothing)")
     parser.add_argument("--quick", action="store_true", help="CI smoke run: N = 6, scales 1 and 0.1, 10 iterations each")
     parser.add_argument("--json", action="store_true", help="print the record as JSON instead of the table")

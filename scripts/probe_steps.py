@@ -29,8 +29,7 @@ from planner.problem import ProblemOptions, build_problem
 from scripts.bench_pipeline import CASES, nlp1_arguments, nlp2_setup
 from scripts._report import out_dir, refuse_with_quick, report, run_main, script_parser
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_OUT = ROOT / "results" / "probe" / "steps"
+DEFAULT_OUT = Path("results/probe/steps")
 # IPOPT leaves the variable that limits a step at 1 - tau = 1 % of its distance (tau_min 0.99); 2 % admits round-off
 CUT_RATIO = 0.02
 IPOPT_BOUND_RELAX = 1e-8  # IPOPT's default bound_relax_factor

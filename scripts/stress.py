@@ -47,7 +47,7 @@ from planner.batch import Crashed, default_workers, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
 from scripts._report import machine_info as shared_machine_info
-from scripts._report import out_dir, run_info, run_main, script_parser
+from scripts._report import out_dir, refuse_beside, run_info, run_main, script_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("results/stress")
@@ -611,6 +611,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.scheduler is not None and args.workers is not None:  # (ignored, and written to results.json as used)
         parser.error("--workers sets the local processes; a Dask --scheduler has its own workers")
+    if args.workers is not None and args.workers < 0:  # before OUT is touched, and beside --list too
+        parser.error(f"--workers must be >= 0, got {args.workers}")
 
     overrides = {k: v for k, v in (("max_iter", args.max_iter), ("rho_schedule", args.rho_schedule)) if v is not None}
     try:
@@ -625,13 +627,13 @@ def main(argv: list[str] | None = None) -> int:
                      "out (--families ...) or the schedule")
     for spec in specs:
         spec["race"] = args.race
-    if args.list:
+    if args.list:  # the run's own arguments were ignored beside it (--race only marked the tasks printed)
+        refuse_beside(parser, args, ["race", "scheduler", "workers", "out", "json"],
+                      "--list prints the tasks and exits")
         for s in specs:
             print(json.dumps(_strict(s)))
         return 0
 
-    if args.workers is not None and args.workers < 0:  # before OUT is touched
-        parser.error(f"--workers must be >= 0, got {args.workers}")
     # one line per finished task, so a stopped run keeps what it did; records.jsonl once the run is done (a stopped
     # run emptied it beside the previous run's results.json). Made by the first finished task: a refused --scheduler
     # (dask missing, unreachable) left OUT with an empty one

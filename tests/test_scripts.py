@@ -1766,3 +1766,212 @@ def test_a_script_whose_reader_left_exits_0():
     proc.stdout.close()
     err = proc.stderr.read().decode()
     assert proc.wait() == 0 and "failed" not in err, err
+
+
+# --- session 56's tester: scripts' defaults, refusals and order of writes ----------------------------------------
+
+def test_bench_pipeline_codegen_generates_inside_its_cache(tmp_path, monkeypatch):
+    """compile_nlp generates its C file inside --cache and removes it: the working directory is left as it was and the
+    cache holds the library only. CasADi wrote the file into the cwd and Path.replace moved it into the cache, which
+    failed across filesystems (--cache in /dev/shm: "Invalid cross-device link", exit 1) and left it in the cwd."""
+    if shutil.which("gcc") is None:
+        pytest.skip("the codegen variant needs gcc")
+    bench = _load("bench_pipeline")
+    generated_in = []
+
+    class Solver:  # CasADi's generate_dependencies as it behaves: a C name, written into the working directory
+        def generate_dependencies(self, name, opts):
+            generated_in.append(Path.cwd())
+            Path(name).write_text("double tiny(double x) { return 2 * x; }\n")
+            return name
+
+    cwd, cache = tmp_path / "cwd", tmp_path / "cache"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    info = bench.compile_nlp(Solver(), cache, bench.DEFAULT_CODEGEN_FLAGS)
+    assert generated_in[0].parent == cache.resolve() and list(cwd.iterdir()) == []
+    assert [p.name for p in cache.iterdir()] == [Path(info["so"]).name] and info["c_bytes"] > 0
+    with pytest.raises(InputError, match="gcc refused --codegen-flags -Obogus"):  # a failed compile leaves none either
+        bench.compile_nlp(Solver(), tmp_path / "cache2", ["-Obogus"])
+    assert list(cwd.iterdir()) == [] and list((tmp_path / "cache2").iterdir()) == []
+
+
+def test_bench_replan_refuses_a_start_plan_of_another_n(tmp_path, monkeypatch):
+    """--init of a plan whose horizon.N is not the replanned task's is refused up front in one InputError naming both
+    N (every replan was a "refused" row, exit 0, and `planner plan`'s advice named --steps, which bench_replan lacks);
+    a start of the task's N is taken."""
+    from planner.task import task_to_json
+
+    bench = _load("bench_replan")
+    task = load_task(bench.ROOT / "robots" / "point_mass_hop.toml")
+
+    def start_plan(N: int) -> Path:
+        start = tmp_path / f"hop{N}"
+        start.mkdir()
+        solved = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=N))
+        np.savez(start / "trajectory.npz", nlp_x=np.zeros(3), task_json=np.array(task_to_json(solved)))
+        (start / "summary.json").write_text(json.dumps({"robot": "robots/point_mass.xml", "task": "hop.toml"}))
+        return start
+
+    monkeypatch.setattr(bench, "planner_command", lambda argv: 2)  # (no solve: each replan a refused row)
+    with pytest.raises(InputError, match=r"is a plan with horizon.N = 40, and the tasks replanned here have N = 20: "
+                                         r"give a plan with N = 20"):
+        bench.main(["--quick", "--init", str(start_plan(40)), "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
+    assert bench.main(["--quick", "--init", str(start_plan(20)), "--out", str(tmp_path / "out")]) == 0
+
+
+def test_work_precision_checks_its_default_out_before_running(bench, tmp_path, monkeypatch, capsys):
+    """The suite's default --out is checked before any case runs, as a given --out is: its results.json a directory
+    was found only after the whole run (prepare_out_dir let it through)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results" / "bench" / "work_precision_ocp" / "results.json").mkdir(parents=True)
+    monkeypatch.setitem(bench.SUITES, "ocp", lambda *args, **kwargs: pytest.fail("the suite ran before --out's check"))
+    with pytest.raises(SystemExit) as stopped:
+        bench.main(["--suite", "ocp", "--quick"])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and "argument --out (default): results/bench/work_precision_ocp/results.json is a " \
+        "directory" in err and len(err.splitlines()) == 1, err
+
+
+def test_probe_early_stop_refuses_an_nlp_named_twice_in_at(tmp_path, monkeypatch, capsys):
+    """--at 2:5 2:10 is one line and exit 2 before any build: the probe ran 2:10 only (dict() kept the last item of an
+    NLP) while results.json's command recorded both."""
+    import importlib
+
+    module = importlib.import_module("scripts.probe_early_stop")
+    monkeypatch.setattr(module, "build_problem", lambda *args: pytest.fail("built before --at was checked"))
+    with pytest.raises(SystemExit) as stopped:
+        module.main(["--case", "hop", "--at", "2:5", "2:10", "3:7", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and len(err.splitlines()) == 1, err
+    assert "--at names NLP 2 more than once: give its iterations in one item, K:J1,J2,..." in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bench_pipeline_checks_its_cache_only_with_codegen(tmp_path, monkeypatch, capsys):
+    """The default --cache is checked only where it is used, with --codegen, and refused there up front: a HOME where
+    no cache can be made (HOME=/proc) refused every bench_pipeline run, with --codegen or not."""
+    bench = _load("bench_pipeline")
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setattr(bench, "DEFAULT_CACHE", tmp_path / "a_file" / "codegen")
+
+    class Ran(Exception):
+        pass
+
+    def ran(*args):
+        raise Ran
+
+    monkeypatch.setattr(bench, "run_case", ran)
+    with pytest.raises(Ran):  # (the run itself is not this test's)
+        bench.main(["--quick", "--variants", "baseline", "--out", str(tmp_path / "out")])
+    with pytest.raises(SystemExit) as stopped:
+        bench.main(["--quick", "--codegen", "--variants", "baseline", "--out", str(tmp_path / "out")])
+    assert stopped.value.code == 2 and "argument --cache (default): " in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("script", ["bench_replan", "bench_biped_walk", "bench_nosnoc", "bench_pipeline", "bench_skips",
+                                    "stress", "probe_early_stop", "probe_impacts", "probe_lqr", "probe_multiphase",
+                                    "probe_positions", "probe_replay", "probe_smoothing", "probe_steps"])
+def test_a_scripts_default_out_is_the_relative_directory_its_help_names(script, monkeypatch, capsys):
+    """A script's default --out is the directory its help names, relative to the working directory as the help reads:
+    the scripts built on the repository's root (bench_replan, bench_biped_walk, probe_*) wrote into the repository's
+    results/ from any working directory, the others into the working directory's."""
+    import importlib
+
+    from scripts import _report
+
+    module = importlib.import_module(f"scripts.{script}")
+    parsers = []
+    monkeypatch.setattr(module, "script_parser", lambda doc, **kw: parsers.append(_report.script_parser(doc, **kw))
+                        or parsers[-1])
+    with pytest.raises(SystemExit):
+        module.main(["--help"])
+    default = parsers[0].get_default("out")
+    assert isinstance(default, Path) and not default.is_absolute(), default
+    assert f"(default {default}" in " ".join(capsys.readouterr().out.split())  # (argparse wraps the help)
+
+
+def test_readmes_bench_replan_commands_run(tmp_path, monkeypatch):
+    """Each `python -m scripts.bench_replan ...` README.md quotes takes its arguments and goes on to its first plan: it
+    cited a bare `python -m scripts.bench_replan`, which exits 2 (--values is required)."""
+    import re
+
+    bench = _load("bench_replan")
+    commands = re.findall(r"`python -m scripts\.bench_replan([^`]*)`", (SCRIPTS.parent / "README.md").read_text())
+    assert commands
+
+    class Planning(Exception):
+        pass
+
+    def planning(*args):
+        raise Planning
+
+    monkeypatch.setattr(bench, "plan", planning)
+    for args in commands:
+        with pytest.raises(Planning):
+            bench.main(shlex.split(args) + ["--out", str(tmp_path / "out")])
+
+
+def test_formulation_says_its_bip_step_command_is_not_shipped():
+    """docs/formulation.md's command of bip_step.py (session 8's scratch driver, which the repository does not hold)
+    says so on its line: it was quoted as `bip_step.py --n_fe 6 ...`, as a script one could run from here."""
+    root = SCRIPTS.parent
+    lines = [line for line in (root / "docs" / "formulation.md").read_text().splitlines()
+             if "bip_step.py" in line and "--n_fe 6" in line]
+    assert lines and all("not shipped" in line for line in lines), lines
+    assert not list(root.glob("*/bip_step.py")) and not (root / "bip_step.py").exists()
+
+
+def test_probes_of_a_plan_refuse_a_simulate_result(tmp_path, monkeypatch, capsys):
+    """probe_impacts and probe_replay given a `planner simulate` result say that it is no plan, in one line, exit 2:
+    they said "task .../trajectory.npz has no [plan] table; `planner plan` needs one", as if a task were wrong."""
+    import importlib
+
+    from planner.cli import main as planner_main
+
+    drop = tmp_path / "drop"
+    assert planner_main(["simulate", "point_mass", "--out", str(drop), "-q", "--no-plots"]) == 0
+    capsys.readouterr()
+    for script in ("probe_impacts", "probe_replay"):
+        module = importlib.import_module(f"scripts.{script}")
+        monkeypatch.setattr(sys, "argv", [f"{script}.py"])  # (the name run_main gives the error)
+        code = run_main(lambda: module.main([str(drop), "--out", str(tmp_path / "out")]))
+        err = capsys.readouterr().err
+        assert code == 2 and err == (f"{script}: error: {drop} is a `planner simulate` result, not a plan: give one of "
+                                     "`planner plan`\n"), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_stress_list_refuses_the_runs_arguments(stress, tmp_path, capsys):
+    """--list prints the tasks and exits: --race, --json and --out beside it are refused (one line, exit 2), and an
+    invalid --workers -1 too; they were ignored silently (the --workers check came after --list)."""
+    for extra, said in ((["--json", "--race"], "--list prints the tasks and exits: give no --race or --json with it"),
+                        (["--out", str(tmp_path / "out")], "give no --out with it"),
+                        (["--workers", "-1"], "--workers must be >= 0, got -1")):
+        with pytest.raises(SystemExit) as stopped:
+            stress.main(["--robot", "point_mass", "--list", *extra])
+        printed = capsys.readouterr()
+        assert stopped.value.code == 2 and said in printed.err and printed.out == "", printed
+
+
+def test_bench_pipeline_writes_its_results_before_its_plot(tmp_path, monkeypatch):
+    """results.json is written before pipeline.png is drawn, so a plot that fails loses no run (the plot came first),
+    and an earlier run's plot does not stay beside the new results as theirs."""
+    bench = _load("bench_pipeline")
+    per_iter = {"iterations": 10, "objective": 1.0, "cpu_ms_per_iter": 2.0, "wall_ms_per_iter": 2.0,
+                "rest_cpu_ms_per_iter": 1.0, "eval_cpu_ms_per_iter": {c: 0.2 for c in bench.CALLBACKS}, "create_s": 0.1}
+    monkeypatch.setattr(bench, "run_case", lambda name, *rest: {"case": name, "nlp": 1, "full_solves": [],
+                                                                 "variants": {"baseline": per_iter}})
+
+    def failed(records, path):
+        raise RuntimeError("the plot failed")
+
+    monkeypatch.setattr(bench, "plot", failed)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "pipeline.png").write_bytes(b"an earlier run's plot")
+    with pytest.raises(RuntimeError, match="the plot failed"):
+        bench.main(["--quick", "--variants", "baseline", "--out", str(out), "--json"])
+    assert json.loads((out / "results.json").read_text())["records"][0]["variants"]["baseline"]["iterations"] == 10
+    assert not (out / "pipeline.png").exists()
