@@ -46,6 +46,7 @@ import numpy as np
 from planner.batch import Crashed, default_workers, run_batch, stage
 from planner.errors import InputError
 from planner.result import write_atomically
+from planner.task import Contact
 from scripts._report import machine_info as shared_machine_info
 from scripts._report import out_dir, refuse_beside, run_info, run_main, script_parser
 
@@ -232,7 +233,9 @@ def fam_friction(b: Base, t: dict, rng, k: int) -> dict:
     mu = 0.0 if k == 0 else _log_uniform(rng, 1e-3, 20.0)
     c = t["contacts"][0]
     c["mu"] = mu
-    if b.coulomb_at and mu > 0:
+    if mu == 0:  # a frictionless contact reads no a_t: any but the default is refused beside mu = 0
+        c["a_t"] = Contact.__dataclass_fields__["a_t"].default
+    elif b.coulomb_at:
         c["a_t"] = mu * c["a_n"]
     return {"mu": mu, "a_t": c.get("a_t", 600.0)}
 

@@ -57,8 +57,8 @@ def run(contact: tuple, q0: tuple, v0: tuple, tau_f: float, N: int, rho_f: float
 
 
 def drop(N: int = 100, mu: float = 0.0, strategy: Strategy = Strategy.STEPWISE):
-    """Example 1, inelastic: from (0, 1) with v = (1, 0), a_n = 100, tau in [0, 1]."""
-    contact = (("mu", mu), ("a_n", 100.0), ("a_t", 300.0))
+    """Example 1, inelastic: from (0, 1) with v = (1, 0), a_n = 100 (with friction a_t = 300), tau in [0, 1]."""
+    contact = (("mu", mu), ("a_n", 100.0)) + ((("a_t", 300.0),) if mu > 0 else ())
     return run(contact, (0.0, 1.0), (1.0, 0.0), 1.0, N, strategy=strategy)
 
 

@@ -128,6 +128,16 @@ def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, mess
     parse_task(_with(path, good))
 
 
+def test_a_tangential_gain_without_friction_is_refused():
+    """contacts.a_t is read by contacts with friction only: given with mu = 0 it is a TaskError naming it (session 56's
+    tester: a_t = 5 with mu = 0 was accepted and ignored); its default with mu = 0, and any a_t with mu > 0, parse."""
+    contact = {"point": "foot", "mu": 0.0, "a_t": 5.0}
+    with pytest.raises(TaskError, match=r"contacts\[0\].a_t = 5.0 is not allowed; it must be left out with mu = 0"):
+        parse_task(_with("contacts", [contact]))
+    parse_task(_with("contacts", [{"point": "foot", "mu": 0.0}]))
+    parse_task(_with("contacts", [{**contact, "mu": 0.1}]))
+
+
 def test_robot_dependent_errors():
     """Names and lengths are checked against the robot; targets must lie inside the joint bounds."""
     capler = load_robot("capler")
