@@ -31,6 +31,7 @@ import io
 import json
 import math
 import time
+import warnings
 from dataclasses import dataclass, fields, replace
 from enum import Enum
 from typing import Callable
@@ -41,7 +42,7 @@ import numpy as np
 from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expect, interruptible, options_record,
                      plain, representable)
-from .problem import Penalty, Problem
+from .problem import Penalty, Problem, plane_gap
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 from .task import MAX_NLPS
@@ -1464,6 +1465,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     # the robot flies when every contact point does (one contact: its beta): so its gap is the smallest
     gap = [float(np.min(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float), initial=np.inf))
            for y in nodes]
+    if converged:
+        _warn_never_touching_on_plane(problem, nodes)
     holes = [(e.x - e.a, e.x + e.a) for e in problem.task.plan.holes]
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
                    gap, holes)
@@ -1495,3 +1498,23 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     tau = np.concatenate([[0.0], np.cumsum(lengths[keep])])
     traj = element_trajectory(problem.system, problem.builder, tau, nodes, Ys, Ws, Us, dt, fesd.b, frozen_tol)
     return traj, Ws[:, -1], nodes
+
+
+NEVER_TOUCHING_GAP_M = 1e-6  # [m] a touches = false point this near its plane lies on it (the solve's tolerances)
+
+
+def _warn_never_touching_on_plane(problem: Problem, nodes) -> None:
+    """Warn of each touches = false contact point that the plan puts on its plane (gap <= NEVER_TOUCHING_GAP_M at
+    some node): its row gap >= 0 is active there, so the plan leans on a contact the task said never happens, and a
+    plan with touches = true may differ (session 56's tester: a point resting on the ground all plan long, exit 0 and
+    no word). The nodes are (nq + ...) states."""
+    task, nq = problem.task, problem.system.nq
+    for c in (c for c in task.contacts if c.point in problem.skips.never_touching):
+        gaps = np.array([float(plane_gap(problem.system.dyn, c, np.asarray(y[:nq], float), task.ground_height))
+                         for y in nodes])
+        on = int(np.sum(gaps <= NEVER_TOUCHING_GAP_M))
+        if on:
+            warnings.warn(f"contact point {c.point!r} (touches = false) lies on its plane at {on} of {len(gaps)} "
+                          f"nodes (gap <= {NEVER_TOUCHING_GAP_M:g} m): the task says it never touches, so the plan "
+                          "holds it there without a contact force; with touches = true the plan may differ")
+

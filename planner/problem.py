@@ -394,7 +394,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     for key, y in states.items():
         gaps = list(np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel())
         for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
-            gaps.append(float(_plane_gap(dyn, c, y[:nq], task.ground_height)))
+            gaps.append(float(plane_gap(dyn, c, y[:nq], task.ground_height)))
         for c, gap in zip(contacts + tuple(never), gaps):
             if gap < -START_GAP_M:
                 raise InputError(f"{key} puts contact point {c.point!r} {shown_up(-gap)} m "
@@ -692,7 +692,7 @@ def _path_functions(system: TimeFreezingSystem, builder: ImplicitEulerStep, dyn:
                 lam_n, lam_t = lam[0], lam[1]
             cone += [weight * (ct.mu * lam_n - lam_t), weight * (ct.mu * lam_n + lam_t)]
     # touches = false: the gap of the point's plane
-    clearance = [_plane_gap(dyn, ct, q_sym, ground) for ct in task.contacts if ct.point in skips.never_touching]
+    clearance = [plane_gap(dyn, ct, q_sym, ground) for ct in task.contacts if ct.point in skips.never_touching]
     for ct, model in zip(contacts, system.models):  # the contacts the system is built for (planner.scene)
         # (a plan slid 0.5 m where Coulomb's mu = 0.5 let it slide 0.07 m); a_t = mu a_n to rounding is it. Any count
         # of contacts, with or without impact_cone (a box's two corners were not warned of)
@@ -992,7 +992,7 @@ class _Rows:
         return np.concatenate(self.hi)
 
 
-def _plane_gap(dyn: Dynamics, contact, q, ground: float):
+def plane_gap(dyn: Dynamics, contact, q, ground: float):
     """The gap c = s^T p(q) - s_z ground [m] of a contact's point from its plane (s its unit normal), for q (nq,)
     numbers or CasADi symbols."""
     s = plane_axes(contact.normal)[0]

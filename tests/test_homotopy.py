@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import warnings
 
 import casadi as ca
 import numpy as np
@@ -915,3 +916,33 @@ def test_a_converged_report_names_the_nlps_that_stopped_early(hop):
                                                  if r.label == "homotopy 2" else r for r in res.nlps))
     assert "  on the way, IPOPT stopped early in homotopy 2; the verdict is the returned point's" in marked.report()
     assert "on the way" not in res.report()
+
+
+def test_a_never_touching_point_on_its_plane_is_warned_about(tmp_path):
+    """A touches = false point that the converged plan puts on its plane (a second site 5 cm below the point mass,
+    starting and ending on the ground, the z motor holding it) is warned about, naming it and its nodes: the plan exited 0 with
+    no word, while the task said the point never touches (session 56's tester). A plan that keeps it off is not."""
+    from planner.task import parse_task
+
+    from planner.model import ROBOTS_DIR
+
+    text = (ROBOTS_DIR / "point_mass.xml").read_text()
+    site = '<site name="point" pos="0 0 0" size="0.01"/>'
+    assert text.count(site) == 1
+    path = tmp_path / "two_sites.xml"
+    path.write_text(text.replace(site, site + '<site name="low" pos="0 0 -0.05" size="0.01"/>'))
+    robot = load_robot(path)
+
+    def plan(z: float):
+        task = parse_task({"contacts": [{"point": "point", "mu": 0.5}, {"point": "low", "mu": 0.5, "touches": False}],
+                           "initial": {"q": [0.0, z]}, "horizon": {"tau_f": 1.0, "N": 10},
+                           "plan": {"target_q": [0.5, z], "u_bound": 30.0}})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = H.solve(build_problem(robot, task), H.SolveOptions())
+        assert res.stats.converged, res.stats.message
+        return [str(w.message) for w in caught if "touches = false" in str(w.message)]
+
+    (said,) = plan(0.05)  # (it starts and ends there; the plan lifts it in between)
+    assert re.match(r"contact point 'low' \(touches = false\) lies on its plane at \d+ of 11 nodes", said), said
+    assert plan(0.3) == []
