@@ -18,7 +18,7 @@ MuJoCo's contacts are made to approximate rigid, inelastic impacts with Coulomb 
 is edited programmatically (mjSpec) so the robot files stay plain. What is changed, and why, is in
 `build_scene` and docs/validation.md.
 
-Units: SI throughout (m, s, rad, N, N m). Arrays follow the result contract of ../shared/design.md:
+Units: SI throughout (m, s, rad, N, N m). Arrays follow the result contract of docs/results.md:
 `t` (P,), `q` (P, nq), `v` (P, nv), `u` (P, nu), `impact_times` (I,).
 """
 from __future__ import annotations

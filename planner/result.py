@@ -10,7 +10,7 @@ pre-impact velocity is the state after the run's first step minus that step's au
 (the step may also hold some free flight). The impulse is the integral of the auxiliary force over
 the run, sum h s P_j a_j (eq. 22).
 
-File contract (shared/design.md): DIR/trajectory.npz with tau, y, t, q, v, u, impact_times (and
+File contract (docs/results.md): DIR/trajectory.npz with tau, y, t, q, v, u, impact_times (and
 more), DIR/summary.json with command, robot, task, converged, solve_time_s, n_nlp,
 ipopt_iterations, complementarity_residual, terminal_error, physical_duration_s, impacts.
 """
@@ -368,7 +368,7 @@ def task_path(source: str) -> str:
 
 
 def _contract_keys(result, terminal_error: float | None) -> dict:
-    """The keys every summary.json holds (design.md, "The contract"), in the contract's order."""
+    """The keys every summary.json holds (docs/results.md), in the contract's order."""
     tr, st = result.trajectory, result.stats
     return {
         "command": result.command,

@@ -152,7 +152,7 @@ class Result(ArraysReadOnly):
 
 
 def load_result(out_dir) -> Result:
-    """Read a result directory (the contract in design.md). Raises InputError naming what is wrong."""
+    """Read a result directory (the contract in docs/results.md). Raises InputError naming what is wrong."""
     expect(out_dir, (str, os.PathLike), "load_result's out_dir")
     directory = result_dir(out_dir)
     npz_path, summary_path = directory / "trajectory.npz", directory / "summary.json"
