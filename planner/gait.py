@@ -61,7 +61,7 @@ class BipedLayout:
 
 
 def find_layout(robot: Robot, stance_foot: str = "foot_1", swing_foot: str = "foot_2") -> BipedLayout:
-    """Read the floating planar biped layout (design.md, "The biped") from a robot file.
+    """Read the floating planar biped layout (docs/biped.md, "Model, derived from the robot file") from a robot file.
 
     The root joints must be two slides along x and z and a hinge about y; each foot's parent joint
     is its leg hinge, driven by exactly one motor. Raises InputError when the file is not laid out so.
