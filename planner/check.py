@@ -13,6 +13,7 @@ run before they start.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 import xml.etree.ElementTree as ET
@@ -423,7 +424,9 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
-    if out and robot.format is RobotFormat.MJCF:
+    measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
+                    and all(err <= TOLERANCE for err in gaps["sites"].values()))
+    if measured and robot.format is RobotFormat.MJCF:  # (they explain these gaps, not a named difference)
         out += _parser_gaps(ET.parse(robot.path).getroot())
     if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
         # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
@@ -440,11 +443,18 @@ def _parser_gaps(root: ET.Element) -> list[str]:
     measured (session 56): they explain a mass, bias or point difference that reading_differences found and the mass
     message's "e.g." does not."""
     out = []
+    placed = [e for e in root.iter() if e.tag in ("body", "inertial", "site", "frame")]  # what Pinocchio places
+
+    def turned(text):  # (a malformed one MuJoCo refuses first)
+        with contextlib.suppress(ValueError):
+            return any(float(x) for x in text.split())
+        return False
+
     seq = next((c.get("eulerseq") for c in root.iter("compiler") if c.get("eulerseq")), "xyz")
-    if seq != seq.lower() and any(e.get("euler") for e in root.iter()):
+    if seq != seq.lower() and any(turned(e.get("euler") or "") for e in placed):
         out.append(f"<compiler eulerseq=\"{seq}\">: Pinocchio's parser reads an extrinsic (upper-case) sequence as "
                    "intrinsic; write the orientations as quat or in the lower-case sequence")
-    for e in root.iter():
+    for e in placed:
         axis = (e.get("axisangle") or "").split()[:3]
         try:
             length = float(np.linalg.norm(np.array(axis, float))) if len(axis) == 3 else 1.0

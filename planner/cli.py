@@ -276,25 +276,28 @@ def main(argv: list[str] | None = None) -> int:
 def _term_as_ctrl_c():
     """SIGTERM (`timeout`, a CI cancellation, systemd) handled as the Ctrl-C it stands for: the results are written
     whole or not at all, and a good earlier result keeps its plots (a SIGTERM while they were set aside hid them in a
-    temporary directory; one while the new plots were drawn left none). Where Ctrl-C is ignored (a race's arm) the
-    SIGTERM ends the process as before."""
+    temporary directory; one while the new plots were drawn left none). Where Ctrl-C is ignored (a background job of
+    a script) it is raised as KeyboardInterrupt all the same; a forked child (a race's arm) ends as before."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    owner = os.getpid()
 
     def term(signum, frame):
-        handler = signal.getsignal(signal.SIGINT)
-        if callable(handler):
-            handler(signal.SIGINT, frame)
-        else:
+        if os.getpid() != owner:  # (the handler is inherited by fork)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGTERM)
+            return
+        handler = signal.getsignal(signal.SIGINT)
+        if not callable(handler):
+            raise KeyboardInterrupt
+        handler(signal.SIGINT, frame)
 
     previous = signal.signal(signal.SIGTERM, term)
     try:
         yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    finally:  # (None: a handler not installed from Python)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def _asks_ipopt_log(args) -> bool:

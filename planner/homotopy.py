@@ -46,6 +46,7 @@ from .problem import Penalty, Problem, plane_gap
 from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
 from .simulate import element_trajectory, step_trajectory
 from .task import MAX_NLPS
+from .timefreezing import contact_labels
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 
@@ -1467,7 +1468,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
            for y in nodes]
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
-    holes = [(e.x - e.a, e.x + e.a) for e in problem.task.plan.holes]
+    holes = hole_mouths(problem.task)
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
                    gap, holes)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
@@ -1500,6 +1501,18 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     return traj, Ws[:, -1], nodes
 
 
+def hole_mouths(task) -> list[tuple[float, float]]:
+    """The x intervals [m] where the task's plan.holes meet the ground (z = ground_height): a hole's ellipse cut by
+    it, none for a hole wholly below or above it (a buried hole's x extent made a one-step shuffle a hop)."""
+    out = []
+    for e in task.plan.holes:
+        depth = (task.ground_height - e.z) / e.b
+        if abs(depth) < 1.0:
+            half = e.a * math.sqrt(1.0 - depth**2)
+            out.append((e.x - half, e.x + half))
+    return out
+
+
 NEVER_TOUCHING_GAP_M = 1e-6  # [m] a touches = false point this near its plane lies on it (the solve's tolerances)
 
 
@@ -1509,12 +1522,16 @@ def _warn_never_touching_on_plane(problem: Problem, nodes) -> None:
     plan with touches = true may differ (session 56's tester: a point resting on the ground all plan long, exit 0 and
     no word). The nodes are (nq + ...) states."""
     task, nq = problem.task, problem.system.nq
-    for c in (c for c in task.contacts if c.point in problem.skips.never_touching):
+    for label, c in zip(contact_labels(task.contacts), task.contacts):
+        if c.point not in problem.skips.never_touching:
+            continue
         gaps = np.array([float(plane_gap(problem.system.dyn, c, np.asarray(y[:nq], float), task.ground_height))
                          for y in nodes])
-        on = int(np.sum(gaps <= NEVER_TOUCHING_GAP_M))
-        if on:
-            warnings.warn(f"contact point {c.point!r} (touches = false) lies on its plane at {on} of {len(gaps)} "
-                          f"nodes (gap <= {NEVER_TOUCHING_GAP_M:g} m): the task says it never touches, so the plan "
-                          "holds it there without a contact force; with touches = true the plan may differ")
+        on = np.flatnonzero(gaps <= NEVER_TOUCHING_GAP_M)
+        if on.size:
+            shown_nodes = ", ".join(str(k) for k in on[:8]) + (", ..." if on.size > 8 else "")
+            warnings.warn(f"contact {label!r} (touches = false) lies on its plane at {on.size} of {len(gaps)} "
+                          f"nodes ({shown_nodes}; gap <= {NEVER_TOUCHING_GAP_M:g} m): the task says it never touches, "
+                          "so the plan holds it there without a contact force; with touches = true the plan may "
+                          "differ")
 

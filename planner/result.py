@@ -1008,7 +1008,7 @@ def _temp_prefix(path: Path) -> str:
     """The start of the names of `path`'s temp files: "." + its name + ".", the name cut so that the temp's name (14
     characters more) stays within NAME_MAX = 255 bytes (a valid 245-character name was refused as too long)."""
     name = path.name
-    while len(f".{name}.XXXXXXXX.tmp".encode()) > 255:
+    while len(os.fsencode(f".{name}.XXXXXXXX.tmp")) > 255:  # (bytes as the OS sees them: a name of \xff bytes too)
         name = name[:-1]
     return f".{name}."
 

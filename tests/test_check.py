@@ -446,6 +446,24 @@ def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, n
     assert any(d.startswith(named) for d in differences), differences
 
 
+def test_parser_hints_come_with_the_gaps_they_explain(tmp_path):
+    """The hints on Pinocchio's MJCF parser are given only beside a mass, bias or point gap, and for constructs that
+    place what Pinocchio reads: an upper-case eulerseq with an euler on a geom only, beside a named gravcomp, gave the
+    eulerseq hint for a difference it does not cause (session 56's review)."""
+    from planner.check import reading_differences
+
+    geom = '<geom name="base_geom" type="box"'
+    assert CAPLER.count(geom) == 1 and CAPLER.count('<body name="thigh" pos="0 0 0">') == 1
+    text = (CAPLER.replace('autolimits="true"', 'autolimits="true" eulerseq="XYZ"')
+            .replace(geom, geom + ' euler="0.1 0.2 0.3"')
+            .replace('<body name="thigh" pos="0 0 0">', '<body name="thigh" pos="0 0 0" gravcomp="1">'))
+    path = tmp_path / "hinted.xml"
+    path.write_text(text)
+    differences = reading_differences(load_robot(path))
+    assert any(d.startswith("body 'thigh': gravcomp 1") for d in differences), differences
+    assert not any("eulerseq" in d for d in differences), differences
+
+
 @pytest.mark.parametrize("joint, ref", [("base_z", "0.1"), ("knee", "0.3")])
 def test_a_ref_on_a_bodys_last_joint_is_read_alike(tmp_path, joint, ref):
     """A joint's ref on its body's last joint (a slide or a hinge) is read by Pinocchio's parser as MuJoCo reads it

@@ -1351,6 +1351,11 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
         assert signal.getsignal(signal.SIGTERM) is unhandled
+        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        finished.clear()
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
+        assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
     finally:
         signal.signal(signal.SIGTERM, before)
 
