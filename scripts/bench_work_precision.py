@@ -7,13 +7,16 @@ Suite "simulate" (the default; --cases picks among CASE_NAMES):
   frictionless drop from (0, 1) m with v = (1, 0) m/s (Example 1 of the paper) under several
   discretization options (rho_f, a_n, strategy), the same drop with no-slip friction, and the elastic
   drop (restitution 0.5) from rest. Errors: state error max |q - q_exact|_inf over the physical-time
-  samples in [0, t_window] [m], first impact time error vs sqrt(2 z0 / g) [s], post-impact velocity
-  error |v_post - v_post_exact|_inf [m/s], penetration -min gap over the nodes [m].
+  samples in [0, t_window] [m] (post_impact_error_m: over the samples after both first impacts only, the contact
+  phase; interpolated_error_m: the samples read with linear interpolation, between them too), first impact time
+  error vs sqrt(2 z0 / g) [s], post-impact velocity error |v_post - v_post_exact|_inf [m/s], penetration -min gap
+  over the nodes [m] (FESD: the element ends, not the stages inside).
 * Capler (robots/capler.xml) dropped from 5 cm while joint PD holds its posture: against a fine-grid
   run (h_ref = smallest h / 8) and against a MuJoCo rollout with the same PD law (planner.replay).
   Errors: base position error max |p_base - p_base_ref|_2 at the run's own samples (the references
   interpolated there) [m], impact time difference [s] (also vs the exact ballistic impact time: the
-  held posture falls rigidly), penetration.
+  held posture falls rigidly), the base error against that exact ballistic flight before the first landing
+  (flight_error_exact_m; the references' own in "references"), penetration.
   A MuJoCo line (timestep varied, error against the fine-grid run) puts the soft-contact simulator on
   the same plot.
 
@@ -28,10 +31,10 @@ optima, so no plan is compared with another; each is judged against its own dyna
 Errors: the re-simulation defect (resimulation_defect: from the plan's state every 0.1 s of physical
 time, planner.simulate at h / 8 with the plan's controls open loop for 0.1 s; max distance of the base
 origin and of the contact points from the plan [m]); the MuJoCo tracking error (base, joint PD on the
-plan: what `planner validate` reports) [m]; penetration -min gap over the nodes [m]; terminal error
-[m, rad]; point mass also the first flight against the exact motion under the plan's controls from its
-own take-off state (max |q - q_exact|_inf [m], landing time error [s]; exact_flight). Records also hold
-IPOPT iterations, NLPs, convergence, hops and impacts.
+plan: what `planner validate` reports; tracking_window_{mean,median,worst}_m over its windows) [m];
+penetration -min gap over the nodes [m]; terminal error [m, rad]; point mass also the first flight against
+the exact motion under the plan's controls from its own take-off state (max |q - q_exact|_inf [m], landing time
+error [s]; exact_flight). Records also hold IPOPT iterations, NLPs, convergence, hops and impacts.
 
 Writes OUT/results.json (one record per run, the convergence orders, the machine) and
 OUT/work_precision.png (log-log error against wall time). Runs one simulation or plan at a time in
@@ -202,10 +205,39 @@ def _run_record(case: str, variant: Variant, task, result, wall: float, contact:
 
 
 def penetration(dyn: Dynamics, task, y: np.ndarray) -> float:
-    """-min over the nodes y (K, ny) and the task's contact points of the gap [m] (> 0: below the ground)."""
+    """-min over the nodes y (K, ny) and the task's contact points of the gap [m] (> 0: below the ground).
+
+    The nodes are the output's samples: with FESD the element ends only. The Radau stage states inside the elements
+    are not in the SimulationResult, so a deeper gap there is not read."""
     q = np.asarray(y, float)[:, : dyn.nq].T  # (nq, K): one mapped call for all nodes
     gaps = [np.asarray(dyn.point_position(c.point).map(q.shape[1])(q))[2] - task.ground_height for c in task.contacts]
     return float(-np.min(gaps))
+
+
+# points per interval of the samples where interpolated_error reads the linear interpolation: a parabola's chord error
+# peaks mid-interval, which is one of them (8/16); an even number keeps it so
+INTERP_SUBDIVISIONS = 16
+
+
+def interpolated_error(t: np.ndarray, q: np.ndarray, exact: Drop, t_stop: float,
+                       subdivisions: int = INTERP_SUBDIVISIONS) -> float:
+    """max |q_lin(t) - q_exact(t)|_inf over [0, t_stop] [m], q_lin the samples (t (K,), q (K, nq)) joined by straight
+    lines, as the Capler references and planner.replay read a trajectory: at `subdivisions` + 1 points of every sample
+    interval of positive length (its ends too, so never below the samples' error) and at the exact first impact (its
+    kink). The samples alone (state_error_m) miss the chord error between them, g dt^2 / 8 for dt between samples (a
+    FESD element), where the FESD runs are exact at the samples. An impact's repeated time may hold two postures (the
+    pre-impact sample above the ground, the landing): each interval joins its own two samples."""
+    dt = np.diff(t)
+    seg = np.nonzero((dt > 0) & (t[1:] <= t_stop))[0]
+    frac = np.arange(subdivisions + 1) / subdivisions
+    t1 = exact.impact_time
+    kink = seg[(t[seg] < t1) & (t[seg + 1] > t1)]
+    s = np.concatenate([np.broadcast_to(frac, (len(seg), len(frac))), ((t1 - t[kink]) / dt[kink])[:, None].repeat(
+        len(frac), axis=1)])  # (S + kink, F) shares of the interval; the kink's row repeats its one point
+    rows = np.concatenate([seg, kink])
+    tt = t[rows, None] + s * dt[rows, None]
+    q_lin = q[rows, None, :] + s[:, :, None] * (q[rows + 1] - q[rows])[:, None, :]
+    return float(np.max(np.abs(q_lin - exact.q(tt.ravel()).reshape(q_lin.shape))))
 
 
 def point_mass_records(case: PointMassCase, robot, dyn: Dynamics, repeat: int, log) -> list[dict]:
@@ -224,7 +256,13 @@ def point_mass_records(case: PointMassCase, robot, dyn: Dynamics, repeat: int, l
             covered = bool(tr.t[-1] >= case.t_window)  # a shorter window would understate the state error
             first = tr.impacts[0] if tr.impacts else None
             complete = first is not None and first.tau_end < tr.tau[-1]  # v_post is only known once the frozen interval ends
+            # the contact phase alone (samples after both first impacts): in state_error_m the free-fall lead just
+            # before the landing hides it, e.g. where no-slip friction stops the mass against the frictionless slide
+            after = window & (tr.t > first.time) & (tr.t >= ex.impact_time) if complete else np.zeros_like(window)
             errors = {"state_error_m": float(np.max(np.abs(tr.q[window] - ex.q(tr.t[window])))) if covered else None,
+                      "post_impact_error_m": float(np.max(np.abs(tr.q[after] - ex.q(tr.t[after]))))
+                      if covered and after.any() else None,
+                      "interpolated_error_m": interpolated_error(tr.t, tr.q, ex, case.t_window) if covered else None,
                       "impact_time_error_s": abs(first.time - ex.impact_time) if first else None,
                       "v_post_error_mps": float(np.max(np.abs(first.v_post - ex.v_post))) if complete else None,
                       "penetration_m": penetration(dyn, task, tr.y)}
@@ -272,6 +310,24 @@ def _base_positions(scene, t_grid: np.ndarray, t: np.ndarray, q: np.ndarray) -> 
     return replay._planned_positions(scene, q_grid)[0]
 
 
+def ballistic_flight_error(scene, case: CaplerDrop, t: np.ndarray, q: np.ndarray,
+                           landing: float | None) -> float | None:
+    """max |p_base - p_base_exact|_2 [m] over the samples t (K,), q (K, nq) before the earlier of the run's first
+    impact (`landing`, None: none) and the exact one sqrt(2 drop / g): there the held posture falls rigidly (PD of zero
+    error and zero speed: no torque), so the exact motion is the base's parabola with the joints still. Unlike the
+    fine-grid and MuJoCo references, it has no step of its own. None without a sample before the landing."""
+    t_exact = math.sqrt(2.0 * case.drop / G)
+    stop = t_exact if landing is None else min(landing, t_exact)
+    keep = t < stop
+    if not keep.any():
+        return None
+    q0 = np.asarray(case.task(case.hs[0]).initial.q, float)
+    q_exact = np.tile(q0, (int(keep.sum()), 1))
+    q_exact[:, 1] -= G * t[keep] ** 2 / 2  # base z: the free fall
+    base, base_exact = replay._planned_positions(scene, q[keep])[0], replay._planned_positions(scene, q_exact)[0]
+    return float(np.linalg.norm(base - base_exact, axis=1).max())
+
+
 def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict]:
     """Records of the Capler drop over case.hs (errors vs the fine-grid run and vs MuJoCo), plus the
     MuJoCo timestep records, and a dict describing both references."""
@@ -300,6 +356,11 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
             "capler_mujoco": {"timestep": replay.ContactSettings().timestep, "wall_time_s": mj_wall,
                               "impact_time_s": float(mj["impact_times"][0]) if mj["impact_times"].size else None},
             "capler_exact_impact_time_s": exact_impact}
+    # the references against the exact flight: they lag as the runs do (implicit Euler's fine grid by O(h_ref))
+    refs["capler_reference"]["flight_error_exact_m"] = ballistic_flight_error(
+        scene, case, ref.trajectory.t, ref.trajectory.q, refs["capler_reference"]["impact_time_s"])
+    refs["capler_mujoco"]["flight_error_exact_m"] = ballistic_flight_error(
+        scene, case, mj["t"], mj["q"], refs["capler_mujoco"]["impact_time_s"])
     fesd_ref = None
     if case.fesd_reference is not None:
         fesd_task = case.task(case.fesd_reference_h)
@@ -310,6 +371,8 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
         refs["capler_reference_fesd"] = {"h": case.fesd_reference_h, "N": fesd_task.horizon.N, "wall_time_s": fesd_wall,
                                          "options": case.fesd_reference.options, "n_nlp": fesd_ref.stats.n_nlp,
                                          "impact_time_s": fesd_ref.trajectory.impacts[0].time if fesd_ref.trajectory.impacts else None}
+        refs["capler_reference_fesd"]["flight_error_exact_m"] = ballistic_flight_error(
+            scene, case, fesd_ref.trajectory.t, fesd_ref.trajectory.q, refs["capler_reference_fesd"]["impact_time_s"])
     default_against = ("ref", "mujoco") + (("fesd_ref",) if fesd_ref is not None else ())
 
     def compare(t, q, impacts, t_stop, against=default_against):
@@ -332,6 +395,7 @@ def capler_records(case: CaplerDrop, repeat: int, log) -> tuple[list[dict], dict
             err[f"base_error_{key}_m"] = float(np.linalg.norm(base - _base_positions(scene, grid, t_o, q_o), axis=1).max())
             err[f"impact_time_diff_{key}_s"] = abs(first - impact_o) if first is not None and impact_o is not None else None
         err["impact_time_diff_exact_s"] = abs(first - exact_impact) if first is not None else None
+        err["flight_error_exact_m"] = ballistic_flight_error(scene, case, t, q, first)
         return err
 
     records = []
@@ -561,6 +625,16 @@ def exact_flight(robot, dyn: Dynamics, task, traj) -> dict | None:
             "flight_samples": int(inside.size)}
 
 
+def window_errors(windows: replay.WindowReport) -> dict:
+    """The windowed MuJoCo tracking (validate's windows: each window's largest base error [m]) as its mean, median and
+    worst window: tracking_window_{mean,median,worst}_m; the mean alone hid whether one window or all were off. None
+    without windows (no 0.0: it read as perfect tracking)."""
+    has = bool(windows.max_base_error_m)
+    return {"tracking_window_mean_m": windows.mean_m if has else None,
+            "tracking_window_median_m": windows.median_m if has else None,
+            "tracking_window_worst_m": windows.worst_m if has else None}
+
+
 def _plan(robot, task, dyn: Dynamics):
     """build_problem + solve with the planner's defaults; (result, build wall [s])."""
     start = time.perf_counter()
@@ -591,7 +665,7 @@ def ocp_records(case: OcpCase, repeat: int, log) -> list[dict]:
         if len(tr.t) > 1:
             validation = replay.validate_plan(robot, task, tr)
             errors["tracking_error_m"] = validation.max_tracking_error_m
-            errors["tracking_window_mean_m"] = validation.windows.mean_m  # restarted every 25 ms for 0.1 s
+            errors.update(window_errors(validation.windows))  # restarted every 25 ms for 0.1 s
             # each impact against MuJoCo's onset in the window started 25-50 ms before it; "none" (a push-off in a
             # stance, a tap) is not an error of the impact's time, so the share MuJoCo sees as a landing goes beside it
             windows = validation.windows
@@ -769,7 +843,8 @@ def plot(records: list[dict], path: Path, panels=PANELS) -> None:
 
 def table(records: list[dict]) -> str:
     """A Markdown table of the records (errors in their own units, times in s)."""
-    keys = ["state_error_m", "base_error_ref_m", "base_error_fesd_ref_m", "base_error_mujoco_m", "impact_time_error_s", "impact_time_diff_ref_s",
+    keys = ["state_error_m", "post_impact_error_m", "interpolated_error_m", "base_error_ref_m", "base_error_fesd_ref_m",
+            "base_error_mujoco_m", "flight_error_exact_m", "impact_time_error_s", "impact_time_diff_ref_s",
             "impact_time_diff_mujoco_s", "impact_time_diff_exact_s", "v_post_error_mps", "penetration_m"]
     keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
     lines = ["| case | variant | h [s] | N | wall [s] | NLPs | " + " | ".join(keys) + " |", "|---" * (6 + len(keys)) + "|"]
@@ -782,7 +857,9 @@ def table(records: list[dict]) -> str:
 
 def ocp_table(records: list[dict]) -> str:
     """A Markdown table of the OCP records (errors in m or s, times in s)."""
-    keys = ["defect_base_m", "defect_points_m", "tracking_error_m", "tracking_window_mean_m", "window_impact_time_error_s", "flight_error_m", "landing_time_error_s", "penetration_m", "terminal_error"]
+    keys = ["defect_base_m", "defect_points_m", "tracking_error_m", "tracking_window_mean_m",
+            "tracking_window_median_m", "tracking_window_worst_m", "window_impact_time_error_s", "flight_error_m",
+            "landing_time_error_s", "penetration_m", "terminal_error"]
     keys = [k for k in keys if any(r["errors"].get(k) is not None for r in records)]
     lines = ["| case | N | h [s] | wall [s] | IPOPT it | converged | hops | impacts | " + " | ".join(keys) + " |", "|---" * (8 + len(keys)) + "|"]
     for r in records:

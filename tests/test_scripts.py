@@ -109,6 +109,69 @@ def test_work_precision_ocp_quick_run(bench, tmp_path, capsys):
     assert (tmp_path / "work_precision.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_work_precision_contact_phase_interpolation_and_exact_flight(bench, tmp_path, capsys):
+    """--quick: post_impact_error_m shows the no-slip stop position off by more than 1 mm at both h (5.2e-2 and 1.2e-2
+    m measured) where the frictionless slide is exact (<= ERROR_FLOOR), though both have the same state_error_m (the
+    free-fall lead before the landing); interpolated_error_m is never below the samples' error, and for FESD n_s = 2
+    (exact at its element ends) it is the chord error g dt^2 / 8 of the elements dt = h / 3 (2.18e-4 and 5.45e-5 m);
+    flight_error_exact_m is there for every Capler run and reference, the implicit-Euler fine grid's above
+    ERROR_FLOOR (a reference that lags the exact flight as the runs do), MuJoCo's halving with its timestep."""
+    assert bench.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    results = json.loads((tmp_path / "results.json").read_text())
+    recs = results["records"]
+
+    def errors(case, variant="default"):
+        return {r["h"]: r["errors"] for r in recs if (r["case"], r["variant"]) == (case, variant)}
+
+    slide, stop = errors("pm_drop_frictionless"), errors("pm_drop_noslip")
+    assert sorted(slide) == sorted(stop) == [0.02, 0.04]
+    for h in slide:
+        assert slide[h]["state_error_m"] == pytest.approx(stop[h]["state_error_m"], rel=1e-3)
+        assert slide[h]["post_impact_error_m"] <= bench.ERROR_FLOOR < 1e-3 < stop[h]["post_impact_error_m"]
+    for r in recs:
+        if r["case"].startswith("pm_"):
+            assert r["errors"]["interpolated_error_m"] >= r["errors"]["state_error_m"], (r["case"], r["variant"])
+    for h, e in errors("pm_drop_frictionless", "fesd n_s=2").items():
+        assert e["state_error_m"] < bench.ERROR_FLOOR
+        assert e["interpolated_error_m"] == pytest.approx(bench.G * (h / 3) ** 2 / 8, rel=0.05), h
+    for r in recs:
+        if r["case"].startswith("capler_"):
+            assert r["errors"]["flight_error_exact_m"] is not None, (r["case"], r["h"])
+    refs = results["references"]
+    assert refs["capler_reference"]["flight_error_exact_m"] > bench.ERROR_FLOOR
+    assert refs["capler_mujoco"]["flight_error_exact_m"] is not None
+    mj = sorted((r["h"], r["errors"]["flight_error_exact_m"]) for r in recs if r["case"] == "capler_pd_drop_mujoco")
+    assert mj[0][1] == pytest.approx(mj[1][1] / 2, rel=0.1)
+
+
+def test_interpolated_error_reads_between_the_samples(bench):
+    """interpolated_error joins the samples by straight lines: exact free-fall samples every dt have the chord error
+    g dt^2 / 8 between them (the samples none); an impact's repeated time with two postures (the pre-impact sample 7 mm
+    up, then the landing at z = 0, 1.15e-2 s before the exact impact) joins each interval's own samples, so the
+    landing sample's error (the larger, 5.0e-2 m) counts: reading one posture per time had dropped it (4.3e-2 m)."""
+    drop = bench.Drop(z0=1.0)
+    dt = 0.04
+    t = np.arange(0.0, 0.4, dt)
+    assert bench.interpolated_error(t, drop.q(t), drop, 0.4) == pytest.approx(bench.G * dt**2 / 8, rel=1e-9)
+    t2 = np.array([0.42, 0.44, 0.44, 0.46])
+    q2 = np.column_stack([np.zeros(4), [drop.q(t2[:1])[0, 1], 0.007, 0.0, 0.0]])
+    assert bench.interpolated_error(t2, q2, drop, 0.5) == pytest.approx(drop.q(t2[1:2])[0, 1], rel=1e-9)
+
+
+def test_window_errors_reports_mean_median_and_worst(bench):
+    """The windowed MuJoCo tracking goes to the JSON as mean, median and worst window (one bad window shows in the
+    worst, not in the median); a report without windows gives None, not 0.0 (read as perfect tracking)."""
+    from planner.replay import WindowReport
+
+    report = WindowReport(window_s=0.1, stride_s=0.025, starts_s=(0.0, 0.025, 0.05),
+                          max_base_error_m=(1e-3, 2e-3, 9e-3), diverged=False)
+    assert bench.window_errors(report) == pytest.approx(
+        {"tracking_window_mean_m": 4e-3, "tracking_window_median_m": 2e-3, "tracking_window_worst_m": 9e-3})
+    empty = WindowReport(window_s=0.1, stride_s=0.025, starts_s=(), max_base_error_m=(), diverged=False)
+    assert set(bench.window_errors(empty).values()) == {None}
+
+
 def test_resimulation_defect_of_no_measured_window_is_none(bench, monkeypatch):
     """A plan whose windows all simulate nothing past their start (here every simulation stops at once) has no
     re-simulation defect: None, not 0.0, which the table and the plot read as a perfect re-simulation."""
