@@ -44,6 +44,9 @@ class MujocoCheck:
     # what MuJoCo applies that the planner does not model (flags, gravcomp, tendons, fluid, joint passive terms,
     # other joint ranges): a failure, as simulate and plan refuse the file
     differences: tuple[str, ...] = ()
+    # constructs Pinocchio's MJCF parser reads otherwise than MuJoCo, named beside the mass, bias or point gaps they
+    # may explain (check._parser_gaps)
+    hints: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,8 @@ class ModelCheck:
             out.append(f"MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)}")
         if self.mujoco and self.mujoco.differences:
             out.append(f"MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}")
+        if self.mujoco and self.mujoco.hints:
+            out.append(f"Pinocchio's MJCF parser reads otherwise: {'; '.join(self.mujoco.hints)}")
         if (self.mujoco_skipped or "").startswith(MUJOCO_FAILED):
             out.append(self.mujoco_skipped.removeprefix(MUJOCO_FAILED))
         if self.passive and self.mujoco is None:  # (the compared reading names them among its differences)
@@ -120,7 +125,7 @@ class ModelCheck:
         out["dof_names"], out["points"], out["controls"] = list(self.dof_names), list(self.points), list(self.controls)
         out["passive"] = list(self.passive)
         if out["mujoco"] is not None:
-            for key in ("missing_sites", "differences"):  # as JSON reads them back
+            for key in ("missing_sites", "differences", "hints"):  # as JSON reads them back
                 out["mujoco"][key] = list(out["mujoco"][key])
         out["passed"] = self.passed
         out["failures"] = self.failures  # (the -q failure line reads them)
@@ -142,6 +147,8 @@ class ModelCheck:
                            "after the first)")
             if self.mujoco.differences:
                 mujoco += f"; MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}"
+            if self.mujoco.hints:
+                mujoco += f"; Pinocchio's MJCF parser reads otherwise: {'; '.join(self.mujoco.hints)}"
         else:
             failed = self.mujoco_skipped.startswith(MUJOCO_FAILED)
             mujoco = self.mujoco_skipped if failed else f"skipped: {self.mujoco_skipped}"
@@ -424,15 +431,20 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
-    measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
-                    and all(err <= TOLERANCE for err in gaps["sites"].values()))
-    if measured and robot.format is RobotFormat.MJCF:  # (they explain these gaps, not a named difference)
-        out += _parser_gaps(ET.parse(robot.path).getroot())
+    out += _hints(robot, gaps)
     if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
         # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
         out.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: "
                    "the differences above may be theirs; write them into the file")
     return tuple(out)
+
+
+def _hints(robot: Robot, gaps: dict) -> list[str]:
+    """_parser_gaps of an MJCF file whose mass, bias or point gaps (_mujoco_gaps) exceed TOLERANCE, else []: they
+    explain those gaps, not a named difference."""
+    measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
+                    and all(err <= TOLERANCE for err in gaps["sites"].values()))
+    return _parser_gaps(ET.parse(robot.path).getroot()) if measured and robot.format is RobotFormat.MJCF else []
 
 
 AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize
@@ -502,7 +514,8 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
                        max_err_actuation=gaps["actuation"],
                        max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
-                       differences=_named_differences(robot, mj) + robot.passive), None
+                       differences=_named_differences(robot, mj) + robot.passive,
+                       hints=tuple(_hints(robot, gaps))), None
 
 
 def _mean_us(call) -> float:

@@ -68,8 +68,11 @@ def page_argument(text: str) -> Path:
     return path_argument(text)
 
 
+TASK_HELP = "task file or a shipped task's name, e.g. point_mass_hop (default: the .toml beside the robot file)"
+
+
 def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = True, plots: bool = False,
-                verbose: bool = False, task_help: str = "task file (default: the .toml beside the robot file)") -> None:
+                verbose: bool = False, task_help: str = TASK_HELP) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     if task:
         p.add_argument("--task", type=path_argument, help=task_help)
@@ -184,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="example:\n  planner gait robots/biped.xml --task robots/biped_gait1.toml --out results/gait1")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo walking replay")
-    _add_common(p, task_help="task file with a [gait] table (required, e.g. robots/biped_gait1.toml)")
+    _add_common(p, task_help="task file with a [gait] table or a shipped one's name (required, e.g. biped_gait1)")
     p.set_defaults(run=_cmd_gait)
 
     p = sub.add_parser("validate", help="replay a plan in MuJoCo (kinematic, tracking, open loop)",
@@ -234,8 +237,8 @@ def main(argv: list[str] | None = None) -> int:
         # a solving command's Ctrl-C that a library swallowed (CasADi's callbacks) is raised once it returns (view's
         # server ends by Ctrl-C, exit 0)
         solving = interruptible() if args.command in ("simulate", "plan", "gait") else contextlib.nullcontext()
-        term = _term_as_ctrl_c() if args.command != "view" else contextlib.nullcontext()  # (view: its own)
-        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), term, solving:
+        # (the live view installs its own inside: its server ends by it, exit 0)
+        with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), _term_as_ctrl_c(), solving:
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)

@@ -582,7 +582,10 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         # impact element still reads as flight (beta = 1), so node k + 1 lies one element (26 ms) past it
         # (the last impact of the phase: FESD's phase may start on the ground, with beta between 0.5 and 1, and hold a
         # tap)
-        landing = max((i.time for i in traj.impacts if clock[a] < i.time <= end + LANDING_SLACK_S), default=end)
+        # without an impact, a phase whose last node is on the plane touched down there, not a step later
+        on_plane = gap is not None and k < N and gap[k] <= ON_PLANE_M
+        landing = max((i.time for i in traj.impacts if clock[a] < i.time <= end + LANDING_SLACK_S),
+                      default=float(clock[k]) if on_plane else end)
         hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(landing),
                         distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
     return hops

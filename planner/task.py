@@ -697,10 +697,22 @@ def _not_on_the_world(point: str, robot, key: str) -> None:
                         "into its body, with the frame's pos and orientation, or onto the robot")
 
 
+def shipped_task(path: Path) -> Path:
+    """`path`, or the shipped task it names where no such file exists: a bare name (`point_mass_hop`) or a path in
+    robots/ as the docs write them (`robots/point_mass_hop.toml`), from outside a checkout (an installed wheel holds
+    them in planner/robots, and the README's commands were refused there)."""
+    if path.exists() or path.parent not in (Path("."), Path("robots")) or path.suffix not in ("", ".toml"):
+        return path
+    from .model import ROBOTS_DIR  # (here: reading a task file needs no Pinocchio)
+
+    shipped = ROBOTS_DIR / f"{path.stem}.toml"
+    return shipped if shipped.is_file() else path
+
+
 def load_task(path: str | Path) -> Task:
     """Read and validate a task file. Raises TaskError with the offending key."""
     expect(path, (str, os.PathLike), "load_task's path")
-    path = Path(path)
+    path = shipped_task(Path(path))
     if not path.is_file():
         raise TaskError(f"task file {path} is a directory" if path.is_dir() else f"task file {path} is not a regular "
                         "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}")

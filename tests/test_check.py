@@ -88,7 +88,7 @@ def test_json_contract():
         assert out["passed"] is True and out["failures"] == [] and out["tolerance"] == TOLERANCE
         if has_mujoco:
             assert set(out["mujoco"]) == {"max_err_mass", "max_err_bias", "max_err_sites", "max_err_passive",
-                                          "max_err_actuation", "missing_sites", "differences"}
+                                          "max_err_actuation", "missing_sites", "differences", "hints"}
             assert out["mujoco"]["missing_sites"] == [] and out["mujoco"]["differences"] == []
         else:
             assert out["mujoco"] is None
@@ -433,7 +433,8 @@ def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, n
     """Capler's MJCF file with a construct MuJoCo reads and Pinocchio's parser reads otherwise (a non-unit axisangle
     axis, an extrinsic eulerseq, a hinge's ref before its body's last joint, a site's pos from a <default>, a site
     on a jointless body in a jointless body) differs in its mass matrix or points and is refused naming that construct
-    (session 56's tester: refused with "e.g. masses MuJoCo infers from geoms" in a file of none, or points apart)."""
+    (session 56's tester: refused with "e.g. masses MuJoCo infers from geoms" in a file of none, or points apart);
+    check-model names it beside its gaps."""
     from planner.check import reading_differences
 
     text = CAPLER
@@ -442,8 +443,13 @@ def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, n
         text = text.replace(old, new)
     path = tmp_path / "variant.xml"
     path.write_text(text)
-    differences = reading_differences(load_robot(path))
+    robot = load_robot(path)
+    differences = reading_differences(robot)
     assert any(d.startswith(named) for d in differences), differences
+    if not named.startswith("joint"):  # check-model names them too (it printed the gaps alone; a ref is a difference)
+        result = check_model(robot, samples=2)
+        assert any(h.startswith(named) for h in result.mujoco.hints), result.mujoco.hints
+        assert any(f.startswith("Pinocchio's MJCF parser reads otherwise: ") for f in result.failures)
 
 
 def test_parser_hints_come_with_the_gaps_they_explain(tmp_path):

@@ -1356,6 +1356,11 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         finished.clear()
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+        # `view --html` too (it ended by the signal, exit 143 and no word; only the live view had a handler)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        monkeypatch.setattr(cli, "_cmd_view", plotting)
+        assert main(["view", str(tmp_path), "--html", str(tmp_path / "page.html")]) == 130
+        assert capsys.readouterr().err.strip() == "planner view: interrupted"
     finally:
         signal.signal(signal.SIGTERM, before)
 

@@ -285,6 +285,9 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz) == []  # steps 1: x 0.1 -> 0.2
     assert len(hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, holes=[(0.12, 0.18)])) == 1
     assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, holes=[(0.25, 0.4)]) == []
+    # with the gaps: that hop's last node is on the ground, so it lands there (it read a step later, node 3's 0.3 s)
+    (over,) = hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=[(0.12, 0.18)])
+    assert (over.takeoff_time, over.landing_time) == (0.1, 0.2)
     xyz[2, 2] = 10 * ON_PLANE_M
     assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz)) == 1
     # down a 30-degree slope (its normal (sin, 0, cos)): the same slide, judged by the distance from the plane

@@ -128,6 +128,20 @@ def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, mess
     parse_task(_with(path, good))
 
 
+def test_a_shipped_task_is_found_by_its_name_or_its_robots_path(tmp_path, monkeypatch):
+    """From a directory without robots/ (an installed wheel's user), `point_mass_hop` and `robots/point_mass_hop.toml`
+    (the docs' commands) read the shipped task (they were "task file not found"); a file of that name in the working
+    directory wins, and an unknown name is still not found."""
+    monkeypatch.chdir(tmp_path)
+    shipped = (ROBOTS / "point_mass_hop.toml").resolve()
+    for name in ("point_mass_hop", "robots/point_mass_hop.toml"):
+        assert Path(load_task(name).source).resolve() == shipped
+    (tmp_path / "point_mass_hop.toml").write_text((ROBOTS / "point_mass.toml").read_text())
+    assert Path(load_task("point_mass_hop.toml").source).resolve() == (tmp_path / "point_mass_hop.toml").resolve()
+    with pytest.raises(TaskError, match="task file not found: no_such_task"):
+        load_task("no_such_task")
+
+
 def test_a_tangential_gain_without_friction_is_refused():
     """contacts.a_t is read by contacts with friction only: given with mu = 0 it is a TaskError naming it (session 56's
     tester: a_t = 5 with mu = 0 was accepted and ignored); its default with mu = 0, and any a_t with mu > 0, parse."""
