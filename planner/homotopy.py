@@ -1468,9 +1468,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
            for y in nodes]
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
-    holes = hole_mouths(problem.task)
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
-                   gap, holes)
+                   gap)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
@@ -1499,18 +1498,6 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     tau = np.concatenate([[0.0], np.cumsum(lengths[keep])])
     traj = element_trajectory(problem.system, problem.builder, tau, nodes, Ys, Ws, Us, dt, fesd.b, frozen_tol)
     return traj, Ws[:, -1], nodes
-
-
-def hole_mouths(task) -> list[tuple[float, float]]:
-    """The x intervals [m] where the task's plan.holes meet the ground (z = ground_height): a hole's ellipse cut by
-    it, none for a hole wholly below or above it (a buried hole's x extent made a one-step shuffle a hop)."""
-    out = []
-    for e in task.plan.holes:
-        depth = (task.ground_height - e.z) / e.b
-        if abs(depth) < 1.0:
-            half = e.a * math.sqrt(1.0 - depth**2)
-            out.append((e.x - half, e.x + half))
-    return out
 
 
 NEVER_TOUCHING_GAP_M = 1e-6  # [m] a touches = false point this near its plane lies on it (the solve's tolerances)

@@ -546,15 +546,14 @@ APPROACH_MPS = 1e-3
 LANDING_SLACK_S = 1e-9
 
 
-def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=()) -> list[Hop]:
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
-    does not move (HOP_MIN_TRAVEL_M), or whose nodes all keep the point's distance from its contact plane (unit normal
-    (3,); ON_PLANE_M: a slide, on a slope too), is left out, unless it is one step long and its x range meets one of
-    `holes`, (x_min, x_max) intervals [m]: a one-step hop over a hole starts and ends on the ground. gap (N+1,), the
-    smallest distance of the contact points from their planes at the nodes [m], when given: a phase from node 0 off
-    the planes is a fall, no hop, and a phase whose last node is off them lands in the next step (partly frozen),
-    whose end node it takes too."""
+    does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
+    contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out. gap (N+1,), the smallest
+    distance of the contact points from their planes at the nodes [m], when given: a phase from node 0 off the planes
+    is a fall, no hop, a phase whose last node is off them lands in the next step (partly frozen), whose end node it
+    takes too, and one whose last node is on them without an impact lands there."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -574,9 +573,8 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         seg = point_xyz[a : k + 2 if gap is not None and gap[k] > ON_PLANE_M and k < N else k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
-        over_hole = k - a == 1 and any(lo <= seg[:, 0].max() and seg[:, 0].min() <= hi for lo, hi in holes)
-        if not over_hole and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
-            continue  # (one-step shuffles on the ground were hops: 3 of Capler N = 100's 9, session 55)
+        if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
+            continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
         # impact element still reads as flight (beta = 1), so node k + 1 lies one element (26 ms) past it

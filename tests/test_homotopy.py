@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 import warnings
 
@@ -949,20 +948,3 @@ def test_a_never_touching_point_on_its_plane_is_warned_about(tmp_path):
     assert re.match(r"contact 'low' \(touches = false\) lies on its plane at \d+ of 11 nodes \(0, .*10; gap <=",
                     said), said
     assert plan(0.3) == []
-
-
-def test_hole_mouths_are_where_the_holes_meet_the_ground():
-    """hole_mouths: a hole centred on the ground opens x +- a; one whose centre lies b/2 below it opens a sqrt(3)/2
-    either side of x (the ellipse's chord there); a buried hole, and one above the ground, open nowhere (their x
-    extent made a one-step shuffle on the ground a hop; session 56's review)."""
-    from planner.task import parse_task
-
-    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 1.0]},
-                       "horizon": {"tau_f": 1.0, "N": 4},
-                       "plan": {"target_q": [3.0, 1.0], "holes": [{"x": 1.0, "z": 0.0, "a": 0.2, "b": 0.1},
-                                                                   {"x": 2.0, "z": -0.05, "a": 0.2, "b": 0.1},
-                                                                   {"x": 3.0, "z": -0.5, "a": 0.2, "b": 0.1},
-                                                                   {"x": 4.0, "z": 0.5, "a": 0.2, "b": 0.1}]}})
-    (a, b) = H.hole_mouths(task)
-    assert a == pytest.approx((0.8, 1.2), abs=1e-12)
-    assert b == pytest.approx((2.0 - 0.1 * math.sqrt(3.0), 2.0 + 0.1 * math.sqrt(3.0)), abs=1e-12)
