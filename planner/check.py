@@ -361,19 +361,19 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _mujoco_gaps(mj, states, mass, bias, position, points, robot: Robot) -> dict[str, float]:
+def _mujoco_gaps(mj, states, mass, bias, position, robot: Robot) -> dict[str, float]:
     """Max abs differences at `states` ((q, v) pairs) between MuJoCo's compiled model mj and a reading of the same file
     given as mass(q) (nv, nv), bias(q, v) (nv,) and position(point, q) (3,) callables: "mass" [kg, kg m, kg m^2],
     "bias" [N, N m], "passive" (MuJoCo's passive forces, which the planner does not have) [N, N m], "actuation" (the
     robot's B u against MuJoCo's actuator forces at seeded controls u within its bounds) [N, N m], and per MuJoCo site
-    named as one of `points`, its position [m] (the dict "sites": name -> difference)."""
+    named as one of robot.points, its position [m] (the dict "sites": name -> difference)."""
     import mujoco
 
     data = mujoco.MjData(mj)
     rng = np.random.default_rng(1)  # (a gear read or applied otherwise had no check: every robot's gear was 1)
     B, lower, upper = robot.actuation_matrix, robot.u_lower, robot.u_upper
     sites = [(s, mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s)) for s in range(mj.nsite)]
-    sites = [(s, name) for s, name in sites if name in points]
+    sites = [(s, name) for s, name in sites if name in robot.points]
     err = {"mass": [0.0], "bias": [0.0], "passive": [0.0], "actuation": [0.0]}
     apart = {name: [0.0] for _, name in sites}
     M = np.zeros((mj.nv, mj.nv))
@@ -420,7 +420,7 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
 
     gaps = _mujoco_gaps(mj, [random_state(model, rng) for _ in range(READING_STATES)],
                         lambda q: _symmetric(pin.crba(model, data, q)),
-                        lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot.points, robot)
+                        lambda q, v: pin.rnea(model, data, q, v, np.zeros(model.nv)), position, robot)
     out = list(named)
     what = {"mass": "mass matrix [kg, kg m, kg m^2] differs by up to {:.3g} (e.g. masses MuJoCo infers from geoms, a "
                     "geom's mass or a mesh's inertia, which Pinocchio's parser reads otherwise, or masses MuJoCo "
@@ -507,8 +507,7 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     mj, kind, why = _compile(robot)
     if mj is None:
         return None, why if kind == SKIPPED else MUJOCO_FAILED + why
-    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot.points,
-                        robot)
+    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     missing = tuple(name for name in names if name and name not in robot.points and name not in robot.world_sites)
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
