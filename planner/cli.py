@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
         # a solving command's Ctrl-C that a library swallowed (CasADi's callbacks) is raised once it returns (view's
         # server ends by Ctrl-C, exit 0)
         solving = interruptible() if args.command in ("simulate", "plan", "gait") else contextlib.nullcontext()
-        # (the live view installs its own inside: its server ends by it, exit 0)
+        # (the live view's server ends by it, exit 0)
         with quiet_stdout, contextlib.redirect_stderr(err), warnings.catch_warnings(), _term_as_ctrl_c(), solving:
             # one line, as every other message: Python's format adds the source line that issued it
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
@@ -950,11 +950,8 @@ def _cmd_view(args) -> int:
         page = view.render_html(args.dir, args.html, slow_motion=args.slow_motion)
         _emit(args, {"command": "view", "html": str(page)}, f"wrote {page}")
         return EXIT_OK
-    def stop(signum, frame):  # SIGTERM ends as Ctrl-C does: meshcat stops its server at exit (atexit), a kill skipped it
-        raise KeyboardInterrupt
-
-    # before the server starts and the URL is printed: a SIGTERM right after the URL (CI's test) killed the command
-    signal.signal(signal.SIGTERM, stop)
+    # SIGTERM ends it as Ctrl-C does (main's _term_as_ctrl_c, installed before the server starts: a SIGTERM right after
+    # the URL, CI's test, killed the command): meshcat stops its server at exit (atexit), a kill skipped it
     url = view.serve(args.dir, slow_motion=args.slow_motion, print_url=False)
     try:  # a stop once the URL is out is the normal end
         _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
