@@ -74,10 +74,9 @@ class Contact:
         _require(0.0 <= self.restitution <= 1.0, "contacts.restitution", self.restitution, "in [0, 1]")
         _require(0 < self.a_n <= MAX_AUX_GAIN, "contacts.a_n", self.a_n, f"in (0, {MAX_AUX_GAIN:g}]")
         _require(0 < self.a_t <= MAX_AUX_GAIN, "contacts.a_t", self.a_t, f"in (0, {MAX_AUX_GAIN:g}]")
-        default_a_t = Contact.__dataclass_fields__["a_t"].default  # (read only by a contact with friction: it was
-        # accepted and ignored with mu = 0)
-        _require(self.mu > 0 or self.a_t == default_a_t, "contacts.a_t", self.a_t,
-                 f"left out with mu = 0 (only a contact with friction reads it; its default is {default_a_t:g})")
+        # (read only by a contact with friction: it was accepted and ignored with mu = 0)
+        _require(self.mu > 0 or self.a_t == Contact.a_t, "contacts.a_t", self.a_t,
+                 f"left out with mu = 0 (only a contact with friction reads it; its default is {Contact.a_t:g})")
 
     def beyond(self, ground_height: float) -> str:
         """Where a negative gap puts this point: "below the ground (z = 0)", or behind a tilted plane."""

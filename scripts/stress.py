@@ -234,7 +234,7 @@ def fam_friction(b: Base, t: dict, rng, k: int) -> dict:
     c = t["contacts"][0]
     c["mu"] = mu
     if mu == 0:  # a frictionless contact reads no a_t: any but the default is refused beside mu = 0
-        c["a_t"] = Contact.__dataclass_fields__["a_t"].default
+        c["a_t"] = Contact.a_t
     elif b.coulomb_at:
         c["a_t"] = mu * c["a_n"]
     return {"mu": mu, "a_t": c.get("a_t", 600.0)}
