@@ -17,13 +17,14 @@ import sys
 import tempfile
 import threading
 import time
+import traceback
 import uuid
 import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, interruptible, options_record, shown
+from .errors import PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -473,7 +474,7 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
             try:
                 drawn = _draw(target)
             except Exception as exc:  # one line, as the background drawing's (a singular matrix was a traceback)
-                raise PlannerError(f"the plots of {target} failed: {type(exc).__name__}: {exc}") from None
+                raise PlannerError(f"the plots of {target} failed: {_unexpected(exc)}") from None
         _plotted(args, result.stats.converged, drawn)
         return target, lambda: None
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
@@ -528,6 +529,14 @@ def _draw(target: Path) -> str | None:
     return None
 
 
+def _unexpected(exc: Exception) -> str:
+    """An unexpected error in one line, with where it was raised (file:line in function): without the traceback, a
+    bug in the plots was otherwise a message no one could place."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" (raised at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" if frames else ""
+    return f"{type(exc).__name__}: {exc}{where}"
+
+
 def _draw_into(target: Path, conn) -> None:
     """_draw in a child process: ("drawn", what it returns) goes back through `conn`, or ("error", one line).
     Ctrl-C and SIGTERM (`timeout` signals the whole process group) are the parent's to handle: it waits for the plots,
@@ -537,7 +546,7 @@ def _draw_into(target: Path, conn) -> None:
     try:
         conn.send(("drawn", _draw(target)))
     except Exception as exc:  # an unexpected failure reaches the parent as one line, not as the child's traceback
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        conn.send(("error", _unexpected(exc)))
     finally:
         conn.close()
 
@@ -552,12 +561,6 @@ def _plotted(args, converged: bool, message: str | None) -> None:
     _progress(args, f"plots skipped for the failed run: {message}")
 
 
-def _choice(flag: str, value: str, enum):
-    """The member of `enum` whose value is `value` (InputError naming `flag` and the valid values)."""
-    names = {m.value: m for m in enum}
-    if value not in names:
-        raise InputError(f"{flag} {value!r} is not allowed; it must be one of {sorted(names)}")
-    return names[value]
 
 
 @contextlib.contextmanager
@@ -579,7 +582,7 @@ def _discretization(args, elements: int):
     fesd (it would be ignored)."""
     from .discretization import Discretization, FESDOptions
 
-    discretization = _choice("--discretization", args.discretization, Discretization)
+    discretization = enum_member(args.discretization, Discretization, "--discretization")
     given = [flag for flag, value in (("--stages", args.stages), ("--elements", args.elements),
                                       ("--fesd-start", getattr(args, "fesd_start", None))) if value is not None]
     if given and discretization is not Discretization.FESD:
@@ -667,7 +670,7 @@ def _cmd_plan(args) -> int:
             raise InputError(f"--solve: {exc}") from None
     if args.quiet and solve_options.print_level > 0:  # (as -v -q: IPOPT's log went to stdout)
         raise InputError("--solve's print_level shows IPOPT's log and -q hides all but errors; drop one of them")
-    fesd_start = _choice("--fesd-start", args.fesd_start or FESDStart.HINT_FREE.value, FESDStart)
+    fesd_start = enum_member(args.fesd_start or FESDStart.HINT_FREE.value, FESDStart, "--fesd-start")
     if discretization is Discretization.FESD and fesd_start is FESDStart.IMPLICIT_EULER:
         # the implicit-Euler stage runs its own default homotopy (to rho 1e6); the FESD NLPs follow fesd_rho_schedule
         solve_options = replace(solve_options, fesd_start=FESDStart.IMPLICIT_EULER)
@@ -761,7 +764,7 @@ def _cmd_plan(args) -> int:
             validation = validate(target)
             write_validation(target, validation, args.result_id)  # (refused when another run wrote target meanwhile)
         # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
-        except BaseException as exc:
+        except BaseException:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
             raise

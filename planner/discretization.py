@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .contact import plane_axes
-from .errors import InputError, check_field_types
+from .errors import InputError, check_field_types, enum_member, shown
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
@@ -156,12 +156,12 @@ class ImplicitEulerStep:
 
     def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT,
                  velocity_switch: SwitchVelocity = SwitchVelocity.POINT, lift_products: bool = True):
-        if rho_f < 0:
-            raise ValueError(f"rho_f must be >= 0, got {rho_f}")
+        if not rho_f >= 0:
+            raise InputError(f"rho_f must be >= 0, got {shown(rho_f)}")
         if not isinstance(lift_products, bool):
-            raise ValueError(f"lift_products must be True or False, got {lift_products!r}")
-        if not isinstance(velocity_switch, SwitchVelocity):
-            raise ValueError(f"velocity_switch must be one of {[m.value for m in SwitchVelocity]}, got {velocity_switch!r}")
+            raise InputError(f"lift_products must be True or False, got {shown(lift_products)}")
+        form = enum_member(form, StepForm, "form")
+        velocity_switch = enum_member(velocity_switch, SwitchVelocity, "velocity_switch")
         self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
         self._secant = _secant_rows(system) if velocity_switch is SwitchVelocity.SECANT else None
         self._gaps = _gap_rows(system) if velocity_switch is SwitchVelocity.COLLOCATED else None
@@ -171,7 +171,7 @@ class ImplicitEulerStep:
         n = system.n_sigma
         self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
         if np.any(self.switch_scale <= 0):
-            raise ValueError("switch_scale must be > 0")
+            raise InputError(f"switch_scale must be > 0, got {self.switch_scale.tolist()}")
         # variables of the polynomials: the selectors, then the factors (several contacts only)
         factors = system.factors
         n_var = n + len(factors)
@@ -474,7 +474,7 @@ def radau_iia(n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     b = A[-1]: the last stage is the end of the element. n_s = 1 is implicit Euler.
     """
     if n_s not in (1, 2, 3):
-        raise ValueError(f"n_s must be 1, 2 or 3, got {n_s!r}")
+        raise InputError(f"n_s must be 1, 2 or 3, got {shown(n_s)}")
     # right Radau points: the roots of P_s(2c - 1) - P_{s-1}(2c - 1) (Legendre P), all in (0, 1]
     legendre = np.polynomial.legendre.Legendre
     x = (legendre.basis(n_s) - legendre.basis(n_s - 1)).roots()

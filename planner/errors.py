@@ -181,19 +181,28 @@ def shown(value, width: int = 60) -> str:
     return text if len(text) <= width else text[: width - 3] + "..."
 
 
-def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, optional: bool = False) -> None:
-    """The field `key` of the frozen dataclass `options` holds a member of `enum` (of `allowed` if given; None too if
-    `optional`), given as the member or its value ("monotone" from a script as from `--solve` JSON): stored as the
-    member, or an InputError naming the field, the value and the valid values (a value was refused by a message that
-    listed it as valid)."""
-    given = getattr(options, key)
+def enum_member(given, enum: type, what: str, allowed: Iterable | None = None):
+    """The member of `enum` (of `allowed` if given) that `given` is or whose value it holds ("monotone" from a script as
+    from `--solve` JSON), or an InputError naming `what`, the value and the valid values."""
     members = list(enum) if allowed is None else list(allowed)
-    if given is None and optional:
-        return
     member = given if isinstance(given, enum) else next((m for m in members if m.value == plain(given)), None)
     if member not in members:
-        raise InputError(f"{type(options).__name__}.{key} = {shown(given)} is not allowed; it must be one of "
-                         f"{[m.value for m in members]}" + (" or None" if optional else ""))
+        raise InputError(f"{what} = {shown(given)} is not allowed; it must be one of {[m.value for m in members]}")
+    return member
+
+
+def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, optional: bool = False) -> None:
+    """The field `key` of the frozen dataclass `options` holds a member of `enum` (of `allowed` if given; None too if
+    `optional`), given as the member or its value: stored as the member, or an InputError naming the field, the value
+    and the valid values (a value was refused by a message that listed it as valid)."""
+    given = getattr(options, key)
+    if given is None and optional:
+        return
+    what = f"{type(options).__name__}.{key}"
+    try:
+        member = enum_member(given, enum, what, allowed)
+    except InputError as exc:
+        raise InputError(f"{exc}" + (" or None" if optional else "")) from None
     object.__setattr__(options, key, member)
 
 

@@ -24,7 +24,7 @@ Bounds of y_{k+1} go on z_k (where the step is evaluated); the state copies are 
 s_{c,0} only. At a point lifted from the original x (`lift`), f and the path rows equal the original
 f and g (`g_rows` maps the path rows to the original rows) and the gap rows are 0.
 
-Not covered (ValueError): FESD stages, plan.periodic (y_0 would have to be carried to the last
+Not covered (InputError): FESD stages, plan.periodic (y_0 would have to be carried to the last
 stage), an objective or row that couples stages in another way (checked: every substituted
 expression is verified to be free of the original variables).
 """
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from .errors import InputError
 from .problem import Problem
 
 _STEP_BLOCKS = ("dynamics", "stationarity", "lifting", "contact_forces")
@@ -119,17 +120,17 @@ def _row_bounds(g_src: np.ndarray, lbg_orig, ubg_orig) -> tuple[np.ndarray, np.n
 
 
 def staged_nlp(problem: Problem) -> StagedNlp:
-    """The Problem's NLP in FATROP's stage order (module docstring). Raises ValueError for what it
+    """The Problem's NLP in FATROP's stage order (module docstring). Raises InputError for what it
     does not cover."""
     pb = problem
     if pb.fesd is not None:
-        raise ValueError("staged_nlp: FESD stages are not covered (implicit Euler only)")
+        raise InputError("staged_nlp: FESD stages are not covered (implicit Euler only)")
     if "y0" in pb.var_blocks:
-        raise ValueError("staged_nlp: plan.periodic is not covered (y_0 would couple stage 0 and the last stage)")
+        raise InputError("staged_nlp: plan.periodic is not covered (y_0 would couple stage 0 and the last stage)")
     vb, gb, N = pb.var_blocks, pb.g_blocks, pb.N
     known = set(_STEP_BLOCKS + _PATH_BLOCKS + _FINAL_BLOCKS)
     if set(gb) - known:
-        raise ValueError(f"staged_nlp: constraint blocks {sorted(set(gb) - known)} are not covered")
+        raise InputError(f"staged_nlp: constraint blocks {sorted(set(gb) - known)} are not covered")
     X = pb.x
     ny = vb["y"].shape[1]
     has_s, linf = "s" in vb, "s_c" in vb
@@ -200,7 +201,7 @@ def staged_nlp(problem: Problem) -> StagedNlp:
     def subst(ex, old, new, what):
         out = ca.substitute(ex, old, new)
         if ca.depends_on(out, X):
-            raise ValueError(f"staged_nlp: {what} depends on variables of another stage")
+            raise InputError(f"staged_nlp: {what} depends on variables of another stage")
         return out
 
     # --- rows, stage by stage ---------------------------------------------------------------------

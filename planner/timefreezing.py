@@ -542,7 +542,7 @@ class TimeFreezingSystem:
         """The symbolic field f_j(y, u) named `name` (ny,)."""
         names = [f.name for f in self.fields]
         if name not in names:
-            raise KeyError(f"no field {name!r}; fields: {', '.join(names)}")
+            raise InputError(f"no field {name!r}; fields: {', '.join(names)}")
         return self.field_matrix[:, names.index(name)]
 
     def initial_state(self, q0, v0) -> np.ndarray:

@@ -195,7 +195,7 @@ def test_simulate_fesd_from_the_command_line(tmp_path, capsys):
     assert abs(summary["impacts"][0]["time"] - np.sqrt(2 * 0.2 / 9.81)) <= FESD_IMPACT_TOL_S
     assert main(argv[:-5] + ["--discretization", "fesd", "--stages", "2"]) == 0  # the terminal's headline
     assert "(10 steps of h = 0.04 s" in capsys.readouterr().out  # steps, not the elements the trajectory samples
-    _one_line_exit_2(capsys, argv[:-4] + ["--discretization", "rk4"], "--discretization 'rk4' is not allowed")
+    _one_line_exit_2(capsys, argv[:-4] + ["--discretization", "rk4"], "--discretization = 'rk4' is not allowed")
 
 
 @pytest.mark.parametrize(
@@ -1268,19 +1268,20 @@ def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path
 def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):
     """An unexpected error while a simulation's plots are drawn in the command's own process (a singular matrix of a
     ground at 1e15 m) is one "failed:" line, exit 1, as in the plotting child of a validating plan: it was a
-    traceback."""
+    traceback. The line says where the error was raised, so a bug in the plots can be placed without one."""
     import numpy as np
 
     import planner.plots as plots
 
     def singular(target):
         raise np.linalg.LinAlgError("Singular matrix")
+    SINGULAR_LINE = singular.__code__.co_firstlineno + 1
 
     monkeypatch.setattr(plots, "plot_results", singular)
     out = tmp_path / "out"
     assert main(["simulate", "point_mass", "--out", str(out), "-q"]) == 1
     assert capsys.readouterr().err.strip() == (f"planner simulate: failed: the plots of {out} failed: LinAlgError: "
-                                               "Singular matrix")
+                                               f"Singular matrix (raised at test_cli.py:{SINGULAR_LINE} in singular)")
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):

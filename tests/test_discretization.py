@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from planner.discretization import G_BLOCKS, W_BLOCKS, ImplicitEulerStep, StepForm
+from planner.errors import InputError
 from planner.dynamics import Dynamics
 from planner.model import load_robot
 from planner.task import Contact
@@ -90,7 +91,7 @@ def test_substituted_products_give_the_lifted_step(contacts, form):
         np.testing.assert_allclose(gb[b.g_blocks[name]], ga[a.g_blocks[name]][:n_rows], rtol=EVAL_TOL * 1e3, atol=EVAL_TOL * 1e3,
                                    err_msg=name)
     np.testing.assert_allclose(plain.coefficients(wb), lifted.coefficients(wa), atol=EVAL_TOL)
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="lift_products must be True or False"):
         ImplicitEulerStep(s, lift_products="no")
 
 
@@ -154,12 +155,19 @@ def test_steps_concatenate_and_accept_mx():
     assert g.shape[0] == 3 * (s.ny + 6)
 
 
-def test_bad_weights_are_refused():
-    """rho_f < 0 or a non-positive switch scale is a ValueError (a programming error, not user input)."""
-    with pytest.raises(ValueError):
+def test_bad_step_arguments_are_refused():
+    """rho_f < 0 (or NaN), a non-positive switch scale and an unknown step form are InputErrors naming the value; the
+    form's value selects the member as the options' values do (a string used to build the explicit step silently)."""
+    with pytest.raises(InputError, match="rho_f must be >= 0, got -1.0"):
         ImplicitEulerStep(system(), rho_f=-1.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="rho_f must be >= 0, got nan"):
+        ImplicitEulerStep(system(), rho_f=float("nan"))
+    with pytest.raises(InputError, match=r"switch_scale must be > 0, got \[1.0, 0.0, 1.0\]"):
         ImplicitEulerStep(system(), switch_scale=[1.0, 0.0, 1.0])
+    with pytest.raises(InputError, match=r"form = 'typo' is not allowed; it must be one of \['explicit', 'mass_matrix'\]"):
+        ImplicitEulerStep(system(), form="typo")
+    by_value = ImplicitEulerStep(system(), form="mass_matrix")
+    assert by_value.form is StepForm.MASS_MATRIX and by_value.mm is not None
 
 
 SECANT_TOL = 1e-7  # 3-point Gauss on a step of |dq| <= 0.3 rad: the quadrature error is O(|dq|^7) (measured 5e-9)
@@ -199,8 +207,9 @@ def test_secant_switch_velocity_keeps_the_gap_of_a_step():
     ev = [ca.Function("st", [yk, yn, u, sk, st.w], [st.g[st.g_blocks["stationarity"]]])(y_a, y_b, np.zeros(s.nu), 1.0, w) for st in (point, secant)]
     diff = np.abs(np.asarray(ev[0] - ev[1], float).ravel())
     assert np.all(diff[mask == 0] <= EVAL_TOL) and np.all(diff[mask == 1] > 0)
-    with pytest.raises(ValueError):
-        ImplicitEulerStep(s, velocity_switch="secant")
+    assert ImplicitEulerStep(s, velocity_switch="secant").velocity_switch is SwitchVelocity.SECANT  # the value, as options take it
+    with pytest.raises(InputError, match=r"velocity_switch = 'chord' is not allowed; it must be one of \['point', 'secant'"):
+        ImplicitEulerStep(s, velocity_switch="chord")
 
 
 def test_guess_with_dependent_contact_rows_is_finite():

@@ -96,7 +96,7 @@ def test_options_are_validated():
     from planner.problem import ProblemOptions
     with pytest.raises(InputError, match="velocity_switch"):
         ProblemOptions(velocity_switch=SwitchVelocity.COLLOCATED)  # planner simulate only
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="n_s must be 1, 2 or 3, got 4"):
         radau_iia(4)
 
 

@@ -45,6 +45,8 @@ def test_wanted_selectors_give_f_dae_symbolically(robot):
     assert s.models == (ContactModel.FRICTIONLESS,)
     pt = s.contacts[0].point
     assert structurally_zero(s.vector_field(s.wanted) - s.field(f"dae[{pt}]"))
+    with pytest.raises(InputError, match=r"no field 'dae\[nowhere\]'; fields: ode, "):  # a PlannerError, not KeyError
+        s.field("dae[nowhere]")
 
 
 @pytest.mark.parametrize("robot", ["point_mass", "capler"])
