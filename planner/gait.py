@@ -170,7 +170,6 @@ class PinnedBiped:
         rhs = ca.mtimes(M, vdot) + h - ca.mtimes(ca.DM(B), u2)
         self.stance_force = ca.Function("stance_force", [ca.vertcat(th, thd), u2],
                                         [ca.solve(ca.mtimes(Jst, Jst.T), ca.mtimes(Jst, rhs))])
-        self._L = L
 
     def delta(self, x) -> np.ndarray:
         """Impact map Delta(x-) (6,): post-impact, relabelled state."""
@@ -1037,7 +1036,7 @@ def contact_violations(summary: dict) -> list[str]:
     tangential, normal = summary["impact_impulse_N_s"]
     if normal < -CONTACT_IMPULSE_TOL_N_S:
         out.append(f"the impact's normal impulse is {normal:.4g} N s: the ground would have to pull the landing foot")
-    elif abs(tangential) > mu * normal + CONTACT_IMPULSE_TOL_N_S:
+    elif abs(tangential) > CONE_SLACK * mu * normal + CONTACT_IMPULSE_TOL_N_S:  # the plans' impacts' slack
         ratio = abs(tangential) / max(normal, 1e-300)
         out.append(f"the impact's tangential impulse {tangential:.4g} N s is {ratio:.3g} "
                    f"times its normal one {normal:.4g} N s, beyond mu = {mu:g}: the landing foot would slide")

@@ -145,7 +145,8 @@ def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
     """contact_violations names what a unilateral, frictional contact cannot give (such gaits converged silently, and
     MuJoCo's walk fell without a reason): a stance force that pulls (-1356 N, a T = 1 s gait), an impact impulse that
     pulls (-10.2 N s) or leaves the friction cone (ratio 10.3 at mu = 1), a stance force beyond the friction cone,
-    a trailing foot moving down after the impact (-0.067 m/s). The shipped gaits' margins give none."""
+    a trailing foot moving down after the impact (-0.067 m/s). The shipped gaits' margins give none, nor an impact
+    0.5 % outside the cone (the slack a plan's impacts have)."""
     from planner.gait import contact_violations
 
     good = {"friction_mu": 1.0, "impact_friction_mu": 1.0, "min_normal_force_N": 195.0, "friction_needed": 0.648,
@@ -161,6 +162,9 @@ def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
     for change, message in cases:
         (line,) = contact_violations({**good, **change})
         assert message in line
+    # within the 1 % slack the plans' impacts and the stance force have (result.CONE_SLACK): no violation; beyond, one
+    assert contact_violations({**good, "impact_impulse_N_s": [10.05, 10.0]}) == []
+    assert len(contact_violations({**good, "impact_impulse_N_s": [10.2, 10.0]})) == 1
 
 def test_motor_commands_beyond_the_files_range_are_a_violation(tmp_path):
     """The gait's OCP has no input bounds: commands beyond the robot file's control range (gait 1 needs 72 N m, a
