@@ -900,3 +900,22 @@ def test_a_horizon_ending_inside_an_elastic_impact_names_zeno():
     failed = replace(elastic, stats=SolveStats(False, 0.0, 3, 9, 0.0, message="step 3 did not converge"))
     assert not failed.ends_in_impact and "horizon ends" not in failed.report()
     assert failed.report().endswith("\n  step 3 did not converge")
+
+
+def test_an_io_error_reading_trajectory_npz_is_the_machines_not_the_users(tmp_path, monkeypatch):
+    """An I/O error reading trajectory.npz (EIO: a failing disk) is a PlannerError, exit 1, not an InputError (exit 2:
+    the user's to fix), as errors.PATH_ERRNOS splits a write's errors; a refused path (EACCES) stays the user's."""
+    import errno
+
+    import planner.result as result
+    from planner.errors import PlannerError
+
+    np.savez(tmp_path / "trajectory.npz", t=np.zeros(2))
+    for code, user_error in ((errno.EIO, False), (errno.EACCES, True)):
+        def failing(*args, **kwargs):
+            raise OSError(code, os.strerror(code))
+
+        monkeypatch.setattr(result.np, "load", failing)
+        with pytest.raises(PlannerError, match=f"trajectory.npz.*{os.strerror(code)}") as caught:
+            result.read_trajectory(tmp_path)
+        assert isinstance(caught.value, InputError) is user_error
