@@ -401,6 +401,11 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                                  f"{c.beyond(task.ground_height)}"
                                  + (" (touches = false)" if c in never else "")
                                  + f"; move it out by that much (up to {START_GAP_M:g} m in is allowed)")
+        for pt in plan.above_ground:  # (their rows start at node 1 too: a knee in the ground was planned, exit 0)
+            height = float(dyn.point_position(pt)(y[:nq])[2]) - task.ground_height
+            if height < -START_GAP_M:
+                raise InputError(f"{key} puts point {pt!r} {shown_up(-height)} m below the ground (plan.above_ground "
+                                 f"holds it above); move it up by that much (up to {START_GAP_M:g} m in is allowed)")
     _check_outside_holes(dyn, task.contacts, task)
 
     if options.discretization is Discretization.FESD:

@@ -518,6 +518,20 @@ def test_a_target_below_the_ground_is_an_input_error(discretization):
         build_problem(robot, walled, options)  # it said "below the ground" of a point on the ground, behind a wall
 
 
+def test_a_start_or_target_with_an_above_ground_point_in_the_ground_is_an_input_error():
+    """plan.above_ground points (Capler's knee, base) are held above the ground from node 1 on: a start or target that
+    puts one in the ground has no plan, as for a contact point. Session 57's tester: a start with the knee 4 cm in the
+    ground was planned and converged (exit 0), a target there failed after 105 s as "locally infeasible"."""
+    robot = load_robot(f"{ROBOTS}/capler.xml")
+    task = load_task(f"{ROBOTS}/capler.toml")
+    knee_in = [0.0, 0.05, 1.1, 1.5]  # the foot 0.13 m up, the knee 0.041 m down
+    for key, plan, initial in (("initial.q", task.plan, dataclasses.replace(task.initial, q=tuple(knee_in))),
+                               ("plan.target_q", dataclasses.replace(task.plan, target_q=tuple(knee_in)), task.initial)):
+        with pytest.raises(InputError, match=rf"^{key} puts point 'knee' 0.04\d* m below the ground \(plan.above_ground "
+                                             r"holds it above\); move it up by that much"):
+            build_problem(robot, dataclasses.replace(task, plan=plan, initial=initial), ProblemOptions())
+
+
 def test_a_corner_plan_builds_with_each_contacts_own_gates():
     """A point listed twice with two normals (a corner: the ground and a wall) builds an OCP whose pairs carry
     both contacts' labels (point#1, point#2); the gates look each selector's contact up by that label (they looked
