@@ -43,7 +43,8 @@ from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expect, interruptible, options_record,
                      plain, representable)
 from .problem import Penalty, Problem, plane_gap
-from .result import COLLAPSED, FROZEN_TOL, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats, hops_of
+from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
+                     hops_of)
 from .simulate import element_trajectory, step_trajectory
 from .task import MAX_NLPS
 from .timefreezing import contact_labels
@@ -1500,11 +1501,10 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     return traj, Ws[:, -1], nodes
 
 
-NEVER_TOUCHING_GAP_M = 1e-6  # [m] a touches = false point this near its plane lies on it (the solve's tolerances)
 
 
 def _warn_never_touching_on_plane(problem: Problem, nodes) -> None:
-    """Warn of each touches = false contact point that the plan puts on its plane (gap <= NEVER_TOUCHING_GAP_M at
+    """Warn of each touches = false contact point that the plan puts on its plane (gap <= ON_PLANE_M at
     some node): its row gap >= 0 is active there, so the plan leans on a contact the task said never happens, and a
     plan with touches = true may differ (session 56's tester: a point resting on the ground all plan long, exit 0 and
     no word). The nodes are (nq + ...) states."""
@@ -1514,11 +1514,11 @@ def _warn_never_touching_on_plane(problem: Problem, nodes) -> None:
             continue
         gaps = np.array([float(plane_gap(problem.system.dyn, c, np.asarray(y[:nq], float), task.ground_height))
                          for y in nodes])
-        on = np.flatnonzero(gaps <= NEVER_TOUCHING_GAP_M)
+        on = np.flatnonzero(gaps <= ON_PLANE_M)
         if on.size:
             shown_nodes = ", ".join(str(k) for k in on[:8]) + (", ..." if on.size > 8 else "")
             warnings.warn(f"contact {label!r} (touches = false) lies on its plane at {on.size} of {len(gaps)} "
-                          f"nodes ({shown_nodes}; gap <= {NEVER_TOUCHING_GAP_M:g} m): the task says it never touches, "
+                          f"nodes ({shown_nodes}; gap <= {ON_PLANE_M:g} m): the task says it never touches, "
                           "so the plan holds it there without a contact force; with touches = true the plan may "
                           "differ")
 

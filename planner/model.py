@@ -280,8 +280,6 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         raise RobotFileError(f"Pinocchio's URDF parser could not read part of {path}: {'; '.join(said)}; its model "
                              "would lack that element")
     if model.nv == 0 and fmt is RobotFormat.MJCF:  # (MuJoCo's reading, needed for the cause, is made below otherwise)
-        import mujoco
-
         with contextlib.suppress(ValueError):  # a file MuJoCo cannot compile: said where its reading is needed
             said = _second_tree(path, _mujoco_model(path), model)
             if said:

@@ -23,7 +23,6 @@ Units: SI throughout (m, s, rad, N, N m). Arrays follow the result contract of d
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import json
 import math
@@ -64,8 +63,6 @@ WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans t
 #   with 10 ms strides agree with these to ~10 % (docs/validation.md), at a quarter of the cost
 MIN_FLIGHT_S = 0.01  # a MuJoCo impact is a contact onset after at least this long without contact [s];
 #   shorter gaps are chatter of the soft contact, not a flight phase
-
-VALIDATION_MODES = ("kinematic", "tracking", "open_loop")
 
 _UNSUPPORTED_JOINTS = {mujoco.mjtJoint.mjJNT_FREE: "free", mujoco.mjtJoint.mjJNT_BALL: "ball"}
 _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,

@@ -386,7 +386,7 @@ def _stepwise(system, builder, y0, task, h, N, options, law=None):
     ubx = np.concatenate([np.full(ny, np.inf), step.ubw, [np.inf]])
     lbg = np.concatenate([np.zeros(n_eq), np.zeros(n_comp)])
     ubg = np.concatenate([np.zeros(n_eq), np.full(n_comp, np.inf)])
-    predict = _predictor(system, builder, law, h) if options.restarts and system.n_sigma else None
+    predict = _predictor(system, law, h) if options.restarts and system.n_sigma else None
     Y, W, U = np.zeros((N + 1, ny)), np.zeros((N, nw)), np.zeros((N, nu))
     Y[0] = y0
     total = {"n_nlp": 0, "iterations": 0, "comp": 0.0, "ok": True, "message": "ok", "restarted_steps": 0}
@@ -525,13 +525,13 @@ def _fesd_starts(builder, law, system, y, u, w_prev, options):
                 yield w, replace(options, rho0=rho0)
 
 
-def _predictor(system, builder, law, h):
+def _predictor(system, law, h):
     """predict(y_k (ny,), u_ff (nu,), sigma (n_sigma,)) -> y_{k+1} (ny,) of the implicit Euler step with
     the selectors held at sigma (a smooth equation, solved by Newton from y_k), None if Newton fails."""
-    ny, nu = system.ny, system.nu
-    y_next, y_k, u_ff = ca.SX.sym("y_next", ny), ca.SX.sym("y_k", ny), ca.SX.sym("u_ff", nu)
     if system.n_lambda:
         return _predictor_with_forces(system, law, h)
+    ny, nu = system.ny, system.nu
+    y_next, y_k, u_ff = ca.SX.sym("y_next", ny), ca.SX.sym("y_k", ny), ca.SX.sym("u_ff", nu)
     coef = ca.SX.sym("coef", system.n_fields)  # P_j(sigma), fixed
     F = ca.mtimes(system.fields_fn(y_next, _applied(law, system, u_ff, y_next)), coef)
     residual = ca.Function("residual", [y_next, ca.vertcat(y_k, u_ff, coef)], [y_next - y_k - h * F])

@@ -31,7 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, PlannerError, expect
-from .model import Robot, RobotFormat
+from .model import Robot, RobotFormat, _quiet
 from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, read_robot, read_summary, read_task,
                      read_trajectory, real_array, result_dir, write_atomically)
 
@@ -234,7 +234,7 @@ def robot_parts(robot: Robot) -> tuple[list[_Part], str | None]:
     Returns (parts, note); `note` says why the fallback was used, None when the file's geometry is drawn.
     """
     try:
-        with _quiet():
+        with _quiet():  # (the C++ side's warnings on the stderr descriptor too)
             if robot.format is RobotFormat.MJCF:
                 geom_model = pin.buildGeomFromMJCF(robot.model, str(robot.path), pin.GeometryType.VISUAL)
             else:
@@ -732,8 +732,3 @@ def _html_escape(text: str) -> str:
     return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
-@contextlib.contextmanager
-def _quiet():
-    """Pinocchio's parsers print warnings to stdout; keep the CLI's stdout clean for --json."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        yield

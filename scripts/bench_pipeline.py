@@ -78,7 +78,6 @@ CALLBACKS = ("f", "g", "grad_f", "jac_g", "hess_l")
 VARIANTS = {
     "baseline": {},
     "mumps_amd": {"mumps_pivot_order": 0},
-    "spral": {"linear_solver": "spral"},  # SPRAL's SSIDS, compiled into the CasADi wheel's IPOPT (session 29)
     "spral_metis": {"linear_solver": "spral", "spral_order": "metis", "spral_scaling": "none", "spral_use_gpu": "no"},
     "spral_metis_subtree": {"linear_solver": "spral", "spral_order": "metis", "spral_scaling": "none", "spral_use_gpu": "no",
                             "spral_small_subtree_threshold": 1e12, "spral_ignore_numa": "yes"},
