@@ -230,6 +230,9 @@ def detect_format(path: Path) -> RobotFormat:
     formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
+    if formats[root.tag] is RobotFormat.MJCF and path.suffix != ".xml":  # (check-model failed, simulate went on)
+        raise RobotFileError(f"{path} is MJCF, which MuJoCo reads only from a file whose name ends in .xml (it picks "
+                             f"its reader by the ending): rename it to {path.stem}.xml")
     return formats[root.tag]
 
 

@@ -192,6 +192,21 @@ def test_bad_robot_files(tmp_path, text, message):
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
+
+@pytest.mark.parametrize("name", ["robot.txt", "robot.XML", "robot"])
+def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
+    """MuJoCo picks its reader by the file name's ending and reads MJCF only from .xml: such a file was planned and
+    simulated (the comparison with MuJoCo skipped) and then refused by validate and check-model (session 57's
+    tester). It is refused on loading, with the name to give it; a URDF reads under any name."""
+    path = tmp_path / name
+    path.write_text((ROBOTS_DIR / "point_mass.xml").read_text())
+    with pytest.raises(RobotFileError, match=rf"is MJCF, which MuJoCo reads only from a file whose name ends in .xml.*"
+                                             rf"rename it to robot.xml$"):
+        load_robot(path)
+    urdf = tmp_path / "capler.txt"
+    urdf.write_text((ROBOTS_DIR / "capler.urdf").read_text())
+    assert load_robot(urdf).nq == 4
+
 def test_floating_is_urdf_only():
     """floating=True adds a free flyer to a URDF and is refused for MJCF, which declares its own."""
     assert load_robot(ROBOTS_DIR / "capler.urdf", floating=True).nq == 4 + 7
