@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import math
 import os
 import sys
 import tempfile
@@ -219,8 +220,20 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
     raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}")
 
 
+_NAME_ATTRIBUTES = frozenset({"name", "class", "childclass", "type", "link", "joint", "site", "body", "file"})
+
+
+def _numbers(value: str) -> list[float]:
+    """The attribute's numbers when every whitespace-separated word of it is one (floats: "nan", "inf" too), else []."""
+    try:
+        return [float(word) for word in value.split()]
+    except ValueError:
+        return []
+
+
 def detect_format(path: Path) -> RobotFormat:
-    """MJCF or URDF from the XML root element (<mujoco> or <robot>)."""
+    """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for an attribute holding nan or
+    inf, or an MJCF file not named .xml."""
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
@@ -230,6 +243,12 @@ def detect_format(path: Path) -> RobotFormat:
     formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
+    for element in root.iter():  # (Pinocchio spread a site's nan into a body's inertia: "written with commas?")
+        for key, value in element.attrib.items():
+            if key not in _NAME_ATTRIBUTES and _numbers(value) and not all(map(math.isfinite, _numbers(value))):
+                named = f" name={element.get('name')!r}" if element.get("name") else ""
+                raise RobotFileError(f"{path}: <{element.tag}{named}> {key}=\"{value}\" holds a number that is not "
+                                     "finite (nan or inf); write a finite one")
     if formats[root.tag] is RobotFormat.MJCF and path.suffix != ".xml":  # (check-model failed, simulate went on)
         raise RobotFileError(f"{path} is MJCF, which MuJoCo reads only from a file whose name ends in .xml (it picks "
                              f"its reader by the ending): rename it to {path.stem}.xml")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -206,6 +207,23 @@ def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
     urdf = tmp_path / "capler.txt"
     urdf.write_text((ROBOTS_DIR / "capler.urdf").read_text())
     assert load_robot(urdf).nq == 4
+
+
+@pytest.mark.parametrize("old, new, named", [
+    ('<site name="point" pos="0 0 0"', '<site name="point" pos="nan 0 0"', '<site name=\'point\'> pos="nan 0 0"'),
+    ('<joint name="x"', '<joint name="x" range="-inf 1"', '<joint name=\'x\'> range="-inf 1"')])
+def test_a_robot_file_number_that_is_not_finite_is_named(tmp_path, old, new, named):
+    """A nan or inf in a robot file's attribute is refused naming the element and attribute: Pinocchio spread a site's
+    nan into a body's inertia, and the message blamed the mass under a joint name of its own, asking about commas
+    (session 57's tester). Names that read as numbers are no numbers."""
+    text = (ROBOTS_DIR / "point_mass.xml").read_text()
+    assert text.count(old) == 1
+    path = tmp_path / "robot.xml"
+    path.write_text(text.replace(old, new))
+    with pytest.raises(RobotFileError, match=rf"robot.xml: {re.escape(named)} holds a number that is not finite"):
+        load_robot(path)
+    path.write_text(text.replace('<site name="point"', '<site name="inf"'))
+    assert "inf" in load_robot(path).points
 
 def test_floating_is_urdf_only():
     """floating=True adds a free flyer to a URDF and is refused for MJCF, which declares its own."""
