@@ -204,10 +204,16 @@ class Robot:
 
 def resolve_robot_path(spec: str | os.PathLike) -> Path:
     """The absolute path of a robot file given by its path, or by the bare name of one in `robots/` (e.g. `capler`):
-    a result's summary.json names it, and `validate` or `view` run from another directory must find it."""
+    a result's summary.json names it, and `validate` or `view` run from another directory must find it. Where no such
+    file exists, a path in robots/ as the docs write them (`robots/capler.xml`, `capler.urdf`) is the shipped file, as
+    for tasks (task.shipped_task): the help's examples were refused outside a checkout."""
     path = Path(spec)
     if path.is_file():
         return path.absolute()
+    if path.suffix in (".xml", ".urdf") and path.parent in (Path("."), Path("robots")):
+        shipped = ROBOTS_DIR / path.name
+        if shipped.is_file():
+            return shipped
     if not path.suffix and path.parent == Path("."):
         for ext in (".xml", ".urdf"):
             candidate = ROBOTS_DIR / f"{path.name}{ext}"

@@ -558,3 +558,19 @@ def test_a_urdf_point_mass_without_rotational_inertia_compiles_in_mujoco(tmp_pat
     model = mujoco_spec(load_robot(tmp_path / "pm.urdf"), sites=("point",)).compile()
     point = model.body("point")
     assert point.mass[0] == 1.0 and np.all(point.inertia == MASSLESS_LINK_INERTIA)
+
+
+def test_robot_paths_in_robots_resolve_to_the_shipped_files_from_any_directory(tmp_path, monkeypatch):
+    """`robots/capler.xml` and `capler.urdf`, as the help's examples write them, are the shipped files where no such
+    file exists (outside a checkout they were "robot file not found", while tasks written so were found); a file of
+    that name in the working directory comes first, and an unknown one is still not found."""
+    from planner.errors import RobotFileError
+    from planner.model import ROBOTS_DIR, resolve_robot_path
+
+    monkeypatch.chdir(tmp_path)
+    assert resolve_robot_path("robots/capler.xml") == ROBOTS_DIR / "capler.xml"
+    assert resolve_robot_path("capler.urdf") == ROBOTS_DIR / "capler.urdf"
+    (tmp_path / "capler.urdf").write_text("mine")
+    assert resolve_robot_path("capler.urdf") == tmp_path / "capler.urdf"
+    with pytest.raises(RobotFileError, match="robot file not found: robots/nothing.xml"):
+        resolve_robot_path("robots/nothing.xml")
