@@ -1,4 +1,5 @@
-"""The `planner` command: one subcommand per job, each taking a robot file (or a name in robots/).
+"""The `planner` command: one subcommand per job; check-model, simulate, plan and gait take a robot file (or the name
+of one in robots/), validate and view a result directory.
 
 Exit codes: 0 success; 1 the solve or the validation failed (diagnostics still written); 2 bad input;
 130 interrupted (Ctrl-C). A user error prints one line on stderr, never a traceback.
@@ -97,11 +98,12 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
 def build_parser() -> argparse.ArgumentParser:
     parser = UsageParser(prog="planner", description=__doc__.splitlines()[0],
                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"planner {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
 
     p = sub.add_parser("check-model", help="compare the CasADi dynamics with Pinocchio and MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  planner check-model robots/capler.xml --samples 50 --json")
+                       epilog="example:\n  planner check-model capler --samples 50 --json")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--samples", type=int, default=20, help="random states to compare (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -112,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="forward time-freezing simulation of the task's initial state",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner simulate point_mass --out results/drop\n"
-                              "  planner simulate robots/point_mass.xml --task my_drop.toml --json\n"
+                              "  planner simulate point_mass --task MY_DROP.toml --json   # your copy of robots/point_mass.toml, edited\n"
                               "  planner simulate point_mass --discretization fesd --stages 2 --out results/drop_fesd   # impact at sqrt(2/g)")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
@@ -126,10 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  planner plan robots/capler.xml --out results/capler\n"
+                       epilog="examples:\n  planner plan capler --out results/capler --no-validate   # the README's main job\n"
                               "  planner plan point_mass --task robots/point_mass_hop.toml --no-validate --json\n"
-                              "  planner plan robots/capler.xml --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
-                              "  planner plan capler --task capler_closer.toml --init results/capler --out results/capler_closer   # replan from a plan")
+                              "  planner plan capler --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
+                              "  planner plan capler --task MY_CAPLER.toml --init results/capler --out results/mine   # replan from a plan:\n"
+                              "        MY_CAPLER.toml your copy of robots/capler.toml with plan.target_q moved")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--init", type=path_argument, metavar="DIR",
@@ -185,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("gait", help="periodic biped gait by paper 001's embedding, relaxation, Newton and PRONTO",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  planner gait robots/biped.xml --task robots/biped_gait1.toml --out results/gait1")
+                       epilog="example:\n  planner gait biped --task biped_gait1 --out results/gait1")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo walking replay")
     _add_common(p, task_help="task file with a [gait] table or a shipped one's name (required, e.g. biped_gait1)")
@@ -213,14 +216,37 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)
     parser.commands = tuple(sub.choices)  # (a usage error's --json object names the command given)
+    parser.subcommands = sub.choices
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("planner")
+    except PackageNotFoundError:  # (a checkout on sys.path, not installed)
+        return "(not installed)"
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """parse_args, with an unknown argument refused by its subcommand's parser: the top-level parser said "planner:
+    error: unrecognized arguments" and pointed at its own --help, which lists no subcommand's options; an option of the
+    subcommand given before it is said to go after it."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        command = parser.subcommands[args.command]
+        misplaced = [a for a in extra if a.split("=", 1)[0] in command._option_string_actions]
+        command.error(f"{' '.join(misplaced)} goes after the command: planner {args.command} ... {' '.join(misplaced)}"
+                      if misplaced else f"unrecognized arguments: {' '.join(extra)}")
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = _parse(parser, argv)
     except UsageExit as exc:  # argparse stops before --json is read: the JSON object was missing
         if any(len(a) > 2 and "--json".startswith(a) for a in argv):  # (argparse takes --js for --json too)
             command = next((a for a in argv if a in parser.commands), None)
@@ -900,7 +926,8 @@ def _cmd_gait(args) -> int:
     from .model import load_robot
 
     if args.task is None:
-        raise InputError("planner gait needs --task (e.g. robots/biped_gait1.toml)")
+        raise InputError("--task is required: a task file with a [gait] table, or a shipped one's name (biped_gait1, "
+                         "biped_gait2)")
     robot = load_robot(args.robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-gait", failed=True)
     args.result_id = uuid.uuid4().hex  # (_emit prints this run's, not one another run wrote into DIR after it)

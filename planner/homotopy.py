@@ -27,6 +27,7 @@ says so (PlanResult.nlps).
 from __future__ import annotations
 
 import contextlib
+import difflib
 import io
 import json
 import math
@@ -482,7 +483,9 @@ def solve_options_from_dict(values: dict, base: SolveOptions | None = None) -> S
     out = {}
     for key, value in values.items():
         if key not in names:
-            raise InputError(f"SolveOptions has no field {key!r}; the fields are {names}")
+            near = difflib.get_close_matches(str(key), names, n=1)  # (the 50 names alone hid a typo's field)
+            raise InputError(f"SolveOptions has no field {key!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                             + f"; the fields are {names}")
         out[key] = tuple(value) if isinstance(value, list) else value  # (an Enum field's value: SolveOptions's own)
     return replace(base or SolveOptions(), **out)
 

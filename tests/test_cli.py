@@ -55,6 +55,9 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--ipopt", "constr_viol_tol=nan"], "values finite numbers or strings"),
         (["plan", "point_mass", "--solve", '{"rho_max": Infinity}'], "rho_max = inf"),  # the schedule's loop never ended
         (["validate", "results", "-v"], "unrecognized arguments: -v"),  # validate runs no IPOPT: nothing more to show
+        # said by the subcommand (it was "planner: error:", pointing at a --help that lists no subcommand's options)
+        (["simulate", "point_mass", "--steps", "10"], "planner simulate: error: unrecognized arguments: --steps 10"),
+        (["-q", "plan", "point_mass"], "planner plan: error: -q goes after the command: planner plan ... -q"),
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
@@ -82,7 +85,7 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", "{rho_f_schedule: 10}"], "is not JSON"),
         (["plan", "point_mass", "--solve", "[10]"], "expected a JSON object of SolveOptions fields, got an array"),
         (["plan", "point_mass", "--solve", "3"], "expected a JSON object of SolveOptions fields, got a number"),
-        (["plan", "point_mass", "--solve", '{"rho_f_schedul": [10]}'], "SolveOptions has no field 'rho_f_schedul'"),
+        (["plan", "point_mass", "--solve", '{"rho_f_schedul": [10]}'], "SolveOptions has no field 'rho_f_schedul' (did you mean 'rho_f_schedule'?)"),
         (["plan", "point_mass", "--solve", '{"holes": "sometimes"}'], "must be one of"),
         (["plan", "point_mass", "--solve", '{"rho_f_schedule": [0]}'], "SolveOptions.rho_f_schedule"),
         (["plan", "point_mass", "--solve", '{"tol": "small"}'], "SolveOptions.tol = 'small' is not allowed"),
@@ -1419,3 +1422,14 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, m
     monkeypatch.setattr(cli, "_cmd_view", swallowed)  # view's server ends by Ctrl-C: that is its exit 0
     assert main(["view", str(tmp_path)]) == 0 and capsys.readouterr().err == ""
 
+
+def test_version_is_printed_by_the_command_and_python_m_planner():
+    """`planner --version` and `python -m planner --version` print the installed package's version, exit 0 (the
+    first was a usage error, the second "No module named planner.__main__")."""
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    proc = subprocess.run([sys.executable, "-m", "planner", "--version"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"planner {version('planner')}", proc.stderr

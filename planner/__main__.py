@@ -1,0 +1,6 @@
+"""`python -m planner`: the `planner` command."""
+import sys
+
+from .cli import main
+
+sys.exit(main())
