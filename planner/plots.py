@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .result import TAP_SHARE, write_atomically
+from .result import TAP_SHARE, write_atomically, write_beside_result
 from .timefreezing import contact_labels
 from .view import Result, load_result
 
@@ -32,7 +32,9 @@ def plot_results(out_dir) -> list[Path]:
     Files: `states.png` (q and v against t), `torques.png` (u against t, when the robot has
     actuators), `contact_forces.png` (when `trajectory.npz` holds lambda_n), `clock.png` (t against
     tau), `foot_path.png` (contact points in x-z, when the task names contact points). Impacts are
-    dashed red lines (or crosses on the path). Raises InputError for an unusable result directory.
+    dashed red lines (or crosses on the path). A plot is written only while the directory holds the result it was
+    drawn from (summary.json's result_id): the paths returned are those written. Raises InputError for an unusable
+    result directory.
     """
     res = load_result(out_dir)
     writers = [_states, _torques, _contact_forces, _clock, _foot_path]
@@ -40,13 +42,12 @@ def plot_results(out_dir) -> list[Path]:
     for write in writers:
         fig_and_name = write(res)
         if fig_and_name is not None:
-            paths.append(_save(*fig_and_name, res.directory))
+            fig, name = fig_and_name
+            path = res.directory / name
+            # only beside the result drawn: another run may have written its own into the directory meanwhile
+            if write_beside_result(path, lambda f: fig.savefig(f, format="png", dpi=DPI), res.summary.get("result_id")):
+                paths.append(path)
     return paths
-
-
-def _save(fig, name: str, directory: Path) -> Path:
-    save_figure(fig, directory / name)
-    return directory / name
 
 
 def save_figure(fig, path: Path, dpi: int = DPI) -> None:

@@ -1002,6 +1002,28 @@ def write_atomically(path: str | os.PathLike, write) -> None:
     _replace([(_stage(path, write), path)])
 
 
+def write_beside_result(path: str | os.PathLike, write, result_id: str | None) -> bool:
+    """write_atomically, renamed in only while the directory's summary.json is still the result `result_id`'s (checked
+    under directory_lock, which a result's write holds): False, and nothing written, once another run's result has
+    replaced it. A run's plots, drawn after its result was written, landed beside another run's result written into
+    the same directory meanwhile. result_id None: write_atomically."""
+    if result_id is None:
+        write_atomically(path, write)
+        return True
+    path = Path(path)
+    tmp = _stage(path, write)
+    with directory_lock(path.parent):
+        try:
+            ours = json.loads((path.parent / "summary.json").read_text()).get("result_id") == result_id
+        except (OSError, ValueError, AttributeError):  # (gone, half a file, not an object: not ours either)
+            ours = False
+        if not ours:
+            Path(tmp).unlink(missing_ok=True)
+            return False
+        _replace([(tmp, path)])
+    return True
+
+
 # A temp file of a write older than this [s] is a killed writer's (SIGKILL, or the plot process ended at exit): the
 # next write of the same file removes it. A live writer's is seconds old.
 STALE_TEMP_S = 3600.0

@@ -36,6 +36,27 @@ def test_every_plot_is_written_and_not_blank(result_dir):
     assert not list(result_dir.glob(".*.tmp"))  # atomic writes leave no temporary files
 
 
+
+def test_plots_are_not_written_beside_another_runs_result(result_dir, monkeypatch):
+    """A plot is renamed in only while summary.json is still the result it was drawn from: a run's plots, drawn after
+    its result was written, landed beside the result another run wrote into the same directory meanwhile (session
+    57's tester: B's summary and trajectory with A's five plots). Nothing of them is left, no temp file either."""
+    import json
+
+    from planner.result import write_files
+
+    summary_path = result_dir / "summary.json"
+    summary = {**json.loads(summary_path.read_text()), "result_id": "this-run"}
+    with np.load(result_dir / "trajectory.npz") as npz:
+        arrays = {**npz, "result_id": np.array("this-run")}
+    write_files(result_dir, arrays, summary, "this-run")
+    drawn_from = plots.load_result(result_dir)
+    summary["result_id"] = "another-run"
+    summary_path.write_text(json.dumps(summary))  # another run's result, written after this one was read
+    monkeypatch.setattr(plots, "load_result", lambda out_dir: drawn_from)
+    assert plots.plot_results(result_dir) == []
+    assert not list(result_dir.glob("*.png")) and not list(result_dir.glob(".*.tmp"))
+
 def test_contact_forces_plot_is_skipped_without_forces(result_dir):
     """lambda_n and lambda_t are optional in the contract: without them there is no force plot."""
     with np.load(result_dir / "trajectory.npz") as npz:
