@@ -506,7 +506,12 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
     child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
-    child.start()
+    # Ctrl-C and SIGTERM held over the fork: raised inside logging's fork handlers, they printed tracebacks
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        child.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     writer.close()
 
     def finish() -> None:
@@ -569,6 +574,7 @@ def _draw_into(target: Path, conn) -> None:
     then reports the interruption."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})  # (blocked by the parent's fork)
     try:
         conn.send(("drawn", _draw(target)))
     except Exception as exc:  # an unexpected failure reaches the parent as one line, not as the child's traceback
@@ -816,7 +822,12 @@ def _plots_aside(target: Path) -> Path | None:
     hidden directory there, which is returned (None: none), so that they do not mix in with the new result's files;
     a plot that cannot be moved (an immutable file) puts the others back and raises."""
     from .plots import PLOT_FILES
+    from .result import STALE_TEMP_S
 
+    for stale in target.glob(".planner-earlier-plots-*"):  # a run killed (SIGKILL) between its aside and back
+        with contextlib.suppress(OSError):
+            if time.time() - stale.lstat().st_mtime > STALE_TEMP_S:
+                shutil.rmtree(stale)
     old = [n for n in PLOT_FILES if (target / n).exists()] if (target / "summary.json").is_file() else []
     if not old:
         return None

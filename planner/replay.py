@@ -39,8 +39,8 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import (InputError, RobotFileError, UnknownNameError, check_field_types, check_interrupted, enum_field,
-                     expect, shown)
+from .errors import (InputError, PlannerError, RobotFileError, UnknownNameError, check_field_types, check_interrupted,
+                     enum_field, expect, shown)
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
 from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
                      read_summary, read_task, read_trajectory, real_array, result_dir, write_atomically)
@@ -839,7 +839,7 @@ def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> P
 
     Written to a temporary file and renamed, so a reader never sees half a summary. result_id: the summary's
     `result_id` (None for a result written without one) when the validation started; if another run has written
-    out_dir since, the verdict is of the earlier result and is not stored (InputError). Not given: not checked.
+    out_dir since, the verdict is of the earlier result and is not stored (PlannerError). Not given: not checked.
     """
     from .gait import WalkValidation  # (gait imports this module)
 
@@ -848,8 +848,10 @@ def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> P
     with directory_lock(Path(out_dir)):  # no other result may land between the read and the write
         summary = read_summary(Path(out_dir), require=())
         if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
-            raise InputError(f"{out_dir} was written by another run while it was validated; the verdict (of the earlier "
-                             "result) is not stored: validate it again")
+            # (the machine's race, not the user's input: exit 1; a plan's own result is no longer anywhere)
+            raise PlannerError(f"{out_dir} was written by another run while it was validated: the verdict, of the "
+                               "result that run replaced, is not stored; `planner validate DIR` judges the one there "
+                               "now")
         summary["validation"] = validation.to_json()
         write_atomically(path, json.dumps(summary, indent=2) + "\n")
     return path

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from planner.cli import main
-from planner.errors import InputError
+from planner.errors import InputError, PlannerError
 from planner.model import ROBOTS_DIR, file_sha256, load_robot
 from planner.problem import ProblemOptions, build_problem
 from planner.task import load_task, parse_task
@@ -266,6 +266,58 @@ HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n"
 assert "\nN = 10\n" in HOP_TASK, "robots/point_mass_hop.toml's horizon line changed"
 
 
+def test_the_plotting_child_is_forked_with_ctrl_c_held(tmp_path, capsys, monkeypatch):
+    """Ctrl-C and SIGTERM are blocked while the plotting child is forked (raised inside logging's fork handlers they
+    printed tracebacks, session 57's tester) and unblocked again after it, in the parent and in the child."""
+    import multiprocessing.context
+    import signal
+    from types import SimpleNamespace
+
+    import planner.cli
+
+    masks, real_start = [], multiprocessing.context.ForkProcess.start
+
+    def start(self):
+        masks.append(signal.pthread_sigmask(signal.SIG_BLOCK, []))
+        return real_start(self)
+
+    monkeypatch.setattr(multiprocessing.context.ForkProcess, "start", start)
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    out = str(tmp_path / "out")
+    assert main(["plan", "point_mass", "--task", str(task), "--out", out, "-q", "--no-race"]) in (0, 1)
+    assert masks and all({signal.SIGINT, signal.SIGTERM} <= mask for mask in masks)
+    assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # as the child starts
+    try:
+        conn = SimpleNamespace(send=lambda message: None, close=lambda: None)
+        planner.cli._draw_into(tmp_path / "nothing-here", conn)
+        assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
+def test_an_earlier_runs_plots_left_aside_by_a_kill_are_removed_once_stale(tmp_path):
+    """A run killed (SIGKILL) between moving the earlier plots aside and removing them left a hidden directory that
+    nothing removed (session 57's tester); the next write into the directory removes those older than
+    result.STALE_TEMP_S, and leaves a live run's."""
+    import os
+
+    import planner.cli
+    from planner.result import STALE_TEMP_S
+
+    (tmp_path / "summary.json").write_text("{}")
+    stale, live = tmp_path / ".planner-earlier-plots-old", tmp_path / ".planner-earlier-plots-new"
+    for d in (stale, live):
+        d.mkdir()
+        (d / "states.png").write_bytes(b"png")
+    os.utime(stale, (0, os.stat(stale).st_mtime - STALE_TEMP_S - 60))
+    assert planner.cli._plots_aside(tmp_path) is None  # no plots of its own to put aside
+    assert not stale.exists() and (live / "states.png").is_file()
+
 def test_plan_draws_its_plots_while_it_validates(tmp_path, capsys):
     """A validated plan draws its plots in a child process meanwhile: summary.json holds the validation and the
     PNGs are byte for byte those that planner.plots draws in this process from the same result."""
@@ -326,20 +378,20 @@ def test_ctrl_c_during_validation_is_reported_over_a_plot_failure(tmp_path, caps
 
 
 def test_a_refused_validation_write_waits_for_the_plots(tmp_path, capsys, monkeypatch):
-    """When the validation cannot be written (another run wrote the directory meanwhile: exit 2, one line) the command
+    """When the validation cannot be written (another run wrote the directory meanwhile: exit 1, one line) the command
     still waits for the plots drawn meanwhile: exiting killed the plotting child mid-file and left a temp file."""
     import planner.replay
     from planner.plots import PLOT_FILES
 
     def refused(out_dir, validation, result_id):
-        raise InputError(f"{out_dir} was written by another run while it was validated")
+        raise PlannerError(f"{out_dir} was written by another run while it was validated")
 
     monkeypatch.setattr(planner.replay, "validate", lambda out_dir, options=None: None)  # at once: the plots still run
     monkeypatch.setattr(planner.replay, "write_validation", refused)
     task = tmp_path / "hop.toml"
     task.write_text(HOP_TASK)
     out = tmp_path / "out"
-    assert main(["plan", "point_mass", "--task", str(task), "--out", str(out), "-q", "--no-race"]) == 2
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(out), "-q", "--no-race"]) == 1
     assert "written by another run" in capsys.readouterr().err
     assert all((out / name).is_file() for name in PLOT_FILES) and not list(out.glob(".*.tmp"))
 
@@ -581,8 +633,9 @@ def test_a_run_knows_its_own_result_from_one_written_after_it(tmp_path, capsys, 
     assert main(argv + ["--out", str(tmp_path / "a"), "--no-validate"]) == 0
     printed = json.loads(capsys.readouterr().out)["result_id"]
     assert printed == ids[-1] != json.loads((other / "summary.json").read_text())["result_id"]
-    _one_line_exit_2(capsys, argv + ["--out", str(tmp_path / "b"), "-q"],
-                     "was written by another run while it was validated")
+    assert main(argv + ["--out", str(tmp_path / "b"), "-q"]) == 1  # another run's write, not bad input (it was 2)
+    err = capsys.readouterr().err.strip()
+    assert "was written by another run while it was validated" in err and len(err.splitlines()) == 1, err
 
 
 def test_summary_names_the_task_file_by_its_absolute_path(tmp_path, monkeypatch, capsys):

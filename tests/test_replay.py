@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from planner import replay
-from planner.errors import InputError, UnknownNameError
+from planner.errors import InputError, PlannerError, UnknownNameError
 from planner.model import ROBOTS_DIR, load_robot
 from planner.task import load_task, parse_task
 
@@ -945,8 +945,9 @@ def test_a_verdict_is_not_stored_into_a_result_written_since(ground_truth, tmp_p
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     result = replay.validate(tmp_path)
     for started_with in ("old", None):  # None: a result without an id when the validation started
-        with pytest.raises(InputError, match="written by another run while it was validated"):
+        with pytest.raises(PlannerError, match="written by another run while it was validated") as refused:
             replay.write_validation(tmp_path, result, result_id=started_with)
+        assert not isinstance(refused.value, InputError)  # exit 1: another run's write, not the user's input
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     replay.write_validation(tmp_path, result, result_id="new")
     assert json.loads((tmp_path / "summary.json").read_text())["validation"]["passed"] == result.passed
