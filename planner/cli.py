@@ -114,7 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="forward time-freezing simulation of the task's initial state",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  planner simulate point_mass --out results/drop\n"
-                              "  planner simulate point_mass --task MY_DROP.toml --json   # your copy of robots/point_mass.toml, edited\n"
+                              "  planner simulate point_mass --task MY_DROP.toml --json\n"
+                              "        MY_DROP.toml: your copy of robots/point_mass.toml, edited\n"
                               "  planner simulate point_mass --discretization fesd --stages 2 --out results/drop_fesd   # impact at sqrt(2/g)")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--discretization", default="implicit_euler", metavar="NAME",
@@ -128,11 +129,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plan", help="solve the task's time-freezing OCP, then validate it in MuJoCo",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  planner plan capler --out results/capler --no-validate   # the README's main job\n"
+                       epilog="examples:\n"
+                              "  planner plan capler --out results/capler --no-validate   # the README's main job\n"
                               "  planner plan point_mass --task robots/point_mass_hop.toml --no-validate --json\n"
-                              "  planner plan capler --discretization fesd --stages 1 --elements 2 --fesd-start implicit_euler --out results/capler_fesd\n"
-                              "  planner plan capler --task MY_CAPLER.toml --init results/capler --out results/mine   # replan from a plan:\n"
-                              "        MY_CAPLER.toml your copy of robots/capler.toml with plan.target_q moved")
+                              "  planner plan capler --discretization fesd --stages 1 --elements 2 \\\n"
+                              "        --fesd-start implicit_euler --out results/capler_fesd\n"
+                              "  planner plan capler --task MY_CAPLER.toml --init results/capler --out results/mine\n"
+                              "        a replan; MY_CAPLER.toml: your copy of robots/capler.toml, target_q moved")
     p.add_argument("robot", help="robot file (MJCF or URDF) or the name of one in robots/")
     p.add_argument("--no-validate", action="store_true", help="skip the MuJoCo validation of the plan")
     p.add_argument("--init", type=path_argument, metavar="DIR",

@@ -318,7 +318,8 @@ class Pronto:
         def lq_terms(Kall, second_order):
             a, b = grad.map(N)(Xk, U, Pm, Th)
             _, r1, P1 = term(X[:, N], Th)
-            _, qnext_rev = costate(r1, _rev(a, 1, N), _rev(b, 1, N), _rev(Aall, n, N), _rev(Ball, m, N), _rev(Kall, n, N))
+            _, qnext_rev = costate(r1, _rev(a, 1, N), _rev(b, 1, N), _rev(Aall, n, N), _rev(Ball, m, N),
+                                   _rev(Kall, n, N))
             qnext = _rev(qnext_rev, 1, N)
             H = hess.map(N)(Xk, U, Pm, Th, qnext, second_order)
             return a, b, r1, P1, H

@@ -526,9 +526,10 @@ def test_a_start_or_target_with_an_above_ground_point_in_the_ground_is_an_input_
     task = load_task(f"{ROBOTS}/capler.toml")
     knee_in = [0.0, 0.05, 1.1, 1.5]  # the foot 0.13 m up, the knee 0.041 m down
     for key, plan, initial in (("initial.q", task.plan, dataclasses.replace(task.initial, q=tuple(knee_in))),
-                               ("plan.target_q", dataclasses.replace(task.plan, target_q=tuple(knee_in)), task.initial)):
-        with pytest.raises(InputError, match=rf"^{key} puts point 'knee' 0.04\d* m below the ground \(plan.above_ground "
-                                             r"holds it above\); move it up by that much"):
+                               ("plan.target_q", dataclasses.replace(task.plan, target_q=tuple(knee_in)),
+                                task.initial)):
+        with pytest.raises(InputError, match=rf"^{key} puts point 'knee' 0.04\d* m below the ground "
+                                             r"\(plan.above_ground holds it above\); move it up by that much"):
             build_problem(robot, dataclasses.replace(task, plan=plan, initial=initial), ProblemOptions())
 
 
