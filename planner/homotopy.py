@@ -1445,7 +1445,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
         if worst == "bounds" and relaxed is not None and _within_relaxation(problem, x, relaxed, options.constraint_tol):
             # a multiplier of size D ~1e5 at -1e-3: the scaled NLP's tolerance, kept by the default path (tightening
             # it made neither race arm converge on the default Capler task, docs/benchmarks.md session 40)
-            reasons[-1] += " (within IPOPT's bound relaxation of the scaled variables, 1e-8 each)"
+            reasons[-1] += (" (within IPOPT's bound relaxation: 1e-8 of each variable as IPOPT scales it, so up to "
+                            "~1e-3 in the units of a variable scaled by its size)")
     capped = [r.label for r in homotopy if not r.success and r is not last]
     converged = not reasons
     how = {"schedule": SCHEDULE_KEPT,

@@ -708,13 +708,25 @@ def shipped_task(path: Path) -> Path:
     return shipped if shipped.is_file() else path
 
 
+def _shipped_tasks_hint(path: Path) -> str:
+    """"; the shipped tasks are ..." for a name shipped_task would have looked up (a typo such as point_mass_hopp was
+    only "not found"), else ""."""
+    if path.parent not in (Path("."), Path("robots")) or path.suffix not in ("", ".toml"):
+        return ""
+    from .model import ROBOTS_DIR
+
+    names = sorted(p.stem for p in ROBOTS_DIR.glob("*.toml"))
+    return f"; the shipped tasks are {', '.join(names)}" if names else ""
+
+
 def load_task(path: str | Path) -> Task:
     """Read and validate a task file. Raises TaskError with the offending key."""
     expect(path, (str, os.PathLike), "load_task's path")
     path = shipped_task(Path(path))
     if not path.is_file():
         raise TaskError(f"task file {path} is a directory" if path.is_dir() else f"task file {path} is not a regular "
-                        "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}")
+                        "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}"
+                        + _shipped_tasks_hint(path))
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (some editors) is not TOML
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text

@@ -131,15 +131,17 @@ def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, mess
 def test_a_shipped_task_is_found_by_its_name_or_its_robots_path(tmp_path, monkeypatch):
     """From a directory without robots/ (an installed wheel's user), `point_mass_hop` and `robots/point_mass_hop.toml`
     (the docs' commands) read the shipped task (they were "task file not found"); a file of that name in the working
-    directory wins, and an unknown name is still not found."""
+    directory wins, and an unknown name is still not found, the shipped tasks named (a typo was only "not found")."""
     monkeypatch.chdir(tmp_path)
     shipped = (ROBOTS / "point_mass_hop.toml").resolve()
     for name in ("point_mass_hop", "robots/point_mass_hop.toml"):
         assert Path(load_task(name).source).resolve() == shipped
     (tmp_path / "point_mass_hop.toml").write_text((ROBOTS / "point_mass.toml").read_text())
     assert Path(load_task("point_mass_hop.toml").source).resolve() == (tmp_path / "point_mass_hop.toml").resolve()
-    with pytest.raises(TaskError, match="task file not found: no_such_task"):
+    with pytest.raises(TaskError, match="task file not found: no_such_task; the shipped tasks are biped, biped_gait1, "):
         load_task("no_such_task")
+    with pytest.raises(TaskError, match=r"task file not found: elsewhere/x.toml$"):  # no name looked up
+        load_task("elsewhere/x.toml")
 
 
 def test_a_tangential_gain_without_friction_is_refused():
