@@ -873,6 +873,9 @@ def check_trajectory(robot: Robot, traj: Mapping[str, np.ndarray]) -> dict[str, 
     for key in REQUIRED_ARRAYS:
         out[key] = real_array(traj[key], f"trajectory array {key!r}")
     t = out["t"]
+    if t.ndim == 1 and t.size == 1:  # (a simulation that failed its first step: said as an array's shape)
+        raise InputError("the trajectory holds one sample (its run stopped at its first step): there is no motion to "
+                         "replay")
     if t.ndim != 1 or t.size < 2:
         raise InputError(f"trajectory 't' must have shape (P,) with P >= 2, got {t.shape}")
     P = t.size

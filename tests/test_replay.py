@@ -1284,3 +1284,13 @@ def test_the_in_memory_validation_api_names_a_wrong_argument(point_mass, tmp_pat
     for call, message in calls:
         with pytest.raises(InputError, match=message):
             call()
+
+
+def test_a_trajectory_of_one_sample_is_said_to_have_no_motion():
+    """A simulation that failed its first step writes one sample; validating it said "trajectory 't' must have shape
+    (P,) with P >= 2, got (1,)" (session 57's tester), an internal shape for a run that has no motion to replay."""
+    robot = load_robot(ROBOTS_DIR / "point_mass.xml")
+    one = {"t": np.zeros(1), "q": np.zeros((1, 2)), "v": np.zeros((1, 2)), "u": np.zeros((1, robot.nu)),
+           "impact_times": np.zeros(0)}
+    with pytest.raises(InputError, match=r"^the trajectory holds one sample \(its run stopped at its first step\)"):
+        replay.check_trajectory(robot, {k: one[k] for k in replay.REQUIRED_ARRAYS})
