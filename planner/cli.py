@@ -780,7 +780,7 @@ def _cmd_plan(args) -> int:
         # summary.json says which plan this one started from: its directory and its result_id (the directory may be
         # --out itself, or be written again later)
         start_id = str(start_arrays["result_id"]) if "result_id" in start_arrays else None
-        result = replace(result, options={**result.options, "init": str(args.init.absolute()),
+        result = replace(result, options={**result.options, "init": os.path.abspath(args.init),
                                           "init_result_id": start_id})
     # a failed solve's last iterate is no motion to validate: one whose clock never ran or went back by 1e-9 s was
     # refused as an input error (exit 2, no failure line), one spanning 980 s replayed for 10 minutes after the failure

@@ -685,8 +685,9 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     first = ["plan", "point_mass", "--task", str(tmp_path / "hop.toml"), "--out", str(tmp_path / "hop"), "--no-validate", "--json"]
     assert main(first) == 0
     capsys.readouterr()
+    (tmp_path / "x").mkdir()  # --init x/../hop: stored as tmp_path/hop (it kept the "..")
     argv = ["plan", "point_mass", "--task", str(tmp_path / "closer.toml"), "--out", str(tmp_path / "closer"), "--no-validate", "--json",
-            "--init", str(tmp_path / "hop")]
+            "--init", str(tmp_path / "x" / ".." / "hop")]
     assert main([a if a != str(tmp_path / "closer") else str(tmp_path / "penalty") for a in argv] + ["--penalty-replan"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] and summary["polished"]
