@@ -124,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elements", type=int,
                    help="fesd: finite elements per step, at least one more than the switches in a step "
                         "(default 4: an impact step holds its start, the end of the frozen phase and the landing mode)")
+    p.add_argument("--steps", type=int, metavar="N",
+                   help="override the task's [horizon] N (same tau_f, so h = tau_f / N), as `plan --steps` does")
     _add_common(p, plots=True, verbose=True)
     p.set_defaults(run=_cmd_simulate)
 
@@ -461,6 +463,13 @@ def _cmd_check_model(args) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _check_steps(args) -> None:
+    from .task import MAX_STEPS
+
+    if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
+        raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
+
+
 def _load_inputs(args):
     """Robot, task (the .toml beside the robot unless --task) and the output directory."""
     from .model import load_robot
@@ -471,6 +480,8 @@ def _load_inputs(args):
     if args.task is None and not task_path.is_file():
         raise InputError(f"no task file beside {robot.path} (expected {task_path}); give one with --task")
     task = load_task(task_path)
+    if getattr(args, "steps", None) is not None:  # (simulate, plan)
+        task = replace(task, horizon=replace(task.horizon, N=args.steps))
     task.check_against(robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-{args.command}", failed=True)
     return robot, task, out
@@ -634,6 +645,7 @@ def _cmd_simulate(args) -> int:
 
     discretization, fesd = _discretization(args, elements=4)
     options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
+    _check_steps(args)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
     target, _ = _write(args, result, out)
@@ -671,7 +683,6 @@ def _cmd_plan(args) -> int:
     from .discretization import Discretization
     from .homotopy import REPLAN_FIELDS, FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
     from .problem import ProblemOptions, build_problem
-    from .task import MAX_STEPS
 
     discretization, fesd = _discretization(args, elements=3)
     problem_options = ProblemOptions(discretization=discretization, fesd=fesd)
@@ -712,8 +723,7 @@ def _cmd_plan(args) -> int:
     elif discretization is Discretization.FESD and "rho_max" not in fields and solve_options.rho_schedule is None:
         # (--solve's wins: it was replaced; a rho_schedule replaces the task's schedule, which rho_max changes)
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
-    if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
-        raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
+    _check_steps(args)
     if args.init is not None and discretization is not Discretization.IMPLICIT_EULER:
         raise InputError("--init works with --discretization implicit_euler only")
     for flag, given in (("--keep-schedule", args.keep_schedule), ("--penalty-replan", args.penalty_replan),
@@ -727,8 +737,6 @@ def _cmd_plan(args) -> int:
     robot, task, out = _load_inputs(args)
     if task.plan is None:
         raise InputError(f"task {task.source} has no [plan] table; `planner plan` needs one (see docs/tasks.md)")
-    if args.steps is not None:
-        task = replace(task, horizon=replace(task.horizon, N=args.steps))
 
     def progress(rec):
         _progress(args, f"  {rec.label:<11} rho {rec.rho:8.3g}  objective {rec.objective:10.4g}  complementarity "

@@ -56,7 +56,8 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--solve", '{"rho_max": Infinity}'], "rho_max = inf"),  # the schedule's loop never ended
         (["validate", "results", "-v"], "unrecognized arguments: -v"),  # validate runs no IPOPT: nothing more to show
         # said by the subcommand (it was "planner: error:", pointing at a --help that lists no subcommand's options)
-        (["simulate", "point_mass", "--steps", "10"], "planner simulate: error: unrecognized arguments: --steps 10"),
+        (["simulate", "point_mass", "--no-validate"], "planner simulate: error: unrecognized arguments: --no-validate"),
+        (["simulate", "point_mass", "--steps", "0"], "--steps must be in [1, "),
         (["-q", "plan", "point_mass"], "planner plan: error: -q goes after the command: planner plan ... -q"),
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
@@ -167,6 +168,15 @@ def test_simulate_writes_the_contract(tmp_path, capsys):
     assert summary == json.loads((out / "summary.json").read_text()) and len(summary["result_id"]) == 32
     assert {"trajectory.npz", "summary.json", "clock.png"} <= {p.name for p in out.iterdir()}
 
+
+def test_simulate_steps_overrides_the_tasks_horizon(tmp_path, capsys):
+    """`simulate --steps N` sets the task's horizon.N as `plan --steps` does (same tau_f, h = tau_f / N): it was an
+    unrecognized argument, and comparing step sizes meant editing a copy of the task."""
+    out = tmp_path / "out"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--json", "--no-plots",
+                 "--steps", "7"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_steps"] == 7
 
 def test_no_plots_writes_the_contract_without_pngs(tmp_path, capsys):
     """`simulate --no-plots` (as `plan --no-plots`) writes trajectory.npz and summary.json and no PNG at all; the plots
