@@ -575,10 +575,11 @@ def _draw(target: Path) -> str | None:
 
 
 def _unexpected(exc: Exception) -> str:
-    """An unexpected error in one line, with where it was raised (file:line in function): without the traceback, a
-    bug in the plots was otherwise a message no one could place."""
+    """An unexpected error in one line, with where it was raised (file:line in function: the innermost frame of this
+    package's code, else the innermost): without the traceback, a bug in the plots was a message no one could place."""
     frames = traceback.extract_tb(exc.__traceback__)
-    where = f" (raised at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" if frames else ""
+    ours = [f for f in frames if Path(f.filename).parent == Path(__file__).parent] or frames
+    where = f" (raised at {Path(ours[-1].filename).name}:{ours[-1].lineno} in {ours[-1].name})" if ours else ""
     return f"{type(exc).__name__}: {exc}{where}"
 
 

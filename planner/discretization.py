@@ -170,8 +170,8 @@ class ImplicitEulerStep:
         nz = self.mm.nz if self.mm is not None else system.n_lambda
         n = system.n_sigma
         self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
-        if np.any(self.switch_scale <= 0):
-            raise InputError(f"switch_scale must be > 0, got {self.switch_scale.tolist()}")
+        if not np.all(np.isfinite(self.switch_scale) & (self.switch_scale > 0)):
+            raise InputError(f"switch_scale must be finite and > 0, got {self.switch_scale.tolist()}")
         # variables of the polynomials: the selectors, then the factors (several contacts only)
         factors = system.factors
         n_var = n + len(factors)

@@ -31,6 +31,14 @@ def write_error(path, exc: OSError, doing: str = "cannot write") -> PlannerError
     return kind(f"{doing} {path}: {exc.strerror or exc}")
 
 
+def read_error(path, exc: OSError, kind: type | None = None, doing: str = "cannot read") -> PlannerError:
+    """The error to raise for an OSError reading `path`, as write_error splits a write's: `kind` (default InputError)
+    when the path is refused or the error has no errno, else a PlannerError (exit 1: an I/O error is the machine's);
+    the message is `DOING PATH: reason`."""
+    user = exc.errno is None or exc.errno in PATH_ERRNOS
+    return ((kind or InputError) if user else PlannerError)(f"{doing} {path}: {exc.strerror or exc}")
+
+
 class PlannerError(Exception):
     """Base of every error the planner raises on purpose."""
 

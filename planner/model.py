@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import RobotFileError, UnknownNameError, expect
+from .errors import RobotFileError, UnknownNameError, expect, read_error
 
 _HERE = Path(__file__).resolve().parent
 # the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
@@ -223,10 +223,18 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
         raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}" if known
                              else f"robot {str(spec)!r} is not a file, and this install has no robot files in "
                                   f"{ROBOTS_DIR}; give a robot file's path")
-    raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}")
+    shipped = path.suffix in (".xml", ".urdf") and path.parent in (Path("."), Path("robots"))
+    known = sorted(p.name for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")) if shipped else []
+    raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}"
+                         + (f"; the shipped robot files are {', '.join(known)}" if known else ""))
 
 
-_NAME_ATTRIBUTES = frozenset({"name", "class", "childclass", "type", "link", "joint", "site", "body", "file"})
+# attributes of placements, sizes and inertias, which must be finite, and of bounds, where +-inf means none
+_FINITE_ATTRIBUTES = frozenset({"pos", "quat", "euler", "axisangle", "xyaxes", "zaxis", "fromto", "size", "mass",
+                                "diaginertia", "fullinertia", "axis", "ref", "xyz", "rpy", "value", "ixx", "ixy",
+                                "ixz", "iyy", "iyz", "izz"})
+_BOUND_ATTRIBUTES = frozenset({"range", "ctrlrange", "forcerange", "actuatorfrcrange", "lower", "upper", "effort",
+                               "velocity"})
 
 
 def _numbers(value: str) -> list[float]:
@@ -237,24 +245,40 @@ def _numbers(value: str) -> list[float]:
         return []
 
 
+def _element_path(element: ET.Element, parents: dict) -> str:
+    """`<tag name='n'>`, after its nearest named ancestor when it has no name itself (a URDF's <mass> inside link
+    'thigh': `<link name='thigh'> ... <mass>`)."""
+    def shown(e: ET.Element) -> str:
+        return f"<{e.tag} name={e.get('name')!r}>" if e.get("name") else f"<{e.tag}>"
+
+    ancestor = parents.get(element)
+    while ancestor is not None and not ancestor.get("name") and ancestor in parents:
+        ancestor = parents[ancestor]
+    if element.get("name") or ancestor is None or not ancestor.get("name"):
+        return shown(element)
+    return f"{shown(ancestor)} ... {shown(element)}"
+
+
 def detect_format(path: Path) -> RobotFormat:
-    """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for an attribute holding nan or
-    inf, or an MJCF file not named .xml."""
+    """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for a placement, size or inertia
+    that is not finite, a bound that is nan, or an MJCF file not named .xml."""
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise RobotFileError(f"malformed XML in {path}: {exc}") from None
     except OSError as exc:
-        raise RobotFileError(f"cannot read robot file {path}: {exc.strerror}") from None
+        raise read_error(path, exc, RobotFileError, "cannot read robot file") from None
     formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
+    parents = {child: parent for parent in root.iter() for child in parent}
     for element in root.iter():  # (Pinocchio spread a site's nan into a body's inertia: "written with commas?")
         for key, value in element.attrib.items():
-            if key not in _NAME_ATTRIBUTES and _numbers(value) and not all(map(math.isfinite, _numbers(value))):
-                named = f" name={element.get('name')!r}" if element.get("name") else ""
-                raise RobotFileError(f"{path}: <{element.tag}{named}> {key}=\"{value}\" holds a number that is not "
-                                     "finite (nan or inf); write a finite one")
+            numbers = _numbers(value) if key in _FINITE_ATTRIBUTES | _BOUND_ATTRIBUTES else []
+            finite = key not in _FINITE_ATTRIBUTES or all(map(math.isfinite, numbers))
+            if any(math.isnan(x) for x in numbers) or not finite:
+                raise RobotFileError(f"{path}: {_element_path(element, parents)} {key}=\"{value}\" holds a number that "
+                                     "is not finite; write a finite one")
     if formats[root.tag] is RobotFormat.MJCF and path.suffix != ".xml":  # (check-model failed, simulate went on)
         raise RobotFileError(f"{path} is MJCF, which MuJoCo reads only from a file whose name ends in .xml (it picks "
                              f"its reader by the ending): rename it to {path.stem}.xml")

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PATH_ERRNOS, InputError, expect, is_integer, shown, write_error
+from .errors import InputError, expect, is_integer, read_error, shown, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -1157,7 +1157,9 @@ def read_summary(out_dir: Path, require: tuple[str, ...] = ("robot", "task")) ->
     except FileNotFoundError:
         raise InputError(f"{path} not found: is {out_dir} a result directory of `planner plan`/`simulate`?"
                          f"{_failed_hint(out_dir)}") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        raise read_error(path, exc) from None
+    except UnicodeDecodeError as exc:
         raise InputError(f"cannot read {path}: {exc}") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path} is not valid JSON: {exc}") from None
@@ -1184,10 +1186,8 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: np.asarray(npz[k]) for k in npz.files}
-    except OSError as exc:
-        if exc.errno is None or exc.errno in PATH_ERRNOS:  # (no errno: numpy's own "cannot read" of a damaged file)
-            raise InputError(f"{path} is not a readable .npz file: {type(exc).__name__}: {exc}") from None
-        raise write_error(path, exc, "cannot read") from None  # an I/O error is the machine's, exit 1
+    except OSError as exc:  # (no errno: numpy's own "cannot read" of a damaged file, the user's; EIO the machine's)
+        raise read_error(path, exc) from None
     except Exception as exc:  # zipfile.BadZipFile, ValueError (pickled object arrays), EOFError
         raise InputError(f"{path} is not a readable .npz file: {type(exc).__name__}: {exc}") from None
     missing = [k for k in required if k not in arrays]

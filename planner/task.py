@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError, TaskError, UnknownNameError, check_field_types, expect, plain, representable
+from .errors import (RobotFileError, TaskError, UnknownNameError, check_field_types, expect, plain, read_error,
+                     representable)
 
 
 # gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
@@ -737,7 +738,7 @@ def load_task(path: str | Path) -> Task:
     except RecursionError:
         raise TaskError(f"{path}: nested too deeply to be a task") from None
     except OSError as exc:
-        raise TaskError(f"cannot read task file {path}: {exc.strerror}") from None
+        raise read_error(path, exc, TaskError, "cannot read task file") from None
     try:
         return parse_task(data, source=str(path))
     except TaskError as exc:  # "missing key 'contacts'" named no file

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import re
 
 import numpy as np
@@ -201,29 +202,34 @@ def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
     tester). It is refused on loading, with the name to give it; a URDF reads under any name."""
     path = tmp_path / name
     path.write_text((ROBOTS_DIR / "point_mass.xml").read_text())
-    with pytest.raises(RobotFileError, match=rf"is MJCF, which MuJoCo reads only from a file whose name ends in .xml.*"
-                                             rf"rename it to robot.xml$"):
+    with pytest.raises(RobotFileError, match=r"is MJCF, which MuJoCo reads only from a file whose name ends in .xml.*"
+                                             r"rename it to robot.xml$"):
         load_robot(path)
     urdf = tmp_path / "capler.txt"
     urdf.write_text((ROBOTS_DIR / "capler.urdf").read_text())
     assert load_robot(urdf).nq == 4
 
 
-@pytest.mark.parametrize("old, new, named", [
-    ('<site name="point" pos="0 0 0"', '<site name="point" pos="nan 0 0"', '<site name=\'point\'> pos="nan 0 0"'),
-    ('<joint name="x"', '<joint name="x" range="-inf 1"', '<joint name=\'x\'> range="-inf 1"')])
-def test_a_robot_file_number_that_is_not_finite_is_named(tmp_path, old, new, named):
-    """A nan or inf in a robot file's attribute is refused naming the element and attribute: Pinocchio spread a site's
-    nan into a body's inertia, and the message blamed the mass under a joint name of its own, asking about commas
-    (session 57's tester). Names that read as numbers are no numbers."""
-    text = (ROBOTS_DIR / "point_mass.xml").read_text()
+@pytest.mark.parametrize("file, old, new, named", [
+    ("point_mass.xml", '<site name="point" pos="0 0 0"', '<site name="point" pos="nan 0 0"', "<site name='point'> pos"),
+    ("point_mass.xml", '<joint name="x"', '<joint name="x" range="nan 1"', "<joint name='x'> range"),
+    ("capler.urdf", '<mass value="1.782"/>', '<mass value="inf"/>', "<link name='thigh'> ... <mass> value")])
+def test_a_robot_file_number_that_is_not_finite_is_named(tmp_path, file, old, new, named):
+    """A placement, size or inertia that is not finite, or a bound that is nan, is refused naming the element (or its
+    nearest named ancestor) and attribute: Pinocchio spread a site's nan into a body's inertia, and the message blamed
+    the mass under a joint name of its own, asking about commas (session 57's tester). An infinite bound (no bound)
+    and a name that reads as a number are no such mistake."""
+    text = (ROBOTS_DIR / file).read_text()
     assert text.count(old) == 1
-    path = tmp_path / "robot.xml"
+    path = tmp_path / f"robot{Path(file).suffix}"
     path.write_text(text.replace(old, new))
-    with pytest.raises(RobotFileError, match=rf"robot.xml: {re.escape(named)} holds a number that is not finite"):
+    refused = rf"{path.name}: {re.escape(named)}=\"[^\"]+\" holds a number that is not finite"
+    with pytest.raises(RobotFileError, match=refused):
         load_robot(path)
-    path.write_text(text.replace('<site name="point"', '<site name="inf"'))
-    assert "inf" in load_robot(path).points
+    if file == "point_mass.xml":
+        unbounded = text.replace('<joint name="x"', '<joint name="x" range="-inf 1"')
+        path.write_text(unbounded.replace('<site name="point"', '<site name="inf"'))
+        assert "inf" in load_robot(path).points
 
 def test_floating_is_urdf_only():
     """floating=True adds a free flyer to a URDF and is refused for MJCF, which declares its own."""

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -1343,13 +1344,13 @@ def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatc
 
     def singular(target):
         raise np.linalg.LinAlgError("Singular matrix")
-    SINGULAR_LINE = singular.__code__.co_firstlineno + 1
 
     monkeypatch.setattr(plots, "plot_results", singular)
     out = tmp_path / "out"
     assert main(["simulate", "point_mass", "--out", str(out), "-q"]) == 1
-    assert capsys.readouterr().err.strip() == (f"planner simulate: failed: the plots of {out} failed: LinAlgError: "
-                                               f"Singular matrix (raised at test_cli.py:{SINGULAR_LINE} in singular)")
+    err = capsys.readouterr().err.strip()  # (the innermost planner frame: the patched plot_results is this file's)
+    assert re.fullmatch(rf"planner simulate: failed: the plots of {re.escape(str(out))} failed: LinAlgError: "
+                        r"Singular matrix \(raised at cli.py:\d+ in _draw\)", err), err
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
@@ -1498,3 +1499,22 @@ def test_version_is_printed_by_the_command_and_python_m_planner():
     assert done.value.code == 0
     proc = subprocess.run([sys.executable, "-m", "planner", "--version"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == f"planner {version('planner')}", proc.stderr
+
+
+def test_an_unexpected_error_is_placed_at_the_planners_own_line():
+    """The one line of an unexpected error names the innermost frame of the planner's code, not the library's where it
+    was raised (a singular matrix named numpy's _linalg.py, session 57's reviewer)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    import planner.cli
+
+    namespace = {"np": np}
+    fake = str(Path(planner.cli.__file__).parent / "plots_fake.py")  # a frame of the package's own code
+    exec(compile("def draw():\n    return np.linalg.inv(np.zeros((2, 2)))\n", fake, "exec"), namespace)
+    try:
+        namespace["draw"]()
+    except np.linalg.LinAlgError as exc:
+        line = planner.cli._unexpected(exc)
+    assert line == "LinAlgError: Singular matrix (raised at plots_fake.py:2 in draw)", line

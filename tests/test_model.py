@@ -70,13 +70,18 @@ def test_an_install_without_robot_files_says_so(tmp_path, monkeypatch):
 
 def test_a_file_of_a_robots_name_in_the_working_directory_is_read_and_said_so(tmp_path, monkeypatch):
     """A file named `capler` in the working directory is the robot `capler` (an existing path wins); when it is not a
-    robot file, the error says that it hid robots/capler (a stray notes file made `plan capler` a bare parse error)."""
+    robot file it can read (notes; an MJCF file, which MuJoCo reads only as .xml), the error says that it hid
+    robots/capler (a stray notes file made `plan capler` a bare parse error)."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "capler").write_text("notes")
     with pytest.raises(RobotFileError, match=r"malformed XML .*the file 'capler' in the working directory is read, "
                                              r"not robots/capler; to use that one, give its path"):
         load_robot("capler")
-    (tmp_path / "capler").write_text((ROBOTS_DIR / "capler.xml").read_text())
+    (tmp_path / "capler").write_text((ROBOTS_DIR / "capler.xml").read_text())  # MJCF, refused without .xml (MuJoCo)
+    with pytest.raises(RobotFileError, match=r"capler is MJCF, .*rename it to capler.xml \(the file 'capler' in the "
+                                             r"working directory is read, not robots/capler"):
+        load_robot("capler")
+    (tmp_path / "capler").write_text((ROBOTS_DIR / "capler.urdf").read_text())  # a URDF reads under any name
     assert load_robot("capler").path == tmp_path / "capler"
 
 
@@ -572,5 +577,6 @@ def test_robot_paths_in_robots_resolve_to_the_shipped_files_from_any_directory(t
     assert resolve_robot_path("capler.urdf") == ROBOTS_DIR / "capler.urdf"
     (tmp_path / "capler.urdf").write_text("mine")
     assert resolve_robot_path("capler.urdf") == tmp_path / "capler.urdf"
-    with pytest.raises(RobotFileError, match="robot file not found: robots/nothing.xml"):
+    with pytest.raises(RobotFileError, match="robot file not found: robots/nothing.xml; the shipped robot files are "
+                                             "biped.xml, capler.urdf, capler.xml, point_mass.xml"):
         resolve_robot_path("robots/nothing.xml")

@@ -919,3 +919,39 @@ def test_an_io_error_reading_trajectory_npz_is_the_machines_not_the_users(tmp_pa
         with pytest.raises(PlannerError, match=f"trajectory.npz.*{os.strerror(code)}") as caught:
             result.read_trajectory(tmp_path)
         assert isinstance(caught.value, InputError) is user_error
+
+
+def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatch):
+    """EIO reading summary.json, a task file or a robot file exits 1 (PlannerError), as reading trajectory.npz does;
+    EACCES (a refused path) stays the user's error, of the reader's own kind (session 57's reviewer: only
+    trajectory.npz was split)."""
+    import errno
+    from pathlib import Path as P
+
+    from planner.errors import PlannerError, RobotFileError, TaskError
+    from planner.model import detect_format
+    from planner.result import read_summary
+
+    (tmp_path / "summary.json").write_text("{}")
+    for code, user_error in ((errno.EIO, False), (errno.EACCES, True)):
+        def failing(self, *args, **kwargs):
+            raise OSError(code, os.strerror(code))
+
+        monkeypatch.setattr(P, "read_text", failing)
+        monkeypatch.setattr(P, "read_bytes", failing)
+        readers = ((lambda: read_summary(tmp_path), InputError), (lambda: load_task(tmp_path / "t.toml"), TaskError))
+        for call, kind in readers:
+            with pytest.raises(PlannerError, match=os.strerror(code)) as caught:
+                (tmp_path / "t.toml").touch()
+                call()
+            assert isinstance(caught.value, kind) is user_error
+        monkeypatch.undo()
+    import xml.etree.ElementTree as ET
+
+    def eio(*args, **kwargs):
+        raise OSError(errno.EIO, os.strerror(errno.EIO))
+
+    monkeypatch.setattr(ET, "parse", eio)
+    with pytest.raises(PlannerError, match="cannot read robot file") as caught:
+        detect_format(tmp_path / "robot.xml")
+    assert not isinstance(caught.value, RobotFileError)

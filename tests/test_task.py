@@ -138,7 +138,7 @@ def test_a_shipped_task_is_found_by_its_name_or_its_robots_path(tmp_path, monkey
         assert Path(load_task(name).source).resolve() == shipped
     (tmp_path / "point_mass_hop.toml").write_text((ROBOTS / "point_mass.toml").read_text())
     assert Path(load_task("point_mass_hop.toml").source).resolve() == (tmp_path / "point_mass_hop.toml").resolve()
-    with pytest.raises(TaskError, match="task file not found: no_such_task; the shipped tasks are biped, biped_gait1, "):
+    with pytest.raises(TaskError, match="task file not found: no_such_task; the shipped tasks are biped, biped_gait1"):
         load_task("no_such_task")
     with pytest.raises(TaskError, match=r"task file not found: elsewhere/x.toml$"):  # no name looked up
         load_task("elsewhere/x.toml")
