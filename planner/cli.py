@@ -31,6 +31,8 @@ EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
 EXIT_1_COMMANDS = frozenset({"check-model", "simulate", "plan", "gait", "validate"})
 EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
+OUT_OF_MEMORY = ("failed: out of memory (is horizon.N or --steps far too large, ~1 MB per step for a robot of Capler's "
+                 "size, or the physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
 # `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
 # point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
 # the one from the 1e5 point converged in 48 iterations (docs/formulation.md, "FESD in the OCP")
@@ -296,8 +298,11 @@ def main(argv: list[str] | None = None) -> int:
             return _stop(args, EXIT_INPUT, f"error: {exc.strerror}{where}")
         return _stop(args, EXIT_FAILED, f"failed: {exc.strerror or exc}{where}")  # e.g. a full disk
     except MemoryError:  # e.g. horizon.N = 1e9: numpy's allocation, not a traceback
-        return _stop(args, EXIT_FAILED, "failed: out of memory (is horizon.N or --steps far too large, or the "
-                     "physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
+        return _stop(args, EXIT_FAILED, OUT_OF_MEMORY)
+    except RuntimeError as exc:  # CasADi's C++ allocation (N = 5000 under a 2.5 GB limit): a 35-line traceback
+        if "std::bad_alloc" not in str(exc):
+            raise
+        return _stop(args, EXIT_FAILED, OUT_OF_MEMORY)
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
         _written_line(args)
         return _stop(args, EXIT_INTERRUPTED, "interrupted")

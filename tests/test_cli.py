@@ -1318,20 +1318,23 @@ def test_a_failed_plan_is_not_replayed_in_mujoco(tmp_path, capsys, monkeypatch):
     assert f"FAILED: results in {out / 'failed'}" in capsys.readouterr().out
 
 
-def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch):
-    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) is one line,
-    exit 1, naming both causes (it named N only, which was 20)."""
+@pytest.mark.parametrize("error", [MemoryError(), RuntimeError("Error in Function::factory for 'nlp_hess_l' "
+                                                                 "[MXFunction] at .../function.cpp:1912: std::bad_alloc")])
+def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch, error):
+    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) or CasADi's
+    C++ std::bad_alloc (N = 5000 under a 2.5 GB limit: it was a 35-line traceback, session 57's tester) is one line,
+    exit 1, naming both causes (it named N only, which was 20) and the memory a step takes."""
     import planner.replay as replay
 
     def exhausted(target, options=None):
-        raise MemoryError
+        raise error
 
     monkeypatch.setattr(replay, "validate", exhausted)
     assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
                  "--no-plots", "-q", "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == ("planner plan: failed: out of memory (is horizon.N or --steps far too large, or the physical "
-                       "time MuJoCo replays, e.g. tau_f = 1e8 s?)")
+    assert err[-1] == ("planner plan: failed: out of memory (is horizon.N or --steps far too large, ~1 MB per step for "
+                       "a robot of Capler's size, or the physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
 
 
 def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):
