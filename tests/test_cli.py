@@ -1318,8 +1318,11 @@ def test_a_failed_plan_is_not_replayed_in_mujoco(tmp_path, capsys, monkeypatch):
     assert f"FAILED: results in {out / 'failed'}" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("error", [MemoryError(), RuntimeError("Error in Function::factory for 'nlp_hess_l' "
-                                                                 "[MXFunction] at .../function.cpp:1912: std::bad_alloc")])
+BAD_ALLOC = RuntimeError("Error in Function::factory for 'nlp_hess_l' [MXFunction] at .../function.cpp:1912: "
+                         "std::bad_alloc")  # CasADi's words when its C++ allocation fails
+
+
+@pytest.mark.parametrize("error", [MemoryError(), BAD_ALLOC])
 def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch, error):
     """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) or CasADi's
     C++ std::bad_alloc (N = 5000 under a 2.5 GB limit: it was a 35-line traceback, session 57's tester) is one line,
