@@ -98,7 +98,7 @@ def _add_common(p: argparse.ArgumentParser, *, task: bool = True, out: bool = Tr
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = UsageParser(prog="planner", description=__doc__.splitlines()[0],
+    parser = UsageParser(prog="planner", description=" ".join(__doc__.split("\n\n")[0].split()),
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"planner {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
@@ -334,9 +334,16 @@ def _term_as_ctrl_c():
         handler(signal.SIGINT, frame)
 
     previous = signal.signal(signal.SIGTERM, term)
+    # a background job's Ctrl-C is ignored, so errors.interruptible (IPOPT stops, the interruption is raised after it)
+    # would stand aside and IPOPT's caught KeyboardInterrupt read as a failed NLP: the solve went on and exited 0
+    ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:  # (None: a handler not installed from Python)
+        if ignored:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 

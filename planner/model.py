@@ -229,10 +229,12 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
                          + (f"; the shipped robot files are {', '.join(known)}" if known else ""))
 
 
-# attributes of placements, sizes and inertias, which must be finite, and of bounds, where +-inf means none
+# attributes of placements, sizes and inertias, which must be finite (a URDF <mass>'s value too), and of bounds, where
+# +-inf means none; elements no parser of the planner's reads (a URDF's <gazebo> plugin parameters) are not looked at
 _FINITE_ATTRIBUTES = frozenset({"pos", "quat", "euler", "axisangle", "xyaxes", "zaxis", "fromto", "size", "mass",
-                                "diaginertia", "fullinertia", "axis", "ref", "xyz", "rpy", "value", "ixx", "ixy",
-                                "ixz", "iyy", "iyz", "izz"})
+                                "diaginertia", "fullinertia", "axis", "ref", "xyz", "rpy", "ixx", "ixy", "ixz", "iyy",
+                                "iyz", "izz"})
+_UNREAD_ELEMENTS = frozenset({"gazebo", "transmission", "ros2_control", "plugin", "extension", "custom"})
 _BOUND_ATTRIBUTES = frozenset({"range", "ctrlrange", "forcerange", "actuatorfrcrange", "lower", "upper", "effort",
                                "velocity"})
 
@@ -272,16 +274,18 @@ def detect_format(path: Path) -> RobotFormat:
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
     parents = {child: parent for parent in root.iter() for child in parent}
-    for element in root.iter():  # (Pinocchio spread a site's nan into a body's inertia: "written with commas?")
+    unread = {e for top in root.iter() if top.tag in _UNREAD_ELEMENTS for e in top.iter()}
+    for element in (e for e in root.iter() if e not in unread):  # (Pinocchio spread a site's nan into an inertia)
         for key, value in element.attrib.items():
-            numbers = _numbers(value) if key in _FINITE_ATTRIBUTES | _BOUND_ATTRIBUTES else []
-            finite = key not in _FINITE_ATTRIBUTES or all(map(math.isfinite, numbers))
+            must_be_finite = key in _FINITE_ATTRIBUTES or (element.tag == "mass" and key == "value")
+            numbers = _numbers(value) if must_be_finite or key in _BOUND_ATTRIBUTES else []
+            finite = not must_be_finite or all(map(math.isfinite, numbers))
             if any(math.isnan(x) for x in numbers) or not finite:
                 raise RobotFileError(f"{path}: {_element_path(element, parents)} {key}=\"{value}\" holds a number that "
                                      "is not finite; write a finite one")
     if formats[root.tag] is RobotFormat.MJCF and path.suffix != ".xml":  # (check-model failed, simulate went on)
         raise RobotFileError(f"{path} is MJCF, which MuJoCo reads only from a file whose name ends in .xml (it picks "
-                             f"its reader by the ending): rename it to {path.stem}.xml")
+                             f"its reader by the ending): rename it to {path.name.split('.')[0] or path.name}.xml")
     return formats[root.tag]
 
 

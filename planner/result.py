@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import glob
+import io
 import json
 import os
 import signal
@@ -1180,11 +1181,15 @@ def read_trajectory(out_dir: Path, required: tuple[str, ...] = ()) -> dict[str, 
     path = result_dir(out_dir) / "trajectory.npz"
     if not path.is_file():
         raise InputError(f"{path} not found{_failed_hint(out_dir)}")
-    if not zipfile.is_zipfile(path):  # (numpy read any other file as pickled data and said to allow pickles)
+    try:  # read whole (~0.1-1 MB): zipfile.is_zipfile took an I/O error for "no zip archive", the user's (exit 2)
+        data = path.read_bytes()
+    except OSError as exc:
+        raise read_error(path, exc) from None
+    if not zipfile.is_zipfile(io.BytesIO(data)):  # (numpy read any other file as pickled data, said to allow pickles)
         raise InputError(f"{path} is not a readable .npz file: it is no zip archive (a Git LFS pointer, a truncated "
                          "or another file?)")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             arrays = {k: np.asarray(npz[k]) for k in npz.files}
     except OSError as exc:  # (no errno: numpy's own "cannot read" of a damaged file, the user's; EIO the machine's)
         raise read_error(path, exc) from None

@@ -195,7 +195,7 @@ def test_bad_robot_files(tmp_path, text, message):
 
 
 
-@pytest.mark.parametrize("name", ["robot.txt", "robot.XML", "robot"])
+@pytest.mark.parametrize("name", ["robot.txt", "robot.XML", "robot", "robot.xml.bak"])  # (the last: robot.xml.xml)
 def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
     """MuJoCo picks its reader by the file name's ending and reads MJCF only from .xml: such a file was planned and
     simulated (the comparison with MuJoCo skipped) and then refused by validate and check-model (session 57's
@@ -217,8 +217,8 @@ def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
 def test_a_robot_file_number_that_is_not_finite_is_named(tmp_path, file, old, new, named):
     """A placement, size or inertia that is not finite, or a bound that is nan, is refused naming the element (or its
     nearest named ancestor) and attribute: Pinocchio spread a site's nan into a body's inertia, and the message blamed
-    the mass under a joint name of its own, asking about commas (session 57's tester). An infinite bound (no bound)
-    and a name that reads as a number are no such mistake."""
+    the mass under a joint name of its own, asking about commas (session 57's tester). An infinite bound (no bound),
+    a name that reads as a number and a Gazebo plugin's parameter are no such mistake."""
     text = (ROBOTS_DIR / file).read_text()
     assert text.count(old) == 1
     path = tmp_path / f"robot{Path(file).suffix}"
@@ -230,6 +230,10 @@ def test_a_robot_file_number_that_is_not_finite_is_named(tmp_path, file, old, ne
         unbounded = text.replace('<joint name="x"', '<joint name="x" range="-inf 1"')
         path.write_text(unbounded.replace('<site name="point"', '<site name="inf"'))
         assert "inf" in load_robot(path).points
+    else:  # a plugin parameter no parser of the planner's reads (a Gazebo controller's): not looked at
+        gazebo = '<gazebo><plugin name="c" filename="libc.so"><param name="max_effort" value="inf"/></plugin></gazebo>'
+        path.write_text(text.replace("</robot>", gazebo + "</robot>"))
+        assert load_robot(path).nq == 4
 
 def test_floating_is_urdf_only():
     """floating=True adds a free flyer to a URDF and is refused for MJCF, which declares its own."""

@@ -1427,11 +1427,14 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
         assert signal.getsignal(signal.SIGTERM) is unhandled
-        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption
+        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption, through
+        # the same blocks (IPOPT's caught interrupt read as a failed NLP there: the solve went on, exit 0), and Ctrl-C is
+        # ignored again after it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         finished.clear()
-        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
         # `view --html` too (it ended by the signal, exit 143 and no word; only the live view had a handler)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         monkeypatch.setattr(cli, "_cmd_view", plotting)
@@ -1524,3 +1527,13 @@ def test_an_unexpected_error_is_placed_at_the_planners_own_line():
     except np.linalg.LinAlgError as exc:
         line = planner.cli._unexpected(exc)
     assert line == "LinAlgError: Singular matrix (raised at plots_fake.py:2 in draw)", line
+
+
+def test_the_top_level_help_says_the_whole_description(capsys):
+    """`planner --help` shows the module docstring's first paragraph whole: its first line only cut the sentence at
+    "(or the name" (session 57's tester)."""
+    with pytest.raises(SystemExit) as done:
+        main(["--help"])
+    assert done.value.code == 0
+    assert "take a robot file (or the name of one in robots/), validate and view a result directory." in \
+        " ".join(capsys.readouterr().out.split())

@@ -922,7 +922,7 @@ def test_an_io_error_reading_trajectory_npz_is_the_machines_not_the_users(tmp_pa
 
 
 def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatch):
-    """EIO reading summary.json, a task file or a robot file exits 1 (PlannerError), as reading trajectory.npz does;
+    """EIO reading summary.json, trajectory.npz, a task file or a robot file exits 1 (PlannerError);
     EACCES (a refused path) stays the user's error, of the reader's own kind (session 57's reviewer: only
     trajectory.npz was split)."""
     import errno
@@ -930,16 +930,18 @@ def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatc
 
     from planner.errors import PlannerError, RobotFileError, TaskError
     from planner.model import detect_format
-    from planner.result import read_summary
+    from planner.result import read_summary, read_trajectory
 
     (tmp_path / "summary.json").write_text("{}")
+    np.savez(tmp_path / "trajectory.npz", t=np.zeros(2))
     for code, user_error in ((errno.EIO, False), (errno.EACCES, True)):
         def failing(self, *args, **kwargs):
             raise OSError(code, os.strerror(code))
 
         monkeypatch.setattr(P, "read_text", failing)
         monkeypatch.setattr(P, "read_bytes", failing)
-        readers = ((lambda: read_summary(tmp_path), InputError), (lambda: load_task(tmp_path / "t.toml"), TaskError))
+        readers = ((lambda: read_summary(tmp_path), InputError), (lambda: load_task(tmp_path / "t.toml"), TaskError),
+                   (lambda: read_trajectory(tmp_path), InputError))  # (its zip check took EIO for "no zip archive")
         for call, kind in readers:
             with pytest.raises(PlannerError, match=os.strerror(code)) as caught:
                 (tmp_path / "t.toml").touch()
