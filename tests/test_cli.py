@@ -1427,9 +1427,9 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
         assert signal.getsignal(signal.SIGTERM) is unhandled
-        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption, through
-        # the same blocks (IPOPT's caught interrupt read as a failed NLP there: the solve went on, exit 0), and Ctrl-C is
-        # ignored again after it
+        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption,
+        # through the same blocks (IPOPT's caught interrupt read as a failed NLP there: the solve went on, exit 0), and
+        # Ctrl-C is ignored again after it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         finished.clear()
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
