@@ -222,8 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slow-motion", action="store_true", help="also show the frozen (impact) intervals")
     _add_common(p, task=False, out=False)
     p.set_defaults(run=_cmd_view)
-    parser.commands = tuple(sub.choices)  # (a usage error's --json object names the command given)
-    parser.subcommands = sub.choices
+    parser.subcommands = sub.choices  # (a usage error's --json object names the command given)
     return parser
 
 
@@ -256,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         args = _parse(parser, argv)
     except UsageExit as exc:  # argparse stops before --json is read: the JSON object was missing
         if any(len(a) > 2 and "--json".startswith(a) for a in argv):  # (argparse takes --js for --json too)
-            command = next((a for a in argv if a in parser.commands), None)
+            command = next((a for a in argv if a in parser.subcommands), None)
             print(json.dumps({"command": command, "exit_code": EXIT_INPUT, "error": exc.text}), flush=True)
         raise
     # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
@@ -475,25 +474,21 @@ def _cmd_check_model(args) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
-def _check_steps(args) -> None:
-    from .task import MAX_STEPS
-
-    if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
-        raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {args.steps}")
-
-
 def _load_inputs(args):
     """Robot, task (the .toml beside the robot unless --task) and the output directory."""
     from .model import load_robot
-    from .task import default_task_path, load_task
+    from .task import MAX_STEPS, default_task_path, load_task
 
+    steps = getattr(args, "steps", None)  # (simulate, plan)
+    if steps is not None and not 1 <= steps <= MAX_STEPS:  # the task's horizon.N range: said of the flag
+        raise InputError(f"--steps must be in [1, {MAX_STEPS}], got {steps}")
     robot = load_robot(args.robot)
     task_path = args.task or default_task_path(robot.path)
     if args.task is None and not task_path.is_file():
         raise InputError(f"no task file beside {robot.path} (expected {task_path}); give one with --task")
     task = load_task(task_path)
-    if getattr(args, "steps", None) is not None:  # (simulate, plan)
-        task = replace(task, horizon=replace(task.horizon, N=args.steps))
+    if steps is not None:
+        task = replace(task, horizon=replace(task.horizon, N=steps))
     task.check_against(robot)
     out = prepare_out_dir(args.out or Path("results") / f"{robot.path.stem}-{args.command}", failed=True)
     return robot, task, out
@@ -620,8 +615,6 @@ def _plotted(args, converged: bool, message: str | None) -> None:
     _progress(args, f"plots skipped for the failed run: {message}")
 
 
-
-
 @contextlib.contextmanager
 def _said_of(flags: str):
     """An options class's InputError (it names its own fields, e.g. "FESDOptions.n_s") said of the flags that set them;
@@ -658,7 +651,6 @@ def _cmd_simulate(args) -> int:
 
     discretization, fesd = _discretization(args, elements=4)
     options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
-    _check_steps(args)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
     target, _ = _write(args, result, out)
@@ -736,7 +728,6 @@ def _cmd_plan(args) -> int:
     elif discretization is Discretization.FESD and "rho_max" not in fields and solve_options.rho_schedule is None:
         # (--solve's wins: it was replaced; a rho_schedule replaces the task's schedule, which rho_max changes)
         solve_options = replace(solve_options, rho_max=FESD_RHO_MAX)
-    _check_steps(args)
     if args.init is not None and discretization is not Discretization.IMPLICIT_EULER:
         raise InputError("--init works with --discretization implicit_euler only")
     for flag, given in (("--keep-schedule", args.keep_schedule), ("--penalty-replan", args.penalty_replan),

@@ -210,10 +210,9 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
     path = Path(spec)
     if path.is_file():
         return path.absolute()
-    if path.suffix in (".xml", ".urdf") and path.parent in (Path("."), Path("robots")):
-        shipped = ROBOTS_DIR / path.name
-        if shipped.is_file():
-            return shipped
+    in_robots = path.suffix in (".xml", ".urdf") and path.parent in (Path("."), Path("robots"))
+    if in_robots and (ROBOTS_DIR / path.name).is_file():
+        return ROBOTS_DIR / path.name
     if not path.suffix and path.parent == Path("."):
         for ext in (".xml", ".urdf"):
             candidate = ROBOTS_DIR / f"{path.name}{ext}"
@@ -223,8 +222,7 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
         raise RobotFileError(f"robot {str(spec)!r} is neither a file nor one of robots/: {', '.join(known)}" if known
                              else f"robot {str(spec)!r} is not a file, and this install has no robot files in "
                                   f"{ROBOTS_DIR}; give a robot file's path")
-    shipped = path.suffix in (".xml", ".urdf") and path.parent in (Path("."), Path("robots"))
-    known = sorted(p.name for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")) if shipped else []
+    known = sorted(p.name for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")) if in_robots else []
     raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}"
                          + (f"; the shipped robot files are {', '.join(known)}" if known else ""))
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .result import TAP_SHARE, write_atomically, write_beside_result
+from .result import TAP_SHARE, write_beside_result
 from .timefreezing import contact_labels
 from .view import Result, load_result
 
@@ -43,17 +43,17 @@ def plot_results(out_dir) -> list[Path]:
         fig_and_name = write(res)
         if fig_and_name is not None:
             fig, name = fig_and_name
-            path = res.directory / name
             # only beside the result drawn: another run may have written its own into the directory meanwhile
-            if write_beside_result(path, lambda f: fig.savefig(f, format="png", dpi=DPI), res.summary.get("result_id")):
-                paths.append(path)
+            if save_figure(fig, res.directory / name, result_id=res.summary.get("result_id")):
+                paths.append(res.directory / name)
     return paths
 
 
-def save_figure(fig, path: Path, dpi: int = DPI) -> None:
+def save_figure(fig, path: Path, dpi: int = DPI, result_id: str | None = None) -> bool:
     """fig as a PNG at path [dpi: dots per inch], atomically: an earlier plot of the same name stays whole until the
-    new one is (a Ctrl-C mid-write); a path refused is an InputError (write_atomically)."""
-    write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=dpi))
+    new one is (a Ctrl-C mid-write); a path refused is an InputError (write_atomically). result_id: written only while
+    the directory's summary.json is that result's (result.write_beside_result); whether it was written."""
+    return write_beside_result(path, lambda f: fig.savefig(f, format="png", dpi=dpi), result_id)
 
 
 def _new_figure(width: float, height: float):
