@@ -697,11 +697,16 @@ def _not_on_the_world(point: str, robot, key: str) -> None:
                         "into its body, with the frame's pos and orientation, or onto the robot")
 
 
+def _names_a_shipped_task(path: Path) -> bool:
+    """A bare name or robots/NAME(.toml), as the docs name the shipped tasks."""
+    return path.parent in (Path("."), Path("robots")) and path.suffix in ("", ".toml")
+
+
 def shipped_task(path: Path) -> Path:
     """`path`, or the shipped task it names where no such file exists: a bare name (`point_mass_hop`) or a path in
     robots/ as the docs write them (`robots/point_mass_hop.toml`), from outside a checkout (an installed wheel holds
     them in planner/robots, and the README's commands were refused there)."""
-    if path.exists() or path.parent not in (Path("."), Path("robots")) or path.suffix not in ("", ".toml"):
+    if path.exists() or not _names_a_shipped_task(path):
         return path
     from .model import ROBOTS_DIR  # (here: reading a task file needs no Pinocchio)
 
@@ -712,7 +717,7 @@ def shipped_task(path: Path) -> Path:
 def _shipped_tasks_hint(path: Path) -> str:
     """"; the shipped tasks are ..." for a name shipped_task would have looked up (a typo such as point_mass_hopp was
     only "not found"), else ""."""
-    if path.parent not in (Path("."), Path("robots")) or path.suffix not in ("", ".toml"):
+    if not _names_a_shipped_task(path):
         return ""
     from .model import ROBOTS_DIR
 
