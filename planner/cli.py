@@ -237,14 +237,17 @@ def _version() -> str:
 
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     """parse_args, with an unknown argument refused by its subcommand's parser: the top-level parser said "planner:
-    error: unrecognized arguments" and pointed at its own --help, which lists no subcommand's options; an option of the
-    subcommand given before it is said to go after it."""
+    error: unrecognized arguments" and pointed at its own --help, which lists no subcommand's options; what is given
+    before the command, other than the top-level options, is said to go after it (`--out x plan` was "invalid choice:
+    'x'")."""
+    first = next((i for i, a in enumerate(argv) if a in parser.subcommands), 0)
+    early = argv[:first]
+    if any(a not in parser._option_string_actions for a in early):
+        parser.subcommands[argv[first]].error(
+            f"{' '.join(early)} goes after the command: planner {argv[first]} ... {' '.join(early)}")
     args, extra = parser.parse_known_args(argv)
     if extra:
-        command = parser.subcommands[args.command]
-        misplaced = [a for a in extra if a.split("=", 1)[0] in command._option_string_actions]
-        command.error(f"{' '.join(misplaced)} goes after the command: planner {args.command} ... {' '.join(misplaced)}"
-                      if misplaced else f"unrecognized arguments: {' '.join(extra)}")
+        parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     return args
 
 

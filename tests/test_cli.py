@@ -60,6 +60,11 @@ def test_check_model_json_contract():
         (["simulate", "point_mass", "--no-validate"], "planner simulate: error: unrecognized arguments: --no-validate"),
         (["simulate", "point_mass", "--steps", "0"], "--steps must be in [1, "),
         (["-q", "plan", "point_mass"], "planner plan: error: -q goes after the command: planner plan ... -q"),
+        # an option with its value, or combined short flags, before the command: "invalid choice: 'x'" resp.
+        # "unrecognized arguments: -qv"
+        (["--out", "x", "plan", "point_mass"],
+         "planner plan: error: --out x goes after the command: planner plan ... --out x"),
+        (["-qv", "simulate", "point_mass"], "planner simulate: error: -qv goes after the command"),
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
