@@ -19,6 +19,7 @@ complementarity penalty or relaxation; `planner.simulate` does the same for one 
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -156,8 +157,8 @@ class ImplicitEulerStep:
 
     def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT,
                  velocity_switch: SwitchVelocity = SwitchVelocity.POINT, lift_products: bool = True):
-        if not rho_f >= 0:
-            raise InputError(f"rho_f must be >= 0, got {shown(rho_f)}")
+        if not isinstance(rho_f, numbers.Real) or not rho_f >= 0:  # (rho_f = "1" was the comparison's TypeError)
+            raise InputError(f"rho_f must be a number >= 0, got {shown(rho_f)}")
         if not isinstance(lift_products, bool):
             raise InputError(f"lift_products must be True or False, got {shown(lift_products)}")
         form = enum_member(form, StepForm, "form")
@@ -169,7 +170,9 @@ class ImplicitEulerStep:
         # forces: MASS_MATRIX the form's z; EXPLICIT with several contacts the contact forces lambda
         nz = self.mm.nz if self.mm is not None else system.n_lambda
         n = system.n_sigma
-        self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).reshape(n)
+        self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).ravel()
+        if self.switch_scale.shape != (n,):  # (numpy's reshape error named no argument)
+            raise InputError(f"switch_scale must have one entry per switching function ({n}), got {self.switch_scale.size}")
         if not np.all(np.isfinite(self.switch_scale) & (self.switch_scale > 0)):
             raise InputError(f"switch_scale must be finite and > 0, got {self.switch_scale.tolist()}")
         # variables of the polynomials: the selectors, then the factors (several contacts only)

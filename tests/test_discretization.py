@@ -156,12 +156,15 @@ def test_steps_concatenate_and_accept_mx():
 
 
 def test_bad_step_arguments_are_refused():
-    """rho_f < 0 (or NaN), a non-positive switch scale and an unknown step form are InputErrors naming the value; the
-    form's value selects the member as the options' values do (a string used to build the explicit step silently)."""
-    with pytest.raises(InputError, match="rho_f must be >= 0, got -1.0"):
-        ImplicitEulerStep(system(), rho_f=-1.0)
-    with pytest.raises(InputError, match="rho_f must be >= 0, got nan"):
-        ImplicitEulerStep(system(), rho_f=float("nan"))
+    """rho_f < 0 (or NaN, or not a number), a non-positive switch scale or one of the wrong length and an unknown step
+    form are InputErrors naming the value; the form's value selects the member as the options' values do (a string
+    used to build the explicit step silently; rho_f = "1" and a short switch_scale raised TypeError and numpy's
+    ValueError)."""
+    for rho_f, shown_as in ((-1.0, "-1.0"), (float("nan"), "nan"), ("1", "'1'")):
+        with pytest.raises(InputError, match=f"rho_f must be a number >= 0, got {shown_as}"):
+            ImplicitEulerStep(system(), rho_f=rho_f)
+    with pytest.raises(InputError, match=r"switch_scale must have one entry per switching function \(3\), got 2"):
+        ImplicitEulerStep(system(), switch_scale=[1.0, 1.0])
     for scale in ([1.0, 0.0, 1.0], [1.0, float("nan"), 1.0], [1.0, float("inf"), 1.0]):  # (nan, inf were accepted)
         with pytest.raises(InputError, match=r"switch_scale must be finite and > 0, got \[1.0, "):
             ImplicitEulerStep(system(), switch_scale=scale)
