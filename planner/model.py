@@ -223,7 +223,10 @@ def resolve_robot_path(spec: str | os.PathLike) -> Path:
                              else f"robot {str(spec)!r} is not a file, and this install has no robot files in "
                                   f"{ROBOTS_DIR}; give a robot file's path")
     known = sorted(p.name for p in ROBOTS_DIR.glob("*") if p.suffix in (".xml", ".urdf")) if in_robots else []
-    raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else f"robot file not found: {path}"
+    if path.exists():  # (/dev/null, a FIFO: "not found" sent the user looking for a typo)
+        raise RobotFileError(f"robot file {path} is a directory" if path.is_dir() else
+                             f"robot file {path} is not a regular file (a device, a FIFO or a socket)")
+    raise RobotFileError(f"robot file not found: {path}"
                          + (f"; the shipped robot files are {', '.join(known)}" if known else ""))
 
 

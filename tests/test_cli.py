@@ -44,6 +44,7 @@ def test_check_model_json_contract():
         (["check-model", "capler", "--samples", "99999999999999999999"], "--samples must be in [1, 100000]"),  # 21.5 GB
         (["plan", "point_mass", "--task", "{dir}"], "is a directory"),  # "not found"
         (["plan", "{dir}"], "robot file {dir} is a directory"),
+        (["check-model", "/dev/null"], "robot file /dev/null is not a regular file (a device"),  # was "not found"
         (["check-model", "capler", "--seed", "-1"], "--seed must be >= 0, got -1"),
         (["plan", "point_mass", "--solve", '{"rho_min": -1}'],
          "SolveOptions.rho_min = -1.0 is not allowed; it must be > 0"),
