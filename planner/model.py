@@ -326,6 +326,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
+        if not hint and fmt is RobotFormat.MJCF and _main_class_undeclared(path):  # MuJoCo compiles it: no hint there
+            hint = (" (the file uses class \"main\", MuJoCo's name of the top-level <default>, which Pinocchio's MJCF "
+                    "parser knows only when declared: write the top-level <default> as <default class=\"main\">)")
         if not hint and fmt is RobotFormat.MJCF:  # MuJoCo names the element (an unknown class: "unordered_map::at")
             try:
                 _mujoco_model(path)
@@ -770,6 +773,13 @@ def _defaults_late(path: Path) -> bool:
     with "unordered_map::at")."""
     tags = [child.tag for child in ET.parse(path).getroot()]
     return "default" in tags and "worldbody" in tags and tags.index("default") > tags.index("worldbody")
+
+
+def _main_class_undeclared(path: Path) -> bool:
+    """Whether an MJCF file gives an element class or childclass "main" without a <default class="main">."""
+    elements = list(ET.parse(path).getroot().iter())
+    used = any("main" in (e.get("class"), e.get("childclass")) for e in elements if e.tag != "default")
+    return used and not any(e.get("class") == "main" for e in elements if e.tag == "default")
 
 
 @contextlib.contextmanager

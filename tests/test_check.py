@@ -180,8 +180,12 @@ URDF_BROKEN = '<robot name="broken"><link name="a"/><joint name="j" type="revolu
         ('<mujoco><worldbody><body pos="0 0 1"><joint name="z" type="slide" axis="0 0 1"/><geom class="ball" '
          'type="sphere" size="0.1"/><site name="p"/></body></worldbody><default><default class="ball"><geom mass="1"/>'
          '</default></default></mujoco>', "move <default> above <worldbody>"),
+        # class "main" is MuJoCo's top-level <default>: MuJoCo compiles it, Pinocchio's parser said "unordered_map::at"
+        ('<mujoco><default><geom mass="1"/></default><worldbody><body pos="0 0 1" childclass="main"><joint name="z" '
+         'type="slide" axis="0 0 1"/><geom type="sphere" size="0.1"/><site name="p"/></body></worldbody></mujoco>',
+         'write the top-level <default> as <default class="main">'),
     ],
-    ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf", "late-defaults"],
+    ids=["missing", "not-a-robot", "malformed", "unparsable-urdf", "unparsable-mjcf", "late-defaults", "class-main"],
 )
 def test_bad_robot_files(tmp_path, text, message):
     """A missing, foreign, malformed or unparsable robot file raises RobotFileError (an InputError) with a
