@@ -52,7 +52,10 @@ _ELEMENTARY = {
     "JointModelPlanar": ("planar", None),
     "JointModelFreeFlyer": ("free", None),
 }
-SUPPORTED_JOINTS = tuple(sorted(_ELEMENTARY)) + ("JointModelComposite",)
+# the robot files' names of the joint types the symbolic dynamics lacks
+_FILE_TERMS = {"JointModelSpherical": "ball", "JointModelSphericalZYX": "ball", "JointModelTranslation": "translation",
+               "JointModelHelical": "helical", "JointModelHelicalUnaligned": "helical", "JointModelUniversal": "universal",
+               "JointModelMimic": "mimic"}
 
 # Motion subspaces S (6, nv) in the joint frame, rows (linear, angular), for the multi-DoF joints.
 _S_PLANAR = np.zeros((6, 3))
@@ -261,9 +264,10 @@ def _elementary(joint, name: str, placement: pin.SE3, iq: int, iv: int) -> list[
             iq, iv = iq + sub.nq, iv + sub.nv
         return parts
     if short not in _ELEMENTARY:
+        kind = _FILE_TERMS.get(short)  # (Pinocchio's class names alone left a robot file's author to translate them)
         raise UnsupportedJointError(
-            f"joint {name!r} has type {short}, which the symbolic dynamics does not support; "
-            f"supported: {', '.join(SUPPORTED_JOINTS)}"
+            f"joint {name!r} has type {short}{f' (a {kind} joint)' if kind else ''}, which the symbolic dynamics does "
+            "not support; it takes hinge (revolute), slide (prismatic), planar and free joints"
         )
     kind, axis = _ELEMENTARY[short]
     if axis is None and kind in ("revolute", "revolute_unbounded", "prismatic"):  # unaligned: read S

@@ -226,12 +226,14 @@ def test_unknown_point_lists_valid_names():
 
 
 def test_unsupported_joint_is_named():
-    """A joint type without a symbolic implementation (spherical) raises UnsupportedJointError naming the joint."""
+    """A joint type without a symbolic implementation (spherical) raises UnsupportedJointError naming the joint, its
+    type as a robot file calls it (a ball joint) and the types the planner takes."""
     model = pin.Model()
     jid = model.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), "shoulder_ball")
     model.appendBodyToJoint(jid, pin.Inertia.FromSphere(1.0, 0.1), pin.SE3.Identity())
     robot = Robot(Path("ball.urdf"), RobotFormat.URDF, model, (), (), (), "")
-    with pytest.raises(UnsupportedJointError, match="joint 'shoulder_ball' has type JointModelSpherical") as err:
+    with pytest.raises(UnsupportedJointError, match=r"joint 'shoulder_ball' has type JointModelSpherical \(a ball joint\), "
+                       "which the symbolic dynamics does not support; it takes hinge") as err:
         Dynamics(robot)
     assert "\n" not in str(err.value)
 
