@@ -53,9 +53,9 @@ _ELEMENTARY = {
     "JointModelFreeFlyer": ("free", None),
 }
 # the robot files' names of the joint types the symbolic dynamics lacks
-_FILE_TERMS = {"JointModelSpherical": "ball", "JointModelSphericalZYX": "ball", "JointModelTranslation": "translation",
-               "JointModelHelical": "helical", "JointModelHelicalUnaligned": "helical", "JointModelUniversal": "universal",
-               "JointModelMimic": "mimic"}
+_FILE_TERMS = {"JointModelSpherical": "ball", "JointModelSphericalZYX": "ball", "JointModelMimic": "mimic",
+               "JointModelTranslation": "translation", "JointModelHelical": "helical",
+               "JointModelHelicalUnaligned": "helical", "JointModelUniversal": "universal"}
 
 # Motion subspaces S (6, nv) in the joint frame, rows (linear, angular), for the multi-DoF joints.
 _S_PLANAR = np.zeros((6, 3))

@@ -232,8 +232,8 @@ def test_unsupported_joint_is_named():
     jid = model.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), "shoulder_ball")
     model.appendBodyToJoint(jid, pin.Inertia.FromSphere(1.0, 0.1), pin.SE3.Identity())
     robot = Robot(Path("ball.urdf"), RobotFormat.URDF, model, (), (), (), "")
-    with pytest.raises(UnsupportedJointError, match=r"joint 'shoulder_ball' has type JointModelSpherical \(a ball joint\), "
-                       "which the symbolic dynamics does not support; it takes hinge") as err:
+    with pytest.raises(UnsupportedJointError, match=r"joint 'shoulder_ball' has type JointModelSpherical "
+                       r"\(a ball joint\), which the symbolic dynamics does not support; it takes hinge") as err:
         Dynamics(robot)
     assert "\n" not in str(err.value)
 
