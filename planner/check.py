@@ -431,7 +431,7 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
         if not gaps[key] <= TOLERANCE and not (key == "passive" and named):  # gravcomp, tendons, fluid: said once, by name
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
-    out += _hints(robot, gaps)
+    out += _hints(robot, gaps, mj)
     if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
         # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
         out.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: "
@@ -439,12 +439,40 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _hints(robot: Robot, gaps: dict) -> list[str]:
-    """_parser_gaps of an MJCF file whose mass, bias or point gaps (_mujoco_gaps) exceed TOLERANCE, else []: they
-    explain those gaps, not a named difference."""
+def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
+    """_body_masses and _parser_gaps of an MJCF file whose mass, bias or point gaps (_mujoco_gaps) exceed TOLERANCE,
+    else []: they explain those gaps, not a named difference."""
     measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
                     and all(err <= TOLERANCE for err in gaps["sites"].values()))
-    return _parser_gaps(ET.parse(robot.path).getroot()) if measured and robot.format is RobotFormat.MJCF else []
+    if not measured or robot.format is not RobotFormat.MJCF:
+        return []
+    return _body_masses(robot, mj) + _parser_gaps(ET.parse(robot.path).getroot())
+
+
+def _body_masses(robot: Robot, mj) -> list[str]:
+    """The bodies (by the joint that moves them, jointless ones welded to it) whose mass MuJoCo and Pinocchio read
+    differently: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser only by those that collide
+    (contype or conaffinity nonzero) and without a <default>'s geom mass (the check named a mass gap, and no body)."""
+    import mujoco
+
+    model, mass, names = robot.model, np.zeros(robot.model.njoints), [[] for _ in range(robot.model.njoints)]
+    for b in range(1, mj.nbody):
+        body = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_BODY, b)
+        if body is None or not model.existFrame(body):
+            return []  # (bodies not matched by name: no per-body comparison)
+        j = model.frames[model.getFrameId(body)].parentJoint
+        mass[j] += mj.body_mass[b]
+        names[j].append(body)
+    apart = [f"{'+'.join(names[j])} {mass[j]:.6g} kg in MuJoCo, {model.inertias[j].mass:.6g} kg in Pinocchio"
+             for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE]
+    if not apart:
+        return []
+    if any(c.get("inertiafromgeom") == "true" for c in ET.parse(robot.path).getroot().iter("compiler")):
+        return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> MuJoCo weighs the geoms "
+                "instead of every <inertial>, which Pinocchio's parser reads; remove it"]
+    return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser "
+            "only by the geoms that collide (contype or conaffinity nonzero) and without a <default>'s geom mass; give "
+            "those bodies an <inertial>"]
 
 
 AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize
@@ -514,7 +542,7 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
                        max_err_actuation=gaps["actuation"],
                        max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
                        differences=_named_differences(robot, mj) + robot.passive,
-                       hints=tuple(_hints(robot, gaps))), None
+                       hints=tuple(_hints(robot, gaps, mj))), None
 
 
 def _mean_us(call) -> float:

@@ -462,6 +462,7 @@ CAPLER = (ROBOTS_DIR / "capler.xml").read_text()
 SHANK = '<body name="shank" pos="0 0 -0.2">'
 KNEE = '<joint name="knee" type="hinge" axis="0 1 0" range="-1.5707963267948966 1.5707963267948966"/>'
 FOOT = '<site name="foot" pos="0 0 -0.2" size="0.012"/>'
+SHANK_INERTIAL = '<inertial pos="0 0 -0.1" mass="0.548" diaginertia="0.0032 0.0032 0.0032"/>'
 
 
 @pytest.mark.parametrize("edits, named", [
@@ -475,11 +476,17 @@ FOOT = '<site name="foot" pos="0 0 -0.2" size="0.012"/>'
       (FOOT, '<site name="foot" class="tip" size="0.012"/>')], "<default class='tip'> gives <site> pos, which"),
     ([(FOOT, FOOT + '<body name="sole" pos="0 0 -0.2"><body name="spur" pos="0.02 0 0"><site name="tip" '
       'pos="0.01 0 0"/></body></body>')], "site(s) ['tip'] on body 'spur', a body without joints inside"),
+    # masses MuJoCo infers from geoms that collide with nothing: the check said only "mass 2.5e-01" (session 58)
+    ([(SHANK_INERTIAL, "")], "body masses shank 0.0977161 kg in MuJoCo, 0 kg in Pinocchio: MuJoCo weighs a body "
+                             "without <inertial> by its geoms"),
+    ([('autolimits="true"', 'autolimits="true" inertiafromgeom="true"')],
+     "body masses base 0.768 kg in MuJoCo, 0 kg in Pinocchio; thigh 0.155509 kg in MuJoCo, 0 kg in Pinocchio; shank "
+     '0.0977161 kg in MuJoCo, 0 kg in Pinocchio: with <compiler inertiafromgeom="true">'),
 ])
 def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, named):
     """Capler's MJCF file with a construct MuJoCo reads and Pinocchio's parser reads otherwise (a non-unit axisangle
     axis, an extrinsic eulerseq, a hinge's ref before its body's last joint, a site's pos from a <default>, a site
-    on a jointless body in a jointless body) differs in its mass matrix or points and is refused naming that construct
+    on a jointless body in a jointless body, a body weighed by its geoms, inertiafromgeom) differs in its mass matrix or points and is refused naming that construct
     (session 56's tester: refused with "e.g. masses MuJoCo infers from geoms" in a file of none, or points apart);
     check-model names it beside its gaps."""
     from planner.check import reading_differences
