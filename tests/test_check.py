@@ -486,9 +486,9 @@ SHANK_INERTIAL = '<inertial pos="0 0 -0.1" mass="0.548" diaginertia="0.0032 0.00
 def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, named):
     """Capler's MJCF file with a construct MuJoCo reads and Pinocchio's parser reads otherwise (a non-unit axisangle
     axis, an extrinsic eulerseq, a hinge's ref before its body's last joint, a site's pos from a <default>, a site
-    on a jointless body in a jointless body, a body weighed by its geoms, inertiafromgeom) differs in its mass matrix or points and is refused naming that construct
-    (session 56's tester: refused with "e.g. masses MuJoCo infers from geoms" in a file of none, or points apart);
-    check-model names it beside its gaps."""
+    on a jointless body in a jointless body, a body weighed by its geoms, inertiafromgeom) differs in its mass matrix
+    or points and is refused naming that construct (session 56's tester: refused with "e.g. masses MuJoCo infers from
+    geoms" in a file of none, or points apart); check-model names it beside its gaps."""
     from planner.check import reading_differences
 
     text = CAPLER
