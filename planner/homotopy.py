@@ -46,7 +46,7 @@ from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expec
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      hops_of)
-from .simulate import element_trajectory, step_trajectory
+from .simulate import braked_outside_cone, element_trajectory, step_elements
 from .task import MAX_NLPS
 from .timefreezing import contact_labels
 
@@ -1424,7 +1424,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     """source: the label of the polishing NLP whose point x is (None: x is the homotopy's last point). relaxed (nx,):
     by how much IPOPT relaxed each variable's bounds for x (the message says when a bound's violation is that)."""
     polished = source is not None
-    traj, W, nodes = plan_trajectory(problem, problem.split(x), _frozen_tol(problem, options))
+    parts, frozen_tol = problem.split(x), _frozen_tol(problem, options)
+    traj, W, nodes = plan_trajectory(problem, parts, frozen_tol)
+    # (the plan's cone rows bound the persistent forces only: a sliding step's auxiliary braking went unreported)
+    braked = braked_outside_cone(problem.system, problem.builder, *plan_elements(problem, parts), frozen_tol, traj)
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
@@ -1483,17 +1486,26 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
                       options={"problem": options_record(problem.options), "solve": options_record(options)},
-                      robot_sha256=problem.robot.sha256)
+                      robot_sha256=problem.robot.sha256, extra={"braked_outside_friction_cone": braked})
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     """The plan's Trajectory from problem.split(x), with the algebraic variables W (K, nw) of each
     interval's end and the nodes Y (K+1, ny): implicit Euler K = N steps; FESD K = the N n_fe elements
-    less the collapsed ones (result.COLLAPSED; the Radau quadrature of the auxiliary fields, impacts
-    starting at an element boundary)."""
+    less the collapsed ones (plan_elements)."""
+    elements, b = plan_elements(problem, parts)
+    traj = element_trajectory(problem.system, problem.builder, *elements, b, frozen_tol,
+                              switch_at_start=problem.fesd is not None)
+    return traj, elements[3][:, -1], elements[1]
+
+
+def plan_elements(problem: Problem, parts: dict) -> tuple[tuple, np.ndarray]:
+    """The plan's intervals as element_trajectory takes them, (tau, Y, Ys, Ws, Us, dt), and the quadrature weights b:
+    implicit Euler's steps, or FESD's elements less those of length ~0 (result.COLLAPSED; the Radau quadrature of the
+    auxiliary fields, impacts starting at an element boundary)."""
     if problem.fesd is None:
-        traj = step_trajectory(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h, frozen_tol, parts["S"])
-        return traj, parts["W"], parts["Y"]
+        return step_elements(problem.system, problem.builder, parts["Y"], parts["W"], parts["U"], problem.h,
+                             parts["S"]), np.ones(1)
     fesd, ny, nw, nu = problem.fesd, problem.system.ny, problem.builder.nw, problem.system.nu
     K, n_s = problem.N * fesd.n_fe, fesd.n_s
     lengths = parts["h"].ravel()
@@ -1505,10 +1517,7 @@ def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
     Us = np.repeat(parts["U"], fesd.n_fe * n_s, axis=0).reshape(K, n_s, nu)[keep]  # u_k is constant over the step
     dt = (lengths * np.repeat(parts["S"], fesd.n_fe))[keep]
     tau = np.concatenate([[0.0], np.cumsum(lengths[keep])])
-    traj = element_trajectory(problem.system, problem.builder, tau, nodes, Ys, Ws, Us, dt, fesd.b, frozen_tol)
-    return traj, Ws[:, -1], nodes
-
-
+    return (tau, nodes, Ys, Ws, Us, dt), fesd.b
 
 
 def _warn_never_touching_on_plane(problem: Problem, nodes) -> None:

@@ -322,11 +322,7 @@ class SimulationResult(ArraysReadOnly):
             lines.append(f"  {joint['joint']} left the robot file's range [{joint['lower']:.4g}, {joint['upper']:.4g}] at "
                          f"{joint['nodes']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
                          "simulation has no joint limits, MuJoCo's replay enforces them")
-        for brake in self.extra.get("braked_outside_friction_cone", ()):
-            lines.append(f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in "
-                         f"{brake['steps']} running step(s) (up to {brake['max_tangential_N']:.4g} N "
-                         f"{_cone_where(brake)}): a point sliding on its plane brakes at a_t / m whatever mu, with no "
-                         "impact and no lambda_t (docs/tasks.md)")
+        lines += _braked_lines(self.extra)
         for force in self.extra.get("forces_outside_friction_cone", ()):
             where = _cone_where(force)
             lines.append(f"  {force['point']}'s contact force outside its friction cone at {force['samples']} of "
@@ -592,6 +588,14 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     return hops
 
 
+
+def _braked_lines(extra: dict) -> list[str]:
+    """The report's lines for extra["braked_outside_friction_cone"] (simulate.braked_outside_cone)."""
+    return [f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in {brake['steps']} "
+            f"running step(s) (up to {brake['max_tangential_N']:.4g} N {_cone_where(brake)}): a point sliding on its "
+            "plane brakes at a_t / m whatever mu, with no impact and no lambda_t (docs/tasks.md)"
+            for brake in extra.get("braked_outside_friction_cone", ())]
+
 @dataclass(frozen=True, eq=False)
 class PlanResult(ArraysReadOnly):
     """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops."""
@@ -636,6 +640,7 @@ class PlanResult(ArraysReadOnly):
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}"
                   + (f"; {r.note}" if r.note else "") for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)", self.extra.get("_task"))
+        lines += _braked_lines(self.extra)
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others

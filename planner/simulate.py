@@ -632,17 +632,9 @@ def _horizon(system, builder, y0, task, h, N, options, law=None):
     return Y, W, U, total
 
 
-def step_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, frozen_tol, S=None) -> Trajectory:
-    """Per-step auxiliary increments and impulses, then the Thm. 10 recovery.
-
-    Y (N+1, ny), W (N, nw), U (N, nu) of N solved steps of length h [s]; S (N,) speeds of time
-    (default 1): step k advances numerical time h and integrates h S[k] F."""
-    return element_trajectory(system, builder, *step_elements(system, builder, Y, W, U, h, S), np.ones(1), frozen_tol,
-                              switch_at_start=False)
-
-
 def step_elements(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, h, S=None) -> tuple:
-    """N implicit-Euler steps (arguments as step_trajectory's) as element_trajectory's one-stage elements:
+    """N implicit-Euler steps as element_trajectory's one-stage elements (Y (N+1, ny), W (N, nw), U (N, nu) of N solved
+    steps of length h [s]; S (N,) speeds of time, default 1: step k integrates h S[k] F):
     (tau (N+1,), Y (N+1, ny), Ys (N, 1, ny), Ws (N, 1, nw), Us (N, 1, nu), dt (N,))."""
     N = len(W)
     S = np.ones(N) if S is None else np.asarray(S, float).ravel()

@@ -972,3 +972,23 @@ def test_a_never_touching_point_on_its_plane_is_warned_about(tmp_path):
     assert re.match(r"contact 'low' \(touches = false\) lies on its plane at \d+ of 11 nodes \(0, .*10; gap <=",
                     said), said
     assert plan(0.3) == []
+
+
+def test_a_plan_reports_braking_beyond_the_friction_cone():
+    """A point mass sliding at 2 m/s on the ground (mu = 0.5, the default a_t = 600) planned to stop 0.2 m on brakes in a
+    step whose clock runs with the tangential auxiliary field, beyond mu times its normal force: the plan's summary
+    names the contact in braked_outside_friction_cone and its report says so, as a simulation's do (a plan reported
+    only its impacts outside the cone; its friction_cone rows bound the persistent forces, session 58's tester)."""
+    from planner.task import parse_task
+
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0], "v": [2.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 25}, "plan": {"target_q": [0.2, 0.0], "u_bound": 30.0}})
+    result = H.solve(build_problem(load_robot("robots/point_mass.xml"), task), H.SolveOptions())
+    assert result.stats.converged, result.stats.message
+    (brake,) = result.summary()["braked_outside_friction_cone"]
+    # stopping 2 m/s within a few 40 ms steps takes tens of N against mu m g = 4.9 N: far beyond the cone
+    assert brake["point"] == "point" and brake["steps"] >= 1 and brake["max_tangential_N"] > 2 * brake["mu_normal_N"]
+    assert "point braked by the tangential auxiliary field beyond its friction cone" in result.report()
+    hop_free = H.solve(build_problem(load_robot("robots/point_mass.xml"), dataclasses.replace(
+        task, initial=dataclasses.replace(task.initial, v=(0.0, 0.0)))), H.SolveOptions())
+    assert hop_free.stats.converged and hop_free.summary()["braked_outside_friction_cone"] == []

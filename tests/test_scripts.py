@@ -426,7 +426,7 @@ def test_stress_nan_in_recovery_is_never_silent(stress, monkeypatch):
     """A NaN injected into the recovered trajectory of a converged solve: crashed at stage recovery."""
     import planner.homotopy
 
-    real = planner.homotopy.step_trajectory
+    real = planner.homotopy.element_trajectory
 
     def nan_q(*args, **kwargs):
         traj = real(*args, **kwargs)
@@ -434,7 +434,7 @@ def test_stress_nan_in_recovery_is_never_silent(stress, monkeypatch):
         q[2, 0] = np.nan
         return dataclasses.replace(traj, q=q)
 
-    monkeypatch.setattr(planner.homotopy, "step_trajectory", nan_q)
+    monkeypatch.setattr(planner.homotopy, "element_trajectory", nan_q)
     spec = _one(stress)
     rec = stress.finish(spec, stress.run_batch(stress.run_task, [spec], workers=0)[0])
     assert rec["outcome"] == stress.CRASHED and rec["stage"] == "recovery", rec["message"]
