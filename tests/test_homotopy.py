@@ -975,8 +975,8 @@ def test_a_never_touching_point_on_its_plane_is_warned_about(tmp_path):
 
 
 def test_a_plan_reports_braking_beyond_the_friction_cone():
-    """A point mass sliding at 2 m/s on the ground (mu = 0.5, the default a_t = 600) planned to stop 0.2 m on brakes in a
-    step whose clock runs with the tangential auxiliary field, beyond mu times its normal force: the plan's summary
+    """A point mass sliding at 2 m/s on the ground (mu = 0.5, the default a_t = 600) planned to stop 0.2 m on brakes in
+    a step whose clock runs with the tangential auxiliary field, beyond mu times its normal force: the plan's summary
     names the contact in braked_outside_friction_cone and its report says so, as a simulation's do (a plan reported
     only its impacts outside the cone; its friction_cone rows bound the persistent forces, session 58's tester)."""
     from planner.task import parse_task
