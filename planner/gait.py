@@ -32,6 +32,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 
 from .dynamics import Dynamics, dynamics_for
 from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_field_types, enum_field, expect,
@@ -91,6 +92,16 @@ def find_layout(robot: Robot, stance_foot: str = "foot_1", swing_foot: str = "fo
     root = [i for i in range(5) if i not in (stance, swing)]
     if len(root) != 3:
         raise InputError(f"{robot.path}: feet {stance_foot!r} and {swing_foot!r} must hang from two different leg hinges")
+    # the root's motions at the neutral posture, in world axes at its joint: slide x, slide z, hinge about +y in order
+    # (taken by position, a file with z before x had its hip's x put into the z slide)
+    data, holder = model.createData(), next(j for j in range(1, model.njoints)
+                                            if model.idx_vs[j] <= root[2] < model.idx_vs[j] + model.nvs[j])
+    pin.computeJointJacobians(model, data, pin.neutral(model))
+    motions = pin.getJointJacobian(model, data, holder, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:, root]
+    if not np.allclose(motions, np.eye(6)[:, [0, 2, 4]], rtol=0.0, atol=1e-9):
+        raise InputError(f"{robot.path}: the gait needs the root joints in the order slide x (axis 1 0 0), slide z "
+                         f"(0 0 1), hinge about y (0 1 0); this file's are {', '.join(names[i] for i in root)}: "
+                         "reorder or re-axis them")
     return BipedLayout(x=root[0], z=root[1], torso=root[2], stance_hinge=stance, swing_hinge=swing,
                        stance_foot=stance_foot, swing_foot=swing_foot,
                        stance_motor=motors[stance], swing_motor=motors[swing])
@@ -450,6 +461,10 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         raise TaskError(f"gait.x0 lands its swing foot {abs(gap) * 1e3:.3g} mm {'below' if gap < 0 else 'above'} the ground "
                         f"(at Delta^-1(x0), the state before the impact): the impact map applies on the ground only; "
                         f"with legs of equal length theta1 of x0 must be -theta2 of x0")
+    hip = float(model.floating(x0[:3], x0[3:])[0][model.layout.z])
+    if hip <= 0:  # (|theta1| >= 90 deg: a stance leg above its hip "converged" in 100 s, to a ground that pulls)
+        raise TaskError(f"gait.x0 puts the hip {-hip * 1e3:.3g} mm below the ground (theta1 = {x0[0]:.6g} rad): the "
+                        "stance leg stands on its foot with |theta1| < pi/2")
     ocp = ocp or GaitOCP(model, spec)
     N = spec.N
     t, xd, ude = desired_curve(model, x0, xf, spec.T, N)
@@ -1126,10 +1141,11 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                         "hinge torques, which are the motor commands with gear 1 only; give the motors gear 1 (their "
                         "ctrlrange in N m)")
     if validate and spec.x0[3] <= 0:  # (the mirror of gait 1 converged, then its walk "fell" at once: exit 1)
-        raise TaskError(f"gait.x0 has the stance leg turning at {spec.x0[3]:g} rad/s: the gait walks towards -x, and "
-                        "the MuJoCo walk replays gaits that walk towards +x (theta1 increasing: its phase variable and "
-                        "its step count); mirror the task (negate x0, jump_angle and the initial state's x "
-                        "components) or do not validate (`planner gait --no-validate`)")
+        raise TaskError(f"gait.x0 has the stance leg turning at {spec.x0[3]:g} rad/s: "
+                        + ("the gait walks towards -x, and " if spec.x0[3] < 0 else "it does not walk forward, and ")
+                        + "the MuJoCo walk replays gaits that walk towards +x (theta1 increasing: its phase variable "
+                        "and its step count); mirror the task (negate x0, jump_angle and every initial q and v but z "
+                        "and its rate) or do not validate (`planner gait --no-validate`)")
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:

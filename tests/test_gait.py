@@ -257,6 +257,10 @@ def test_a_gait_towards_minus_x_is_not_walked(tmp_path):
     task.write_text(text.replace(x0, mirrored))
     with pytest.raises(TaskError, match=r"walks towards -x, .* mirror the task .*`planner gait --no-validate`"):
         run_gait("biped", task, None)
+    still = tmp_path / "still.toml"  # a stance leg that does not turn walks nowhere, not towards -x
+    still.write_text(text.replace(x0, x0.replace(", 0.8726646259971648,", ", 0.0,")))
+    with pytest.raises(TaskError, match=r"turning at 0 rad/s: it does not walk forward, .* but z and its rate\)"):
+        run_gait("biped", still, None)
 
 
 def test_desired_curve_meets_the_boundary_states_and_is_differentiated(biped):
@@ -639,3 +643,32 @@ def test_a_foot_that_is_not_on_a_motor_driven_leg_is_named(robot):
     # an unknown point is said of its [gait] key, as the task's other names are
     with pytest.raises(InputError, match=r"^gait.swing: unknown point 'foot_3'; valid points: "):
         find_layout(robot, "foot_1", "foot_3")
+
+
+def test_a_gait_whose_hip_starts_below_the_ground_is_refused(biped):
+    """x0 with |theta1| >= pi/2 (the jump angle 1.6 rad: the stance leg points up from its foot, the hip below the
+    ground) is refused before the solve, naming the hip's depth (it "converged" in 27 s to a ground that pulls with
+    4168 N, session 58's tester)."""
+    from planner.gait import solve_gait
+
+    spec = GaitSpec.from_task(load_task(ROBOTS_DIR / "biped_gait1.toml"), N=20)
+    x0 = np.array([-1.6, 1.6, 0.3, 0.8, 0.0, 1.5])
+    with pytest.raises(TaskError, match=r"gait.x0 puts the hip [0-9.]+ mm below the ground \(theta1 = -1.6 rad\)"):
+        solve_gait(biped, dataclasses.replace(spec, x0=x0, jump_angle=1.6))
+
+
+@pytest.mark.parametrize("order", [("z", "x", "torso"), ("torso", "x", "z")])
+def test_a_biped_whose_root_joints_are_in_another_order_is_refused(tmp_path, order):
+    """The gait reads the root's three degrees of freedom as slide x, slide z, hinge about y in that order: a file
+    whose root joints come in another order is refused naming them (its hint put the hip's x into the z slide, and the
+    task that followed it was refused with a swing foot 541 mm below the ground, session 58's tester)."""
+    text = (ROBOTS_DIR / "biped.xml").read_text()
+    joints = {name: re.search(rf'<joint name="{name}"[^>]*/>', text).group(0) for name in ("x", "z", "torso")}
+    for k, name in enumerate(joints):
+        text = text.replace(joints[name], f"@{k}@")
+    for k, name in enumerate(order):
+        text = text.replace(f"@{k}@", joints[name])
+    path = tmp_path / "biped_reordered.xml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=rf"root joints in the order slide x .* this file's are {', '.join(order)}: "):
+        find_layout(load_robot(path))
