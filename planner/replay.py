@@ -79,6 +79,7 @@ _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWAR
 HOLE_PASS_METRIC = 0.25
 HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated, at least
 HOLE_MAX_SUBSAMPLES = 2000  # and at most (a step's travel of 500 quarter half-axes of the narrowest hole)
+HOLE_ZOOM = 20  # beyond that, the closest sample's neighbourhood again at 20 times finer spacing, until fine enough
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
 # MuJoCo's timestep range for the validation [s]: a replay of T seconds takes T / timestep steps (1e-9 s: 1.5e9
 # samples, out of memory), and above 10 ms the one-step penetration v * timestep is centimetres
@@ -1020,7 +1021,8 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
     a hole may leave it in the first step): the OCP keeps the points out of the holes at its nodes only, so a hole
     narrower than a step's travel can be crossed between two (a plan went through an 8 cm wide, 100 m tall one).
     Each step is evaluated at HOLE_SUBSAMPLES points, more where the points travel farther than a quarter of the
-    narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES). KinematicReport's hole fields; empty without holes."""
+    narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES; beyond, the neighbourhood of the step's closest point is
+    searched HOLE_ZOOM times finer until it is). KinematicReport's hole fields; empty without holes."""
     holes = task.plan.holes if task is not None and task.plan is not None else ()
     points = list(dict.fromkeys(c.point for c in task.contacts)) if holes else []  # touches = false too, as in the OCP
     if not points:
@@ -1041,14 +1043,25 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
     worst = (math.inf, None, None, None, False)
     for i in range(t.size - 1):
         end = xz(q[i + 1])
-        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * np.abs(end - start).max() / finest))))
-        for s in np.linspace(0.0, 1.0, n + 1)[1:]:  # sample i + 1 included, sample i is the previous step's
-            m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
-            if i == 0:
-                m = np.where(inside_at_start, np.inf, m)
-            j = np.unravel_index(int(np.argmin(m)), m.shape)
-            if m[j] < worst[0]:
-                worst = (float(m[j]), points[j[0]], int(j[1]), float(t[i] + s * (t[i + 1] - t[i])), bool(s == 1.0))
+        needed = math.ceil(4.0 * np.abs(end - start).max() / finest)
+        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, needed)))
+        grid, step_best = np.linspace(0.0, 1.0, n + 1)[1:], (math.inf, 1.0)  # sample i + 1 in, i is the last step's
+        while True:
+            for s in grid:
+                m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
+                if i == 0:
+                    m = np.where(inside_at_start, np.inf, m)
+                j = np.unravel_index(int(np.argmin(m)), m.shape)
+                step_best = min(step_best, (float(m[j]), s))
+                if m[j] < worst[0]:
+                    worst = (float(m[j]), points[j[0]], int(j[1]), float(t[i] + s * (t[i + 1] - t[i])), bool(s == 1.0))
+            if needed <= n:
+                break
+            # the cap left samples farther apart than a quarter of the narrowest half-axis (a 2 um wall was crossed
+            # unseen between two 60 um apart): zoom in around the step's closest sample, HOLE_ZOOM times finer
+            spacing = grid[1] - grid[0] if grid.size > 1 else 1.0
+            grid = np.clip(step_best[1] + spacing * np.linspace(-1.0, 1.0, 2 * HOLE_ZOOM + 1), 0.0, 1.0)
+            n *= HOLE_ZOOM
         start = end
     keys = ("min_hole_metric", "hole_point", "hole_index", "hole_time_s", "hole_at_sample")
     return dict(zip(keys, worst)) if worst[1] else {}

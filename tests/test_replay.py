@@ -720,6 +720,10 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
         assert crossed.kinematic.min_hole_metric < 0.25 and crossed.kinematic.hole_index == 0
         assert any("'point' goes through plan.holes[0] near t = 0.05" in f for f in crossed.failures), crossed.failures
         assert any("between the plan's nodes, which alone the OCP keeps out of holes" in f for f in crossed.failures)
+    # a 4 um wall off the sub-sampling grid: the 2000 sub-samples of the 0.5 m step, 0.25 mm apart, went past it
+    # (metric 1.0, "outside"; session 58's tester), the closest one's neighbourhood is now searched finer
+    thin = validation(0.26251, 2e-6)
+    assert thin.kinematic.min_hole_metric < 0.25 and any("goes through plan.holes[0]" in f for f in thin.failures)
     beside = validation(2.0)
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
     assert not any("goes through" in f for f in beside.failures)
