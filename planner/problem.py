@@ -468,6 +468,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     step_fn = ca.Function("step", [z, P], [step.g, step.objective], ["z", "p"], ["g", "cost"])
     y_prev = ca.SX.sym("y_0", ny) if periodic else ca.DM(y0)
     x_parts = [y_prev] if periodic else []
+    if periodic:
+        _free_start_rows(g_parts, path_fn, y_prev, hole_scale)
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
         sk = ca.SX.sym(f"s_{k}") if timed else 1.0
@@ -783,6 +785,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     if periodic:
         y_prev = ca.SX.sym("y_0", ny)
         x_parts, names = [y_prev], [f"{nm}_0" for nm in system.state_names]
+        _free_start_rows(g_parts, path_fn, y_prev, hole_scale)
     control_cost, selector_cost, equilibration = 0, 0, 0
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
@@ -1003,6 +1006,15 @@ def plane_gap(dyn: Dynamics, contact, q, ground: float):
     s = plane_axes(contact.normal)[0]
     p = dyn.point_position(contact.point)(q)
     return s[0] * p[0] + s[1] * p[1] + s[2] * p[2] - s[2] * ground
+
+
+def _free_start_rows(g_parts: dict, path_fn: dict, y_0, hole_scale) -> None:
+    """A periodic plan's start y_0 is a variable, which the task's checks of initial.q do not see: the rows that keep the
+    nodes 1..N above the ground, out of the holes and off the ground (touches = false) hold it too (a periodic point
+    mass started inside a hole, exit 0, session 58's tester)."""
+    for name in ("above_ground", "holes", "never_touching"):
+        if path_fn[name] is not None:
+            g_parts[name].append(path_fn[name](y_0, *((hole_scale,) if name == "holes" else ())))
 
 
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
