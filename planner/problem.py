@@ -1009,9 +1009,9 @@ def plane_gap(dyn: Dynamics, contact, q, ground: float):
 
 
 def _free_start_rows(g_parts: dict, path_fn: dict, y_0, hole_scale) -> None:
-    """A periodic plan's start y_0 is a variable, which the task's checks of initial.q do not see: the rows that keep the
-    nodes 1..N above the ground, out of the holes and off the ground (touches = false) hold it too (a periodic point
-    mass started inside a hole, exit 0, session 58's tester)."""
+    """A periodic plan's start y_0 is a variable, which the task's checks of initial.q do not see: the rows that keep
+    the nodes 1..N above the ground, out of the holes and off the ground (touches = false) hold it too (a periodic
+    point mass started inside a hole, exit 0, session 58's tester)."""
     for name in ("above_ground", "holes", "never_touching"):
         if path_fn[name] is not None:
             g_parts[name].append(path_fn[name](y_0, *((hole_scale,) if name == "holes" else ())))
