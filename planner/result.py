@@ -640,6 +640,9 @@ class PlanResult(ArraysReadOnly):
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}"
                   + (f"; {r.note}" if r.note else "") for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)", self.extra.get("_task"))
+        # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
+        lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
+                  if " is out of reach " in reason]
         lines += _braked_lines(self.extra)
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")

@@ -258,3 +258,12 @@ def test_summary_carries_the_scene(point_mass):
     task = dataclasses.replace(slide_task(2), horizon=Horizon(tau_f=0.2, N=2))
     res = solve(build_problem(point_mass, task))
     assert res.summary()["scene"]["frictionless"] == ["point"]
+
+
+def test_the_report_names_the_holes_left_out(point_mass):
+    """A plan's report names each hole the scene analysis left out as out of reach (summary.json's scene listed them,
+    the run said nothing, session 58's tester); the hole in reach is not named."""
+    res = solve(build_problem(point_mass, holes_task(20)))
+    left = [line for line in res.report().splitlines() if line.startswith("  left out: ")]
+    assert [line.split(" at (x, z)")[0] for line in left] == ["  left out: point: hole 1", "  left out: point: hole 2"]
+    assert all("is out of reach (x in [-0.1, 0.6] m" in line for line in left), left
