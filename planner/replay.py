@@ -1072,8 +1072,11 @@ def hole_failure(kinematic: KinematicReport) -> str | None:
     k = kinematic
     if k.min_hole_metric is None or k.min_hole_metric >= HOLE_PASS_METRIC:
         return None
+    metric = f"{k.min_hole_metric:.3g}"
+    if float(metric) >= HOLE_PASS_METRIC:  # (0.24999977 read "metric 0.25 < 0.25")
+        metric = f"{k.min_hole_metric:.9g}"
     where = (f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse "
-             f"metric {k.min_hole_metric:.3g} < {HOLE_PASS_METRIC})")
+             f"metric {metric} < {HOLE_PASS_METRIC})")
     if k.hole_at_sample:  # (the grid was blamed for a node the OCP itself keeps out: an edited or unconverged plan)
         return (f"{where} at a sample of the trajectory: the plan's own node is inside the hole, which a converged "
                 "plan's hole rows forbid")

@@ -757,6 +757,8 @@ def test_hole_failure_threshold_is_the_holes_inner_half():
     assert through is not None and through.startswith(
         "'point' goes through plan.holes[0] near t = 0.05 s (ellipse metric 0.1 < 0.25)"), through
     assert replay.hole_failure(_kinematic_with_hole_reach(0.5)) is None
+    # just inside the limit: shown with the digits that tell it from the limit (it read "metric 0.25 < 0.25")
+    assert "(ellipse metric 0.24999977 < 0.25)" in replay.hole_failure(_kinematic_with_hole_reach(0.24999977))
     assert replay.hole_failure(_kinematic_with_hole_reach(None)) is None
 
 
