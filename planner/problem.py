@@ -25,6 +25,7 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     holes                             each contact point outside each ellipse (scaled by r), without
                                       the pairs the scene analysis finds out of reach (planner.scene)
     never_touching                    gap >= 0 of each contact with touches = false (planner.scene)
+    above_ground_y0, holes_y0, never_touching_y0 (1, m): the same at y_0 where it is free (plan.periodic)
     friction_cone                     P_DAE(sigma) (mu lambda_n -+ lambda_t) >= 0 (see below)
     impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
     velocity_bounds                   task.plan.velocity_bounds (sums of joint velocities) at y_1 .. y_N
@@ -468,8 +469,6 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     step_fn = ca.Function("step", [z, P], [step.g, step.objective], ["z", "p"], ["g", "cost"])
     y_prev = ca.SX.sym("y_0", ny) if periodic else ca.DM(y0)
     x_parts = [y_prev] if periodic else []
-    if periodic:
-        _free_start_rows(g_parts, path_fn, y_prev, hole_scale)
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
         sk = ca.SX.sym(f"s_{k}") if timed else 1.0
@@ -514,6 +513,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         rows.add(name, g_parts[name], 0.0, 0.0)
     for name in ("above_ground", "holes", "never_touching", "friction_cone", "impact_cone"):
         rows.add(name, g_parts[name], 0.0, np.inf)
+    if periodic:
+        _free_start_rows(rows, path_fn, X[var_blocks["y0"]], hole_scale)
     _velocity_bounds(rows, robot, task, nq, [[X[var_blocks["y"][k]]] for k in range(N)],
                      X[var_blocks["y0"]] if periodic else None)
     term_res = _terminal(rows, robot, task, options, X, var_blocks, y0)
@@ -785,7 +786,6 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     if periodic:
         y_prev = ca.SX.sym("y_0", ny)
         x_parts, names = [y_prev], [f"{nm}_0" for nm in system.state_names]
-        _free_start_rows(g_parts, path_fn, y_prev, hole_scale)
     control_cost, selector_cost, equilibration = 0, 0, 0
     for k in range(N):
         uk = ca.SX.sym(f"u_{k}", nu)
@@ -874,6 +874,8 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
         rows.add(name, g_parts[name], 0.0, 0.0)
     for name in at_bounds + at_stages:
         rows.add(name, g_parts[name], 0.0, np.inf)
+    if periodic:
+        _free_start_rows(rows, path_fn, X[var_blocks["y0"]], hole_scale)
     _velocity_bounds(rows, robot, task, nq, [[X[Yi[k, e, -1]] for e in range(n_fe)] for k in range(N)],
                      X[var_blocks["y0"]] if periodic else None)
     term_res = _terminal(rows, robot, task, options, X, var_blocks, y0)
@@ -1008,13 +1010,13 @@ def plane_gap(dyn: Dynamics, contact, q, ground: float):
     return s[0] * p[0] + s[1] * p[1] + s[2] * p[2] - s[2] * ground
 
 
-def _free_start_rows(g_parts: dict, path_fn: dict, y_0, hole_scale) -> None:
-    """A periodic plan's start y_0 is a variable, which the task's checks of initial.q do not see: the rows that keep
-    the nodes 1..N above the ground, out of the holes and off the ground (touches = false) hold it too (a periodic
-    point mass started inside a hole, exit 0, session 58's tester)."""
+def _free_start_rows(rows: _Rows, path_fn: dict, y_0, hole_scale) -> None:
+    """Blocks above_ground_y0, holes_y0, never_touching_y0 (1, m): a periodic plan's start y_0 is a variable, which the
+    task's checks of initial.q do not see, held as the nodes are (a periodic point mass started inside a hole, exit
+    0, session 58's tester); blocks of their own, as a FESD step's rows are per element."""
     for name in ("above_ground", "holes", "never_touching"):
         if path_fn[name] is not None:
-            g_parts[name].append(path_fn[name](y_0, *((hole_scale,) if name == "holes" else ())))
+            rows.add(f"{name}_y0", [path_fn[name](y_0, *((hole_scale,) if name == "holes" else ()))], 0.0, np.inf)
 
 
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:

@@ -571,16 +571,20 @@ def test_an_elastic_never_touching_contact_is_refused_as_any(capler_small):
 
 
 def test_a_periodic_plans_free_start_stays_out_of_the_holes():
-    """A periodic plan's start y_0 is a variable: the holes' rows hold it as they hold nodes 1..N (block holes
-    (N + 1, ...)), so the point mass whose initial guess stands in a hole starts its plan outside it (it started at
-    metric 0.36 inside, exit 0, session 58's tester)."""
+    """A periodic plan's start y_0 is a variable: the holes' rows hold it as they hold nodes 1..N (block holes_y0
+    (1, 1)), so the point mass whose initial guess stands in a hole starts its plan outside it (it started at metric
+    0.36 inside, exit 0, session 58's tester); FESD builds it too (one row at y_0 beside one per element crashed)."""
+    from planner.discretization import Discretization, FESDOptions
     from planner.homotopy import SolveOptions, solve
 
     task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.12]},
                        "horizon": {"tau_f": 1.0, "N": 20},
                        "plan": {"u_bound": 30.0, "holes": [{"x": 0.0, "a": 0.1, "b": 0.1}], "periodic": {"step": 0.5}}})
-    prob = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), task)
-    assert prob.g_blocks["holes"].size == 21
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    prob = build_problem(robot, task)
+    assert prob.g_blocks["holes"].shape == (20, 1) and prob.g_blocks["holes_y0"].shape == (1, 1)
+    fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
+    assert fesd.g_blocks["holes"].shape == (20, 2) and fesd.g_blocks["holes_y0"].shape == (1, 1)
     result = solve(prob, SolveOptions())
     assert result.stats.converged, result.stats.message
     x0, z0 = result.trajectory.q[0]
