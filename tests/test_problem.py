@@ -583,7 +583,8 @@ def test_a_periodic_plans_free_start_stays_out_of_the_holes():
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
     prob = build_problem(robot, task)
     assert prob.g_blocks["holes"].shape == (20, 1) and prob.g_blocks["holes_y0"].shape == (1, 1)
-    fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
+    fesd = build_problem(robot, task, ProblemOptions(discretization=Discretization.FESD,
+                                                     fesd=FESDOptions(n_s=1, n_fe=2)))
     assert fesd.g_blocks["holes"].shape == (20, 2) and fesd.g_blocks["holes_y0"].shape == (1, 1)
     result = solve(prob, SolveOptions())
     assert result.stats.converged, result.stats.message
