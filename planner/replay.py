@@ -631,9 +631,11 @@ class Validation(ArraysReadOnly):
             f"contacts agree on {k.samples * len(k.penetration_by_point_m) - k.contact_mismatches}/"
             f"{k.samples * len(k.penetration_by_point_m)} samples"
             + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
-               f"{k.min_hole_metric:.2f} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in holes[{k.hole_index}]"
+               f"{metric_text(k.min_hole_metric, '.2f')} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in "
+               f"holes[{k.hole_index}]"
                if k.min_hole_metric < 1.0 else  # outside every hole: "deepest into" and "in" read as an entry
-               f"; closest to a hole between samples: ellipse metric {k.min_hole_metric:.2f} (outside: rim 1), "
+               f"; closest to a hole between samples: ellipse metric {metric_text(k.min_hole_metric, '.2f')} "
+               "(outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
             + ("" if k.max_flight_residual is None else
                f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} over {k.flight_steps} flight "
@@ -1043,28 +1045,46 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
     worst = (math.inf, None, None, None, False)
     for i in range(t.size - 1):
         end = xz(q[i + 1])
-        needed = math.ceil(4.0 * np.abs(end - start).max() / finest)
-        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, needed)))
-        grid, step_best = np.linspace(0.0, 1.0, n + 1)[1:], (math.inf, 1.0)  # sample i + 1 in, i is the last step's
-        while True:
-            for s in grid:
+        travel = np.abs(end - start).max()
+
+        def closest(grid) -> np.ndarray:  # (points, holes) s of each pair's smallest metric over grid, worst updated
+            nonlocal worst
+            best, at = np.full((len(points), len(holes)), np.inf), np.ones((len(points), len(holes)))
+            for s in grid:  # sample i + 1 included, sample i is the previous step's
                 m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
                 if i == 0:
                     m = np.where(inside_at_start, np.inf, m)
                 j = np.unravel_index(int(np.argmin(m)), m.shape)
-                step_best = min(step_best, (float(m[j]), s))
                 if m[j] < worst[0]:
                     worst = (float(m[j]), points[j[0]], int(j[1]), float(t[i] + s * (t[i + 1] - t[i])), bool(s == 1.0))
-            if needed <= n:
-                break
-            # the cap left samples farther apart than a quarter of the narrowest half-axis (a 2 um wall was crossed
-            # unseen between two 60 um apart): zoom in around the step's closest sample, HOLE_ZOOM times finer
-            spacing = grid[1] - grid[0] if grid.size > 1 else 1.0
-            grid = np.clip(step_best[1] + spacing * np.linspace(-1.0, 1.0, 2 * HOLE_ZOOM + 1), 0.0, 1.0)
-            n *= HOLE_ZOOM
+                closer = m < best
+                best, at = np.where(closer, m, best), np.where(closer, s, at)
+            return at
+
+        n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * travel / finest))))
+        at = closest(np.linspace(0.0, 1.0, n + 1)[1:])
+        # the cap left samples farther apart than a quarter of a hole's narrower half-axis (a 2 um wall was crossed
+        # unseen between two 60 um apart): zoom in around each pair's own closest sample, HOLE_ZOOM times finer
+        for h, e in enumerate(holes):
+            needed = math.ceil(4.0 * travel / min(e.a, e.b))
+            for k in range(len(points)):
+                s_k, level = at[k, h], n
+                while level < needed:
+                    s_k = closest(np.clip(s_k + np.linspace(-1.0, 1.0, 2 * HOLE_ZOOM + 1) / level, 0.0, 1.0))[k, h]
+                    level *= HOLE_ZOOM
         start = end
     keys = ("min_hole_metric", "hole_point", "hole_index", "hole_time_s", "hole_at_sample")
     return dict(zip(keys, worst)) if worst[1] else {}
+
+
+def metric_text(metric: float, first: str) -> str:
+    """An ellipse metric in the format `first`, or with more digits where that one rounds it across HOLE_PASS_METRIC
+    (0.2451 read "0.25 (limit 0.25)", 0.24999977 "0.25 < 0.25")."""
+    for spec in (first, ".6g", ".9g", ".17g"):
+        text = format(metric, spec)
+        if (float(text) < HOLE_PASS_METRIC) == (metric < HOLE_PASS_METRIC):
+            return text
+    return repr(metric)
 
 
 def hole_failure(kinematic: KinematicReport) -> str | None:
@@ -1072,11 +1092,8 @@ def hole_failure(kinematic: KinematicReport) -> str | None:
     k = kinematic
     if k.min_hole_metric is None or k.min_hole_metric >= HOLE_PASS_METRIC:
         return None
-    metric = f"{k.min_hole_metric:.3g}"
-    if float(metric) >= HOLE_PASS_METRIC:  # (0.24999977 read "metric 0.25 < 0.25")
-        metric = f"{k.min_hole_metric:.9g}"
     where = (f"{k.hole_point!r} goes through plan.holes[{k.hole_index}] near t = {k.hole_time_s:.4g} s (ellipse "
-             f"metric {metric} < {HOLE_PASS_METRIC})")
+             f"metric {metric_text(k.min_hole_metric, '.3g')} < {HOLE_PASS_METRIC})")
     if k.hole_at_sample:  # (the grid was blamed for a node the OCP itself keeps out: an edited or unconverged plan)
         return (f"{where} at a sample of the trajectory: the plan's own node is inside the hole, which a converged "
                 "plan's hole rows forbid")
