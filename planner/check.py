@@ -463,11 +463,18 @@ def _body_masses(robot: Robot, mj) -> list[str]:
         j = model.frames[model.getFrameId(body)].parentJoint
         mass[j] += mj.body_mass[b]
         names[j].append(body)
+    root = ET.parse(robot.path).getroot()
+    compilers = list(root.iter("compiler"))
+    if any(float(c.get("settotalmass", -1)) > 0 for c in compilers):
+        return []  # (named: MuJoCo rescales every mass; "give those bodies an <inertial>" was wrong advice, review)
+    weighed = {b.get("name") for b in root.iter("body") if b.find("inertial") is None}
+    geometric = any(c.get("inertiafromgeom") == "true" for c in compilers)
     apart = [f"{'+'.join(names[j])} {mass[j]:.6g} kg in MuJoCo, {model.inertias[j].mass:.6g} kg in Pinocchio"
-             for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE]
+             for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE
+             and (geometric or weighed.intersection(names[j]))]
     if not apart:
         return []
-    if any(c.get("inertiafromgeom") == "true" for c in ET.parse(robot.path).getroot().iter("compiler")):
+    if geometric:
         return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> MuJoCo weighs the geoms "
                 "instead of every <inertial>, which Pinocchio's parser reads; remove it"]
     return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser "
