@@ -242,13 +242,34 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
     'x'")."""
     first = next((i for i, a in enumerate(argv) if a in parser.subcommands), 0)
     early = argv[:first]
-    if any(a not in parser._option_string_actions for a in early):
+    if early and _options_of(parser.subcommands[argv[first]], early, set(parser._option_string_actions)):
         parser.subcommands[argv[first]].error(
             f"{' '.join(early)} goes after the command: planner {argv[first]} ... {' '.join(early)}")
     args, extra = parser.parse_known_args(argv)
     if extra:
         parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     return args
+
+
+def _options_of(command: argparse.ArgumentParser, tokens: list[str], top: set[str]) -> bool:
+    """Whether tokens given before `command` are options of it with their values (`--out x`, `-qv`) besides the
+    top-level ones, and nothing else: an unknown option or a stray word is argparse's to refuse (`--bogus` was told to
+    go after the command, and `plna x --out simulate` that `plna` did)."""
+    known, rest, mine = command._option_string_actions, list(tokens), False
+    while rest:
+        token = rest.pop(0)
+        key = token.split("=", 1)[0]
+        if key in top:
+            continue
+        if key in known:
+            mine = True
+            if known[key].nargs != 0 and "=" not in token and rest:
+                rest.pop(0)  # its value
+        elif key.startswith("-") and not key.startswith("--") and all(f"-{c}" in known for c in key[1:]):
+            mine = True  # combined short flags
+        else:
+            return False
+    return mine
 
 
 def main(argv: list[str] | None = None) -> int:

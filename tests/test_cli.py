@@ -66,6 +66,10 @@ def test_check_model_json_contract():
         (["--out", "x", "plan", "point_mass"],
          "planner plan: error: --out x goes after the command: planner plan ... --out x"),
         (["-qv", "simulate", "point_mass"], "planner simulate: error: -qv goes after the command"),
+        # only options of the command are said to go after it (review: --bogus, and a typo of the command before an
+        # --out named like a command, were)
+        (["--bogus", "plan", "point_mass"], "planner plan: error: unrecognized arguments: --bogus"),
+        (["plna", "point_mass", "--out", "simulate"], "invalid choice: 'plna'"),
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),
