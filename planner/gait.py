@@ -1144,8 +1144,10 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         raise TaskError(f"gait.x0 has the stance leg turning at {spec.x0[3]:g} rad/s: "
                         + ("the gait walks towards -x, and " if spec.x0[3] < 0 else "it does not walk forward, and ")
                         + "the MuJoCo walk replays gaits that walk towards +x (theta1 increasing: its phase variable "
-                        "and its step count); mirror the task (negate x0, jump_angle and every initial q and v but z "
-                        "and its rate) or do not validate (`planner gait --no-validate`)")
+                        "and its step count); "
+                        + ("mirror the task (negate x0, jump_angle and every initial q and v but z and its rate)"
+                           if spec.x0[3] < 0 else "give the stance leg a rate theta1' > 0")
+                        + " or do not validate (`planner gait --no-validate`)")
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:
