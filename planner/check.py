@@ -458,9 +458,9 @@ def _body_masses(robot: Robot, mj) -> list[str]:
     model, mass, names = robot.model, np.zeros(robot.model.njoints), [[] for _ in range(robot.model.njoints)]
     for b in range(1, mj.nbody):
         body = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_BODY, b)
-        if body is None or not model.existFrame(body):
+        if body is None or not model.existFrame(body, pin.FrameType.BODY):  # (a site may share its body's name)
             return []  # (bodies not matched by name: no per-body comparison)
-        j = model.frames[model.getFrameId(body)].parentJoint
+        j = model.frames[model.getFrameId(body, pin.FrameType.BODY)].parentJoint
         mass[j] += mj.body_mass[b]
         names[j].append(body)
     root = ET.parse(robot.path).getroot()
@@ -469,17 +469,26 @@ def _body_masses(robot: Robot, mj) -> list[str]:
         return []  # (named: MuJoCo rescales every mass; "give those bodies an <inertial>" was wrong advice, review)
     weighed = {b.get("name") for b in root.iter("body") if b.find("inertial") is None}
     geometric = any(c.get("inertiafromgeom") == "true" for c in compilers)
-    apart = [f"{'+'.join(names[j])} {mass[j]:.6g} kg in MuJoCo, {model.inertias[j].mass:.6g} kg in Pinocchio"
+    apart = [f"{'+'.join(names[j])} {_apart(mass[j], model.inertias[j].mass)}"
              for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE
              and (geometric or weighed.intersection(names[j]))]
     if not apart:
         return []
     if geometric:
-        return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> MuJoCo weighs the geoms "
-                "instead of every <inertial>, which Pinocchio's parser reads; remove it"]
+        return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> both weigh every body by "
+                "its geoms instead of its <inertial>, Pinocchio's parser only by the geoms that collide (contype or "
+                "conaffinity nonzero); remove it and give each body an <inertial>"]
     return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser "
             "only by the geoms that collide (contype or conaffinity nonzero) and without a <default>'s geom mass; give "
             "those bodies an <inertial>"]
+
+
+def _apart(mujoco_kg: float, pinocchio_kg: float) -> str:
+    """The two masses with the digits that tell them apart (a mesh's float32 volume read "1 kg in MuJoCo, 1 kg")."""
+    for spec in (".6g", ".9g", ".12g", ".17g"):
+        if format(mujoco_kg, spec) != format(pinocchio_kg, spec):
+            break
+    return f"{mujoco_kg:{spec}} kg in MuJoCo, {pinocchio_kg:{spec}} kg in Pinocchio"
 
 
 AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize

@@ -240,11 +240,12 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
     error: unrecognized arguments" and pointed at its own --help, which lists no subcommand's options; what is given
     before the command, other than the top-level options, is said to go after it (`--out x plan` was "invalid choice:
     'x'")."""
-    first = next((i for i, a in enumerate(argv) if a in parser.subcommands), 0)
-    early = argv[:first]
-    if early and _options_of(parser.subcommands[argv[first]], early, set(parser._option_string_actions)):
-        parser.subcommands[argv[first]].error(
-            f"{' '.join(early)} goes after the command: planner {argv[first]} ... {' '.join(early)}")
+    top = set(parser._option_string_actions)
+    for first in (i for i, a in enumerate(argv) if i and a in parser.subcommands):  # (a value may be named like one)
+        early = argv[:first]
+        if _options_of(parser.subcommands[argv[first]], early, top):
+            parser.subcommands[argv[first]].error(
+                f"{' '.join(early)} goes after the command: planner {argv[first]} ... {' '.join(early)}")
     args, extra = parser.parse_known_args(argv)
     if extra:
         parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
@@ -263,7 +264,9 @@ def _options_of(command: argparse.ArgumentParser, tokens: list[str], top: set[st
             continue
         if key in known:
             mine = True
-            if known[key].nargs != 0 and "=" not in token and rest:
+            if known[key].nargs != 0 and "=" not in token:
+                if not rest:
+                    return False  # (its value is the command's name: `--out plan plan x` lost it)
                 rest.pop(0)  # its value
         elif key.startswith("-") and not key.startswith("--") and all(f"-{c}" in known for c in key[1:]):
             mine = True  # combined short flags

@@ -19,7 +19,7 @@ complementarity penalty or relaxation; `planner.simulate` does the same for one 
 """
 from __future__ import annotations
 
-import numbers
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -157,20 +157,27 @@ class ImplicitEulerStep:
 
     def __init__(self, system: TimeFreezingSystem, rho_f: float = 1.0, switch_scale=None, form: StepForm = StepForm.EXPLICIT,
                  velocity_switch: SwitchVelocity = SwitchVelocity.POINT, lift_products: bool = True):
-        if not isinstance(rho_f, numbers.Real) or not rho_f >= 0:  # (rho_f = "1" was the comparison's TypeError)
-            raise InputError(f"rho_f must be a number >= 0, got {shown(rho_f)}")
+        try:  # (a numpy 0-d array or a Decimal are numbers; rho_f = "1" was the comparison's TypeError)
+            rho = float(rho_f) if not isinstance(rho_f, (str, bytes, bool)) else math.nan
+        except (TypeError, ValueError):
+            rho = math.nan
+        if not 0 <= rho < math.inf:
+            raise InputError(f"rho_f must be a finite number >= 0, got {shown(rho_f)}")
         if not isinstance(lift_products, bool):
             raise InputError(f"lift_products must be True or False, got {shown(lift_products)}")
         form = enum_member(form, StepForm, "form")
         velocity_switch = enum_member(velocity_switch, SwitchVelocity, "velocity_switch")
-        self.system, self.rho_f, self.form, self.velocity_switch = system, float(rho_f), form, velocity_switch
+        self.system, self.rho_f, self.form, self.velocity_switch = system, rho, form, velocity_switch
         self._secant = _secant_rows(system) if velocity_switch is SwitchVelocity.SECANT else None
         self._gaps = _gap_rows(system) if velocity_switch is SwitchVelocity.COLLOCATED else None
         self.mm = system.mass_matrix_form() if form is StepForm.MASS_MATRIX else None
         # forces: MASS_MATRIX the form's z; EXPLICIT with several contacts the contact forces lambda
         nz = self.mm.nz if self.mm is not None else system.n_lambda
         n = system.n_sigma
-        self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).ravel()
+        try:
+            self.switch_scale = np.ones(n) if switch_scale is None else np.asarray(switch_scale, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise InputError(f"switch_scale must be {n} numbers > 0, got {shown(switch_scale)}") from None
         if self.switch_scale.shape != (n,):  # (numpy's reshape error named no argument)
             raise InputError(f"switch_scale must have one entry per switching function ({n}), got {self.switch_scale.size}")
         if not np.all(np.isfinite(self.switch_scale) & (self.switch_scale > 0)):

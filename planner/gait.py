@@ -436,6 +436,15 @@ class GaitOCP:
 LANDING_GAP_M = 1e-6
 
 
+def _check_hip(model: PinnedBiped, x0: np.ndarray) -> None:
+    """TaskError when x0 (6,) puts the hip at or below the ground: |theta1| >= pi/2, a stance leg above its hip, had
+    "converged" in 100 s to a ground that pulls."""
+    hip = float(model.floating(x0[:3], x0[3:])[0][model.layout.z])
+    if not hip > 0:
+        raise TaskError(f"gait.x0 puts the hip at or below the ground (z = {hip * 1e3:.3g} mm, theta1 = "
+                        f"{x0[0]:.6g} rad): the stance leg stands on its foot with |theta1| < pi/2")
+
+
 def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop], None] | None = None,
                ocp: GaitOCP | None = None) -> GaitSolution:
     """Paper 001's strategy for x(T) = Delta^-1(x0) (Sec. 3, Algorithms 1 and 2) with PRONTO.
@@ -461,10 +470,7 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         raise TaskError(f"gait.x0 lands its swing foot {abs(gap) * 1e3:.3g} mm {'below' if gap < 0 else 'above'} the ground "
                         f"(at Delta^-1(x0), the state before the impact): the impact map applies on the ground only; "
                         f"with legs of equal length theta1 of x0 must be -theta2 of x0")
-    hip = float(model.floating(x0[:3], x0[3:])[0][model.layout.z])
-    if hip <= 0:  # (|theta1| >= 90 deg: a stance leg above its hip "converged" in 100 s, to a ground that pulls)
-        raise TaskError(f"gait.x0 puts the hip {-hip * 1e3:.3g} mm below the ground (theta1 = {x0[0]:.6g} rad): the "
-                        "stance leg stands on its foot with |theta1| < pi/2")
+    _check_hip(model, x0)
     ocp = ocp or GaitOCP(model, spec)
     N = spec.N
     t, xd, ude = desired_curve(model, x0, xf, spec.T, N)
@@ -1148,6 +1154,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                         + ("mirror the task (negate x0, jump_angle and every initial q and v but z and its rate)"
                            if spec.x0[3] < 0 else "give the stance leg a rate theta1' > 0")
                         + " or do not validate (`planner gait --no-validate`)")
+    _check_hip(model, spec.x0)  # (before the initial state's check, whose hint put the hip below the ground)
     q0, v0 = model.floating(spec.x0[:3], spec.x0[3:])
     v_init = np.zeros(robot.nv) if task.initial.v is None else np.array(task.initial.v)
     if np.max(np.abs(q0 - np.array(task.initial.q))) > 1e-6 or np.max(np.abs(v0 - v_init)) > 1e-6:

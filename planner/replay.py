@@ -1042,35 +1042,47 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
 
     start = xz(q[0])
     inside_at_start = metric(start) < 1.0
+    centre, half = np.array([(e.x, e.z) for e in holes]), np.array([(e.a, e.b) for e in holes])
     worst = (math.inf, None, None, None, False)
     for i in range(t.size - 1):
         end = xz(q[i + 1])
         travel = np.abs(end - start).max()
 
-        def closest(grid) -> np.ndarray:  # (points, holes) s of each pair's smallest metric over grid, worst updated
+        def closest(grid, pair=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Over the s of grid, updating worst: each (point, hole) pair's s of its smallest metric, its nearest
+            distance to the hole's bounding box [m] and each point's largest move between two s [m]; pair: that
+            (point, hole) pair's alone (the others inf)."""
             nonlocal worst
-            best, at = np.full((len(points), len(holes)), np.inf), np.ones((len(points), len(holes)))
-            for s in grid:  # sample i + 1 included, sample i is the previous step's
-                m = metric(end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]))
-                if i == 0:
-                    m = np.where(inside_at_start, np.inf, m)
-                j = np.unravel_index(int(np.argmin(m)), m.shape)
-                if m[j] < worst[0]:
-                    worst = (float(m[j]), points[j[0]], int(j[1]), float(t[i] + s * (t[i + 1] - t[i])), bool(s == 1.0))
-                closer = m < best
-                best, at = np.where(closer, m, best), np.where(closer, s, at)
-            return at
+            pos = np.array([end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]) for s in grid])  # (G, points, 2)
+            near, hop = None, None
+            if pair is None:
+                m = np.stack([e.metric(pos[..., 0], pos[..., 1]) for e in holes], axis=-1)  # (G, points, holes)
+                near = np.hypot(np.maximum(np.abs(pos[..., :1] - centre[:, 0]) - half[:, 0], 0.0),
+                                np.maximum(np.abs(pos[..., 1:] - centre[:, 1]) - half[:, 1], 0.0)).min(axis=0)
+                hop = np.linalg.norm(np.diff(pos, axis=0), axis=-1).max(axis=0, initial=0.0)
+            else:
+                m = np.full((len(grid), len(points), len(holes)), np.inf)
+                m[:, pair[0], pair[1]] = holes[pair[1]].metric(pos[:, pair[0], 0], pos[:, pair[0], 1])
+            if i == 0:
+                m = np.where(inside_at_start, np.inf, m)
+            g, k, h = np.unravel_index(int(np.argmin(m)), m.shape)
+            if m[g, k, h] < worst[0]:
+                s = grid[g]  # sample i + 1 included, sample i is the previous step's
+                worst = (float(m[g, k, h]), points[k], int(h), float(t[i] + s * (t[i + 1] - t[i])), bool(s == 1.0))
+            return np.asarray(grid)[np.argmin(m, axis=0)], near, hop
 
         n = int(min(HOLE_MAX_SUBSAMPLES, max(HOLE_SUBSAMPLES, math.ceil(4.0 * travel / finest))))
-        at = closest(np.linspace(0.0, 1.0, n + 1)[1:])
+        at, near, hop = closest(np.linspace(0.0, 1.0, n + 1)[1:])
         # the cap left samples farther apart than a quarter of a hole's narrower half-axis (a 2 um wall was crossed
-        # unseen between two 60 um apart): zoom in around each pair's own closest sample, HOLE_ZOOM times finer
+        # unseen between two 60 um apart): zoom in around each pair's own closest sample, HOLE_ZOOM times finer, where
+        # the point's path comes within two of its largest moves between samples of the hole's bounding box
         for h, e in enumerate(holes):
             needed = math.ceil(4.0 * travel / min(e.a, e.b))
             for k in range(len(points)):
                 s_k, level = at[k, h], n
-                while level < needed:
-                    s_k = closest(np.clip(s_k + np.linspace(-1.0, 1.0, 2 * HOLE_ZOOM + 1) / level, 0.0, 1.0))[k, h]
+                while level < needed and near[k, h] <= 2.0 * hop[k]:
+                    grid = np.clip(s_k + np.linspace(-1.0, 1.0, 2 * HOLE_ZOOM + 1) / level, 0.0, 1.0)
+                    s_k = closest(grid, (k, h))[0][k, h]
                     level *= HOLE_ZOOM
         start = end
     keys = ("min_hole_metric", "hole_point", "hole_index", "hole_time_s", "hole_at_sample")

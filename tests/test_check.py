@@ -481,6 +481,8 @@ SHANK_INERTIAL = '<inertial pos="0 0 -0.1" mass="0.548" diaginertia="0.0032 0.00
     # masses MuJoCo infers from geoms that collide with nothing: the check said only "mass 2.5e-01" (session 58)
     ([(SHANK_INERTIAL, "")], "body masses shank 0.0977161 kg in MuJoCo, 0 kg in Pinocchio: MuJoCo weighs a body "
                              "without <inertial> by its geoms"),
+    # a site named as its body: Pinocchio's frame lookup by name alone raised "Several frames match" (regression tester)
+    ([(SHANK_INERTIAL, '<site name="shank" pos="0 0 -0.05"/>')], "body masses shank 0.0977161 kg in MuJoCo"),
     ([('autolimits="true"', 'autolimits="true" inertiafromgeom="true"')],
      "body masses base 0.768 kg in MuJoCo, 0 kg in Pinocchio; thigh 0.155509 kg in MuJoCo, 0 kg in Pinocchio; shank "
      '0.0977161 kg in MuJoCo, 0 kg in Pinocchio: with <compiler inertiafromgeom="true">'),

@@ -70,6 +70,8 @@ def test_check_model_json_contract():
         # --out named like a command, were)
         (["--bogus", "plan", "point_mass"], "planner plan: error: unrecognized arguments: --bogus"),
         (["plna", "point_mass", "--out", "simulate"], "invalid choice: 'plna'"),
+        # an --out named like a command (it said "--out goes after ... --out", and blamed `view` for --out)
+        (["--out", "view", "plan", "point_mass"], "planner plan: error: --out view goes after the command"),
         # a replan's flags own these fields and set them after --solve, which was lost (or refused against the flag)
         (["plan", "point_mass", "--solve", '{"keep_schedule": true}'], "--solve: keep_schedule is set by --init DIR (held by default; --penalty-replan turns it off)"),
         (["plan", "point_mass", "--solve", '{"schedule_new_impacts": true}'], "set by --allow-new-impacts"),

@@ -160,9 +160,12 @@ def test_bad_step_arguments_are_refused():
     form are InputErrors naming the value; the form's value selects the member as the options' values do (a string
     used to build the explicit step silently; rho_f = "1" and a short switch_scale raised TypeError and numpy's
     ValueError)."""
-    for rho_f, shown_as in ((-1.0, "-1.0"), (float("nan"), "nan"), ("1", "'1'")):
-        with pytest.raises(InputError, match=f"rho_f must be a number >= 0, got {shown_as}"):
+    for rho_f, shown_as in ((-1.0, "-1.0"), (float("nan"), "nan"), ("1", "'1'"), (float("inf"), "inf")):
+        with pytest.raises(InputError, match=f"rho_f must be a finite number >= 0, got {shown_as}"):
             ImplicitEulerStep(system(), rho_f=rho_f)
+    assert ImplicitEulerStep(system(), rho_f=np.array(2.0)).rho_f == 2.0  # a number as numpy holds it (regression)
+    with pytest.raises(InputError, match=r"switch_scale must be 3 numbers > 0, got 'abc'"):
+        ImplicitEulerStep(system(), switch_scale="abc")
     with pytest.raises(InputError, match=r"switch_scale must have one entry per switching function \(3\), got 2"):
         ImplicitEulerStep(system(), switch_scale=[1.0, 1.0])
     for scale in ([1.0, 0.0, 1.0], [1.0, float("nan"), 1.0], [1.0, float("inf"), 1.0]):  # (nan, inf were accepted)

@@ -654,8 +654,24 @@ def test_a_gait_whose_hip_starts_below_the_ground_is_refused(biped):
 
     spec = GaitSpec.from_task(load_task(ROBOTS_DIR / "biped_gait1.toml"), N=20)
     x0 = np.array([-1.6, 1.6, 0.3, 0.8, 0.0, 1.5])
-    with pytest.raises(TaskError, match=r"gait.x0 puts the hip [0-9.]+ mm below the ground \(theta1 = -1.6 rad\)"):
+    with pytest.raises(TaskError, match=r"gait.x0 puts the hip at or below the ground \(z = -[0-9.]+ mm, theta1 = "
+                                        r"-1.6 rad\)"):
         solve_gait(biped, dataclasses.replace(spec, x0=x0, jump_angle=1.6))
+
+
+def test_the_hip_is_checked_before_the_initial_state(tmp_path):
+    """planner gait with x0 putting the hip below the ground and the task's initial state left as it was says so first
+    (the initial-state check came first, and its hint was the floating state with the hip below the ground)."""
+    from planner.gait import run_gait
+
+    text = (ROBOTS_DIR / "biped_gait1.toml").read_text()
+    x0 = "x0 = [-0.39269908169872414, 0.39269908169872414,"
+    assert text.count(x0) == 1 and text.count("jump_angle = 0.39269908169872414") == 1
+    task = tmp_path / "below.toml"
+    task.write_text(text.replace(x0, "x0 = [-1.7, 1.7,").replace("jump_angle = 0.39269908169872414",
+                                                                     "jump_angle = 1.7"))
+    with pytest.raises(TaskError, match=r"gait.x0 puts the hip at or below the ground"):
+        run_gait("biped", task, None)
 
 
 @pytest.mark.parametrize("order", [("z", "x", "torso"), ("torso", "x", "z")])
