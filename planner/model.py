@@ -328,7 +328,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
         if not hint and fmt is RobotFormat.MJCF and _main_class_undeclared(path):  # MuJoCo compiles it: no hint there
             hint = (" (the file uses class \"main\", MuJoCo's name of the top-level <default>, which Pinocchio's MJCF "
-                    "parser knows only when declared: write the top-level <default> as <default class=\"main\">)")
+                    "parser knows only when declared: write the top-level <default> as <default class=\"main\">, or "
+                    "add one if the file has none)")
         if not hint and fmt is RobotFormat.MJCF:  # MuJoCo names the element (an unknown class: "unordered_map::at")
             try:
                 _mujoco_model(path)
