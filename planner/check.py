@@ -338,7 +338,7 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
         out.append(f"fluid forces (<option> density {mj.opt.density:g}, viscosity {mj.opt.viscosity:g}, wind {np.round(mj.opt.wind, 9).tolist()})")
     if robot.format is RobotFormat.MJCF:  # (the mass gap alone was named, "masses MuJoCo rescales" among its causes)
         out += [f"<compiler settotalmass=\"{c.get('settotalmass')}\">: MuJoCo rescales the masses, Pinocchio does not"
-                for c in ET.parse(robot.path).getroot().iter("compiler") if float(c.get("settotalmass", -1)) > 0]
+                for c in _rescaling(ET.parse(robot.path).getroot())]
     lower, upper = robot.q_lower, robot.q_upper
     for j in range(mj.njnt):
         joint, i = name(mujoco.mjtObj.mjOBJ_JOINT, j), int(mj.jnt_qposadr[j])
@@ -446,10 +446,11 @@ def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
                     and all(err <= TOLERANCE for err in gaps["sites"].values()))
     if not measured or robot.format is not RobotFormat.MJCF:
         return []
-    return _body_masses(robot, mj) + _parser_gaps(ET.parse(robot.path).getroot())
+    root = ET.parse(robot.path).getroot()
+    return _body_masses(robot, mj, root) + _parser_gaps(root)
 
 
-def _body_masses(robot: Robot, mj) -> list[str]:
+def _body_masses(robot: Robot, mj, root: ET.Element) -> list[str]:
     """The bodies (by the joint that moves them, jointless ones welded to it) whose mass MuJoCo and Pinocchio read
     differently: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser only by those that collide
     (contype or conaffinity nonzero) and without a <default>'s geom mass (the check named a mass gap, and no body)."""
@@ -463,12 +464,10 @@ def _body_masses(robot: Robot, mj) -> list[str]:
         j = model.frames[model.getFrameId(body, pin.FrameType.BODY)].parentJoint
         mass[j] += mj.body_mass[b]
         names[j].append(body)
-    root = ET.parse(robot.path).getroot()
-    compilers = list(root.iter("compiler"))
-    if any(float(c.get("settotalmass", -1)) > 0 for c in compilers):
+    if _rescaling(root):
         return []  # (named: MuJoCo rescales every mass; "give those bodies an <inertial>" was wrong advice, review)
     weighed = {b.get("name") for b in root.iter("body") if b.find("inertial") is None}
-    geometric = any(c.get("inertiafromgeom") == "true" for c in compilers)
+    geometric = any(c.get("inertiafromgeom") == "true" for c in root.iter("compiler"))
     apart = [f"{'+'.join(names[j])} {_apart(mass[j], model.inertias[j].mass)}"
              for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE
              and (geometric or weighed.intersection(names[j]))]
@@ -481,6 +480,11 @@ def _body_masses(robot: Robot, mj) -> list[str]:
     return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser "
             "only by the geoms that collide (contype or conaffinity nonzero) and without a <default>'s geom mass; give "
             "those bodies an <inertial>"]
+
+
+def _rescaling(root: ET.Element) -> list[ET.Element]:
+    """The <compiler> elements with a settotalmass > 0: MuJoCo rescales every mass to it."""
+    return [c for c in root.iter("compiler") if float(c.get("settotalmass", -1)) > 0]
 
 
 def _apart(mujoco_kg: float, pinocchio_kg: float) -> str:

@@ -1424,10 +1424,11 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     """source: the label of the polishing NLP whose point x is (None: x is the homotopy's last point). relaxed (nx,):
     by how much IPOPT relaxed each variable's bounds for x (the message says when a bound's violation is that)."""
     polished = source is not None
-    parts, frozen_tol = problem.split(x), _frozen_tol(problem, options)
-    traj, W, nodes = plan_trajectory(problem, parts, frozen_tol)
+    frozen_tol = _frozen_tol(problem, options)
+    traj, elements, b = plan_trajectory(problem, problem.split(x), frozen_tol)
+    W, nodes = elements[3][:, -1], elements[1]  # each interval's end's algebraic variables (K, nw), the nodes (K+1, ny)
     # (the plan's cone rows bound the persistent forces only: a sliding step's auxiliary braking went unreported)
-    braked = braked_outside_cone(problem.system, problem.builder, *plan_elements(problem, parts), frozen_tol, traj)
+    braked = braked_outside_cone(problem.system, problem.builder, elements, b, frozen_tol, traj)
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
@@ -1490,13 +1491,12 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):
-    """The plan's Trajectory from problem.split(x), with the algebraic variables W (K, nw) of each
-    interval's end and the nodes Y (K+1, ny): implicit Euler K = N steps; FESD K = the N n_fe elements
-    less the collapsed ones (plan_elements)."""
+    """The plan's Trajectory from problem.split(x), with the intervals it was recovered from and their quadrature
+    weights (plan_elements): implicit Euler's N steps, FESD's N n_fe elements less the collapsed ones."""
     elements, b = plan_elements(problem, parts)
     traj = element_trajectory(problem.system, problem.builder, *elements, b, frozen_tol,
                               switch_at_start=problem.fesd is not None)
-    return traj, elements[3][:, -1], elements[1]
+    return traj, elements, b
 
 
 def plan_elements(problem: Problem, parts: dict) -> tuple[tuple, np.ndarray]:

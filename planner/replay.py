@@ -1023,8 +1023,8 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
     a hole may leave it in the first step): the OCP keeps the points out of the holes at its nodes only, so a hole
     narrower than a step's travel can be crossed between two (a plan went through an 8 cm wide, 100 m tall one).
     Each step is evaluated at HOLE_SUBSAMPLES points, more where the points travel farther than a quarter of the
-    narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES; beyond, the neighbourhood of the step's closest point is
-    searched HOLE_ZOOM times finer until it is). KinematicReport's hole fields; empty without holes."""
+    narrowest hole's half-axis (up to HOLE_MAX_SUBSAMPLES; beyond, each point's closest sample to each hole its path
+    comes near is searched HOLE_ZOOM times finer until it is). KinematicReport's hole fields; empty without holes."""
     holes = task.plan.holes if task is not None and task.plan is not None else ()
     points = list(dict.fromkeys(c.point for c in task.contacts)) if holes else []  # touches = false too, as in the OCP
     if not points:
@@ -1037,8 +1037,8 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
         pin.framesForwardKinematics(robot.model, data, qi)
         return np.array([data.oMf[f].translation[[0, 2]] for f in frames])
 
-    def metric(positions: np.ndarray) -> np.ndarray:  # (points, holes)
-        return np.stack([e.metric(positions[:, 0], positions[:, 1]) for e in holes], axis=1)
+    def metric(positions: np.ndarray) -> np.ndarray:  # (..., points, 2) -> (..., points, holes)
+        return np.stack([e.metric(positions[..., 0], positions[..., 1]) for e in holes], axis=-1)
 
     start = xz(q[0])
     inside_at_start = metric(start) < 1.0
@@ -1056,7 +1056,7 @@ def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -
             pos = np.array([end if s == 1.0 else xz((1.0 - s) * q[i] + s * q[i + 1]) for s in grid])  # (G, points, 2)
             near, hop = None, None
             if pair is None:
-                m = np.stack([e.metric(pos[..., 0], pos[..., 1]) for e in holes], axis=-1)  # (G, points, holes)
+                m = metric(pos)  # (G, points, holes)
                 near = np.hypot(np.maximum(np.abs(pos[..., :1] - centre[:, 0]) - half[:, 0], 0.0),
                                 np.maximum(np.abs(pos[..., 1:] - centre[:, 1]) - half[:, 1], 0.0)).min(axis=0)
                 hop = np.linalg.norm(np.diff(pos, axis=0), axis=-1).max(axis=0, initial=0.0)

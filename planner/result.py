@@ -588,13 +588,13 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     return hops
 
 
-
 def _braked_lines(extra: dict) -> list[str]:
     """The report's lines for extra["braked_outside_friction_cone"] (simulate.braked_outside_cone)."""
     return [f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in {brake['steps']} "
             f"running step(s) (up to {brake['max_tangential_N']:.4g} N {_cone_where(brake)}): a point sliding on its "
             "plane brakes at a_t / m whatever mu, with no impact and no lambda_t (docs/tasks.md)"
             for brake in extra.get("braked_outside_friction_cone", ())]
+
 
 @dataclass(frozen=True, eq=False)
 class PlanResult(ArraysReadOnly):
