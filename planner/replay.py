@@ -460,6 +460,11 @@ class KinematicReport(ArraysReadOnly):
     hole_index: int | None = None
     hole_time_s: float | None = None  # where on that path [s]
     hole_at_sample: bool = False  # there at a sample itself, not between two
+    # the contact points' deepest reach below the ground along the same path, at HOLE_SUBSAMPLES points a step
+    # (information: the OCP keeps them above it at its nodes only, and MuJoCo tracks that path), >= 0 [m]
+    max_penetration_between_m: float = 0.0
+    between_point: str | None = None
+    between_time_s: float | None = None
     # the plan's own dynamics on its flight steps (_flight_residual): the largest |M(q+) (v+ - v)/dt + h(q+, v+) - B u|
     # of a degree of freedom, relative to the largest of its terms on those steps; None without a flight step
     flight_steps: int = 0
@@ -637,6 +642,8 @@ class Validation(ArraysReadOnly):
                f"; closest to a hole between samples: ellipse metric {metric_text(k.min_hole_metric, '.2f')} "
                "(outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
+            + ("" if k.between_point is None else f"; between samples (q linear) {k.max_penetration_between_m * 1e3:.3f} mm "
+               f"under the ground, {k.between_point} at t = {k.between_time_s:.4g} s (information)")
             + ("" if k.max_flight_residual is None else
                f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} over {k.flight_steps} flight "
                f"steps to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
@@ -966,6 +973,7 @@ def _kinematic(scene: Scene, robot: Robot, t: np.ndarray, q: np.ndarray, tol: fl
         mismatch_times_s=tuple(float(x) for x in t[np.nonzero(mismatch.any(axis=1))[0][:10]]),
         max_site_disagreement_m=float(np.abs(height_mj - height_pin).max()) if C else 0.0,
         **_hole_reach(robot, task, t, q),
+        **_ground_between(robot, scene, t, q),
         **({} if dynamics is None else _flight_residual(robot, dynamics, ~planned.any(axis=1))),
     )
 
@@ -1015,6 +1023,25 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative)[n, j]),
             "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1]),
             "flight_residual_positions": positions}
+
+
+def _ground_between(robot: Robot, scene: Scene, t: np.ndarray, q: np.ndarray) -> dict:
+    """The contact points' deepest reach below the ground along q linear between the samples t (P,), q (P, nq), at
+    HOLE_SUBSAMPLES points a step (an impact's repeated time is no step): a leg swinging through a landing can dip its
+    foot under the ground between two nodes that are above it (N = 40 Capler: 135 mm). KinematicReport's
+    max_penetration_between_m, between_point and between_time_s; empty when no point goes below."""
+    data = robot.model.createData()
+    frames = [robot.frame_id(p) for p in scene.points]
+    worst = (0.0, None, None)
+    for i in np.nonzero(np.diff(t) > 0)[0]:
+        for s in np.linspace(0.0, 1.0, HOLE_SUBSAMPLES + 1)[1:-1]:
+            pin.framesForwardKinematics(robot.model, data, (1.0 - s) * q[i] + s * q[i + 1])
+            depth = [scene.ground_height - data.oMf[f].translation[2] for f in frames]
+            c = int(np.argmax(depth)) if depth else 0
+            if depth and depth[c] > worst[0]:
+                worst = (float(depth[c]), scene.points[c], float(t[i] + s * (t[i + 1] - t[i])))
+    keys = ("max_penetration_between_m", "between_point", "between_time_s")
+    return dict(zip(keys, worst)) if worst[1] else {}
 
 
 def _hole_reach(robot: Robot, task: Task | None, t: np.ndarray, q: np.ndarray) -> dict:

@@ -743,6 +743,32 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
                "trajectory: the plan's own node is inside the hole" in f for f in at_node.failures), at_node.failures
 
 
+def test_a_leg_swinging_under_the_ground_between_samples_is_reported(capler):
+    """A Capler leg swinging from hip -0.5 to +0.5 rad with the base 0.39 m high has its foot 39 mm above the ground at
+    both samples and 10 mm under it half-way (0.4 m of leg straight down): the kinematic report gives that depth, the
+    point and the time along q linear between the samples (the tracking reference's path; N = 40 Capler plans dip
+    135 mm there) as information, beside the samples' penetration of 0, and no failure names it; with the base 0.45 m
+    high the path stays above the ground and the report says nothing of it."""
+    def validation(z: float) -> replay.Validation:
+        task = parse_task({"contacts": [{"point": "foot", "mu": 0.8}], "initial": {"q": [0.0, z, -0.5, 0.0]},
+                           "horizon": {"tau_f": 0.1, "N": 1}, "plan": {"target_q": [0.0, z, 0.5, 0.0]}})
+        traj = {"t": np.array([0.0, 0.1]), "q": np.array([[0.0, z, -0.5, 0.0], [0.0, z, 0.5, 0.0]]),
+                "v": np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 10.0, 0.0]]), "u": np.zeros((2, 2)),
+                "impact_times": np.zeros(0)}
+        return replay.validate_trajectory(capler[0], task, traj)
+
+    dipped = validation(0.39).kinematic
+    assert dipped.max_penetration_m == 0.0
+    assert dipped.max_penetration_between_m == pytest.approx(0.01, abs=1e-12)
+    assert (dipped.between_point, dipped.between_time_s) == ("foot", pytest.approx(0.05))
+    result = validation(0.39)
+    assert "; between samples (q linear) 10.000 mm under the ground, foot at t = 0.05 s (information)" in result.report()
+    assert not any("between" in f or "penetration" in f for f in result.failures), result.failures
+    above = validation(0.45)
+    assert above.kinematic.between_point is None and above.kinematic.max_penetration_between_m == 0.0
+    assert "under the ground" not in above.report()
+
+
 def _kinematic_with_hole_reach(metric: float | None) -> replay.KinematicReport:
     """A KinematicReport clean in every respect but the contact points' deepest reach into plan.holes[0]."""
     return replay.KinematicReport(samples=2, max_penetration_m=0.0, worst_point=None, worst_time_s=None,
