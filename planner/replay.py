@@ -643,7 +643,8 @@ class Validation(ArraysReadOnly):
                "(outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
             + ("" if k.between_point is None else "; between samples (q linear) "
-               f"{k.max_penetration_between_m * 1e3:.3f} mm under the ground, {k.between_point} at t = {k.between_time_s:.4g} s (information)")
+               f"{k.max_penetration_between_m * 1e3:.3f} mm under the ground, {k.between_point} at "
+               f"t = {k.between_time_s:.4g} s (information)")
             + ("" if k.max_flight_residual is None else
                f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} over {k.flight_steps} flight "
                f"steps to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
