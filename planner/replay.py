@@ -630,16 +630,17 @@ class Validation(ArraysReadOnly):
     def report(self) -> str:
         """A few human-readable lines for the command line."""
         k, tr, ol, th = self.kinematic, self.tracking, self.open_loop, self.thresholds
+        where = "at a sample" if k.hole_at_sample else "between samples"
         lines = [
             f"MuJoCo validation of {self.robot}: {'PASSED' if self.passed else 'FAILED'}",
             f"  kinematic: max penetration {k.max_penetration_m * 1e3:.3f} mm (limit {th.max_penetration_m * 1e3:.1f} mm); "
             f"contacts agree on {k.samples * len(k.penetration_by_point_m) - k.contact_mismatches}/"
             f"{k.samples * len(k.penetration_by_point_m)} samples"
-            + ("" if k.min_hole_metric is None else f"; deepest into a hole between samples: ellipse metric "
+            + ("" if k.min_hole_metric is None else f"; deepest into a hole {where}: ellipse metric "
                f"{metric_text(k.min_hole_metric, '.2f')} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in "
                f"holes[{k.hole_index}]"
                if k.min_hole_metric < 1.0 else  # outside every hole: "deepest into" and "in" read as an entry
-               f"; closest to a hole between samples: ellipse metric {metric_text(k.min_hole_metric, '.2f')} "
+               f"; closest to a hole {where}: ellipse metric {metric_text(k.min_hole_metric, '.2f')} "
                "(outside: rim 1), "
                f"{k.hole_point} by holes[{k.hole_index}]")
             + ("" if k.between_point is None else "; between samples (q linear) "

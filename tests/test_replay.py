@@ -730,8 +730,9 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     beside = validation(2.0)
     assert beside.kinematic.min_hole_metric == pytest.approx(((0.5 - 2.0) / 0.04) ** 2, rel=1e-6)
     assert not any("goes through" in f for f in beside.failures)
-    # the report says the path stayed outside (it read "deepest into a hole ..., point in holes[0]" at metric 1406)
-    assert ("; closest to a hole between samples: ellipse metric 1406.25 (outside: rim 1), point by holes[0]"
+    # the report says the path stayed outside (it read "deepest into a hole ..., point in holes[0]" at metric 1406),
+    # closest at the second sample (it read "between samples" there)
+    assert ("; closest to a hole at a sample: ellipse metric 1406.25 (outside: rim 1), point by holes[0]"
             in beside.report())
     assert "deepest into a hole between samples: ellipse metric 0.00" in validation(0.2625).report()
     for unchecked in (validation(0.2625, holes=False), validation(0.0, start_x=0.0, a=0.6)):
@@ -739,6 +740,8 @@ def test_a_path_through_a_hole_between_samples_fails(point_mass):
     # the second sample itself inside the hole: the plan's node, not the grid (it said "plan on a finer grid")
     at_node = validation(0.5)
     assert at_node.kinematic.hole_at_sample and not crossed.kinematic.hole_at_sample
+    # (the report said "deepest into a hole between samples" for the node itself)
+    assert "; deepest into a hole at a sample: ellipse metric 0.00" in at_node.report(), at_node.report()
     assert any("'point' goes through plan.holes[0] near t = 0.1 s (ellipse metric 1.6e-07 < 0.25) at a sample of the "
                "trajectory: the plan's own node is inside the hole" in f for f in at_node.failures), at_node.failures
 
