@@ -468,10 +468,21 @@ class Task:
 
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
-        is what the planner models (no passive joint forces, contact points in the x-z plane)."""
-        from .model import Robot, RobotFormat  # here: reading a task needs no Pinocchio
+        is what the planner models (no passive joint forces, contact points in the x-z plane). An error in the task
+        names its file first (source), as load_task's do."""
+        from .model import Robot
 
         expect(robot, Robot, "check_against's robot")
+        try:
+            self._check_against(robot)
+        except (TaskError, UnknownNameError) as exc:  # ("contacts[0].point: unknown ..." named no file)
+            if self.source:
+                exc.args = (f"{self.source}: {exc}",)
+            raise
+
+    def _check_against(self, robot) -> None:
+        from .model import RobotFormat  # here: reading a task needs no Pinocchio
+
         model = robot.model
         unplanar = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
         if unplanar:  # (a task without contacts reached a CasADi dimension mismatch: a traceback, exit 1)
@@ -581,8 +592,11 @@ class Task:
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with
         (S q)[i] = q[perm[i]]. Raises UnknownNameError for an unknown coordinate and TaskError for a
-        robot whose q and v coordinates differ (nq != nv) or for initial.q outside the joint bounds."""
-        per = self.plan.periodic
+        robot whose q and v coordinates differ (nq != nv) or for initial.q outside the joint bounds, and for a task
+        without plan.periodic."""
+        per = None if self.plan is None else self.plan.periodic
+        if per is None:  # (an AttributeError on NoneType through the API)
+            raise TaskError("the task has no plan.periodic")
         if robot.nq != robot.nv:
             raise TaskError(f"plan.periodic needs a robot with nq == nv (one coordinate per joint); {robot.name!r} has "
                             f"nq = {robot.nq}, nv = {robot.nv}")
@@ -606,9 +620,11 @@ class Task:
         """(q index, v index, actuator index) of each simulate.pd joint, in its order.
 
         Raises UnknownNameError for an unknown joint and TaskError for a joint without exactly one
-        actuator or a robot whose q and v coordinates differ (nq != nv).
+        actuator or a robot whose q and v coordinates differ (nq != nv), and for a task without simulate.pd.
         """
         pd = self.simulate.pd
+        if pd is None:
+            raise TaskError("the task has no simulate.pd")
         if robot.nq != robot.nv:
             raise TaskError(f"simulate.pd needs a robot with nq == nv (one coordinate per joint); {robot.name!r} has "
                             f"nq = {robot.nq}, nv = {robot.nv}")

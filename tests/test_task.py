@@ -175,6 +175,30 @@ def test_robot_dependent_errors():
         parse_task(inverted)
 
 
+def test_a_robot_dependent_error_names_the_task_file(tmp_path):
+    """An error check_against finds in a task read from a file names that file first, as load_task's errors do
+    ("contacts[0].point: unknown contact point" named no file); a task without a file (parse_task) names none; the
+    robot file's own errors keep the robot's path."""
+    path = tmp_path / "nose.toml"
+    path.write_text((ROBOTS / "point_mass.toml").read_text().replace('point = "point"', 'point = "nose"'))
+    with pytest.raises(UnknownNameError, match=rf"^{re.escape(str(path))}: contacts\[0\]\.point: unknown contact point"):
+        load_task(path).check_against(load_robot("point_mass"))
+    with pytest.raises(TaskError, match=r"^initial.q has 2 entries; the robot needs 4"):
+        parse_task(_with("initial.q", [0.0, 1.0])).check_against(load_robot("capler"))
+
+
+def test_the_tables_a_task_lacks_are_task_errors():
+    """Task.periodic_map and Task.pd_actuators on a task without plan.periodic or simulate.pd raise TaskErrors
+    saying so (an AttributeError on NoneType through the API)."""
+    robot, task = load_robot("point_mass"), load_task("point_mass")
+    with pytest.raises(TaskError, match="the task has no plan.periodic"):
+        task.periodic_map(robot)
+    with pytest.raises(TaskError, match="the task has no plan.periodic"):
+        replace(task, plan=None).periodic_map(robot)
+    with pytest.raises(TaskError, match="the task has no simulate.pd"):
+        task.pd_actuators(robot)
+
+
 def test_constant_controls_beyond_the_actuators_range_warn():
     """simulate.u and a schedule's u beyond an actuator's range warn, naming the entry, the actuator and its range:
     MuJoCo's replay clamps them (a 200 N push on a 30 N motor went 56 m and failed validation at 46 m unexplained); a
