@@ -243,12 +243,14 @@ class Trajectory(ArraysReadOnly):
 
     def contact_force_samples(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lambda_n, lambda_t), each (P, n_contacts) [N], at the physical-time samples: linear in
-        physical time between the ends of the steps whose clock ran, so an impact's two samples get one value there
-        (its impulse is the Impact's, not a force). None without contact_force."""
+        physical time between the ends of the steps whose clock ran (more than FROZEN_TOL of the step), so an
+        impact's two samples get one value there (its impulse is the Impact's, not a force). None without
+        contact_force."""
         if self.contact_force is None or len(self.contact_force) == 0:
             return None
         clock = self.y[1:, -1]
-        running = np.concatenate([[True], np.diff(clock) > 0])  # a step that ran the clock ends at a new time
+        # a step that ran the clock ends at a new time (a frozen one's leak of ~1e-6 of it had read as running)
+        running = np.concatenate([[True], np.diff(clock) > FROZEN_TOL * np.diff(self.tau)[1:]])
         ts, f = clock[running], self.contact_force[running]
         out = [np.column_stack([np.interp(self.t, ts, f[:, c, j]) for c in range(f.shape[1])]) for j in (0, 1)]
         return out[0], out[1]
@@ -1233,7 +1235,7 @@ def check_start(out_dir: Path, robot, arrays: dict) -> None:
                          "replan starts from a plan of the same robot")
 
 
-def read_start(out_dir: Path, signature: str, nx: int, arrays: dict[str, np.ndarray] | None = None,
+def read_start(out_dir: str | os.PathLike, signature: str, nx: int, arrays: dict[str, np.ndarray] | None = None,
                robot=None) -> np.ndarray:
     """The NLP point (nx,) that a plan stored in out_dir/trajectory.npz, to start a problem whose
     Problem.signature is `signature` from it; InputError when out_dir holds no plan's point or one of

@@ -68,6 +68,8 @@ class SimulateOptions:
     the others (FESD's interior stages otherwise let the gap drift in persistent contact; an impact step
     keeps POINT; docs/formulation.md, "FESD in persistent contact"), POINT (the paper's) with implicit
     Euler and FESD n_s = 1. COLLOCATED: in every step.
+    discretization: IMPLICIT_EULER (the paper's) or FESD; fesd: FESDOptions, FESD's elements and stages per step
+    (with implicit Euler only its default).
     """
 
     strategy: Strategy = Strategy.STEPWISE
@@ -755,7 +757,8 @@ def _kinetic(system: TimeFreezingSystem, q, v) -> float:
 
 def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W, U, dt, forces) -> np.ndarray | None:
     """(N, n_contacts, 2) persistent-contact force (normal, tangential) [N] of each step. Several
-    contacts: the step's joint forces (zero for points off the ground). One contact: the index-reduced
+    contacts: the step's joint forces (zero for points off the ground and in a step whose clock ran at most FROZEN_TOL
+    of it: a frozen impact's hold the NLP's values, the full weight on a landing foot). One contact: the index-reduced
     force at the step's end point times the DAE field's share of the step's physical time, its coefficient in F
     over the clock's rate (1 in persistent contact, 0 in flight and in a frozen impact; a landing step whose clock
     ran a sixth of it in stance had read a sixth of the force). dt (N,): the steps' integrated lengths [s].
@@ -768,6 +771,7 @@ def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W,
                 name = f"lambda_{kind}[{label}]"
                 if name in system.lam_names:
                     out[:, c, j] = forces[:, system.lam_names.index(name)]
+        out[np.diff(Y[:, -1]) <= FROZEN_TOL * np.asarray(dt, float)] = 0.0
         return out
     if n_c != 1 or system.models[0] is ContactModel.ELASTIC:
         return None

@@ -431,6 +431,19 @@ def _tiny_result(n: int = 1) -> SimulationResult:
 
 
 
+def test_the_force_samples_skip_a_frozen_steps_clock_leak():
+    """contact_force_samples reads a step as running when its clock ran more than FROZEN_TOL of it: a frozen impact
+    step whose clock leaked 1e-7 s (IPOPT's tolerance; a biped landing's step ran 2e-6 of itself) gave the impact's
+    post sample that step's force (99 N, the NLP's value there) instead of the force before and after the impact."""
+    tau = np.array([0.0, 0.1, 0.2, 0.3])
+    clock = np.array([0.0, 0.1, 0.1 + 1e-7, 0.2 + 1e-7])
+    tr = Trajectory(tau=tau, y=np.column_stack([np.zeros(4), np.zeros(4), clock]), state_names=("q", "v", "t"),
+                    sigma=np.zeros((3, 0)), selector_names=(), t=clock, q=np.zeros((4, 1)), v=np.zeros((4, 1)),
+                    u=np.zeros((4, 0)), contact_force=np.array([[[10.0, 0.0]], [[99.0, 0.0]], [[20.0, 0.0]]]))
+    lam_n, _ = tr.contact_force_samples()
+    np.testing.assert_allclose(lam_n[:, 0], [10.0, 10.0, 10.0 + 1e-5, 20.0], rtol=1e-9)
+
+
 def test_a_trajectory_of_arrays_that_disagree_in_length_is_refused():
     """A Trajectory whose physical-time samples (t, q, v, u) or grid (tau, y) differ in length is an InputError naming
     the lengths: one edited with dataclasses.replace (q shorter than t) was written and validated."""

@@ -711,6 +711,29 @@ def test_point_mass_rests_in_an_obtuse_corner():
     np.testing.assert_allclose(tr.forces, G / (2 * math.cos(math.radians(20.0))), rtol=FORCE_BALANCE_RTOL)
 
 
+def test_a_frozen_impact_in_several_contacts_carries_no_persistent_force():
+    """Dropped 2 m into the obtuse corner with a_n = 20 N, the mass lands on both walls in an impact frozen over
+    several steps (the clock stopped): those steps' persistent-contact forces (lambda_n, lambda_t) are 0, as
+    docs/results.md says, while the NLP's joint forces (`forces`) there hold the resting 5.22 N each (lambda_n had read
+    them); the samples at the impact read the landing step's force, and the rest after it m g / (2 cos 20 deg)."""
+    n1, n2 = wall_normals(20.0)
+    task = parse_task({"contacts": [{"point": "point", "normal": n1, "a_n": 20.0},
+                                    {"point": "point", "normal": n2, "a_n": 20.0}],
+                       "initial": {"q": [0.0, 2.0]}, "horizon": {"tau_f": 1.0, "N": 50}})
+    r = simulate(robot(), task, dynamics=dynamics())
+    tr = r.trajectory
+    assert r.stats.converged and len(tr.impacts) == 2
+    frozen = np.diff(tr.y[:, -1]) <= 1e-2 * r.h
+    assert frozen.sum() >= 3
+    np.testing.assert_allclose(tr.forces[frozen], G / (2 * math.cos(math.radians(20.0))), rtol=FORCE_BALANCE_RTOL)
+    np.testing.assert_array_equal(tr.contact_force[frozen], 0.0)
+    lam_n, _ = tr.contact_force_samples()
+    at_impact = np.isclose(tr.t, tr.impacts[0].time, rtol=0.0, atol=1e-12)
+    landing = int(np.argmax(frozen)) - 1  # the partly frozen step before the frozen run
+    np.testing.assert_allclose(lam_n[at_impact], tr.contact_force[landing, :, 0][None, :].repeat(at_impact.sum(), 0))
+    np.testing.assert_allclose(lam_n[-1], G / (2 * math.cos(math.radians(20.0))), rtol=FORCE_BALANCE_RTOL)
+
+
 def test_point_mass_slides_into_an_acute_corner_and_stops():
     """Released on the left wall of a 60 deg wedge (slopes +-60 deg, frictionless), the mass slides
     down, hits the right wall and stops in the corner: the inelastic impact of two walls whose normals
