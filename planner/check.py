@@ -23,7 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import Dynamics
-from .errors import InputError, RobotFileError, is_integer, shown
+from .errors import InputError, RobotFileError, expect, is_integer, shown
 from .model import Robot, RobotFormat, included_files, mujoco_failure, mujoco_spec, order_hint
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
@@ -189,6 +189,7 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
     point: the named point whose Jacobian is timed; default the first point with "foot" in its
     name, else the last named point. Raises UnknownNameError for an unknown point.
     """
+    expect(robot, Robot, "check_model's robot (planner.model.load_robot)")  # (a name: an AttributeError)
     if not is_integer(samples) or not 1 <= samples <= MAX_SAMPLES:
         raise InputError(f"samples must be an integer in [1, {MAX_SAMPLES}], got {shown(samples)}")
     if not is_integer(seed) or seed < 0:  # numpy's generators take seeds >= 0 only

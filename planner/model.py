@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import RobotFileError, UnknownNameError, expect, read_error
+from .errors import InputError, RobotFileError, UnknownNameError, expect, read_error
 
 _HERE = Path(__file__).resolve().parent
 # the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
@@ -76,8 +76,12 @@ class Robot:
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
-        [kg or kg m^2]: the solvers' tolerances are absolute, so lighter bodies' motions are not resolved."""
-        diagonal = np.diag(pin.crba(self.model, self.model.createData(), np.array(q, float)))
+        [kg or kg m^2]: the solvers' tolerances are absolute, so lighter bodies' motions are not resolved. InputError
+        for a q of another length."""
+        q = np.array(q, float)
+        if q.shape != (self.nq,):  # (Pinocchio's ValueError)
+            raise InputError(f"check_inertia's q must have shape ({self.nq},) for {self.name!r}, got {q.shape}")
+        diagonal = np.diag(pin.crba(self.model, self.model.createData(), q))
         light = [f"{name} ({m:.3g})" for name, m in zip(self.dof_names, diagonal) if not m >= MIN_DOF_INERTIA]
         if light:
             raise RobotFileError(f"{self.path}: degrees of freedom lighter than {MIN_DOF_INERTIA:g} kg (or kg m^2) at "
@@ -293,6 +297,7 @@ def detect_format(path: Path) -> RobotFormat:
 def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     """Parse a robot file with Pinocchio and collect its actuators and named points.
 
+    spec: a robot file's path (.xml MJCF, .urdf) or a shipped robot's name ("capler": robots/capler.xml).
     floating: give a URDF robot a free-flyer root joint (an MJCF file declares its own <freejoint/>).
     """
     expect(spec, (str, os.PathLike), "load_robot's spec (a robot name or file)")

@@ -238,7 +238,8 @@ class Problem:
     constraints with lbg <= g <= ubg; lbx, ubx, x0 (nx,) bounds and the hint-free initial guess.
     var_names (nx,); var_blocks: name -> int index array into x: "u" (N, nu), "s" (N, 1) if
     present, "y" (N, ny) (states y_1 .. y_N), "w" (N, nw) and its parts "sigma", "theta",
-    "lambda0", "lambda1", "s_c" (1,) if present. g_blocks: name -> int index array into g (see the
+    "lambda0", "lambda1" and, with the mass-matrix step form (the default) or several contacts, "forces"; "s_c"
+    (1,) if present, "y0" (ny,) with plan.periodic. g_blocks: name -> int index array into g (see the
     module docstring). pairs: the complementarity pairs over the whole horizon (Pair, in x
     indices); pair_scale (n_pairs,) multiplies a product to give it in unscaled units.
     objective_parts: name -> ca.Function(x, p) -> scalar. Functions: products(x) -> (n_pairs,)

@@ -57,11 +57,12 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     """Solve `problem` with each (name, SolveOptions) of `arms` at once; returns the winner's PlanResult.
 
     The winner is the first arm to converge; the others are stopped then. If none converges, the first
-    arm's result. Only the first `processes` arms run (default: the usable CPUs); with one, the first arm
-    is solved in this process. progress gets each arm's NLP records, labelled "name: label". The
-    result's stats.solve_time_s is the race's wall time [s], its message names the outcome of every arm,
-    and extra["race"] lists them (summary.json): arm, outcome, IPOPT iterations of its finished NLPs,
-    wall time [s] at which it finished or was stopped.
+    arm's result. Only the first `processes` arms run (default: the usable CPUs); with one (processes=1, or a
+    one-CPU machine), the first arm is solved in this process as solve() would: no race, so its progress labels,
+    message and extra have no arm names and no "race" record. Otherwise progress gets each arm's NLP records,
+    labelled "name: label", the result's stats.solve_time_s is the race's wall time [s], its message names the
+    outcome of every arm, and extra["race"] lists them (summary.json): arm, outcome, IPOPT iterations of its
+    finished NLPs, wall time [s] at which it finished or was stopped.
     """
     expect(problem, Problem, "race's problem")
     if isinstance(arms, SolveOptions) or not isinstance(arms, (list, tuple)):  # (a TypeError: "not iterable")

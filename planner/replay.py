@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -45,6 +46,9 @@ from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_
 from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
                      read_summary, read_task, read_trajectory, real_array, result_dir, write_atomically)
 from .task import Task
+
+if TYPE_CHECKING:  # (gait imports this module)
+    from .gait import WalkValidation
 
 # --- pass/fail thresholds (reported in the JSON as `thresholds`) ------------------------------------
 MAX_TRACKING_ERROR_M = 0.01  # base position error over the tracking replay [m] (issue 5)
@@ -679,7 +683,7 @@ class Validation(ArraysReadOnly):
 # entry points
 # ==================================================================================================
 
-def validate(out_dir: str | Path, options: ValidationOptions | None = None):
+def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> Validation | WalkValidation:
     """Validate the plan in result directory `out_dir` (trajectory.npz + summary.json): a Validation,
     or for a periodic plan (task plan.periodic) a planner.gait.WalkValidation: its step walked
     gait.WALK_VALIDATION_STEPS times with the phase-indexed controller (`options` do not apply).

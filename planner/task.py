@@ -742,7 +742,8 @@ def _shipped_tasks_hint(path: Path) -> str:
 
 
 def load_task(path: str | Path) -> Task:
-    """Read and validate a task file. Raises TaskError with the offending key."""
+    """Read and validate a task file, by its path or a shipped task's name ("point_mass_hop":
+    robots/point_mass_hop.toml). Raises TaskError with the offending key."""
     expect(path, (str, os.PathLike), "load_task's path")
     path = shipped_task(Path(path))
     if not path.is_file():

@@ -150,8 +150,11 @@ def test_random_state_normalizes_quaternions(erd_robot):
 
 def test_bad_arguments():
     """samples < 1, > MAX_SAMPLES or not an integer (nan, 2.5, a bool), a negative or non-integer seed and an unknown timing point are
-    input errors; the unknown point's message lists the valid ones."""
+    input errors; the unknown point's message lists the valid ones. A robot's name in place of the Robot is one too
+    (an AttributeError on str)."""
     robot = load_robot("capler")
+    with pytest.raises(InputError, match="check_model's robot .* must be a Robot, got str 'capler'"):
+        check_model("capler")
     with pytest.raises(InputError, match="samples"):
         check_model(robot, samples=0)
     with pytest.raises(InputError, match="seed must be an integer >= 0, got -1"):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planner.dynamics import Dynamics
-from planner.errors import RobotFileError, UnknownNameError
+from planner.errors import InputError, RobotFileError, UnknownNameError
 from planner.model import ROBOTS_DIR, RobotFormat, load_robot
 
 EXACT = 1e-12  # parsed numbers are copied, not computed
@@ -54,6 +54,25 @@ def test_the_robots_ship_inside_the_package():
     patterns = setup["package-data"]["planner.robots"]
     files = [f.name for f in ROBOTS_DIR.iterdir() if f.is_file()]
     assert "capler.xml" in files and all(any(fnmatch.fnmatch(f, pat) for pat in patterns) for f in files), files
+
+
+def test_check_inertia_refuses_a_q_of_another_length():
+    """Robot.check_inertia with a q of another length than nq is an InputError naming the shape (Pinocchio's
+    ValueError)."""
+    with pytest.raises(InputError, match=r"check_inertia's q must have shape \(2,\) for 'point_mass', got \(5,\)"):
+        load_robot("point_mass").check_inertia(np.zeros(5))
+
+
+def test_the_package_says_it_is_typed():
+    """planner ships a PEP 561 py.typed marker as package data, so a user's type checker reads the package's
+    annotations ("missing library stubs or py.typed marker" for every import of planner, session 59's tester)."""
+    import tomllib
+
+    import planner
+
+    setup = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "py.typed" in setup["package-data"]["planner"]
+    assert (Path(planner.__file__).parent / "py.typed").is_file()
 
 
 def test_an_install_without_robot_files_says_so(tmp_path, monkeypatch):
