@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import multiprocessing
 import os
@@ -277,6 +278,8 @@ def _options_of(command: argparse.ArgumentParser, tokens: list[str], top: set[st
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if isinstance(sys.stdout, io.TextIOWrapper):  # a path the terminal's encoding cannot print (PYTHONIOENCODING=ascii
+        sys.stdout.reconfigure(errors="backslashreplace")  # and an "ü" in --out) was a traceback after the results
     parser = build_parser()
     try:
         args = _parse(parser, argv)
@@ -303,6 +306,8 @@ def main(argv: list[str] | None = None) -> int:
             # libraries' deprecations are for their callers' developers (Python hides them outside __main__; a test
             # runner showed pyzmq's through meshcat as a second line of a one-line error)
             warnings.simplefilter("ignore", DeprecationWarning)
+            for category in (UserWarning, RuntimeWarning):  # printed as warnings also under PYTHONWARNINGS=error,
+                warnings.simplefilter("default", category)  # which made the planner's input warnings tracebacks
             warnings.showwarning = lambda message, category, *_: print(
                 f"planner {args.command}: warning: {message}"
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
@@ -320,6 +325,10 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_OK
     except OSError as exc:
         where = f": {exc.filename}" if exc.filename else ""
+        try:
+            os.getcwd()
+        except FileNotFoundError:  # ("failed: No such file or directory", exit 1, naming nothing)
+            return _stop(args, EXIT_INPUT, "error: the working directory no longer exists; change to one that does")
         if exc.errno in PATH_ERRNOS and exc.filename:  # a path the system refuses that no check above named
             return _stop(args, EXIT_INPUT, f"error: {exc.strerror}{where}")
         return _stop(args, EXIT_FAILED, f"failed: {exc.strerror or exc}{where}")  # e.g. a full disk
@@ -524,9 +533,9 @@ def _load_inputs(args):
 def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Callable[[], None]]:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
     good earlier result in `out` is never overwritten (and a converged run removes an earlier failure's
-    `out/failed`). Returns that directory and a call that waits for the plots: background draws them in
-    a child process meanwhile (the caller validates, on the other CPU), else they are drawn before this
-    returns."""
+    `out/failed`). Returns that directory and a call that waits for the plots and raises their failure: background
+    draws them in a child process meanwhile (the caller validates, on the other CPU), else they are drawn before this
+    returns. The caller prints its report before that call: a plot failure (a full disk) hid the outcome."""
     from .result import write_results
 
     target = out if result.stats.converged else prepare_out_dir(out / "failed")
@@ -546,11 +555,10 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     if not background:
         with interruptible(defer=True):  # a Ctrl-C left the new result with part of its plots
             try:
-                drawn = _draw(target)
+                outcome = ("drawn", _draw(target))
             except Exception as exc:  # one line, as the background drawing's (a singular matrix was a traceback)
-                raise PlannerError(f"the plots of {target} failed: {_unexpected(exc)}") from None
-        _plotted(args, result.stats.converged, drawn)
-        return target, lambda: None
+                outcome = ("error", _unexpected(exc))
+        return target, lambda: _plots_outcome(args, result.stats.converged, target, *outcome)
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
     child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
@@ -571,11 +579,17 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
         except EOFError:
             kind, message = "error", "the plotting process ended without a word"
         child.join()
-        if kind == "error":
-            raise PlannerError(f"the plots of {target} failed: {message}")
-        _plotted(args, result.stats.converged, message)
+        _plots_outcome(args, result.stats.converged, target, kind, message)
 
     return target, finish
+
+
+def _plots_outcome(args, converged: bool, target: Path, kind: str, message: str | None) -> None:
+    """Raise what the drawing of target's plots ended in: ("error", one line) a PlannerError, ("drawn", why not or
+    None) as _plotted."""
+    if kind == "error":
+        raise PlannerError(f"the plots of {target} failed: {message} (the results are written there)")
+    _plotted(args, converged, message)
 
 
 def _remove_failed(stale: Path) -> None:
@@ -610,7 +624,10 @@ def _draw(target: Path) -> str | None:
 
 def _unexpected(exc: Exception) -> str:
     """An unexpected error in one line, with where it was raised (file:line in function: the innermost frame of this
-    package's code, else the innermost): without the traceback, a bug in the plots was a message no one could place."""
+    package's code, else the innermost): without the traceback, a bug in the plots was a message no one could place.
+    A PlannerError (a full disk) is its message alone: no bug to place."""
+    if isinstance(exc, PlannerError):
+        return str(exc)
     frames = traceback.extract_tb(exc.__traceback__)
     ours = [f for f in frames if Path(f.filename).parent == Path(__file__).parent] or frames
     where = f" (raised at {Path(ours[-1].filename).name}:{ours[-1].lineno} in {ours[-1].name})" if ours else ""
@@ -680,9 +697,10 @@ def _cmd_simulate(args) -> int:
     options = SimulateOptions(verbose=args.verbose, discretization=discretization, fesd=fesd)
     robot, task, out = _load_inputs(args)
     result = simulate(robot, task, options)
-    target, _ = _write(args, result, out)
+    target, plots_drawn = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
     _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", written=True)
+    plots_drawn()
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
@@ -845,8 +863,8 @@ def _cmd_plan(args) -> int:
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
-    plots_drawn()
     _emit(args, summary, text, written=True)
+    plots_drawn()
     return EXIT_OK if ok else EXIT_FAILED
 
 

@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -1368,7 +1369,29 @@ def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatc
     assert main(["simulate", "point_mass", "--out", str(out), "-q"]) == 1
     err = capsys.readouterr().err.strip()  # (the innermost planner frame: the patched plot_results is this file's)
     assert re.fullmatch(rf"planner simulate: failed: the plots of {re.escape(str(out))} failed: LinAlgError: "
-                        r"Singular matrix \(raised at cli.py:\d+ in _draw\)", err), err
+                        r"Singular matrix \(raised at cli.py:\d+ in _draw\) \(the results are written there\)", err), err
+
+
+@pytest.mark.parametrize("command", [["simulate", "point_mass"],
+                                     ["plan", "point_mass", "--task", "point_mass_hop", "--no-race", "--no-validate"]])
+def test_plots_that_cannot_be_written_come_after_the_report(tmp_path, capsys, monkeypatch, command):
+    """Plots that cannot be written (a full disk, a PlannerError) after a converged run: the run's report is printed
+    first, with its "converged: results in DIR" line, then one "failed:" line (exit 1) that says the results are
+    written, without the internal "raised at" place of a bug (the report was never printed and the line read as a
+    bug's, session 59's tester)."""
+    import planner.plots as plots
+
+    def full(target):
+        raise PlannerError(f"cannot write {target}/clock.png: No space left on device")
+
+    monkeypatch.setattr(plots, "plot_results", full)
+    out = tmp_path / "out"
+    assert main([*command, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert f"converged: results in {out}" in captured.out
+    assert captured.err.strip().splitlines()[-1] == (
+        f"planner {command[0]}: failed: the plots of {out} failed: cannot write {out}/clock.png: No space left on "
+        "device (the results are written there)")
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
@@ -1549,3 +1572,38 @@ def test_the_top_level_help_says_the_whole_description(capsys):
     assert done.value.code == 0
     assert "take a robot file (or the name of one in robots/), validate and view a result directory." in \
         " ".join(capsys.readouterr().out.split())
+
+
+def test_a_path_the_terminal_cannot_encode_is_escaped(tmp_path):
+    """With stdout in ASCII (PYTHONIOENCODING=ascii, output piped) a result directory named with a "ü" is printed
+    escaped and the converged simulation exits 0: it printed a UnicodeEncodeError traceback after writing the
+    results, exit 1 (session 59's tester)."""
+    out = tmp_path / "sim_ü"
+    proc = subprocess.run([sys.executable, "-m", "planner.cli", "simulate", "point_mass", "--out", str(out)],
+                          capture_output=True, timeout=120, env={**os.environ, "PYTHONIOENCODING": "ascii"})
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert f"converged: results in {tmp_path}/sim_\\xfc".encode() in proc.stdout and b"Traceback" not in proc.stderr
+    assert (out / "summary.json").is_file()
+
+
+def test_the_planners_warnings_stay_warnings_under_an_error_filter(tmp_path, capsys):
+    """A process whose warnings filter turns warnings into errors (PYTHONWARNINGS=error) still gets the planner's input
+    warnings as one "warning:" line and the command's own outcome: the ground-plane warning was a traceback, exit 1."""
+    task = tmp_path / "gh.toml"
+    task.write_text("ground_height = 0.1\n" + (ROBOTS_DIR / "point_mass.toml").read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["simulate", "point_mass", "--task", str(task), "--out", str(tmp_path / "o"), "-q"]) == 0
+    assert "planner simulate: warning: the robot file's ground plane (geom 'ground') is at z = 0 m" in capsys.readouterr().err
+
+
+def test_a_deleted_working_directory_is_said(tmp_path, capsys, monkeypatch):
+    """A command run from a directory deleted meanwhile (`cd gone; rmdir ../gone`) is told so, exit 2: it said
+    "failed: No such file or directory", exit 1, naming nothing."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    assert main(["plan", "point_mass", "--task", "point_mass_hop", "--no-validate", "--no-race", "-q"]) == 2
+    assert capsys.readouterr().err.strip() == ("planner plan: error: the working directory no longer exists; change to "
+                                               "one that does")
