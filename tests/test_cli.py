@@ -1369,7 +1369,8 @@ def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatc
     assert main(["simulate", "point_mass", "--out", str(out), "-q"]) == 1
     err = capsys.readouterr().err.strip()  # (the innermost planner frame: the patched plot_results is this file's)
     assert re.fullmatch(rf"planner simulate: failed: the plots of {re.escape(str(out))} failed: LinAlgError: "
-                        r"Singular matrix \(raised at cli.py:\d+ in _draw\) \(the results are written there\)", err), err
+                        r"Singular matrix \(raised at cli.py:\d+ in _draw\) \(the results are written there\)",
+                        err), err
 
 
 @pytest.mark.parametrize("command", [["simulate", "point_mass"],
@@ -1594,7 +1595,8 @@ def test_the_planners_warnings_stay_warnings_under_an_error_filter(tmp_path, cap
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert main(["simulate", "point_mass", "--task", str(task), "--out", str(tmp_path / "o"), "-q"]) == 0
-    assert "planner simulate: warning: the robot file's ground plane (geom 'ground') is at z = 0 m" in capsys.readouterr().err
+    line = "planner simulate: warning: the robot file's ground plane (geom 'ground') is at z = 0 m"
+    assert line in capsys.readouterr().err
 
 
 def test_a_deleted_working_directory_is_said(tmp_path, capsys, monkeypatch):
