@@ -181,7 +181,7 @@ def test_a_robot_dependent_error_names_the_task_file(tmp_path):
     robot file's own errors keep the robot's path."""
     path = tmp_path / "nose.toml"
     path.write_text((ROBOTS / "point_mass.toml").read_text().replace('point = "point"', 'point = "nose"'))
-    with pytest.raises(UnknownNameError, match=rf"^{re.escape(str(path))}: contacts\[0\]\.point: unknown contact point"):
+    with pytest.raises(UnknownNameError, match=rf"^{re.escape(str(path))}: contacts\[0\]\.point: unknown contact"):
         load_task(path).check_against(load_robot("point_mass"))
     with pytest.raises(TaskError, match=r"^initial.q has 2 entries; the robot needs 4"):
         parse_task(_with("initial.q", [0.0, 1.0])).check_against(load_robot("capler"))
