@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, RobotFileError, UnknownNameError, expect, read_error
+from .errors import InputError, PlannerError, RobotFileError, UnknownNameError, expect, read_error
 
 _HERE = Path(__file__).resolve().parent
 # the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
@@ -321,6 +321,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 model = pin.buildModelFromMJCF(str(path))
             else:
                 model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
+    except PlannerError:  # the environment's, not the file's
+        raise
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
         hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
                 "the file)" if fmt is RobotFormat.MJCF and included_files(path) else
@@ -803,7 +805,12 @@ def _quiet(printed: list[str] | None = None):
             yield
         return
     try:
-        with tempfile.TemporaryFile("w+b") as caught, contextlib.redirect_stdout(io.StringIO()):
+        try:
+            caught = tempfile.TemporaryFile("w+b")
+        except OSError as exc:  # (it read "Pinocchio cannot parse" the robot file, exit 2)
+            raise PlannerError(f"no usable temporary directory for the robot file parser's messages ({exc}); set "
+                               "TMPDIR to a writable directory") from None
+        with caught, contextlib.redirect_stdout(io.StringIO()):
             os.dup2(caught.fileno(), 2)
             try:
                 yield

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planner.dynamics import Dynamics
-from planner.errors import InputError, RobotFileError, UnknownNameError
+from planner.errors import InputError, PlannerError, RobotFileError, UnknownNameError
 from planner.model import ROBOTS_DIR, RobotFormat, load_robot
 
 EXACT = 1e-12  # parsed numbers are copied, not computed
@@ -599,3 +599,15 @@ def test_robot_paths_in_robots_resolve_to_the_shipped_files_from_any_directory(t
     with pytest.raises(RobotFileError, match="robot file not found: robots/nothing.xml; the shipped robot files are "
                                              "biped.xml, capler.urdf, capler.xml, point_mass.xml"):
         resolve_robot_path("robots/nothing.xml")
+
+
+def test_no_usable_temporary_directory_is_not_blamed_on_the_robot_file(tmp_path, monkeypatch):
+    """Without a usable temporary directory (the parser's messages are caught in a temporary file) loading a robot
+    is a PlannerError saying so and to set TMPDIR, not an InputError blaming the file: it read "Pinocchio cannot parse
+    robots/point_mass.xml: [Errno 2] No usable temporary directory", exit 2 (session 59's tester)."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "missing"))
+    with pytest.raises(PlannerError, match="no usable temporary directory .*; set TMPDIR to a writable") as exc:
+        load_robot("point_mass")
+    assert not isinstance(exc.value, InputError)
