@@ -56,6 +56,24 @@ def test_the_robots_ship_inside_the_package():
     assert "capler.xml" in files and all(any(fnmatch.fnmatch(f, pat) for pat in patterns) for f in files), files
 
 
+def test_the_dependency_ranges_start_where_they_install():
+    """pyproject's lower bounds are versions that install and import together on Python 3.11 (session 59's tester):
+    no pin 3.x imports after pip's install (its urdfdom and tinyxml2 libraries), and pin 3.4-3.7 skip an MJCF site of a
+    jointless body; every pin in range needs numpy 2, which scipy < 1.13 and matplotlib < 3.8.4 refuse."""
+    import tomllib
+
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+
+    project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    lowest = {}
+    for line in project["dependencies"]:
+        req = Requirement(line)
+        lowest[req.name] = min((Version(s.version) for s in req.specifier if s.operator == ">="), default=None)
+    floor = {"pin": "4.0", "numpy": "2.0", "scipy": "1.13", "matplotlib": "3.8.4"}
+    assert all(lowest[name] >= Version(v) for name, v in floor.items()), lowest
+
+
 def test_check_inertia_refuses_a_q_of_another_length():
     """Robot.check_inertia with a q of another length than nq is an InputError naming the shape (Pinocchio's
     ValueError)."""
