@@ -868,6 +868,17 @@ def _cmd_plan(args) -> int:
     return EXIT_OK if ok else EXIT_FAILED
 
 
+def _npz_keys(path: Path) -> list[str] | None:
+    """The array names of an .npz file, or None when it cannot be read (the command that reads it says why)."""
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            return list(arrays.files)
+    except (OSError, ValueError):
+        return None
+
+
 def _summary_of(target: Path, result_id: str) -> dict | None:
     """target's summary.json when it is the result result_id's, else None."""
     try:
@@ -970,7 +981,9 @@ def _options_apart(init: Path, options) -> str:
     # (fesd is read with discretization fesd only: before session 48's end the CLI recorded its default n_fe = 3 for
     # implicit-Euler plans too, and their --init was refused with a fix no flag can give)
     unread = {"clock_guess_running"} | ({"fesd"} if options.discretization is Discretization.IMPLICIT_EULER else set())
-    apart = [k for k, v in options_record(options).items() if k not in unread and recorded.get(k) != v]
+    # a key the record lacks is an option younger than the plan, which was built as its default then: the variables
+    # decide (a plan before lift_products was refused for it, with a fix no flag gives)
+    apart = [k for k, v in options_record(options).items() if k not in unread and k in recorded and recorded[k] != v]
     if "discretization" in apart:  # (replanning it "with those options", --discretization fesd, is refused too)
         return (f"; the plan was built with discretization {shown(recorded.get('discretization'))}, and --init replans "
                 "implicit-Euler plans only: plan without --init")
@@ -1035,6 +1048,10 @@ def _cmd_validate(args) -> int:
     if summary.get("robot_sha256", "") == "":  # a result written before the hash (or with it deleted): said, not silent
         _progress(args, f"note: {args.dir / 'summary.json'} has no robot_sha256: the robot file is not checked against "
                         "the one the result was computed from")
+    keys = _npz_keys(args.dir / "trajectory.npz")
+    if summary.get("command") == "plan" and keys is not None and "task_json" not in keys:
+        _progress(args, f"note: {args.dir / 'trajectory.npz'} has no task_json (an older planner's plan): its task is "
+                        "read from the task file as it is now, and an edit since or the plan's --steps is not seen")
     with _said_of("/".join(f for f, k in (("--controller", "controller"), ("--window", "window_s")) if k in given)):
         options = ValidationOptions(**given) if given else None
     result = validate(args.dir, options)

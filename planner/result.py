@@ -1254,7 +1254,12 @@ def read_start(out_dir: str | os.PathLike, signature: str, nx: int, arrays: dict
     if robot is not None:
         check_start(out_dir, robot, arrays)
     if "nlp_x" not in arrays or "nlp_signature" not in arrays:
-        raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: a start needs a result of `planner plan`")
+        plan = False
+        with contextlib.suppress(InputError):  # (a plan of an older planner was said not to be a plan)
+            plan = read_summary(out_dir, require=()).get("command") == "plan"
+        raise InputError(f"{Path(out_dir) / 'trajectory.npz'} holds no NLP point: "
+                         + ("the plan was written by an older planner, which did not keep it; plan without --init"
+                            if plan else "a start needs a result of `planner plan`"))
     x = real_array(arrays["nlp_x"], f"{Path(out_dir) / 'trajectory.npz'}: nlp_x")
     if str(arrays["nlp_signature"]) != signature or x.shape != (nx,):
         which = (f"{x.size} against this problem's {nx}" if x.size != nx else

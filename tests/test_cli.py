@@ -807,6 +807,18 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     (old / "summary.json").write_text(json.dumps(fesd_summary))
     assert main(argv[:-1] + [str(old)]) == 0
     capsys.readouterr()
+    # one older than an option (lift_products, session 22: products lifted, today's default) lacks it in its record:
+    # the variables decide (it was refused "with other ProblemOptions (lift_products)", a fix no flag gives)
+    younger = {k: v for k, v in summary["options"]["problem"].items() if k != "lift_products"}
+    (old / "summary.json").write_text(json.dumps({**summary, "options": {**summary["options"], "problem": younger}}))
+    assert main(argv[:-1] + [str(old)]) == 0
+    capsys.readouterr()
+    # a plan of a planner that kept no NLP point (nlp_x since 2026-11-22) is said to be one, not "not a plan"
+    no_point = tmp_path / "no_point"
+    shutil.copytree(tmp_path / "hop", no_point)
+    np.savez(no_point / "trajectory.npz", **{k: v for k, v in arrays.items() if k not in ("nlp_x", "nlp_signature")})
+    _one_line_exit_2(capsys, argv[:-1] + [str(no_point)], "holds no NLP point: the plan was written by an older "
+                     "planner, which did not keep it; plan without --init")
     (old / "summary.json").write_text(json.dumps({**summary, "options": options_record}))  # another switch_scale
     _one_line_exit_2(capsys, argv[:-1] + [str(old)], "the plan was built with other ProblemOptions (switch_scale)")
     heavy_robot = tmp_path / "heavy.xml"
@@ -1609,3 +1621,21 @@ def test_a_deleted_working_directory_is_said(tmp_path, capsys, monkeypatch):
     assert main(["plan", "point_mass", "--task", "point_mass_hop", "--no-validate", "--no-race", "-q"]) == 2
     assert capsys.readouterr().err.strip() == ("planner plan: error: the working directory no longer exists; change to "
                                                "one that does")
+
+
+def test_validating_a_plan_without_its_task_json_says_the_task_file_is_read_as_it_is(tmp_path, capsys):
+    """A plan written before trajectory.npz kept its task (task_json) is validated against its task file as it is now:
+    `planner validate` says so in a note (an edited task file had changed the verdict unsaid); a plan with its
+    task_json gets no note."""
+    out = tmp_path / "hop"
+    hop = str(ROBOTS_DIR / "point_mass_hop.toml")
+    assert main(["plan", "point_mass", "--task", hop, "--out", str(out), "--no-validate", "--no-plots", "--no-race",
+                 "-q"]) == 0
+    assert main(["validate", str(out)]) == 0
+    assert "task_json" not in capsys.readouterr().err
+    with np.load(out / "trajectory.npz") as npz:
+        arrays = {k: v for k, v in npz.items() if k != "task_json"}
+    np.savez(out / "trajectory.npz", **arrays)
+    assert main(["validate", str(out)]) == 0
+    assert (f"note: {out / 'trajectory.npz'} has no task_json (an older planner's plan): its task is read from the "
+            "task file as it is now, and an edit since or the plan's --steps is not seen") in capsys.readouterr().err
