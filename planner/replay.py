@@ -1241,7 +1241,7 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                    base=np.zeros((steps + 1, 3)), sites=np.zeros((steps + 1, C, 3)),
                    active=np.zeros((steps + 1, C), dtype=bool), depth=np.zeros((steps + 1, C)),
                    ctrl=np.zeros((steps, model.nu)), diverged=False)
-    dist = np.zeros((steps + 1, C))
+    dist = np.full((steps + 1, C), np.inf)  # none detected, until a step has contacts
     lower, upper = scene.ctrl_lower, scene.ctrl_upper
     with mujoco_warnings(lambda message: None):  # the rollout reads them from data.warning
         for k in range(steps + 1):
@@ -1256,7 +1256,8 @@ def _simulate(scene: Scene, q0: np.ndarray, v0: np.ndarray, steps: int, t0: floa
                 mujoco.mj_forward(model, data)
             rec.base[k] = _base_position(scene, data)
             rec.sites[k] = data.site_xpos[site_ids]
-            dist[k], rec.active[k] = scene.contact_state(data)
+            if data.ncon:
+                dist[k], rec.active[k] = scene.contact_state(data)
     rec.touching0 = np.isfinite(dist[0])  # detected: within the pair's gap of the ground
     rec.depth[:] = np.maximum(-np.where(np.isfinite(dist), dist, 0.0), 0.0)
     rec.diverged = any(data.warning[w].number > 0 for w in _BAD_STATE_WARNINGS)
