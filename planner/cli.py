@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import io
 import json
 import multiprocessing
 import os
@@ -278,8 +277,6 @@ def _options_of(command: argparse.ArgumentParser, tokens: list[str], top: set[st
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if isinstance(sys.stdout, io.TextIOWrapper):  # a path the terminal's encoding cannot print (PYTHONIOENCODING=ascii
-        sys.stdout.reconfigure(errors="backslashreplace")  # and an "ü" in --out) was a traceback after the results
     parser = build_parser()
     try:
         args = _parse(parser, argv)
@@ -411,7 +408,12 @@ class _ReaderMayLeave:
             return len(args[0]) if args else None
 
     def write(self, text: str):
-        return self._guarded("write", text)
+        try:
+            return self._guarded("write", text)
+        except UnicodeEncodeError:  # a path the stream's encoding cannot print (PYTHONIOENCODING=ascii and an "ü" in
+            # --out) was a traceback after the results were written: escaped instead, as stderr does
+            encoding = getattr(self._stream, "encoding", None) or "ascii"
+            return self._guarded("write", text.encode(encoding, "backslashreplace").decode(encoding))
 
     def flush(self):
         return self._guarded("flush")
@@ -495,6 +497,16 @@ def _emit(args, summary: dict, text: str, written: bool = False) -> None:
         print(json.dumps(summary), file=args.stdout)
     elif not args.quiet:
         print(text, file=args.stdout)
+
+
+def _emit_then_plots(args, summary: dict, text: str, plots_drawn: Callable[[], None]) -> None:
+    """_emit a written result's summary, then wait for its plots, whose failure is raised after the report (a full
+    disk hid the outcome); with --json before it, so that the one JSON object is the failure's, with its reason."""
+    if args.json:
+        plots_drawn()
+    _emit(args, summary, text, written=True)
+    if not args.json:
+        plots_drawn()
 
 
 def _cmd_check_model(args) -> int:
@@ -699,8 +711,7 @@ def _cmd_simulate(args) -> int:
     result = simulate(robot, task, options)
     target, plots_drawn = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
-    _emit(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", written=True)
-    plots_drawn()
+    _emit_then_plots(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", plots_drawn)
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
@@ -863,8 +874,7 @@ def _cmd_plan(args) -> int:
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
-    _emit(args, summary, text, written=True)
-    plots_drawn()
+    _emit_then_plots(args, summary, text, plots_drawn)
     return EXIT_OK if ok else EXIT_FAILED
 
 
@@ -875,7 +885,7 @@ def _npz_keys(path: Path) -> list[str] | None:
     try:
         with np.load(path, allow_pickle=False) as arrays:
             return list(arrays.files)
-    except (OSError, ValueError):
+    except Exception:  # (a truncated or empty file: zipfile's BadZipFile, EOFError; validate then says it in a line)
         return None
 
 

@@ -83,6 +83,9 @@ _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWAR
 HOLE_PASS_METRIC = 0.25
 HOLE_SUBSAMPLES = 20  # points per sample interval at which the hole reach is evaluated, at least
 HOLE_MAX_SUBSAMPLES = 2000  # and at most (a step's travel of 500 quarter half-axes of the narrowest hole)
+# a contact point's depth below the ground between samples that is reported [m]: a resting point's is IPOPT's rounding
+# (1e-17 m on the point-mass hop's stance, 1e-7 m on a simulated drop at rest), which read "0.000 mm under the ground"
+BETWEEN_FLOOR_M = 1e-6
 HOLE_ZOOM = 20  # beyond that, the closest sample's neighbourhood again at 20 times finer spacing, until fine enough
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's range of a constraint's impedance (mjMINIMP, mjMAXIMP)
 # MuJoCo's timestep range for the validation [s]: a replay of T seconds takes T / timestep steps (1e-9 s: 1.5e9
@@ -464,8 +467,9 @@ class KinematicReport(ArraysReadOnly):
     hole_index: int | None = None
     hole_time_s: float | None = None  # where on that path [s]
     hole_at_sample: bool = False  # there at a sample itself, not between two
-    # the contact points' deepest reach below the ground along the same path, at HOLE_SUBSAMPLES points a step
-    # (information: the OCP keeps them above it at its nodes only, and MuJoCo tracks that path), >= 0 [m]
+    # the contact points' deepest reach below the ground along the same path, at HOLE_SUBSAMPLES - 1 points between
+    # two samples (information: the OCP keeps them above it at its nodes only, and MuJoCo tracks that path), 0 unless
+    # deeper than BETWEEN_FLOOR_M [m]
     max_penetration_between_m: float = 0.0
     between_point: str | None = None
     between_time_s: float | None = None
@@ -1033,12 +1037,13 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
 
 def _ground_between(robot: Robot, scene: Scene, t: np.ndarray, q: np.ndarray) -> dict:
     """The contact points' deepest reach below the ground along q linear between the samples t (P,), q (P, nq), at
-    HOLE_SUBSAMPLES points a step (an impact's repeated time is no step): a leg swinging through a landing can dip its
-    foot under the ground between two nodes that are above it (N = 40 Capler: 135 mm). KinematicReport's
-    max_penetration_between_m, between_point and between_time_s; empty when no point goes below."""
+    HOLE_SUBSAMPLES - 1 points between two samples (an impact's repeated time is no step): a leg swinging through a
+    landing can dip its foot under the ground between two nodes that are above it (N = 40 Capler: 135 mm).
+    KinematicReport's max_penetration_between_m, between_point and between_time_s; empty when no point goes deeper
+    than BETWEEN_FLOOR_M."""
     data = robot.model.createData()
     frames = [robot.frame_id(p) for p in scene.points]
-    worst = (0.0, None, None)
+    worst = (BETWEEN_FLOOR_M, None, None)
     for i in np.nonzero(np.diff(t) > 0)[0]:
         for s in np.linspace(0.0, 1.0, HOLE_SUBSAMPLES + 1)[1:-1]:
             pin.framesForwardKinematics(robot.model, data, (1.0 - s) * q[i] + s * q[i + 1])

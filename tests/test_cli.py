@@ -1386,12 +1386,14 @@ def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatc
 
 
 @pytest.mark.parametrize("command", [["simulate", "point_mass"],
-                                     ["plan", "point_mass", "--task", "point_mass_hop", "--no-race", "--no-validate"]])
+                                     ["plan", "point_mass", "--task", "point_mass_hop", "--no-race", "--no-validate"],
+                                     ["plan", "point_mass", "--task", "point_mass_hop", "--no-race"]])
 def test_plots_that_cannot_be_written_come_after_the_report(tmp_path, capsys, monkeypatch, command):
     """Plots that cannot be written (a full disk, a PlannerError) after a converged run: the run's report is printed
     first, with its "converged: results in DIR" line, then one "failed:" line (exit 1) that says the results are
     written, without the internal "raised at" place of a bug (the report was never printed and the line read as a
-    bug's, session 59's tester)."""
+    bug's, session 59's tester). With --json the one JSON object is the failure's, with its reason (the review: the
+    summary came first and the reason was on stderr only)."""
     import planner.plots as plots
 
     def full(target):
@@ -1402,9 +1404,11 @@ def test_plots_that_cannot_be_written_come_after_the_report(tmp_path, capsys, mo
     assert main([*command, "--out", str(out)]) == 1
     captured = capsys.readouterr()
     assert f"converged: results in {out}" in captured.out
-    assert captured.err.strip().splitlines()[-1] == (
-        f"planner {command[0]}: failed: the plots of {out} failed: cannot write {out}/clock.png: No space left on "
-        "device (the results are written there)")
+    reason = (f"the plots of {out} failed: cannot write {out}/clock.png: No space left on device (the results are "
+              "written there)")
+    assert captured.err.strip().splitlines()[-1] == f"planner {command[0]}: failed: {reason}"
+    assert main([*command, "--out", str(out), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out) == {"command": command[0], "exit_code": 1, "error": reason}
 
 
 def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, capsys, monkeypatch):
@@ -1599,6 +1603,13 @@ def test_a_path_the_terminal_cannot_encode_is_escaped(tmp_path):
     assert (out / "summary.json").is_file()
 
 
+def test_the_cli_leaves_the_callers_stdout_as_it_was(capsys):
+    """main() run in-process does not change the caller's sys.stdout (it had set its errors handler for good)."""
+    errors = sys.stdout.errors
+    assert main(["check-model", "point_mass", "-q"]) == 0
+    assert sys.stdout.errors == errors
+
+
 def test_the_planners_warnings_stay_warnings_under_an_error_filter(tmp_path, capsys):
     """A process whose warnings filter turns warnings into errors (PYTHONWARNINGS=error) still gets the planner's input
     warnings as one "warning:" line and the command's own outcome: the ground-plane warning was a traceback, exit 1."""
@@ -1639,3 +1650,6 @@ def test_validating_a_plan_without_its_task_json_says_the_task_file_is_read_as_i
     assert main(["validate", str(out)]) == 0
     assert (f"note: {out / 'trajectory.npz'} has no task_json (an older planner's plan): its task is read from the "
             "task file as it is now, and an edit since or the plan's --steps is not seen") in capsys.readouterr().err
+    (out / "trajectory.npz").write_bytes(b"")  # (the note's reading of it was a traceback, the review)
+    assert main(["validate", str(out)]) == 2
+    assert "trajectory.npz is not a readable .npz file: it is no zip archive" in capsys.readouterr().err

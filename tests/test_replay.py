@@ -773,6 +773,21 @@ def test_a_leg_swinging_under_the_ground_between_samples_is_reported(capler):
     assert "under the ground" not in above.report()
 
 
+def test_a_resting_points_rounding_is_not_reported_under_the_ground(point_mass):
+    """A point resting on the ground 0.5 um below it (IPOPT's rounding: "0.000 mm under the ground" was reported for
+    every stance) is not reported between samples; 5 um below it is, as 0.005 mm."""
+    def between(z: float) -> replay.KinematicReport:
+        task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, z]},
+                           "horizon": {"tau_f": 0.1, "N": 1}})
+        traj = {"t": np.array([0.0, 0.1]), "q": np.array([[0.0, z], [0.01, z]]), "v": np.array([[0.1, 0.0]] * 2),
+                "u": np.zeros((2, 2)), "impact_times": np.zeros(0)}
+        return replay.validate_trajectory(point_mass, task, traj).kinematic
+
+    assert between(-5e-7).between_point is None and between(-5e-7).max_penetration_between_m == 0.0
+    assert between(-5e-6).between_point == "point"
+    assert between(-5e-6).max_penetration_between_m == pytest.approx(5e-6, rel=1e-9)
+
+
 def _kinematic_with_hole_reach(metric: float | None) -> replay.KinematicReport:
     """A KinematicReport clean in every respect but the contact points' deepest reach into plan.holes[0]."""
     return replay.KinematicReport(samples=2, max_penetration_m=0.0, worst_point=None, worst_time_s=None,
