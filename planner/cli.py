@@ -304,7 +304,9 @@ def main(argv: list[str] | None = None) -> int:
             # runner showed pyzmq's through meshcat as a second line of a one-line error)
             warnings.simplefilter("ignore", DeprecationWarning)
             for category in (UserWarning, RuntimeWarning):  # printed as warnings also under PYTHONWARNINGS=error,
-                warnings.simplefilter("default", category)  # which made the planner's input warnings tracebacks
+                # which made the planner's input warnings tracebacks (PYTHONWARNINGS=ignore still silences them)
+                if next((f[0] for f in warnings.filters if issubclass(category, f[2])), "default") == "error":
+                    warnings.simplefilter("default", category)
             warnings.showwarning = lambda message, category, *_: print(
                 f"planner {args.command}: warning: {message}"
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)

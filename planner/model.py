@@ -77,11 +77,15 @@ class Robot:
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
         [kg or kg m^2]: the solvers' tolerances are absolute, so lighter bodies' motions are not resolved. InputError
-        for a q of another length."""
-        q = np.array(q, float)
-        if q.shape != (self.nq,):  # (Pinocchio's ValueError)
-            raise InputError(f"check_inertia's q must have shape ({self.nq},) for {self.name!r}, got {q.shape}")
-        diagonal = np.diag(pin.crba(self.model, self.model.createData(), q))
+        for a q of other numbers than nq (Pinocchio's or numpy's ValueError)."""
+        try:
+            values = np.array(q, float)
+        except (TypeError, ValueError):
+            values = None
+        if values is None or values.shape != (self.nq,):
+            raise InputError(f"check_inertia's q must have shape ({self.nq},) for {self.name!r}, got "
+                             + (f"{q!r:.60}" if values is None else f"{values.shape}"))
+        diagonal = np.diag(pin.crba(self.model, self.model.createData(), values))
         light = [f"{name} ({m:.3g})" for name, m in zip(self.dof_names, diagonal) if not m >= MIN_DOF_INERTIA]
         if light:
             raise RobotFileError(f"{self.path}: degrees of freedom lighter than {MIN_DOF_INERTIA:g} kg (or kg m^2) at "

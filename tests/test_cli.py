@@ -1616,6 +1616,10 @@ def test_the_planners_warnings_stay_warnings_under_an_error_filter(tmp_path, cap
     task = tmp_path / "gh.toml"
     task.write_text("ground_height = 0.1\n" + (ROBOTS_DIR / "point_mass.toml").read_text())
     with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (PYTHONWARNINGS=ignore: silent, as it was before errors were handled)
+        assert main(["simulate", "point_mass", "--task", str(task), "--out", str(tmp_path / "o"), "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert main(["simulate", "point_mass", "--task", str(task), "--out", str(tmp_path / "o"), "-q"]) == 0
     line = "planner simulate: warning: the robot file's ground plane (geom 'ground') is at z = 0 m"

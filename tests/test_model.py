@@ -79,6 +79,8 @@ def test_check_inertia_refuses_a_q_of_another_length():
     ValueError)."""
     with pytest.raises(InputError, match=r"check_inertia's q must have shape \(2,\) for 'point_mass', got \(5,\)"):
         load_robot("point_mass").check_inertia(np.zeros(5))
+    with pytest.raises(InputError, match=r"check_inertia's q must have shape \(2,\)"):  # (numpy's ValueError)
+        load_robot("point_mass").check_inertia("ab")
 
 
 def test_the_package_says_it_is_typed():
