@@ -971,6 +971,11 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
     if start.horizon.N != task.horizon.N:  # (the list of causes named N among others)
         said += (f"; horizon.N is {start.horizon.N} there and {task.horizon.N} here (--steps included): give "
                  f"--steps {start.horizon.N} to replan from it, or plan without --init")
+    periodic = [t.plan is not None and t.plan.periodic is not None for t in (start, task)]
+    if periodic[0] != periodic[1]:  # (it named robot, contacts, N, discretization and options, all the same)
+        said += (f"; the plan there is {'periodic' if periodic[0] else 'to a target'} and this task "
+                 f"{'is periodic' if periodic[1] else 'has a target'}: a periodic plan's free start y_0 adds "
+                 "variables, so plan without --init")
     timed = [t.horizon.physical_time is not None for t in (start, task)]
     if timed[0] != timed[1]:  # (the message's list of causes named neither)
         said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "

@@ -759,6 +759,12 @@ def test_plan_init_replans_from_an_earlier_plan(tmp_path, capsys):
     (tmp_path / "timed.toml").write_text(HOP_TOML.format(x=0.55).replace("N = 20\n", "N = 20\nphysical_time = 0.9\n"))
     timed = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "timed.toml") for a in argv]
     _one_line_exit_2(capsys, timed, "horizon.physical_time is set here only: it adds a speed of time per step")
+    # a periodic task from a plan to a target: its free start y_0 (it named robot, contacts, N, ... all the same)
+    (tmp_path / "cycle.toml").write_text(HOP_TOML.format(x=0.5).replace("target_q = [0.5, 0.0]\n", "")
+                                         + '[plan.periodic]\nstep = 0.5\nfixed = ["x", "z"]\n')
+    cycle = [a if a != str(tmp_path / "closer.toml") else str(tmp_path / "cycle.toml") for a in argv]
+    _one_line_exit_2(capsys, cycle, "; the plan there is to a target and this task is periodic: a periodic plan's "
+                     "free start y_0 adds variables, so plan without --init")
     _one_line_exit_2(capsys, argv + ["--discretization", "fesd"], "--init works with --discretization implicit_euler only")
     # a failed plan's last iterate, and a plan of another robot file whose names match (another mass): accepted before
     summary = json.loads((tmp_path / "hop" / "summary.json").read_text())
@@ -1657,3 +1663,15 @@ def test_validating_a_plan_without_its_task_json_says_the_task_file_is_read_as_i
     (out / "trajectory.npz").write_bytes(b"")  # (the note's reading of it was a traceback, the review)
     assert main(["validate", str(out)]) == 2
     assert "trajectory.npz is not a readable .npz file: it is no zip archive" in capsys.readouterr().err
+
+
+def test_a_periodic_plans_report_calls_its_residual_periodicity(tmp_path, capsys):
+    """A periodic plan's headline calls its terminal rows' residual the periodicity error (they are
+    q(tau_f) = S q(0) + step e_along and v(tau_f) = S v(0); it read "terminal error" of a task without a target)."""
+    task = tmp_path / "cycle.toml"
+    task.write_text(HOP_TOML.format(x=0.4).replace("target_q = [0.4, 0.0]\n", "")
+                    + '[plan.periodic]\nstep = 0.4\nfixed = ["x", "z"]\n')
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "o"), "--no-validate",
+                 "--no-plots", "--no-race"]) == 0
+    headline = capsys.readouterr().out.splitlines()[0]
+    assert ", periodicity error " in headline and "terminal error" not in headline, headline
