@@ -11,6 +11,12 @@ must pickle. Every item gives exactly one result, in item order: fn's return val
 record when fn raised (or its worker process died, or its result did not come back). A crash never
 stops the sweep. `with stage("solve"): ...` inside fn names the stage a crash came from.
 
+Local processes are spawned, so a script that calls run_batch needs the `if __name__ == "__main__":` guard (without
+it every job reads "the worker process died"). When a worker dies (killed from outside, or by its job), every job
+the pool had not returned is rerun, one at a time, each in a fresh process: only a job that kills its worker again
+is a `Crashed` record, a job killed once from outside is rerun without a trace, and the sweep goes on serially.
+Dask retries a lost job on other workers as its scheduler is set to.
+
 Dask (`pip install "dask[distributed]"`, the `batch` extra) is imported only when a scheduler is given.
 """
 from __future__ import annotations
@@ -182,14 +188,18 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
         raise
     pool.shutdown()
     for i in sorted(lost):  # each in its own process, so the one that kills its worker is the one reported
-        with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=killed_with_parent) as pool:
-            try:
-                results[i] = pool.submit(_call, ref, items[i]).result()
-            except BrokenProcessPool as exc:
-                results[i] = Crashed(stage="worker", error=f"the worker process died ({type(exc).__name__}: {exc})",
-                                     traceback="".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
-            except Exception as exc:  # noqa: BLE001
-                results[i] = crashed_record(exc, "transfer")
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=killed_with_parent)
+        try:
+            results[i] = pool.submit(_call, ref, items[i]).result()
+        except BrokenProcessPool as exc:
+            results[i] = Crashed(stage="worker", error=f"the worker process died ({type(exc).__name__}: {exc})",
+                                 traceback="".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+        except Exception as exc:  # noqa: BLE001
+            results[i] = crashed_record(exc, "transfer")
+        except BaseException:  # (a `with` waited for the running job on a Ctrl-C: up to its whole solve)
+            _stop(pool)
+            raise
+        pool.shutdown()
         if progress:
             progress(i, results[i])
     return results

@@ -100,6 +100,50 @@ def test_a_stopped_batch_stops_its_queued_and_running_jobs(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["job0"]
 
 
+def dies_once(arg):
+    """A job that kills its worker the first time any job runs (marker file absent), else sleeps `seconds` and
+    leaves its file behind."""
+    import os
+    import pathlib
+    import signal
+    import time
+
+    marker, path, seconds = arg
+    if not os.path.exists(marker):
+        pathlib.Path(marker).write_text("killed")
+        os.kill(os.getpid(), signal.SIGKILL)
+    time.sleep(seconds)
+    pathlib.Path(path).write_text("done")
+    return path
+
+
+def test_a_stopped_batch_stops_the_rerun_of_a_dead_workers_jobs(tmp_path):
+    """A Ctrl-C while the jobs of a dead worker are rerun one by one ends the running rerun at once: its pool's `with`
+    waited for the job to finish first (a 30 s job kept a stopped sweep 21 s, a Capler task would keep it ~30 min,
+    session 59's tester). The first job kills its worker, so both are rerun; the Ctrl-C (an alarm set after the
+    first rerun) comes during the second's 3 s, which leaves no file."""
+    import signal
+    import time
+
+    marker = str(tmp_path / "marker")
+    items = [(marker, str(tmp_path / "job0"), 0.0), (marker, str(tmp_path / "job1"), 3.0)]
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        started = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            run_batch(dies_once, items, workers=1, progress=lambda i, r: signal.setitimer(signal.ITIMER_REAL, 0.3))
+        stopped = time.monotonic() - started
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+    time.sleep(3.5)  # a rerun left running would finish in the meantime
+    assert (tmp_path / "job0").exists() and not (tmp_path / "job1").exists(), stopped
+
+
 def test_rejects_lambda_and_negative_workers():
     """A lambda, and workers that are no integer >= 0 (a str raised TypeError, 2.5 and True ran), are InputErrors."""
     assert run_batch(square_or_raise, []) == []
