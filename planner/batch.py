@@ -225,7 +225,7 @@ def _run_dask(fn, items: Sequence[Any], scheduler: Any, progress) -> list[Any]:
     own = not isinstance(scheduler, Client)
     try:
         client = Client(scheduler) if own else scheduler
-    except (OSError, ValueError) as exc:  # unreachable (distributed's connect timeout) or not an address
+    except (OSError, ValueError, TypeError) as exc:  # unreachable (distributed's connect timeout), not an address
         raise InputError(f"cannot use the Dask scheduler {scheduler!r}: {exc}") from None
     try:
         ref = _FnRef.of(fn)

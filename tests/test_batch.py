@@ -188,6 +188,14 @@ def test_unreachable_scheduler_is_an_input_error(monkeypatch):
         run_batch(square_or_raise, [1], scheduler="tcp://127.0.0.1:1")
 
 
+def test_a_scheduler_of_another_type_is_an_input_error():
+    """A scheduler that is neither an address nor a Cluster (42) is an InputError naming it, not distributed's
+    TypeError (session 59's tester)."""
+    pytest.importorskip("dask.distributed")
+    with pytest.raises(InputError, match=r"cannot use the Dask scheduler 42: .*string or a Cluster"):
+        run_batch(square_or_raise, [1], scheduler=42)
+
+
 def test_missing_dask_says_what_to_install(monkeypatch):
     """A scheduler given while dask cannot be imported (the import is made to fail) is an InputError that names the
     pip install 'dask[distributed]' to run, not an ImportError."""
