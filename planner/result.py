@@ -249,8 +249,8 @@ class Trajectory(ArraysReadOnly):
         if self.contact_force is None or len(self.contact_force) == 0:
             return None
         clock = self.y[1:, -1]
-        # a step that ran the clock ends at a new time (a frozen one's leak of ~1e-6 of it had read as running)
-        running = np.concatenate([[True], np.diff(clock) > FROZEN_TOL * np.diff(self.tau)[1:]])
+        # a step that ran the clock ends at a new time (a frozen one's leak had read as running)
+        running = np.concatenate([[True], clock_ran(clock, np.diff(self.tau)[1:])])
         ts, f = clock[running], self.contact_force[running]
         out = [np.column_stack([np.interp(self.t, ts, f[:, c, j]) for c in range(f.shape[1])]) for j in (0, 1)]
         return out[0], out[1]
@@ -698,6 +698,14 @@ def race_arms_text(arms: list[dict]) -> str:
 # step; real impact entries froze at least 1.4e-2 (point mass and Capler drops): 1e-4 reported
 # false impacts of 3e-4 to 2e-3 N s next to a 2 N s landing.
 FROZEN_TOL = 1e-2
+
+
+def clock_ran(clock: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(N,) bool: which of N steps ran the clock, by the clock at their nodes clock (N+1,) [s] and their numerical
+    lengths (N,) [s]: more than FROZEN_TOL of the step (a fully frozen step's clock leaks ~1e-6 of it)."""
+    return np.diff(clock) > FROZEN_TOL * np.asarray(lengths, float)
+
+
 # A FESD element shorter than this share of the longest is collapsed (its length is ~0 up to IPOPT's
 # bound relaxation, ~1e-10 s measured) and never frozen; implicit Euler steps all have length h s >= h.
 COLLAPSED = 1e-6

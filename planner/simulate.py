@@ -34,7 +34,7 @@ from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record, shown_up
 from .model import Robot
 from .result import (APPROACH_MPS, COLLAPSED, CONE_FLOOR_N, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
-                     Trajectory, cone_breach, forces_outside_cone, recover)
+                     Trajectory, clock_ran, cone_breach, forces_outside_cone, recover)
 from .task import Task
 from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
 
@@ -771,7 +771,7 @@ def _contact_force(system: TimeFreezingSystem, builder: ImplicitEulerStep, Y, W,
                 name = f"lambda_{kind}[{label}]"
                 if name in system.lam_names:
                     out[:, c, j] = forces[:, system.lam_names.index(name)]
-        out[np.diff(Y[:, -1]) <= FROZEN_TOL * np.asarray(dt, float)] = 0.0
+        out[~clock_ran(Y[:, -1], dt)] = 0.0
         return out
     if n_c != 1 or system.models[0] is ContactModel.ELASTIC:
         return None
