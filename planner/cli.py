@@ -809,7 +809,7 @@ def _cmd_plan(args) -> int:
         from .replay import build_scene
 
         build_scene(robot, task)
-        if task.plan is not None and task.plan.periodic is not None:  # its validation walks it (after the solve)
+        if task.is_periodic:  # its validation walks it (after the solve)
             from .gait import check_walkable
 
             try:
@@ -971,7 +971,7 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
     if start.horizon.N != task.horizon.N:  # (the list of causes named N among others)
         said += (f"; horizon.N is {start.horizon.N} there and {task.horizon.N} here (--steps included): give "
                  f"--steps {start.horizon.N} to replan from it, or plan without --init")
-    periodic = [t.plan is not None and t.plan.periodic is not None for t in (start, task)]
+    periodic = [start.is_periodic, task.is_periodic]
     if periodic[0] != periodic[1]:  # (it named robot, contacts, N, discretization and options, all the same)
         said += (f"; the plan there is {'periodic' if periodic[0] else 'to a target'} and this task "
                  f"{'is periodic' if periodic[1] else 'has a target'}: a periodic plan's free start y_0 adds "

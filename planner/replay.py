@@ -711,7 +711,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
     if summary.get("command") not in ("plan", "simulate"):  # (the hole and own-dynamics checks were skipped unsaid)
         raise InputError(f"{out_dir}/summary.json: command {shown(summary.get('command'))} is none of 'plan', "
                          "'simulate' (was the file edited?)")
-    if task.plan is not None and task.plan.periodic is not None and summary.get("command") == "plan":
+    if task.is_periodic and summary.get("command") == "plan":
         validation = _walk(robot, task, traj, options)
     else:
         contacts, taps = _impact_points(summary, task, check_trajectory(robot, traj)["impact_times"], out_dir)
@@ -770,7 +770,7 @@ def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: Val
     expect(options, (ValidationOptions, type(None)), "validate_plan's options")
     expect(dynamics, bool, "validate_plan's dynamics")
     arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
-    if task.plan is not None and task.plan.periodic is not None:  # (it was tracked, and failed where validate passed)
+    if task.is_periodic:  # (it was tracked, and failed where validate passed)
         return _walk(robot, task, arrays, options)
     return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
                                impact_taps=trajectory.taps, dynamics=dynamics)

@@ -638,8 +638,7 @@ class PlanResult(ArraysReadOnly):
     def report(self) -> str:
         tr, st = self.trajectory, self.stats
         task = self.extra.get("_task")  # a periodic plan's terminal rows are its periodicity (it read "terminal error")
-        periodic = task is not None and task.plan is not None and task.plan.periodic is not None
-        residual = "periodicity" if periodic else "terminal"
+        residual = "periodicity" if task is not None and task.is_periodic else "terminal"
         lines = [_headline(self, "") + f", {residual} error {self.terminal_error:.1e})"]
         lines += [f"  {r.label:<11} rho {r.rho:8.3g}  holes x{r.hole_scale:g}  {r.iterations:5d} it  {r.time_s:7.2f} s  "
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}"

@@ -466,6 +466,11 @@ class Task:
                             "undefined there (NaN in the solve): give it mu = 0 (no friction), start from another "
                             "pose, or give the robot a degree of freedom that moves it so")
 
+    @property
+    def is_periodic(self) -> bool:
+        """Whether the task plans one step of a periodic gait (plan.periodic) instead of reaching a target."""
+        return self.plan is not None and self.plan.periodic is not None
+
     def check_against(self, robot) -> None:
         """Robot-dependent validation: names exist, lengths match, targets are inside the limits; the robot's physics
         is what the planner models (no passive joint forces, contact points in the x-z plane). An error in the task
