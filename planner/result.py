@@ -19,9 +19,11 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import glob
+import importlib.metadata
 import io
 import json
 import os
+import platform
 import signal
 import stat
 import tempfile
@@ -917,6 +919,24 @@ def directory_lock(out_dir: Path):
         os.close(fd)  # closing releases the lock
 
 
+# the distributions whose versions a result records: a plan's homotopy path moves with CasADi's rounding, and the
+# dynamics and the validation come from Pinocchio and MuJoCo
+VERSIONED = ("casadi", "pin", "mujoco", "numpy")
+
+
+def software_versions() -> dict[str, str]:
+    """planner's, Python's and VERSIONED's versions, as summary.json's `versions` records them ("not installed" for a
+    distribution without metadata, e.g. a source checkout on sys.path)."""
+    from . import __version__
+    versions = {"planner": __version__, "python": platform.python_version()}
+    for name in VERSIONED:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
 def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict,
                 result_id: str | None = None) -> tuple[Path, Path]:
     """Write DIR/trajectory.npz (arrays) and DIR/summary.json atomically (temp files + os.replace), both written before
@@ -935,7 +955,8 @@ def write_files(out_dir: str | os.PathLike, arrays: dict, summary: dict,
         raise write_error(out, exc, "cannot create output directory") from None
     # one id in both files: a crash between their renames leaves two results' files, which readers then refuse
     result_id = uuid.uuid4().hex if result_id is None else result_id
-    arrays, summary = {**arrays, "result_id": np.array(result_id)}, {**summary, "result_id": result_id}
+    arrays = {**arrays, "result_id": np.array(result_id)}
+    summary = {**summary, "versions": software_versions(), "result_id": result_id}
     npz, path = out / "trajectory.npz", out / "summary.json"
     for target in (npz, path):  # its rename would fail after the other's: refused before either file is written
         if target.is_dir():

@@ -13,7 +13,7 @@ HOP_TASK = (ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("\nN = 20\n"
 assert "\nN = 40\n" in HOP_TASK, "robots/point_mass_hop.toml's horizon line changed"
 
 CONTRACT = ("command", "robot", "task", "converged", "solve_time_s", "n_nlp", "ipopt_iterations", "complementarity_residual",
-            "terminal_error", "physical_duration_s", "impacts", "hops", "nlps")
+            "terminal_error", "physical_duration_s", "impacts", "hops", "nlps", "versions")
 
 
 def test_plan_command_writes_results(tmp_path, capsys):

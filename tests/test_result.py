@@ -970,3 +970,25 @@ def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatc
     with pytest.raises(PlannerError, match="cannot read robot file") as caught:
         detect_format(tmp_path / "robot.xml")
     assert not isinstance(caught.value, RobotFileError)
+
+
+def test_summary_records_the_software_that_wrote_it(tmp_path, monkeypatch):
+    """summary.json's `versions` names the planner, Python and the libraries that shape a plan, each as the imported
+    module reports it (a hint-free plan reproduces only on the same CasADi), and a distribution without metadata is
+    "not installed", not a crash."""
+    import platform
+
+    import casadi
+    import mujoco
+    import pinocchio
+
+    import planner
+    write_results(_tiny_result(2), tmp_path / "a")
+    versions = json.loads((tmp_path / "a" / "summary.json").read_text())["versions"]
+    assert versions == {"planner": planner.__version__, "python": platform.python_version(),
+                        "casadi": casadi.__version__, "pin": pinocchio.__version__, "mujoco": mujoco.__version__,
+                        "numpy": np.__version__}
+    monkeypatch.setattr("planner.result.VERSIONED", ("casadi", "no-such-distribution"))
+    write_results(_tiny_result(2), tmp_path / "b")
+    versions = json.loads((tmp_path / "b" / "summary.json").read_text())["versions"]
+    assert versions["no-such-distribution"] == "not installed" and "mujoco" not in versions
