@@ -490,8 +490,8 @@ def _failure(summary: dict) -> str:
 
 def _emit(args, summary: dict, text: str, written: bool = False) -> None:
     """Print the summary (--json) or the text (unless -q). written: the command wrote a result, whose versions
-    and result_id the printed summary gets too (--json printed summary.json without them): args.result_id, the one this run wrote
-    (read back from DIR, it could be another run's written after it)."""
+    and result_id the printed summary gets too (--json printed summary.json without them): args.result_id, the one
+    this run wrote (read back from DIR, it could be another run's written after it)."""
     if written:
         from .result import software_versions
         summary = {**summary, "versions": software_versions(), "result_id": args.result_id}
