@@ -1482,7 +1482,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
-                   gap)
+                   gap, problem.task.plan.holes)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,

@@ -549,14 +549,24 @@ APPROACH_MPS = 1e-3
 LANDING_SLACK_S = 1e-9
 
 
-def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None) -> list[Hop]:
+def _passes_over(hole, start, end) -> bool:
+    """Whether the straight segment from start to end (3,) [m] enters hole (a task's Ellipse in x, z)."""
+    (x0, z0), (dx, dz) = (start[0] - hole.x, start[2] - hole.z), (end[0] - start[0], end[2] - start[2])
+    quad = (dx / hole.a) ** 2 + (dz / hole.b) ** 2  # the metric along the segment: quad s^2 + lin s + hole.metric(start)
+    lin = 2.0 * (x0 * dx / hole.a**2 + z0 * dz / hole.b**2)
+    s = min(max(-lin / (2.0 * quad), 0.0), 1.0) if quad > 0.0 else 0.0
+    return ((x0 + s * dx) / hole.a) ** 2 + ((z0 + s * dz) / hole.b) ** 2 < 1.0
+
+
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=()) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
     does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
     contact plane (unit normal (3,); ON_PLANE_M: a slide, on a slope too), is left out. gap (N+1,), the smallest
     distance of the contact points from their planes at the nodes [m], when given: a phase from node 0 off the planes
     is a fall, no hop, a phase whose last node is off them lands in the next step (partly frozen), whose end node it
-    takes too, and one whose last node is on them without an impact lands there."""
+    takes too, and one whose last node is on them without an impact lands there; a one-step phase on the planes at
+    both ends is a skim, no hop, unless its point passes over one of holes (the task's Ellipses) on the way."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -577,6 +587,11 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
         if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
+            continue
+        # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards, with
+        # the foot 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
+        if (k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M
+                and not any(_passes_over(hole, seg[0], seg[-1]) for hole in holes)):
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
