@@ -394,6 +394,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         states["plan.target_q"] = system.initial_state(np.array(plan.target_q, float), np.zeros(nv))
     never = [c for c in task.contacts if c.point in skips.never_touching]
     for key, y in states.items():
+        # (a periodic task's start is a guess the node rows move, yet the guess in the ground is refused too)
+        key += " (with plan.periodic the initial guess of q(0))" if periodic and key == "initial.q" else ""
         gaps = list(np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel())
         for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
             gaps.append(float(plane_gap(dyn, c, y[:nq], task.ground_height)))
@@ -409,6 +411,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                 raise InputError(f"{key} puts point {pt!r} {shown_up(-height)} m below the ground (plan.above_ground "
                                  f"holds it above); move it up by that much (up to {START_GAP_M:g} m in is allowed)")
     _check_outside_holes(dyn, task.contacts, task)
+    _check_target_not_landing(system, task, contacts)
 
     if options.discretization is Discretization.FESD:
         return _build_fesd(robot, task, options, dyn, skips, contacts, system, builder, switch_scale, y0, start)
@@ -1020,6 +1023,27 @@ def _free_start_rows(rows: _Rows, path_fn: dict, y_0, hole_scale) -> None:
             rows.add(f"{name}_y0", [path_fn[name](y_0, *((hole_scale,) if name == "holes" else ()))], 0.0, np.inf)
 
 
+TARGET_LANDING_MPS = 1e-3  # [m/s] a target contact on its plane moving into it faster than this ends in an impact
+
+
+def _check_target_not_landing(system: TimeFreezingSystem, task: Task, contacts) -> None:
+    """InputError when plan.target_v moves a contact point into its plane while plan.target_q puts it on that plane:
+    the plan's last steps then freeze inside the impact (the point-mass hop with target_v = (0, -1) m/s ended with an
+    impact whose "post-impact" velocity still pointed 1 m/s into the ground, exit 0)."""
+    plan = task.plan
+    if plan.target_q is None or plan.target_v is None:  # (terminal_velocity=False refuses a target_v)
+        return
+    y = system.initial_state(np.array(plan.target_q, float), np.array(plan.target_v, float))
+    u = np.zeros(system.nu)
+    gaps = np.asarray(system.gap_fn(y, u), float).ravel()
+    speeds = np.asarray(system.normal_velocity_fn(y, u), float).ravel()
+    for c, gap, speed in zip(contacts, gaps, speeds):
+        if gap <= START_GAP_M and speed < -TARGET_LANDING_MPS:
+            raise InputError(f"plan.target_v moves contact point {c.point!r} {-speed:.6g} m/s into its plane, on which "
+                             f"plan.target_q puts it: the plan would end inside an impact; give a target_v without "
+                             f"speed into the plane there, or a target above it")
+
+
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
     """InputError when task.initial.q or plan.target_q (nq,) [m, rad] puts a contact point inside one of the plan's
     holes. The last node is held both at the target and out of the holes, so no plan exists (Capler's target x = 2.6 m
@@ -1034,8 +1058,10 @@ def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
             for i, e in enumerate(plan.holes):
                 if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
                     start = key == "initial.q"
-                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.4g}, z = {p[2]:.4g} m, "
-                                     f"inside plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}); no "
+                    # (the metric, not only the position: 1 nm inside the rim printed x = 0.25, the rim itself)
+                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.10g}, z = {p[2]:.10g} m, "
+                                     f"inside plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}; "
+                                     f"ellipse metric {e.metric(p[0], p[2]):.10g} < 1); no "
                                      f"plan can {'start' if start else 'end'} there: move the "
                                      f"{'start' if start else 'target'} or the hole")
 

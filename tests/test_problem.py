@@ -464,7 +464,8 @@ def test_a_urdf_joint_speed_limit_bounds_that_joint_at_every_node(capler_small, 
 def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     """A task whose target puts a contact point inside a hole (Capler's base at x = 2.6 m stands the foot in the
     third hole, 2.25 .. 2.75 m) has no plan: build_problem says which point and hole. A target on the hole's rim
-    (x = 2.75 m) is outside and builds. A start inside a hole is refused the same way."""
+    (x = 2.75 m) is outside and builds, and one 10 nm inside it is refused with digits and the ellipse metric that show
+    it inside. A start inside a hole is refused the same way."""
     from planner.discretization import Discretization
 
     robot, task, _ = capler_small
@@ -476,6 +477,10 @@ def test_a_target_inside_a_hole_is_an_input_error(capler_small, discretization):
     with pytest.raises(InputError, match=r"plan.target_q puts contact point 'foot' .* inside plan.holes\[2\]"):
         build_problem(robot, at(2.6), options)
     build_problem(robot, at(2.75), options)
+    # 10 nm inside the rim: the message's digits show it inside (x = 2.75, the rim itself, was printed)
+    with pytest.raises(InputError, match=r"at x = 2\.74999999, z = 0 m, inside plan.holes\[2\] .*ellipse metric "
+                                         r"0\.99999992 < 1\)"):
+        build_problem(robot, at(2.75 - 1e-8), options)
     # a start standing in a hole likewise (the holes' rows start at node 1: it was planned, and validated)
     hole = dataclasses.replace(task.plan.holes[0], x=0.0)
     start_in_hole = dataclasses.replace(task, plan=dataclasses.replace(task.plan, holes=(hole,) + task.plan.holes[1:]))
@@ -590,3 +595,34 @@ def test_a_periodic_plans_free_start_stays_out_of_the_holes():
     assert result.stats.converged, result.stats.message
     x0, z0 = result.trajectory.q[0]
     assert task.plan.holes[0].metric(x0, z0) >= 1.0 - 1e-6  # outside, up to IPOPT's bound relaxation
+
+
+def test_a_periodic_guess_in_the_ground_is_refused_as_a_guess():
+    """A periodic task's initial.q is the guess of q(0), not a start: a guess 1 cm in the ground is refused with that
+    said (it read as a start, where the joint-bounds message of the same task said it was a guess)."""
+    robot = load_robot(f"{ROBOTS}/biped.xml")
+    task = load_task(f"{ROBOTS}/biped.toml")
+    assert task.is_periodic
+    q = list(task.initial.q)
+    q[1] -= 0.01  # the hip's height [m]
+    task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=tuple(q)), horizon=Horizon(tau_f=0.12, N=4))
+    with pytest.raises(InputError, match=r"^initial.q \(with plan.periodic the initial guess of q\(0\)\) puts contact "
+                                         r"point 'foot_\d' 0.01 m below the ground"):
+        build_problem(robot, task)
+
+
+def test_a_target_moving_into_the_ground_on_it_is_an_input_error():
+    """A target on the ground whose target_v moves the contact point into it has no plan that ends after its impact:
+    build_problem refuses it naming the point and the speed (the point-mass hop ended inside an impact, exit 0); the
+    same velocity 1 cm above the ground, or along it, builds."""
+    def hop(target_z: float, target_v):
+        return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                           "horizon": {"tau_f": 1.0, "N": 4},
+                           "plan": {"target_q": [0.5, target_z], "target_v": target_v, "u_bound": 30.0}})
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    with pytest.raises(InputError, match=r"^plan.target_v moves contact point 'point' 1 m/s into its plane, on which "
+                                         r"plan.target_q puts it: the plan would end inside an impact"):
+        build_problem(robot, hop(0.0, [0.0, -1.0]))
+    build_problem(robot, hop(0.01, [0.0, -1.0]))
+    build_problem(robot, hop(0.0, [1.0, 0.0]))
