@@ -357,8 +357,8 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
                 out.append(f"joint {joint!r}: actuatorfrcrange [{lo:g}, {hi:g}] narrower than its motors' force range "
                            f"[{reach[0]:g}, {reach[1]:g}]")
         if mj.jnt_limited[j] and mj.jnt_margin[j]:  # (a plan on its bounds validated 45-198 mm off the plan's path)
-            out.append(f"joint {joint!r}: margin {mj.jnt_margin[j]:g}: MuJoCo's limit pushes that far inside the range, "
-                       "where the planner's bounds allow motion; remove margin")
+            out.append(f"joint {joint!r}: margin {mj.jnt_margin[j]:g}: MuJoCo's limit pushes that far inside the "
+                       "range, where the planner's bounds allow motion; remove margin")
         mujoco_range = tuple(float(x) for x in mj.jnt_range[j]) if mj.jnt_limited[j] else (-np.inf, np.inf)
         if not np.allclose(mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):
             out.append(f"joint {joint!r}: range [{mujoco_range[0]:g}, {mujoco_range[1]:g}] in MuJoCo, [{lower[i]:g}, {upper[i]:g}] in Pinocchio")

@@ -552,7 +552,8 @@ LANDING_SLACK_S = 1e-9
 def _passes_over(hole, start, end) -> bool:
     """Whether the straight segment from start to end (3,) [m] enters hole (a task's Ellipse in x, z)."""
     (x0, z0), (dx, dz) = (start[0] - hole.x, start[2] - hole.z), (end[0] - start[0], end[2] - start[2])
-    quad = (dx / hole.a) ** 2 + (dz / hole.b) ** 2  # the metric along the segment: quad s^2 + lin s + hole.metric(start)
+    # the metric along the segment, s in [0, 1]: quad s^2 + lin s + hole.metric(start)
+    quad = (dx / hole.a) ** 2 + (dz / hole.b) ** 2
     lin = 2.0 * (x0 * dx / hole.a**2 + z0 * dz / hole.b**2)
     s = min(max(-lin / (2.0 * quad), 0.0), 1.0) if quad > 0.0 else 0.0
     return ((x0 + s * dx) / hole.a) ** 2 + ((z0 + s * dz) / hole.b) ** 2 < 1.0
@@ -588,8 +589,8 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
             continue
         if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
             continue
-        # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards, with
-        # the foot 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
+        # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards,
+        # 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
         if (k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M
                 and not any(_passes_over(hole, seg[0], seg[-1]) for hole in holes)):
             continue

@@ -605,7 +605,8 @@ def test_a_periodic_guess_in_the_ground_is_refused_as_a_guess():
     assert task.is_periodic
     q = list(task.initial.q)
     q[1] -= 0.01  # the hip's height [m]
-    task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=tuple(q)), horizon=Horizon(tau_f=0.12, N=4))
+    task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=tuple(q)),
+                               horizon=Horizon(tau_f=0.12, N=4))
     with pytest.raises(InputError, match=r"^initial.q \(with plan.periodic the initial guess of q\(0\)\) puts contact "
                                          r"point 'foot_\d' 0.01 m below the ground"):
         build_problem(robot, task)
