@@ -313,8 +313,9 @@ def _compile(robot: Robot):
 
 def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     """What MuJoCo applies from the file beyond the rigid-body dynamics and the joint passive terms Robot.passive
-    names: [option] flags, gravity compensation, tendon forces and limits, fluid forces, joint actuator force ranges,
-    joint limits other than Pinocchio's (the planner's bounds) and limits with a margin."""
+    names: [option] flags, gravity compensation, tendon forces and limits, actuators' armature, damping and delay,
+    fluid forces, joint actuator force ranges, joint limits other than Pinocchio's (the planner's bounds) and limits
+    with a margin."""
     import mujoco
 
     def name(kind, i):
@@ -335,6 +336,12 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
         terms += [f"range [{mj.tendon_range[t][0]:g}, {mj.tendon_range[t][1]:g}]"] if mj.tendon_limited[t] else []
         if terms:
             out.append(f"tendon {name(mujoco.mjtObj.mjOBJ_TENDON, t)!r}: {', '.join(terms)}")
+    for a in range(mj.nu):  # (named by their mass, passive or actuation gap alone, "masses MuJoCo infers" among causes)
+        terms = [f"{label} {' '.join(f'{float(x):g}' for x in np.atleast_1d(values[a]))}" for label, values in
+                 (("armature", mj.actuator_armature), ("damping", mj.actuator_damping),
+                  ("dampingpoly", mj.actuator_dampingpoly), ("delay", mj.actuator_delay)) if np.any(values[a])]
+        if terms:
+            out.append(f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)!r}: {', '.join(terms)}")
     if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):
         out.append(f"fluid forces (<option> density {mj.opt.density:g}, viscosity {mj.opt.viscosity:g}, wind {np.round(mj.opt.wind, 9).tolist()})")
     if robot.format is RobotFormat.MJCF:  # (the mass gap alone was named, "masses MuJoCo rescales" among its causes)

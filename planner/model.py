@@ -337,6 +337,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
         if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
+        if not hint and fmt is RobotFormat.MJCF and "min_effort are greater than max_effort" in reason:
+            hint = f" ({_reversed_force_ranges(path)})"
         if not hint and fmt is RobotFormat.MJCF and _main_class_undeclared(path):  # MuJoCo compiles it: no hint there
             hint = (" (the file uses class \"main\", MuJoCo's name of the top-level <default>, which Pinocchio's MJCF "
                     "parser knows only when declared: write the top-level <default> as <default class=\"main\">, or "
@@ -615,8 +617,16 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
         actuators.append(Actuator(name, int(mj.jnt_dofadr[jnt]), gear, float(lo), float(hi)))
     _mujoco_limits(path, model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
-    passive = _passive_terms(dof_names, (("damping", mj.dof_damping), ("frictionloss", mj.dof_frictionloss),
-                                         ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0))))
+    # a term the file's <flag damper/spring/frictionloss="disable"/> turns off MuJoCo does not apply (it was refused)
+    on = {flag: not mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))
+          for flag in ("damper", "spring", "frictionloss")}
+    stiffness = np.where(first[:, None], mj.jnt_stiffnesspoly[mj.dof_jntid], 0.0)
+    passive = _passive_terms(dof_names, (("damping", mj.dof_damping * on["damper"]),
+                                         ("dampingpoly", mj.dof_dampingpoly * on["damper"]),
+                                         ("frictionloss", mj.dof_frictionloss * on["frictionloss"]),
+                                         ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0)
+                                          * on["spring"]),
+                                         ("stiffnesspoly", stiffness * on["spring"])))
     site_names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)]
     world_sites = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] == 0)
     frames = {f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME}  # (a body of the site's name hid it)
@@ -650,10 +660,10 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
 
 
 def _passive_terms(dof_names, per_dof) -> tuple[str, ...]:
-    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" (none: ()). per_dof:
-    (label, (nv,) values) pairs."""
-    return tuple(f"joint {dof_names[i]!r}: {label} {float(values[i]):g}"
-                 for label, values in per_dof for i in range(len(dof_names)) if values[i] != 0.0)
+    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or "joint 'hip':
+    dampingpoly 0.5 0" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
+    return tuple(f"joint {dof_names[i]!r}: {label} {' '.join(f'{float(x):g}' for x in np.atleast_1d(values[i]))}"
+                 for label, values in per_dof for i in range(len(dof_names)) if np.any(values[i] != 0.0))
 
 
 # A URDF link with a joint but no mass (the carriage of a planar base made of two prismatic joints) is fine for
@@ -792,6 +802,22 @@ def _main_class_undeclared(path: Path) -> bool:
     elements = list(ET.parse(path).getroot().iter())
     used = any("main" in (e.get("class"), e.get("childclass")) for e in elements if e.tag != "default")
     return used and not any(e.get("class") == "main" for e in elements if e.tag == "default")
+
+
+def _reversed_force_ranges(path: Path) -> str:
+    """What to fix where Pinocchio found a joint's effort limits reversed: the MJCF joints whose actuatorfrcrange
+    writes its lower bound last (a reversed ctrlrange or range is named so too)."""
+    def reversed_(text: str) -> bool:
+        try:
+            lower, upper = (float(x) for x in text.split())
+        except ValueError:  # not two numbers: Pinocchio's own message stands for it
+            return False
+        return lower > upper
+
+    joints = [f"joint {e.get('name', '(unnamed)')!r}: actuatorfrcrange {e.get('actuatorfrcrange')}"
+              for e in ET.parse(path).iter("joint") if reversed_(e.get("actuatorfrcrange", ""))]
+    return ("; ".join(joints or ["a joint's actuatorfrcrange"])
+            + " has its lower bound above its upper: write the lower bound first")
 
 
 @contextlib.contextmanager

@@ -410,13 +410,17 @@ OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio=
     (OPTION, '<compiler settotalmass="2"/>' + OPTION, '<compiler settotalmass="2">: MuJoCo rescales the masses'),
     (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" range="-1 1" margin="0.2"/>', "joint 'x': margin 0.2: "
      "MuJoCo's limit pushes that far inside the range"),
+    ('<motor name="force_x" joint="x"', '<motor name="force_x" armature="0.01" damping="0.3" joint="x"',
+     "actuator 'force_x': armature 0.01, damping 0.3"),
+    ('<motor name="force_z" joint="z"', '<motor name="force_z" delay="0.02" nsample="20" joint="z"',
+     "actuator 'force_z': delay 0.02"),
     ('<site name="point"', '<body name="load"><geom type="sphere" size="0.02" mass="2"/></body><site name="point"',
      "mass matrix [kg, kg m, kg m^2] differs by up to 2 (e.g. masses MuJoCo infers from geoms"),
 ])
 def test_physics_only_mujoco_reads_fails_and_is_refused(tmp_path, old, new, named):
     """A robot file MuJoCo reads with physics Pinocchio's reading lacks (gravity compensation, [option] flags, fluid
     forces, tendon springs and limits, a slide joint's ref, settotalmass, a mass MuJoCo infers from a geom, a joint
-    limit's margin) fails
+    limit's margin, a motor's armature, damping or delay) fails
     check-model, naming it (the geom mass's as its mass error only; the ref and settotalmass were named by their site
     and mass errors alone), and simulate and plan refuse it naming it
     (Task.check_against): each of them had planned, and its MuJoCo validation PASSED, for physics the replay does not

@@ -295,10 +295,12 @@ def test_an_inverted_joint_range_is_refused_and_mujocos_element_named(tmp_path):
 
 
 @pytest.mark.parametrize("hip, term", [('damping="5"', "damping 5"), ('stiffness="50"', "stiffness 50"),
-                                       ('frictionloss="2"', "frictionloss 2")])
+                                       ('frictionloss="2"', "frictionloss 2"), ('damping="0 0.5"', "dampingpoly 0.5 0"),
+                                       ('stiffness="0 5"', "stiffnesspoly 5 0")])
 def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
-    """Joint damping, stiffness and friction loss are recorded (Robot.passive) and refused by a task's check, which
-    simulate and plan run: the planner's dynamics have none, MuJoCo's replay would."""
+    """Joint damping, stiffness and friction loss, polynomial ones too, are recorded (Robot.passive) and refused by a
+    task's check, which simulate and plan run: the planner's dynamics have none, MuJoCo's replay would (the
+    polynomial ones were named by check-model's passive gap alone)."""
     from planner.errors import RobotFileError as Refused
     from planner.task import parse_task
 
@@ -307,6 +309,27 @@ def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
     task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.5, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10}})
     with pytest.raises(Refused, match=f"hip': {term}: the planner's dynamics have neither passive joint forces"):
         task.check_against(robot)
+
+
+@pytest.mark.parametrize("hip, flag", [('damping="5"', "damper"), ('damping="0 5"', "damper"),
+                                       ('stiffness="50"', "spring"), ('frictionloss="2"', "frictionloss")])
+def test_passive_forces_the_file_disables_are_none(tmp_path, hip, flag):
+    """A passive term whose <flag ...="disable"/> the file sets is no passive force (MuJoCo applies none: they were
+    refused, "MuJoCo applies what the planner does not model"), and check-model's passive gap agrees."""
+    from planner.check import check_model
+
+    robot = load_robot(_hopper(tmp_path, hip=hip, extra=f'<option><flag {flag}="disable"/></option>'))
+    assert robot.passive == ()
+    assert check_model(robot, samples=2).passed
+
+
+def test_a_reversed_actuatorfrcrange_is_named(tmp_path):
+    """A joint's actuatorfrcrange written upper bound first fails Pinocchio's parse ("min_effort are greater than
+    max_effort", no joint named); the refusal names the joint and says to write the lower bound first, as a reversed
+    ctrlrange's does."""
+    with pytest.raises(RobotFileError, match=r"min_effort are greater than max_effort \(joint 'hip': actuatorfrcrange "
+                                             r"30 -30 has its lower bound above its upper: write the lower bound first"):
+        load_robot(_hopper(tmp_path, hip='actuatorfrcrange="30 -30"'))
 
 
 def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checked(tmp_path):
