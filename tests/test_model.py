@@ -327,8 +327,9 @@ def test_a_reversed_actuatorfrcrange_is_named(tmp_path):
     """A joint's actuatorfrcrange written upper bound first fails Pinocchio's parse ("min_effort are greater than
     max_effort", no joint named); the refusal names the joint and says to write the lower bound first, as a reversed
     ctrlrange's does."""
-    with pytest.raises(RobotFileError, match=r"min_effort are greater than max_effort \(joint 'hip': actuatorfrcrange "
-                                             r"30 -30 has its lower bound above its upper: write the lower bound first"):
+    with pytest.raises(RobotFileError, match=r"min_effort are greater than max_effort \(joint 'hip': "
+                                             r"actuatorfrcrange 30 -30 has its lower bound above its upper: write the "
+                                             r"lower bound first"):
         load_robot(_hopper(tmp_path, hip='actuatorfrcrange="30 -30"'))
 
 
