@@ -40,6 +40,8 @@ MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
+# [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed in the solver's NaNs, exit 1)
+MAX_STATE = 1e6
 # more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs
 MAX_NLPS = 100
 
@@ -95,6 +97,8 @@ class Initial:
 
     def __post_init__(self):
         _typed(self, "initial")
+        _require_state(self.q, "initial.q")
+        _require_state(self.v, "initial.v")
 
 
 @dataclass(frozen=True)
@@ -254,6 +258,8 @@ class Plan:
                 _require(getattr(self, key) is None, f"plan.{key}", list(getattr(self, key) or ()),
                          "omitted with plan.periodic (the end state is the relabelled, shifted initial state)")
         _require(self.rho_f >= 0, "plan.rho_f", self.rho_f, ">= 0")
+        _require_state(self.target_q, "plan.target_q")
+        _require_state(self.target_v, "plan.target_v")
         if self.u_bound is not None:
             _require(self.u_bound > 0, "plan.u_bound", self.u_bound, "> 0")
 
@@ -960,6 +966,12 @@ def _typed(obj, section: str) -> None:
 def _require(ok: bool, key: str, value, allowed: str) -> None:
     if not ok:
         raise TaskError(f"{key} = {value!r} is not allowed; it must be {allowed}")
+
+
+def _require_state(values: tuple[float, ...] | None, key: str) -> None:
+    """Each coordinate of a start or target state within MAX_STATE."""
+    for i, x in enumerate(values or ()):
+        _require(abs(x) <= MAX_STATE, f"{key}[{i}]", x, f"within ±{MAX_STATE:g} (m, rad, m/s or rad/s)")
 
 
 def _length(key: str, values, n: int, robot=None) -> None:

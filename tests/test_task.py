@@ -70,6 +70,13 @@ def _with(path: str, value):
          r"contacts = .* one entry per point and plane"),
         # beyond these the solve overflowed: nan in g (mu), inf in the Jacobian (a hole's half-axis)
         ("contacts", [{"point": "foot", "mu": 1e300}], r"contacts\[0\].mu = 1e\+300 .* in \[0, 1e\+06\]"),
+        # a start or target of 1e300 (finite) overflowed in the solve: NaNs, exit 1, or an internal variable named
+        ("initial", {"q": [0.0, 0.5, 0.0, 0.0], "v": [1e300, 0.0, 0.0, 0.0]},
+         r"^initial.v\[0\] = 1e\+300 is not allowed; it must be within ±1e\+06"),
+        ("initial.q", [0.0, -2e6, 0.0, 0.0], r"^initial.q\[1\] = -2000000.0 is not allowed; it must be within ±1e\+06"),
+        ("plan", {"target_q": [1e300, 0.4, 0.0, 0.0]}, r"^plan.target_q\[0\] = 1e\+300 is not allowed"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "target_v": [0.0, 0.0, 0.0, -1e7]},
+         r"^plan.target_v\[3\] = -10000000.0 is not allowed"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1.0, "a": 1e-300, "b": 0.1}]},
          r"plan.holes\[0\].a = 1e-300 .* >= 1e-06"),
         # a repeat doubled the rows (dependent constraints)
