@@ -40,7 +40,7 @@ MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
-# [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed in the solver's NaNs, exit 1)
+# [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed into NaNs in the solve)
 MAX_STATE = 1e6
 # more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs
 MAX_NLPS = 100
