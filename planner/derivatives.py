@@ -43,15 +43,16 @@ def _entries(sp: ca.Sparsity, row_of: np.ndarray, col_of: np.ndarray, n_rows: in
 def nlp_derivatives(problem: Problem, n_extra: int = 0, stepwise: bool = True) -> dict[str, ca.Function]:
     """nlpsol's options grad_f (x, p) -> (f, grad f), jac_g (x, p) -> (g, J) and hess_lag (x, p, lam_f, lam_g) ->
     triu(H) for x (nx + n_extra,) = (problem.x, n_extra variables that appear nowhere). stepwise: derived step by
-    step (equal to CasADi's derivation to rounding, tests/test_derivatives.py); False, or a problem without
-    Problem.stages (FESD): CasADi's derivation over the whole graph."""
+    step (equal to CasADi's derivation to rounding, tests/test_derivatives.py); False, a problem without
+    Problem.stages (FESD) or one whose f or g was edited after the build (Problem.edited: the stages hold the built
+    ones; a cost term added was missing from the Hessian): CasADi's derivation over the whole graph."""
     pb, nx = problem, problem.nx
     n = nx + n_extra
     x_sx = ca.vertcat(pb.x, ca.SX.sym("extra", n_extra))
     oracle = ca.Function("nlp", [x_sx, pb.p], [pb.f, pb.g], ["x", "p"], ["f", "g"])
     grad_f = oracle.factory("nlp_grad_f", ["x", "p"], ["f", "grad:f:x"])
     st = pb.stages
-    if st is None or not stepwise:
+    if st is None or not stepwise or {"f", "g"} & set(pb.edited):
         return {"grad_f": grad_f, "jac_g": oracle.factory("nlp_jac_g", ["x", "p"], ["g", "jac:g:x"]),
                 "hess_lag": oracle.factory("nlp_hess_l", ["x", "p", "lam:f", "lam:g"], ["triu:hess:gamma:x:x"], {"gamma": ["f", "g"]})}
 

@@ -912,6 +912,7 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
     """
     expect(problem, Problem, "solve's problem")
     expect(options, SolveOptions, "solve's options")
+    problem.check_solvable()
     if progress is not None and not callable(progress):  # it raised TypeError after NLP 1, its work lost
         raise InputError(f"solve's progress must be a function of an NlpRecord or None, got {type(progress).__name__}")
     start = problem.point(problem.x0)  # a start of another size (replace(problem, x0=...)) broke numpy broadcasting
@@ -1389,11 +1390,12 @@ def _terminal_rows(problem: Problem) -> np.ndarray:
 
 
 def _nlp_fn(problem: Problem, name: str):
-    """The NLP's objective ("f") or constraints ("g") as a Function of (x, p), built once per problem."""
-    key = f"{name}_fn"
-    if key not in problem.notes:
-        problem.notes[key] = ca.Function(name, [problem.x, problem.p], [getattr(problem, name)])
-    return problem.notes[key]
+    """The NLP's objective ("f") or constraints ("g") as a Function of (x, p), built once per expression (an edited
+    problem's f or g, or a dataclasses.replace variant's, which shares the notes, gets its own)."""
+    key, expr = f"{name}_fn", getattr(problem, name)
+    if key not in problem.notes or problem.notes[key][0] is not expr:
+        problem.notes[key] = (expr, ca.Function(name, [problem.x, problem.p], [expr]))
+    return problem.notes[key][1]
 
 
 def constraint_violation(problem: Problem, x, hole_scale: float = 1.0) -> dict[str, float]:
@@ -1487,7 +1489,10 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
                       options={"problem": options_record(problem.options), "solve": options_record(options)},
-                      robot_sha256=problem.robot.sha256, extra={"braked_outside_friction_cone": braked})
+                      robot_sha256=problem.robot.sha256,
+                      # (an edited problem's plan is not the task file's alone: --init and readers are told)
+                      extra={"braked_outside_friction_cone": braked,
+                             **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):

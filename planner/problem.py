@@ -315,6 +315,45 @@ class Problem:
                 raise InputError(f"Problem.params' {name} must be finite and >= 0, got {value!r}")
         return np.array(values, dtype=float)
 
+    @property
+    def edited(self) -> tuple[str, ...]:
+        """Which of EDITABLE differ from what build_problem made: terms added to f, rows to g (with lbg, ubg and,
+        to see them in constraint_violation, a g_blocks entry), bounds changed (a via-point: lbx = ubx). () for a
+        problem as built (or one not made by build_problem)."""
+        built = self.notes.get("built", {})
+        return tuple(name for name in EDITABLE if name in built and not (
+            getattr(self, name) is built[name] if name in ("f", "g") else
+            np.array_equal(np.asarray(getattr(self, name)), built[name])))
+
+    def check_solvable(self) -> None:
+        """InputError when an input build_problem baked into the NLP changed since (BUILT_INPUTS: the task, the
+        options, N, h, y0, the variables): the NLP would solve the old one while the result recorded the new (a task
+        swapped by dataclasses.replace was planned for its old target and written with the new). f must stay a
+        scalar and f, g functions of x and p only."""
+        built = self.notes.get("built")
+        if built is None:
+            return
+        changed = [name for name in BUILT_INPUTS if not (
+            getattr(self, name) is built[name] if name == "x" else
+            np.array_equal(np.asarray(getattr(self, name)), built[name]) if name == "y0" else
+            getattr(self, name) == built[name])]
+        if changed:
+            raise InputError(f"problem.{', problem.'.join(changed)} changed after build_problem, which built the NLP "
+                             "from them: build the problem again (build_problem(robot, task, options)); a built "
+                             f"problem takes edits of {', '.join(EDITABLE)} and x0 only (no new variables)")
+        if "f" in self.edited or "g" in self.edited:
+            if self.f.shape != (1, 1):
+                raise InputError(f"problem.f must be a scalar expression, got shape {self.f.shape}")
+            if self.g.shape[1] != 1 or self.g.shape[0] != len(self.lbg) or self.g.shape[0] != len(self.ubg):
+                raise InputError(f"problem.g must be a column with one entry per lbg, ubg entry, got shape "
+                                 f"{self.g.shape} and {len(self.lbg)}, {len(self.ubg)} bounds")
+            known = {str(s) for s in ca.symvar(ca.vertcat(self.x, self.p))}
+            free = sorted({str(s) for s in ca.symvar(ca.vertcat(self.f, self.g))} - known)
+            if free:
+                raise InputError(f"problem.f or problem.g uses symbols that are not problem.x or problem.p: "
+                                 f"{', '.join(free[:5])}; new variables are not supported, add costs of x and rows "
+                                 "only")
+
     def point(self, x) -> np.ndarray:
         """x as a float vector (nx,); an InputError when it has another size (a point of another problem)."""
         try:
@@ -577,11 +616,24 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if linf:
         x0[nx - 1] = float(np.max(np.asarray(ca.Function("p0", [X], [prods])(x0)), initial=0.0))
     notes["hint_free_x0"] = x0.copy()  # (replan refuses it as a start: it is no plan)
-    return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
-                   x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(),
-                   x0=x0, var_names=tuple(names), var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs),
-                   pair_scale=pair_scale, objective_parts=parts, products=products, build_time_s=time.perf_counter() - start,
-                   notes=notes, skips=skips, stages=stages)
+    return _record_built(Problem(
+        robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0, x=X, p=P, f=f,
+        g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(), x0=x0, var_names=tuple(names),
+        var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale, objective_parts=parts,
+        products=products, build_time_s=time.perf_counter() - start, notes=notes, skips=skips, stages=stages))
+
+
+# what build_problem baked into x, g, the stages and the derivatives: solve() refuses a Problem whose ones changed
+BUILT_INPUTS = ("task", "options", "N", "h", "y0", "x", "var_names")
+# what solve() honours when edited on a built Problem (Problem.edited names them)
+EDITABLE = ("f", "g", "lbx", "ubx", "lbg", "ubg")
+
+
+def _record_built(problem: Problem) -> Problem:
+    """problem, with what build_problem built it from kept in its notes (Problem.check_solvable, Problem.edited)."""
+    problem.notes["built"] = {name: (np.array(value, copy=True) if isinstance(value, np.ndarray) else value)
+                              for name in BUILT_INPUTS + EDITABLE for value in (getattr(problem, name),)}
+    return problem
 
 
 def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_lo, q_hi, nq: int, nv: int) -> None:
@@ -908,11 +960,11 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
              "selectors": ca.Function("selector_cost", [X, P], [selector_cost]),
              "equilibration": ca.Function("equilibration_cost", [X, P], [equilibration]),
              "penalty": ca.Function("penalty_cost", [X, P], [penalty])}
-    return Problem(robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0,
-                   x=X, p=P, f=f, g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(), x0=x0, var_names=tuple(names),
-                   var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale,
-                   objective_parts=parts, products=products, build_time_s=time.perf_counter() - start, notes=notes,
-                   skips=skips, fesd=fesd)
+    return _record_built(Problem(
+        robot=robot, task=task, options=options, system=system, builder=builder, N=N, h=h, y0=y0, x=X, p=P, f=f,
+        g=rows.g(), lbx=lbx, ubx=ubx, lbg=rows.lb(), ubg=rows.ub(), x0=x0, var_names=tuple(names),
+        var_blocks=var_blocks, g_blocks=rows.named(), pairs=tuple(pairs), pair_scale=pair_scale, objective_parts=parts,
+        products=products, build_time_s=time.perf_counter() - start, notes=notes, skips=skips, fesd=fesd))
 
 
 def fesd_start_from_implicit_euler(fesd_problem: Problem, euler_problem: Problem, x_euler) -> np.ndarray:

@@ -65,6 +65,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     finished NLPs, wall time [s] at which it finished or was stopped.
     """
     expect(problem, Problem, "race's problem")
+    problem.check_solvable()  # (here, not in each arm: one error, before the processes start)
     if isinstance(arms, SolveOptions) or not isinstance(arms, (list, tuple)):  # (a TypeError: "not iterable")
         raise InputError(f"race takes arms, a list of (name, SolveOptions) pairs, not a {type(arms).__name__}: "
                          "race(problem, default_arms(options)) races the default two")

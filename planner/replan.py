@@ -47,7 +47,8 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
     fails: the penalty replan from problem.x0 (`solve` with options as given, keep_schedule off). The result's
     nlps, iterations, solve time and timings cover every NLP run; extra["walk"] lists the fractions of the way
     each accepted step of the walk reached, extra["no_walk"] says why there was no walk (tasks that differ in more
-    than numbers, or other NLP variables between them). progress(record) as in `solve`.
+    than numbers, or other NLP variables between them, the same task, or a problem edited after build_problem,
+    Problem.edited). progress(record) as in `solve`.
     """
     expect(problem, Problem, "replan's problem")
     expect(options, SolveOptions, "replan's options")
@@ -70,7 +71,12 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
             # start's n_nlp 5 against the task's 6 had refused the walk, though the held schedule reads neither)
             start_task = replace(start_task, plan=replace(start_task.plan, homotopy=problem.task.plan.homotopy))
         apart = tasks_apart(start_task, problem.task)
-        if apart is None:
+        if problem.edited:  # (the tasks between are built afresh: each walk step solved the unedited problem)
+            no_walk = (f"the problem's {', '.join(problem.edited)} were edited after build_problem, and the tasks "
+                       "between would be built without the edits")
+        elif start_task == problem.task:  # (every task between is this one: the walk repeated the held schedule)
+            no_walk = "the start's task is this task"
+        elif apart is None:
             walked, no_walk = _walk(problem, held, penalty, start_task, parts, progress)
             if walked is not None:
                 return _totals(walked, parts, time.perf_counter() - start, options)

@@ -992,3 +992,27 @@ def test_a_plan_reports_braking_beyond_the_friction_cone():
     hop_free = H.solve(build_problem(load_robot("robots/point_mass.xml"), dataclasses.replace(
         task, initial=dataclasses.replace(task.initial, v=(0.0, 0.0)))), H.SolveOptions())
     assert hop_free.stats.converged and hop_free.summary()["braked_outside_friction_cone"] == []
+
+
+def test_a_built_problem_solves_with_its_edits():
+    """solve honours rows appended to g (with lbg, ubg and a g_blocks entry), a cost term added to f and a bound
+    edited in place: the point-mass hop kept under a 5 cm ceiling at every node plans within it, reports the row in
+    constraint_violation and names the edits in extra["edited_problem"]; editing g again after a solve and solving
+    gives the new rows (a cached g Function of the old size crashed the polish), and so does the unedited original
+    after its variant was solved (they share the notes)."""
+    pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=20))
+    z = pb.x[pb.var_blocks["y"][:, 1]]  # the height at nodes 1 .. N [m]
+    rows = np.arange(pb.ng, pb.ng + pb.N)
+    edited = dataclasses.replace(pb, g=ca.vertcat(pb.g, z), lbg=np.append(pb.lbg, np.full(pb.N, -np.inf)),
+                                 ubg=np.append(pb.ubg, np.full(pb.N, 0.05)), g_blocks={**pb.g_blocks, "ceiling": rows},
+                                 f=pb.f + 10.0 * ca.sumsqr(pb.x[pb.var_blocks["u"][:, 0]]))
+    res = H.solve(edited)
+    assert res.stats.converged, res.stats.message
+    assert res.trajectory.q[:, 1].max() <= 0.05 + TERMINAL_TOL
+    assert res.constraint_violation["ceiling"] <= TERMINAL_TOL
+    assert res.extra["edited_problem"] == ["f", "g", "lbg", "ubg"]
+    lower = dataclasses.replace(edited, ubg=np.append(pb.ubg, np.full(pb.N, 0.03)))
+    assert H.solve(lower).trajectory.q[:, 1].max() <= 0.03 + TERMINAL_TOL
+    plain = H.solve(pb)
+    assert plain.stats.converged and "edited_problem" not in plain.extra and "ceiling" not in plain.constraint_violation
+    assert plain.trajectory.q[:, 1].max() > 0.05  # (the ceiling binds)

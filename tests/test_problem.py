@@ -627,3 +627,39 @@ def test_a_target_moving_into_the_ground_on_it_is_an_input_error():
         build_problem(robot, hop(0.0, [0.0, -1.0]))
     build_problem(robot, hop(0.01, [0.0, -1.0]))
     build_problem(robot, hop(0.0, [1.0, 0.0]))
+
+
+def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
+    """Problem.edited names the bounds, cost and rows changed after build_problem (what solve honours), and
+    Problem.check_solvable (solve's and race's first check) refuses what the NLP was built from changed since: a task
+    or options swapped by dataclasses.replace (planned for the old target, written with the new), y0 edited in
+    place, new variables, a vector cost or a symbol that is not x or p (the raw CasADi errors came after NLP 1)."""
+    import casadi as ca
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    pb = build_problem(robot, hop_task(N=4))
+    assert pb.edited == () and pb.check_solvable() is None
+    pb.lbx[0] = pb.lbx[0] + 0.0  # the same value: no edit
+    ceiling = pb.x[pb.var_blocks["y"][2, 1]]  # z at node 3 [m]
+    edited = dataclasses.replace(pb, f=pb.f + ceiling**2, g=ca.vertcat(pb.g, ceiling),
+                                 lbg=np.append(pb.lbg, -np.inf), ubg=np.append(pb.ubg, 0.1), ubx=pb.ubx.copy())
+    edited.ubx[0] = 1.0
+    assert edited.edited == ("f", "g", "ubx", "lbg", "ubg") and pb.edited == ()
+    edited.check_solvable()
+    moved = dataclasses.replace(pb.task, plan=dataclasses.replace(pb.task.plan, target_q=(0.8, 0.0)))
+    with pytest.raises(InputError, match=r"^problem.task changed after build_problem, which built the NLP from them: "
+                                         r"build the problem again .*takes edits of f, g, lbx, ubx, lbg, ubg and x0"):
+        dataclasses.replace(pb, task=moved).check_solvable()
+    with pytest.raises(InputError, match=r"^problem.options changed"):
+        dataclasses.replace(pb, options=ProblemOptions(friction_cone=False)).check_solvable()
+    shifted = dataclasses.replace(pb, y0=pb.y0.copy())
+    shifted.y0[0] = 0.2
+    with pytest.raises(InputError, match=r"^problem.y0 changed"):
+        shifted.check_solvable()
+    with pytest.raises(InputError, match=r"^problem.x, problem.var_names changed"):
+        slack = ca.vertcat(pb.x, ca.SX.sym("slack"))
+        dataclasses.replace(pb, x=slack, var_names=pb.var_names + ("slack",)).check_solvable()
+    with pytest.raises(InputError, match=r"^problem.f must be a scalar expression, got shape \(2, 1\)"):
+        dataclasses.replace(pb, f=ca.vertcat(pb.f, pb.f)).check_solvable()
+    with pytest.raises(InputError, match=r"uses symbols that are not problem.x or problem.p: a; new variables are not"):
+        dataclasses.replace(pb, f=pb.f + ca.SX.sym("a")).check_solvable()

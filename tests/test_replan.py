@@ -215,3 +215,21 @@ def test_a_problem_still_at_its_hint_free_guess_is_no_start(hop_plan):
                                          r"give it the plan's NLP point"):
         replan(fresh, H.replan_options(), prob.task)
     assert replan(dataclasses.replace(fresh, x0=x0), H.replan_options(), prob.task).stats.converged
+
+
+def test_an_edited_problem_or_the_same_task_is_not_walked(hop_plan, basin):
+    """A problem edited after build_problem (a bound) is not walked from the start's task: the tasks between would be
+    built without the edit (each walk step solved the unedited problem), so no_walk says so and the penalty replan
+    runs on the edited problem; a start task equal to the task is not walked either (every task between is it)."""
+    prob, x0 = hop_plan
+    moved = _moved(prob, x0, 0.6)
+    edited = dataclasses.replace(moved, ubx=moved.ubx.copy())
+    edited.ubx[edited.var_names.index("q[z]_10")] = 0.2  # [m] a ceiling at node 10
+    assert edited.edited == ("ubx",) and moved.edited == ()
+    res = replan(edited, H.replan_options(), prob.task)
+    assert "the problem's ubx were edited after build_problem" in res.extra["no_walk"], res.extra.get("no_walk")
+    assert [r.label for r in res.nlps][:2] == ["schedule", "homotopy 1"] and "walk" not in res.extra
+    assert res.stats.converged and res.extra["edited_problem"] == ["ubx"]
+    assert res.nlp_point(edited)[edited.var_names.index("q[z]_10")] <= 0.2 + TERMINAL_TOL
+    same = replan(moved, H.replan_options(), moved.task)
+    assert same.extra["no_walk"].startswith("no walk from the start's task: the start's task is this task")
