@@ -45,7 +45,7 @@ from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expec
                      plain, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
-                     hops_of)
+                     Trajectory, hops_of)
 from .simulate import braked_outside_cone, element_trajectory, step_elements
 from .task import MAX_NLPS
 from .timefreezing import contact_labels
@@ -1472,6 +1472,11 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                     + (", the robot file's joint speed limits" if np.isfinite(problem.robot.v_limit).any() else "")
                     + (f", and {', '.join(never)} kept off the ground (touches = false)" if never else "")
                     + " (a local verdict: some reachable tasks end so, docs/stability.md)")
+    floating = _levitating(problem, traj, nodes) if not converged else []
+    if floating:  # (Capler with its knee a contact too failed "out of reach" with the knee holding it up 0.17 m high)
+        message += (f"; {', '.join(floating)}: levitating on the contact field, the penalty homotopy's local minimum"
+                    + ("; a point that need not touch the ground is better declared touches = false (docs/tasks.md)"
+                       if len(problem.system.contacts) > 1 else ""))
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]
@@ -1493,6 +1498,27 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       # (an edited problem's plan is not the task file's alone: --init and readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
+
+
+LEVITATION_GAP_M = 1e-3  # [m] a contact point this far off its plane holds no force in a plan
+LEVITATION_N = 1e-2  # [N] a persistent contact force below this is not named
+
+
+def _levitating(problem: Problem, traj: Trajectory, nodes: np.ndarray) -> list[str]:
+    """The contacts whose persistent normal force (traj.contact_force, step k at nodes[k + 1] (K+1, ny)) acts while
+    they are off their plane, as "knee carried up to 2.4 N while 0.17 m off its plane"."""
+    if traj.contact_force is None or not len(traj.contact_force):
+        return []
+    u0 = np.zeros(problem.system.nu)
+    gaps = np.array([np.asarray(problem.system.gap_fn(y, u0), float).ravel() for y in nodes[1:]])
+    normal = np.asarray(traj.contact_force, float)[:, :, 0]
+    out = []
+    for c, label in enumerate(problem.system.labels):
+        held = np.where((gaps[:, c] > LEVITATION_GAP_M) & (normal[:, c] > LEVITATION_N), normal[:, c], 0.0)
+        if held.any():
+            k = int(np.argmax(held))
+            out.append(f"{label} carried up to {normal[k, c]:.3g} N while {gaps[k, c]:.3g} m off its plane")
+    return out
 
 
 def plan_trajectory(problem: Problem, parts: dict, frozen_tol: float):

@@ -396,7 +396,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if task.plan is None:
         raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
     if not task.contacts:
-        raise InputError("the task has no [[contacts]]; the time-freezing OCP needs at least one contact point")
+        raise InputError(f"task {task.source or '(in code)'} has no [[contacts]]; the time-freezing OCP needs at least "
+                         "one contact point")
     task.check_against(robot)
     task.warn_dependent_contacts(robot)
     task.warn_buried_holes()

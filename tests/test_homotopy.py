@@ -1016,3 +1016,20 @@ def test_a_built_problem_solves_with_its_edits():
     plain = H.solve(pb)
     assert plain.stats.converged and "edited_problem" not in plain.extra and "ceiling" not in plain.constraint_violation
     assert plain.trajectory.q[:, 1].max() > 0.05  # (the ceiling binds)
+
+
+def test_a_contact_holding_force_off_its_plane_is_named():
+    """_levitating names each contact whose persistent normal force acts while it is off its plane (a failed plan's
+    message then says so: Capler with its knee a contact failed "out of reach" with the knee holding 2.4 N 0.17 m up),
+    and nothing for forces on the plane or below LEVITATION_N."""
+    from types import SimpleNamespace
+
+    pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4))
+    nodes = np.tile(pb.y0, (5, 1))
+    nodes[2, 1] = 0.17  # the point 0.17 m up at node 2, the end of step 1
+    force = np.zeros((4, 1, 2))
+    force[1, 0, 0], force[3, 0, 0] = 2.4, 9.81  # [N] step 1 off the plane, step 3 on it
+    assert H._levitating(pb, SimpleNamespace(contact_force=force), nodes) == [
+        "point carried up to 2.4 N while 0.17 m off its plane"]
+    force[1, 0, 0] = 0.5 * H.LEVITATION_N
+    assert H._levitating(pb, SimpleNamespace(contact_force=force), nodes) == []

@@ -663,3 +663,13 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
         dataclasses.replace(pb, f=ca.vertcat(pb.f, pb.f)).check_solvable()
     with pytest.raises(InputError, match=r"uses symbols that are not problem.x or problem.p: a; new variables are not"):
         dataclasses.replace(pb, f=pb.f + ca.SX.sym("a")).check_solvable()
+
+
+def test_a_plan_without_contacts_names_its_task(tmp_path):
+    """build_problem refuses a task without [[contacts]] naming the task file, as the other task errors do (it named
+    none)."""
+    path = tmp_path / "free.toml"
+    path.write_text('contacts = []\n[initial]\nq = [0.0, 1.0]\n[horizon]\ntau_f = 1.0\nN = 4\n[plan]\n'
+                    'target_q = [0.5, 1.0]\n')
+    with pytest.raises(InputError, match=rf"^task {re.escape(str(path))} has no \[\[contacts\]\]; the time-freezing"):
+        build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), load_task(path))

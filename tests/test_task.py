@@ -759,12 +759,12 @@ def test_a_normal_whose_length_overflows_is_refused():
 def test_an_unknown_contact_point_lists_the_sites_only():
     """An unknown contact point lists the robot's sites as the valid names, those MuJoCo's validation can put a
     contact on: the point mass's "point", not its body "mass", which the message offered and check_against then
-    refused as a body."""
+    refused as a body; that refusal names the entry, as the unknown name's does."""
     robot = load_robot("point_mass")
     with pytest.raises(UnknownNameError, match=r"unknown contact point 'toe'; valid contact points: point$"):
         parse_task({"contacts": [{"point": "toe"}], "initial": {"q": [0.0, 1.0]},
                     "horizon": {"tau_f": 1.0, "N": 5}}).check_against(robot)
-    with pytest.raises(TaskError, match=r"contact point 'mass' is an MJCF body, not a site"):
+    with pytest.raises(TaskError, match=r"^contacts\[0\].point: contact point 'mass' is an MJCF body, not a site"):
         parse_task({"contacts": [{"point": "mass"}], "initial": {"q": [0.0, 1.0]},
                     "horizon": {"tau_f": 1.0, "N": 5}}).check_against(robot)
 
