@@ -517,8 +517,8 @@ class Task:
                 _not_on_the_world(c.point, robot, f"contacts[{i}].point")
                 raise UnknownNameError("contact point", c.point, robot.sites, f"contacts[{i}].point")
             if c.point not in robot.sites:  # MuJoCo's replay has no site of that name (validate failed later)
-                raise TaskError(f"contacts[{i}].point: contact point {c.point!r} is an MJCF body, not a site; add <site "
-                                f"name=\"...\"/> where the body touches and name it (sites: "
+                raise TaskError(f"contacts[{i}].point: contact point {c.point!r} is an MJCF body, not a site; add "
+                                f"<site name=\"...\"/> where the body touches and name it (sites: "
                                 f"{', '.join(sorted(robot.sites)) or 'none'})")
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
