@@ -24,7 +24,8 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, expect, is_integer, shown
-from .model import Robot, RobotFormat, included_files, mujoco_failure, mujoco_spec, order_hint
+from .model import (Robot, RobotFormat, included_files, mujoco_disabled, mujoco_failure, mujoco_spec, numbers_text,
+                    order_hint)
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -325,21 +326,23 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     out = [] if np.allclose(mj.opt.gravity, gravity, rtol=0.0, atol=TOLERANCE) else [
         f"gravity {np.round(mj.opt.gravity, 9).tolist()} m/s^2 in MuJoCo (<option gravity>), "
         f"{np.round(gravity, 9).tolist()} in Pinocchio"]
-    out += [f"<option><flag {flag}=\"disable\"/>" for flag in DISABLED_PHYSICS
-           if mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))]
+    out += [f"<option><flag {flag}=\"disable\"/>" for flag in DISABLED_PHYSICS if mujoco_disabled(mj, flag)]
+    # (a term the file's flags turn off MuJoCo does not apply: not named, as Robot.passive's joint terms are not)
+    damper, spring, friction = (not mujoco_disabled(mj, flag) for flag in ("damper", "spring", "frictionloss"))
     out += [f"<option><flag {flag}=\"enable\"/>" for flag in ENABLED_PHYSICS
             if mj.opt.enableflags & int(getattr(mujoco.mjtEnableBit, f"mjENBL_{flag.upper()}"))]
     out += [f"body {name(mujoco.mjtObj.mjOBJ_BODY, b)!r}: gravcomp {mj.body_gravcomp[b]:g}" for b in range(mj.nbody) if mj.body_gravcomp[b]]
     for t in range(mj.ntendon):
-        terms = [f"{label} {value:g}" for label, value in (("stiffness", mj.tendon_stiffness[t]), ("damping", mj.tendon_damping[t]),
-                                                           ("frictionloss", mj.tendon_frictionloss[t])) if value]
+        terms = [f"{label} {value:g}" for label, value in
+                 (("stiffness", mj.tendon_stiffness[t] * spring), ("damping", mj.tendon_damping[t] * damper),
+                  ("frictionloss", mj.tendon_frictionloss[t] * friction)) if value]
         terms += [f"range [{mj.tendon_range[t][0]:g}, {mj.tendon_range[t][1]:g}]"] if mj.tendon_limited[t] else []
         if terms:
             out.append(f"tendon {name(mujoco.mjtObj.mjOBJ_TENDON, t)!r}: {', '.join(terms)}")
     for a in range(mj.nu):  # (named by their mass, passive or actuation gap alone, "masses MuJoCo infers" among causes)
-        terms = [f"{label} {' '.join(f'{float(x):g}' for x in np.atleast_1d(values[a]))}" for label, values in
-                 (("armature", mj.actuator_armature), ("damping", mj.actuator_damping),
-                  ("dampingpoly", mj.actuator_dampingpoly), ("delay", mj.actuator_delay)) if np.any(values[a])]
+        terms = [f"{label} {numbers_text(values[a])}" for label, values in
+                 (("armature", mj.actuator_armature), ("damping", mj.actuator_damping * damper),
+                  ("dampingpoly", mj.actuator_dampingpoly * damper), ("delay", mj.actuator_delay)) if np.any(values[a])]
         if terms:
             out.append(f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)!r}: {', '.join(terms)}")
     if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):
@@ -363,7 +366,8 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
             if reach[0] < lo - TOLERANCE or reach[1] > hi + TOLERANCE:
                 out.append(f"joint {joint!r}: actuatorfrcrange [{lo:g}, {hi:g}] narrower than its motors' force range "
                            f"[{reach[0]:g}, {reach[1]:g}]")
-        if mj.jnt_limited[j] and mj.jnt_margin[j]:  # (a plan on its bounds validated 45-198 mm off the plan's path)
+        # (a plan on its bounds validated 45-198 mm off the plan's path; <flag limit="disable"/>: no limit acts)
+        if mj.jnt_limited[j] and mj.jnt_margin[j] and not mujoco_disabled(mj, "limit"):
             out.append(f"joint {joint!r}: margin {mj.jnt_margin[j]:g}: MuJoCo's limit pushes that far inside the "
                        "range, where the planner's bounds allow motion; remove margin")
         mujoco_range = tuple(float(x) for x in mj.jnt_range[j]) if mj.jnt_limited[j] else (-np.inf, np.inf)

@@ -618,8 +618,7 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     _mujoco_limits(path, model, mj, mujoco)
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     # a term the file's <flag damper/spring/frictionloss="disable"/> turns off MuJoCo does not apply (it was refused)
-    on = {flag: not mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))
-          for flag in ("damper", "spring", "frictionloss")}
+    on = {flag: not mujoco_disabled(mj, flag) for flag in ("damper", "spring", "frictionloss")}
     stiffness = np.where(first[:, None], mj.jnt_stiffnesspoly[mj.dof_jntid], 0.0)
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping * on["damper"]),
                                          ("dampingpoly", mj.dof_dampingpoly * on["damper"]),
@@ -662,8 +661,20 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
 def _passive_terms(dof_names, per_dof) -> tuple[str, ...]:
     """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or "joint 'hip':
     dampingpoly 0.5 0" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
-    return tuple(f"joint {dof_names[i]!r}: {label} {' '.join(f'{float(x):g}' for x in np.atleast_1d(values[i]))}"
+    return tuple(f"joint {dof_names[i]!r}: {label} {numbers_text(values[i])}"
                  for label, values in per_dof for i in range(len(dof_names)) if np.any(values[i] != 0.0))
+
+
+def numbers_text(values) -> str:
+    """A number or a vector as the file would write it: "0.5", "0.5 0"."""
+    return " ".join(f"{float(x):g}" for x in np.atleast_1d(values))
+
+
+def mujoco_disabled(mj, flag: str) -> bool:
+    """Whether the compiled MuJoCo model mj has <option><flag FLAG="disable"/> (flag: "damper", "limit", ...)."""
+    import mujoco
+
+    return bool(mj.opt.disableflags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}")))
 
 
 # A URDF link with a joint but no mass (the carriage of a planar base made of two prismatic joints) is fine for

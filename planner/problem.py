@@ -347,8 +347,9 @@ class Problem:
             if self.g.shape[1] != 1 or self.g.shape[0] != len(self.lbg) or self.g.shape[0] != len(self.ubg):
                 raise InputError(f"problem.g must be a column with one entry per lbg, ubg entry, got shape "
                                  f"{self.g.shape} and {len(self.lbg)}, {len(self.ubg)} bounds")
-            known = {str(s) for s in ca.symvar(ca.vertcat(self.x, self.p))}
-            free = sorted({str(s) for s in ca.symvar(ca.vertcat(self.f, self.g))} - known)
+            # (by identity, not name: another build's x has the same names, and CasADi's error came after NLP 1)
+            uses = ca.Function("edits", [self.x, self.p], [self.f, self.g], {"allow_free": True})
+            free = sorted(str(s) for s in uses.free_sx()) if uses.has_free() else []
             if free:
                 raise InputError(f"problem.f or problem.g uses symbols that are not problem.x or problem.p: "
                                  f"{', '.join(free[:5])}; new variables are not supported, add costs of x and rows "
@@ -1111,8 +1112,10 @@ def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
             for i, e in enumerate(plan.holes):
                 if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
                     start = key == "initial.q"
+                    guess = start and plan.periodic is not None
+                    said = key + (" (with plan.periodic the initial guess of q(0))" if guess else "")
                     # (the metric, not only the position: 1 nm inside the rim printed x = 0.25, the rim itself)
-                    raise InputError(f"{key} puts contact point {c.point!r} at x = {p[0]:.10g}, z = {p[2]:.10g} m, "
+                    raise InputError(f"{said} puts contact point {c.point!r} at x = {p[0]:.10g}, z = {p[2]:.10g} m, "
                                      f"inside plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}; "
                                      f"ellipse metric {e.metric(p[0], p[2]):.10g} < 1); no "
                                      f"plan can {'start' if start else 'end'} there: move the "

@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import glob
-import importlib.metadata
+import importlib
 import io
 import json
 import os
@@ -935,20 +935,21 @@ def directory_lock(out_dir: Path):
         os.close(fd)  # closing releases the lock
 
 
-# the distributions whose versions a result records: a plan's homotopy path moves with CasADi's rounding, and the
+# the modules whose versions a result records: a plan's homotopy path moves with CasADi's rounding, and the
 # dynamics and the validation come from Pinocchio and MuJoCo
-VERSIONED = ("casadi", "pin", "mujoco", "numpy")
+VERSIONED = ("casadi", "pinocchio", "mujoco", "numpy")
 
 
 def software_versions() -> dict[str, str]:
-    """planner's, Python's and VERSIONED's versions, as summary.json's `versions` records them ("not installed" for a
-    distribution without metadata, e.g. a source checkout on sys.path)."""
+    """planner's, Python's and VERSIONED's versions, as summary.json's `versions` records them: each module's own
+    __version__ (pip's distribution of pinocchio is "pin", conda's "pinocchio"), "not installed" for one that does not
+    import."""
     from . import __version__
     versions = {"planner": __version__, "python": platform.python_version()}
     for name in VERSIONED:
         try:
-            versions[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
+            versions[name] = str(importlib.import_module(name).__version__)
+        except ImportError:
             versions[name] = "not installed"
     return versions
 

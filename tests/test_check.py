@@ -628,3 +628,24 @@ def test_urdf_readings_mujoco_makes_otherwise_are_refused(tmp_path):
     with pytest.raises(RobotFileError,
                        match=r"joint 'hip' \(0\): its <limit lower> equals its upper .* give lower < upper"):
         load_robot(unlimited)
+
+
+@pytest.mark.parametrize("old, new", [
+    ('<motor name="force_x" joint="x"', '<motor name="force_x" damping="0.3" joint="x"'),
+    (X_JOINT, '<joint name="x" type="slide" axis="1 0 0" range="-1 1" margin="0.2"/>'),
+    ("</worldbody>", '</worldbody><tendon><fixed name="t" damping="5"><joint joint="x" coef="1"/></fixed></tendon>'),
+])
+def test_terms_the_file_disables_are_no_difference(tmp_path, old, new):
+    """A motor's or tendon's damping under <flag damper="disable"/> and a limit's margin under <flag limit="disable"/>
+    are no reading difference: MuJoCo applies none of them (they were named, and the file refused, though its
+    passive forces were 0 and no limit row existed), as Robot.passive leaves out the joints' disabled terms."""
+    from planner.check import reading_differences
+
+    flag = "limit" if "margin" in new else "damper"
+    assert POINT_MASS.count(old) == 1 and POINT_MASS.count(OPTION) == 1
+    path = tmp_path / "variant.xml"
+    path.write_text(POINT_MASS.replace(old, new).replace(OPTION, OPTION + f'<option><flag {flag}="disable"/></option>'))
+    robot = load_robot(path)
+    assert reading_differences(robot) == ()
+    path.write_text(POINT_MASS.replace(old, new))  # the same file with the term on: named
+    assert reading_differences(load_robot(path)) != ()

@@ -997,9 +997,9 @@ def test_a_plan_reports_braking_beyond_the_friction_cone():
 def test_a_built_problem_solves_with_its_edits():
     """solve honours rows appended to g (with lbg, ubg and a g_blocks entry), a cost term added to f and a bound
     edited in place: the point-mass hop kept under a 5 cm ceiling at every node plans within it, reports the row in
-    constraint_violation and names the edits in extra["edited_problem"]; editing g again after a solve and solving
-    gives the new rows (a cached g Function of the old size crashed the polish), and so does the unedited original
-    after its variant was solved (they share the notes)."""
+    constraint_violation and names the edits in extra["edited_problem"]; its bounds edited again are honoured, and the
+    unedited original solved after its edited variant (they share the notes) has its own rows (a cached g Function of
+    the variant's size crashed the polish)."""
     pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=20))
     z = pb.x[pb.var_blocks["y"][:, 1]]  # the height at nodes 1 .. N [m]
     rows = np.arange(pb.ng, pb.ng + pb.N)
@@ -1033,3 +1033,15 @@ def test_a_contact_holding_force_off_its_plane_is_named():
         "point carried up to 2.4 N while 0.17 m off its plane"]
     force[1, 0, 0] = 0.5 * H.LEVITATION_N
     assert H._levitating(pb, SimpleNamespace(contact_force=force), nodes) == []
+
+
+def test_a_failed_plan_says_which_contact_levitates(monkeypatch):
+    """A plan that fails with a contact holding force off its plane says so in its message (one contact: no advice
+    to declare it touches = false, which the only contact cannot be); a converged one does not look."""
+    pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
+    monkeypatch.setattr(H, "_levitating", lambda problem, traj, nodes: ["point carried up to 2.4 N while 0.17 m off"])
+    failed = H.solve(pb, H.SolveOptions(max_iter=2, polish_after_failure=False))
+    assert not failed.stats.converged
+    assert "; point carried up to 2.4 N while 0.17 m off: levitating on the contact field" in failed.stats.message
+    assert "touches = false" not in failed.stats.message
+    assert "levitating" not in H.solve(pb).stats.message

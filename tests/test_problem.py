@@ -598,8 +598,9 @@ def test_a_periodic_plans_free_start_stays_out_of_the_holes():
 
 
 def test_a_periodic_guess_in_the_ground_is_refused_as_a_guess():
-    """A periodic task's initial.q is the guess of q(0), not a start: a guess 1 cm in the ground is refused with that
-    said (it read as a start, where the joint-bounds message of the same task said it was a guess)."""
+    """A periodic task's initial.q is the guess of q(0), not a start: a guess 1 cm in the ground, or in a hole, is
+    refused with that said (it read as a start, where the joint-bounds message of the same task said it was a
+    guess)."""
     robot = load_robot(f"{ROBOTS}/biped.xml")
     task = load_task(f"{ROBOTS}/biped.toml")
     assert task.is_periodic
@@ -610,6 +611,17 @@ def test_a_periodic_guess_in_the_ground_is_refused_as_a_guess():
     with pytest.raises(InputError, match=r"^initial.q \(with plan.periodic the initial guess of q\(0\)\) puts contact "
                                          r"point 'foot_\d' 0.01 m below the ground"):
         build_problem(robot, task)
+    # the same said of a guess standing in a hole
+    from planner.dynamics import Dynamics
+    from planner.task import Ellipse
+
+    q[1] += 0.01
+    foot = np.asarray(Dynamics(robot).point_position("foot_1")(np.array(q)), float).ravel()
+    holed = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=tuple(q)),
+                                plan=dataclasses.replace(task.plan, holes=(Ellipse(x=float(foot[0]), a=0.01, b=0.01),)))
+    with pytest.raises(InputError, match=r"^initial.q \(with plan.periodic the initial guess of q\(0\)\) puts contact "
+                                         r"point 'foot_1' at x = .* inside plan.holes\[0\]"):
+        build_problem(robot, holed)
 
 
 def test_a_target_moving_into_the_ground_on_it_is_an_input_error():
@@ -663,6 +675,9 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
         dataclasses.replace(pb, f=ca.vertcat(pb.f, pb.f)).check_solvable()
     with pytest.raises(InputError, match=r"uses symbols that are not problem.x or problem.p: a; new variables are not"):
         dataclasses.replace(pb, f=pb.f + ca.SX.sym("a")).check_solvable()
+    other = build_problem(robot, hop_task(N=4))  # the same names, other symbols
+    with pytest.raises(InputError, match=r"uses symbols that are not problem.x or problem.p: u_0_0; new"):
+        dataclasses.replace(pb, f=pb.f + other.x[0] ** 2).check_solvable()
 
 
 def test_a_plan_without_contacts_names_its_task(tmp_path):

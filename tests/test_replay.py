@@ -82,9 +82,10 @@ def _drop(robot, mu, restitution=0.0, v0=(1.0, 0.0), duration=0.8):
 
 
 def test_the_scene_uses_mujocos_solver_not_the_files(point_mass, tmp_path):
-    """build_scene replaces the file's constraint solver settings with MuJoCo's defaults (Newton, 100 iterations, ...):
-    a point mass whose file asks for PGS with one iteration drops and slides exactly as the plain file's (its
-    validation had failed, 12.9 mm against 8.8 mm, for settings the docs did not name)."""
+    """build_scene replaces the file's constraint solver settings with MuJoCo's defaults (Newton, 100 iterations, ...),
+    so a point mass whose file asks for PGS with one iteration has the plain file's scene: its drop and slide are the
+    plain file's bit for bit (a point-mass hop's validation with those settings had failed, 12.9 mm against 8.8 mm,
+    for settings the docs did not name)."""
     text = (ROBOTS_DIR / "point_mass.xml").read_text()
     path = tmp_path / "pgs.xml"
     path.write_text(text.replace("<option ", '<option solver="PGS" iterations="1" ls_iterations="1" tolerance="0.1" '

@@ -979,7 +979,7 @@ def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatc
 
 def test_summary_records_the_software_that_wrote_it(tmp_path, monkeypatch):
     """summary.json's `versions` names the planner, Python and the libraries that shape a plan, each as the imported
-    module reports it (a hint-free plan reproduces only on the same CasADi), and a distribution without metadata is
+    module reports it (a hint-free plan reproduces only on the same CasADi), and a module that does not import is
     "not installed", not a crash."""
     import platform
 
@@ -991,9 +991,9 @@ def test_summary_records_the_software_that_wrote_it(tmp_path, monkeypatch):
     write_results(_tiny_result(2), tmp_path / "a")
     versions = json.loads((tmp_path / "a" / "summary.json").read_text())["versions"]
     assert versions == {"planner": planner.__version__, "python": platform.python_version(),
-                        "casadi": casadi.__version__, "pin": pinocchio.__version__, "mujoco": mujoco.__version__,
+                        "casadi": casadi.__version__, "pinocchio": pinocchio.__version__, "mujoco": mujoco.__version__,
                         "numpy": np.__version__}
-    monkeypatch.setattr("planner.result.VERSIONED", ("casadi", "no-such-distribution"))
+    monkeypatch.setattr("planner.result.VERSIONED", ("casadi", "no_such_module"))
     write_results(_tiny_result(2), tmp_path / "b")
     versions = json.loads((tmp_path / "b" / "summary.json").read_text())["versions"]
-    assert versions["no-such-distribution"] == "not installed" and "mujoco" not in versions
+    assert versions["no_such_module"] == "not installed" and "mujoco" not in versions
