@@ -835,10 +835,11 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
+    failures += _impacts_off_ground(robot, scene, arrays, impact_points, options.contact_gap_tol_m)
     if kinematic.max_flight_residual is not None and not kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
-        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is"
-                if kinematic.flight_residual_positions else "its controls do not give its motion (M a + h - B u is")
-        failures.append(f"the trajectory's own dynamics: in flight {what} {kinematic.max_flight_residual:.3g} of its "
+        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is" if kinematic.flight_residual_positions
+                else "in flight its controls do not give its motion (M a + h - B u is")
+        failures.append(f"the trajectory's own dynamics: {what} {kinematic.max_flight_residual:.3g} of its "
                         f"terms in {kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
                         f"{FLIGHT_RESIDUAL_TOL}); the tracking replay's feedback can hide that on a robot whose every "
                         "coordinate has a motor")
@@ -998,21 +999,26 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     M(q+) (v+ - v) / dt + h(q+, v+) = B u+ (u+ the control held over the step). Its largest violation per degree of
     freedom, relative to the largest of those terms there over the flight steps: 6e-16 to 2.3e-2 for the planner's plans
     and simulations, ~1 for controls that do not move the robot as its samples do (for other sources of samples see
-    _stepped_by_implicit_euler). KinematicReport's flight fields; empty without a flight step."""
+    _stepped_by_implicit_euler). And on every running step (no impact in it, stance too) the positions' q+ = q + dt v+,
+    relative to the coordinate's largest speed. KinematicReport's flight fields (the larger of the two); empty without
+    a flight step."""
     t, q, v, u = arrays["t"], arrays["q"], arrays["v"], arrays["u"]
     impacts = np.atleast_1d(arrays["impact_times"])
     model, data = robot.model, robot.model.createData()
-    steps = [i for i in range(t.size - 1) if airborne[i] and airborne[i + 1] and t[i + 1] > t[i]
-             and not np.any((impacts > t[i]) & (impacts <= t[i + 1]))]
+    running = [i for i in range(t.size - 1) if t[i + 1] > t[i] and not np.any((impacts > t[i]) & (impacts <= t[i + 1]))]
+    steps = [i for i in running if airborne[i] and airborne[i + 1]]
     if not steps:
         return {}
-    B = robot.actuation_matrix
-    residual, scale, momentum = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv), 0.0
-    drift, speed = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv)  # the step's q+ = q + dt v+ [m/s, rad/s]
-    for n, i in enumerate(steps):
+    # the samples' positions against their velocities on every running step, stance too (q+ = q + dt v+ holds there
+    # as well: a flight raised 5 cm passed, its jumps at the take-off and the landing being no flight steps)
+    drift, speed = np.zeros((len(running), robot.nv)), np.zeros(robot.nv)  # [m/s, rad/s]
+    for n, i in enumerate(running):
         chord = pin.difference(model, q[i], q[i + 1]) / (t[i + 1] - t[i])
         drift[n] = chord - v[i + 1]
-        speed = np.maximum(speed, np.abs(chord) + np.abs(v[i + 1]))
+        speed = np.maximum(speed, np.abs(chord), np.abs(v[i + 1]))
+    B = robot.actuation_matrix
+    residual, scale, momentum = np.zeros((len(steps), robot.nv)), np.zeros(robot.nv), 0.0
+    for n, i in enumerate(steps):
         M = pin.crba(model, data, q[i + 1])
         M = np.triu(M) + np.triu(M, 1).T  # (Pinocchio fills the upper triangle)
         inertial = M @ (v[i + 1] - v[i]) / (t[i + 1] - t[i])
@@ -1020,7 +1026,8 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
         bias = pin.rnea(model, data, q[i + 1], v[i + 1], np.zeros(robot.nv))
         control = B @ u[i + 1]
         residual[n] = inertial + bias - control
-        scale = np.maximum(scale, np.abs(inertial) + np.abs(bias) + np.abs(control))
+        # the largest term, as documented (their sum, ~2x it in flight, let controls 18 % off pass at 0.083)
+        scale = np.maximum.reduce([scale, np.abs(inertial), np.abs(bias), np.abs(control)])
     # a coordinate on which nothing acts in flight: its terms are rounding, judged on the others' scale, the robot's
     # weight (an arm hanging at rest has only rounding, ~1e-16, in every term) or, without gravity, the momentum a
     # step carries (a coasting mass in a zero-gravity file has rounding in every term, and had failed at ratio 1)
@@ -1033,10 +1040,33 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     n, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
     nq_, jq = np.unravel_index(int(np.argmax(moved)), moved.shape)
     positions = bool(moved[nq_, jq] > relative[n, j])
-    n, j = (nq_, jq) if positions else (n, j)
-    return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative)[n, j]),
-            "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[steps[n] + 1]),
+    i, j = (running[nq_], jq) if positions else (steps[n], j)
+    return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative).max()),
+            "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[i + 1]),
             "flight_residual_positions": positions}
+
+
+def _impacts_off_ground(robot: Robot, scene: Scene, arrays: Mapping[str, np.ndarray],
+                        impact_points: Sequence[str | None] | None, tol: float) -> list[str]:
+    """A failure line per impact (arrays' impact_times [s]) whose contact point (impact_points, None: the lowest of
+    the scene's) is more than tol [m] above the ground at its samples: no contact could give that impulse (an impact
+    moved to a flight's apex, 6.5 cm up, passed, and hid the flight step it sat in from the dynamics check). The
+    planner's impacts sit on the ground to ~4e-11 m."""
+    t, q = arrays["t"], arrays["q"]
+    data = robot.model.createData()
+    out = []
+    for k, time in enumerate(np.atleast_1d(arrays["impact_times"])):
+        point = impact_points[k] if impact_points is not None else None
+        points = [point] if point is not None else list(scene.points)
+        heights = []
+        for i in np.flatnonzero(np.abs(t - time) <= 1e-9 * max(1.0, abs(time))):
+            pin.framesForwardKinematics(robot.model, data, q[i])
+            heights.append(min(data.oMf[robot.frame_id(p)].translation[2] for p in points) - scene.ground_height)
+        if heights and min(heights) > tol:
+            who = f"contact point {point!r}" if point is not None else "every contact point"
+            out.append(f"the impact at t = {time:.4g} s is listed with {who} {min(heights):.3g} m above the ground "
+                       f"(> {tol} m): no contact there")
+    return out
 
 
 def _ground_between(robot: Robot, scene: Scene, t: np.ndarray, q: np.ndarray) -> dict:
