@@ -1372,12 +1372,14 @@ def last_apex(height: np.ndarray) -> int:
 
 
 def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALIDATION_STEPS,
-                  gains: WalkGains | None = None) -> WalkValidation:
+                  gains: WalkGains | None = None, dynamics: bool = False) -> WalkValidation:
     """Walk a periodic plan `steps` times in MuJoCo (see WalkValidation); gains default to
     PLAN_WALK_GAINS (phase control with the stride-to-stride speed loop). The swing foot's contact
     and the landing detection are armed from its last apex: the time-freezing plan lets the knee-less
-    swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking")."""
-    from .replay import MAX_PENETRATION_M, _kinematic, build_scene, hole_failure
+    swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking").
+    dynamics: the samples are the planner's implicit-Euler steps, whose positions (and flight dynamics) are checked
+    as replay.validate_trajectory checks them (the walk reads neither the plan's controls nor its base)."""
+    from .replay import MAX_PENETRATION_M, _kinematic, build_scene, dynamics_failure, hole_failure
 
     _check_steps(steps, "validate_walk")
 
@@ -1391,7 +1393,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     walking = replay_gait(model, step, task, steps, PLAN_WALK_GAINS if gains is None else gains,
                           arm_index=last_apex(height))
     kin = _kinematic(build_scene(robot, task), robot, np.asarray(arrays["t"], float), np.asarray(arrays["q"], float),
-                     tol=1e-3, task=task)
+                     tol=1e-3, task=task, dynamics=arrays if dynamics else None)
     failures = []
     if walking.steps_walked < steps:
         failures.append(f"walked {walking.steps_walked} of {steps} steps in MuJoCo")
@@ -1399,6 +1401,8 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
         failures.append(f"penetration {kin.max_penetration_m:.4g} m > {MAX_PENETRATION_M} m")
     if (through := hole_failure(kin)) is not None:
         failures.append(through)
+    if (own := dynamics_failure(kin)) is not None:
+        failures.append(own)
     lay = model.layout
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),

@@ -478,7 +478,8 @@ class KinematicReport(ArraysReadOnly):
     between_point: str | None = None
     between_time_s: float | None = None
     # the plan's own dynamics on its flight steps (_flight_residual): the largest |M(q+) (v+ - v)/dt + h(q+, v+) - B u|
-    # of a degree of freedom, relative to the largest of its terms on those steps; None without a flight step
+    # of a degree of freedom, relative to the largest of its terms on those steps, or the positions' q+ = q + dt v+ on
+    # every running step when larger (flight_residual_positions); None without a running step
     flight_steps: int = 0
     max_flight_residual: float | None = None
     flight_residual_dof: str | None = None
@@ -659,8 +660,9 @@ class Validation(ArraysReadOnly):
                f"{k.max_penetration_between_m * 1e3:.3f} mm under the ground, {k.between_point} at "
                f"t = {k.between_time_s:.4g} s (information)")
             + ("" if k.max_flight_residual is None else
-               f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} over {k.flight_steps} flight "
-               f"steps to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
+               f"; own dynamics{' (positions)' if k.flight_residual_positions else ''} "
+               + (f"over {k.flight_steps} flight steps" if k.flight_steps else "over its steps (no flight step)")
+               + f" to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
@@ -716,7 +718,7 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
         raise InputError(f"{out_dir}/summary.json: command {shown(summary.get('command'))} is none of 'plan', "
                          "'simulate' (was the file edited?)")
     if task.is_periodic and summary.get("command") == "plan":
-        validation = _walk(robot, task, traj, options)
+        validation = _walk(robot, task, traj, options, _stepped_by_implicit_euler(summary, out_dir))
     else:
         contacts, taps = _impact_points(summary, task, check_trajectory(robot, traj)["impact_times"], out_dir)
         validation = validate_trajectory(robot, task, traj, options, impact_points=contacts, impact_taps=taps,
@@ -730,14 +732,16 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
     return validation
 
 
-def _walk(robot: Robot, task: Task, arrays: Mapping[str, np.ndarray], options: ValidationOptions | None):
-    """A periodic plan's validation: its step walked in MuJoCo (planner.gait.validate_walk)."""
+def _walk(robot: Robot, task: Task, arrays: Mapping[str, np.ndarray], options: ValidationOptions | None,
+          dynamics: bool):
+    """A periodic plan's validation: its step walked in MuJoCo (planner.gait.validate_walk), with its own dynamics
+    checked when dynamics (implicit-Euler samples)."""
     from .gait import validate_walk
 
     if options is not None:  # (--window was accepted and did nothing)
         raise InputError("a periodic plan is validated by walking its step in MuJoCo, with no tracking replay: "
                          "ValidationOptions (--controller, --window) do not apply; give none")
-    return validate_walk(robot, task, check_trajectory(robot, arrays))
+    return validate_walk(robot, task, check_trajectory(robot, arrays), dynamics=dynamics)
 
 
 def _stepped_by_implicit_euler(summary: dict, out_dir) -> bool:
@@ -775,7 +779,7 @@ def validate_plan(robot: Robot, task: Task, trajectory: Trajectory, options: Val
     expect(dynamics, bool, "validate_plan's dynamics")
     arrays = {"t": trajectory.t, "q": trajectory.q, "v": trajectory.v, "u": trajectory.u, "impact_times": trajectory.impact_times}
     if task.is_periodic:  # (it was tracked, and failed where validate passed)
-        return _walk(robot, task, arrays, options)
+        return _walk(robot, task, arrays, options, dynamics)
     return validate_trajectory(robot, task, arrays, options, impact_points=[imp.contact for imp in trajectory.impacts],
                                impact_taps=trajectory.taps, dynamics=dynamics)
 
@@ -836,13 +840,8 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
     failures += _impacts_off_ground(robot, scene, arrays, impact_points, options.contact_gap_tol_m)
-    if kinematic.max_flight_residual is not None and not kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
-        what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is" if kinematic.flight_residual_positions
-                else "in flight its controls do not give its motion (M a + h - B u is")
-        failures.append(f"the trajectory's own dynamics: {what} {kinematic.max_flight_residual:.3g} of its "
-                        f"terms in {kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
-                        f"{FLIGHT_RESIDUAL_TOL}); the tracking replay's feedback can hide that on a robot whose every "
-                        "coordinate has a motor")
+    if (own := dynamics_failure(kinematic)) is not None:
+        failures.append(own)
     return Validation(
         passed=not failures, mode="tracking",
         max_tracking_error_m=tracking.max_base_error_m, final_tracking_error_m=tracking.final_base_error_m,
@@ -1007,7 +1006,7 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     model, data = robot.model, robot.model.createData()
     running = [i for i in range(t.size - 1) if t[i + 1] > t[i] and not np.any((impacts > t[i]) & (impacts <= t[i + 1]))]
     steps = [i for i in running if airborne[i] and airborne[i + 1]]
-    if not steps:
+    if not running:
         return {}
     # the samples' positions against their velocities on every running step, stance too (q+ = q + dt v+ holds there
     # as well: a flight raised 5 cm passed, its jumps at the take-off and the landing being no flight steps)
@@ -1037,13 +1036,25 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     # equation reads v and u only); a coordinate at rest is judged on the fastest one's speed, which the solver's
     # tolerance (~1e-8 m per step) cannot reach at 1e-3 of it
     moved = np.abs(drift) / np.maximum(speed, 1e-3 * max(speed.max(), 1e-9))
-    n, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
+    n, j = np.unravel_index(int(np.argmax(relative)), relative.shape) if steps else (0, 0)
     nq_, jq = np.unravel_index(int(np.argmax(moved)), moved.shape)
-    positions = bool(moved[nq_, jq] > relative[n, j])
+    positions = not steps or bool(moved[nq_, jq] > relative[n, j])
     i, j = (running[nq_], jq) if positions else (steps[n], j)
     return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative).max()),
             "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[i + 1]),
             "flight_residual_positions": positions}
+
+
+def dynamics_failure(kinematic: KinematicReport) -> str | None:
+    """The failure line of a trajectory whose own dynamics (_flight_residual) break FLIGHT_RESIDUAL_TOL, else None."""
+    if kinematic.max_flight_residual is None or kinematic.max_flight_residual <= FLIGHT_RESIDUAL_TOL:
+        return None
+    what = ("its positions do not move at its velocities ((q+ - q) / dt - v+ is" if kinematic.flight_residual_positions
+            else "in flight its controls do not give its motion (M a + h - B u is")
+    return (f"the trajectory's own dynamics: {what} {kinematic.max_flight_residual:.3g} of its terms in "
+            f"{kinematic.flight_residual_dof!r} at t = {kinematic.flight_residual_time_s:.4g} s > "
+            f"{FLIGHT_RESIDUAL_TOL}); the tracking replay's feedback can hide that on a robot whose every coordinate "
+            "has a motor")
 
 
 def _impacts_off_ground(robot: Robot, scene: Scene, arrays: Mapping[str, np.ndarray],

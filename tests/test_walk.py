@@ -260,3 +260,19 @@ def test_saved_walk_plan_walks_ten_steps_in_mujoco(tmp_path):
     assert len(w["impact_times"]) == len(w["step_lengths_m"]) == WALK_STEPS
     assert np.max(np.abs(np.array(w["step_lengths_m"]) - w["planned_step_length_m"])) < STEP_LENGTH_TOL
     assert max(w["max_hinge_error_rad"], w["max_torso_error_rad"]) < WALK_ANGLE_TOL
+
+
+def test_a_walk_validation_checks_the_plans_own_positions():
+    """With dynamics (a plan of implicit-Euler steps, as validate(DIR) reads from summary.json), a periodic plan's
+    validation also holds its samples' positions to their velocities: the saved step passes, and the same step with
+    the hip 2 cm higher at one stance sample fails naming it (the walk reads neither the plan's base nor its
+    controls: such a plan walked 10 of 10 and passed)."""
+    robot, task = _biped(N=None)
+    saved = _saved_step()
+    assert validate_walk(robot, task, saved, dynamics=True).passed
+    raised = {**saved, "q": saved["q"].copy()}
+    raised["q"][10, robot.dof_index("z")] += 0.02  # [m]
+    assert validate_walk(robot, task, raised).passed  # (the walk alone)
+    walk = validate_walk(robot, task, raised, dynamics=True)
+    assert not walk.passed and any(f.startswith("the trajectory's own dynamics: its positions do not move at its "
+                                                "velocities") and "in 'z'" in f for f in walk.failures), walk.failures
