@@ -24,8 +24,8 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, expect, is_integer, shown
-from .model import (Robot, RobotFormat, included_files, mujoco_disabled, mujoco_failure, mujoco_spec, numbers_text,
-                    order_hint)
+from .model import (POLY, Robot, RobotFormat, included_files, mujoco_disabled, mujoco_failure, mujoco_spec,
+                    numbers_text, order_hint)
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -342,7 +342,8 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
     for a in range(mj.nu):  # (named by their mass, passive or actuation gap alone, "masses MuJoCo infers" among causes)
         terms = [f"{label} {numbers_text(values[a])}" for label, values in
                  (("armature", mj.actuator_armature), ("damping", mj.actuator_damping * damper),
-                  ("dampingpoly", mj.actuator_dampingpoly * damper), ("delay", mj.actuator_delay)) if np.any(values[a])]
+                  (POLY.format("damping"), mj.actuator_dampingpoly * damper), ("delay", mj.actuator_delay))
+                 if np.any(values[a])]
         if terms:
             out.append(f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)!r}: {', '.join(terms)}")
     if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):

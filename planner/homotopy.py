@@ -1495,7 +1495,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       constraint_violation=viol, timings=timings,
                       options={"problem": options_record(problem.options), "solve": options_record(options)},
                       robot_sha256=problem.robot.sha256,
-                      # (an edited problem's plan is not the task file's alone: --init and readers are told)
+                      # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 

@@ -621,11 +621,11 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     on = {flag: not mujoco_disabled(mj, flag) for flag in ("damper", "spring", "frictionloss")}
     stiffness = np.where(first[:, None], mj.jnt_stiffnesspoly[mj.dof_jntid], 0.0)
     passive = _passive_terms(dof_names, (("damping", mj.dof_damping * on["damper"]),
-                                         ("dampingpoly", mj.dof_dampingpoly * on["damper"]),
+                                         (POLY.format("damping"), mj.dof_dampingpoly * on["damper"]),
                                          ("frictionloss", mj.dof_frictionloss * on["frictionloss"]),
                                          ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0)
                                           * on["spring"]),
-                                         ("stiffnesspoly", stiffness * on["spring"])))
+                                         (POLY.format("stiffness"), stiffness * on["spring"])))
     site_names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)]
     world_sites = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] == 0)
     frames = {f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME}  # (a body of the site's name hid it)
@@ -659,10 +659,14 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
 
 
 def _passive_terms(dof_names, per_dof) -> tuple[str, ...]:
-    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or "joint 'hip':
-    dampingpoly 0.5 0" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
+    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or "joint 'hip': damping
+    (polynomial terms, as MuJoCo stores them) 0.5 0" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
     return tuple(f"joint {dof_names[i]!r}: {label} {numbers_text(values[i])}"
                  for label, values in per_dof for i in range(len(dof_names)) if np.any(values[i] != 0.0))
+
+
+# a file's damping="0 0.5" (or stiffness): MuJoCo's dampingpoly, not an attribute the file can write, stored so
+POLY = "{} (polynomial terms, as MuJoCo stores them)"
 
 
 def numbers_text(values) -> str:

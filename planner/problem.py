@@ -326,15 +326,16 @@ class Problem:
             np.array_equal(np.asarray(getattr(self, name)), built[name])))
 
     def check_solvable(self) -> None:
-        """InputError when an input build_problem baked into the NLP changed since (BUILT_INPUTS: the task, the
-        options, N, h, y0, the variables): the NLP would solve the old one while the result recorded the new (a task
-        swapped by dataclasses.replace was planned for its old target and written with the new). f must stay a
+        """InputError when an input build_problem baked into the NLP changed since (BUILT_INPUTS: the robot, the task,
+        the options, N, h, y0, the variables): the NLP would solve the old one while the result recorded the new (a
+        task swapped by dataclasses.replace was planned for its old target and written with the new, a robot for the
+        old masses and written as the new file's). f must stay a
         scalar and f, g functions of x and p only."""
         built = self.notes.get("built")
         if built is None:
             return
         changed = [name for name in BUILT_INPUTS if not (
-            getattr(self, name) is built[name] if name == "x" else
+            getattr(self, name) is built[name] if name in ("robot", "x") else
             np.array_equal(np.asarray(getattr(self, name)), built[name]) if name == "y0" else
             getattr(self, name) == built[name])]
         if changed:
@@ -626,7 +627,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
 
 # what build_problem baked into x, g, the stages and the derivatives: solve() refuses a Problem whose ones changed
-BUILT_INPUTS = ("task", "options", "N", "h", "y0", "x", "var_names")
+BUILT_INPUTS = ("robot", "task", "options", "N", "h", "y0", "x", "var_names")
 # what solve() honours when edited on a built Problem (Problem.edited names them)
 EDITABLE = ("f", "g", "lbx", "ubx", "lbg", "ubg")
 
@@ -1078,12 +1079,16 @@ def _free_start_rows(rows: _Rows, path_fn: dict, y_0, hole_scale) -> None:
 
 
 TARGET_LANDING_MPS = 1e-3  # [m/s] a target contact on its plane moving into it faster than this ends in an impact
+# [m] "on its plane" for that: a point-mass target 1e-6 m up at -1 m/s ended inside an impact too, 1e-5 to 5e-4 m up
+# failed "out of reach", 1 mm planned cleanly (session 60's tester)
+TARGET_LANDING_GAP_M = 1e-3
 
 
 def _check_target_not_landing(system: TimeFreezingSystem, task: Task, contacts) -> None:
-    """InputError when plan.target_v moves a contact point into its plane while plan.target_q puts it on that plane:
-    the plan's last steps then freeze inside the impact (the point-mass hop with target_v = (0, -1) m/s ended with an
-    impact whose "post-impact" velocity still pointed 1 m/s into the ground, exit 0)."""
+    """InputError when plan.target_v moves a contact point into its plane while plan.target_q puts it on that plane
+    (within TARGET_LANDING_GAP_M): the plan's last steps then freeze inside the impact (the point-mass hop with
+    target_v = (0, -1) m/s ended with an impact whose "post-impact" velocity still pointed 1 m/s into the ground,
+    exit 0)."""
     plan = task.plan
     if plan.target_q is None or plan.target_v is None:  # (terminal_velocity=False refuses a target_v)
         return
@@ -1092,10 +1097,11 @@ def _check_target_not_landing(system: TimeFreezingSystem, task: Task, contacts) 
     gaps = np.asarray(system.gap_fn(y, u), float).ravel()
     speeds = np.asarray(system.normal_velocity_fn(y, u), float).ravel()
     for c, gap, speed in zip(contacts, gaps, speeds):
-        if gap <= START_GAP_M and speed < -TARGET_LANDING_MPS:
-            raise InputError(f"plan.target_v moves contact point {c.point!r} {-speed:.6g} m/s into its plane, on which "
-                             f"plan.target_q puts it: the plan would end inside an impact; give a target_v without "
-                             f"speed into the plane there, or a target above it")
+        if gap < TARGET_LANDING_GAP_M and speed < -TARGET_LANDING_MPS:
+            raise InputError(f"plan.target_v moves contact point {c.point!r} {-speed:.6g} m/s into its plane, "
+                             f"{max(gap, 0.0):.3g} m from which plan.target_q puts it: the plan would end inside an "
+                             f"impact; give a target_v without speed into the plane there, or a target at least "
+                             f"{TARGET_LANDING_GAP_M:g} m above it")
 
 
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:

@@ -567,7 +567,8 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     distance of the contact points from their planes at the nodes [m], when given: a phase from node 0 off the planes
     is a fall, no hop, a phase whose last node is off them lands in the next step (partly frozen), whose end node it
     takes too, and one whose last node is on them without an impact lands there; a one-step phase on the planes at
-    both ends is a skim, no hop, unless its point passes over one of holes (the task's Ellipses) on the way."""
+    both ends is a skim, no hop, unless its point passes over one of holes (the task's Ellipses) on the way, as a
+    slide is unless one of its steps does."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -587,12 +588,12 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         seg = point_xyz[a : k + 2 if gap is not None and gap[k] > ON_PLANE_M and k < N else k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
-        if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M:
+        over_hole = any(_passes_over(hole, seg[s], seg[s + 1]) for hole in holes for s in range(len(seg) - 1))
+        if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M and not over_hole:
             continue
         # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards,
         # 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
-        if (k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M
-                and not any(_passes_over(hole, seg[0], seg[-1]) for hole in holes)):
+        if k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M and not over_hole:
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen

@@ -135,6 +135,9 @@ class Ellipse:
         for key in ("a", "b"):
             _require(getattr(self, key) >= MIN_HOLE_AXIS_M, f"plan.holes.{key}", getattr(self, key),
                      f">= {MIN_HOLE_AXIS_M:g} (a micrometre)")
+        for key in ("x", "z", "a", "b"):  # (a hole at x = 1e300 overflowed into IPOPT's Invalid_Number_Detected)
+            _require(abs(getattr(self, key)) <= MAX_STATE, f"plan.holes.{key}", getattr(self, key),
+                     f"within ±{MAX_STATE:g} m")
 
     def metric(self, x, z):
         """((x - xc)/a)^2 + ((z - zc)/b)^2 of points x, z [m] (floats, arrays or CasADi expressions): 1 on the rim,
@@ -427,6 +430,7 @@ class Task:
 
     def __post_init__(self):
         _typed(self, "")
+        _require(abs(self.ground_height) <= MAX_STATE, "ground_height", self.ground_height, f"within ±{MAX_STATE:g} m")
         planes = [(c.point, c.normal) for c in self.contacts]
         # a point may touch several planes (a corner), but the same plane twice doubles its contact forces (normals
         # normalized apart by rounding, [1, 0, 1] and [3, 0, 3], were two planes: two half impacts)

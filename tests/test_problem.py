@@ -625,26 +625,28 @@ def test_a_periodic_guess_in_the_ground_is_refused_as_a_guess():
 
 
 def test_a_target_moving_into_the_ground_on_it_is_an_input_error():
-    """A target on the ground whose target_v moves the contact point into it has no plan that ends after its impact:
-    build_problem refuses it naming the point and the speed (the point-mass hop ended inside an impact, exit 0); the
-    same velocity 1 cm above the ground, or along it, builds."""
+    """A target on the ground (within 1 mm) whose target_v moves the contact point into it has no plan that ends after
+    its impact: build_problem refuses it naming the point, the speed and the gap (the point-mass hop ended inside an
+    impact, exit 0); the same velocity 1 mm above the ground, or along it, builds."""
     def hop(target_z: float, target_v):
         return parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
                            "horizon": {"tau_f": 1.0, "N": 4},
                            "plan": {"target_q": [0.5, target_z], "target_v": target_v, "u_bound": 30.0}})
 
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
-    with pytest.raises(InputError, match=r"^plan.target_v moves contact point 'point' 1 m/s into its plane, on which "
-                                         r"plan.target_q puts it: the plan would end inside an impact"):
-        build_problem(robot, hop(0.0, [0.0, -1.0]))
-    build_problem(robot, hop(0.01, [0.0, -1.0]))
+    for z in (0.0, 1e-6, 5e-4):  # (1e-6 m up ended inside an impact too, 1e-5 to 5e-4 m up failed)
+        with pytest.raises(InputError, match=r"^plan.target_v moves contact point 'point' 1 m/s into its plane, "
+                                             rf"{z:.3g} m from which plan.target_q puts it: the plan would end inside "
+                                             r"an impact; .* or a target at least 0.001 m above it"):
+            build_problem(robot, hop(z, [0.0, -1.0]))
+    build_problem(robot, hop(1e-3, [0.0, -1.0]))
     build_problem(robot, hop(0.0, [1.0, 0.0]))
 
 
 def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
     """Problem.edited names the bounds, cost and rows changed after build_problem (what solve honours), and
-    Problem.check_solvable (solve's and race's first check) refuses what the NLP was built from changed since: a task
-    or options swapped by dataclasses.replace (planned for the old target, written with the new), y0 edited in
+    Problem.check_solvable (solve's and race's first check) refuses what the NLP was built from changed since: a robot,
+    a task or options swapped by dataclasses.replace (planned for the old target, written with the new), y0 edited in
     place, new variables, a vector cost or a symbol that is not x or p (the raw CasADi errors came after NLP 1)."""
     import casadi as ca
 
@@ -662,6 +664,8 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
     with pytest.raises(InputError, match=r"^problem.task changed after build_problem, which built the NLP from them: "
                                          r"build the problem again .*takes edits of f, g, lbx, ubx, lbg, ubg and x0"):
         dataclasses.replace(pb, task=moved).check_solvable()
+    with pytest.raises(InputError, match=r"^problem.robot changed"):  # (the 1 kg NLP was written as the other file's)
+        dataclasses.replace(pb, robot=load_robot(f"{ROBOTS}/point_mass.xml")).check_solvable()
     with pytest.raises(InputError, match=r"^problem.options changed"):
         dataclasses.replace(pb, options=ProblemOptions(friction_cone=False)).check_solvable()
     shifted = dataclasses.replace(pb, y0=pb.y0.copy())

@@ -277,7 +277,7 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     one-step phase that moves along the ground is kept without the gaps, and so is a phase that leaves the plane; with
     the gaps, a one-step phase on the ground at both ends is a skim, no hop (Capler at N = 50 counted three such
     frictionless slides as hops), unless it passes over a hole, and then it lands at its last node (it read a step
-    later)."""
+    later); a slide that passes over a hole is a hop too."""
     clock = 0.1 * np.arange(6)
     traj = SimpleNamespace(y=clock[:, None], impacts=())
     xyz = np.zeros((6, 3))
@@ -291,6 +291,10 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside,)) == []
     (over,) = hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside, between))
     assert (over.takeoff_time, over.landing_time) == (0.1, 0.2)
+    # a slide along the ground (three steps) is a hop when one of its steps passes over a hole (it was a slide)
+    assert hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz, holes=(Ellipse(x=0.9, a=0.02, b=0.05),)) == []
+    (across,) = hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz, holes=(between,))
+    assert (across.takeoff_time, across.distance) == (0.1, pytest.approx(0.3))
     xyz[2, 2] = 10 * ON_PLANE_M
     assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), xyz)) == 1
     # down a 30-degree slope (its normal (sin, 0, cos)): the same slide, judged by the distance from the plane

@@ -77,6 +77,9 @@ def _with(path: str, value):
         ("plan", {"target_q": [1e300, 0.4, 0.0, 0.0]}, r"^plan.target_q\[0\] = 1e\+300 is not allowed"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "target_v": [0.0, 0.0, 0.0, -1e7]},
          r"^plan.target_v\[3\] = -10000000.0 is not allowed"),
+        ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1e300, "a": 0.1, "b": 0.1}]},
+         r"plan.holes\[0\].x = 1e\+300 is not allowed; it must be within ±1e\+06 m"),
+        ("ground_height", -2e6, r"^ground_height = -2000000.0 is not allowed; it must be within ±1e\+06"),
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "holes": [{"x": 1.0, "a": 1e-300, "b": 0.1}]},
          r"plan.holes\[0\].a = 1e-300 .* >= 1e-06"),
         # a repeat doubled the rows (dependent constraints)
