@@ -24,7 +24,7 @@ import pinocchio as pin
 
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, expect, is_integer, shown
-from .model import (POLY, Robot, RobotFormat, included_files, mujoco_disabled, mujoco_failure, mujoco_spec,
+from .model import (Robot, RobotFormat, as_written, included_files, mujoco_disabled, mujoco_failure, mujoco_spec,
                     numbers_text, order_hint)
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
@@ -341,9 +341,9 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
             out.append(f"tendon {name(mujoco.mjtObj.mjOBJ_TENDON, t)!r}: {', '.join(terms)}")
     for a in range(mj.nu):  # (named by their mass, passive or actuation gap alone, "masses MuJoCo infers" among causes)
         terms = [f"{label} {numbers_text(values[a])}" for label, values in
-                 (("armature", mj.actuator_armature), ("damping", mj.actuator_damping * damper),
-                  (POLY.format("damping"), mj.actuator_dampingpoly * damper), ("delay", mj.actuator_delay))
-                 if np.any(values[a])]
+                 (("armature", mj.actuator_armature),
+                  ("damping", as_written(mj.actuator_damping, mj.actuator_dampingpoly) * damper),
+                  ("delay", mj.actuator_delay)) if np.any(values[a])]
         if terms:
             out.append(f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)!r}: {', '.join(terms)}")
     if mj.opt.density or mj.opt.viscosity or np.any(mj.opt.wind):

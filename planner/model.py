@@ -619,13 +619,10 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     first = np.array([mj.jnt_dofadr[mj.dof_jntid[i]] == i for i in range(mj.nv)])  # a joint's stiffness, once
     # a term the file's <flag damper/spring/frictionloss="disable"/> turns off MuJoCo does not apply (it was refused)
     on = {flag: not mujoco_disabled(mj, flag) for flag in ("damper", "spring", "frictionloss")}
-    stiffness = np.where(first[:, None], mj.jnt_stiffnesspoly[mj.dof_jntid], 0.0)
-    passive = _passive_terms(dof_names, (("damping", mj.dof_damping * on["damper"]),
-                                         (POLY.format("damping"), mj.dof_dampingpoly * on["damper"]),
+    stiffness = np.where(first[:, None], as_written(mj.jnt_stiffness, mj.jnt_stiffnesspoly)[mj.dof_jntid], 0.0)
+    passive = _passive_terms(dof_names, (("damping", as_written(mj.dof_damping, mj.dof_dampingpoly) * on["damper"]),
                                          ("frictionloss", mj.dof_frictionloss * on["frictionloss"]),
-                                         ("stiffness", np.where(first, mj.jnt_stiffness[mj.dof_jntid], 0.0)
-                                          * on["spring"]),
-                                         (POLY.format("stiffness"), stiffness * on["spring"])))
+                                         ("stiffness", stiffness * on["spring"])))
     site_names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) or "" for s in range(mj.nsite)]
     world_sites = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] == 0)
     frames = {f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME}  # (a body of the site's name hid it)
@@ -659,19 +656,23 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
 
 
 def _passive_terms(dof_names, per_dof) -> tuple[str, ...]:
-    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or "joint 'hip': damping
-    (polynomial terms, as MuJoCo stores them) 0.5 0" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
+    """The file's joint damping, stiffness and friction loss, as "joint 'hip': damping 5" or, with polynomial terms,
+    "joint 'hip': damping 0 0.5" (none: ()). per_dof: (label, (nv,) or (nv, k) values) pairs."""
     return tuple(f"joint {dof_names[i]!r}: {label} {numbers_text(values[i])}"
                  for label, values in per_dof for i in range(len(dof_names)) if np.any(values[i] != 0.0))
 
 
-# a file's damping="0 0.5" (or stiffness): MuJoCo's dampingpoly, not an attribute the file can write, stored so
-POLY = "{} (polynomial terms, as MuJoCo stores them)"
+def as_written(linear, poly) -> np.ndarray:
+    """A damping or stiffness attribute as the file writes it, (n, 1 + k): MuJoCo keeps damping="0 0.5" as dof_damping
+    0 and dof_dampingpoly (0.5, 0), where "dampingpoly 0.5 0" named no attribute of the file (session 60's tester)."""
+    return np.column_stack([np.asarray(linear, float), np.asarray(poly, float)])
 
 
 def numbers_text(values) -> str:
-    """A number or a vector as the file would write it: "0.5", "0.5 0"."""
-    return " ".join(f"{float(x):g}" for x in np.atleast_1d(values))
+    """A number or a vector as the file would write it, trailing zeros of a vector dropped: "0.5", "0 0.5"."""
+    values = np.atleast_1d(np.asarray(values, float))
+    kept = max(1, int(np.flatnonzero(values)[-1]) + 1) if np.any(values) else 1
+    return " ".join(f"{x:g}" for x in values[:kept])
 
 
 def mujoco_disabled(mj, flag: str) -> bool:

@@ -296,12 +296,13 @@ def test_an_inverted_joint_range_is_refused_and_mujocos_element_named(tmp_path):
 
 @pytest.mark.parametrize("hip, term", [('damping="5"', "damping 5"), ('stiffness="50"', "stiffness 50"),
                                        ('frictionloss="2"', "frictionloss 2"),
-                                       ('damping="0 0.5"', "damping (polynomial terms, as MuJoCo stores them) 0.5 0"),
-                                       ('stiffness="0 5"', "stiffness (polynomial terms, as MuJoCo stores them) 5 0")])
+                                       ('damping="0 0.5"', "damping 0 0.5"), ('stiffness="0 5"', "stiffness 0 5"),
+                                       ('damping="0.2 0.5 0.1"', "damping 0.2 0.5 0.1")])
 def test_passive_joint_forces_are_refused_for_simulation(tmp_path, hip, term):
-    """Joint damping, stiffness and friction loss, polynomial ones too, are recorded (Robot.passive) and refused by a
-    task's check, which simulate and plan run: the planner's dynamics have none, MuJoCo's replay would (the
-    polynomial ones were named by check-model's passive gap alone)."""
+    """Joint damping, stiffness and friction loss, polynomial ones too (named as the file writes them: "dampingpoly
+    0.5 0" named no attribute), are recorded (Robot.passive) and refused by a task's check, which simulate and plan
+    run: the planner's dynamics have none, MuJoCo's replay would (the polynomial ones were named by check-model's
+    passive gap alone)."""
     from planner.errors import RobotFileError as Refused
     from planner.task import parse_task
 

@@ -676,7 +676,7 @@ def test_positions_that_do_not_move_at_the_velocities_fail(point_mass):
         assert bad.kinematic.flight_residual_positions and bad.kinematic.flight_residual_dof == dof
         assert not bad.passed and any(f.startswith("the trajectory's own dynamics: its positions do not move "
                                                    "at its velocities") for f in bad.failures), bad.failures
-        assert "; own dynamics (positions) over 50 flight steps to " in bad.report()
+        assert "; own dynamics (positions, over every running step) to " in bad.report()
     good = replay.validate_trajectory(point_mass, task, _pushed_flight(), dynamics=True)
     assert good.passed and good.kinematic.max_flight_residual < 1e-9
 
@@ -684,8 +684,9 @@ def test_positions_that_do_not_move_at_the_velocities_fail(point_mass):
 def test_a_raised_flight_and_controls_12_percent_off_fail(point_mass):
     """The positions are held to the velocities on every running step, the take-off's from the ground too: a flight
     raised 5 cm whole (its steps' chords unchanged, the jump at the take-off) fails; it passed, that step being no
-    flight step. The dynamics residual is relative to its largest term, as documented: controls 12 % off fail (0.12;
-    relative to the terms' sum, about twice the largest in flight, they passed at 0.06)."""
+    flight step. The dynamics residual is relative to its largest term, as documented: controls 12 % off fail (0.136;
+    relative to the terms' sum, about twice the largest in flight, they passed at 0.06). Positions held still while
+    the velocities move read about 1 of the speed (the speed had left |v+| out: 1e12)."""
     task = _task("point", q0=(0.0, 0.0))
     flight = _pushed_flight()
     rest = 5  # samples at rest on the table before the push [0.01 s each]
@@ -700,14 +701,22 @@ def test_a_raised_flight_and_controls_12_percent_off_fail(point_mass):
     assert bad.kinematic.flight_residual_positions and bad.kinematic.flight_residual_time_s == pytest.approx(0.05)
     assert any(f.startswith("the trajectory's own dynamics: its positions do not move") for f in bad.failures)
     weak = {**arrays, "u": arrays["u"] * np.where(np.arange(arrays["t"].size) >= rest, 0.88, 1.0)[:, None]}
-    off = replay.validate_trajectory(point_mass, task, weak, dynamics=True).kinematic
+    off = replay.validate_trajectory(point_mass, task, weak, dynamics=True)
     # z: 0.12 * 12 N of 0.88 * 12 N, the largest term
-    assert not off.flight_residual_positions and off.max_flight_residual == pytest.approx(0.12 / 0.88, rel=1e-6)
+    assert not off.kinematic.flight_residual_positions
+    assert off.kinematic.max_flight_residual == pytest.approx(0.12 / 0.88, rel=1e-6)
+    assert not off.passed and any(f.startswith("the trajectory's own dynamics: in flight its controls do not give its "
+                                               "motion (M a + h - B u is 0.136 of its terms") for f in off.failures)
+    # positions held while the velocities are not: about 1 of the speed (|v+| was left out of it: 1e12)
+    held = {**arrays, "q": np.tile(arrays["q"][rest], (arrays["t"].size, 1))}
+    still = replay.validate_trajectory(point_mass, task, held, dynamics=True).kinematic
+    assert still.flight_residual_positions and still.max_flight_residual == pytest.approx(1.0)
 
 
 def test_an_impact_listed_in_the_air_fails(point_mass):
     """An impact whose contact point is above the ground at its samples fails the validation naming it (an impact
-    moved to a flight's apex passed, and hid its step from the dynamics check); one listed on the ground does not."""
+    moved to a flight's apex passed, and hid its step from the dynamics check), between two samples too (judged at
+    the lower of them); one listed on the ground does not."""
     task = _task("point", q0=(0.0, 0.0))
     flight = _pushed_flight()
     t = np.concatenate([0.01 * np.arange(5), 0.04 + flight["t"][1:]])
@@ -724,6 +733,11 @@ def test_an_impact_listed_in_the_air_fails(point_mass):
                              "above the ground (> 0.001 m): no contact there") in up.failures, up.failures
     down = replay.validate_trajectory(point_mass, task, with_impact(2))
     assert not any("is listed with" in f for f in down.failures), down.failures
+    # between two samples in the air (no sample at its time, its step left out of the dynamics check): both judged
+    between = {"t": t, "q": q, "v": v, "u": u, "impact_times": np.array([0.5 * (t[20] + t[21])])}
+    up = replay.validate_trajectory(point_mass, task, between, impact_points=["point"])
+    assert any(f.startswith(f"the impact at t = {0.5 * (t[20] + t[21]):.4g} s is listed with contact point 'point' "
+                            f"{height:.3g} m above the ground") for f in up.failures), up.failures
 
 
 def test_a_coasting_flight_without_gravity_passes_its_dynamics(tmp_path):
@@ -933,7 +947,7 @@ def test_a_periodic_plan_that_did_not_converge_does_not_pass(tmp_path, monkeypat
     (tmp_path / "summary.json").write_text(json.dumps({"command": "plan", "robot": str(robot.path), "converged": False}))
     walked = planner.gait.WalkValidation(passed=True, robot=str(robot.path), stance_foot="foot_1", swing_foot="foot_2",
                                          period_s=0.1, max_penetration_m=0.0, walking=None, failures=())
-    monkeypatch.setattr(planner.gait, "validate_walk", lambda robot, task, arrays: walked)
+    monkeypatch.setattr(planner.gait, "validate_walk", lambda robot, task, arrays, dynamics=False: walked)
     result = replay.validate(tmp_path)
     assert not result.passed and result.failures == (
         "the plan did not converge (summary.json): MuJoCo replayed its last iterate",)
@@ -959,7 +973,8 @@ def test_validate_plan_walks_a_periodic_plan_as_validate_does(monkeypatch):
     walked = planner.gait.WalkValidation(passed=True, robot=str(robot.path), stance_foot="foot_1", swing_foot="foot_2",
                                          period_s=0.1, max_penetration_m=0.0, walking=None, failures=())
     seen = []
-    monkeypatch.setattr(planner.gait, "validate_walk", lambda robot, task, arrays: seen.append(arrays) or walked)
+    monkeypatch.setattr(planner.gait, "validate_walk",
+                        lambda robot, task, arrays, dynamics=False: seen.append(arrays) or walked)
     assert replay.validate_plan(robot, task, traj, dynamics=True) is walked
     assert np.array_equal(seen[0]["q"], traj.q) and len(seen) == 1
     with pytest.raises(InputError, match="periodic plan is validated by walking .* do not apply"):
