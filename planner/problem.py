@@ -329,8 +329,7 @@ class Problem:
         """InputError when an input build_problem baked into the NLP changed since (BUILT_INPUTS: the robot, the task,
         the options, N, h, y0, the variables): the NLP would solve the old one while the result recorded the new (a
         task swapped by dataclasses.replace was planned for its old target and written with the new, a robot for the
-        old masses and written as the new file's). f must stay a
-        scalar and f, g functions of x and p only."""
+        old masses and written as the new file's). f must stay a scalar and f, g functions of x and p only."""
         built = self.notes.get("built")
         if built is None:
             return
