@@ -1488,8 +1488,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
            for y in nodes]
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
+    skims: list = []
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
-                   gap, problem.task.plan.holes)
+                   gap, problem.task.plan.holes, skims)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
@@ -1497,6 +1498,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       robot_sha256=problem.robot.sha256,
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
+                             **({"skims": [s.to_json() for s in skims]} if skims else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 
 

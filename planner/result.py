@@ -559,7 +559,8 @@ def _passes_over(hole, start, end) -> bool:
     return ((x0 + s * dx) / hole.a) ** 2 + ((z0 + s * dz) / hole.b) ** 2 < 1.0
 
 
-def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=()) -> list[Hop]:
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=(),
+            skims: list | None = None) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
     does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
@@ -568,7 +569,8 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     is a fall, no hop, a phase whose last node is off them lands in the next step (partly frozen), whose end node it
     takes too, and one whose last node is on them without an impact lands there; a one-step phase on the planes at
     both ends is a skim, no hop, unless its point passes over one of holes (the task's Ellipses) on the way, as a
-    slide is unless one of its steps does."""
+    slide is unless one of its steps does; skims, when given, gets each skim as a Hop (takeoff and landing at its two
+    nodes)."""
     clock = traj.y[:, -1]
     # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
     # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
@@ -594,6 +596,9 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards,
         # 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
         if k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M and not over_hole:
+            if skims is not None:
+                skims.append(Hop(takeoff_time=float(clock[a]), landing_time=float(clock[k]),
+                                 distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
@@ -667,6 +672,10 @@ class PlanResult(ArraysReadOnly):
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]
         lines += _braked_lines(self.extra)
+        if self.extra.get("skims"):  # (they were counted as hops: frictionless slides of the foot along the ground)
+            lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "
+                         "friction acts (no hops): " + ", ".join(f"t = {s['takeoff_time']:.4g} s {s['distance']:+.3g} m"
+                                                                for s in self.extra["skims"]))
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others

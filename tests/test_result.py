@@ -15,7 +15,7 @@ import pytest
 
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
-from planner.result import (ON_PLANE_M, TAP_SHARE, SimulationResult, SolveStats, Trajectory, check_same_result,
+from planner.result import (ON_PLANE_M, TAP_SHARE, Hop, SimulationResult, SolveStats, Trajectory, check_same_result,
                             hops_of, read_robot, read_start, read_summary, read_task, read_trajectory, recover,
                             tap_flags, write_atomically, write_files, write_results)
 from planner.simulate import simulate
@@ -286,7 +286,9 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert len(hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz)) == 1
     # with the gaps: a skim, unless a hole lies between its nodes (x = 0.1 and 0.2 m); then its last node is on the
     # ground, so it lands there (it read a step later, node 3's 0.3 s)
-    assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2]) == []
+    skims = []
+    assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], skims=skims) == []
+    assert skims == [Hop(takeoff_time=0.1, landing_time=0.2, distance=pytest.approx(0.1), apex=0.0)]
     aside, between = Ellipse(x=0.35, a=0.02, b=0.05), Ellipse(x=0.15, a=0.02, b=0.05)
     assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside,)) == []
     (over,) = hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside, between))
