@@ -840,7 +840,7 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
                         f"t = {kinematic.worst_time_s:.4g} s > {options.max_penetration_m} m")
     if (through := hole_failure(kinematic)) is not None:
         failures.append(through)
-    failures += _impacts_off_ground(robot, scene, arrays, impact_points, options.contact_gap_tol_m)
+    failures += _impacts_off_ground(robot, scene, arrays, planned, options.contact_gap_tol_m)
     if (own := dynamics_failure(kinematic)) is not None:
         failures.append(own)
     return Validation(
@@ -1065,29 +1065,27 @@ def dynamics_failure(kinematic: KinematicReport, tracked: bool = True) -> str | 
 
 
 def _impacts_off_ground(robot: Robot, scene: Scene, arrays: Mapping[str, np.ndarray],
-                        impact_points: Sequence[str | None] | None, tol: float) -> list[str]:
-    """A failure line per impact (arrays' impact_times [s]) whose contact point (impact_points, None: the lowest of
-    the scene's) is more than tol [m] above the ground at its samples (between two: at both): no contact could give
-    that impulse (an impact
-    moved to a flight's apex, 6.5 cm up, passed, and hid the flight step it sat in from the dynamics check). The
-    planner's impacts sit on the ground to ~4e-11 m."""
+                        planned: Sequence[tuple[str, float, bool]], tol: float) -> list[str]:
+    """A failure line per planned impact (_planned_impacts' (point, time [s], tap): an unnamed point is the lowest)
+    whose contact point is more than tol [m] above the ground at its samples (between two: at both): no contact could
+    give that impulse (an impact moved to a flight's apex, 6.5 cm up, passed, and hid the flight step it sat in from
+    the dynamics check). The planner's impacts sit on the ground to ~4e-11 m."""
     t, q = arrays["t"], arrays["q"]
     data = robot.model.createData()
     out = []
-    for k, time in enumerate(np.atleast_1d(arrays["impact_times"])):
-        point = impact_points[k] if impact_points is not None else None
-        points = [point] if point is not None else list(scene.points)
+    for point, time, _ in planned:
+        if point not in scene.points:  # ("?": a scene without contact points)
+            continue
         heights = []
         at = np.flatnonzero(np.abs(t - time) <= 1e-9 * max(1.0, abs(time)))
         # (an impact between two samples: the lower of them; its step is no running step of the dynamics check)
         around = np.clip([np.searchsorted(t, time) - 1, np.searchsorted(t, time)], 0, t.size - 1)
         for i in at if at.size else np.unique(around):
             pin.framesForwardKinematics(robot.model, data, q[i])
-            heights.append(min(data.oMf[robot.frame_id(p)].translation[2] for p in points) - scene.ground_height)
+            heights.append(data.oMf[robot.frame_id(point)].translation[2] - scene.ground_height)
         if heights and min(heights) > tol:
-            who = f"contact point {point!r}" if point is not None else "every contact point"
-            out.append(f"the impact at t = {time:.4g} s is listed with {who} {min(heights):.3g} m above the ground "
-                       f"(> {tol} m): no contact there")
+            out.append(f"the impact at t = {time:.4g} s is listed with contact point {point!r} {min(heights):.3g} m "
+                       f"above the ground (> {tol} m): no contact there")
     return out
 
 
