@@ -1472,7 +1472,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                     + (", the robot file's joint speed limits" if np.isfinite(problem.robot.v_limit).any() else "")
                     + (f", and {', '.join(never)} kept off the ground (touches = false)" if never else "")
                     + " (a local verdict: some reachable tasks end so, docs/stability.md)")
-    floating = _levitating(problem, traj, nodes) if not converged else []
+    # each contact point's gap at the nodes (K+1, n_c) [m]: the levitation's check and the hops' read them
+    gaps = np.array([np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float).ravel() for y in nodes])
+    floating = _levitating(problem, traj, gaps) if not converged else []
     if floating:  # (Capler with its knee a contact too failed "out of reach" with the knee holding it up 0.17 m high)
         message += (f"; {', '.join(floating)}: levitating on the contact field, the penalty homotopy's local minimum"
                     + ("; a point that need not touch the ground is better declared touches = false (docs/tasks.md)"
@@ -1484,8 +1486,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     contact = problem.system.contacts[0].point
     foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
     # the robot flies when every contact point does (one contact: its beta): so its gap is the smallest
-    gap = [float(np.min(np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float), initial=np.inf))
-           for y in nodes]
+    gap = gaps.min(axis=1, initial=np.inf)
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
     skims: list = []
@@ -1506,13 +1507,12 @@ LEVITATION_GAP_M = 1e-3  # [m] a contact point this far off its plane holds no f
 LEVITATION_N = 1e-2  # [N] a persistent contact force below this is not named
 
 
-def _levitating(problem: Problem, traj: Trajectory, nodes: np.ndarray) -> list[str]:
-    """The contacts whose persistent normal force (traj.contact_force, step k at nodes[k + 1] (K+1, ny)) acts while
-    they are off their plane, as "knee carried up to 2.4 N while 0.17 m off its plane"."""
+def _levitating(problem: Problem, traj: Trajectory, gaps: np.ndarray) -> list[str]:
+    """The contacts whose persistent normal force (traj.contact_force, step k at node k + 1) acts while they are off
+    their plane (gaps (K+1, n_c) [m] at the nodes), as "knee carried up to 2.4 N while 0.17 m off its plane"."""
     if traj.contact_force is None or not len(traj.contact_force):
         return []
-    u0 = np.zeros(problem.system.nu)
-    gaps = np.array([np.asarray(problem.system.gap_fn(y, u0), float).ravel() for y in nodes[1:]])
+    gaps = np.asarray(gaps, float)[1:]
     normal = np.asarray(traj.contact_force, float)[:, :, 0]
     out = []
     for c, label in enumerate(problem.system.labels):

@@ -1025,8 +1025,8 @@ def test_a_contact_holding_force_off_its_plane_is_named():
     from types import SimpleNamespace
 
     pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4))
-    nodes = np.tile(pb.y0, (5, 1))
-    nodes[2, 1] = 0.17  # the point 0.17 m up at node 2, the end of step 1
+    nodes = np.zeros((5, 1))
+    nodes[2, 0] = 0.17  # the point 0.17 m up at node 2, the end of step 1
     force = np.zeros((4, 1, 2))
     force[1, 0, 0], force[3, 0, 0] = 2.4, 9.81  # [N] step 1 off the plane, step 3 on it
     assert H._levitating(pb, SimpleNamespace(contact_force=force), nodes) == [
@@ -1039,7 +1039,7 @@ def test_a_failed_plan_says_which_contact_levitates(monkeypatch):
     """A plan that fails with a contact holding force off its plane says so in its message (one contact: no advice
     to declare it touches = false, which the only contact cannot be); a converged one does not look."""
     pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
-    monkeypatch.setattr(H, "_levitating", lambda problem, traj, nodes: ["point carried up to 2.4 N while 0.17 m off"])
+    monkeypatch.setattr(H, "_levitating", lambda problem, traj, gaps: ["point carried up to 2.4 N while 0.17 m off"])
     failed = H.solve(pb, H.SolveOptions(max_iter=2, polish_after_failure=False))
     assert not failed.stats.converged
     assert "; point carried up to 2.4 N while 0.17 m off: levitating on the contact field" in failed.stats.message
