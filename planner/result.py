@@ -552,11 +552,11 @@ LANDING_SLACK_S = 1e-9
 def _passes_over(hole, start, end) -> bool:
     """Whether the straight segment from start to end (3,) [m] enters hole (a task's Ellipse in x, z)."""
     (x0, z0), (dx, dz) = (start[0] - hole.x, start[2] - hole.z), (end[0] - start[0], end[2] - start[2])
-    # the metric along the segment, s in [0, 1]: quad s^2 + lin s + hole.metric(start)
+    # the metric along the segment, s in [0, 1]: quad s^2 + lin s + hole.metric(start), smallest at s
     quad = (dx / hole.a) ** 2 + (dz / hole.b) ** 2
     lin = 2.0 * (x0 * dx / hole.a**2 + z0 * dz / hole.b**2)
     s = min(max(-lin / (2.0 * quad), 0.0), 1.0) if quad > 0.0 else 0.0
-    return ((x0 + s * dx) / hole.a) ** 2 + ((z0 + s * dz) / hole.b) ** 2 < 1.0
+    return hole.metric(start[0] + s * dx, start[2] + s * dz) < 1.0
 
 
 def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=(),
@@ -591,14 +591,14 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
         over_hole = any(_passes_over(hole, seg[s], seg[s + 1]) for hole in holes for s in range(len(seg) - 1))
+        distance, apex = float(seg[-1, 0] - seg[0, 0]), float(seg[:, 2].max() - seg[0, 2])
         if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M and not over_hole:
             continue
         # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards,
         # 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
         if k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M and not over_hole:
             if skims is not None:
-                skims.append(Hop(takeoff_time=float(clock[a]), landing_time=float(clock[k]),
-                                 distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
+                skims.append(Hop(float(clock[a]), float(clock[k]), distance, apex))
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
@@ -609,8 +609,7 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         on_plane = gap is not None and k < N and gap[k] <= ON_PLANE_M
         landing = max((i.time for i in traj.impacts if clock[a] < i.time <= end + LANDING_SLACK_S),
                       default=float(clock[k]) if on_plane else end)
-        hops.append(Hop(takeoff_time=float(clock[a]), landing_time=float(landing),
-                        distance=float(seg[-1, 0] - seg[0, 0]), apex=float(seg[:, 2].max() - seg[0, 2])))
+        hops.append(Hop(float(clock[a]), float(landing), distance, apex))
     return hops
 
 
