@@ -341,7 +341,7 @@ class Problem:
             raise InputError(f"problem.{', problem.'.join(changed)} changed after build_problem, which built the NLP "
                              "from them: build the problem again (build_problem(robot, task, options)); a built "
                              f"problem takes edits of {', '.join(EDITABLE)} and x0 only (no new variables)")
-        if "f" in self.edited or "g" in self.edited:
+        if {"f", "g"} & set(self.edited):
             if self.f.shape != (1, 1):
                 raise InputError(f"problem.f must be a scalar expression, got shape {self.f.shape}")
             if self.g.shape[1] != 1 or self.g.shape[0] != len(self.lbg) or self.g.shape[0] != len(self.ubg):
@@ -435,8 +435,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         states["plan.target_q"] = system.initial_state(np.array(plan.target_q, float), np.zeros(nv))
     never = [c for c in task.contacts if c.point in skips.never_touching]
     for key, y in states.items():
-        # (a periodic task's start is a guess the node rows move, yet the guess in the ground is refused too)
-        key += " (with plan.periodic the initial guess of q(0))" if periodic and key == "initial.q" else ""
+        key = _state_key(key, task)
         gaps = list(np.asarray(system.gap_fn(y, np.zeros(nu)), float).ravel())
         for c in never:  # (their gap >= 0 rows start at node 1: a start in the ground was planned, exit 0)
             gaps.append(float(plane_gap(dyn, c, y[:nq], task.ground_height)))
@@ -1103,6 +1102,12 @@ def _check_target_not_landing(system: TimeFreezingSystem, task: Task, contacts) 
                              f"{TARGET_LANDING_GAP_M:g} m from it")
 
 
+def _state_key(key: str, task: Task) -> str:
+    """A start or target's task key as a refusal names it: a periodic task's initial.q is the guess of q(0), which
+    the node rows move (yet a guess in the ground or in a hole is refused too)."""
+    return key + (" (with plan.periodic the initial guess of q(0))" if key == "initial.q" and task.is_periodic else "")
+
+
 def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
     """InputError when task.initial.q or plan.target_q (nq,) [m, rad] puts a contact point inside one of the plan's
     holes. The last node is held both at the target and out of the holes, so no plan exists (Capler's target x = 2.6 m
@@ -1117,10 +1122,9 @@ def _check_outside_holes(dyn: Dynamics, contacts, task: Task) -> None:
             for i, e in enumerate(plan.holes):
                 if e.metric(p[0], p[2]) < 1.0 - HOLE_EDGE_TOL:
                     start = key == "initial.q"
-                    guess = start and plan.periodic is not None
-                    said = key + (" (with plan.periodic the initial guess of q(0))" if guess else "")
                     # (the metric, not only the position: 1 nm inside the rim printed x = 0.25, the rim itself)
-                    raise InputError(f"{said} puts contact point {c.point!r} at x = {p[0]:.10g}, z = {p[2]:.10g} m, "
+                    raise InputError(f"{_state_key(key, task)} puts contact point {c.point!r} at x = {p[0]:.10g}, "
+                                     f"z = {p[2]:.10g} m, "
                                      f"inside plan.holes[{i}] (x = {e.x:g}, z = {e.z:g}, a = {e.a:g}, b = {e.b:g}; "
                                      f"ellipse metric {e.metric(p[0], p[2]):.10g} < 1); no "
                                      f"plan can {'start' if start else 'end'} there: move the "
