@@ -825,6 +825,7 @@ def _cmd_plan(args) -> int:
 
         start_arrays = read_trajectory(args.init)
         check_start(args.init, robot, start_arrays)
+        _warn_if_edited(args.init)
         options_apart = _options_apart(args.init, problem.options)
         # a plan written before session 50 digested its variables only: its options by its summary.json instead
         old = str(start_arrays.get("nlp_signature")) == problem.variables_signature
@@ -982,6 +983,21 @@ def _skips_apart(init: Path, arrays: dict, task) -> str:
         said += (f"; horizon.physical_time is set {'there' if timed[0] else 'here'} only: it adds a speed of time per "
                  "step, so plan without --init")
     return said
+
+
+def _warn_if_edited(init: Path) -> None:
+    """A warning when init's plan, by its summary.json's edited_problem, was solved from a Problem edited through the
+    Python API: --init rebuilds the task file's problem, so the edits are not replanned."""
+    from .result import read_summary
+
+    try:
+        edits = read_summary(init, require=()).get("edited_problem")
+    except (InputError, AttributeError):
+        return
+    if edits:
+        names = ", ".join(map(str, edits)) if isinstance(edits, list) else str(edits)
+        warnings.warn(f"{init}'s plan was solved from a Problem edited through the Python API ({names}); this replan "
+                      "starts from it but solves the task file's problem without those edits")
 
 
 def _options_apart(init: Path, options) -> str:

@@ -1148,6 +1148,24 @@ def test_init_refuses_a_summary_whose_converged_is_not_true(tmp_path, capsys):
                      "converged is 'no'")
 
 
+def test_init_from_an_edited_problems_plan_warns(tmp_path, capsys):
+    """--init from a plan whose summary.json names edited_problem (a Problem edited through the Python API) warns
+    that the replan solves the task file's problem without those edits; it replanned in silence."""
+    plan = tmp_path / "hop"
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    assert main(["plan", "point_mass", "--task", str(task), "--out", str(plan), "--no-validate", "--no-race", "-q",
+                 "--no-plots"]) == 0
+    argv = ["plan", "point_mass", "--task", str(task), "--init", str(plan), "--no-validate", "-q", "--no-plots"]
+    assert main(argv + ["--out", str(tmp_path / "plain")]) == 0
+    assert "edited" not in capsys.readouterr().err
+    summary = json.loads((plan / "summary.json").read_text())
+    (plan / "summary.json").write_text(json.dumps({**summary, "edited_problem": ["f", "ubx"]}))
+    assert main(argv + ["--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "edited through the Python API (f, ubx)" in err and "without those edits" in err
+
+
 def test_a_closed_stdout_is_not_blamed_on_the_robot_file(tmp_path):
     """`planner simulate ... >&-` ran (Python's sys.stdout is None): the model loader flushed it and the error was
     read as "Pinocchio cannot parse point_mass.xml" (exit 2)."""
