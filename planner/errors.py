@@ -60,6 +60,16 @@ class UnknownNameError(InputError):
         self.kind, self.name, self.valid = kind, name, list(valid) if ordered else sorted(valid)
         super().__init__(f"{key + ': ' if key else ''}unknown {kind} {name!r}; valid {kind}s: {', '.join(self.valid) or '(none)'}")
 
+    def __reduce__(self):
+        # pickle rebuilt it by calling __init__ with its message alone: a multiprocessing pool's result thread died
+        # on the TypeError and the pool hung; the message (args, maybe prefixed since) and attributes are kept as set
+        return _new_exception, (type(self),), {**self.__dict__, "args": self.args}
+
+
+def _new_exception(cls: type) -> BaseException:
+    """An instance of the exception class cls without calling its __init__ (UnknownNameError.__reduce__)."""
+    return cls.__new__(cls)
+
 
 class TaskError(InputError):
     """A task file with a wrong key, type or value."""

@@ -73,6 +73,9 @@ class Robot:
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
     unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads, Pinocchio's parser not (<frame>, 2nd body)
     ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
+    # the bodies (MJCF) or links (URDF) with geoms that collide in MuJoCo (contype or conaffinity nonzero, an explicit
+    # <pair>, a URDF <collision>): the planner's contacts are the task's points only (Task.check_against warns)
+    colliding: tuple[str, ...] = ()
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -95,6 +98,11 @@ class Robot:
     @property
     def name(self) -> str:
         return self.model.name or self.path.stem
+
+    def body_of(self, point: str) -> str:
+        """The body (MJCF) or link (URDF) a named point is, or is fixed on (a site's parent body)."""
+        frame = self.model.frames[self.frame_id(point)]
+        return frame.name if frame.type == pin.FrameType.BODY else self.model.frames[frame.parentFrame].name
 
     @property
     def nq(self) -> int:
@@ -363,10 +371,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     _refuse_negative_inertia(path, model)
     world_sites, unread_sites, ground_z, unnamed = (), (), None, ()
     if fmt is RobotFormat.MJCF:
-        actuators, dof_names, passive, world_sites, unread_sites, ground_z, unnamed = _mjcf_info(path, model)
+        actuators, dof_names, passive, world_sites, unread_sites, ground_z, unnamed, colliding = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
         root = ET.parse(path).getroot()
+        colliding = tuple(link.get("name", "") for link in root.iter("link") if link.find("collision") is not None)
         _refuse_joint_mistakes(path, root)  # (before the limits' checks: "swap them" of a limit without an upper)
         lower, upper = model.lowerPositionLimit, model.upperPositionLimit
         one = [(model.names[j], model.joints[j].idx_q) for j in range(1, model.njoints) if model.joints[j].nq == 1]
@@ -396,6 +405,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         world_sites=world_sites,
         unread_sites=unread_sites,
         ground_z=ground_z,
+        colliding=colliding,
     )
 
 
@@ -541,12 +551,14 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
 
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
-                                                     tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...]]:
+                                                     tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...],
+                                                     tuple[str, ...]]:
     """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
     (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites), the ground plane's
     height (Robot.ground_z) read from MuJoCo's compiled model of the same
-    file, and the names Pinocchio made up for unnamed sites (no points: MuJoCo's replay has no site of
-    that name); Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
+    file, the names Pinocchio made up for unnamed sites (no points: MuJoCo's replay has no site of
+    that name) and the bodies with colliding geoms (Robot.colliding); Pinocchio's joint limits made MuJoCo's
+    (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -631,7 +643,11 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
     unnamed = tuple(f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME and f.name not in site_names)
-    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed
+    paired = set(mj.pair_geom1) | set(mj.pair_geom2)
+    bodies = sorted({int(mj.geom_bodyid[g]) for g in range(mj.ngeom) if mj.body_weldid[mj.geom_bodyid[g]] != 0
+                     and (mj.geom_contype[g] or mj.geom_conaffinity[g] or g in paired)})  # (welded: the scenery's)
+    colliding = tuple(mj.body(b).name or f"body {b}" for b in bodies)
+    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed, colliding
 
 
 def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:

@@ -66,8 +66,10 @@ FESDInterval. Blocks and shapes are in `_build_fesd`'s docstring; docs/formulati
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
+import pickle
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -224,10 +226,10 @@ class Stages:
     (f = f_rest + p[cost_weight] sum_k cost_k). f_rest: the objective without the steps' costs (SX of x, p)."""
 
     fn: ca.Function
-    z_index: np.ndarray
-    rows: np.ndarray
+    z_index: np.ndarray = field(repr=False)
+    rows: np.ndarray = field(repr=False)
     cost_weight: int
-    f_rest: ca.SX
+    f_rest: ca.SX = field(repr=False)
 
 
 @dataclass(eq=False)
@@ -255,24 +257,25 @@ class Problem:
     N: int
     h: float
     y0: np.ndarray
-    x: ca.SX
-    p: ca.SX
-    f: ca.SX
-    g: ca.SX
-    lbx: np.ndarray
-    ubx: np.ndarray
-    lbg: np.ndarray
-    ubg: np.ndarray
-    x0: np.ndarray
-    var_names: tuple[str, ...]
-    var_blocks: dict[str, np.ndarray]
-    g_blocks: dict[str, np.ndarray]
-    pairs: tuple[Pair, ...]
-    pair_scale: np.ndarray
-    objective_parts: dict[str, ca.Function]
-    products: ca.Function
+    # (repr=False: the expressions and per-variable arrays made repr(problem) 1.4 million characters for Capler)
+    x: ca.SX = field(repr=False)
+    p: ca.SX = field(repr=False)
+    f: ca.SX = field(repr=False)
+    g: ca.SX = field(repr=False)
+    lbx: np.ndarray = field(repr=False)
+    ubx: np.ndarray = field(repr=False)
+    lbg: np.ndarray = field(repr=False)
+    ubg: np.ndarray = field(repr=False)
+    x0: np.ndarray = field(repr=False)
+    var_names: tuple[str, ...] = field(repr=False)
+    var_blocks: dict[str, np.ndarray] = field(repr=False)
+    g_blocks: dict[str, np.ndarray] = field(repr=False)
+    pairs: tuple[Pair, ...] = field(repr=False)
+    pair_scale: np.ndarray = field(repr=False)
+    objective_parts: dict[str, ca.Function] = field(repr=False)
+    products: ca.Function = field(repr=False)
     build_time_s: float = 0.0
-    notes: dict = field(default_factory=dict)
+    notes: dict = field(default_factory=dict, repr=False)
     skips: Skips = field(default_factory=Skips)  # what the scene analysis left out, with reasons
     fesd: FESDInterval | None = None  # the FESD stages' builder (ProblemOptions.discretization FESD), else None
     stages: Stages | None = None  # the steps as one mapped Function (implicit Euler), else None
@@ -314,6 +317,24 @@ class Problem:
             if not (math.isfinite(value) and value >= 0):  # (a nan penalty or a negative one was solved)
                 raise InputError(f"Problem.params' {name} must be finite and >= 0, got {value!r}")
         return np.array(values, dtype=float)
+
+    def __reduce__(self):
+        # CasADi pickles SX expressions only inside its pickle context (one serializer for all of them), which
+        # multiprocessing and concurrent.futures do not open: a built problem could not be sent to a worker
+        with ca.global_pickle_context():
+            state = pickle.dumps(self.__dict__)
+        return _unpickled_problem, (state,)
+
+    def __copy__(self) -> Problem:  # (not through __reduce__: a copy shares the arrays, as dataclasses.replace)
+        new = object.__new__(Problem)
+        new.__dict__.update(self.__dict__)
+        return new
+
+    def __deepcopy__(self, memo: dict) -> Problem:
+        new = object.__new__(Problem)
+        memo[id(self)] = new
+        new.__dict__.update(copy.deepcopy(self.__dict__, memo))
+        return new
 
     @property
     def edited(self) -> tuple[str, ...]:
@@ -628,6 +649,14 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 BUILT_INPUTS = ("robot", "task", "options", "N", "h", "y0", "x", "var_names")
 # what solve() honours when edited on a built Problem (Problem.edited names them)
 EDITABLE = ("f", "g", "lbx", "ubx", "lbg", "ubg")
+
+
+def _unpickled_problem(state: bytes) -> Problem:
+    """The Problem that Problem.__reduce__ pickled as `state`."""
+    problem = object.__new__(Problem)
+    with ca.global_unpickle_context():
+        problem.__dict__.update(pickle.loads(state))
+    return problem
 
 
 def _record_built(problem: Problem) -> Problem:

@@ -81,6 +81,11 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     n = min(len(arms), usable_cpus() if processes is None else processes)
     if n == 1:
         return solve(problem, arms[0][1], progress)
+    if mp.current_process().daemon:  # (multiprocessing's AssertionError "daemonic processes are not allowed to have
+        # children" came from the first arm's start)
+        raise InputError("race starts a process per arm, which a daemonic process (a multiprocessing.Pool worker) "
+                         "cannot: pass race processes=1 (the first arm, solved in this process), or run the jobs with "
+                         "planner.batch.run_batch or concurrent.futures.ProcessPoolExecutor, whose workers may")
     start = time.perf_counter()
     ctx = mp.get_context("fork")  # the children inherit the built problem (CasADi functions do not pickle cheaply)
     pipes, procs = [], []

@@ -426,7 +426,9 @@ class Task:
     plan: Plan | None = None
     simulate: Simulate = field(default_factory=Simulate)
     gait: Gait | None = None  # a periodic gait for `planner gait` (docs/tasks.md)
-    source: str = ""  # path of the file it came from, for messages; not a TOML key
+    # path of the file it came from, for messages; not a TOML key, nor part of a task's equality (a task read back from
+    # a plan's trajectory.npz, or the same file by another path, is the same task: a replan walked between equal tasks)
+    source: str = field(default="", compare=False)
 
     def __post_init__(self):
         _typed(self, "")
@@ -527,6 +529,14 @@ class Task:
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")
+        kept = {robot.body_of(c.point) for c in self.contacts}
+        kept |= {robot.body_of(p) for p in (self.plan.above_ground if self.plan else ()) if p in robot.points}
+        loose = [b for b in robot.colliding if b not in kept]
+        if loose:  # MuJoCo's replay clears their collisions as well (replay.build_scene): a knee in the ground passed
+            warnings.warn(f"{robot.path}: the geoms of {', '.join(map(repr, loose))} collide in MuJoCo, but no contact "
+                          "point of the task is on them: the plan and its validation let them pass through the ground; "
+                          "list a site on each in contacts (touches = false keeps it above the ground) or "
+                          "plan.above_ground, or set the geoms' contype and conaffinity to 0")
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
             # (the task's value left out: a replan's walk checks tasks in between, which warned once each)
             warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "

@@ -43,6 +43,22 @@ class _Typed:
 NAN, INF = float("nan"), float("inf")
 
 
+def test_unknown_name_errors_pickle_with_their_message_and_names():
+    """An UnknownNameError (required constructor arguments) survives pickle with its message, a prefix added to it
+    since (check_against names the task file) and its attributes: pickle called __init__ with the message alone, and
+    a multiprocessing pool's result thread died on the TypeError (the pool hung)."""
+    import pickle
+
+    from planner.errors import UnknownNameError
+
+    exc = UnknownNameError("contact point", "foot", ["point"], "contacts[0].point")
+    exc.args = (f"task.toml: {exc}",)
+    back = pickle.loads(pickle.dumps(exc))
+    assert type(back) is UnknownNameError and str(back) == str(exc) == (
+        "task.toml: contacts[0].point: unknown contact point 'foot'; valid contact points: point")
+    assert (back.kind, back.name, back.valid) == ("contact point", "foot", ["point"])
+
+
 @pytest.mark.parametrize("kwargs, ok", [
     ({}, True), ({"scale": 2}, True), ({"limit": None}, True), ({"limit": 3}, True), ({"items": (1, 2.5)}, True),
     ({"bound": -INF}, True), ({"names": ("a", "b")}, True),

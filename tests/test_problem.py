@@ -696,3 +696,27 @@ def test_a_plan_without_contacts_names_its_task(tmp_path):
                     'target_q = [0.5, 1.0]\n')
     with pytest.raises(InputError, match=rf"^task {re.escape(str(path))} has no \[\[contacts\]\]; the time-freezing"):
         build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), load_task(path))
+
+
+def test_a_built_problem_pickles_copies_and_has_a_short_repr():
+    """A built problem goes through pickle (a multiprocessing worker's argument; CasADi's SX needed its pickle
+    context, which no pool opens) and solves there to the same point bit for bit, with its edits still named;
+    copy.copy shares the arrays, copy.deepcopy does not; repr leaves out the expressions and per-variable arrays
+    (1.4 million characters for Capler)."""
+    import copy
+    import pickle
+
+    from planner.homotopy import SolveOptions, solve
+
+    problem = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), hop_task(N=6))
+    edited = dataclasses.replace(problem, f=problem.f + 0.01 * problem.x[0] ** 2)
+    back = pickle.loads(pickle.dumps(edited))
+    assert back.edited == ("f",) and back.var_names == edited.var_names
+    back.check_solvable()
+    options = SolveOptions(max_iter=300)
+    assert np.array_equal(solve(back, options).nlp_point(back), solve(edited, options).nlp_point(edited))
+    assert copy.copy(problem).lbx is problem.lbx
+    deep = copy.deepcopy(problem)
+    assert deep.lbx is not problem.lbx and np.array_equal(deep.lbx, problem.lbx) and deep.edited == ()
+    assert len(repr(problem)) < 5000, len(repr(problem))
+

@@ -160,6 +160,27 @@ def test_arm_errors_that_do_not_pickle_arrive_as_the_nearest_planner_error(hop_p
         R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
 
 
+def _race_in_a_pool_worker(_):
+    """race() of the hop with two arms in a multiprocessing.Pool worker (a daemonic process): its error's type and
+    message."""
+    try:
+        R.race(build_problem(load_robot("robots/point_mass.xml"), hop_task(N=6)), R.default_arms(H.SolveOptions()),
+               processes=2)
+    except Exception as exc:  # (returned, not raised: the test reads it in the parent)
+        return type(exc).__name__, str(exc)
+    return None, ""
+
+
+def test_a_race_in_a_daemonic_process_is_an_input_error_naming_the_alternatives():
+    """race() in a multiprocessing.Pool worker, which may start no processes, is an InputError naming processes=1
+    and run_batch (multiprocessing's AssertionError "daemonic processes are not allowed to have children")."""
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        name, message = pool.map(_race_in_a_pool_worker, [0])[0]
+    assert name == "InputError" and "processes=1" in message and "run_batch" in message, (name, message)
+
+
 @pytest.mark.parametrize("arms, processes, fragment", [
     ((), None, r"one or more \(name, SolveOptions\) arms"),
     ((H.SolveOptions(),), None, r"one or more \(name, SolveOptions\) arms"),  # TypeError: cannot unpack

@@ -298,6 +298,51 @@ def test_a_ground_height_other_than_the_files_ground_plane_warns(tmp_path):
     plank.write_text(PLANK)
     assert load_robot(plank).ground_z is None
 
+def test_a_tasks_source_is_not_part_of_its_equality(tmp_path):
+    """The same task read from its file by a relative and an absolute path, parsed from its data, or read back
+    with another source, is equal and hashes equal (a replan from a plan of the same task walked between equal
+    tasks: read_task names the plan's trajectory.npz as the source)."""
+    import os
+
+    absolute = load_task(ROBOTS / "capler.toml")
+    relative = load_task(os.path.relpath(ROBOTS / "capler.toml"))
+    assert absolute.source != relative.source and absolute == relative and hash(absolute) == hash(relative)
+    other = replace(absolute, source=str(tmp_path / "trajectory.npz"))
+    assert other == absolute and hash(other) == hash(absolute)
+    assert replace(absolute, ground_height=0.01) != absolute
+
+
+def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
+    """A robot file whose bodies' geoms collide in MuJoCo (contype/conaffinity, an explicit <pair>, a URDF
+    <collision>) warns naming the bodies that carry no contact or above_ground point of the task: the plan and the
+    validation (which clears their collisions) let them through the ground without a word. Scenery welded to the
+    world is not named; capler.xml (contype 0) and its default task give no warning."""
+    text = (ROBOTS / "capler.xml").read_text()
+    colliding = tmp_path / "capler.xml"
+    colliding.write_text(text.replace('<geom contype="0" conaffinity="0" rgba', '<geom rgba').replace(
+        "</worldbody>", '<body name="rock" pos="1 0 0"><geom type="box" size="0.1 0.1 0.1"/></body></worldbody>'))
+    robot = load_robot(colliding)
+    assert robot.colliding == ("base", "thigh", "shank")
+    with pytest.warns(UserWarning, match=r"the geoms of 'base', 'thigh' collide in MuJoCo, but no contact point of the "
+                                         r"task is on them: the plan and its validation let them pass through"):
+        parse_task(MINIMAL).check_against(robot)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_task(ROBOTS / "capler.toml").check_against(robot)  # above_ground = ["knee", "base"] keeps the others
+        parse_task(MINIMAL).check_against(load_robot("capler"))
+    paired = tmp_path / "paired.xml"  # contype 0 everywhere, one explicit pair of the thigh with the ground
+    paired.write_text(text.replace("</worldbody>", '</worldbody><contact><pair geom1="thigh_geom" geom2="ground"/></contact>'))
+    assert load_robot(paired).colliding == ("thigh",)
+    urdf = tmp_path / "capler.urdf"
+    urdf.write_text((ROBOTS / "capler.urdf").read_text().replace(
+        '<visual><origin xyz="0 0 -0.1"/><geometry><cylinder radius="0.012"',
+        '<collision><geometry><sphere radius="0.01"/></geometry></collision><visual><origin xyz="0 0 -0.1"/>'
+        '<geometry><cylinder radius="0.012"'))
+    assert load_robot(urdf).colliding == ("shank",) and load_robot("robots/capler.urdf").colliding == ()
+    with pytest.warns(UserWarning, match=r"the geoms of 'shank' collide"):
+        parse_task({**MINIMAL, "contacts": [{"point": "knee"}]}).check_against(load_robot(urdf))
+
+
 PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" axis="1 0 0"/>
 <joint name="pz" type="slide" axis="0 0 1"/><joint name="pitch" type="hinge" axis="0 1 0"/>
 <inertial pos="0 0 0" mass="3" diaginertia="0.04 0.04 0.04"/><site name="left" pos="-0.2 0 -0.02"/>
