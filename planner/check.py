@@ -25,7 +25,7 @@ import pinocchio as pin
 from .dynamics import Dynamics
 from .errors import InputError, RobotFileError, expect, is_integer, shown
 from .model import (Robot, RobotFormat, as_written, included_files, mujoco_disabled, mujoco_failure, mujoco_spec,
-                    numbers_text, order_hint)
+                    numbers_text, order_hint, wrapper_tags)
 
 TOLERANCE = 1e-9  # every max abs difference must be at most this for `passed`
 TIMING_EVALUATIONS = 200  # calls averaged per timed function
@@ -109,7 +109,7 @@ class ModelCheck:
         if self.mujoco and self.mujoco.differences:
             out.append(f"MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}")
         if self.mujoco and self.mujoco.hints:
-            out.append(f"Pinocchio's MJCF parser reads otherwise: {'; '.join(self.mujoco.hints)}")
+            out.append(f"Pinocchio's parser reads otherwise: {'; '.join(self.mujoco.hints)}")
         if (self.mujoco_skipped or "").startswith(MUJOCO_FAILED):
             out.append(self.mujoco_skipped.removeprefix(MUJOCO_FAILED))
         if self.passive and self.mujoco is None:  # (the compared reading names them among its differences)
@@ -144,12 +144,12 @@ class ModelCheck:
                                                             ("actuation", m.max_err_actuation)))
             if self.mujoco.missing_sites:
                 mujoco += (f"; MuJoCo sites missing in Pinocchio's reading: {', '.join(self.mujoco.missing_sites)} "
-                           "(Pinocchio's MJCF parser skips a site inside a <frame>, and every body of <worldbody> "
-                           "after the first)")
+                           "(Pinocchio's MJCF parser skips a site inside a <frame> or a <replicate>, and every body "
+                           "of <worldbody> after the first)")
             if self.mujoco.differences:
                 mujoco += f"; MuJoCo applies what the planner does not model: {'; '.join(self.mujoco.differences)}"
             if self.mujoco.hints:
-                mujoco += f"; Pinocchio's MJCF parser reads otherwise: {'; '.join(self.mujoco.hints)}"
+                mujoco += f"; Pinocchio's parser reads otherwise: {'; '.join(self.mujoco.hints)}"
         else:
             failed = self.mujoco_skipped.startswith(MUJOCO_FAILED)
             mujoco = self.mujoco_skipped if failed else f"skipped: {self.mujoco_skipped}"
@@ -460,9 +460,14 @@ def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
     else []: they explain those gaps, not a named difference."""
     measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
                     and all(err <= TOLERANCE for err in gaps["sites"].values()))
-    if not measured or robot.format is not RobotFormat.MJCF:
+    if not measured:
         return []
     root = ET.parse(robot.path).getroot()
+    if robot.format is not RobotFormat.MJCF:  # (Pinocchio's MJCF parser applies boundmass, its URDF parser not)
+        return [f"<mujoco><compiler {key}=\"{c.get(key)}\">: MuJoCo raises lighter {what} to it, Pinocchio's URDF "
+                "parser does not; remove it and give each link its own <inertial>"
+                for c in root.iter("compiler") for key, what in (("boundmass", "masses"), ("boundinertia", "inertias"))
+                if c.get(key)]
     return _body_masses(robot, mj, root) + _parser_gaps(root)
 
 
@@ -512,6 +517,7 @@ def _apart(mujoco_kg: float, pinocchio_kg: float) -> str:
 
 
 AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize
+ANTIPARALLEL = 1e-6  # a zaxis within this angle [rad] of -z (but not on it) may be turned otherwise by Pinocchio's parser
 
 
 def _parser_gaps(root: ET.Element) -> list[str]:
@@ -526,6 +532,25 @@ def _parser_gaps(root: ET.Element) -> list[str]:
             return any(float(x) for x in text.split())
         return False
 
+    compilers = list(root.iter("compiler"))
+    late = [e.tag for e in root].index("worldbody") if root.find("worldbody") is not None else len(root)
+    if len(compilers) > 1 or any(c in root[late:] for c in compilers):
+        out.append(f"{f'{len(compilers)} <compiler> elements' if len(compilers) > 1 else '<compiler> after <worldbody>'}"
+                   ": Pinocchio's parser reads the first only and only before <worldbody>, MuJoCo all of them; merge "
+                   "them into one <compiler> before <worldbody>")
+    wrapped = wrapper_tags(root)
+    if wrapped:
+        out.append(f"<{'> and <'.join(wrapped)}> elements: Pinocchio's parser does not read the bodies, geoms and "
+                   "sites inside them (MuJoCo does); write those out with their own pos and orientation")
+    for e in placed:  # (measured: zaxis "1e-9 0 -1" is a half turn about x to MuJoCo, about y to Pinocchio)
+        try:
+            z = np.array((e.get("zaxis") or "0 0 1").split(), float)
+        except ValueError:  # MuJoCo refuses it first
+            continue
+        if z.shape == (3,) and np.any(z[:2]) and z[2] < 0 and np.linalg.norm(z[:2]) < ANTIPARALLEL * abs(z[2]):
+            named = f" name={e.get('name')!r}" if e.get("name") else ""
+            out.append(f"<{e.tag}{named}> zaxis {e.get('zaxis')!r}, nearly opposite to z, which "
+                       "Pinocchio's parser turns about another axis than MuJoCo; give the orientation as quat or xyaxes")
     seq = next((c.get("eulerseq") for c in root.iter("compiler") if c.get("eulerseq")), "xyz")
     if seq != seq.lower() and any(turned(e.get("euler") or "") for e in placed):
         out.append(f"<compiler eulerseq=\"{seq}\">: Pinocchio's parser reads an extrinsic (upper-case) sequence as "

@@ -343,6 +343,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
         said = _parser_errors(printed)
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
+        if not hint and fmt is RobotFormat.MJCF and wrapper_tags(ET.parse(path).getroot()):  # (a <frame> around the
+            # root body: "No such node (body)")
+            hint = (f" (the file has <{'> and <'.join(wrapper_tags(ET.parse(path).getroot()))}> elements, whose bodies, "
+                    "geoms and sites Pinocchio's MJCF parser does not read: write them out with their own pos and "
+                    "orientation)")
         if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
         if not hint and fmt is RobotFormat.MJCF and "min_effort are greater than max_effort" in reason:
@@ -827,6 +832,12 @@ def _defaults_late(path: Path) -> bool:
     with "unordered_map::at")."""
     tags = [child.tag for child in ET.parse(path).getroot()]
     return "default" in tags and "worldbody" in tags and tags.index("default") > tags.index("worldbody")
+
+
+def wrapper_tags(root: ET.Element) -> list[str]:
+    """The MJCF wrapper elements (<frame>, <replicate>) of the file at `root`: Pinocchio's MJCF parser does not read
+    the bodies, geoms and sites inside them, MuJoCo does."""
+    return sorted({e.tag for e in root.iter() if e.tag in ("frame", "replicate")})
 
 
 def _main_class_undeclared(path: Path) -> bool:

@@ -734,9 +734,10 @@ def _not_on_the_world(point: str, robot, key: str) -> None:
         raise TaskError(f"{key} = {point!r} is a site on the world body, fixed in the world, not a point of the robot; "
                         "move the <site> into the robot's body that touches")
     if point in robot.unread_sites:  # ("valid contact points: (none)" of a file that plainly has the site)
-        raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame>, or on a "
-                        "body of <worldbody> after the first, which is the robot); move the <site> out of the <frame> "
-                        "into its body, with the frame's pos and orientation, or onto the robot")
+        raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame> or a "
+                        "<replicate>, or on a body of <worldbody> after the first, which is the robot); move the <site> "
+                        "out of the <frame> into its body, with the frame's pos and orientation (a <replicate>'s copies "
+                        "written out), or onto the robot")
 
 
 def _names_a_shipped_task(path: Path) -> bool:

@@ -493,6 +493,12 @@ SHANK_INERTIAL = '<inertial pos="0 0 -0.1" mass="0.548" diaginertia="0.0032 0.00
                              "without <inertial> by its geoms"),
     # a site named as its body: Pinocchio's frame lookup by name alone raised "Several frames match" (regression tester)
     ([(SHANK_INERTIAL, '<site name="shank" pos="0 0 -0.05"/>')], "body masses shank 0.0977161 kg in MuJoCo"),
+    # (session 61's tester: these three were refused as "e.g. masses MuJoCo infers from geoms" or with no cause)
+    ([('<compiler angle="radian" autolimits="true"/>', '<compiler autolimits="true"/><compiler angle="radian"/>'),
+      (SHANK, SHANK[:-1] + ' euler="0 0.5 0">')], "2 <compiler> elements: Pinocchio's parser reads the first only"),
+    ([(SHANK_INERTIAL, SHANK_INERTIAL + '<frame pos="0 0 -0.2"><body name="pad"><inertial pos="0 0 0" mass="0.4" '
+       'diaginertia="0.001 0.001 0.001"/></body></frame>')], "<frame> elements: Pinocchio's parser does not read"),
+    ([(SHANK, SHANK[:-1] + ' zaxis="1e-9 0 -1">')], "<body name='shank'> zaxis '1e-9 0 -1', nearly opposite to z"),
     ([('autolimits="true"', 'autolimits="true" inertiafromgeom="true"')],
      "body masses base 0.768 kg in MuJoCo, 0 kg in Pinocchio; thigh 0.155509 kg in MuJoCo, 0 kg in Pinocchio; shank "
      '0.0977161 kg in MuJoCo, 0 kg in Pinocchio: with <compiler inertiafromgeom="true">'),
@@ -517,7 +523,7 @@ def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, n
     if not named.startswith("joint"):  # check-model names them too (it printed the gaps alone; a ref is a difference)
         result = check_model(robot, samples=2)
         assert any(h.startswith(named) for h in result.mujoco.hints), result.mujoco.hints
-        assert any(f.startswith("Pinocchio's MJCF parser reads otherwise: ") for f in result.failures)
+        assert any(f.startswith("Pinocchio's parser reads otherwise: ") for f in result.failures)
 
 
 def test_parser_hints_come_with_the_gaps_they_explain(tmp_path):
@@ -649,3 +655,22 @@ def test_terms_the_file_disables_are_no_difference(tmp_path, old, new):
     assert reading_differences(robot) == ()
     path.write_text(POINT_MASS.replace(old, new))  # the same file with the term on: named
     assert reading_differences(load_robot(path)) != ()
+
+
+def test_a_urdfs_mujoco_boundmass_and_a_frame_around_the_root_are_named(tmp_path):
+    """A URDF's <mujoco><compiler boundmass> (MuJoCo raises the massless links, Pinocchio's URDF parser not) is
+    named beside the mass gap, and an MJCF <frame> around the root body, which Pinocchio's parser fails on ("No such
+    node (body)"), is named in the parse error (session 61's tester: neither said a cause)."""
+    from planner.check import reading_differences
+
+    urdf = tmp_path / "capler.urdf"
+    urdf.write_text((ROBOTS_DIR / "capler.urdf").read_text().replace(
+        "</robot>", '<mujoco><compiler boundmass="0.6"/></mujoco></robot>'))
+    assert any(d.startswith('<mujoco><compiler boundmass="0.6">: MuJoCo raises lighter masses to it')
+               for d in reading_differences(load_robot(urdf)))
+    framed = tmp_path / "framed.xml"
+    framed.write_text(CAPLER.replace('<body name="base"', '<frame pos="0 0 0.5"><body name="base"').replace(
+        "</worldbody>", "</frame></worldbody>"))
+    with pytest.raises(RobotFileError, match=r"No such node \(body\) \(the file has <frame> elements, whose bodies"):
+        load_robot(framed)
+
