@@ -98,7 +98,7 @@ class SwitchVelocity(Enum):
 _GAUSS_S = (0.5 - 0.1 * 15**0.5, 0.5, 0.5 + 0.1 * 15**0.5)
 _GAUSS_W = (5.0 / 18.0, 4.0 / 9.0, 5.0 / 18.0)
 
-# The equality constraints of a step, in this order (StepForm.MASS_MATRIX appends "contact_forces").
+# The equality constraints of a step, in this order (ImplicitEulerStep.g_block_names appends "contact_forces").
 G_BLOCKS = ("dynamics", "stationarity", "lifting")
 
 
@@ -242,6 +242,12 @@ class ImplicitEulerStep:
         nz = self.w_blocks["forces"].stop - self.w_blocks["forces"].start if "forces" in self.w_blocks else 0
         forces = np.zeros(nz) if forces is None else np.asarray(forces, float).ravel()
         return np.concatenate([sigma, theta, lam0, lam1, forces]).astype(float)
+
+    @property
+    def g_block_names(self) -> tuple[str, ...]:
+        """The blocks of a step's g (Step.g_blocks), in order: G_BLOCKS, then "contact_forces" with the mass-matrix
+        form (its defining rows) or several contacts (their constraint forces' rows, either form)."""
+        return G_BLOCKS + (("contact_forces",) if self.mm is not None or self.system.n_lambda else ())
 
     def monomials_of(self, w):
         """The monomial vector z (n_monomials,) = (1, sigma, factors, lifted products) of the algebraic

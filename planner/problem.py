@@ -520,7 +520,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     path_fn, ws, coef, field_names = _path_functions(system, builder, dyn, task, contacts, skips, options, hole_scale)
 
     # --- stages ------------------------------------------------------------------------------------
-    step_blocks = ("dynamics", "stationarity", "lifting") + (("contact_forces",) if builder.mm is not None else ())
+    # (the explicit form's several-contact force rows were left out of the NLP: its contact forces were free)
+    step_blocks = builder.g_block_names
     g_parts: dict[str, list] = {name: [] for name in step_blocks + ("above_ground", "holes", "never_touching", "friction_cone", "impact_cone")}
     control_cost, selector_cost = 0, 0
     pairs: list[Pair] = []
@@ -603,9 +604,10 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     y_before = [var_blocks["y0"] if periodic else nx + np.arange(ny), *var_blocks["y"][:-1]]  # y_k of step k
     z_index = np.array([np.concatenate([y_before[k], var_blocks["u"][k], *([var_blocks["s"][k]] if timed else []),
                                         var_blocks["y"][k], var_blocks["w"][k]]) for k in range(N)])
-    step_rows = np.empty((N, step.g.numel()), dtype=int)
+    step_rows = np.full((N, step.g.numel()), -1)
     for name in step_blocks:
         step_rows[:, step.g_blocks[name]] = rows.blocks[name]
+    assert step_rows.min() >= 0, "a step row is in no block of the NLP"  # (its derivatives read unset memory)
     stages = Stages(step_fn, z_index, step_rows, PARAMETERS.index("rho_f_scale"),
                     control_cost + penalty + term_w * ca.dot(term_res, term_res) + clock_cost)
     names = [f"{nm}_0" for nm in system.state_names] if periodic else []
@@ -863,7 +865,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     path_fn, _, _, _ = _path_functions(system, builder, dyn, task, contacts, skips, options, hole_scale)
 
     # --- stages ------------------------------------------------------------------------------------
-    step_blocks = ("element_lengths", "dynamics", "stationarity", "lifting") + (("contact_forces",) if builder.mm is not None else ())
+    step_blocks = ("element_lengths",) + builder.g_block_names
     at_bounds, at_stages = ("above_ground", "holes", "never_touching"), ("friction_cone", "impact_cone")
     g_parts: dict[str, list] = {name: [] for name in step_blocks + at_bounds + at_stages}
     lbx, ubx = np.full(nx, -np.inf), np.full(nx, np.inf)

@@ -720,3 +720,23 @@ def test_a_built_problem_pickles_copies_and_has_a_short_repr():
     assert deep.lbx is not problem.lbx and np.array_equal(deep.lbx, problem.lbx) and deep.edited == ()
     assert len(repr(problem)) < 5000, len(repr(problem))
 
+
+@pytest.mark.parametrize("form", [StepForm.EXPLICIT, StepForm.MASS_MATRIX])
+@pytest.mark.parametrize("fesd", [False, True])
+def test_every_row_of_a_step_is_a_row_of_the_nlp(form, fesd):
+    """Every equality row a step (or FESD interval) writes is in the NLP, once, in a named block: with several
+    contacts the explicit form's constraint-force rows were left out (its contact forces were free, extra actuation
+    at the feet) and the stepwise derivatives read unset row indices (session 61's tester)."""
+    from planner.discretization import Discretization, FESDOptions
+
+    robot = load_robot(f"{ROBOTS}/biped.xml")
+    task = dataclasses.replace(load_task(f"{ROBOTS}/biped.toml"), horizon=Horizon(tau_f=0.1, N=4 if fesd else 5))
+    options = ProblemOptions(step_form=form, **({"discretization": Discretization.FESD, "fesd": FESDOptions(n_s=1, n_fe=2)}
+                                                if fesd else {}))
+    problem = build_problem(robot, task, options)
+    assert "contact_forces" in problem.g_blocks
+    rows = np.concatenate([np.ravel(r) for r in problem.g_blocks.values()])
+    assert len(rows) == len(set(rows.tolist())) == problem.ng  # the blocks partition g
+    if not fesd:
+        assert problem.stages.rows.min() >= 0 and len(set(problem.stages.rows.ravel().tolist())) == problem.stages.rows.size
+
