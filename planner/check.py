@@ -467,8 +467,15 @@ def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
         return [f"<mujoco><compiler {key}=\"{c.get(key)}\">: MuJoCo raises lighter {what} to it, Pinocchio's URDF "
                 "parser does not; remove it and give each link its own <inertial>"
                 for c in root.iter("compiler") for key, what in (("boundmass", "masses"), ("boundinertia", "inertias"))
-                if c.get(key)]
+                if _positive(c.get(key))]
     return _body_masses(robot, mj, root) + _parser_gaps(root)
+
+
+def _positive(text: str | None) -> bool:
+    """Whether an attribute's text is a number > 0 (MuJoCo's boundmass="0" is no bound)."""
+    with contextlib.suppress(TypeError, ValueError):
+        return float(text) > 0
+    return False
 
 
 def _body_masses(robot: Robot, mj, root: ET.Element) -> list[str]:
@@ -517,7 +524,8 @@ def _apart(mujoco_kg: float, pinocchio_kg: float) -> str:
 
 
 AXIS_TOL = 1e-12  # an axisangle axis whose length differs from 1 by more is one Pinocchio's parser does not normalize
-ANTIPARALLEL = 1e-6  # a zaxis within this angle [rad] of -z (but not on it) may be turned otherwise by Pinocchio's parser
+ANTIPARALLEL = 1e-2  # a zaxis within this angle [rad] of -z (but not on it) may be turned otherwise by Pinocchio's
+# parser (measured: 1e-9 a half turn about another axis, 1e-5 and 1e-3 gaps of 1e-8 and 1e-9 in the bias forces)
 
 
 def _parser_gaps(root: ET.Element) -> list[str]:
@@ -532,9 +540,12 @@ def _parser_gaps(root: ET.Element) -> list[str]:
             return any(float(x) for x in text.split())
         return False
 
-    compilers = list(root.iter("compiler"))
+    compilers = root.findall("compiler")
     late = [e.tag for e in root].index("worldbody") if root.find("worldbody") is not None else len(root)
-    if len(compilers) > 1 or any(c in root[late:] for c in compilers):
+    first = next((c for c in root[:late] if c.tag == "compiler"), None)  # the one Pinocchio's parser reads
+    read = dict(first.attrib) if first is not None else {}
+    # (two that agree are no gap: the hint came before a file's real cause)
+    if any(read.get(k) != v for c in compilers if c is not first for k, v in c.attrib.items()):
         out.append(f"{f'{len(compilers)} <compiler> elements' if len(compilers) > 1 else '<compiler> after <worldbody>'}"
                    ": Pinocchio's parser reads the first only and only before <worldbody>, MuJoCo all of them; merge "
                    "them into one <compiler> before <worldbody>")

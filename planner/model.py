@@ -99,10 +99,12 @@ class Robot:
     def name(self) -> str:
         return self.model.name or self.path.stem
 
-    def body_of(self, point: str) -> str:
-        """The body (MJCF) or link (URDF) a named point is, or is fixed on (a site's parent body)."""
-        frame = self.model.frames[self.frame_id(point)]
-        return frame.name if frame.type == pin.FrameType.BODY else self.model.frames[frame.parentFrame].name
+    def carrier(self, name: str, body: bool = False) -> int:
+        """The index of the Pinocchio joint that moves a named point (body=True: an MJCF body or URDF link, fixed
+        links merged into the link they hang on), 0 for one fixed to the world."""
+        model = self.model
+        frame = model.getFrameId(name, pin.FrameType.BODY) if body else self.frame_id(name)
+        return int(model.frames[frame].parentJoint) if frame < model.nframes else 0
 
     @property
     def nq(self) -> int:
@@ -343,11 +345,6 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
         said = _parser_errors(printed)
         reason = _parser_message(exc).rstrip(".") + (": " + "; ".join(said) if said else "")
-        if not hint and fmt is RobotFormat.MJCF and wrapper_tags(ET.parse(path).getroot()):  # (a <frame> around the
-            # root body: "No such node (body)")
-            hint = (f" (the file has <{'> and <'.join(wrapper_tags(ET.parse(path).getroot()))}> elements, whose bodies, "
-                    "geoms and sites Pinocchio's MJCF parser does not read: write them out with their own pos and "
-                    "orientation)")
         if not hint and fmt is RobotFormat.MJCF and "no body found" in reason:  # (a robot whose bodies have no name)
             hint = " (Pinocchio's MJCF parser reads named bodies only: name every <body>)"
         if not hint and fmt is RobotFormat.MJCF and "min_effort are greater than max_effort" in reason:
@@ -361,6 +358,11 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
                 _mujoco_model(path)
             except ValueError as mj:
                 hint = f" ({mujoco_failure(path, mj, 'read')})"
+        wrappers = wrapper_tags(ET.parse(path).getroot()) if fmt is RobotFormat.MJCF else []
+        if not hint and wrappers:  # (a <frame> around the root body: "No such node (body)"; last, as the likeliest
+            # cause of a file MuJoCo compiles, not before the specific ones: a harmless <frame> hid those)
+            hint = (f" (the file has <{'> and <'.join(wrappers)}> elements, whose bodies, geoms and sites Pinocchio's "
+                    "MJCF parser does not read: write them out with their own pos and orientation)")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
     said = _parser_errors(printed)
     if said:  # urdfdom returns a model without what it could not read (a thigh's `<mass value="1,782"/>`: no mass)
@@ -381,6 +383,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         actuators, dof_names, passive = _urdf_info(model)
         root = ET.parse(path).getroot()
         colliding = tuple(link.get("name", "") for link in root.iter("link") if link.find("collision") is not None)
+        colliding = tuple(name for name in colliding if name and _carrier(model, name))  # (a world link's: scenery)
         _refuse_joint_mistakes(path, root)  # (before the limits' checks: "swap them" of a limit without an upper)
         lower, upper = model.lowerPositionLimit, model.upperPositionLimit
         one = [(model.names[j], model.joints[j].idx_q) for j in range(1, model.njoints) if model.joints[j].nq == 1]
@@ -648,11 +651,28 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
     unnamed = tuple(f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME and f.name not in site_names)
-    paired = set(mj.pair_geom1) | set(mj.pair_geom2)
-    bodies = sorted({int(mj.geom_bodyid[g]) for g in range(mj.ngeom) if mj.body_weldid[mj.geom_bodyid[g]] != 0
-                     and (mj.geom_contype[g] or mj.geom_conaffinity[g] or g in paired)})  # (welded: the scenery's)
-    colliding = tuple(mj.body(b).name or f"body {b}" for b in bodies)
+    colliding = _colliding_bodies(mj)
     return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed, colliding
+
+
+def _carrier(model: pin.Model, link: str) -> int:
+    """The index of the joint that moves a URDF link, 0 for one fixed to the world (or unknown)."""
+    frame = model.getFrameId(link, pin.FrameType.BODY)
+    return int(model.frames[frame].parentJoint) if frame < model.nframes else 0
+
+
+def _colliding_bodies(mj) -> tuple[str, ...]:
+    """The moving bodies of an MJCF model with a geom that can touch a geom of the world (the ground, or a plane
+    with contype = conaffinity = 1 where the file has none): contype and conaffinity bits that meet, or an explicit
+    <pair> with a world geom. Robot.colliding."""
+    welded = {int(b) for b in range(mj.nbody) if mj.body_weldid[b] == 0}
+    world = [g for g in range(mj.ngeom) if int(mj.geom_bodyid[g]) in welded]
+    bits = [(int(mj.geom_contype[w]), int(mj.geom_conaffinity[w])) for w in world] or [(1, 1)]
+    paired = {int(g) for a, b in zip(mj.pair_geom1, mj.pair_geom2) if a in world or b in world for g in (a, b)}
+    bodies = sorted({int(mj.geom_bodyid[g]) for g in range(mj.ngeom) if int(mj.geom_bodyid[g]) not in welded and (
+        g in paired or any(int(mj.geom_contype[g]) & conaffinity or contype & int(mj.geom_conaffinity[g])
+                           for contype, conaffinity in bits))})
+    return tuple(mj.body(b).name or f"body {b}" for b in bodies)
 
 
 def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:

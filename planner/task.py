@@ -529,14 +529,16 @@ class Task:
             if robot.moves_out_of_plane(c.point):
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction")
-        kept = {robot.body_of(c.point) for c in self.contacts}
-        kept |= {robot.body_of(p) for p in (self.plan.above_ground if self.plan else ()) if p in robot.points}
-        loose = [b for b in robot.colliding if b not in kept]
+        kept = {robot.carrier(c.point) for c in self.contacts}  # (by the joint that moves them: a URDF's fixed links)
+        kept |= {robot.carrier(p) for p in (self.plan.above_ground if self.plan else ()) if p in robot.points}
+        loose = [b for b in robot.colliding if robot.carrier(b, body=True) not in kept | {0}]
         if loose:  # MuJoCo's replay clears their collisions as well (replay.build_scene): a knee in the ground passed
-            warnings.warn(f"{robot.path}: the geoms of {', '.join(map(repr, loose))} collide in MuJoCo, but no contact "
-                          "point of the task is on them: the plan and its validation let them pass through the ground; "
-                          "list a site on each in contacts (touches = false keeps it above the ground) or "
-                          "plan.above_ground, or set the geoms' contype and conaffinity to 0")
+            mjcf = robot.format is RobotFormat.MJCF
+            warnings.warn(f"{robot.path}: the {'geoms' if mjcf else '<collision>s'} of {', '.join(map(repr, loose))} "
+                          "collide in MuJoCo, but no contact point of the task is on them: the plan and its validation "
+                          f"let them pass through the ground; list a {'site' if mjcf else 'link fixed'} on each in "
+                          "contacts (touches = false keeps it above the ground) or plan.above_ground, or "
+                          + ("set the geoms' contype and conaffinity to 0" if mjcf else "remove the <collision>s"))
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
             # (the task's value left out: a replan's walk checks tasks in between, which warned once each)
             warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "

@@ -499,6 +499,7 @@ SHANK_INERTIAL = '<inertial pos="0 0 -0.1" mass="0.548" diaginertia="0.0032 0.00
     ([(SHANK_INERTIAL, SHANK_INERTIAL + '<frame pos="0 0 -0.2"><body name="pad"><inertial pos="0 0 0" mass="0.4" '
        'diaginertia="0.001 0.001 0.001"/></body></frame>')], "<frame> elements: Pinocchio's parser does not read"),
     ([(SHANK, SHANK[:-1] + ' zaxis="1e-9 0 -1">')], "<body name='shank'> zaxis '1e-9 0 -1', nearly opposite to z"),
+    ([(SHANK, SHANK[:-1] + ' zaxis="1e-5 0 -1">')], "<body name='shank'> zaxis '1e-5 0 -1', nearly opposite to z"),
     ([('autolimits="true"', 'autolimits="true" inertiafromgeom="true"')],
      "body masses base 0.768 kg in MuJoCo, 0 kg in Pinocchio; thigh 0.155509 kg in MuJoCo, 0 kg in Pinocchio; shank "
      '0.0977161 kg in MuJoCo, 0 kg in Pinocchio: with <compiler inertiafromgeom="true">'),
@@ -668,9 +669,25 @@ def test_a_urdfs_mujoco_boundmass_and_a_frame_around_the_root_are_named(tmp_path
         "</robot>", '<mujoco><compiler boundmass="0.6"/></mujoco></robot>'))
     assert any(d.startswith('<mujoco><compiler boundmass="0.6">: MuJoCo raises lighter masses to it')
                for d in reading_differences(load_robot(urdf)))
+    # (regression tester: boundmass="0" is MuJoCo's "no bound", and was named)
+    urdf.write_text((ROBOTS_DIR / "capler.urdf").read_text().replace(
+        "</robot>", '<mujoco><compiler boundmass="0" boundinertia="0.01"/></mujoco></robot>'))
+    differences = reading_differences(load_robot(urdf))
+    assert any("boundinertia" in d for d in differences) and not any("boundmass" in d for d in differences)
+    agreeing = tmp_path / "agreeing.xml"  # a second <compiler> that repeats the first is no cause (it was named first)
+    agreeing.write_text(CAPLER.replace('<compiler angle="radian" autolimits="true"/>',
+                                       '<compiler angle="radian" autolimits="true"/><compiler angle="radian"/>').replace(
+        SHANK, SHANK[:-1] + ' axisangle="0 2 0 0.3">'))
+    differences = reading_differences(load_robot(agreeing))
+    assert any("axisangle" in d for d in differences) and not any("<compiler>" in d for d in differences)
     framed = tmp_path / "framed.xml"
     framed.write_text(CAPLER.replace('<body name="base"', '<frame pos="0 0 0.5"><body name="base"').replace(
         "</worldbody>", "</frame></worldbody>"))
     with pytest.raises(RobotFileError, match=r"No such node \(body\) \(the file has <frame> elements, whose bodies"):
         load_robot(framed)
+    classy = tmp_path / "classy.xml"  # a harmless <frame> beside an unknown class: MuJoCo's cause, not the frame's
+    classy.write_text(CAPLER.replace('<geom name="base_geom"', '<geom class="nosuch" name="base_geom"').replace(
+        "</worldbody>", '<frame pos="1 0 0"><site name="marker"/></frame></worldbody>'))
+    with pytest.raises(RobotFileError, match="unknown default class name 'nosuch'"):
+        load_robot(classy)
 

@@ -339,8 +339,19 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
         '<collision><geometry><sphere radius="0.01"/></geometry></collision><visual><origin xyz="0 0 -0.1"/>'
         '<geometry><cylinder radius="0.012"'))
     assert load_robot(urdf).colliding == ("shank",) and load_robot("robots/capler.urdf").colliding == ()
-    with pytest.warns(UserWarning, match=r"the geoms of 'shank' collide"):
-        parse_task({**MINIMAL, "contacts": [{"point": "knee"}]}).check_against(load_robot(urdf))
+    with pytest.warns(UserWarning, match=r"the <collision>s of 'shank' collide .* remove the <collision>s"):
+        parse_task({**MINIMAL, "contacts": [{"point": "knee"}]}).check_against(load_robot(urdf))  # (knee: on the thigh)
+    with warnings.catch_warnings():  # the foot link is fixed on the shank: its contact point keeps the shank's
+        warnings.simplefilter("error")
+        parse_task(MINIMAL).check_against(load_robot(urdf))
+    # (regression tester: a world link's collision, and bits that never meet the ground's, warned)
+    world = tmp_path / "world.urdf"
+    world.write_text((ROBOTS / "capler.urdf").read_text().replace(
+        '<link name="world"/>', '<link name="world"><collision><geometry><box size="1 1 0.1"/></geometry></collision></link>'))
+    assert load_robot(world).colliding == ()
+    selfish = tmp_path / "selfish.xml"  # the robot's geoms collide with each other only (the ground is 1/1)
+    selfish.write_text(text.replace('<geom contype="0" conaffinity="0" rgba', '<geom contype="2" conaffinity="2" rgba'))
+    assert load_robot(selfish).colliding == ()
 
 
 PLANK = """<mujoco><worldbody><body name="plank"><joint name="px" type="slide" axis="1 0 0"/>
