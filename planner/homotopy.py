@@ -46,7 +46,7 @@ from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expec
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of)
-from .simulate import braked_outside_cone, element_trajectory, step_elements
+from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
 from .task import MAX_NLPS
 from .timefreezing import contact_labels
 
@@ -1500,6 +1500,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"skims": [s.to_json() for s in skims]} if skims else {}),
+                             # (plan.joint_bounds wider than the file's: the validation failed it as tracking alone)
+                             **({"joints_outside_range": outside}
+                                if (outside := joints_outside_range(problem.robot, traj)) else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 
 

@@ -51,7 +51,7 @@ class Actuator:
     name: str
     dof: int  # velocity index, 0 <= dof < nv
     gear: float
-    lower: float  # control bounds [N m] or [N], before the gear
+    lower: float  # control bounds [N m] or [N] divided by the gear: the motor's command u (its force is gear u)
     upper: float
 
 
@@ -76,6 +76,9 @@ class Robot:
     # the bodies (MJCF) or links (URDF) with geoms that collide in MuJoCo (contype or conaffinity nonzero, an explicit
     # <pair>, a URDF <collision>): the planner's contacts are the task's points only (Task.check_against warns)
     colliding: tuple[str, ...] = ()
+    # an MJCF file whose angles MuJoCo reads in degrees (<compiler angle="degree">, MuJoCo's default): the planner's
+    # hinge coordinates, ranges and task values are radians all the same (Robot.range_text says both)
+    degrees: bool = False
 
     def check_inertia(self, q) -> None:
         """RobotFileError when a degree of freedom's inertia (the diagonal of M(q), q (nq,)) is below MIN_DOF_INERTIA
@@ -98,6 +101,17 @@ class Robot:
     @property
     def name(self) -> str:
         return self.model.name or self.path.stem
+
+    def range_text(self, i: int, lower: float | None = None, upper: float | None = None) -> str:
+        """Coordinate i's range [lower, upper] (default the file's, Robot.q_lower/q_upper) with its unit, and for a
+        hinge of a file written in degrees those degrees too: messages quoted radians as "the file's range"."""
+        lower = self.q_lower[i] if lower is None else lower
+        upper = self.q_upper[i] if upper is None else upper
+        unit = coordinate_units(self.model)[0][i]
+        text = f"[{lower:.10g}, {upper:.10g}]" + (f" {unit}" if unit else "")
+        if unit == "rad" and self.degrees:
+            text += f" (the file's {np.degrees(lower):.10g} {np.degrees(upper):.10g} degrees)"
+        return text
 
     def carrier(self, name: str, body: bool = False) -> int:
         """The index of the Pinocchio joint that moves a named point (body=True: an MJCF body or URDF link, fixed
@@ -414,6 +428,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         unread_sites=unread_sites,
         ground_z=ground_z,
         colliding=colliding,
+        degrees=fmt is RobotFormat.MJCF and _in_degrees(path),
     )
 
 
@@ -852,6 +867,45 @@ def _defaults_late(path: Path) -> bool:
     with "unordered_map::at")."""
     tags = [child.tag for child in ET.parse(path).getroot()]
     return "default" in tags and "worldbody" in tags and tags.index("default") > tags.index("worldbody")
+
+
+def coordinate_units(model: pin.Model) -> tuple[list[str], list[str]]:
+    """Units of each configuration and velocity coordinate: 'm', 'rad' or '' (quaternion, cos/sin)."""
+    q_units, v_units = [], []
+
+    def visit(joint):
+        kind = joint.shortname().replace("JointModel", "")
+        if kind == "Composite":
+            for sub in joint.extract().joints:
+                visit(sub)
+        elif kind.startswith("P"):  # PX, PY, PZ, PrismaticUnaligned, Planar handled below
+            if kind == "Planar":
+                q_units.extend(["m", "m", "", ""])
+                v_units.extend(["m", "m", "rad"])
+            else:
+                q_units.append("m")
+                v_units.append("m")
+        elif kind == "FreeFlyer":
+            q_units.extend(["m"] * 3 + [""] * 4)
+            v_units.extend(["m"] * 3 + ["rad"] * 3)
+        elif kind == "Translation":
+            q_units.extend(["m"] * 3)
+            v_units.extend(["m"] * 3)
+        else:  # revolute family, spherical, helical, universal, ...
+            q_units.extend(["rad" if joint.nq == joint.nv else ""] * joint.nq)
+            v_units.extend(["rad"] * joint.nv)
+
+    for j in range(1, model.njoints):
+        visit(model.joints[j])
+    if len(q_units) != model.nq or len(v_units) != model.nv:  # a joint kind not listed above
+        return [""] * model.nq, [""] * model.nv
+    return q_units, v_units
+
+
+def _in_degrees(path: Path) -> bool:
+    """Whether MuJoCo reads an MJCF file's angles in degrees: its last <compiler angle>, else MuJoCo's default."""
+    angles = [c.get("angle") for c in ET.parse(path).getroot().findall("compiler") if c.get("angle")]
+    return (angles[-1] if angles else "degree") == "degree"
 
 
 def wrapper_tags(root: ET.Element) -> list[str]:

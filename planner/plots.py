@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from .model import coordinate_units
 from .result import TAP_SHARE, write_beside_result
 from .timefreezing import contact_labels
 from .view import Result, load_result
@@ -102,7 +103,7 @@ def _title(res: Result, what: str) -> str:
 def _states(res: Result):
     """q (left) and v (right) against physical time, one panel per coordinate (or group)."""
     robot = res.robot
-    q_units, v_units = _units(robot.model)
+    q_units, v_units = coordinate_units(robot.model)
     q_names = list(robot.dof_names) if robot.nq == robot.nv else [f"q[{i}]" for i in range(robot.nq)]
     v_units = [f"{u}/s" if u else "" for u in v_units]
     columns = [("position", res.q, q_names, q_units), ("velocity", res.v, list(robot.dof_names), v_units)]
@@ -143,7 +144,7 @@ def _torques(res: Result):
         return None
     names = [a.name for a in robot.actuators] if len(robot.actuators) == res.u.shape[1] else \
         [f"u[{j}]" for j in range(res.u.shape[1])]
-    _, v_units = _units(robot.model)
+    _, v_units = coordinate_units(robot.model)
     force_units = {"m": "N", "rad": "N m"}
     known = len(robot.actuators) == res.u.shape[1]
     # the joint's torque or force is gear u (a gear-2 motor's u = 1 was drawn as 1 N)
@@ -301,36 +302,3 @@ def _foot_path(res: Result):
     ax.legend(fontsize="small", loc="upper right", ncols=2)
     ax.set_title(_title(res, "contact point path (o start, □ end)"))
     return fig, "foot_path.png"
-
-
-def _units(model: pin.Model) -> tuple[list[str], list[str]]:
-    """Units of each configuration and velocity coordinate: 'm', 'rad' or '' (quaternion, cos/sin)."""
-    q_units, v_units = [], []
-
-    def visit(joint):
-        kind = joint.shortname().replace("JointModel", "")
-        if kind == "Composite":
-            for sub in joint.extract().joints:
-                visit(sub)
-        elif kind.startswith("P"):  # PX, PY, PZ, PrismaticUnaligned, Planar handled below
-            if kind == "Planar":
-                q_units.extend(["m", "m", "", ""])
-                v_units.extend(["m", "m", "rad"])
-            else:
-                q_units.append("m")
-                v_units.append("m")
-        elif kind == "FreeFlyer":
-            q_units.extend(["m"] * 3 + [""] * 4)
-            v_units.extend(["m"] * 3 + ["rad"] * 3)
-        elif kind == "Translation":
-            q_units.extend(["m"] * 3)
-            v_units.extend(["m"] * 3)
-        else:  # revolute family, spherical, helical, universal, ...
-            q_units.extend(["rad" if joint.nq == joint.nv else ""] * joint.nq)
-            v_units.extend(["rad"] * joint.nv)
-
-    for j in range(1, model.njoints):
-        visit(model.joints[j])
-    if len(q_units) != model.nq or len(v_units) != model.nv:  # a joint kind not listed above
-        return [""] * model.nq, [""] * model.nv
-    return q_units, v_units

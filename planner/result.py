@@ -322,10 +322,7 @@ class SimulationResult(ArraysReadOnly):
         if deepest.get("max_m", 0.0) > PENETRATION_NOTE_M:
             lines.append(f"  {deepest['point']} went {deepest['max_m'] * 1e3:.1f} mm into its plane (t = {deepest['t']:.4g} s): the "
                          "steps keep a contact's velocity on the plane, not its position; a smaller h (more steps) drifts less")
-        for joint in self.extra.get("joints_outside_range", ()):
-            lines.append(f"  {joint['joint']} left the robot file's range [{joint['lower']:.4g}, {joint['upper']:.4g}] at "
-                         f"{joint['nodes']} of {len(self.trajectory.tau)} nodes (to {joint['farthest']:.4g}): the "
-                         "simulation has no joint limits, MuJoCo's replay enforces them")
+        lines += _outside_range_lines(self.extra, len(self.trajectory.tau), "the simulation has no joint limits")
         lines += _braked_lines(self.extra)
         for force in self.extra.get("forces_outside_friction_cone", ()):
             where = _cone_where(force)
@@ -613,6 +610,15 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     return hops
 
 
+def _outside_range_lines(extra: dict, nodes: int, why: str) -> list[str]:
+    """Report lines of extra["joints_outside_range"] (simulate.joints_outside_range): why the motion may leave the
+    robot file's joint ranges, which MuJoCo's replay enforces."""
+    return [f"  {j['joint']} left the robot file's range [{j['lower']:.4g}, {j['upper']:.4g}]"
+            + (f" {j['unit']}" if j.get("unit") else "")  # (older summaries have none)
+            + f" at {j['nodes']} of {nodes} nodes (to {j['farthest']:.4g}): {why}, MuJoCo's replay enforces the range"
+            for j in extra.get("joints_outside_range", ())]
+
+
 def _braked_lines(extra: dict) -> list[str]:
     """The report's lines for extra["braked_outside_friction_cone"] (simulate.braked_outside_cone)."""
     return [f"  {brake['point']} braked by the tangential auxiliary field beyond its friction cone in {brake['steps']} "
@@ -670,6 +676,7 @@ class PlanResult(ArraysReadOnly):
         # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]
+        lines += _outside_range_lines(self.extra, len(tr.tau), "plan.joint_bounds allow it")
         lines += _braked_lines(self.extra)
         if self.extra.get("skims"):  # (they were counted as hops: frictionless slides of the foot along the ground)
             lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "

@@ -32,7 +32,7 @@ import pinocchio as pin
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, interruptible, options_record, shown_up
-from .model import Robot
+from .model import Robot, coordinate_units
 from .result import (APPROACH_MPS, COLLAPSED, CONE_FLOOR_N, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
                      Trajectory, clock_ran, cone_breach, forces_outside_cone, recover)
 from .task import Task
@@ -223,7 +223,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
         extra["restarted_steps"] = stats["restarted_steps"]  # steps that needed a predictor restart
     _warn_inside_holes(system, task, trajectory)
     extra["penetration"] = _penetration(system, task, trajectory)
-    extra["joints_outside_range"] = _outside_range(robot, trajectory)
+    extra["joints_outside_range"] = joints_outside_range(robot, trajectory)
     extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
     extra["braked_outside_friction_cone"] = braked_outside_cone(system, builder, elements, weights, options.frozen_tol,
                                                                 trajectory)
@@ -251,20 +251,22 @@ def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
             "t": float(trajectory.y[k, -1])}
 
 
-def _outside_range(robot: Robot, trajectory) -> list[dict]:
+def joints_outside_range(robot: Robot, trajectory) -> list[dict]:
     """Each joint whose position left the robot file's range at the nodes: joint, nodes (how many), the farthest value
-    [m or rad] and the range. A simulation has no joint limits (the planner's dynamics have none), MuJoCo's replay enforces the
-    file's: a pogo leg driven to -0.176 m past its -0.05 m limit failed validation as a tracking error."""
+    and the range, in `unit` (m or rad). A simulation has no joint limits (the planner's dynamics have none), a plan
+    the task's joint_bounds, which may be wider; MuJoCo's replay enforces the file's: a pogo leg driven to -0.176 m
+    past its -0.05 m limit failed validation as a tracking error."""
     if robot.nq != robot.nv:  # a free flyer's quaternion: its coordinates are not the named degrees of freedom
         return []
     q = trajectory.y[:, : robot.nq]
+    units = coordinate_units(robot.model)[0]
     out = []
     for i, (lo, hi) in enumerate(zip(robot.q_lower, robot.q_upper)):
         beyond = (q[:, i] < lo - RANGE_TOL) | (q[:, i] > hi + RANGE_TOL)
         if beyond.any():
             far = q[beyond, i][np.argmax(np.maximum(lo - q[beyond, i], q[beyond, i] - hi))]
             out.append({"joint": robot.dof_names[i], "nodes": int(beyond.sum()), "farthest": float(far),
-                        "lower": float(lo), "upper": float(hi)})
+                        "lower": float(lo), "upper": float(hi), "unit": units[i]})
     return out
 
 

@@ -568,7 +568,8 @@ class Task:
             lo, hi = robot.q_lower[i], robot.q_upper[i]
             if b.lower < lo or b.upper > hi:  # (an unlimited joint reads +-inf here: never wider)
                 warnings.warn(f"plan.joint_bounds[{r}] ({b.joint}: [{b.lower:g}, {b.upper:g}]) goes beyond the robot "
-                              f"file's range [{lo:g}, {hi:g}], which MuJoCo's replay enforces; the plan may leave it")
+                              f"file's range {robot.range_text(i)}, which MuJoCo's replay enforces; the plan may leave "
+                              "it (the report names a joint it left)")
         wider = [f"{a.name} [{a.lower:g}, {a.upper:g}]" for a in robot.actuators
                  if self.plan.u_bound is not None and (-self.plan.u_bound < a.lower or self.plan.u_bound > a.upper)]
         if wider:  # (as joint_bounds: the replay's saturation was the first a user heard of it)
@@ -588,7 +589,8 @@ class Task:
                 if not lo <= qi <= hi:
                     name = robot.dof_names[i]
                     whose = f"plan.joint_bounds[{bounded[name]}]" if name in bounded else "the robot file's limits"
-                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds [{lo}, {hi}] ({whose})")
+                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds "
+                                    f"{robot.range_text(i, lo, hi)} ({whose})")
 
     def _constant_controls(self) -> list[tuple[str, tuple[float, ...]]]:
         """(task key, controls (nu,)) of simulate.u and each schedule entry."""
@@ -615,7 +617,7 @@ class Task:
                 lo, hi = robot.q_lower[iq], robot.q_upper[iq]
                 if not lo <= pd.q_ref[j] <= hi:
                     warnings.warn(f"simulate.pd.q_ref[{j}] = {pd.q_ref[j]:g} ({pd.joints[j]}) is beyond the joint's "
-                                  f"range [{lo:g}, {hi:g}] [rad or m]")
+                                  f"range {robot.range_text(iq, lo, hi)}")
 
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with

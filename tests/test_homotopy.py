@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import pathlib
 import re
 import warnings
 
@@ -1045,3 +1046,26 @@ def test_a_failed_plan_says_which_contact_levitates(monkeypatch):
     assert "; point carried up to 2.4 N while 0.17 m off: levitating on the contact field" in failed.stats.message
     assert "touches = false" not in failed.stats.message
     assert "levitating" not in H.solve(pb).stats.message
+
+
+def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
+    """A plan whose task's joint_bounds are wider than the robot file's range, and which uses that room, lists the
+    joint in extra["joints_outside_range"] (with its unit) and in its report: MuJoCo's replay enforces the file's
+    range, and the validation failed it as a tracking error without naming the joint (session 61's tester). A plan
+    inside the range has no such key."""
+    from planner.task import JointBound
+
+    robot_file = tmp_path / "short_x.xml"
+    robot_file.write_text(pathlib.Path("robots/point_mass.xml").read_text().replace(
+        '<joint name="x" type="slide" axis="1 0 0"/>', '<joint name="x" type="slide" axis="1 0 0" range="-1 0.3"/>'))
+    task = hop_task(N=10)
+    wide = dataclasses.replace(task, plan=dataclasses.replace(task.plan, joint_bounds=(JointBound("x", -1.0, 1.0),)))
+    with pytest.warns(UserWarning, match=r"goes beyond the robot file's range \[-1, 0.3\] m"):
+        res = H.solve(build_problem(load_robot(robot_file), wide), H.SolveOptions(max_iter=500))
+    assert res.stats.converged
+    (entry,) = res.extra["joints_outside_range"]
+    assert entry["joint"] == "x" and entry["unit"] == "m" and entry["farthest"] == pytest.approx(0.5, abs=1e-6)
+    assert "x left the robot file's range [-1, 0.3] m at" in res.report() and "plan.joint_bounds allow it" in res.report()
+    inside = H.solve(build_problem(load_robot("robots/point_mass.xml"), task), H.SolveOptions(max_iter=500))
+    assert inside.stats.converged and "joints_outside_range" not in inside.extra
+

@@ -822,8 +822,8 @@ def test_a_joint_beyond_the_files_range_is_reported(tmp_path):
     assert res.stats.converged and z.min() < -0.1
     (entry,) = res.summary()["joints_outside_range"]
     assert entry == {"joint": "z", "nodes": int(np.sum(z < -0.1)), "farthest": float(z.min()), "lower": -0.1,
-                     "upper": 0.1}
-    assert f"z left the robot file's range [-0.1, 0.1] at {entry['nodes']} of 11 nodes" in res.report()
+                     "upper": 0.1, "unit": "m"}
+    assert f"z left the robot file's range [-0.1, 0.1] m at {entry['nodes']} of 11 nodes" in res.report()
 
 
 def test_fesd_pd_summary_counts_steps_not_elements():

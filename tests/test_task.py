@@ -177,7 +177,7 @@ def test_robot_dependent_errors():
         parse_task(outside).check_against(capler)
     start_outside = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "base_x", "lower": 0.2}]})
     # the task's bound, named as such (it said "the joint limits", sending the user to the robot file)
-    with pytest.raises(TaskError, match=r"initial.q\[0\] = 0.0 \(base_x\) is outside the joint bounds \[0.2, inf\] "
+    with pytest.raises(TaskError, match=r"initial.q\[0\] = 0.0 \(base_x\) is outside the joint bounds \[0.2, inf\] m "
                                         r"\(plan.joint_bounds\[0\]\)"):
         parse_task(start_outside).check_against(capler)
     inverted = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [{"joint": "hip", "lower": 1.0, "upper": 0.0}]})
@@ -228,7 +228,7 @@ def test_constant_controls_beyond_the_actuators_range_warn():
     # a PD target in degrees (a failed step 0, exit 1, unwarned); one inside the joint's range stays silent
     pd = {"joints": ["hip", "knee"], "kp": [100.0, 100.0], "kd": [2.0, 2.0]}
     with pytest.warns(UserWarning, match=r"simulate.pd.q_ref\[0\] = 45 \(hip\) is beyond the joint's range "
-                                         r"\[-1.178.*, 1.178.*\] \[rad or m\]"):
+                                         r"\[-1.178.*, 1.178.*\] rad"):
         parse_task(_with("simulate", {"pd": {**pd, "q_ref": [45.0, -0.5]}})).warn_controls_beyond_range(capler)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -310,6 +310,29 @@ def test_a_tasks_source_is_not_part_of_its_equality(tmp_path):
     other = replace(absolute, source=str(tmp_path / "trajectory.npz"))
     assert other == absolute and hash(other) == hash(absolute)
     assert replace(absolute, ground_height=0.01) != absolute
+
+
+def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
+    """Joint ranges quoted in messages carry their unit, and a hinge of an MJCF file MuJoCo reads in degrees (its
+    <compiler angle>, or MuJoCo's default without one) also the file's degrees: "[-1.178, 1.178] (the robot file's
+    limits)" for a file written -67.5 67.5 (session 61's tester). Robot.degrees follows the file's last angle."""
+    text = (ROBOTS / "capler.xml").read_text()
+    degrees = tmp_path / "degrees.xml"
+    degrees.write_text(text.replace('angle="radian"', 'angle="degree"').replace(
+        'range="-1.1780972450961724 1.1780972450961724"', 'range="-67.5 67.5"'))
+    silent = tmp_path / "silent.xml"  # no angle: MuJoCo's default, degrees
+    silent.write_text(text.replace('angle="radian" ', ""))
+    robot = load_robot(degrees)
+    assert robot.degrees and load_robot(silent).degrees and not load_robot("capler").degrees
+    hip = robot.dof_names.index("hip")
+    assert robot.range_text(hip) == "[-1.178097245, 1.178097245] rad (the file's -67.5 67.5 degrees)"
+    assert robot.range_text(robot.dof_names.index("base_x"), -1.0, 2.0) == "[-1, 2] m"
+    task = load_task(ROBOTS / "capler.toml")
+    target = list(task.plan.target_q)
+    target[hip] = 30.0  # meant in degrees
+    with pytest.raises(TaskError, match=r"plan.target_q\[2\] = 30.0 \(hip\) is outside the joint bounds "
+                                        r"\[-1.178097245, 1.178097245\] rad \(the file's -67.5 67.5 degrees\)"):
+        replace(task, plan=replace(task.plan, target_q=tuple(target))).check_against(robot)
 
 
 def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
@@ -481,7 +504,7 @@ def test_joint_bounds_beyond_the_files_range_warn():
     wide = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0],
                           "joint_bounds": [{"joint": "hip", "lower": -60.0, "upper": 60.0}]})
     with pytest.warns(UserWarning, match=r"joint_bounds\[0\] \(hip: \[-60, 60\]\) goes beyond the robot file's range "
-                                         r"\[-1.1781, 1.1781\]"):
+                                         r"\[-1.178097245, 1.178097245\] rad"):
         parse_task(wide).check_against(capler)
     inside = _with("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "joint_bounds": [
         {"joint": "hip", "lower": -1.0, "upper": 1.0}, {"joint": "base_x", "lower": -5.0, "upper": 5.0}]})
