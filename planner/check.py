@@ -89,6 +89,9 @@ class ModelCheck:
     # the file's passive joint terms and couplings (Robot.passive), which fail the check with or without the MuJoCo
     # comparison (a file with damping passed under --floating, where MuJoCo's was skipped)
     passive: tuple[str, ...] = ()
+    # (nq,) each coordinate's range as the planner reads it, with its unit and a degree file's degrees (a file of radian
+    # numbers without <compiler angle="radian"> is read in degrees: its ranges said nothing of it)
+    ranges: tuple[str, ...] = ()
 
     @property
     def max_errors(self) -> dict[str, float]:
@@ -124,7 +127,7 @@ class ModelCheck:
     def to_json(self) -> dict:
         out = asdict(self)
         out["dof_names"], out["points"], out["controls"] = list(self.dof_names), list(self.points), list(self.controls)
-        out["passive"] = list(self.passive)
+        out["passive"], out["ranges"] = list(self.passive), list(self.ranges)
         if out["mujoco"] is not None:
             for key in ("missing_sites", "differences", "hints"):  # as JSON reads them back
                 out["mujoco"][key] = list(out["mujoco"][key])
@@ -161,6 +164,8 @@ class ModelCheck:
                 f"{self.samples} samples, seed {self.seed}): {'PASSED' if self.passed else 'FAILED'} (tolerance {TOLERANCE:g})",
                 f"  coordinates:  {', '.join(self.dof_names)}; points: {', '.join(self.points)}; controls (u) drive: "
                 f"{', '.join(self.controls) or 'none'}",
+                *([f"  ranges:       {', '.join(f'{n} {r}' for n, r in zip(self.dof_names, self.ranges))}"]
+                  if self.ranges else []),
                 f"  vs Pinocchio: {pinocchio}",
                 f"  vs MuJoCo:    {mujoco}",
                 f"  timing:       build {t.build_s * 1e3:.1f} ms (+{t.point_build_s * 1e3:.1f} ms for {t.point}); "
@@ -241,6 +246,7 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
         mujoco_skipped=skipped,
         timing=timing,
         passive=robot.passive,
+        ranges=tuple(robot.range_text(i) for i in range(robot.nq)) if robot.nq == robot.nv else (),
     )
 
 

@@ -691,3 +691,16 @@ def test_a_urdfs_mujoco_boundmass_and_a_frame_around_the_root_are_named(tmp_path
     with pytest.raises(RobotFileError, match="unknown default class name 'nosuch'"):
         load_robot(classy)
 
+
+def test_check_model_lists_the_ranges_with_units_and_a_degree_files_degrees(tmp_path):
+    """check-model lists each coordinate's range as the planner reads it, with its unit, and for a file MuJoCo
+    reads in degrees (no <compiler angle="radian">) the file's own numbers as degrees: a file of radian numbers
+    without angle="radian" (hip +-1.18 degrees) passed check-model without a word of its ranges (session 61)."""
+    plain = check_model(load_robot("capler"), samples=1)
+    assert plain.ranges[2] == "[-1.178097245, 1.178097245] rad" and plain.ranges[0] == "[-inf, inf] m"
+    assert "ranges:       base_x [-inf, inf] m" in plain.report() and plain.to_json()["ranges"] == list(plain.ranges)
+    forgot = tmp_path / "forgot.xml"
+    forgot.write_text(CAPLER.replace('angle="radian" ', ""))
+    ranges = check_model(load_robot(forgot), samples=1).ranges
+    assert ranges[2] == "[-0.02056167584, 0.02056167584] rad (the file's -1.178097245 1.178097245 degrees)"
+
