@@ -22,7 +22,7 @@ JSON_KEYS = {
     "robot", "format", "nq", "nv", "dof_names", "points", "controls", "backend", "samples", "seed", "max_err_mass",
     "max_err_bias",
     "max_err_frames", "max_err_jacobians", "max_err_drift", "mujoco", "mujoco_skipped", "timing", "passed", "tolerance",
-    "failures", "passive",
+    "failures", "passive", "ranges",
 }
 TIMING_KEYS = {"build_s", "point_build_s", "point", "mass_us", "bias_us", "jacobian_us", "evaluations"}
 
