@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
@@ -1317,8 +1317,10 @@ class WalkValidation(ArraysReadOnly):
 
     Passed when every step is walked (no fall), the plan's own step does not penetrate the
     ground beyond replay.MAX_PENETRATION_M (kinematic replay) nor cross a hole between its samples, and, for
-    implicit-Euler samples, its positions move at its velocities (replay.dynamics_failure; the residual is not
-    recorded here). `to_json()` is the contract's `validation` object (mode "walk")."""
+    implicit-Euler samples, its positions move at its velocities and its flights' controls give their motion
+    (replay.dynamics_failure; `dynamics` records the residual: KinematicReport's flight_steps, max_flight_residual,
+    flight_residual_dof, flight_residual_time_s, flight_residual_positions). `to_json()` is the contract's
+    `validation` object (mode "walk")."""
 
     passed: bool
     robot: str
@@ -1328,15 +1330,18 @@ class WalkValidation(ArraysReadOnly):
     max_penetration_m: float
     walking: WalkReport
     failures: tuple[str, ...]
+    dynamics: Mapping = field(default_factory=dict)  # the own-dynamics keys (above); {} when not checked
 
     def to_json(self) -> dict:
         return {"passed": self.passed, "mode": "walk", "robot": self.robot, "stance_foot": self.stance_foot,
                 "swing_foot": self.swing_foot, "period_s": self.period_s, "max_penetration_m": self.max_penetration_m,
                 "steps_asked": self.walking.steps_asked, "steps_walked": self.walking.steps_walked,
-                "walking": self.walking.to_json(), "failures": list(self.failures)}
+                "walking": self.walking.to_json(), **dict(self.dynamics), "failures": list(self.failures)}
 
     def report(self) -> str:
         """A few human-readable lines for the command line."""
+        from .replay import own_dynamics_text
+
         w = self.walking
         steps = np.array(w.step_lengths[:w.steps_walked])
         dt = np.array(w.impact_times[:w.steps_walked]) - np.array(w.planned_impact_times[:w.steps_walked])
@@ -1350,7 +1355,8 @@ class WalkValidation(ArraysReadOnly):
                  f"  base against the plan in time: max {w.max_base_error_in_time * 1e3:.1f} mm; step lengths "
                  + (f"{steps.min():.4f}-{steps.max():.4f} m (plan {w.planned_step_length:.4f}); landing times "
                     f"{dt.min() * 1e3:+.1f} to {dt.max() * 1e3:+.1f} ms from the plan's" if steps.size else "none"),
-                 f"  kinematic: max penetration {self.max_penetration_m * 1e3:.3f} mm"]
+                 f"  kinematic: max penetration {self.max_penetration_m * 1e3:.3f} mm"
+                 + own_dynamics_text(self.dynamics)]
         return "\n".join(lines + [f"  failed: {f}" for f in self.failures])
 
 
@@ -1380,7 +1386,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking").
     dynamics: the samples are the planner's implicit-Euler steps, whose positions (and flight dynamics) are checked
     as replay.validate_trajectory checks them (the walk reads neither the plan's controls nor its base)."""
-    from .replay import MAX_PENETRATION_M, _kinematic, build_scene, dynamics_failure, hole_failure
+    from .replay import MAX_PENETRATION_M, OWN_DYNAMICS_KEYS, _kinematic, build_scene, dynamics_failure, hole_failure
 
     _check_steps(steps, "validate_walk")
 
@@ -1405,6 +1411,9 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     if (own := dynamics_failure(kin, tracked=False)) is not None:
         failures.append(own)
     lay = model.layout
+    # (the verdict read the residual, summary.json did not keep it; a walk validation recorded no number of it)
+    own = {key: getattr(kin, key) for key in OWN_DYNAMICS_KEYS} if kin.max_flight_residual is not None else {}
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),
-                          max_penetration_m=kin.max_penetration_m, walking=walking, failures=tuple(failures))
+                          max_penetration_m=kin.max_penetration_m, walking=walking, failures=tuple(failures),
+                          dynamics=own)

@@ -660,10 +660,7 @@ class Validation(ArraysReadOnly):
             + ("" if k.between_point is None else "; between samples (q linear) "
                f"{k.max_penetration_between_m * 1e3:.3f} mm under the ground, {k.between_point} at "
                f"t = {k.between_time_s:.4g} s (information)")
-            + ("" if k.max_flight_residual is None else
-               ("; own dynamics (positions, over every running step)" if k.flight_residual_positions
-                else f"; own dynamics over {k.flight_steps} flight steps")
-               + f" to {k.max_flight_residual:.1e} (limit {th.max_flight_residual})"),
+            + own_dynamics_text({key: getattr(k, key) for key in OWN_DYNAMICS_KEYS}, th.max_flight_residual),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
@@ -1045,6 +1042,19 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     return {"flight_steps": len(steps), "max_flight_residual": float((moved if positions else relative).max()),
             "flight_residual_dof": robot.dof_names[j], "flight_residual_time_s": float(t[i + 1]),
             "flight_residual_positions": positions}
+
+
+OWN_DYNAMICS_KEYS = ("flight_steps", "max_flight_residual", "flight_residual_dof", "flight_residual_time_s",
+                     "flight_residual_positions")  # KinematicReport's record of _flight_residual
+
+
+def own_dynamics_text(record: Mapping, limit: float = FLIGHT_RESIDUAL_TOL) -> str:
+    """The report's "; own dynamics ..." clause of a record of OWN_DYNAMICS_KEYS, "" without a residual."""
+    if record.get("max_flight_residual") is None:
+        return ""
+    where = ("; own dynamics (positions, over every running step)" if record["flight_residual_positions"]
+             else f"; own dynamics over {record['flight_steps']} flight steps")
+    return f"{where} to {record['max_flight_residual']:.1e} (limit {limit})"
 
 
 def dynamics_failure(kinematic: KinematicReport, tracked: bool = True) -> str | None:

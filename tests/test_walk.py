@@ -269,10 +269,14 @@ def test_a_walk_validation_checks_the_plans_own_positions():
     controls: such a plan walked 10 of 10 and passed)."""
     robot, task = _biped(N=None)
     saved = _saved_step()
-    assert validate_walk(robot, task, saved, dynamics=True).passed
+    good = validate_walk(robot, task, saved, dynamics=True)
+    # the residual is recorded, as a tracking validation's (summary.json kept the verdict alone)
+    assert good.passed and good.to_json()["max_flight_residual"] < 1e-6 and "; own dynamics" in good.report()
     raised = {**saved, "q": saved["q"].copy()}
     raised["q"][10, robot.dof_index("z")] += 0.02  # [m]
-    assert validate_walk(robot, task, raised).passed  # (the walk alone)
+    plain = validate_walk(robot, task, raised)
+    assert plain.passed and "max_flight_residual" not in plain.to_json()  # (the walk alone)
     walk = validate_walk(robot, task, raised, dynamics=True)
     assert not walk.passed and any(f.startswith("the trajectory's own dynamics: its positions do not move at its "
                                                 "velocities") and "in 'z'" in f for f in walk.failures), walk.failures
+    assert walk.to_json()["flight_residual_positions"] and walk.to_json()["flight_residual_dof"] == "z"
