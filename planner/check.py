@@ -462,8 +462,9 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
 
 
 def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
-    """_body_masses and _parser_gaps of an MJCF file whose mass, bias or point gaps (_mujoco_gaps) exceed TOLERANCE,
-    else []: they explain those gaps, not a named difference."""
+    """_body_masses and _parser_gaps of an MJCF file, a URDF's <mujoco><compiler boundmass/boundinertia>, when the
+    mass, bias or point gaps (_mujoco_gaps) exceed TOLERANCE, else []: they explain those gaps, not a named
+    difference."""
     measured = not (gaps["mass"] <= TOLERANCE and gaps["bias"] <= TOLERANCE
                     and all(err <= TOLERANCE for err in gaps["sites"].values()))
     if not measured:

@@ -1500,12 +1500,20 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"skims": [s.to_json() for s in skims]} if skims else {}),
-                             # (plan.joint_bounds wider than the file's: the validation failed it as tracking alone)
-                             **({"joints_outside_range": outside}
-                                if (outside := joints_outside_range(problem.robot, traj)) else {}),
+                             **({"joints_outside_range": outside} if (outside := _outside_range(problem, traj)) else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 
 
+def _outside_range(problem: Problem, traj: Trajectory) -> list[dict]:
+    """simulate.joints_outside_range of a plan: the joints whose plan.joint_bounds are wider than the robot file's
+    range and that left it by more than PLAN_RANGE_TOL (the validation failed such a plan as a tracking error alone)."""
+    robot = problem.robot
+    lower, upper = problem.task.q_bounds(robot)
+    wider = {robot.dof_names[i] for i in range(robot.nq) if lower[i] < robot.q_lower[i] or upper[i] > robot.q_upper[i]}
+    return [j for j in joints_outside_range(robot, traj, PLAN_RANGE_TOL) if j["joint"] in wider] if wider else []
+
+
+PLAN_RANGE_TOL = 1e-6  # [m or rad] IPOPT's relaxed bounds leave a plan resting on its limit ~1e-8 past it
 LEVITATION_GAP_M = 1e-3  # [m] a contact point this far off its plane holds no force in a plan
 LEVITATION_N = 1e-2  # [N] a persistent contact force below this is not named
 

@@ -103,22 +103,22 @@ class Robot:
         return self.model.name or self.path.stem
 
     def range_text(self, i: int, lower: float | None = None, upper: float | None = None) -> str:
-        """Coordinate i's range [lower, upper] (default the file's, Robot.q_lower/q_upper) with its unit, and for a
-        hinge of a file written in degrees those degrees too: messages quoted radians as "the file's range"."""
+        """Coordinate i's range [lower, upper] with its unit; without lower and upper the file's (Robot.q_lower,
+        q_upper), for a hinge of a file written in degrees with those degrees too: messages quoted radians as "the
+        file's range". (A task's bounds are radians in the task file: given, they get no degrees.)"""
+        own = lower is None and upper is None
         lower = self.q_lower[i] if lower is None else lower
         upper = self.q_upper[i] if upper is None else upper
         unit = coordinate_units(self.model)[0][i]
         text = f"[{lower:.10g}, {upper:.10g}]" + (f" {unit}" if unit else "")
-        if unit == "rad" and self.degrees:
+        if own and unit == "rad" and self.degrees and np.isfinite([lower, upper]).all():
             text += f" (the file's {np.degrees(lower):.10g} {np.degrees(upper):.10g} degrees)"
         return text
 
     def carrier(self, name: str, body: bool = False) -> int:
         """The index of the Pinocchio joint that moves a named point (body=True: an MJCF body or URDF link, fixed
         links merged into the link they hang on), 0 for one fixed to the world."""
-        model = self.model
-        frame = model.getFrameId(name, pin.FrameType.BODY) if body else self.frame_id(name)
-        return int(model.frames[frame].parentJoint) if frame < model.nframes else 0
+        return _carrier(self.model, name) if body else int(self.model.frames[self.frame_id(name)].parentJoint)
 
     @property
     def nq(self) -> int:
@@ -670,19 +670,23 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed, colliding
 
 
-def _carrier(model: pin.Model, link: str) -> int:
-    """The index of the joint that moves a URDF link, 0 for one fixed to the world (or unknown)."""
-    frame = model.getFrameId(link, pin.FrameType.BODY)
+def _carrier(model: pin.Model, body: str) -> int:
+    """The index of the joint that moves an MJCF body or URDF link, 0 for one fixed to the world (or unknown)."""
+    frame = model.getFrameId(body, pin.FrameType.BODY)
     return int(model.frames[frame].parentJoint) if frame < model.nframes else 0
 
 
 def _colliding_bodies(mj) -> tuple[str, ...]:
-    """The moving bodies of an MJCF model with a geom that can touch a geom of the world (the ground, or a plane
-    with contype = conaffinity = 1 where the file has none): contype and conaffinity bits that meet, or an explicit
+    """The moving bodies of an MJCF model with a geom that can touch a geom of the world (or, without a geom named
+    ground, the validation's plane, contype = conaffinity = 1): contype and conaffinity bits that meet, or an explicit
     <pair> with a world geom. Robot.colliding."""
+    import mujoco
+
     welded = {int(b) for b in range(mj.nbody) if mj.body_weldid[b] == 0}
     world = [g for g in range(mj.ngeom) if int(mj.geom_bodyid[g]) in welded]
-    bits = [(int(mj.geom_contype[w]), int(mj.geom_conaffinity[w])) for w in world] or [(1, 1)]
+    bits = [(int(mj.geom_contype[w]), int(mj.geom_conaffinity[w])) for w in world]
+    if mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground") < 0:  # (the validation's own plane: 1/1)
+        bits.append((1, 1))
     paired = {int(g) for a, b in zip(mj.pair_geom1, mj.pair_geom2) if a in world or b in world for g in (a, b)}
     bodies = sorted({int(mj.geom_bodyid[g]) for g in range(mj.ngeom) if int(mj.geom_bodyid[g]) not in welded and (
         g in paired or any(int(mj.geom_contype[g]) & conaffinity or contype & int(mj.geom_conaffinity[g])

@@ -30,7 +30,8 @@ Constraints (named blocks of g, each an (N, m) index array; `Problem.g_blocks`):
     impact_cone                       mu a_n P_an(sigma) -+ a_t P_at(sigma) >= 0 (ProblemOptions.impact_cone)
     velocity_bounds                   task.plan.velocity_bounds (sums of joint velocities) at y_1 .. y_N
     velocity_bounds_y0 (1, m)         the same at y_0 where it is free (plan.periodic)
-    contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0
+    contact_forces                    MASS_MATRIX steps: M acc = B u - h, M d = J^T lam, J (acc + d) + dJ/dt v = 0;
+                                      with several contacts (either form) also their constraint forces' rows
     terminal (1, nq [+ nv])           q_N = target_q [, v_N = target_v]
     periodic (1, nq + nv)             plan.periodic instead of terminal: q_N = S q_0 + step e_along, v_N = S v_0
     physical_time (1, 1)              t_N = T (only with horizon.physical_time)

@@ -251,18 +251,18 @@ def _penetration(system: TimeFreezingSystem, task: Task, trajectory) -> dict:
             "t": float(trajectory.y[k, -1])}
 
 
-def joints_outside_range(robot: Robot, trajectory) -> list[dict]:
+def joints_outside_range(robot: Robot, trajectory, tol: float = RANGE_TOL) -> list[dict]:
     """Each joint whose position left the robot file's range at the nodes: joint, nodes (how many), the farthest value
     and the range, in `unit` (m or rad). A simulation has no joint limits (the planner's dynamics have none), a plan
     the task's joint_bounds, which may be wider; MuJoCo's replay enforces the file's: a pogo leg driven to -0.176 m
-    past its -0.05 m limit failed validation as a tracking error."""
+    past its -0.05 m limit failed validation as a tracking error. tol [m or rad]: how far past counts."""
     if robot.nq != robot.nv:  # a free flyer's quaternion: its coordinates are not the named degrees of freedom
         return []
     q = trajectory.y[:, : robot.nq]
     units = coordinate_units(robot.model)[0]
     out = []
     for i, (lo, hi) in enumerate(zip(robot.q_lower, robot.q_upper)):
-        beyond = (q[:, i] < lo - RANGE_TOL) | (q[:, i] > hi + RANGE_TOL)
+        beyond = (q[:, i] < lo - tol) | (q[:, i] > hi + tol)
         if beyond.any():
             far = q[beyond, i][np.argmax(np.maximum(lo - q[beyond, i], q[beyond, i] - hi))]
             out.append({"joint": robot.dof_names[i], "nodes": int(beyond.sum()), "farthest": float(far),

@@ -535,8 +535,8 @@ class Task:
         if loose:  # MuJoCo's replay clears their collisions as well (replay.build_scene): a knee in the ground passed
             mjcf = robot.format is RobotFormat.MJCF
             warnings.warn(f"{robot.path}: the {'geoms' if mjcf else '<collision>s'} of {', '.join(map(repr, loose))} "
-                          "collide in MuJoCo, but no contact point of the task is on them: the plan and its validation "
-                          f"let them pass through the ground; list a {'site' if mjcf else 'link fixed'} on each in "
+                          "collide in MuJoCo, but no contact point of the task is on them: the plan or simulation and "
+                          f"its validation let them pass through the ground; list a {'site on' if mjcf else 'link fixed to'} each in "
                           "contacts (touches = false keeps it above the ground) or plan.above_ground, or "
                           + ("set the geoms' contype and conaffinity to 0" if mjcf else "remove the <collision>s"))
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
@@ -589,8 +589,8 @@ class Task:
                 if not lo <= qi <= hi:
                     name = robot.dof_names[i]
                     whose = f"plan.joint_bounds[{bounded[name]}]" if name in bounded else "the robot file's limits"
-                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds "
-                                    f"{robot.range_text(i, lo, hi)} ({whose})")
+                    bounds = robot.range_text(i, lo, hi) if name in bounded else robot.range_text(i)
+                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds {bounds} ({whose})")
 
     def _constant_controls(self) -> list[tuple[str, tuple[float, ...]]]:
         """(task key, controls (nu,)) of simulate.u and each schedule entry."""
@@ -617,7 +617,7 @@ class Task:
                 lo, hi = robot.q_lower[iq], robot.q_upper[iq]
                 if not lo <= pd.q_ref[j] <= hi:
                     warnings.warn(f"simulate.pd.q_ref[{j}] = {pd.q_ref[j]:g} ({pd.joints[j]}) is beyond the joint's "
-                                  f"range {robot.range_text(iq, lo, hi)}")
+                                  f"range {robot.range_text(iq)}")
 
     def periodic_map(self, robot) -> tuple[np.ndarray, int, np.ndarray]:
         """plan.periodic as indices: (perm (nq,), the index of `along`, the fixed q indices), with
@@ -642,8 +642,8 @@ class Task:
         lower, upper = self.q_bounds(robot)
         for i, (qi, lo, hi) in enumerate(zip(self.initial.q, lower, upper)):
             if not lo <= qi <= hi:
-                raise TaskError(f"initial.q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint bounds [{lo}, {hi}]; "
-                                "with plan.periodic it is the initial guess of q(0)")
+                raise TaskError(f"initial.q[{i}] = {qi} ({robot.dof_names[i]}) is outside the joint bounds "
+                                f"{robot.range_text(i, lo, hi)}; with plan.periodic it is the initial guess of q(0)")
         return perm, along, fixed
 
     def pd_actuators(self, robot) -> tuple[tuple[int, int, int], ...]:

@@ -327,12 +327,18 @@ def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
     hip = robot.dof_names.index("hip")
     assert robot.range_text(hip) == "[-1.178097245, 1.178097245] rad (the file's -67.5 67.5 degrees)"
     assert robot.range_text(robot.dof_names.index("base_x"), -1.0, 2.0) == "[-1, 2] m"
+    # a task's bounds are radians in the task file (they were said to be "the file's 11.5 57.3 degrees"); an
+    # unlimited hinge has no degrees to give
+    assert robot.range_text(hip, 0.2, 1.0) == "[0.2, 1] rad"
+    free = tmp_path / "free.xml"
+    free.write_text(degrees.read_text().replace('range="-67.5 67.5"', ""))
+    assert load_robot(free).range_text(hip) == "[-inf, inf] rad"
     task = load_task(ROBOTS / "capler.toml")
     target = list(task.plan.target_q)
     target[hip] = 30.0  # meant in degrees
     with pytest.raises(TaskError, match=r"plan.target_q\[2\] = 30.0 \(hip\) is outside the joint bounds "
                                         r"\[-1.178097245, 1.178097245\] rad \(the file's -67.5 67.5 degrees\)"):
-        replace(task, plan=replace(task.plan, target_q=tuple(target))).check_against(robot)
+        replace(task, plan=replace(task.plan, target_q=tuple(target), joint_bounds=())).check_against(robot)
 
 
 def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
@@ -347,7 +353,7 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
     robot = load_robot(colliding)
     assert robot.colliding == ("base", "thigh", "shank")
     with pytest.warns(UserWarning, match=r"the geoms of 'base', 'thigh' collide in MuJoCo, but no contact point of the "
-                                         r"task is on them: the plan and its validation let them pass through"):
+                                         r"task is on them: the plan or simulation and its validation let them pass"):
         parse_task(MINIMAL).check_against(robot)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
