@@ -1505,10 +1505,12 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
 
 
 def _outside_range(problem: Problem, traj: Trajectory) -> list[dict]:
-    """simulate.joints_outside_range of a plan: the joints whose plan.joint_bounds are wider than the robot file's
-    range and that left it by more than PLAN_RANGE_TOL (the validation failed such a plan as a tracking error alone)."""
-    robot = problem.robot
-    lower, upper = problem.task.q_bounds(robot)
+    """simulate.joints_outside_range of a plan: the joints whose bounds in the NLP (plan.joint_bounds, or lbx and ubx
+    edited through the Python API) are wider than the robot file's range and that left it by more than PLAN_RANGE_TOL
+    (the validation failed such a plan as a tracking error alone)."""
+    robot, blocks = problem.robot, problem.var_blocks
+    q = np.concatenate([blocks["y"][:, : robot.nq]] + ([blocks["y0"][None, : robot.nq]] if "y0" in blocks else []))
+    lower, upper = np.asarray(problem.lbx)[q].min(axis=0), np.asarray(problem.ubx)[q].max(axis=0)
     wider = {robot.dof_names[i] for i in range(robot.nq) if lower[i] < robot.q_lower[i] or upper[i] > robot.q_upper[i]}
     return [j for j in joints_outside_range(robot, traj, PLAN_RANGE_TOL) if j["joint"] in wider] if wider else []
 

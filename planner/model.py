@@ -907,9 +907,29 @@ def coordinate_units(model: pin.Model) -> tuple[list[str], list[str]]:
 
 
 def _in_degrees(path: Path) -> bool:
-    """Whether MuJoCo reads an MJCF file's angles in degrees: its last <compiler angle>, else MuJoCo's default."""
-    angles = [c.get("angle") for c in ET.parse(path).getroot().findall("compiler") if c.get("angle")]
+    """Whether MuJoCo reads an MJCF file's angles in degrees: the last <compiler angle>, its included files' in
+    their place (one in an <include> was missed), else MuJoCo's default."""
+    angles = _compiler_angles(path, path.parent, {path.resolve()})
     return (angles[-1] if angles else "degree") == "degree"
+
+
+def _compiler_angles(path: Path, model_dir: Path, seen: set) -> list[str]:
+    """The <compiler angle> values of an MJCF file and of the files it includes, in document order."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError, ValueError):  # (loading the robot reports those)
+        return []
+    out = []
+    for element in root.iter():
+        name = element.get("file") if element.tag == "include" else None
+        if element.tag == "compiler" and element.get("angle"):
+            out.append(element.get("angle"))
+        elif name:
+            target = next((c for c in (model_dir / name, path.parent / name) if c.is_file()), None)
+            if target is not None and target.resolve() not in seen:
+                seen.add(target.resolve())
+                out += _compiler_angles(target, model_dir, seen)
+    return out
 
 
 def wrapper_tags(root: ET.Element) -> list[str]:

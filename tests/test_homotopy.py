@@ -1076,4 +1076,11 @@ def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
     capped = H.solve(build_problem(load_robot(low), task), H.SolveOptions(max_iter=500))
     z = capped.trajectory.q[:, 1]
     assert capped.stats.converged and z.max() > 0.03 - 1e-6 and "joints_outside_range" not in capped.extra, z.max()
+    # the bounds widened through the Python API count as the task's do (regression tester: x to 0.5 unsaid)
+    near = dataclasses.replace(task, plan=dataclasses.replace(task.plan, target_q=(0.3, 0.0)))
+    edited = build_problem(load_robot(robot_file), near)
+    edited.ubx[edited.var_blocks["y"][:, 0]] = 1.0
+    edited.lbx[edited.var_blocks["y"][4, 0]] = 0.6  # [m] a via-point past the file's 0.3
+    res = H.solve(edited, H.SolveOptions(max_iter=500))
+    assert res.stats.converged and [j["joint"] for j in res.extra["joints_outside_range"]] == ["x"]
 

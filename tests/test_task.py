@@ -333,6 +333,13 @@ def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
     free = tmp_path / "free.xml"
     free.write_text(degrees.read_text().replace('range="-67.5 67.5"', ""))
     assert load_robot(free).range_text(hip) == "[-inf, inf] rad"
+    # a <compiler angle> in an included file counts in its place, the last one winning (it was not read)
+    (tmp_path / "deg.xml").write_text('<mujocoinclude><compiler angle="degree"/></mujocoinclude>')
+    (tmp_path / "rad.xml").write_text('<mujocoinclude><compiler angle="radian"/></mujocoinclude>')
+    for name, include, expected in (("inc_deg.xml", "deg.xml", True), ("inc_rad.xml", "rad.xml", False)):
+        (tmp_path / name).write_text(degrees.read_text().replace(
+            '<compiler angle="degree" autolimits="true"/>', f'<compiler angle="radian" autolimits="true"/><include file="{include}"/>'))
+        assert load_robot(tmp_path / name).degrees is expected, name
     task = load_task(ROBOTS / "capler.toml")
     target = list(task.plan.target_q)
     target[hip] = 30.0  # meant in degrees
