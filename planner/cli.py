@@ -157,8 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --init: what --init does by default (the held schedule first); kept so that older commands run")
     p.add_argument("--penalty-replan", action="store_true",
                    help="with --init: skip the held schedule and the walk; solve one NLP at a high penalty from DIR's plan, "
-                        "then polish. It may find a cheaper timing than DIR's, but on Capler's target moved 0.1 m it is "
-                        "slower than planning hint-free (5878 against 2338 iterations, docs/benchmarks.md session 41)")
+                        "then polish. It may find a cheaper timing than DIR's, but it can be slower than planning "
+                        "hint-free: Capler's target moved to 2.9 m took 5878 iterations against 2338 (to 3.1 m, 1126; "
+                        "docs/benchmarks.md session 41)")
     p.add_argument("--allow-new-impacts", action="store_true",
                    help="with --init: also accept a held schedule that adds impacts DIR's plan does not have, of any "
                         "impulse (SolveOptions.schedule_new_impacts; without it only taps below 5%% of DIR's largest impulse; on the "

@@ -651,7 +651,7 @@ class Validation(ArraysReadOnly):
             f"contacts agree on {k.samples * len(k.penetration_by_point_m) - k.contact_mismatches}/"
             f"{k.samples * len(k.penetration_by_point_m)} samples"
             + ("" if k.min_hole_metric is None else f"; deepest into a hole {where}: ellipse metric "
-               f"{metric_text(k.min_hole_metric, '.2f')} (limit {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in "
+               f"{metric_text(k.min_hole_metric, '.2f')} (fails below {HOLE_PASS_METRIC}, rim 1), {k.hole_point} in "
                f"holes[{k.hole_index}]"
                if k.min_hole_metric < 1.0 else  # outside every hole: "deepest into" and "in" read as an entry
                f"; closest to a hole {where}: ellipse metric {metric_text(k.min_hole_metric, '.2f')} "
