@@ -73,8 +73,9 @@ class Robot:
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
     unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads, Pinocchio's parser not (<frame>, 2nd body)
     ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
-    # the bodies (MJCF) or links (URDF) with geoms that collide in MuJoCo (contype or conaffinity nonzero, an explicit
-    # <pair>, a URDF <collision>): the planner's contacts are the task's points only (Task.check_against warns)
+    # the moving bodies (MJCF) or links (URDF) with geoms that can touch the ground in MuJoCo (contype/conaffinity bits
+    # that meet the world's, a <pair> with a world geom, a URDF <collision>): the planner's contacts are the task's
+    # points only (Task.check_against warns of those no contact or above_ground point moves with)
     colliding: tuple[str, ...] = ()
     # an MJCF file whose angles MuJoCo reads in degrees (<compiler angle="degree">, MuJoCo's default): the planner's
     # hinge coordinates, ranges and task values are radians all the same (Robot.range_text says both)
