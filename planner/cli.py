@@ -158,8 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--penalty-replan", action="store_true",
                    help="with --init: skip the held schedule and the walk; solve one NLP at a high penalty from DIR's plan, "
                         "then polish. It may find a cheaper timing than DIR's, but it can be slower than planning "
-                        "hint-free: Capler's target moved to 2.9 m took 5878 iterations against 2338 (to 3.1 m, 1126; "
-                        "docs/benchmarks.md session 41)")
+                        "hint-free: Capler's target moved to 2.9 m took 5878 iterations against the 3.0 m plan's 2338 "
+                        "(to 3.1 m, 1126; docs/benchmarks.md sessions 41 and 61)")
     p.add_argument("--allow-new-impacts", action="store_true",
                    help="with --init: also accept a held schedule that adds impacts DIR's plan does not have, of any "
                         "impulse (SolveOptions.schedule_new_impacts; without it only taps below 5%% of DIR's largest impulse; on the "

@@ -1318,7 +1318,7 @@ class WalkValidation(ArraysReadOnly):
     Passed when every step is walked (no fall), the plan's own step does not penetrate the
     ground beyond replay.MAX_PENETRATION_M (kinematic replay) nor cross a hole between its samples, and, for
     implicit-Euler samples, its positions move at its velocities and its flights' controls give their motion
-    (replay.dynamics_failure; `dynamics` records the residual: KinematicReport's flight_steps, max_flight_residual,
+    (replay.dynamics_failure; `own_dynamics` records the residual: KinematicReport's flight_steps, max_flight_residual,
     flight_residual_dof, flight_residual_time_s, flight_residual_positions). `to_json()` is the contract's
     `validation` object (mode "walk")."""
 
@@ -1330,13 +1330,13 @@ class WalkValidation(ArraysReadOnly):
     max_penetration_m: float
     walking: WalkReport
     failures: tuple[str, ...]
-    dynamics: Mapping = field(default_factory=dict)  # the own-dynamics keys (above); {} when not checked
+    own_dynamics: Mapping = field(default_factory=dict)  # the own-dynamics keys (above); {} when not checked
 
     def to_json(self) -> dict:
         return {"passed": self.passed, "mode": "walk", "robot": self.robot, "stance_foot": self.stance_foot,
                 "swing_foot": self.swing_foot, "period_s": self.period_s, "max_penetration_m": self.max_penetration_m,
                 "steps_asked": self.walking.steps_asked, "steps_walked": self.walking.steps_walked,
-                "walking": self.walking.to_json(), **dict(self.dynamics), "failures": list(self.failures)}
+                "walking": self.walking.to_json(), **dict(self.own_dynamics), "failures": list(self.failures)}
 
     def report(self) -> str:
         """A few human-readable lines for the command line."""
@@ -1356,7 +1356,7 @@ class WalkValidation(ArraysReadOnly):
                  + (f"{steps.min():.4f}-{steps.max():.4f} m (plan {w.planned_step_length:.4f}); landing times "
                     f"{dt.min() * 1e3:+.1f} to {dt.max() * 1e3:+.1f} ms from the plan's" if steps.size else "none"),
                  f"  kinematic: max penetration {self.max_penetration_m * 1e3:.3f} mm"
-                 + own_dynamics_text(self.dynamics)]
+                 + own_dynamics_text(self.own_dynamics)]
         return "\n".join(lines + [f"  failed: {f}" for f in self.failures])
 
 
@@ -1412,8 +1412,8 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
         failures.append(own)
     lay = model.layout
     # (the verdict read the residual, summary.json did not keep it; a walk validation recorded no number of it)
-    own = {key: getattr(kin, key) for key in OWN_DYNAMICS_KEYS} if kin.max_flight_residual is not None else {}
+    record = {key: getattr(kin, key) for key in OWN_DYNAMICS_KEYS} if kin.max_flight_residual is not None else {}
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),
                           max_penetration_m=kin.max_penetration_m, walking=walking, failures=tuple(failures),
-                          dynamics=own)
+                          own_dynamics=record)

@@ -104,12 +104,12 @@ class Robot:
         return self.model.name or self.path.stem
 
     def range_text(self, i: int, lower: float | None = None, upper: float | None = None) -> str:
-        """Coordinate i's range [lower, upper] with its unit; without lower and upper the file's (Robot.q_lower,
-        q_upper), for a hinge of a file written in degrees with those degrees too: messages quoted radians as "the
-        file's range". (A task's bounds are radians in the task file: given, they get no degrees.)"""
-        own = lower is None and upper is None
+        """Coordinate i's range [lower, upper] (default the file's, Robot.q_lower, q_upper) with its unit, and when
+        it is the file's range of a hinge of a file written in degrees those degrees too: messages quoted radians as
+        "the file's range". (Other bounds, a task's, are radians in the task file: they get no degrees.)"""
         lower = self.q_lower[i] if lower is None else lower
         upper = self.q_upper[i] if upper is None else upper
+        own = (lower, upper) == (self.q_lower[i], self.q_upper[i])
         unit = coordinate_units(self.model)[0][i]
         text = f"[{lower:.10g}, {upper:.10g}]" + (f" {unit}" if unit else "")
         if own and unit == "rad" and self.degrees and np.isfinite([lower, upper]).all():
@@ -460,8 +460,7 @@ def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]
     found = []
     for element in root.iter("include"):
         name = element.get("file")
-        candidates = [model_dir / name, path.parent / name] if name else []  # MuJoCo: the main file's directory
-        target = next((c for c in candidates if c.is_file()), None)
+        target = _include_target(name, path, model_dir)
         if target is None or target.resolve() in seen:
             continue
         seen.add(target.resolve())
@@ -471,6 +470,13 @@ def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]
             continue
         found += _included(target, model_dir, seen)
     return found
+
+
+def _include_target(name: str | None, path: Path, model_dir: Path) -> Path | None:
+    """The file an <include file=name> of the MJCF file at path reads (MuJoCo: the main file's directory first),
+    None when there is none."""
+    candidates = [model_dir / name, path.parent / name] if name else []
+    return next((c for c in candidates if c.is_file()), None)
 
 
 def _point_frames(model: pin.Model) -> dict[str, int]:
@@ -926,7 +932,7 @@ def _compiler_angles(path: Path, model_dir: Path, seen: set) -> list[str]:
         if element.tag == "compiler" and element.get("angle"):
             out.append(element.get("angle"))
         elif name:
-            target = next((c for c in (model_dir / name, path.parent / name) if c.is_file()), None)
+            target = _include_target(name, path, model_dir)
             if target is not None and target.resolve() not in seen:
                 seen.add(target.resolve())
                 out += _compiler_angles(target, model_dir, seen)

@@ -589,8 +589,8 @@ class Task:
                 if not lo <= qi <= hi:
                     name = robot.dof_names[i]
                     whose = f"plan.joint_bounds[{bounded[name]}]" if name in bounded else "the robot file's limits"
-                    bounds = robot.range_text(i, lo, hi) if name in bounded else robot.range_text(i)
-                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds {bounds} ({whose})")
+                    raise TaskError(f"{key}[{i}] = {qi} ({name}) is outside the joint bounds "
+                                    f"{robot.range_text(i, lo, hi)} ({whose})")
 
     def _constant_controls(self) -> list[tuple[str, tuple[float, ...]]]:
         """(task key, controls (nu,)) of simulate.u and each schedule entry."""

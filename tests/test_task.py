@@ -315,7 +315,8 @@ def test_a_tasks_source_is_not_part_of_its_equality(tmp_path):
 def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
     """Joint ranges quoted in messages carry their unit, and a hinge of an MJCF file MuJoCo reads in degrees (its
     <compiler angle>, or MuJoCo's default without one) also the file's degrees: "[-1.178, 1.178] (the robot file's
-    limits)" for a file written -67.5 67.5 (session 61's tester). Robot.degrees follows the file's last angle."""
+    limits)" for a file written -67.5 67.5 (session 61's tester); a task's own bounds and an unlimited hinge get
+    none. Robot.degrees follows the last angle, one in an included file in its place."""
     text = (ROBOTS / "capler.xml").read_text()
     degrees = tmp_path / "degrees.xml"
     degrees.write_text(text.replace('angle="radian"', 'angle="degree"').replace(
@@ -377,6 +378,12 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
     assert load_robot(urdf).colliding == ("shank",) and load_robot("robots/capler.urdf").colliding == ()
     with pytest.warns(UserWarning, match=r"the <collision>s of 'shank' collide .* remove the <collision>s"):
         parse_task({**MINIMAL, "contacts": [{"point": "knee"}]}).check_against(load_robot(urdf))  # (knee: on the thigh)
+    floor = tmp_path / "floor.xml"  # no geom named ground, the world's own colliding with nothing: the validation's
+    # plane (1/1) counts (a file without a ground warned, the same with a contype-0 floor did not)
+    floor.write_text(text.replace('<geom contype="0" conaffinity="0" rgba', '<geom rgba').replace(
+        '<geom name="ground" type="plane" size="5 1 0.1" contype="1" conaffinity="1"',
+        '<geom name="floor00" type="plane" size="5 1 0.1" contype="0" conaffinity="0"'))
+    assert load_robot(floor).colliding == ("base", "thigh", "shank")
     with warnings.catch_warnings():  # the foot link is fixed on the shank: its contact point keeps the shank's
         warnings.simplefilter("error")
         parse_task(MINIMAL).check_against(load_robot(urdf))

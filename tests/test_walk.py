@@ -266,7 +266,8 @@ def test_a_walk_validation_checks_the_plans_own_positions():
     """With dynamics (a plan of implicit-Euler steps, as validate(DIR) reads from summary.json), a periodic plan's
     validation also holds its samples' positions to their velocities: the saved step passes, and the same step with
     the hip 2 cm higher at one stance sample fails naming it (the walk reads neither the plan's base nor its
-    controls: such a plan walked 10 of 10 and passed)."""
+    controls: such a plan walked 10 of 10 and passed). The residual is recorded in to_json() and the report, as a
+    tracking validation's (it kept the verdict alone)."""
     robot, task = _biped(N=None)
     saved = _saved_step()
     good = validate_walk(robot, task, saved, dynamics=True)
