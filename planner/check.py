@@ -553,9 +553,9 @@ def _parser_gaps(root: ET.Element) -> list[str]:
     read = dict(first.attrib) if first is not None else {}
     # (two that agree are no gap: the hint came before a file's real cause)
     if any(read.get(k) != v for c in compilers if c is not first for k, v in c.attrib.items()):
-        out.append(f"{f'{len(compilers)} <compiler> elements' if len(compilers) > 1 else '<compiler> after <worldbody>'}"
-                   ": Pinocchio's parser reads the first only and only before <worldbody>, MuJoCo all of them; merge "
-                   "them into one <compiler> before <worldbody>")
+        which = f"{len(compilers)} <compiler> elements" if len(compilers) > 1 else "<compiler> after <worldbody>"
+        out.append(f"{which}: Pinocchio's parser reads the first only and only before <worldbody>, MuJoCo all of "
+                   "them; merge them into one <compiler> before <worldbody>")
     wrapped = wrapper_tags(root)
     if wrapped:
         out.append(f"<{'> and <'.join(wrapped)}> elements: Pinocchio's parser does not read the bodies, geoms and "
@@ -567,8 +567,8 @@ def _parser_gaps(root: ET.Element) -> list[str]:
             continue
         if z.shape == (3,) and np.any(z[:2]) and z[2] < 0 and np.linalg.norm(z[:2]) < ANTIPARALLEL * abs(z[2]):
             named = f" name={e.get('name')!r}" if e.get("name") else ""
-            out.append(f"<{e.tag}{named}> zaxis {e.get('zaxis')!r}, nearly opposite to z, which "
-                       "Pinocchio's parser turns about another axis than MuJoCo; give the orientation as quat or xyaxes")
+            out.append(f"<{e.tag}{named}> zaxis {e.get('zaxis')!r}, nearly opposite to z, which Pinocchio's parser "
+                       "turns about another axis than MuJoCo; give the orientation as quat or xyaxes")
     seq = next((c.get("eulerseq") for c in root.iter("compiler") if c.get("eulerseq")), "xyz")
     if seq != seq.lower() and any(turned(e.get("euler") or "") for e in placed):
         out.append(f"<compiler eulerseq=\"{seq}\">: Pinocchio's parser reads an extrinsic (upper-case) sequence as "

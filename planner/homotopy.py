@@ -1500,7 +1500,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"skims": [s.to_json() for s in skims]} if skims else {}),
-                             **({"joints_outside_range": outside} if (outside := _outside_range(problem, traj)) else {}),
+                             **({"joints_outside_range": outside}
+                                if (outside := _outside_range(problem, traj)) else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})
 
 

@@ -85,7 +85,8 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
         # children" came from the first arm's start)
         raise InputError("race starts a process per arm, which a daemonic process (a multiprocessing.Pool worker) "
                          "cannot: pass race processes=1 (the first arm, solved in this process), or run the jobs with "
-                         "planner.batch.run_batch or concurrent.futures.ProcessPoolExecutor, whose workers can start processes")
+                         "planner.batch.run_batch or concurrent.futures.ProcessPoolExecutor, whose workers can start "
+                         "processes")
     start = time.perf_counter()
     ctx = mp.get_context("fork")  # the children inherit the built problem (CasADi functions do not pickle cheaply)
     pipes, procs = [], []

@@ -676,8 +676,8 @@ class PlanResult(ArraysReadOnly):
         # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]
-        lines += _outside_range_lines(self.extra, len(tr.tau), "its NLP's bounds (plan.joint_bounds, or lbx and ubx edited "
-                                      "through the Python API) allow it")
+        lines += _outside_range_lines(self.extra, len(tr.tau), "its NLP's bounds (plan.joint_bounds, or lbx and ubx "
+                                      "edited through the Python API) allow it")
         lines += _braked_lines(self.extra)
         if self.extra.get("skims"):  # (they were counted as hops: frictionless slides of the foot along the ground)
             lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "

@@ -534,10 +534,11 @@ class Task:
         loose = [b for b in robot.colliding if robot.carrier(b, body=True) not in kept | {0}]
         if loose:  # MuJoCo's replay clears their collisions as well (replay.build_scene): a knee in the ground passed
             mjcf = robot.format is RobotFormat.MJCF
-            warnings.warn(f"{robot.path}: the {'geoms' if mjcf else '<collision>s'} of {', '.join(map(repr, loose))} "
-                          "collide in MuJoCo, but no contact point of the task is on them: the plan or simulation and "
-                          f"its validation let them pass through the ground; list a {'site on' if mjcf else 'link fixed to'} each in "
-                          "contacts (touches = false keeps it above the ground) or plan.above_ground, or "
+            what, where = ("geoms", "site on") if mjcf else ("<collision>s", "link fixed to")
+            warnings.warn(f"{robot.path}: the {what} of {', '.join(map(repr, loose))} collide in MuJoCo, but no "
+                          "contact point of the task is on them: the plan or simulation and its validation let them "
+                          f"pass through the ground; list a {where} each in contacts (touches = false keeps it above "
+                          "the ground) or plan.above_ground, or "
                           + ("set the geoms' contype and conaffinity to 0" if mjcf else "remove the <collision>s"))
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
             # (the task's value left out: a replan's walk checks tasks in between, which warned once each)
@@ -739,9 +740,9 @@ def _not_on_the_world(point: str, robot, key: str) -> None:
                         "move the <site> into the robot's body that touches")
     if point in robot.unread_sites:  # ("valid contact points: (none)" of a file that plainly has the site)
         raise TaskError(f"{key} = {point!r} is a site Pinocchio's MJCF parser skips (one inside a <frame> or a "
-                        "<replicate>, or on a body of <worldbody> after the first, which is the robot); move the <site> "
-                        "out of the <frame> into its body, with the frame's pos and orientation (a <replicate>'s copies "
-                        "written out), or onto the robot")
+                        "<replicate>, or on a body of <worldbody> after the first, which is the robot); move the "
+                        "<site> out of the <frame> into its body, with the frame's pos and orientation (a "
+                        "<replicate>'s copies written out), or onto the robot")
 
 
 def _names_a_shipped_task(path: Path) -> bool:

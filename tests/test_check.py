@@ -675,8 +675,8 @@ def test_a_urdfs_mujoco_boundmass_and_a_frame_around_the_root_are_named(tmp_path
     differences = reading_differences(load_robot(urdf))
     assert any("boundinertia" in d for d in differences) and not any("boundmass" in d for d in differences)
     agreeing = tmp_path / "agreeing.xml"  # a second <compiler> that repeats the first is no cause (it was named first)
-    agreeing.write_text(CAPLER.replace('<compiler angle="radian" autolimits="true"/>',
-                                       '<compiler angle="radian" autolimits="true"/><compiler angle="radian"/>').replace(
+    compiler = '<compiler angle="radian" autolimits="true"/>'
+    agreeing.write_text(CAPLER.replace(compiler, compiler + '<compiler angle="radian"/>').replace(
         SHANK, SHANK[:-1] + ' axisangle="0 2 0 0.3">'))
     differences = reading_differences(load_robot(agreeing))
     assert any("axisangle" in d for d in differences) and not any("<compiler>" in d for d in differences)

@@ -731,12 +731,13 @@ def test_every_row_of_a_step_is_a_row_of_the_nlp(form, fesd):
 
     robot = load_robot(f"{ROBOTS}/biped.xml")
     task = dataclasses.replace(load_task(f"{ROBOTS}/biped.toml"), horizon=Horizon(tau_f=0.1, N=4 if fesd else 5))
-    options = ProblemOptions(step_form=form, **({"discretization": Discretization.FESD, "fesd": FESDOptions(n_s=1, n_fe=2)}
-                                                if fesd else {}))
+    fesd_options = {"discretization": Discretization.FESD, "fesd": FESDOptions(n_s=1, n_fe=2)} if fesd else {}
+    options = ProblemOptions(step_form=form, **fesd_options)
     problem = build_problem(robot, task, options)
     assert "contact_forces" in problem.g_blocks
     rows = np.concatenate([np.ravel(r) for r in problem.g_blocks.values()])
     assert len(rows) == len(set(rows.tolist())) == problem.ng  # the blocks partition g
     if not fesd:
-        assert problem.stages.rows.min() >= 0 and len(set(problem.stages.rows.ravel().tolist())) == problem.stages.rows.size
+        rows = problem.stages.rows
+        assert rows.min() >= 0 and len(set(rows.ravel().tolist())) == rows.size
 

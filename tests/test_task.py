@@ -338,8 +338,9 @@ def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
     (tmp_path / "deg.xml").write_text('<mujocoinclude><compiler angle="degree"/></mujocoinclude>')
     (tmp_path / "rad.xml").write_text('<mujocoinclude><compiler angle="radian"/></mujocoinclude>')
     for name, include, expected in (("inc_deg.xml", "deg.xml", True), ("inc_rad.xml", "rad.xml", False)):
-        (tmp_path / name).write_text(degrees.read_text().replace(
-            '<compiler angle="degree" autolimits="true"/>', f'<compiler angle="radian" autolimits="true"/><include file="{include}"/>'))
+        (tmp_path / name).write_text(degrees.read_text().replace('<compiler angle="degree" autolimits="true"/>',
+                                                                 '<compiler angle="radian" autolimits="true"/>'
+                                                                 f'<include file="{include}"/>'))
         assert load_robot(tmp_path / name).degrees is expected, name
     task = load_task(ROBOTS / "capler.toml")
     target = list(task.plan.target_q)
@@ -368,7 +369,8 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
         load_task(ROBOTS / "capler.toml").check_against(robot)  # above_ground = ["knee", "base"] keeps the others
         parse_task(MINIMAL).check_against(load_robot("capler"))
     paired = tmp_path / "paired.xml"  # contype 0 everywhere, one explicit pair of the thigh with the ground
-    paired.write_text(text.replace("</worldbody>", '</worldbody><contact><pair geom1="thigh_geom" geom2="ground"/></contact>'))
+    paired.write_text(text.replace("</worldbody>",
+                                   '</worldbody><contact><pair geom1="thigh_geom" geom2="ground"/></contact>'))
     assert load_robot(paired).colliding == ("thigh",)
     urdf = tmp_path / "capler.urdf"
     urdf.write_text((ROBOTS / "capler.urdf").read_text().replace(
@@ -390,7 +392,8 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
     # (regression tester: a world link's collision, and bits that never meet the ground's, warned)
     world = tmp_path / "world.urdf"
     world.write_text((ROBOTS / "capler.urdf").read_text().replace(
-        '<link name="world"/>', '<link name="world"><collision><geometry><box size="1 1 0.1"/></geometry></collision></link>'))
+        '<link name="world"/>',
+        '<link name="world"><collision><geometry><box size="1 1 0.1"/></geometry></collision></link>'))
     assert load_robot(world).colliding == ()
     selfish = tmp_path / "selfish.xml"  # the robot's geoms collide with each other only (the ground is 1/1)
     selfish.write_text(text.replace('<geom contype="0" conaffinity="0" rgba', '<geom contype="2" conaffinity="2" rgba'))
