@@ -186,7 +186,8 @@ class _Labelled:
 
 def _portable(exc: Exception) -> Exception:
     """exc if it survives a trip through pickle, else the nearest planner error with its message (an InputError
-    stays one: the CLI's exit 2). Exceptions with required constructor arguments (UnknownNameError) do not."""
+    stays one: the CLI's exit 2). Exceptions whose constructor needs more than their message do not, unless they
+    reduce themselves (UnknownNameError does since session 61)."""
     try:
         pickle.loads(pickle.dumps(exc))
         return exc
