@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from planner import plots, view
-from planner.model import load_robot
+from planner.model import coordinate_units, load_robot
 from test_view import ROBOTS, T_IMPACT, make_result_dir
 
 MIN_PIXEL_STD = 1.0  # a plot with a smaller pixel standard deviation is blank [0-255 levels]
@@ -108,7 +108,7 @@ def test_clock_plot_shades_the_frozen_interval(result_dir):
 ])
 def test_axis_units_follow_the_joint_types(robot_file, q_units, v_units):
     """Slide joints are in m, hinges in rad, whichever way the file declares the planar base."""
-    assert plots._units(load_robot(ROBOTS / robot_file).model) == (q_units, v_units)
+    assert coordinate_units(load_robot(ROBOTS / robot_file).model) == (q_units, v_units)
 
 
 def test_without_a_task_there_is_no_foot_path(result_dir):
