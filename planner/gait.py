@@ -1386,7 +1386,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     swing foot graze the ground where the legs cross (docs/formulation.md, "Periodic walking").
     dynamics: the samples are the planner's implicit-Euler steps, whose positions (and flight dynamics) are checked
     as replay.validate_trajectory checks them (the walk reads neither the plan's controls nor its base)."""
-    from .replay import MAX_PENETRATION_M, OWN_DYNAMICS_KEYS, _kinematic, build_scene, dynamics_failure, hole_failure
+    from .replay import MAX_PENETRATION_M, _kinematic, build_scene, dynamics_failure, hole_failure
 
     _check_steps(steps, "validate_walk")
 
@@ -1411,9 +1411,7 @@ def validate_walk(robot: Robot, task: Task, arrays: dict, steps: int = WALK_VALI
     if (own := dynamics_failure(kin, tracked=False)) is not None:
         failures.append(own)
     lay = model.layout
-    # (the verdict read the residual, summary.json did not keep it; a walk validation recorded no number of it)
-    record = {key: getattr(kin, key) for key in OWN_DYNAMICS_KEYS} if kin.max_flight_residual is not None else {}
     return WalkValidation(passed=not failures, robot=str(robot.path), stance_foot=lay.stance_foot,
                           swing_foot=lay.swing_foot, period_s=float(step.t[-1]),
                           max_penetration_m=kin.max_penetration_m, walking=walking, failures=tuple(failures),
-                          own_dynamics=record)
+                          own_dynamics=kin.own_dynamics)  # (summary.json kept the verdict alone)

@@ -489,6 +489,11 @@ class KinematicReport(ArraysReadOnly):
     flight_residual_positions: bool = False
 
     @property
+    def own_dynamics(self) -> dict:
+        """The own-dynamics record (OWN_DYNAMICS_KEYS), {} when the dynamics were not checked."""
+        return {key: getattr(self, key) for key in OWN_DYNAMICS_KEYS} if self.max_flight_residual is not None else {}
+
+    @property
     def contacts_agree(self) -> bool:
         return self.contact_mismatches == 0
 
@@ -660,7 +665,7 @@ class Validation(ArraysReadOnly):
             + ("" if k.between_point is None else "; between samples (q linear) "
                f"{k.max_penetration_between_m * 1e3:.3f} mm under the ground, {k.between_point} at "
                f"t = {k.between_time_s:.4g} s (information)")
-            + own_dynamics_text({key: getattr(k, key) for key in OWN_DYNAMICS_KEYS}, th.max_flight_residual),
+            + own_dynamics_text(k.own_dynamics, th.max_flight_residual),
             f"  tracking ({self.controller.value}): {self.tracked} error max {tr.max_base_error_m * 1e3:.2f} mm, final {tr.final_base_error_m * 1e3:.2f} mm "
             f"(limit {th.max_tracking_error_m * 1e3:.1f} mm); "
             + ("feet max " + ", ".join(f"{p} {e * 1e3:.2f} mm" for p, e in tr.max_foot_error_m.items()) + "; "
