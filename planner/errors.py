@@ -81,46 +81,62 @@ class SolveError(PlannerError):
 
 @contextlib.contextmanager
 def interruptible(defer: bool = False):
-    """Around a CasADi solver call: a Ctrl-C during it is raised as KeyboardInterrupt once the call returns. CasADi's
-    IPOPT catches the interrupt, stops with NonIpopt_Exception_Thrown and returns as if the NLP had failed, so the
-    homotopy went on to its next NLP (a --no-race plan interrupted after 1 s wrote a converged plan, exit 0). Where
-    Ctrl-C is ignored (a race's arms, a background job) or off the main thread, nothing changes. defer: the Ctrl-C
-    does not stop the block at all, only follows it (a result's plots, drawn whole)."""
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+    """Around a CasADi solver call: an exception that a signal's Python handler raises during it (Ctrl-C's
+    KeyboardInterrupt, a program's SIGALRM timeout) is raised once the call returns. CasADi's IPOPT catches it,
+    stops with NonIpopt_Exception_Thrown and returns as if the NLP had failed, so the homotopy went on to its next NLP
+    (a --no-race plan interrupted after 1 s wrote a converged plan, exit 0; an API solve under an alarm returned
+    converged). A handler that raises nothing (a program's graceful stop) stops nothing. Where a signal is ignored (a
+    race's arms, a background job) or off the main thread, nothing changes. defer: the handlers run only after the
+    block, which the signal does not stop at all (a result's plots, drawn whole)."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught = []
+    handlers = {s: h for s in signal.valid_signals() if callable(h := signal.getsignal(s))}
+    raised: list[BaseException] = []  # what the handlers raised, the first one re-raised after the block
+    deferred: list = []  # (handler, signum) to run after a deferring block
 
-    def note(signum, frame):
-        caught.append(signum)
-        if not defer:
-            previous(signum, frame)  # Python's default raises KeyboardInterrupt: CasADi's check then stops IPOPT
+    def wrap(previous):
+        def note(signum, frame):
+            if defer:
+                deferred.append((previous, signum))
+                return
+            try:
+                previous(signum, frame)  # raising stops CasADi's IPOPT at its next check
+            except BaseException as exc:
+                raised.append(exc)
+                raise
+        return note
 
-    signal.signal(signal.SIGINT, note)
-    entry = (caught, defer)
+    for s, h in handlers.items():
+        signal.signal(s, wrap(h))
+    entry = (raised, defer)
     _PENDING.append(entry)
     try:
         yield
-    except Exception:  # CasADi may return the Ctrl-C as its own RuntimeError ("... KeyboardInterrupt"): a traceback
-        if not caught:
+    except Exception:  # CasADi may return the interrupt as its own RuntimeError ("... KeyboardInterrupt"): a traceback
+        if not raised:
             raise
     finally:
         _PENDING[:] = [e for e in _PENDING if e is not entry]  # its own, should blocks end out of order
-        signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    if raised:
+        raise raised[0]
+    for previous, signum in deferred:
+        previous(signum, None)
 
 
-_PENDING: list = []  # (caught signals, defer) of each interruptible block entered (main thread only)
+_PENDING: list = []  # (exceptions raised by signal handlers, defer) of each interruptible block (main thread only)
 
 
 def check_interrupted() -> None:
-    """KeyboardInterrupt when a Ctrl-C came during an interruptible block that does not defer it and a library
+    """The exception a signal's handler raised during an interruptible block that does not defer it, when a library
     swallowed it: for loops of many CasADi calls (a MuJoCo replay's controller), which otherwise ran to their end
     (`planner gait` walked all its steps and printed its summary, then exited 130). Off the main thread: nothing."""
-    if threading.current_thread() is threading.main_thread() and any(c and not d for c, d in list(_PENDING)):
-        raise KeyboardInterrupt
+    if threading.current_thread() is threading.main_thread():
+        for raised, defer in list(_PENDING):
+            if raised and not defer:
+                raise raised[0]
 
 
 def killed_with_parent() -> None:

@@ -281,3 +281,52 @@ def test_enum_fields_take_their_values():
         ProblemOptions(velocity_switch="collocated")  # planner simulate only
     with pytest.raises(InputError, match=r"SolveOptions.mu_strategy = None is not allowed"):
         SolveOptions(mu_strategy=None)
+
+
+ALARM_S = 0.3  # into the Capler simulation's IPOPT solves (~2.4 s in all: its ~2400 iterations), after the build
+
+
+def test_an_exception_a_signal_handler_raises_inside_ipopt_is_raised():
+    """A program's SIGALRM handler that raises (a timeout) stops simulate() with that exception: CasADi's IPOPT
+    caught it and the steps went on, so the call returned its whole result after the timeout (solve() returned a
+    converged plan; the NLP records said NonIpopt_Exception_Thrown)."""
+    import signal
+    import time
+
+    class Timeout(Exception):
+        pass
+
+    def on_alarm(signum, frame):
+        raise Timeout("the program's budget")
+
+    robot, task = load_robot("capler"), load_task(ROBOTS_DIR / "capler.toml")
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    try:
+        t0 = time.perf_counter()
+        signal.setitimer(signal.ITIMER_REAL, ALARM_S)
+        with pytest.raises(Timeout, match="budget"):
+            simulate(robot, task)
+        assert time.perf_counter() - t0 < 20 * ALARM_S  # not after the whole simulation
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_signal_handler_that_raises_nothing_stops_nothing():
+    """A program's own SIGINT handler that only records the request (a graceful stop) leaves an interruptible block
+    running and raises nothing after it: solve() raised KeyboardInterrupt whatever the handler did."""
+    import os
+    import signal
+
+    from planner.errors import interruptible
+
+    requests, finished = [], []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: requests.append(signum))
+    try:
+        for defer in (False, True):
+            with interruptible(defer=defer):
+                os.kill(os.getpid(), signal.SIGINT)
+                finished.append(defer)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert finished == [False, True] and requests == [signal.SIGINT] * 2
