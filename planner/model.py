@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import math
 import os
 import sys
 import tempfile
+import threading
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
@@ -968,34 +968,37 @@ def _reversed_force_ranges(path: Path) -> str:
             + " has its lower bound above its upper: write the lower bound first")
 
 
+_QUIET = threading.Lock()  # descriptor 2 is the process's: two loads' swaps interleaved left it on a deleted file
+
+
 @contextlib.contextmanager
 def _quiet(printed: list[str] | None = None):
-    """Pinocchio's parsers print warnings on stdout and, from C++, on the stderr file descriptor;
-    keep the CLI's output clean (--json on stdout, one error line on stderr). What went to the descriptor is appended
-    to `printed` (a URDF's parse error says its reason only there)."""
-    for stream in (sys.stdout, sys.stderr):
-        if stream is not None:  # None when the shell closed it (`>&-`): that was read as a robot file Pinocchio cannot parse
-            stream.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:  # descriptor 2 closed (`2>&-`): nothing there to keep clean
-        with contextlib.redirect_stdout(io.StringIO()):
-            yield
-        return
-    try:
+    """Pinocchio's parsers (C++) print warnings on the stderr file descriptor; keep the CLI's output clean (one error
+    line on stderr). What went to the descriptor is appended to `printed` (a URDF's parse error says its reason only
+    there). One thread at a time; another thread's writes to descriptor 2 meanwhile go there too. sys.stdout is not
+    swapped: nothing the parsers print reaches it, and other threads' prints were lost while it was."""
+    with _QUIET:
+        if sys.stderr is not None:  # None when the shell closed it (`2>&-`)
+            sys.stderr.flush()
         try:
-            caught = tempfile.TemporaryFile("w+b")
-        except OSError as exc:  # (it read "Pinocchio cannot parse" the robot file, exit 2)
-            raise PlannerError(f"no usable temporary directory for the robot file parser's messages ({exc}); set "
-                               "TMPDIR to a writable directory") from None
-        with caught, contextlib.redirect_stdout(io.StringIO()):
-            os.dup2(caught.fileno(), 2)
+            saved = os.dup(2)
+        except OSError:  # descriptor 2 closed (`2>&-`): nothing there to keep clean
+            yield
+            return
+        try:
             try:
-                yield
-            finally:
-                os.dup2(saved, 2)
-                if printed is not None:  # bytes: a file's Latin-1 joint name refused a valid file as undecodable
-                    caught.seek(0)
-                    printed.append(caught.read().decode(errors="replace"))
-    finally:
-        os.close(saved)
+                caught = tempfile.TemporaryFile("w+b")
+            except OSError as exc:  # (it read "Pinocchio cannot parse" the robot file, exit 2)
+                raise PlannerError(f"no usable temporary directory for the robot file parser's messages ({exc}); set "
+                                   "TMPDIR to a writable directory") from None
+            with caught:
+                os.dup2(caught.fileno(), 2)
+                try:
+                    yield
+                finally:
+                    os.dup2(saved, 2)
+                    if printed is not None:  # bytes: a file's Latin-1 joint name refused a valid file as undecodable
+                        caught.seek(0)
+                        printed.append(caught.read().decode(errors="replace"))
+        finally:
+            os.close(saved)

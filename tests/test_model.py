@@ -5,6 +5,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from planner.dynamics import Dynamics
@@ -657,3 +658,33 @@ def test_no_usable_temporary_directory_is_not_blamed_on_the_robot_file(tmp_path,
     with pytest.raises(PlannerError, match="no usable temporary directory .*; set TMPDIR to a writable") as exc:
         load_robot("point_mass")
     assert not isinstance(exc.value, InputError)
+
+
+def test_robots_loaded_from_several_threads_leave_the_process_streams_as_they_were(monkeypatch):
+    """Loads from several threads take the parser's stderr capture (model._quiet) one at a time and leave sys.stdout
+    and descriptor 2 as they found them: interleaved swaps left descriptor 2 on a deleted temporary file and sys.stdout
+    on a StringIO for the rest of the process (prints and tracebacks lost). The parser is slowed so the loads overlap."""
+    import os
+    import sys
+    import threading
+    import time
+
+    parse, inside, most = pin.buildModelFromMJCF, [], []
+
+    def slow(path):
+        inside.append(path)
+        most.append(len(inside))
+        time.sleep(0.02)
+        inside.pop()
+        return parse(path)
+
+    monkeypatch.setattr(pin, "buildModelFromMJCF", slow)
+    stdout, fd2 = sys.stdout, os.fstat(2)
+    threads = [threading.Thread(target=lambda: [load_robot("point_mass") for _ in range(5)]) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    after = os.fstat(2)
+    assert max(most) == 1 and len(most) == 20
+    assert sys.stdout is stdout and (after.st_dev, after.st_ino) == (fd2.st_dev, fd2.st_ino)
