@@ -31,6 +31,7 @@ import difflib
 import io
 import json
 import math
+import threading
 import time
 import warnings
 from dataclasses import dataclass, fields, replace
@@ -53,21 +54,53 @@ from .timefreezing import contact_labels
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 
 
+def _libc():
+    """glibc's C library through ctypes, or None (not glibc: macOS, musl without mallopt)."""
+    import ctypes
+    import ctypes.util
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+        return libc if hasattr(libc, "mallopt") and hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
 def keep_freed_memory() -> bool:
     """Ask glibc's malloc to serve large blocks from the heap and keep freed memory (mallopt
     M_MMAP_MAX = 0, M_TRIM_THRESHOLD = 2 GiB, a C int's largest); True if it could. MUMPS allocates
     its factor storage at every factorization (two or more per IPOPT iteration); by default each of
     those blocks is a fresh mmap whose pages the kernel zeroes again: 16 of 95 s were system time on
     the default Capler task, 0.4 s with this (docs/benchmarks.md, "Speed of the pipeline").
-    Process-wide and left on when solve() returns (a process's later solves reuse the memory kept: three N = 250
-    solves in a row held 447 MB, 385 MB without it); a no-op off glibc."""
-    import ctypes
-    import ctypes.util
+    Process-wide until undone: solve() keeps it for its own run only (freed_memory_kept); a no-op off glibc."""
+    libc = _libc()
+    return libc is not None and bool(libc.mallopt(_M_MMAP_MAX, 0)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+
+
+_KEEPING = threading.Lock()
+_kept = 0  # freed_memory_kept blocks running (nested: the implicit Euler start's solve; or in other threads)
+
+
+@contextlib.contextmanager
+def freed_memory_kept():
+    """keep_freed_memory() while the block runs; after the last running block, glibc's default thresholds
+    (M_MMAP_MAX 65536, M_TRIM_THRESHOLD 128 KiB) and the heap's free memory given back (malloc_trim): a program that
+    solved through the API kept every later free() in its heap (a 512 MB array deleted after one solve stayed
+    resident). The mmap threshold then stays at glibc's 128 KiB default instead of adapting (any mallopt stops that)."""
+    global _kept
+    with _KEEPING:
+        _kept += 1
+        if _kept == 1:
+            keep_freed_memory()
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
-        return bool(libc.mallopt(_M_MMAP_MAX, 0)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
-    except (OSError, AttributeError):  # not glibc (macOS, musl without mallopt): keep the default allocator
-        return False
+        yield
+    finally:
+        with _KEEPING:
+            _kept -= 1
+            libc = _libc() if _kept == 0 else None
+            if libc is not None:
+                libc.mallopt(_M_MMAP_MAX, 65536)
+                libc.mallopt(_M_TRIM_THRESHOLD, 128 * 1024)
+                libc.malloc_trim(0)
 
 
 class MuStrategy(Enum):
@@ -908,8 +941,15 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
 
     progress(record) is called after every NLP with its NlpRecord (rho, objective, complementarity
     residual, IPOPT iterations, wall time, IPOPT status). A failed solve is not an exception: the
-    result has stats.converged = False and a message saying what failed.
+    result has stats.converged = False and a message saying what failed. glibc's malloc keeps freed memory
+    while it runs (freed_memory_kept).
     """
+    with freed_memory_kept():
+        return _solve(problem, options, progress)
+
+
+def _solve(problem: Problem, options: SolveOptions, progress: Progress | None) -> PlanResult:
+    """solve()'s work."""
     expect(problem, Problem, "solve's problem")
     expect(options, SolveOptions, "solve's options")
     problem.check_solvable()
@@ -935,7 +975,6 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         raise InputError(f"SolveOptions.fesd_rho_schedule = {options.fesd_rho_schedule} applies to discretization fesd "
                          "with fesd_start implicit_euler only; this solve's penalties are rho_schedule's")
     start = time.perf_counter()
-    keep_freed_memory()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
     x, lam_x, lam_g = problem.x0.copy(), None, None
