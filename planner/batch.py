@@ -25,7 +25,6 @@ import contextlib
 import importlib
 import importlib.util
 import multiprocessing
-import os
 import sys
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -34,7 +33,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import InputError, killed_with_parent, plain, shown
+from .errors import InputError, killed_with_parent, plain, shown, usable_cpus
 
 CRASHED = "crashed"
 DEFAULT_STAGE = "task"  # the stage of a crash outside any `with stage(...)` block
@@ -130,8 +129,9 @@ def _call(fn, item):
 
 
 def default_workers(n_items: int) -> int:
-    """The local processes run_batch starts for n_items jobs when given no `workers`: min(cpu count, n_items)."""
-    return min(os.cpu_count() or 1, n_items)
+    """The local processes run_batch starts for n_items jobs when given no `workers`: min(usable CPUs, n_items), the
+    CPUs of the process's affinity (`taskset`, a container's cpuset) as race counts them, not the machine's."""
+    return min(usable_cpus(), n_items)
 
 
 def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = None, workers: int | None = None,

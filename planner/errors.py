@@ -139,6 +139,11 @@ def check_interrupted() -> None:
                 raise raised[0]
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask, not the machine's count)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def killed_with_parent() -> None:
     """A worker process gets SIGKILL when its parent dies (Linux prctl PR_SET_PDEATHSIG), instead of solving on for
     minutes with no one to read its result (a race's arm, a batch's worker after the sweep was stopped); it exits at

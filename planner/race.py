@@ -16,7 +16,6 @@ the slower arm could not win meant waiting for it.
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
 import pickle
 import signal
 import sys
@@ -25,7 +24,7 @@ import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent
+from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent, usable_cpus
 from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
@@ -46,11 +45,6 @@ def default_arms(options: SolveOptions) -> tuple[tuple[str, SolveOptions], ...]:
     expect(options, SolveOptions, "default_arms' options")
     ipopt = {**SECOND_ARM_IPOPT, **dict(options.ipopt)} if options.linear_solver == "mumps" else options.ipopt
     return (("default", options), ("alternate", replace(options, ipopt=ipopt, **SECOND_ARM)))
-
-
-def usable_cpus() -> int:
-    """The CPUs this process may run on (its affinity mask, not the machine's count)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def race(problem: Problem, arms, progress: Progress | None = None, processes: int | None = None) -> PlanResult:

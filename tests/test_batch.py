@@ -211,3 +211,16 @@ def test_missing_dask_says_what_to_install(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_dask)
     with pytest.raises(InputError, match=r"pip install 'dask\[distributed\]'"):
         run_batch(square_or_raise, [1], scheduler="tcp://127.0.0.1:1")
+
+
+def test_default_workers_count_the_cpus_the_process_may_run_on(monkeypatch):
+    """run_batch's default worker count is the CPUs of the process's affinity (`taskset -c 0`, a container's cpuset),
+    as race counts them: it was the machine's count, two workers competing for one CPU."""
+    import os
+
+    from planner.batch import default_workers
+
+    if not hasattr(os, "sched_getaffinity"):
+        pytest.skip("no CPU affinity on this platform")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    assert default_workers(8) == 1
