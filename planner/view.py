@@ -608,8 +608,8 @@ def serve(out_dir, slow_motion: bool = False, zmq_url: str | None = None, *, blo
     Starts meshcat's server as a subprocess unless `zmq_url` names a running one (`meshcat-server`): one server per
     call, each until this Python process exits normally (meshcat stops them at exit; a process killed by a signal
     without a handler, e.g. SIGTERM, leaves them running, since meshcat starts them in a session of their own). To
-    show several results, start one `meshcat-server` and pass its `zmq_url`. `block=True` waits for Ctrl-C instead of
-    returning.
+    reuse one server, start `meshcat-server` and pass its `zmq_url` (each call's drawing replaces the one before).
+    `block=True` waits for Ctrl-C instead of returning.
     """
     expect(slow_motion, bool, "serve's slow_motion")
     expect(zmq_url, (str, type(None)), "serve's zmq_url")
