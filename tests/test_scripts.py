@@ -2038,3 +2038,23 @@ def test_bench_pipeline_writes_its_results_before_its_plot(tmp_path, monkeypatch
         bench.main(["--quick", "--variants", "baseline", "--out", str(out), "--json"])
     assert json.loads((out / "results.json").read_text())["records"][0]["variants"]["baseline"]["iterations"] == 10
     assert not (out / "pipeline.png").exists()
+
+
+EQUIVALENT_TOL = 1e-9  # [m, m/s] round-off of IPOPT's solution (tol 1e-8) of two NLPs equal to the bit after the map
+
+
+def test_probe_equivalent_quick_run(tmp_path, capsys):
+    """--quick --json: results.json holds the hop's base, shifted and mirrored variants, with and without friction;
+    the frictionless hop's shifted and mirrored plans map back onto the base's to round-off (the NLPs are the same
+    up to the map, which checks the script's map), and every record says its iterations, cost and difference."""
+    probe = _load("probe_equivalent")
+    assert probe.main(["--quick", "--json", "--out", str(tmp_path)]) == 0
+    results = json.loads(capsys.readouterr().out)
+    assert results == json.loads((tmp_path / "results.json").read_text())
+    records = {(r["case"], r["variant"]): r for r in results["records"]}
+    variants = ("base", f"shifted {probe.SHIFT:g} m", "mirrored")
+    assert set(records) == {(case, v) for case in ("hop", "hop, frictionless") for v in variants}
+    for v in variants:
+        assert records["hop, frictionless", v]["max_node_state_diff"] <= EQUIVALENT_TOL, v
+    for r in records.values():
+        assert r["ipopt_iterations"] > 0 and math.isfinite(r["control_cost"]) and "nlp1_objective" in r
