@@ -15,10 +15,10 @@ plans, one of them dearer):
 * never_touching: a contact with `touches = false` (docs/tasks.md) gets no time-freezing machinery
   at all (no selectors, fields, multipliers, complementarity pairs, contact forces), only the path
   constraint gap >= 0 at every node (Problem.g_blocks["never_touching"]) besides the holes' rows that every
-  contact point gets. Same solution whenever the
-  point indeed never touches in the full problem's solution (the task's claim).
+  contact point gets. The same physics whenever the point indeed never touches in the full problem's
+  solution (the task's claim), but another NLP: the homotopy may reach another plan (docs/stability.md).
 * dropped_holes: a (contact point, hole) pair is dropped when the point provably cannot reach the
-  ellipse's bounding box. The rule (conservative, no dynamics): from the root, slide joints with
+  ellipse's bounding box, and every hole wholly below a flat ground (Task.buried_holes) for every point. The rule (conservative, no dynamics): from the root, slide joints with
   world-fixed axes move the point inside a box given by their position bounds (task.q_bounds: the
   robot file's limits or plan.joint_bounds); from the first hinge on, everything further down the
   chain stays within a radius R of that hinge's origin, R = the sum of the lengths of the constant
@@ -94,11 +94,16 @@ def analyze_scene(robot: Robot, task: Task, enabled: bool = True) -> Skips:
     holes = task.plan.holes if task.plan is not None else ()
     if holes:
         lower, upper = task.q_bounds(robot)
+        buried = task.buried_holes()
         # every contact point, touches = false too: the holes' rows keep each out (a never-touching knee was let in)
         for point in dict.fromkeys(c.point for c in task.contacts):
             lo, hi = reach_box(robot, point, lower, upper)
             for i, e in enumerate(holes):
-                if hi[0] < e.x - e.a or lo[0] > e.x + e.a or hi[2] < e.z - e.b or lo[2] > e.z + e.b:
+                if i in buried:
+                    dropped.append((point, i))
+                    reasons.append(f"{point}: hole {i} at (x, z) = ({e.x:g}, {e.z:g}) m, half-axes ({e.a:g}, "
+                                   f"{e.b:g}) m, lies wholly below the ground")
+                elif hi[0] < e.x - e.a or lo[0] > e.x + e.a or hi[2] < e.z - e.b or lo[2] > e.z + e.b:
                     dropped.append((point, i))
                     reasons.append(f"{point}: hole {i} at (x, z) = ({e.x:g}, {e.z:g}) m, half-axes ({e.a:g}, "
                                    f"{e.b:g}) m, is out of reach (x in [{lo[0]:.3g}, {hi[0]:.3g}] m, z in "

@@ -699,15 +699,21 @@ class Task:
                               "independently, so their forces together are not unique (e.g. two sticking points of "
                               f"one rigid body) and the solver may fail; {fix}")
 
+    def buried_holes(self) -> tuple[int, ...]:
+        """Indices of the plan.holes entries wholly below a flat ground (every contact's plane the ground): no contact
+        point goes into them, so the scene analysis drops them (their rows had moved the plan)."""
+        flat = all(c.normal == (0.0, 0.0, 1.0) for c in self.contacts)
+        return tuple(i for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ())
+                     if e.z + e.b <= self.ground_height)
+
     def warn_buried_holes(self) -> None:
         """Warn of each plan.holes entry wholly below a flat ground (a plan's check: `simulate` reads no holes, and
         warned of them before its one-line error)."""
-        flat = all(c.normal == (0.0, 0.0, 1.0) for c in self.contacts)
-        for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ()):
-            if e.z + e.b <= self.ground_height:  # (ground_height 0.3 with z omitted: a hole that did nothing)
-                warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
-                              f"ground_height {self.ground_height:g} m): no contact point goes into it; its z is the "
-                              "centre's height [m], 0 when omitted")
+        for i in self.buried_holes():  # (ground_height 0.3 with z omitted: a hole that did nothing)
+            e = self.plan.holes[i]
+            warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
+                          f"ground_height {self.ground_height:g} m): no contact point goes into it, so it is dropped; "
+                          "its z is the centre's height [m], 0 when omitted")
 
     def velocity_rows(self, robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """plan.velocity_bounds as (A (m, nv) of 0/1, lower (m,), upper (m,)): lower <= A v <= upper.

@@ -267,3 +267,23 @@ def test_the_report_names_the_holes_left_out(point_mass):
     left = [line for line in res.report().splitlines() if line.startswith("  left out: ")]
     assert [line.split(" at (x, z)")[0] for line in left] == ["  left out: point: hole 1", "  left out: point: hole 2"]
     assert all("is out of reach (x in [-0.1, 0.6] m" in line for line in left), left
+
+
+def test_a_hole_wholly_below_the_ground_is_dropped(point_mass):
+    """A hole whose top (z + b) is at or below a flat ground, where no contact point goes, is dropped for every point
+    (the warning said so, yet its row stayed and moved the hop's path): the NLP is the one without it, and the plan
+    equals that one's to the bit."""
+    N = 6
+    base = {"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": N},
+            "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
+    buried = dict(base, plan=dict(base["plan"], holes=[{"x": 0.25, "z": -5.0, "a": 0.25, "b": 0.1},
+                                                       {"x": 0.4, "z": -0.1, "a": 0.1, "b": 0.1}]))
+    with pytest.warns(UserWarning, match="wholly below the ground"):
+        task = parse_task(buried)
+        task.warn_buried_holes()
+    assert task.buried_holes() == (0, 1)
+    with_holes, without = build_problem(point_mass, task), build_problem(point_mass, parse_task(base))
+    assert with_holes.skips.dropped_holes == (("point", 0), ("point", 1))
+    assert with_holes.nx == without.nx and with_holes.ng == without.ng
+    a, b = solve(with_holes), solve(without)
+    assert np.array_equal(a.trajectory.y, b.trajectory.y)
