@@ -546,6 +546,18 @@ def _load_inputs(args):
     return robot, task, out
 
 
+def _replan_failed(init: str, result) -> str:
+    """The line after a replan from `init` that did not converge: the change was too large for that start (Capler's
+    target moved 0.3 m: its contacts no longer fit), or, for the start's own task, nothing changed (it had said the
+    change may be too large; the start's own plan stands)."""
+    from .replan import SAME_TASK
+
+    if SAME_TASK in (result.extra.get("no_walk") or ""):
+        return (f"the replan of {init}'s own task did not converge from its plan (nothing changed); that plan stands in "
+                f"{init}")
+    return f"the replan from {init} did not converge: the change may be too large for that start; plan without --init"
+
+
 def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Callable[[], None]]:
     """Results of a converged run go to `out`; a failed run's diagnostics go to `out/failed`, so a
     good earlier result in `out` is never overwritten (and a converged run removes an earlier failure's
@@ -863,8 +875,8 @@ def _cmd_plan(args) -> int:
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
-    if args.init is not None and not ok:  # e.g. Capler's target moved 0.3 m: the start's contacts no longer fit
-        text += f"\nthe replan from {args.init} did not converge: the change may be too large for that start; plan without --init"
+    if args.init is not None and not ok:
+        text += "\n" + _replan_failed(args.init, result)
     if validating:
         from .replay import validate, write_validation
 

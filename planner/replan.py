@@ -36,6 +36,7 @@ MAX_RETIMINGS = 2  # penalty replans inside the walk (Capler 3.0 -> 3.3 m needed
 # IPOPT iterations per NLP of a re-timing: the ones that converged took 112-469 (Capler, the biped), one that failed
 # took 3000, 3000, 3000 and 2103 in its four NLPs (Capler 3.1 -> 3.15 m, 300 s) before the penalty replan from DIR's plan
 RETIME_MAX_ITER = 600
+SAME_TASK = "the start's task is this task"  # extra["no_walk"]'s reason when there is nothing to walk
 
 
 def replan(problem: Problem, options: SolveOptions, start_task: Task | None = None, progress=None) -> PlanResult:
@@ -75,7 +76,7 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
             no_walk = (f"the problem's {', '.join(problem.edited)} were edited after build_problem, and the tasks "
                        "between would be built without the edits")
         elif start_task == problem.task:  # (every task between is this one: the walk repeated the held schedule)
-            no_walk = "the start's task is this task"
+            no_walk = SAME_TASK
         elif apart is None:
             walked, no_walk = _walk(problem, held, penalty, start_task, parts, progress)
             if walked is not None:

@@ -1693,3 +1693,18 @@ def test_a_periodic_plans_report_calls_its_residual_periodicity(tmp_path, capsys
                  "--no-plots", "--no-race"]) == 0
     headline = capsys.readouterr().out.splitlines()[0]
     assert ", periodicity error " in headline and "terminal error" not in headline, headline
+
+
+def test_a_failed_replan_of_the_starts_own_task_says_nothing_changed():
+    """A replan whose task is the start's own (replan.SAME_TASK in its no_walk) that did not converge says that the
+    start's plan stands, not that the change may be too large for that start (there was none; a Capler plan at
+    N = 25 whose re-optimization had hit its cap failed so); another failed replan keeps the old line."""
+    from types import SimpleNamespace
+
+    from planner.cli import _replan_failed
+    from planner.replan import SAME_TASK
+
+    same = SimpleNamespace(extra={"no_walk": f"no walk from the start's task: {SAME_TASK}; the penalty replan instead"})
+    assert _replan_failed("results/c", same) == ("the replan of results/c's own task did not converge from its plan "
+                                                 "(nothing changed); that plan stands in results/c")
+    assert "may be too large for that start" in _replan_failed("results/c", SimpleNamespace(extra={}))
