@@ -758,7 +758,8 @@ def _ipopt_args(flag: str, items: list[str]) -> dict:
 
 def _cmd_plan(args) -> int:
     from .discretization import Discretization
-    from .homotopy import REPLAN_FIELDS, FESDStart, SolveOptions, solve, solve_fields_from_json, solve_options_from_dict
+    from .homotopy import (REPLAN_FIELDS, FESDStart, SolveOptions, replan_options, solve, solve_fields_from_json,
+                           solve_options_from_dict)
     from .problem import ProblemOptions, build_problem
 
     discretization, fesd = _discretization(args, elements=3)
@@ -775,12 +776,22 @@ def _cmd_plan(args) -> int:
                 if twice:
                     raise InputError(f"{', '.join(twice)} given by two --solve objects; give each field once")
                 fields.update(more)
-            owned = sorted(set(fields) & set(FLAG_OWNED))  # a replan's flags set them after --solve: the JSON was lost
+            # a replan's flags set them after --solve, so another value was lost; the flags' own (a summary.json's
+            # recorded options fed back) is no conflict
+            held_by_flags = args.init is not None and not args.penalty_replan
+            by_flags = {"keep_schedule": held_by_flags, "schedule_only": False,
+                        "schedule_new_impacts": bool(args.allow_new_impacts),
+                        "fesd_start": args.fesd_start or FESDStart.HINT_FREE.value}
+            owned = sorted(k for k in set(fields) & set(FLAG_OWNED) if fields[k] != by_flags[k])
             if owned:
                 raise InputError(f"{', '.join(owned)} {'is' if len(owned) == 1 else 'are'} set by "
                                  f"{', '.join(sorted({FLAG_OWNED[k] for k in owned}))}, not by --solve")
             replanned = sorted(set(fields) & set(REPLAN_FIELDS)) if args.init is not None else []
-            if replanned:  # replan_options sets them after --solve: the JSON was lost likewise
+            if replanned:  # (read together on the replan's own options: mu_init needs its monotone barrier)
+                own = replan_options()
+                given = solve_options_from_dict({k: fields[k] for k in replanned}, own)
+                replanned = [k for k in replanned if getattr(given, k) != getattr(own, k)]
+            if replanned:  # replan_options sets them after --solve: another value was lost likewise
                 raise InputError(f"{', '.join(replanned)} {'is' if len(replanned) == 1 else 'are'} set by --init DIR "
                                  "(a replan's own homotopy from the plan, homotopy.REPLAN_FIELDS; README), not by "
                                  "--solve")
@@ -833,7 +844,6 @@ def _cmd_plan(args) -> int:
                                  "without)") from None
     problem = build_problem(robot, task, problem_options)
     if args.init is not None:
-        from .homotopy import replan_options
         from .result import check_start, read_start, read_trajectory
 
         start_arrays = read_trajectory(args.init)

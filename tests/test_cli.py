@@ -1708,3 +1708,23 @@ def test_a_failed_replan_of_the_starts_own_task_says_nothing_changed():
     assert _replan_failed("results/c", same) == ("the replan of results/c's own task did not converge from its plan "
                                                  "(nothing changed); that plan stands in results/c")
     assert "may be too large for that start" in _replan_failed("results/c", SimpleNamespace(extra={}))
+
+
+def test_a_plans_recorded_solve_options_fed_back_through_solve_plan_it_again(tmp_path):
+    """summary.json's options.solve given back to --solve plans the same again, a plan's and a replan's (with --init):
+    the fields the flags own (keep_schedule, schedule_only, schedule_new_impacts, fesd_start) and, with --init, those
+    replan_options sets are refused only when they differ from what the flags and the replan set (the recorded
+    values were refused, though the Python API took them)."""
+    import json
+
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    common = ["--task", str(task), "--no-validate", "--no-plots", "-q"]
+    for run, extra in (("a", ["--no-race"]), ("r", ["--init", str(tmp_path / "a")])):
+        assert main(["plan", "point_mass", "--out", str(tmp_path / run), *common, *extra]) == 0
+        first = json.loads((tmp_path / run / "summary.json").read_text())
+        solve = json.dumps(first["options"]["solve"])
+        assert main(["plan", "point_mass", "--out", str(tmp_path / f"{run}2"), *common, *extra, "--solve", solve]) == 0
+        again = json.loads((tmp_path / f"{run}2" / "summary.json").read_text())
+        assert again["options"]["solve"] == first["options"]["solve"]
+        assert (again["ipopt_iterations"], again["control_cost"]) == (first["ipopt_iterations"], first["control_cost"])
