@@ -70,7 +70,8 @@ def replan(problem: Problem, options: SolveOptions, start_task: Task | None = No
         if start_task.plan is not None and problem.task.plan is not None:
             # the homotopy's settings are the solve's, not the scene's: the walk solves with the task's own (the
             # start's n_nlp 5 against the task's 6 had refused the walk, though the held schedule reads neither)
-            start_task = replace(start_task, plan=replace(start_task.plan, homotopy=problem.task.plan.homotopy))
+            start_task = replace(start_task, plan=replace(start_task.plan, homotopy=problem.task.plan.homotopy),
+                                 simulate=problem.task.simulate)  # (nor the [simulate] table: a plan reads none)
         apart = tasks_apart(start_task, problem.task)
         if problem.edited:  # (the tasks between are built afresh: each walk step solved the unedited problem)
             no_walk = (f"the problem's {', '.join(problem.edited)} were edited after build_problem, and the tasks "

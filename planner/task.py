@@ -828,7 +828,8 @@ def tasks_between(start: Task, end: Task, s: float) -> Task | None:
     """The task a fraction s in [0, 1] of the way from `start` to `end`: every number (float) linear between
     the two, everything else (names, integers such as N, flags, the number of holes or contacts, an infinite
     bound) equal in both; None when they differ in anything but finite numbers. The source is end's. A replan
-    walks the task from its start plan's task to the new one through these (planner.replan)."""
+    walks the task from its start plan's task to the new one through these (planner.replan). The [simulate] table,
+    which a plan does not read, is end's too; an omitted initial.v or plan.target_v is zeros."""
     expect(start, Task, "tasks_between's start")
     expect(end, Task, "tasks_between's end")
     _require(isinstance(s, (int, float)) and not isinstance(s, bool) and 0 <= s <= 1, "tasks_between's s", s,
@@ -854,9 +855,9 @@ class _Apart(Exception):
 
 def _between(a, b, s: float, key: str):
     """key: the dotted path of a and b in the task ("plan.holes[0].a"), which _Apart names."""
-    if key == "source":
+    if key in ("source", "simulate"):  # not read by a plan (a [simulate] written out or edited refused the walk)
         return b
-    if key == "plan.target_v" and (a is None) != (b is None):  # omitted is zeros (the walk was refused: not numbers)
+    if key in ("plan.target_v", "initial.v") and (a is None) != (b is None):  # omitted is zeros (the walk was refused)
         zeros = tuple(0.0 for _ in (a or b))
         return b if s == 1.0 else _between(zeros if a is None else a, zeros if b is None else b, s, key)
     if is_dataclass(a) and type(a) is type(b):

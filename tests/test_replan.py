@@ -235,3 +235,7 @@ def test_an_edited_problem_or_the_same_task_is_not_walked(hop_plan, basin):
     # tasks all equal to this one, 19 NLPs instead of 4)
     same = replan(moved, H.replan_options(), dataclasses.replace(moved.task, source="elsewhere/trajectory.npz"))
     assert same.extra["no_walk"].startswith("no walk from the start's task: the start's task is this task")
+    # (nor its [simulate] table, which a plan does not read: it walked through tasks all equal to this one's plan)
+    simulated = dataclasses.replace(moved.task, simulate=dataclasses.replace(moved.task.simulate, rho_f=2.0))
+    same = replan(moved, H.replan_options(), simulated)
+    assert same.extra["no_walk"].startswith("no walk from the start's task: the start's task is this task")

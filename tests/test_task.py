@@ -900,3 +900,17 @@ def test_touches_is_the_same_on_every_plane_of_a_corner():
         parse_task({**base, "contacts": [{"point": "point"}, {**wall, "touches": False}]})
     both = parse_task({**base, "contacts": [{"point": "point", "touches": False}, {**wall, "touches": False}]})
     assert [c.touches for c in both.contacts] == [False, False]
+
+
+def test_tasks_between_takes_an_omitted_initial_v_as_zeros_and_ignores_the_simulate_table():
+    """A task whose initial.v is written as zeros or whose [simulate] table differs (written out at its defaults,
+    or edited) walks from a start that omits them as from its own: tasks_apart found them apart (a replan then had no
+    walk), though the plan reads zeros for the omitted v and no [simulate] at all; the tasks between take the end's
+    [simulate]."""
+    a = load_task(ROBOTS / "capler.toml")
+    a = replace(a, initial=replace(a.initial, v=None))  # (the file writes its zeros)
+    still = replace(a, initial=replace(a.initial, v=(0.0,) * 4), simulate=replace(a.simulate, u=(1.0, 2.0)))
+    assert tasks_apart(a, still) is None and tasks_apart(still, a) is None
+    moving = replace(still, initial=replace(still.initial, v=(0.2, 0.0, 0.0, 0.0)))
+    mid = tasks_between(a, moving, 0.5)
+    assert mid.initial.v == pytest.approx((0.1, 0.0, 0.0, 0.0), abs=ROUNDING) and mid.simulate == moving.simulate
