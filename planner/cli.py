@@ -553,8 +553,8 @@ def _replan_failed(init: str, result) -> str:
     from .replan import SAME_TASK
 
     if SAME_TASK in (result.extra.get("no_walk") or ""):
-        return (f"the replan of {init}'s own task did not converge from its plan (nothing changed); that plan stands in "
-                f"{init}")
+        return (f"the replan of {init}'s own task did not converge from its plan (the task is unchanged); that plan "
+                f"stands in {init}")
     return f"the replan from {init} did not converge: the change may be too large for that start; plan without --init"
 
 
@@ -789,8 +789,11 @@ def _cmd_plan(args) -> int:
             replanned = sorted(set(fields) & set(REPLAN_FIELDS)) if args.init is not None else []
             if replanned:  # (read together on the replan's own options: mu_init needs its monotone barrier)
                 own = replan_options()
-                given = solve_options_from_dict({k: fields[k] for k in replanned}, own)
-                replanned = [k for k in replanned if getattr(given, k) != getattr(own, k)]
+                try:
+                    given = solve_options_from_dict({k: fields[k] for k in replanned}, own)
+                    replanned = [k for k in replanned if getattr(given, k) != getattr(own, k)]
+                except InputError:  # not the replan's own (an adaptive mu_strategy beside its mu_init): a conflict
+                    pass
             if replanned:  # replan_options sets them after --solve: another value was lost likewise
                 raise InputError(f"{', '.join(replanned)} {'is' if len(replanned) == 1 else 'are'} set by --init DIR "
                                  "(a replan's own homotopy from the plan, homotopy.REPLAN_FIELDS; README), not by "

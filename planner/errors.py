@@ -107,8 +107,9 @@ def interruptible(defer: bool = False):
                 raise
         return note
 
-    for s, h in handlers.items():
-        signal.signal(s, wrap(h))
+    wrappers = {s: wrap(h) for s, h in handlers.items()}
+    for s, w in wrappers.items():
+        signal.signal(s, w)
     entry = (raised, defer)
     _PENDING.append(entry)
     try:
@@ -119,11 +120,12 @@ def interruptible(defer: bool = False):
     finally:
         _PENDING[:] = [e for e in _PENDING if e is not entry]  # its own, should blocks end out of order
         for s, h in handlers.items():
-            signal.signal(s, h)
+            if signal.getsignal(s) is wrappers[s]:  # a handler the block installed itself stays
+                signal.signal(s, h)
+        for previous, signum in deferred:  # also after the block's own error (the Ctrl-C was lost behind it)
+            previous(signum, None)
     if raised:
         raise raised[0]
-    for previous, signum in deferred:
-        previous(signum, None)
 
 
 _PENDING: list = []  # (exceptions raised by signal handlers, defer) of each interruptible block (main thread only)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import functools
 import io
 import json
 import math
@@ -54,6 +55,7 @@ from .timefreezing import contact_labels
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 
 
+@functools.cache  # find_library runs ldconfig (~3 ms), twice per solve()
 def _libc():
     """glibc's C library through ctypes, or None (not glibc: macOS, musl without mallopt)."""
     import ctypes
@@ -77,7 +79,8 @@ def keep_freed_memory() -> bool:
 
 
 _KEEPING = threading.Lock()
-_kept = 0  # freed_memory_kept blocks running (nested: the implicit Euler start's solve; or in other threads)
+_kept, _kept_ok = 0, False  # freed_memory_kept blocks running (nested: FESD's implicit Euler start; threads), and
+# whether the first could keep
 
 
 @contextlib.contextmanager
@@ -85,14 +88,17 @@ def freed_memory_kept():
     """keep_freed_memory() while the block runs; after the last running block, glibc's default thresholds
     (M_MMAP_MAX 65536, M_TRIM_THRESHOLD 128 KiB) and the heap's free memory given back (malloc_trim): a program that
     solved through the API kept every later free() in its heap (a 512 MB array deleted after one solve stayed
-    resident). The mmap threshold then stays at glibc's 128 KiB default instead of adapting (any mallopt stops that)."""
-    global _kept
+    resident). The mmap threshold then stays at glibc's 128 KiB default instead of adapting (any mallopt stops that),
+    and a MALLOC_*_ or GLIBC_TUNABLES setting of the program's is replaced by those defaults. Yields whether
+    keep_freed_memory could (glibc)."""
+    global _kept, _kept_ok
     with _KEEPING:
         _kept += 1
         if _kept == 1:
-            keep_freed_memory()
+            _kept_ok = keep_freed_memory()
+        ok = _kept_ok
     try:
-        yield
+        yield ok
     finally:
         with _KEEPING:
             _kept -= 1

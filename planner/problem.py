@@ -155,8 +155,8 @@ class ProblemOptions:
       (Capler: 4 variables and rows fewer per step, IPOPT iterations ~12 % cheaper, but over the
       seven-task set as many iterations and costlier plans; docs/benchmarks.md, session 22).
     scene_analysis: build only what the scene needs (planner.scene: no tangential machinery for
-      mu = 0, no contact machinery for touches = false, no holes out of reach); False builds it all,
-      the reference the skips are measured against (scripts/bench_skips.py).
+      mu = 0, no contact machinery for touches = false, no holes out of reach or wholly below a flat
+      ground); False builds it all, the reference the skips are measured against (scripts/bench_skips.py).
     """
 
     penalty: Penalty = Penalty.LINF

@@ -15,10 +15,13 @@ plans, one of them dearer):
 * never_touching: a contact with `touches = false` (docs/tasks.md) gets no time-freezing machinery
   at all (no selectors, fields, multipliers, complementarity pairs, contact forces), only the path
   constraint gap >= 0 at every node (Problem.g_blocks["never_touching"]) besides the holes' rows that every
-  contact point gets. The same physics whenever the point indeed never touches in the full problem's
-  solution (the task's claim), but another NLP: the homotopy may reach another plan (docs/stability.md).
+  contact point gets. The same physics whenever the point indeed never touches in the full
+  problem's solution (the task's claim), but another NLP: the homotopy may reach another plan
+  (docs/stability.md).
 * dropped_holes: a (contact point, hole) pair is dropped when the point provably cannot reach the
-  ellipse's bounding box, and every hole wholly below a flat ground (Task.buried_holes) for every point. The rule (conservative, no dynamics): from the root, slide joints with
+  ellipse's bounding box; every hole wholly below a flat ground (Task.buried_holes) is dropped for
+  every point (the contact points keep gap >= 0: touching ones by the time-freezing steps, to
+  round-off, the others by their row). The rule (conservative, no dynamics): from the root, slide joints with
   world-fixed axes move the point inside a box given by their position bounds (task.q_bounds: the
   robot file's limits or plan.joint_bounds); from the first hinge on, everything further down the
   chain stays within a radius R of that hinge's origin, R = the sum of the lengths of the constant

@@ -712,8 +712,8 @@ class Task:
         for i in self.buried_holes():  # (ground_height 0.3 with z omitted: a hole that did nothing)
             e = self.plan.holes[i]
             warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
-                          f"ground_height {self.ground_height:g} m): no contact point goes into it, so it is dropped; "
-                          "its z is the centre's height [m], 0 when omitted")
+                          f"ground_height {self.ground_height:g} m): no contact point goes into it (the scene analysis "
+                          "drops it); its z is the centre's height [m], 0 when omitted")
 
     def velocity_rows(self, robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """plan.velocity_bounds as (A (m, nv) of 0/1, lower (m,), upper (m,)): lower <= A v <= upper.

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from planner.cli import UsageParser, path_argument, prepare_out_dir
-from planner.errors import PATH_ERRNOS, InputError, PlannerError
+from planner.errors import PATH_ERRNOS, InputError, PlannerError, usable_cpus
 from planner.result import write_atomically
 
 
@@ -44,9 +44,8 @@ def machine_info() -> dict:
     import casadi
     import numpy
 
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return {"platform": platform.platform(), "machine": platform.machine(), "cpu_model": _cpu_model(),
-            "cpu_count": os.cpu_count(), "usable_cpus": usable, "python": platform.python_version(),
+            "cpu_count": os.cpu_count(), "usable_cpus": usable_cpus(), "python": platform.python_version(),
             "casadi": casadi.__version__, "numpy": numpy.__version__,
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
             "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None, "date": utc_now()}

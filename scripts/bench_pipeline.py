@@ -55,7 +55,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from planner.cli import prepare_out_dir
-from planner.homotopy import (SolveOptions, _Solvers, homotopy_nlp, ipopt_options, keep_freed_memory, solve,
+from planner.homotopy import (SolveOptions, _Solvers, freed_memory_kept, homotopy_nlp, ipopt_options, solve,
                               solve_fields_from_json, solve_options_from_dict, variable_scale)
 from planner.derivatives import nlp_derivatives
 from planner.errors import InputError, PlannerError
@@ -435,11 +435,12 @@ def main(argv: list[str] | None = None) -> int:
             rec = {k: rec[k] for k in ("iterations", "objective", "cpu_ms_per_iter", "rest_cpu_ms_per_iter", "wall_ms_per_iter")}
         print(f"{case:<10} {what:<20} {json.dumps(rec, default=str)[:300]}", file=sys.stderr, flush=True)
 
-    # solve() does this too: without it MUMPS's page faults add system time to every fixed-iteration run
-    heap_kept = keep_freed_memory()
+    # solve() does this for its own run: without it MUMPS's page faults add system time to every fixed-iteration run;
+    # one block over every case (a solve inside it no longer gives the allocator back between the cases)
     load_before, start = os.getloadavg(), time.perf_counter()
-    records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race, problem_options)
-               for c in cases]
+    with freed_memory_kept() as heap_kept:
+        records = [run_case(c, args.quick, iters, repeats, variants, codegen, full, log, args.nlp, args.race,
+                            problem_options) for c in cases]
     results = {"command": "python -m scripts.bench_pipeline " + shlex.join(argv if argv is not None else sys.argv[1:]),
                "quick": args.quick, "total_wall_time_s": time.perf_counter() - start,
                "machine": {**machine_info(), "keep_freed_memory": heap_kept, "load_average_before": load_before,

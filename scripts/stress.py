@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.batch import Crashed, default_workers, run_batch, stage
-from planner.errors import InputError
+from planner.errors import InputError, usable_cpus
 from planner.result import write_atomically
 from planner.task import Contact
 from scripts._report import machine_info as shared_machine_info
@@ -656,8 +656,6 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m scripts.stress " + shlex.join(argv if argv is not None else sys.argv[1:])
     workers = args.workers
     if workers is None and args.race and args.scheduler is None:
-        from planner.race import usable_cpus  # (planner.race loads CasADi: not for --list)
-
         workers = max(1, usable_cpus() // 2)  # each task's race takes two CPUs
     elif workers is None and args.scheduler is None:  # run_batch's own default, resolved (results.json said null)
         workers = max(1, default_workers(len(specs)))

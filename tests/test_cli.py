@@ -81,6 +81,9 @@ def test_check_model_json_contract():
         (["plan", "point_mass", "--init", "{dir}", "--solve", '{"mu_init": 0.1, "holes": "relaxed_first"}'],
          "--solve: holes, mu_init are set by --init DIR (a replan's own homotopy from the plan, "
          "homotopy.REPLAN_FIELDS; README), not by --solve"),
+        # (read on the replan's own options, this one raised their mu_init's error, which the user never gave)
+        (["plan", "point_mass", "--init", "{dir}", "--solve", '{"mu_strategy": "adaptive"}'],
+         "--solve: mu_strategy is set by --init DIR"),
         (["plan", "point_mass", "-q", "--solve", '{"print_level": 5}'], "print_level shows IPOPT's log and -q"),
         # replace() put the JSON's field in place of the flag's: the flag's IPOPT options or log were lost
         (["plan", "point_mass", "--ipopt", "max_soc=2", "--solve", '{"ipopt": {"alpha_for_y": "min"}}'],
@@ -1697,7 +1700,7 @@ def test_a_periodic_plans_report_calls_its_residual_periodicity(tmp_path, capsys
 
 def test_a_failed_replan_of_the_starts_own_task_says_nothing_changed():
     """A replan whose task is the start's own (replan.SAME_TASK in its no_walk) that did not converge says that the
-    start's plan stands, not that the change may be too large for that start (there was none; a Capler plan at
+    start's plan stands, not that the change may be too large for that start (the task's was none; a Capler plan at
     N = 25 whose re-optimization had hit its cap failed so); another failed replan keeps the old line."""
     from types import SimpleNamespace
 
@@ -1706,7 +1709,7 @@ def test_a_failed_replan_of_the_starts_own_task_says_nothing_changed():
 
     same = SimpleNamespace(extra={"no_walk": f"no walk from the start's task: {SAME_TASK}; the penalty replan instead"})
     assert _replan_failed("results/c", same) == ("the replan of results/c's own task did not converge from its plan "
-                                                 "(nothing changed); that plan stands in results/c")
+                                                 "(the task is unchanged); that plan stands in results/c")
     assert "may be too large for that start" in _replan_failed("results/c", SimpleNamespace(extra={}))
 
 

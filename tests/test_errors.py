@@ -330,3 +330,68 @@ def test_a_signal_handler_that_raises_nothing_stops_nothing():
     finally:
         signal.signal(signal.SIGINT, previous)
     assert finished == [False, True] and requests == [signal.SIGINT] * 2
+
+
+def test_a_deferred_signal_is_not_lost_behind_the_blocks_error_nor_a_handler_set_inside_undone():
+    """A Ctrl-C during a deferring block whose own code then raises still interrupts after it (KeyboardInterrupt, the
+    block's error its context; the error alone came out), and a handler the block installs for another signal stays
+    after the block (the blocks restored every signal's entry handler)."""
+    import os
+    import signal
+
+    from planner.errors import interruptible
+
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous_usr1 = signal.signal(signal.SIGUSR1, lambda signum, frame: None)
+    try:
+        with pytest.raises(KeyboardInterrupt) as caught:
+            with interruptible(defer=True):
+                os.kill(os.getpid(), signal.SIGINT)
+                raise ValueError("the block's own error")
+        assert isinstance(caught.value.__context__, ValueError)
+
+        def mine(signum, frame):
+            pass
+
+        with interruptible():
+            signal.signal(signal.SIGUSR1, mine)
+        assert signal.getsignal(signal.SIGUSR1) is mine
+    finally:
+        signal.signal(signal.SIGINT, previous_int)
+        signal.signal(signal.SIGUSR1, previous_usr1)
+
+
+def test_an_exception_a_signal_handler_raises_while_ipopt_iterates_is_raised_after_it():
+    """An alarm that fires while CasADi's IPOPT iterates (a long unconstrained solve: all of its time is IPOPT's) is
+    raised by interruptible once IPOPT has stopped: IPOPT caught it and returned as a failed NLP."""
+    import signal
+    import time
+
+    import casadi as ca
+
+    from planner.errors import interruptible
+
+    class Timeout(Exception):
+        pass
+
+    def on_alarm(signum, frame):
+        raise Timeout("the program's budget")
+
+    n = 400  # a chained Rosenbrock from far away: thousands of iterations, seconds of IPOPT
+    x = ca.SX.sym("x", n)
+    f = ca.sum1(100 * (x[1:] - x[:-1] ** 2) ** 2 + (1 - x[:-1]) ** 2)
+    solver = ca.nlpsol("s", "ipopt", {"x": x, "f": f}, {"print_time": False, "ipopt": {
+        "print_level": 0, "max_iter": 3000, "tol": 1e-300, "acceptable_iter": 0, "hessian_approximation":
+            "limited-memory"}})
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    try:
+        t0 = time.perf_counter()
+        signal.setitimer(signal.ITIMER_REAL, ALARM_S)
+        with pytest.raises(Timeout, match="budget"):
+            with interruptible():
+                solver(x0=np.full(n, -3.0))
+        assert time.perf_counter() - t0 < 20 * ALARM_S
+        assert solver.stats()["return_status"] == "NonIpopt_Exception_Thrown"  # IPOPT was running when it fired
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)

@@ -278,11 +278,11 @@ def test_a_hole_wholly_below_the_ground_is_dropped(point_mass):
             "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
     buried = dict(base, plan=dict(base["plan"], holes=[{"x": 0.25, "z": -5.0, "a": 0.25, "b": 0.1},
                                                        {"x": 0.4, "z": -0.1, "a": 0.1, "b": 0.1}]))
-    with pytest.warns(UserWarning, match="wholly below the ground"):
-        task = parse_task(buried)
-        task.warn_buried_holes()
+    task = parse_task(buried)
     assert task.buried_holes() == (0, 1)
-    with_holes, without = build_problem(point_mass, task), build_problem(point_mass, parse_task(base))
+    with pytest.warns(UserWarning, match=r"wholly below the ground .* \(the scene analysis drops it\)"):
+        with_holes = build_problem(point_mass, task)
+    without = build_problem(point_mass, parse_task(base))
     assert with_holes.skips.dropped_holes == (("point", 0), ("point", 1))
     assert with_holes.nx == without.nx and with_holes.ng == without.ng
     a, b = solve(with_holes), solve(without)

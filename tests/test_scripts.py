@@ -2058,3 +2058,21 @@ def test_probe_equivalent_quick_run(tmp_path, capsys):
         assert records["hop, frictionless", v]["max_node_state_diff"] <= EQUIVALENT_TOL, v
     for r in records.values():
         assert r["ipopt_iterations"] > 0 and math.isfinite(r["control_cost"]) and "nlp1_objective" in r
+
+
+def test_probe_equivalents_mirror_map_mirrors_capler():
+    """probe_equivalent's mirror of Capler (x and both leg angles negated) puts the foot, the knee and the base at the
+    x-mirror images of their places at q, for seeded random q: the map that compares a mirrored plan with the base's
+    is the mirror of the robot (its two leg angles turn about y)."""
+    from planner.dynamics import Dynamics
+    from planner.model import load_robot
+
+    probe = _load("probe_equivalent")
+    robot_name, [(_, variants)] = probe.capler_case(False)
+    mirror = next(v for v in variants if v.name == "mirrored")
+    dyn = Dynamics(load_robot(robot_name))
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(-1.0, 1.0, size=(20, 4)):
+        for point in ("foot", "knee", "base"):
+            p, m = (np.asarray(dyn.point_position(point)(x), float).ravel() for x in (q, mirror.sign * q))
+            np.testing.assert_allclose(m, p * [-1.0, 1.0, 1.0], rtol=0, atol=EQUIVALENT_TOL)
