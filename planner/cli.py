@@ -339,12 +339,29 @@ def main(argv: list[str] | None = None) -> int:
             raise
         return _stop(args, EXIT_FAILED, OUT_OF_MEMORY)
     except KeyboardInterrupt:  # Ctrl-C: one line, the shell's code for SIGINT; results are written atomically or not at all
-        _written_line(args)
-        return _stop(args, EXIT_INTERRUPTED, "interrupted")
+        with _interrupts_ignored():
+            _written_line(args)
+            return _stop(args, EXIT_INTERRUPTED, "interrupted")
     except SystemError as exc:  # a Ctrl-C in a Python callback CasADi called: "returned a result with an exception set"
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
-            return _stop(args, EXIT_INTERRUPTED, "interrupted")
+            with _interrupts_ignored():
+                return _stop(args, EXIT_INTERRUPTED, "interrupted")
         raise
+
+
+@contextlib.contextmanager
+def _interrupts_ignored():
+    """Ctrl-C and SIGTERM ignored while the interruption is reported (on the main thread), the handlers restored after:
+    a second Ctrl-C 10-80 ms after the first (a double press) printed a traceback from inside the report."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
 
 
 @contextlib.contextmanager
@@ -437,7 +454,9 @@ def _to_devnull(fd: int) -> None:
 def _stop(args, code: int, text: str) -> int:
     """A command that ended early: `planner COMMAND: TEXT` on stderr and, with --json, {"command", "exit_code",
     "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code."""
-    print(f"planner {args.command}: {text}", file=getattr(args, "stderr", None) or sys.stderr)  # (a reader may leave)
+    stderr = getattr(args, "stderr", None) or sys.stderr
+    if stderr is not None:  # closed (`2>&-`): print(file=None) wrote the line on stdout, before --json's object
+        print(f"planner {args.command}: {text}", file=stderr)  # (a reader may leave)
     if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
         with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
             # the exit code says which kind: "error: " or "failed: " is stderr's prefix
@@ -802,7 +821,9 @@ def _cmd_plan(args) -> int:
                                      ("print_level", "-v", args.verbose)):
                 if key in fields and given:  # the JSON's field replaces the flag's: the flag was lost
                     raise InputError(f"{key} is set by {flag} too; give it in one of the two")
-            solve_options = solve_options_from_dict(fields, solve_options)
+            # a replan's fields at its own values read on its options (its mu_init needs its monotone barrier)
+            solve_options = solve_options_from_dict(fields, replan_options(solve_options) if args.init is not None
+                                                    else solve_options)
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
     if args.quiet and solve_options.print_level > 0:  # (as -v -q: IPOPT's log went to stdout)

@@ -89,7 +89,8 @@ def freed_memory_kept():
     (M_MMAP_MAX 65536, M_TRIM_THRESHOLD 128 KiB) and the heap's free memory given back (malloc_trim): a program that
     solved through the API kept every later free() in its heap (a 512 MB array deleted after one solve stayed
     resident). The mmap threshold then stays at glibc's 128 KiB default instead of adapting (any mallopt stops that),
-    and a MALLOC_*_ or GLIBC_TUNABLES setting of the program's is replaced by those defaults. Yields whether
+    and a MALLOC_*_ or GLIBC_TUNABLES setting of the program's is replaced by those defaults. Memory the program
+    allocates inside the block and frees after it sits in the heap until the next trim. Yields whether
     keep_freed_memory could (glibc)."""
     global _kept, _kept_ok
     with _KEEPING:

@@ -975,7 +975,7 @@ _QUIET = threading.Lock()  # descriptor 2 is the process's: two loads' swaps int
 def _quiet(printed: list[str] | None = None):
     """Pinocchio's parsers (C++) print warnings on the stderr file descriptor; keep the CLI's output clean (one error
     line on stderr). What went to the descriptor is appended to `printed` (a URDF's parse error says its reason only
-    there). One thread at a time; another thread's writes to descriptor 2 meanwhile go there too. sys.stdout is not
+    there). One thread at a time; another thread's writes to descriptor 2 meanwhile are caught too. sys.stdout is not
     swapped: nothing the parsers print reaches it, and other threads' prints were lost while it was."""
     with _QUIET:
         if sys.stderr is not None:  # None when the shell closed it (`2>&-`)

@@ -423,7 +423,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
                          "one contact point")
     task.check_against(robot)
     task.warn_dependent_contacts(robot)
-    task.warn_buried_holes()
+    task.warn_buried_holes(options.scene_analysis)
     task.check_no_slip_forces(robot)
     plan, hz = task.plan, task.horizon
     skips = analyze_scene(robot, task, options.scene_analysis)

@@ -706,14 +706,15 @@ class Task:
         return tuple(i for i, e in enumerate(self.plan.holes if self.plan is not None and flat else ())
                      if e.z + e.b <= self.ground_height)
 
-    def warn_buried_holes(self) -> None:
+    def warn_buried_holes(self, dropped: bool = True) -> None:
         """Warn of each plan.holes entry wholly below a flat ground (a plan's check: `simulate` reads no holes, and
-        warned of them before its one-line error)."""
+        warned of them before its one-line error); `dropped`: the scene analysis drops them (it is on)."""
         for i in self.buried_holes():  # (ground_height 0.3 with z omitted: a hole that did nothing)
             e = self.plan.holes[i]
             warnings.warn(f"plan.holes[{i}] lies wholly below the ground (its top z + b = {e.z + e.b:g} m, "
-                          f"ground_height {self.ground_height:g} m): no contact point goes into it (the scene analysis "
-                          "drops it); its z is the centre's height [m], 0 when omitted")
+                          f"ground_height {self.ground_height:g} m): no contact point goes into it"
+                          f"{' (the scene analysis drops it)' if dropped else ''}; its z is the centre's height [m], 0 "
+                          "when omitted")
 
     def velocity_rows(self, robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """plan.velocity_bounds as (A (m, nv) of 0/1, lower (m,), upper (m,)): lower <= A v <= upper.

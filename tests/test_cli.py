@@ -1731,3 +1731,44 @@ def test_a_plans_recorded_solve_options_fed_back_through_solve_plan_it_again(tmp
         again = json.loads((tmp_path / f"{run}2" / "summary.json").read_text())
         assert again["options"]["solve"] == first["options"]["solve"]
         assert (again["ipopt_iterations"], again["control_cost"]) == (first["ipopt_iterations"], first["control_cost"])
+    # one replan field alone at the replan's own value (its mu_init was read on the adaptive barrier and refused)
+    own = json.dumps({"mu_init": first["options"]["solve"]["mu_init"]})
+    assert main(["plan", "point_mass", "--out", str(tmp_path / "r3"), *common, "--init", str(tmp_path / "a"),
+                 "--solve", own]) == 0
+
+
+def test_a_second_ctrl_c_while_the_interruption_is_reported_is_ignored(tmp_path, capsys, monkeypatch, ctrl_c):
+    """A second Ctrl-C while the first is reported (a double press, 10-80 ms apart) does not interrupt the report: it
+    printed a traceback from inside it (the lazy import of _written_line). The command ends with exit 130 and its one
+    line, and Python's handler is back afterwards."""
+    import os
+    import signal
+
+    from planner import cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    reported = cli._written_line
+
+    def pressed_again(args):
+        os.kill(os.getpid(), signal.SIGINT)
+        reported(args)
+
+    monkeypatch.setattr(cli, "_cmd_plan", interrupted)
+    monkeypatch.setattr(cli, "_written_line", pressed_again)
+    assert main(["plan", "point_mass", "--out", str(tmp_path / "o")]) == 130
+    assert capsys.readouterr().err.strip() == "planner plan: interrupted"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_with_stderr_closed_a_json_error_is_the_only_thing_on_stdout(tmp_path):
+    """With stderr closed (`2>&-`) an input error's line is dropped, not printed on stdout before --json's object
+    (print(file=None) writes to stdout): stdout is one JSON object, exit 2."""
+    import os
+
+    proc = subprocess.run([sys.executable, "-m", "planner.cli", "check-model", str(tmp_path / "missing.xml"), "--json"],
+                          stdout=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(2), timeout=120)
+    assert proc.returncode == 2
+    record = json.loads(proc.stdout)
+    assert record["exit_code"] == 2 and "missing.xml" in record["error"]

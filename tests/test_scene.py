@@ -283,6 +283,9 @@ def test_a_hole_wholly_below_the_ground_is_dropped(point_mass):
     with pytest.warns(UserWarning, match=r"wholly below the ground .* \(the scene analysis drops it\)"):
         with_holes = build_problem(point_mass, task)
     without = build_problem(point_mass, parse_task(base))
+    with pytest.warns(UserWarning, match=r"wholly below the ground") as said:  # analysis off: kept, not said dropped
+        assert build_problem(point_mass, task, ProblemOptions(scene_analysis=False)).skips.dropped_holes == ()
+    assert not any("drops it" in str(w.message) for w in said)
     assert with_holes.skips.dropped_holes == (("point", 0), ("point", 1))
     assert with_holes.nx == without.nx and with_holes.ng == without.ng
     a, b = solve(with_holes), solve(without)
