@@ -25,7 +25,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown
+from .errors import (PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown,
+                     signals_held)
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -609,12 +610,8 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
     child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
-    # Ctrl-C and SIGTERM held over the fork: raised inside logging's fork handlers, they printed tracebacks
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    try:
+    with signals_held():  # over the fork: raised inside logging's fork handlers, they printed tracebacks
         child.start()
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     writer.close()
 
     def finish() -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import math
 import numbers
 import os
@@ -139,6 +140,29 @@ def check_interrupted() -> None:
         for raised, defer in list(_PENDING):
             if raised and not defer:
                 raise raised[0]
+
+
+_STDOUT = threading.Lock()  # sys.stdout is the process's: two threads' swaps interleaved left it on a StringIO
+
+
+@contextlib.contextmanager
+def captured_stdout():
+    """sys.stdout swapped for a StringIO (yielded) while a library prints there (CasADi's IPOPT, meshcat), one thread
+    at a time: two threads' overlapping swaps left the program's sys.stdout on a StringIO for good. Other threads'
+    prints meanwhile are caught too."""
+    with _STDOUT, contextlib.redirect_stdout(io.StringIO()) as printed:
+        yield printed
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Ctrl-C and SIGTERM blocked in this thread for the block (delivered after it): a fork (raised inside logging's
+    fork handlers they printed tracebacks) or the reaping of child processes (a second Ctrl-C skipped the rest)."""
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def usable_cpus() -> int:

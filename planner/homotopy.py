@@ -29,9 +29,9 @@ from __future__ import annotations
 import contextlib
 import difflib
 import functools
-import io
 import json
 import math
+import os
 import threading
 import time
 import warnings
@@ -43,8 +43,8 @@ import casadi as ca
 import numpy as np
 
 from .derivatives import nlp_derivatives
-from .errors import (C_INT_MAX, InputError, check_field_types, enum_field, expect, interruptible, options_record,
-                     plain, representable)
+from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
+                     options_record, plain, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of)
@@ -79,6 +79,8 @@ def keep_freed_memory() -> bool:
 
 
 _KEEPING = threading.Lock()
+os.register_at_fork(after_in_child=lambda: globals().update(_KEEPING=threading.Lock(), _kept=0))  # (a fork while
+# another thread held the lock: the child's solve waited for it forever)
 _kept, _kept_ok = 0, False  # freed_memory_kept blocks running (nested: FESD's implicit Euler start; threads), and
 # whether the first could keep
 
@@ -93,6 +95,7 @@ def freed_memory_kept():
     allocates inside the block and frees after it sits in the heap until the next trim. Yields whether
     keep_freed_memory could (glibc)."""
     global _kept, _kept_ok
+    _libc()  # (outside the lock: its first call runs ldconfig, whose pipe a fork while it ran gave the child too)
     with _KEEPING:
         _kept += 1
         if _kept == 1:
@@ -569,7 +572,7 @@ def _ipopt_option_is_integer(name: str) -> bool:
     """Whether IPOPT registers `name` as an integer option: CasADi refuses a string for it with "is_int()" (a number
     it would take and truncate)."""
     x = ca.SX.sym("x")
-    with contextlib.redirect_stdout(io.StringIO()):
+    with captured_stdout():
         try:
             ca.nlpsol("ipopt_type_check", "ipopt", {"x": x, "f": x * x},
                       {"print_time": False, "ipopt": {name: "?", "print_level": 0, "sb": "yes"}})
@@ -581,8 +584,8 @@ def _ipopt_option_is_integer(name: str) -> bool:
 def _check_with_ipopt(field: str, opts: dict) -> None:
     """Create IPOPT for min x^2 with `opts`; IPOPT's complaint (it prints it, CasADi raises) as an InputError."""
     x = ca.SX.sym("x")
-    error, printed = None, io.StringIO()
-    with contextlib.redirect_stdout(printed):  # CasADi's Python interface prints IPOPT's output through sys.stdout
+    error = None
+    with captured_stdout() as printed:  # CasADi's Python interface prints IPOPT's output through sys.stdout
         try:
             ca.nlpsol("ipopt_option_check", "ipopt", {"x": x, "f": x * x}, {"print_time": False, "ipopt": dict(opts, print_level=0, sb="yes")})
         except RuntimeError as e:

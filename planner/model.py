@@ -379,7 +379,8 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
             hint = (f" (the file has <{'> and <'.join(wrappers)}> elements, whose bodies, geoms and sites Pinocchio's "
                     "MJCF parser does not read: write them out with their own pos and orientation)")
         raise RobotFileError(f"Pinocchio cannot parse {path}: {reason}{hint}") from None
-    said = _parser_errors(printed)
+    # (an MJCF file was refused for another thread's "Error: ..." log line caught meanwhile)
+    said = _parser_errors(printed) if fmt is RobotFormat.URDF else []
     if said:  # urdfdom returns a model without what it could not read (a thigh's `<mass value="1,782"/>`: no mass)
         raise RobotFileError(f"Pinocchio's URDF parser could not read part of {path}: {'; '.join(said)}; its model "
                              "would lack that element")
@@ -537,8 +538,9 @@ def _second_tree(path: Path, mj, model: pin.Model) -> str | None:
 
 
 def _parser_errors(printed: list[str]) -> list[str]:
-    """The parser's "Error:" lines in what it printed (`_quiet`), once each, without the prefix."""
-    errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines() if "Error:" in ln)
+    """urdfdom's "Error:" lines (they start so) in what was printed (`_quiet`), once each, without the prefix."""
+    errors = (ln.split("Error:", 1)[1].strip() for ln in "".join(printed).splitlines()
+              if ln.lstrip().startswith("Error:"))
     return [ln for ln in dict.fromkeys(errors) if ln]
 
 

@@ -19,12 +19,13 @@ import multiprocessing as mp
 import pickle
 import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent, usable_cpus
+from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent, signals_held, usable_cpus
 from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
@@ -82,7 +83,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
                          "planner.batch.run_batch or concurrent.futures.ProcessPoolExecutor, whose workers can start "
                          "processes")
     start = time.perf_counter()
-    ctx = mp.get_context("fork")  # the children inherit the built problem (CasADi functions do not pickle cheaply)
+    ctx = mp.get_context(start_method())
     pipes, procs = [], []
     for i in range(n):
         reader, writer = ctx.Pipe(duplex=False)  # one pipe per arm: killing an arm cannot corrupt another's channel
@@ -117,10 +118,13 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
                     if payload.stats.converged and win is None:
                         win = i
     finally:
-        for i, proc in enumerate(procs):
+        for proc in procs:  # every arm first: a second Ctrl-C during one arm's join left the next one running
             if proc.is_alive():
                 proc.kill()
-            proc.join()
+        with signals_held():
+            for proc in procs:
+                proc.join()
+        for i in range(n):
             if i not in done:  # killed here, or it ended after the winner with its own outcome still unread
                 done[i] = ("stopped", None, time.perf_counter() - start)
     pick = 0 if win is None else win  # none converged: the first arm's result, as its plain solve would give
@@ -131,6 +135,13 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
              for i in range(n)]
     stats = replace(result.stats, solve_time_s=time.perf_counter() - start, message=f"{result.stats.message}; race of {race_arms_text(table)}")
     return replace(result, stats=stats, extra=dict(result.extra, race=table))
+
+
+def start_method() -> str:
+    """How race starts its arms: "fork" (the children inherit the built problem: CasADi functions do not pickle
+    cheaply) while this process runs one thread, else "forkserver" (the problem pickled): a fork while another thread
+    solved gave the arms CasADi's and the allocator's locks held, and they waited forever."""
+    return "fork" if threading.active_count() == 1 else "forkserver"
 
 
 def _arm(problem: Problem, options: SolveOptions, conn, name: str) -> None:

@@ -1067,6 +1067,17 @@ def _keep(path: Path) -> tuple[bool, str | None]:
     return True, link
 
 
+def _umask() -> int:
+    """The process's umask, read without setting it where Linux says it (/proc/self/status "Umask:"): os.umask(0)
+    and back left it 0 for a moment, in which another thread's files came out world-writable."""
+    with contextlib.suppress(OSError, StopIteration, ValueError):
+        with open("/proc/self/status", encoding="ascii") as f:
+            return int(next(line for line in f if line.startswith("Umask:")).split()[1], 8)
+    umask = os.umask(0)  # (not Linux)
+    os.umask(umask)
+    return umask
+
+
 def write_atomically(path: str | os.PathLike, write) -> None:
     """Write path through a temp file in the same directory, then os.replace: readers never see half a
     file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
@@ -1139,10 +1150,8 @@ def _stage(path: str | os.PathLike, write) -> str:
     except OSError as exc:
         raise write_error(path, exc) from None
     try:
-        umask = os.umask(0)
-        os.umask(umask)
         # a file replaced keeps its mode (validate made a private summary.json world-readable)
-        os.fchmod(fd, stat.S_IMODE(path.stat().st_mode) if path.is_file() else 0o666 & ~umask)
+        os.fchmod(fd, stat.S_IMODE(path.stat().st_mode) if path.is_file() else 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()

@@ -16,8 +16,6 @@ Also here: `load_result`, the reader of the result-directory contract (shared wi
 from __future__ import annotations
 
 import base64
-import contextlib
-import io
 import json
 import math
 import os
@@ -30,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, PlannerError, expect
+from .errors import InputError, PlannerError, captured_stdout, expect
 from .model import Robot, RobotFormat, _quiet
 from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, read_robot, read_summary, read_task,
                      read_trajectory, real_array, result_dir, write_atomically)
@@ -617,7 +615,7 @@ def serve(out_dir, slow_motion: bool = False, zmq_url: str | None = None, *, blo
     if zmq_url is not None:
         _check_server(zmq_url)  # meshcat itself would wait forever for a server that is not there
     try:
-        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints its own banner; keep stdout for --json
+        with captured_stdout():  # meshcat prints its own banner; keep stdout for --json
             vis = _visualizer(None, zmq_url=zmq_url)
     except PlannerError:
         raise

@@ -212,6 +212,7 @@ from planner.task import parse_task
 problem = build_problem(load_robot("point_mass"), parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.0]},
                         "horizon": {"tau_f": 1.0, "N": 2}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}))
 R.solve = lambda problem, options, progress=None: time.sleep(120)
+R.start_method = lambda: "fork"  # (the reporting thread below would make it forkserver, whose arms import R afresh)
 def report():  # once both arms run (a fixed 1 s found none on a loaded box, and the test failed)
     deadline = time.monotonic() + 60
     while len(mp.active_children()) < 2 and time.monotonic() < deadline:
@@ -247,3 +248,58 @@ def test_arms_do_not_outlive_the_race(sig):
     for pid in left:  # a failing run must not leave sleepers behind
         os.kill(pid, signal.SIGKILL)
     assert not left
+
+
+def test_a_race_beside_a_solving_thread_starts_its_arms_by_forkserver_and_returns_the_arms_plan(hop_problem,
+                                                                                                one_by_one):
+    """While another thread of the process solves, race starts its arms by forkserver (the problem pickled), not by
+    fork, which gave the arms CasADi's and the allocator's locks held by that thread (they waited forever, 4 of 4
+    races of a tester); the winner's plan is still its arm's own, bit for bit."""
+    import threading
+
+    stop = threading.Event()
+
+    def solving():
+        while not stop.is_set():
+            H.solve(hop_problem)
+
+    thread = threading.Thread(target=solving)
+    thread.start()
+    try:
+        assert R.start_method() == "forkserver"
+        result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
+    finally:
+        stop.set()
+        thread.join()
+    (winner,) = [row["arm"] for row in result.extra["race"] if row["outcome"] == "won"]
+    assert np.array_equal(result.extra["_x"], one_by_one[winner].extra["_x"])
+
+
+def test_a_second_ctrl_c_while_the_arms_are_reaped_leaves_none_running(hop_problem):
+    """A Ctrl-C during a race kills every arm before it reaps any, and a second one while they are reaped waits for
+    the reaping (the arms were killed and joined one at a time, and a second Ctrl-C inside the first join left the
+    other arm running and a zombie)."""
+    import multiprocessing
+    import multiprocessing.process
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    join = multiprocessing.process.BaseProcess.join
+    pressed = []
+
+    def join_pressed(self, timeout=None):
+        if not pressed:
+            pressed.append(True)
+            os.kill(os.getpid(), signal.SIGINT)  # the second Ctrl-C, inside the first join
+        return join(self, timeout)
+
+    def first(record):
+        raise KeyboardInterrupt  # the first Ctrl-C, in the parent while the arms solve
+
+    try:
+        multiprocessing.process.BaseProcess.join = join_pressed
+        with pytest.raises(KeyboardInterrupt):
+            R.race(hop_problem, R.default_arms(H.SolveOptions()), progress=first, processes=2)
+    finally:
+        multiprocessing.process.BaseProcess.join = join
+        signal.signal(signal.SIGINT, previous)
+    assert pressed and multiprocessing.active_children() == []

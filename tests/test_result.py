@@ -1003,3 +1003,25 @@ def test_summary_records_the_software_that_wrote_it(tmp_path, monkeypatch):
     write_results(_tiny_result(2), tmp_path / "b")
     versions = json.loads((tmp_path / "b" / "summary.json").read_text())["versions"]
     assert versions["no_such_module"] == "not installed" and "mujoco" not in versions
+
+
+def test_write_atomically_reads_the_umask_without_changing_it(tmp_path, monkeypatch):
+    """write_atomically gives a new file the mode the umask allows without setting the umask (os.umask(0) and back
+    left it 0 for a moment, and another thread's files came out world-writable): os.umask is not called on Linux."""
+    import os
+    import stat
+    import sys
+
+    from planner.result import write_atomically
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("/proc/self/status: Linux only")
+    umask = os.umask(0o027)
+    try:
+        calls = []
+        monkeypatch.setattr(os, "umask", lambda mask: calls.append(mask) or 0)
+        write_atomically(tmp_path / "a.txt", "x")
+        assert calls == [] and stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o640
+    finally:
+        monkeypatch.undo()
+        os.umask(umask)
