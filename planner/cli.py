@@ -25,8 +25,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import (PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown,
-                     signals_held)
+from .errors import PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -315,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
         if code == EXIT_FAILED and getattr(args, "quiet", False):
-            print(f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}", file=err or sys.stderr)
+            _to_stderr(args, f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}")
         return code
     except InputError as exc:
         return _stop(args, EXIT_INPUT, f"error: {exc}")
@@ -455,9 +454,7 @@ def _to_devnull(fd: int) -> None:
 def _stop(args, code: int, text: str) -> int:
     """A command that ended early: `planner COMMAND: TEXT` on stderr and, with --json, {"command", "exit_code",
     "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code."""
-    stderr = getattr(args, "stderr", None) or sys.stderr
-    if stderr is not None:  # closed (`2>&-`): print(file=None) wrote the line on stdout, before --json's object
-        print(f"planner {args.command}: {text}", file=stderr)  # (a reader may leave)
+    _to_stderr(args, f"planner {args.command}: {text}")
     if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
         with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
             # the exit code says which kind: "error: " or "failed: " is stderr's prefix
@@ -480,8 +477,16 @@ def _written_line(args) -> None:
     missing = [what for what, gone in (
         ("plots", not getattr(args, "no_plots", True) and not any((target / n).exists() for n in PLOT_FILES)),
         ("validation", getattr(args, "validating", False) and "validation" not in summary)) if gone]
-    print(f"planner {args.command}: {'converged' if summary.get('converged') else 'FAILED'}: results in {target}"
-          + (f", without {' or '.join(missing)}" if missing else ""), file=getattr(args, "stderr", None) or sys.stderr)
+    _to_stderr(args, f"planner {args.command}: {'converged' if summary.get('converged') else 'FAILED'}: results in "
+                     f"{target}" + (f", without {' or '.join(missing)}" if missing else ""))
+
+
+def _to_stderr(args, line: str) -> None:
+    """One line on the command's stderr (a reader may leave), none when it is closed (`2>&-`): print(file=None)
+    wrote it on stdout, after or before --json's object."""
+    stream = getattr(args, "stderr", None) or sys.stderr
+    if stream is not None:
+        print(line, file=stream)
 
 
 def _progress(args, line: str) -> None:
@@ -610,8 +615,13 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
     child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
-    with signals_held():  # over the fork: raised inside logging's fork handlers, they printed tracebacks
+    # Ctrl-C and SIGTERM masked over the fork (the child unblocks them): raised inside logging's fork handlers, they
+    # printed tracebacks
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
         child.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     writer.close()
 
     def finish() -> None:
@@ -818,9 +828,14 @@ def _cmd_plan(args) -> int:
                                      ("print_level", "-v", args.verbose)):
                 if key in fields and given:  # the JSON's field replaces the flag's: the flag was lost
                     raise InputError(f"{key} is set by {flag} too; give it in one of the two")
-            # a replan's fields at its own values read on its options (its mu_init needs its monotone barrier)
-            solve_options = solve_options_from_dict(fields, replan_options(solve_options) if args.init is not None
-                                                    else solve_options)
+            if args.init is None:
+                solve_options = solve_options_from_dict(fields, solve_options)
+            else:  # read on the replan's options (its own mu_init needs its monotone barrier)
+                try:
+                    solve_options = solve_options_from_dict(fields, replan_options(solve_options))
+                except InputError as exc:  # (soft_terminal_weight: "unless soft_terminal_nlps >= 1", unexplained)
+                    raise InputError(f"{exc} (--init DIR solves with a replan's options, homotopy.replan_options: "
+                                     "soft_terminal_nlps = 0, a monotone barrier)") from None
         except InputError as exc:
             raise InputError(f"--solve: {exc}") from None
     if args.quiet and solve_options.print_level > 0:  # (as -v -q: IPOPT's log went to stdout)

@@ -143,6 +143,7 @@ def check_interrupted() -> None:
 
 
 _STDOUT = threading.Lock()  # sys.stdout is the process's: two threads' swaps interleaved left it on a StringIO
+os.register_at_fork(after_in_child=lambda: globals().update(_STDOUT=threading.Lock()))  # (held by another thread)
 
 
 @contextlib.contextmanager
@@ -156,13 +157,24 @@ def captured_stdout():
 
 @contextlib.contextmanager
 def signals_held():
-    """Ctrl-C and SIGTERM blocked in this thread for the block (delivered after it): a fork (raised inside logging's
-    fork handlers they printed tracebacks) or the reaping of child processes (a second Ctrl-C skipped the rest)."""
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    """Ctrl-C and SIGTERM wait until the block has ended (on the main thread), then come as they would have: Python's
+    KeyboardInterrupt, the CLI's handler, or death. They are held by handlers that note them, not by a signal mask,
+    which holds one thread only: with another thread in the process (a test suite's leftovers, a server) the kernel
+    gave the signal to that one and Python raised it inside the block (between a result's renames: files of two
+    results; inside a race's reaping: arms left unreaped). An ignored one stays ignored; off the main thread: none."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    swapped = [sig for sig, handler in previous.items() if handler is not signal.SIG_IGN and handler is not None]
+    arrived: list[int] = []
+    for sig in swapped:
+        signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        for sig in swapped:
+            signal.signal(sig, previous[sig])
+        for sig in dict.fromkeys(arrived):
+            signal.raise_signal(sig)
 
 
 def usable_cpus() -> int:

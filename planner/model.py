@@ -971,6 +971,7 @@ def _reversed_force_ranges(path: Path) -> str:
 
 
 _QUIET = threading.Lock()  # descriptor 2 is the process's: two loads' swaps interleaved left it on a deleted file
+os.register_at_fork(after_in_child=lambda: globals().update(_QUIET=threading.Lock()))  # (held by another thread)
 
 
 @contextlib.contextmanager

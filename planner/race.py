@@ -1,5 +1,6 @@
 """A race of solve variants: the same plan solved by several SolveOptions at once, one process each
-(forked, so the built problem is shared); the first arm to converge wins and the others are stopped.
+(forked, so the built problem is shared; by forkserver, the problem pickled, ~1 s more, while the process runs other
+threads: start_method); the first arm to converge wins and the others are stopped.
 
 Why: the homotopy's iteration count is a chaotic function of the arithmetic. Any change of IPOPT's
 warm start, regularization or round-off draws a new count, and on the seven Capler tasks of
@@ -16,6 +17,7 @@ the slower arm could not win meant waiting for it.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import pickle
 import signal
 import sys
@@ -207,3 +209,11 @@ def _die_with_parent() -> None:
     arm gets SIGKILL if the parent dies (prctl PR_SET_PDEATHSIG) instead of solving on for minutes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     killed_with_parent()  # (not Linux: the parent's finally still kills the arms on any exception)
+    parent = mp.parent_process()
+    if parent is not None:  # the race's process, also by forkserver, whose arms' kernel parent is the server: the
+        # death signal followed the server, which lives while an arm does (a SIGKILLed race left both running)
+        def orphaned():
+            wait([parent.sentinel])
+            os._exit(1)
+
+        threading.Thread(target=orphaned, daemon=True, name="planner-race-parent").start()

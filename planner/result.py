@@ -24,7 +24,6 @@ import io
 import json
 import os
 import platform
-import signal
 import stat
 import tempfile
 import threading
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect, is_integer, read_error, shown, write_error
+from .errors import InputError, expect, is_integer, read_error, shown, signals_held, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -1168,50 +1167,36 @@ def _replace(staged: list[tuple[str, Path]]) -> None:
     """Rename each staged temp file to its path; on an error the files already renamed are rolled back to the earlier
     ones (kept as hard links until all are renamed: a summary.json that could not be replaced had left the new
     trajectory.npz beside the old summary) and the temp files not yet renamed are removed. Ctrl-C and
-    SIGTERM wait until all are renamed (in the main thread): between two renames they left files of two results.
-    They are held by handlers that note them, then raised again: a signal mask held only the main thread, so with
-    another thread in the process (a test suite's leftovers, a server) the kernel gave the signal to that one and
-    Python raised it between the renames."""
-    held = (signal.SIGINT, signal.SIGTERM)
-    arrived: list[int] = []
-    main = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.getsignal(sig) for sig in held} if main else {}
-    # the signals to hold: an ignored one stays ignored (None: a handler set outside Python)
-    swapped = [sig for sig, handler in previous.items() if handler is not signal.SIG_IGN and handler is not None]
-    for sig in swapped:
-        signal.signal(sig, lambda signum, frame: arrived.append(signum))
+    SIGTERM wait until all are renamed (errors.signals_held): between two renames they left files of two results."""
     kept: dict[Path, tuple[bool, str | None]] = {}  # path -> (it held a file, a hard link to that file)
-    try:
-        for i, (tmp, path) in enumerate(staged):
-            try:
-                kept[path] = _keep(path) if len(staged) > 1 else (False, None)
-                os.replace(tmp, path)
-            except OSError as exc:
-                for left, _ in staged[i:]:
-                    Path(left).unlink(missing_ok=True)
-                for _, done in staged[:i]:
-                    existed, link = kept.pop(done)
-                    with contextlib.suppress(OSError):  # the error to report is the one above
-                        if link is not None:
-                            os.replace(link, done)
-                        elif not existed:  # there was none: the new one goes too
-                            done.unlink()
-                raise write_error(path, exc) from None
-        with contextlib.suppress(OSError):  # the renames on disk too (a directory that cannot be opened: as before)
-            for folder in {path.parent for _, path in staged}:
-                fd = os.open(folder, os.O_RDONLY)
+    with signals_held():
+        try:
+            for i, (tmp, path) in enumerate(staged):
                 try:
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
-    finally:
-        for _, link in kept.values():
-            if link is not None:
-                Path(link).unlink(missing_ok=True)
-        for sig in swapped:
-            signal.signal(sig, previous[sig])
-        for sig in dict.fromkeys(arrived):
-            signal.raise_signal(sig)  # now as it would have been: Python's KeyboardInterrupt, the CLI's handler, or death
+                    kept[path] = _keep(path) if len(staged) > 1 else (False, None)
+                    os.replace(tmp, path)
+                except OSError as exc:
+                    for left, _ in staged[i:]:
+                        Path(left).unlink(missing_ok=True)
+                    for _, done in staged[:i]:
+                        existed, link = kept.pop(done)
+                        with contextlib.suppress(OSError):  # the error to report is the one above
+                            if link is not None:
+                                os.replace(link, done)
+                            elif not existed:  # there was none: the new one goes too
+                                done.unlink()
+                    raise write_error(path, exc) from None
+            with contextlib.suppress(OSError):  # the renames on disk too (a directory that cannot be opened: as before)
+                for folder in {path.parent for _, path in staged}:
+                    fd = os.open(folder, os.O_RDONLY)
+                    try:
+                        os.fsync(fd)
+                    finally:
+                        os.close(fd)
+        finally:
+            for _, link in kept.values():
+                if link is not None:
+                    Path(link).unlink(missing_ok=True)
 
 
 # --- reading a result directory back (replay and view use these) -------------------------------------

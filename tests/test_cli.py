@@ -1757,7 +1757,11 @@ def test_a_second_ctrl_c_while_the_interruption_is_reported_is_ignored(tmp_path,
 
     monkeypatch.setattr(cli, "_cmd_plan", interrupted)
     monkeypatch.setattr(cli, "_written_line", pressed_again)
-    assert main(["plan", "point_mass", "--out", str(tmp_path / "o")]) == 130
+    try:
+        code = main(["plan", "point_mass", "--out", str(tmp_path / "o")])
+    except KeyboardInterrupt:  # (raised out of main, it would end the whole test session)
+        pytest.fail("the second Ctrl-C interrupted the report")
+    assert code == 130
     assert capsys.readouterr().err.strip() == "planner plan: interrupted"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
@@ -1772,3 +1776,15 @@ def test_with_stderr_closed_a_json_error_is_the_only_thing_on_stdout(tmp_path):
     assert proc.returncode == 2
     record = json.loads(proc.stdout)
     assert record["exit_code"] == 2 and "missing.xml" in record["error"]
+
+
+def test_with_stderr_closed_a_quiet_failure_line_is_not_printed_on_stdout(tmp_path, capsys, monkeypatch):
+    """-q's failure line (exit 1) goes to stderr only: with stderr closed (`2>&-`, sys.stderr None) it was printed on
+    stdout after --json's object, which then no longer parsed."""
+    from planner import cli
+
+    monkeypatch.setattr(cli, "_cmd_plan", lambda args: cli.EXIT_FAILED)
+    monkeypatch.setattr(sys, "stderr", None)
+    assert main(["plan", "point_mass", "-q", "--json", "--out", str(tmp_path / "o")]) == cli.EXIT_FAILED
+    monkeypatch.undo()
+    assert capsys.readouterr().out == ""

@@ -117,6 +117,7 @@ def test_an_arm_that_ends_after_the_winner_unread_is_listed_as_stopped(hop_probl
         return ready
 
     monkeypatch.setattr(R, "solve", quick)  # the forked arms inherit the patch
+    monkeypatch.setattr(R, "start_method", lambda: "fork")  # (a thread left by another test: forkserver)
     monkeypatch.setattr(R, "wait", slow_wait)
     result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
     assert [(row["arm"], row["outcome"]) for row in result.extra["race"]] == [("default", "won"), ("alternate", "stopped")]
@@ -133,12 +134,14 @@ def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_conver
         return solve(problem, options, progress)
 
     monkeypatch.setattr(R, "solve", flaky)  # the forked arms inherit the patch
+    monkeypatch.setattr(R, "start_method", lambda: "fork")  # (a thread left by another test: forkserver)
     quick = H.SolveOptions()
     result = R.race(hop_problem, R.default_arms(quick), processes=2)
     table = {row["arm"]: row for row in result.extra["race"]}
     assert table["alternate"]["outcome"] == "error: planner.errors.InputError: arm says no"
     assert table["default"]["outcome"] == "won"
     arms = (("first", dataclasses.replace(quick, warm_start=H.WarmStart.PRIMAL_DUAL)), ("second", quick))
+    monkeypatch.setattr(R, "start_method", lambda: "fork")  # the forked arms inherit the patch below
     monkeypatch.setattr(R, "solve", lambda problem, options, progress=None:
                         (_ for _ in ()).throw(InputError("always no")))
     with pytest.raises(InputError, match="always no"):
@@ -157,6 +160,7 @@ def test_arm_errors_that_do_not_pickle_arrive_as_the_nearest_planner_error(hop_p
         raise make()
 
     monkeypatch.setattr(R, "solve", fail)
+    monkeypatch.setattr(R, "start_method", lambda: "fork")  # the forked arms inherit the patch
     with pytest.raises(expected, match=fragment):
         R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
 
@@ -223,6 +227,18 @@ R.race(problem, R.default_arms(SolveOptions()), processes=2)
 """
 
 
+# The same race with its arms started by forkserver (the reporting thread makes race choose it): the server imports
+# SLEEPY_ARMS first (set_forkserver_preload), so its arms sleep too.
+SLEEPY_ARMS = """
+import time
+import planner.race as R
+R.solve = lambda problem, options, progress=None: time.sleep(120)
+"""
+ARMS_BY_FORKSERVER = ARMS_THAT_SLEEP.replace('R.start_method = lambda: "fork"',
+                                             'mp.set_forkserver_preload(["sleepy_arms"])')
+assert 'lambda: "fork"' not in ARMS_BY_FORKSERVER
+
+
 def _gone(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/stat") as f:
@@ -232,11 +248,15 @@ def _gone(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and relies on prctl")
+@pytest.mark.parametrize("script", [ARMS_THAT_SLEEP, ARMS_BY_FORKSERVER], ids=["fork", "forkserver"])
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
-def test_arms_do_not_outlive_the_race(sig):
-    """Killing the racing process (SIGKILL: the arms get the kernel's death signal) or interrupting it (SIGINT:
-    its cleanup kills them; the arms themselves ignore Ctrl-C) leaves no arm running within ARM_EXIT_S."""
-    proc = subprocess.Popen([sys.executable, "-c", ARMS_THAT_SLEEP], stdout=subprocess.PIPE, text=True)
+def test_arms_do_not_outlive_the_race(sig, script, tmp_path):
+    """Killing the racing process (SIGKILL: the arms get the kernel's death signal, and by forkserver, whose server
+    lived as long as an arm, they watch the race's process themselves) or interrupting it (SIGINT: its cleanup kills
+    them; the arms themselves ignore Ctrl-C) leaves no arm running within ARM_EXIT_S."""
+    (tmp_path / "sleepy_arms.py").write_text(SLEEPY_ARMS)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, env=env)
     pids = [int(p) for p in proc.stdout.readline().split()]
     assert len(pids) == 2
     os.kill(proc.pid, sig)
