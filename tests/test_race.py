@@ -57,10 +57,12 @@ def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_
     assert f"race of default {table['default']['outcome']}" in result.stats.message
 
 
-def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, capfd):
+def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, capfd, monkeypatch):
     """With print_level > 0 the arms share the terminal: every line they print starts with "[default] " or
     "[alternate] ", both arms' IPOPT logs are there (their iteration tables), and the winner's plan is that arm's
-    quiet plan bit for bit (printing does not change the arithmetic)."""
+    quiet plan bit for bit (printing does not change the arithmetic). Forked arms: a forkserver's arms (a thread
+    left by an earlier test) print on the server's descriptor 1, captured by the test that started it."""
+    monkeypatch.setattr(R, "start_method", lambda: "fork")
     result = R.race(hop_problem, R.default_arms(H.SolveOptions(print_level=5)), processes=2)
     lines = [line for line in capfd.readouterr().out.splitlines() if line]
     labels = {f"[{name}] " for name in one_by_one}
