@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import contextlib
+import decimal
 import errno
 import io
 import math
@@ -17,6 +18,8 @@ import threading
 from collections.abc import Iterable
 from dataclasses import fields, is_dataclass
 from enum import Enum
+
+import numpy as np
 
 
 # OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be, no
@@ -221,6 +224,24 @@ def plain(value):
     return value.tolist() if type(value).__module__ == "numpy" and hasattr(value, "tolist") else value
 
 
+def real_array(value, what: str) -> np.ndarray:
+    """`value` as a float array (a copy); an InputError naming `what` when it holds complex numbers (float() would
+    drop the imaginary part with a warning), strings (numpy parsed "1.0"), None or a number no double holds."""
+    try:
+        kind = "N" if value is None else np.asarray(value).dtype.kind
+        if kind not in "cNUS":
+            return np.array(value, dtype=float)
+    except OverflowError:
+        kind = "int"
+    except (TypeError, ValueError):  # ragged, or an object no float takes
+        kind = "O"
+    if kind == "c":
+        raise InputError(f"{what} must hold real numbers, got complex numbers")
+    got = {"N": "None", "U": "strings", "S": "bytes",
+           "int": "an integer beyond a double's range"}.get(kind, shown(value))
+    raise InputError(f"{what} must hold numbers a double can hold, got {got}")
+
+
 def options_record(opts) -> dict:
     """An options dataclass as summary.json records it: Enums by value, tuples as lists, nested dataclasses as dicts."""
     out = {}
@@ -283,6 +304,16 @@ def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, o
     object.__setattr__(options, key, member)
 
 
+def _as_float(value):
+    """A Decimal, Fraction or long double as the double a float field stores (one too large for it as given)."""
+    if isinstance(value, (numbers.Real, decimal.Decimal)) and not isinstance(value, (int, float)):
+        try:
+            return float(value)
+        except OverflowError:
+            pass
+    return value
+
+
 def check_field_types(options, owner: str | None = None, unbounded: Iterable[str] = (), error: type = InputError) -> None:
     """Each field of the dataclass `options` annotated bool, int, float or str, or a tuple of one of them (or that or
     None), holds values of that type (an int for a float) that a C int or a double can hold, and a float is a number,
@@ -302,6 +333,8 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
         value = plain(given)
         if many and isinstance(value, (tuple, list)):
             value = [plain(v) for v in value]
+        if kind == "float":  # Decimal, Fraction, np.longdouble were refused as "not a finite number"
+            value = [_as_float(v) for v in value] if many and isinstance(value, list) else _as_float(value)
         items = value if many and isinstance(value, (tuple, list)) else (value,)
         inf_ok = f.name in unbounded
         if many and not isinstance(value, (tuple, list)):
@@ -323,8 +356,9 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
             label = type(options).__name__ if owner is None else owner
             raise error(f"{label + '.' if label else ''}{f.name} = {shown(given, 200)} is not allowed; it must be "
                         + (f"a tuple of which each is {what}" if many else what))
-        if kind == "float":  # an int stored as given made equal options' reprs, so Problem.signature, differ
-            value = [float(v) for v in value] if many else float(value)
+        if kind == "float":  # an int stored as given, or -0.0 (== 0.0), made equal options' reprs, so
+            # Problem.signature, differ
+            value = [float(v) + 0.0 for v in value] if many else float(value) + 0.0
         if many:  # stored as the tuple it is typed (a list field made hash() raise), of Python numbers
             object.__setattr__(options, f.name, tuple(value))
         elif value is not given:

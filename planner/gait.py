@@ -36,10 +36,10 @@ import pinocchio as pin
 
 from .dynamics import Dynamics, dynamics_for
 from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_field_types, enum_field, expect,
-                     interruptible, is_integer, shown)
+                     interruptible, is_integer, plain, real_array, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import CONE_SLACK, ArraysReadOnly, real_array, task_path, write_files
+from .result import CONE_SLACK, ArraysReadOnly, task_path, write_files
 from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -239,6 +239,7 @@ class GaitSpec(ArraysReadOnly):
     pronto: GaitPronto
 
     def __post_init__(self):
+        object.__setattr__(self, "N", plain(self.N))  # np.int64 was refused as "not an integer"
         # N = 1 has no inner node, where the swing foot's clearance is read: a ValueError after 60 outer loops
         if not (isinstance(self.N, int) and not isinstance(self.N, bool) and 2 <= self.N <= MAX_STEPS):
             raise InputError(f"GaitSpec.N = {shown(self.N)} is not allowed; a gait's horizon.N must be an integer in "
@@ -247,7 +248,7 @@ class GaitSpec(ArraysReadOnly):
         if not self.T > 0:
             raise InputError(f"GaitSpec.T = {self.T!r} is not allowed; it must be > 0 [s]")
         # a mode given by its value ("zero") fell through to the zero input whatever it named
-        expect(self.desired_input, DesiredInput, "GaitSpec.desired_input")
+        enum_field(self, "desired_input", DesiredInput)
         expect(self.continuation, GaitContinuation, "GaitSpec.continuation")
         expect(self.pronto, GaitPronto, "GaitSpec.pronto")
         rules = {"x0": (6, "", np.isfinite), "Q": (6, " >= 0", lambda a: a >= 0), "R": (2, " > 0", lambda a: a > 0)}
@@ -566,6 +567,7 @@ def solve_gait_ipopt(model: PinnedBiped, spec: GaitSpec, ocp: GaitOCP | None = N
                      max_iter: int = 3000) -> IpoptGait:
     """Solve OCP (5) on the strategy's grid with IPOPT (MUMPS, exact Hessian) for comparison."""
     expect(spec, GaitSpec, "solve_gait_ipopt's spec (GaitSpec.from_task)")
+    tol, max_iter = plain(tol), plain(max_iter)
     if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and 0 < tol < np.inf):  # (IPOPT crashed)
         raise InputError(f"solve_gait_ipopt's tol must be a number > 0, got {tol!r:.60}")
     if not (is_integer(max_iter) and max_iter >= 1):
@@ -1133,6 +1135,8 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
 
     expect(robot, (Robot, str, os.PathLike), "run_gait's robot")
     expect(task, (Task, str, os.PathLike), "run_gait's task")
+    validate = plain(validate)
+    expect(validate, bool, "run_gait's validate")  # "no" validated
     robot = robot if isinstance(robot, Robot) else load_robot(robot)
     task = task if isinstance(task, Task) else load_task(task)
     spec = GaitSpec.from_task(task)  # (first: check_against warned of a ground_height that this then refused)

@@ -44,7 +44,7 @@ import numpy as np
 
 from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
-                     options_record, plain, representable)
+                     options_record, plain, real_array, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of)
@@ -904,6 +904,7 @@ def homotopy_nlp(problem: Problem, options: SolveOptions, i: int, rhos: list[flo
     its last value)."""
     _check_schedules(problem, options)
     rhos = homotopy_rhos(problem, options) if rhos is None else rhos
+    i = plain(i)  # a loop's np.int64
     if not (isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(rhos)):
         raise InputError(f"homotopy_nlp's i = {i!r} is not allowed; the homotopy has NLPs 0 .. {len(rhos) - 1}")
 
@@ -928,10 +929,8 @@ def _check_bounds(problem: Problem) -> None:
     a lower bound of +inf (upper -inf). CasADi's assertion on an edited Problem's bounds came out as a traceback."""
     names = {"x": problem.var_names, "g": None}
     for kind, n in (("x", problem.nx), ("g", problem.ng)):
-        try:
-            lower, upper = (np.asarray(getattr(problem, f"{side}{kind}"), float).ravel() for side in ("lb", "ub"))
-        except (TypeError, ValueError) as error:
-            raise InputError(f"problem.lb{kind}/ub{kind} must be {n} numbers each ({error})") from None
+        lower, upper = (real_array(getattr(problem, f"{side}{kind}"), f"problem.{side}{kind} ({n} numbers)").ravel()
+                        for side in ("lb", "ub"))
         for side, bound in (("lb", lower), ("ub", upper)):
             if bound.size != n:
                 raise InputError(f"problem.{side}{kind} has {bound.size} entries, the problem {n}")

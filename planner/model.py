@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, PlannerError, RobotFileError, UnknownNameError, expect, read_error
+from .errors import InputError, PlannerError, RobotFileError, UnknownNameError, expect, plain, read_error
 
 _HERE = Path(__file__).resolve().parent
 # the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
@@ -330,6 +330,7 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     floating: give a URDF robot a free-flyer root joint (an MJCF file declares its own <freejoint/>).
     """
     expect(spec, (str, os.PathLike), "load_robot's spec (a robot name or file)")
+    floating = plain(floating)  # np.bool_
     expect(floating, bool, "load_robot's floating")  # "no" built a floating robot
     path = resolve_robot_path(spec)
     try:

@@ -81,7 +81,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect, plain, shown_up
+from .errors import InputError, check_field_types, enum_field, expect, plain, real_array, shown_up
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -203,7 +203,8 @@ class ProblemOptions:
         names = [name for name, _ in entries]
         if len(set(names)) != len(names):
             raise InputError(f"ProblemOptions.switch_scale names a function twice: {names}")
-        object.__setattr__(self, "switch_scale", tuple((name, float(scale)) for name, scale in entries))
+        # str(): a numpy name (np.str_) kept as given made equal options' reprs, so Problem.signature, differ
+        object.__setattr__(self, "switch_scale", tuple((str(name), float(plain(scale))) for name, scale in entries))
 
 
 @dataclass(frozen=True)
@@ -379,10 +380,7 @@ class Problem:
 
     def point(self, x) -> np.ndarray:
         """x as a float vector (nx,); an InputError when it has another size (a point of another problem)."""
-        try:
-            x = np.asarray(x, dtype=float).ravel()
-        except (TypeError, ValueError) as error:
-            raise InputError(f"a point of this problem is {self.nx} numbers, got {type(x).__name__} ({error})") from None
+        x = real_array(x, f"a point of this problem ({self.nx} numbers)").ravel()
         if x.shape != (self.nx,):
             raise InputError(f"a point of this problem has nx = {self.nx} entries, got {x.size} (a point of another "
                              "problem? Problem.signature tells problems with the same variables)")

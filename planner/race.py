@@ -27,7 +27,8 @@ import traceback
 from dataclasses import replace
 from multiprocessing.connection import wait
 
-from .errors import InputError, PlannerError, SolveError, expect, killed_with_parent, signals_held, usable_cpus
+from .errors import (InputError, PlannerError, SolveError, expect, killed_with_parent, plain, signals_held,
+                     usable_cpus)
 from .homotopy import Progress, Regularization, SolveOptions, WarmStart, solve
 from .problem import Problem
 from .result import PlanResult, race_arms_text
@@ -73,6 +74,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
     names = [name for name, _ in arms]
     if len(set(names)) != len(names):
         raise InputError(f"race arm names must differ, got {names}")
+    processes = plain(processes)  # a notebook's np.int64
     if processes is not None and (not isinstance(processes, int) or isinstance(processes, bool) or processes < 1):
         raise InputError(f"race processes must be an integer >= 1 (or None: the usable CPUs), got {processes!r}")
     n = min(len(arms), usable_cpus() if processes is None else processes)

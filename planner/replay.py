@@ -41,11 +41,11 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import (InputError, PlannerError, RobotFileError, UnknownNameError, check_field_types, check_interrupted,
-                     enum_field, expect, shown)
+                     enum_field, expect, is_integer, plain, real_array, shown)
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
 from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
-                     read_summary, read_task, read_trajectory, real_array, result_dir, write_atomically)
-from .task import Task
+                     read_summary, read_task, read_trajectory, result_dir, write_atomically)
+from .task import MAX_STEPS, Task
 
 if TYPE_CHECKING:  # (gait imports this module)
     from .gait import WalkValidation
@@ -152,7 +152,9 @@ class ContactSettings:
 
     def solref(self, restitution: float = 0.0) -> tuple[float, float]:
         """MuJoCo solref of a contact with the given restitution coefficient in [0, 1]."""
-        _check(isinstance(restitution, (int, float)) and 0.0 <= restitution <= 1.0, "restitution", restitution, "in [0, 1]")
+        restitution = plain(restitution)  # np.float32; True was restitution 1
+        _check(isinstance(restitution, (int, float)) and not isinstance(restitution, bool)
+               and 0.0 <= restitution <= 1.0, "restitution", restitution, "in [0, 1]")
         if restitution <= 0.0:
             stiffness = self.stiffness_ratio / self.timestep**2  # [1/s^2]
             damping = 1.0 / (self.damping_steps * self.timestep)  # [1/s]
@@ -1613,7 +1615,19 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
     `impact_points` (I,) their contact points. Also returns `tau` = t and `y` = (q, v, t).
     """
     model = scene.model
+    duration, sample_every, min_flight_s = plain(duration), plain(sample_every), plain(min_flight_s)
+    for name, value in (("duration", duration), ("min_flight_s", min_flight_s)):  # a str or nan crashed in arithmetic
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value < math.inf):
+            raise InputError(f"mujoco_rollout's {name} must be a finite number >= 0 [s], got {shown(value)}")
+    if not (is_integer(sample_every) and sample_every >= 1):  # -1 returned no samples, 0 divided by zero
+        raise InputError(f"mujoco_rollout's sample_every must be an integer >= 1 [steps], got {shown(sample_every)}")
+    if control is not None and not callable(control):
+        raise InputError(f"mujoco_rollout's control must be a function control(t, q, v) -> u or None, got "
+                         f"{shown(control)}")
     steps = int(round(duration / scene.settings.timestep))
+    if steps > MAX_STEPS:  # 1e9 s asked numpy for 29 TiB
+        raise InputError(f"mujoco_rollout's duration {duration} s is {steps} MuJoCo steps of "
+                         f"{scene.settings.timestep} s; at most {MAX_STEPS}")
     steps -= steps % sample_every  # end on a sample
     if steps < sample_every:
         raise InputError(f"duration {duration} s is shorter than one sample ({sample_every} steps)")

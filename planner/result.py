@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, expect, is_integer, read_error, shown, signals_held, write_error
+from .errors import InputError, expect, is_integer, read_error, real_array, shown, signals_held, write_error
 from .task import Task, load_task, parse_task, task_to_json
 
 
@@ -105,17 +105,6 @@ class ArraysReadOnly:
         # a cached property's array (Trajectory.taps) is restored writable too, and the summary reads it
         self.__dict__.update({k: _frozen(v) if isinstance(v, np.ndarray) else v for k, v in state.items()})
         _read_only(self)
-
-
-def real_array(value, what: str) -> np.ndarray:
-    """`value` as a float array (a copy); an InputError naming `what` when it holds complex numbers (float() would
-    drop the imaginary part with a warning) or no numbers (strings)."""
-    if np.iscomplexobj(value):
-        raise InputError(f"{what} must hold real numbers, got {np.asarray(value).dtype}")
-    try:
-        return np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{what} must hold numbers, got {np.asarray(value).dtype}") from None
 
 
 def _no_negative_zero(obj, name: str) -> None:

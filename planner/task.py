@@ -833,6 +833,7 @@ def tasks_between(start: Task, end: Task, s: float) -> Task | None:
     which a plan does not read, is end's too; an omitted initial.v or plan.target_v is zeros."""
     expect(start, Task, "tasks_between's start")
     expect(end, Task, "tasks_between's end")
+    s = plain(s)  # np.float32, a 0-d array
     _require(isinstance(s, (int, float)) and not isinstance(s, bool) and 0 <= s <= 1, "tasks_between's s", s,
              "a number in [0, 1] (0: start, 1: end)")
     try:

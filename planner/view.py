@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError, PlannerError, captured_stdout, expect
+from .errors import InputError, PlannerError, captured_stdout, expect, real_array
 from .model import Robot, RobotFormat, _quiet
 from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, read_robot, read_summary, read_task,
-                     read_trajectory, real_array, result_dir, write_atomically)
+                     read_trajectory, result_dir, write_atomically)
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path

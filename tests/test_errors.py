@@ -100,17 +100,48 @@ def test_numpy_numbers_and_arrays_are_read_as_the_python_values_they_hold():
             _Typed(**bad)
 
 
+def test_api_arguments_take_numpy_scalars_as_the_numbers_they_hold():
+    """A notebook's numpy scalar (or 0-d array) for a function's number or flag is the Python value it holds, as for
+    the options' fields: load_robot's floating np.bool_, tasks_between's s np.float32 or np.array(0.5), GaitSpec's N
+    np.int64 were refused ("must be a bool, got bool np.False_", "a number in [0, 1]", "an integer"); a gait's
+    desired_input is taken by its value ("zero") like every other mode."""
+    from planner.gait import DesiredInput
+    from planner.task import tasks_between
+
+    assert load_robot("robots/capler.urdf", floating=np.bool_(False)).nq == load_robot("robots/capler.urdf").nq
+    task = load_task(ROBOTS_DIR / "capler.toml")
+    assert tasks_between(task, task, np.float32(0.5)) == tasks_between(task, task, np.array(0.5)) == task
+    gait = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    spec = GaitSpec.from_task(gait, N=np.int64(20))
+    assert spec.N == 20 and type(spec.N) is int
+    assert replace(spec, desired_input="zero").desired_input is DesiredInput.ZERO
+
+
 def test_an_int_for_a_float_is_stored_as_a_float():
-    """An int given for a float field is stored as the float it stands for, so options that compare equal have one
-    repr and the problems built with them one signature (ProblemOptions(clock_weight=0) refused the plan of the default
-    options as "other NLP variables"; FESDOptions(rho_h=1) likewise)."""
+    """An int, -0.0, a Decimal, a Fraction or a long double given for a float field is stored as the float it stands
+    for, and a numpy str naming a switching function as a str, so options that compare equal have one repr and the
+    problems built with them one signature (ProblemOptions(clock_weight=0) refused the plan of the default options as
+    "other NLP variables"; FESDOptions(rho_h=1), clock_weight=-0.0 and switch_scale's np.str_("phi") likewise); the
+    other real numbers were refused as "not a finite number"."""
+    from decimal import Decimal
+    from fractions import Fraction
+
     typed = _Typed(scale=2, items=(1, 2.5), limit=3)
     assert (type(typed.scale), type(typed.items[0]), type(typed.limit)) == (float, float, float)
     assert repr(typed) == repr(_Typed(scale=2.0, items=(1.0, 2.5), limit=3.0))
+    odd = _Typed(scale=Decimal("0.5"), items=(Fraction(1, 4), np.longdouble(2.5)), bound=-0.0)
+    assert repr(odd) == repr(_Typed(scale=0.5, items=(0.25, 2.5), bound=0.0))
+    for bad in (Decimal("nan"), Decimal("1e400"), Fraction(10**400, 3)):
+        with pytest.raises(InputError, match="_Typed.scale = .* it must be a finite number"):
+            _Typed(scale=bad)
     robot, task = load_robot("point_mass"), load_task(ROBOTS_DIR / "point_mass_hop.toml")
     for given, default in ((ProblemOptions(clock_weight=0), ProblemOptions(clock_weight=0.0)),
+                           (ProblemOptions(clock_weight=-0.0), ProblemOptions(clock_weight=0.0)),
+                           (ProblemOptions(switch_scale=((np.str_("phi"), np.float32(100.0)),)),
+                            ProblemOptions(switch_scale=(("phi", 100.0),))),
                            (ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1)),
                             ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1.0)))):
+        assert given == default
         assert build_problem(robot, task, given).signature == build_problem(robot, task, default).signature
 
 
@@ -172,6 +203,7 @@ def hop():
     # it raised TypeError only after NLP 1, whose work was lost
     (lambda r, t, p: solve(p, SolveOptions(), progress=5), "solve's progress must be a function"),
     (lambda r, t, p: load_robot("robots/capler.urdf", floating="no"), "load_robot's floating must be a bool"),
+    (lambda r, t, p: run_gait(r, t, None, validate="no"), "run_gait's validate must be a bool"),  # it validated
     (lambda r, t, p: render_html(3, "x.html"), "render_html's out_dir must be a str or PathLike"),
     (lambda r, t, p: render_html("results", 3), "render_html's html_path must be a str or PathLike"),
     (lambda r, t, p: load_result(5), "load_result's out_dir must be a str or PathLike"),

@@ -617,7 +617,7 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
 
 
 @pytest.mark.parametrize("field, value", [
-    ("desired_input", "inverse_dynamics"),  # the mode's value, not the DesiredInput: it silently meant ZERO
+    ("desired_input", "Zero"),  # a value of no DesiredInput (anything but the member silently meant ZERO)
     ("x0", np.zeros(3)), ("Q", np.ones(2)), ("R", np.array([0.01, 0.0])), ("T", -1.0), ("continuation", None),
     ("jump_angle", float("nan")),
 ], ids=["desired_input", "x0", "Q", "R", "T", "continuation", "jump_angle"])

@@ -859,10 +859,10 @@ def test_schedules_the_problem_cannot_use_are_refused():
 def test_functions_of_a_point_refuse_a_point_of_another_size():
     """Problem.split, complementarity_residual and the homotopy's functions of x (constraint_violation, terminal_error,
     ungate, active_set_bounds, variable_scale), and solve with such an x0, refuse an x of another size with an
-    InputError naming nx (CasADi's shape error, IndexError or a silently ignored tail before), and an x of strings too;
-    Problem.params refuses a parameter that is not a number (a string was numpy's ValueError, True read as 1);
-    homotopy_nlp refuses an
-    NLP index outside its homotopy (-1 gave the last NLP, 99 an IndexError)."""
+    InputError naming nx (CasADi's shape error, IndexError or a silently ignored tail before), and an x that holds no
+    doubles too (strings, complex numbers, None, an int of 400 digits); Problem.params refuses a parameter that is not
+    a number (a string was numpy's ValueError, True read as 1); homotopy_nlp refuses an NLP index outside its homotopy
+    (-1 gave the last NLP, 99 an IndexError) and takes a numpy int (refused as "not allowed")."""
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
     wrong = np.zeros(prob.nx + 10)
     calls = [prob.split, prob.complementarity_residual, lambda x: H.constraint_violation(prob, x),
@@ -871,9 +871,18 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     for call in calls:
         with pytest.raises(InputError, match=rf"a point of this problem has nx = {prob.nx} entries, got {prob.nx + 10}"):
             call(wrong)
-    for call in calls[:2]:  # not numbers: numpy's ValueError before
-        with pytest.raises(InputError, match=rf"a point of this problem is {prob.nx} numbers, got list"):
-            call(["a"] * prob.nx)
+    # not numbers: numpy's ValueError before; an int of 400 digits an OverflowError, complex numbers and strings
+    # solved (the imaginary part dropped, "1.0" parsed), None a point of "1 entries"
+    for bad, got in ((["a"] * prob.nx, "strings"), ([10**400] * prob.nx, "an integer beyond a double's range"),
+                     (None, "None"), ([0.0] * prob.nx + [object()], "[0.0")):
+        for call in calls[:2]:
+            with pytest.raises(InputError, match=rf"a point of this problem \({prob.nx} numbers\) must hold numbers a "
+                                                 rf"double can hold, got {re.escape(got)}"):
+                call(bad)
+    for call in calls:
+        with pytest.raises(InputError, match=r"a point of this problem \(\d+ numbers\) must hold real numbers, got "
+                                             "complex"):
+            call(prob.x0 + 1j)
     with pytest.raises(InputError, match="Problem.params' rho must be a number, got str 'a'"):
         prob.params("a")
     with pytest.raises(InputError, match="Problem.params' rho_f_scale must be a number, got bool True"):
@@ -885,6 +894,7 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     for i in (-1, 99, True):  # True ran NLP 2
         with pytest.raises(InputError, match=rf"homotopy_nlp's i = {i} is not allowed"):
             H.homotopy_nlp(prob, H.SolveOptions(), i)
+    assert H.homotopy_nlp(prob, H.SolveOptions(), np.int64(1)).label == H.homotopy_nlp(prob, H.SolveOptions(), 1).label
 
 
 def test_a_schedule_of_more_than_a_hundred_nlps_is_refused():
@@ -948,8 +958,14 @@ def test_bounds_and_start_as_any_sequence_are_solved_as_float_vectors():
     assert res.stats.converged and res.polished, res.stats.message
     for name in ("x0", "lbx", "ubx", "lbg", "ubg"):
         assert getattr(odd, name).shape == (getattr(prob, "nx" if name[-1] != "g" else "ng"),)
-    with pytest.raises(InputError, match=rf"problem.lbx/ubx must be {prob.nx} numbers each"):
+    with pytest.raises(InputError, match=rf"problem.lbx \({prob.nx} numbers\) must hold numbers a double can hold, got "
+                                         "strings"):
         H.solve(dataclasses.replace(prob, lbx=["a"] * prob.nx))
+    with pytest.raises(InputError, match=rf"problem.ubg \({prob.ng} numbers\) must hold numbers a double can hold, got "
+                                         "an integer beyond"):  # an OverflowError from numpy before
+        H.solve(dataclasses.replace(prob, ubg=[10**400] * prob.ng))
+    with pytest.raises(InputError, match=r"problem.lbx \(\d+ numbers\) must hold real numbers, got complex"):
+        H.solve(dataclasses.replace(prob, lbx=prob.lbx + 1j))  # solved, the imaginary part dropped with a warning
 
 
 def test_a_converged_report_names_the_nlps_that_stopped_early(hop):

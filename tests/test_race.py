@@ -90,8 +90,9 @@ def test_labelled_stream_writes_whole_lines_only():
 
 
 def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
-    """With processes = 1 the race is the first arm's plain solve (no fork, no race table)."""
-    result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=1)
+    """With processes = 1 the race is the first arm's plain solve (no fork, no race table); a numpy int is the number
+    it holds (np.int64(1) was refused as "not an integer")."""
+    result = R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=np.int64(1))
     assert "race" not in result.extra
     assert np.array_equal(result.extra["_x"], one_by_one["default"].extra["_x"])
 

@@ -349,7 +349,10 @@ def test_decimated_rollout_validates(capler):
 
 def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
     """mujoco_rollout's q0 (nq,), v0 (nv,) and control's u (nu,) are checked: numpy broadcast a 1-entry q0 to every
-    coordinate (Capler started 0.7 m up on its slides, its joints at 0.7 rad) and a scalar control to every motor."""
+    coordinate (Capler started 0.7 m up on its slides, its joints at 0.7 rad) and a scalar control to every motor. Its
+    duration, sample_every, control and min_flight_s are checked before it simulates: a string, nan or inf duration,
+    sample_every 0 or 2.5 and a number for control crashed in arithmetic (TypeError, ZeroDivisionError), a duration of
+    1e9 s asked numpy for terabytes, sample_every -1 returned no samples and a nan min_flight_s was used."""
     robot, task = capler
     scene = replay.build_scene(robot, task)
     start = [0.0, DROP_Z, *HOLD]
@@ -360,6 +363,20 @@ def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
             replay.mujoco_rollout(scene, q0, v0, 0.01)
     with pytest.raises(InputError, match=r"control\(t, q, v\) must return nu = 2 numbers, got shape \(\)"):
         replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, lambda t, q, v: 5.0)
+    for call, message in ((dict(duration="0.05"), "duration must be a finite number >= 0 \\[s\\], got '0.05'"),
+                          (dict(duration=np.nan), "duration must be a finite number"),
+                          (dict(duration=np.inf), "duration must be a finite number"),
+                          (dict(duration=1e9), r"duration 1000000000.0 s is \d+ MuJoCo steps of .* at most 10000000"),
+                          (dict(sample_every=0), "sample_every must be an integer >= 1 \\[steps\\], got 0"),
+                          (dict(sample_every=-1), "sample_every must be an integer >= 1"),
+                          (dict(sample_every=2.5), "sample_every must be an integer >= 1"),
+                          (dict(control=5), r"control must be a function control\(t, q, v\) -> u or None, got 5"),
+                          (dict(min_flight_s=np.nan), "min_flight_s must be a finite number >= 0")):
+        with pytest.raises(InputError, match=f"^mujoco_rollout's {message}"):
+            replay.mujoco_rollout(scene, start, np.zeros(4), **{"duration": 0.01, **call})
+    # numpy scalars are the numbers they hold
+    out = replay.mujoco_rollout(scene, start, np.zeros(4), np.float32(0.01), sample_every=np.int64(2))
+    assert out["t"].size == replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, sample_every=2)["t"].size
 
 
 def test_a_diverging_rollout_is_flagged_not_printed(point_mass, tmp_path, monkeypatch, capfd):
@@ -1217,6 +1234,7 @@ NAN = float("nan")
     (lambda: replay.ContactSettings(solimp=(-1.0, -1.0, 0.001, 0.5, 2.0)), "solimp"),
     (lambda: replay.ContactSettings(solimp=(0.9, 0.95, 0.001, 0.5, 0.5)), "power >= 1"),
     (lambda: replay.ContactSettings().solref(2.0), "restitution = 2.0"),  # a negative damping ratio
+    (lambda: replay.ContactSettings().solref(True), "restitution = True"),  # read as restitution 1
     (lambda: replay.ContactSettings(timestep=float("inf")), "timestep"),
     (lambda: replay.ContactSettings(timestep=1e200), "contact.timestep = 1e+200 is not allowed"),  # OverflowError
     (lambda: replay.ContactSettings(timestep=1e-9), "contact.timestep"),  # 1.5e9 samples: out of memory
@@ -1227,9 +1245,15 @@ NAN = float("nan")
 def test_validation_options_refuse_what_would_fake_a_verdict(build, key):
     """nan, infinite or negative tolerances and gains, and nested options of the wrong kind are InputErrors naming the
     option: with them the validation passed on nan comparisons, ran a PD pushing away from the plan, or raised
-    AttributeError or OverflowError mid-replay."""
+    AttributeError or OverflowError mid-replay (a restitution of True was solref's restitution 1)."""
     with pytest.raises(InputError, match=re.escape(key)):
         build()
+
+
+def test_solref_takes_a_numpy_restitution():
+    """ContactSettings.solref takes a numpy scalar as the number it holds (np.float32(0.5) was refused as "not in
+    [0, 1]")."""
+    assert replay.ContactSettings().solref(np.float32(0.5)) == replay.ContactSettings().solref(0.5)
 
 
 def test_one_explicit_gain_keeps_the_rules_other_gain():
