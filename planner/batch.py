@@ -25,8 +25,11 @@ import contextlib
 import importlib
 import importlib.util
 import multiprocessing
+import pickle
+import re
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -134,6 +137,33 @@ def default_workers(n_items: int) -> int:
     return min(usable_cpus(), n_items)
 
 
+def _filters() -> tuple[list[tuple], ...]:
+    """The caller's warning filters as filterwarnings' arguments, those whose category pickles (a worker is
+    spawned with Python's defaults: "ignore" did not silence a job's warnings, "error" did not make it a Crashed
+    record)."""
+    out = []
+    for action, message, category, module, lineno in warnings.filters:
+        try:
+            pickle.dumps(category)
+        except Exception:  # noqa: BLE001 -- a category defined in a function: the worker cannot import it
+            continue
+        out.append((action, _pattern(message), category, _pattern(module), lineno))
+    return (out,)
+
+
+def _pattern(given) -> str:
+    """A filter's message or module as filterwarnings' regex: a str (Python's own filters) matches exactly."""
+    return given.pattern if hasattr(given, "pattern") else re.escape(given) + r"\Z" if given else ""
+
+
+def _worker_start(filters: list[tuple]) -> None:
+    """A local worker's start: it dies with the batch's process and runs with the caller's warning filters."""
+    killed_with_parent()
+    warnings.resetwarnings()
+    for action, message, category, module, lineno in reversed(filters):  # each inserted at the front
+        warnings.filterwarnings(action, message, category, module, lineno)
+
+
 def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = None, workers: int | None = None,
               progress: Callable[[int, Any], None] | None = None) -> list[Any]:
     """fn(item) for every item, results in item order; a job that raised gives a `Crashed` record.
@@ -143,6 +173,9 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
     other (debugging, monkeypatched tests). A string is the address of a Dask distributed scheduler
     ("tcp://host:8786"), a dask.distributed.Client is used as it is; `workers` is then ignored.
     progress(index, result) is called as each job finishes (in completion order).
+    Local workers run with the caller's warning filters (`warnings.simplefilter("error")` makes a job's warning its
+    Crashed record); what they print goes to the descriptors 1 and 2 they inherit, not to a caller's
+    `contextlib.redirect_stdout`/`redirect_stderr`.
     """
     if not callable(fn):  # (workers=0 made every job a Crashed record; the pool refused it otherwise)
         raise InputError(f"run_batch's fn must be callable, got {shown(fn)}")
@@ -169,7 +202,7 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
     results: list[Any] = [None] * len(items)
     lost: list[int] = []
     # (a stopped sweep's workers solved on with no parent: stress's Capler tasks take up to ~1900 s)
-    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=killed_with_parent)
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_start, initargs=_filters())
     try:
         futures = {pool.submit(_call, ref, item): i for i, item in enumerate(items)}
         for fut in as_completed(futures):
@@ -188,7 +221,7 @@ def run_batch(fn: Callable[[Any], Any], items: Iterable[Any], scheduler: Any = N
         raise
     pool.shutdown()
     for i in sorted(lost):  # each in its own process, so the one that kills its worker is the one reported
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=killed_with_parent)
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_start, initargs=_filters())
         try:
             results[i] = pool.submit(_call, ref, items[i]).result()
         except BrokenProcessPool as exc:

@@ -313,8 +313,10 @@ def main(argv: list[str] | None = None) -> int:
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
-        if code == EXIT_FAILED and getattr(args, "quiet", False):
-            _to_stderr(args, f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}")
+        if code == EXIT_FAILED and getattr(args, "quiet", False):  # where its diagnostics went, and a replan's advice
+            written, advice = getattr(args, "written", None), getattr(args, "advice", None)
+            _to_stderr(args, f"planner {args.command}: failed{_failure(getattr(args, 'summary', {}))}"
+                       + (f" (results in {written})" if written else "") + (f"; {advice}" if advice else ""))
         return code
     except InputError as exc:
         return _stop(args, EXIT_INPUT, f"error: {exc}")
@@ -922,7 +924,8 @@ def _cmd_plan(args) -> int:
     summary, ok = result.summary(), result.stats.converged
     text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
     if args.init is not None and not ok:
-        text += "\n" + _replan_failed(args.init, result)
+        args.advice = _replan_failed(args.init, result)
+        text += "\n" + args.advice
     if validating:
         from .replay import validate, write_validation
 

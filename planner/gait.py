@@ -316,7 +316,7 @@ class OuterLoop:
     emb_max: float | None
     final_error: float
     action: str
-    time_s: float
+    time_s: float  # [s] since the gait solve began, at this loop's end (cumulative: the last is about solve_time_s)
 
     def line(self) -> str:
         emb = f" max|u_emb| {self.emb_max:.2e} N m," if self.emb_max is not None else ""

@@ -553,6 +553,10 @@ def _ipopt_pairs(field: str, given, warm: bool) -> tuple[tuple[str, object], ...
                 or (isinstance(value, float) and not math.isfinite(value))):
             raise InputError(f"SolveOptions.{field}: {name!r} = {value!r} is not allowed; names are strings, values finite "
                              "numbers or strings")
+        if name == "output_file":  # (also created by the check below, wherever it pointed)
+            raise InputError(f"SolveOptions.{field} sets IPOPT's 'output_file', which each NLP of the homotopy (and "
+                             "each arm of a race) writes anew: it kept the last NLP's log only; show IPOPT's log with "
+                             "print_level (planner plan -v) and redirect it instead")
         owner = "warm_mu_init" if (warm and name == "mu_init") else IPOPT_OWNED.get(name)
         if owner:  # (IPOPT reads mu_init with the monotone strategy only: the owner set alone was refused next)
             also = " and mu_strategy 'monotone', which it needs" if owner in ("mu_init", "warm_mu_init") else ""
@@ -1491,7 +1495,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
         reasons.append(f"IPOPT did not converge in {last.label} ({last.status})")
     if comp > options.comp_tol:
         reasons.append(f"complementarity residual {comp:.3g} > {options.comp_tol:g}")
-        if not polished and last.complementarity_residual <= options.comp_tol:  # the table's column reads as converged
+        # the table's row of the same point reads otherwise (below the tolerance, or 2.9e-02 against 6.9e+00)
+        if not polished and last.complementarity_residual < comp:
             reasons[-1] += (f" (of all pairs; {last.label}'s {last.complementarity_residual:.1e} is of the gated "
                             "pairs: a pair whose selector has no effect in a step's mode (alpha's in flight) is not "
                             "counted there, and only the polish makes those complementary too)")

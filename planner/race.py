@@ -109,7 +109,10 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
                 except EOFError:  # the arm died without a word (e.g. killed by the OS)
                     done[i] = ("died", None, time.perf_counter() - start)
                     continue
-                if kind == "progress":
+                if kind == "log":  # one line per write: the arms' lines never mix within a line
+                    sys.stdout.write(f"[{names[i]}] {payload}\n")
+                    sys.stdout.flush()
+                elif kind == "progress":
                     iterations[i] += payload.iterations
                     if progress:
                         progress(replace(payload, label=f"{names[i]}: {payload.label}"))
@@ -150,46 +153,47 @@ def start_method() -> str:
 
 def _arm(problem: Problem, options: SolveOptions, conn, name: str) -> None:
     """One arm, in its own process: solve, sending each NLP record, then the result (or the error). With
-    print_level > 0 every line of IPOPT's log (CasADi writes it to sys.stdout) starts with "[name] ", so that
-    the arms' logs, which share the terminal, can be told apart."""
+    print_level > 0 each line of IPOPT's log (CasADi writes it to sys.stdout) is sent to the race, which writes it to
+    its own sys.stdout with "[name] " in front (race's `log`)."""
     _die_with_parent()
-    if options.print_level > 0:
-        sys.stdout = _Labelled(sys.stdout, f"[{name}] ")
+    relay = _Relayed(sys.stdout, conn) if options.print_level > 0 else None
+    sys.stdout = relay or sys.stdout
     try:
         result = solve(problem, options, lambda rec: conn.send(("progress", rec)))
+        if relay:
+            relay.finish()
         conn.send(("done", result))
     except Exception as exc:  # the parent re-raises it if this arm's result is the one to return
+        if relay:
+            relay.finish()
         conn.send(("error", (_portable(exc), traceback.format_exc())))
     finally:
         conn.close()
-        if isinstance(sys.stdout, _Labelled):
-            sys.stdout.finish()
 
 
-class _Labelled:
-    """A text stream that writes each complete line to `stream` with `label` in front, one write per line, so
-    that two processes' lines do not mix within a line; a partial line waits for its end (or for `finish`)."""
+class _Relayed:
+    """An arm's sys.stdout: each complete line sent to the race as ("log", line), a partial one at its end or at
+    `finish`. The arm's own sys.stdout wrote to the race's only where it was the descriptor 1 they share: a caller's
+    redirect_stdout (a StringIO, copied by the fork) or pytest's capture lost every line, and arms started by
+    forkserver wrote to the server's descriptor 1."""
 
-    def __init__(self, stream, label: str):
-        self.stream, self.label, self.partial = stream, label, ""
+    def __init__(self, stream, conn):
+        self.stream, self.conn, self.partial = stream, conn, ""
 
     def write(self, text: str) -> int:
         *lines, self.partial = (self.partial + text).split("\n")
-        for line in lines:  # flushed line by line: a stream's own buffer may spill in the middle of a line
-            self.stream.write(f"{self.label}{line}\n")
-            self.stream.flush()
+        for line in lines:
+            self.conn.send(("log", line))
         return len(text)
 
     def flush(self) -> None:
-        self.stream.flush()
+        pass
 
     def finish(self) -> None:
-        """Write the partial line, if any, as a line of its own."""
         if self.partial:
             self.write("\n")
-        self.flush()
 
-    def __getattr__(self, name):  # encoding, isatty, fileno, ...: the stream's own
+    def __getattr__(self, name):  # encoding, isatty, ...: the arm's own stream's
         return getattr(self.stream, name)
 
 

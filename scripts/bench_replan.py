@@ -57,14 +57,14 @@ def record(out: Path, code: int) -> dict:
     if not (plan / "summary.json").is_file():
         return {"exit_code": code, "refused": True, "converged": False, "nlps": [], "ipopt_iterations": None,
                 "solve_time_s": None, "solver_setup_s": None, "control_cost": None, "impact_times_s": [],
-                "impact_impulses_Ns": [], "validation_passed": None, "steps_walked": None, "window_mean_m": None}
+                "impact_impulse_norms_Ns": [], "validation_passed": None, "steps_walked": None, "window_mean_m": None}
     s = json.loads((plan / "summary.json").read_text())
     v = s.get("validation") or {}
     return {"exit_code": code, "converged": s["converged"], "nlps": [[n["label"], n["iterations"]] for n in s["nlps"]],
             "ipopt_iterations": s["ipopt_iterations"], "solve_time_s": s["solve_time_s"],
             "solver_setup_s": s["timings"]["solver_setup_s"], "control_cost": s["control_cost"],
             "impact_times_s": [i["time"] for i in s["impacts"]],
-            "impact_impulses_Ns": [i["impulse_norm"] for i in s["impacts"]],
+            "impact_impulse_norms_Ns": [i["impulse_norm"] for i in s["impacts"]],
             "validation_passed": v.get("passed"), "steps_walked": v.get("steps_walked"),
             "window_mean_m": (v.get("windows") or {}).get("mean_m")}
 
@@ -99,7 +99,8 @@ def table(rows: list[dict]) -> str:
         mujoco = ("not run" if r["validation_passed"] is None else
                   f"{'passed' if r['validation_passed'] else 'failed'}" + (f", walked {r['steps_walked']}" if r["steps_walked"] is not None else "")
                   + (f", windows {1e3 * r['window_mean_m']:.2f} mm" if r["window_mean_m"] is not None else ""))
-        impacts = ", ".join(f"{t:.3f}/{j:.3g}" for t, j in zip(r["impact_times_s"], r["impact_impulses_Ns"])) or "none"
+        impacts = ", ".join(f"{t:.3f}/{j:.3g}" for t, j in zip(r["impact_times_s"], r["impact_impulse_norms_Ns"]))
+        impacts = impacts or "none"
         lines.append(f"| {r['value']:g} | {r['variant']} | {r['exit_code']} | {nlps} | {r['ipopt_iterations']} | "
                      f"{r['solve_time_s']:.2f} ({r['solver_setup_s']:.2f}) | {r['command_s']:.2f} | "
                      f"{r['control_cost']:.2f} | {impacts} | {mujoco} |")

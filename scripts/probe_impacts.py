@@ -46,7 +46,7 @@ import pinocchio as pin
 from planner.contact import plane_axes
 from planner.discretization import ImplicitEulerStep
 from planner.errors import InputError
-from planner.result import read_summary
+from planner.result import read_summary, read_trajectory
 from scripts._report import out_dir, refuse_beside, report, run_main, script_parser
 from scripts.probe_replay import plan_problem
 
@@ -125,9 +125,12 @@ def probe(out_dir: Path) -> dict:
                 "impulse": impulses.tolist()}
 
     records = []
+    t, q_samples = (read_trajectory(out_dir)[k] for k in ("t", "q"))
     for imp in summary.get("impacts", []):
         a, b = round(imp["tau_start"] / h), round(imp["tau_end"] / h)
-        q = Y[a + 1, :nq]  # the recovery's posture of an implicit-Euler impact: the end of its first frozen step
+        # the recovery's posture of the impact, its sample's (the end of its first frozen step, or for a landing at
+        # a node that node: Y[a + 1] there gave other energies than the summary's)
+        q = q_samples[int(np.argmin(np.abs(t - imp["time"])))]
         v_pre, v_post = np.asarray(imp["v_pre"], float), np.asarray(imp["v_post"], float)
         (vn_pre, vt_pre), (vn_post, vt_post) = (point_velocity(imp["contact"], q, v) for v in (v_pre, v_post))
         steps = [balance(k) for k in range(a, b)]

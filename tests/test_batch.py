@@ -19,6 +19,14 @@ def square_or_raise(x):
         return {"x": x, "square": x * x, "root": math.sqrt(x)}
 
 
+def warns(x):
+    """A job that warns (as an input notice of the planner does) and returns its item."""
+    import warnings
+
+    warnings.warn(f"item {x} is odd", UserWarning)
+    return x
+
+
 def exits(x):
     if x == 1:
         raise SystemExit(3)
@@ -63,6 +71,23 @@ def test_local_processes_match_serial():
     seen = []
     _check(run_batch(square_or_raise, ITEMS, workers=2, progress=lambda i, r: seen.append(i)))
     assert sorted(seen) == list(range(len(ITEMS)))
+
+
+def test_local_workers_run_with_the_callers_warning_filters(capfd):
+    """Local workers take the caller's warning filters, as jobs run in this process do: under "error" a job's warning
+    is its Crashed record, under "ignore" it is not printed (spawned workers started with Python's defaults: the
+    warning was printed both times and every job returned)."""
+    import warnings
+
+    for action in ("error", "ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter(action)
+            results = run_batch(warns, [1, 2], workers=2)
+        if action == "error":
+            assert all(isinstance(r, Crashed) and r.error == f"UserWarning: item {x} is odd"
+                       for r, x in zip(results, [1, 2]))
+        else:
+            assert results == [1, 2] and "is odd" not in capfd.readouterr().err
 
 
 def test_system_exit_is_a_crash_not_the_end_of_the_sweep():

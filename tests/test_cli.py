@@ -1047,7 +1047,8 @@ def test_validate_fails_a_plan_whose_controls_were_zeroed(tmp_path, capsys):
 def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
     """With -q, a command that fails (exit 1: a plan that does not converge; `validate` of a result that did not
     converge) prints exactly one line on stderr saying that it failed, and nothing on stdout: -q hid the report
-    and with it the failure, so exit 1 printed nothing at all."""
+    and with it the failure, so exit 1 printed nothing at all. A plan's line names where its diagnostics went (it did
+    not: the default verbosity's "FAILED: results in DIR/failed" alone did)."""
     if command == "plan":
         task = tmp_path / "far.toml"
         task.write_text(FAR_TASK)
@@ -1064,6 +1065,24 @@ def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1, (out, err)
     assert err.startswith(f"planner {command}: failed") and "Traceback" not in err
+    if command == "plan":
+        assert err.strip().endswith(f" (results in {tmp_path / 'out' / 'failed'})"), err
+
+
+def test_a_quiet_failed_replan_says_where_its_diagnostics_went_and_what_to_do(tmp_path, capsys):
+    """With -q, a replan (--init) that does not converge says on its one line where the diagnostics went and the
+    replan's advice (plan without --init), which only the default verbosity printed."""
+    start, far = tmp_path / "hop", tmp_path / "far.toml"
+    assert main(["plan", "point_mass", "--task", "point_mass_hop", "--out", str(start), "-q", "--no-validate",
+                 "--no-plots", "--no-race"]) == 0
+    far.write_text((ROBOTS_DIR / "point_mass_hop.toml").read_text().replace("target_q = [0.5", "target_q = [20.0"))
+    capsys.readouterr()
+    assert main(["plan", "point_mass", "--task", str(far), "--init", str(start), "--out", str(tmp_path / "o"), "-q",
+                 "--no-validate", "--no-plots"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1, (out, err)
+    assert err.strip().endswith(f" (results in {tmp_path / 'o' / 'failed'}); the replan from {start} did not converge: "
+                                "the change may be too large for that start; plan without --init"), err
 
 
 def test_inputs_a_tester_found_each_give_one_line(tmp_path, capsys):

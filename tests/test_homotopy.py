@@ -364,10 +364,13 @@ def test_acceptable_tol_below_tol_is_refused():
     ({"warm_ipopt": {"acceptable_iter": 2.5}}, "'acceptable_iter' = 2.5 is not allowed; IPOPT's acceptable_iter is an "
                                                "integer"),  # it ran as 2
     ({"ipopt": {"acceptable_iter": 2**32 + 1}}, "IPOPT's acceptable_iter is an integer a C int holds"),  # ran as 1
+    # each NLP wrote it anew (the last NLP's log alone), two race arms over each other (mostly NUL bytes)
+    ({"warm_ipopt": {"output_file": "ipopt.log"}}, "sets IPOPT's 'output_file', which each NLP of the homotopy"),
 ])
 def test_ipopt_pass_through_is_checked_by_ipopt_at_construction(kwargs, fragment):
     """SolveOptions.ipopt / warm_ipopt: what IPOPT rejects (unknown name, value outside its list or range), an
-    option a field owns, and a malformed value are InputErrors when the options are made, with IPOPT's reason."""
+    option a field owns, an output file each NLP would overwrite, and a malformed value are InputErrors when the
+    options are made, with IPOPT's reason."""
     with pytest.raises(InputError, match=re.escape(fragment)):
         H.SolveOptions(**kwargs)
     numpy = H.SolveOptions(ipopt={"acceptable_iter": np.int64(5), "acceptable_obj_change_tol": np.float32(0.5)})
@@ -445,7 +448,8 @@ def test_gating_and_ungate_keep_the_trajectory():
 def test_a_verdict_on_ungated_pairs_says_what_the_table_showed():
     """An unpolished point whose gated pairs are complementary (the homotopy's table: 1e-12) but whose ungated pairs are
     not is refused, and the message says that the table's number is of the gated pairs (a user saw 3.7e-12 in the table
-    and "complementarity residual 0.00134 > 1e-06" as the verdict, unexplained)."""
+    and "complementarity residual 0.00134 > 1e-06" as the verdict, unexplained); so does a gated number above the
+    tolerance but below the verdict's (a failed plan's header said 6.9e+00, its last row 2.9e-02, unexplained)."""
     from planner.result import NlpRecord
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
     x = prob.x0.copy()
@@ -461,6 +465,9 @@ def test_a_verdict_on_ungated_pairs_says_what_the_table_showed():
                        iterations=1, time_s=0.0, status="Solve_Succeeded", success=True, terminal_error=0.0)
     message = H._result(prob, H.SolveOptions(), x, [record], None, 0.0, {}).stats.message
     assert "homotopy 1's 1.0e-12 is of the gated pairs" in message
+    record = dataclasses.replace(record, complementarity_residual=1e-4)
+    message = H._result(prob, H.SolveOptions(), x, [record], None, 0.0, {}).stats.message
+    assert "homotopy 1's 1.0e-04 is of the gated pairs" in message
 
 
 def test_aux_continuation_scale_one_is_the_task():

@@ -57,14 +57,20 @@ def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_
     assert f"race of default {table['default']['outcome']}" in result.stats.message
 
 
-def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, capfd, monkeypatch):
-    """With print_level > 0 the arms share the terminal: every line they print starts with "[default] " or
-    "[alternate] ", both arms' IPOPT logs are there (their iteration tables), and the winner's plan is that arm's
-    quiet plan bit for bit (printing does not change the arithmetic). Forked arms: a forkserver's arms (a thread
-    left by an earlier test) print on the server's descriptor 1, captured by the test that started it."""
-    monkeypatch.setattr(R, "start_method", lambda: "fork")
-    result = R.race(hop_problem, R.default_arms(H.SolveOptions(print_level=5)), processes=2)
-    lines = [line for line in capfd.readouterr().out.splitlines() if line]
+@pytest.mark.parametrize("method", ["fork", "forkserver"])
+def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, method, monkeypatch):
+    """With print_level > 0 the arms' logs reach the race's own sys.stdout (here a redirect_stdout StringIO: forked
+    arms wrote to their copy of it and every line was lost, forkserver's arms to the server's descriptor 1), every line
+    starting with "[default] " or "[alternate] ", both arms' IPOPT logs there (their iteration tables); the winner's
+    plan is that arm's quiet plan bit for bit (printing does not change the arithmetic)."""
+    import contextlib
+    import io
+
+    monkeypatch.setattr(R, "start_method", lambda: method)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        result = R.race(hop_problem, R.default_arms(H.SolveOptions(print_level=5)), processes=2)
+    lines = [line for line in out.getvalue().splitlines() if line]
     labels = {f"[{name}] " for name in one_by_one}
     assert lines and all(line[: line.find("] ") + 2] in labels for line in lines), [x for x in lines if not x.startswith("[")][:3]
     for label in labels:
@@ -73,20 +79,25 @@ def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_o
     assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
 
 
-def test_labelled_stream_writes_whole_lines_only():
-    """_Labelled buffers a partial line until its end, labels each line once, and finish() ends a last partial
-    line; other attributes are the stream's."""
+def test_relayed_stream_sends_whole_lines_only():
+    """_Relayed (an arm's sys.stdout) buffers a partial line until its end, sends each line once, and finish() sends a
+    last partial line; other attributes are the arm's own stream's."""
     import io
 
-    out = io.StringIO()
-    stream = R._Labelled(out, "[a] ")
+    sent = []
+
+    class Conn:
+        def send(self, message):
+            sent.append(message)
+
+    stream = R._Relayed(io.StringIO("x"), Conn())
     stream.write("one\ntw")
-    assert out.getvalue() == "[a] one\n"
+    assert sent == [("log", "one")]
     stream.write("o\n\nthree")
     stream.flush()
-    assert out.getvalue() == "[a] one\n[a] two\n[a] \n"
+    assert sent == [("log", "one"), ("log", "two"), ("log", "")]
     stream.finish()
-    assert out.getvalue().endswith("[a] three\n") and stream.getvalue() == out.getvalue()
+    assert sent[-1] == ("log", "three") and stream.getvalue() == "x"
 
 
 def test_one_process_solves_the_first_arm_here(hop_problem, one_by_one):
