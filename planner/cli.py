@@ -309,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
                 if next((f[0] for f in warnings.filters if issubclass(category, f[2])), "default") == "error":
                     warnings.simplefilter("default", category)
             warnings.showwarning = lambda message, category, *_: print(
-                f"planner {args.command}: warning: {message}"
+                f"planner {args.command}: warning: {str(message).translate(_ESCAPED)}"
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
@@ -483,12 +483,17 @@ def _written_line(args) -> None:
                      f"{target}" + (f", without {' or '.join(missing)}" if missing else ""))
 
 
+# control characters escaped in a printed line: a file named with a newline or an escape sequence forged a second
+# "planner ..." line, coloured the terminal or set its title (a tab is printed as it is)
+_ESCAPED = {**{i: f"\\x{i:02x}" for i in range(32) if i != 9}, 10: "\\n", 13: "\\r", 127: "\\x7f"}
+
+
 def _to_stderr(args, line: str) -> None:
     """One line on the command's stderr (a reader may leave), none when it is closed (`2>&-`): print(file=None)
     wrote it on stdout, after or before --json's object."""
     stream = getattr(args, "stderr", None) or sys.stderr
     if stream is not None:
-        print(line, file=stream)
+        print(line.translate(_ESCAPED), file=stream)
 
 
 def _progress(args, line: str) -> None:
@@ -948,6 +953,8 @@ def _npz_keys(path: Path) -> list[str] | None:
     """The array names of an .npz file, or None when it cannot be read (the command that reads it says why)."""
     import numpy as np
 
+    if not path.is_file():  # (a FIFO blocked np.load forever)
+        return None
     try:
         with np.load(path, allow_pickle=False) as arrays:
             return list(arrays.files)

@@ -295,18 +295,53 @@ def _element_path(element: ET.Element, parents: dict) -> str:
     return f"{shown(ancestor)} ... {shown(element)}"
 
 
+# a robot file's bytes: expat rescans a long token at every buffer fill (a 40 MB comment took 78 s, 200 MB did not end
+# in 5 minutes) and the file is parsed several times; the largest shipped or example-robot-data file is ~0.1 MB
+MAX_ROBOT_FILE_BYTES = 20 * 2**20
+# element nesting: MuJoCo's XML reader refuses deeper files, and Pinocchio's MJCF parser crashed (a segmentation
+# fault, no message) at 30000 levels, even inside an element it does not read
+MAX_XML_DEPTH = 500
+
+
+class _DoctypeSeen(ET.TreeBuilder):
+    """A tree builder that notes a <!DOCTYPE> (ElementTree calls doctype() on its target)."""
+
+    doctype_seen = False
+
+    def doctype(self, name, pubid, system):
+        self.doctype_seen = True
+
+
 def detect_format(path: Path) -> RobotFormat:
-    """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for a placement, size or inertia
-    that is not finite, a bound that is nan, or an MJCF file not named .xml."""
+    """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for a file larger than
+    MAX_ROBOT_FILE_BYTES, nested deeper than MAX_XML_DEPTH or with a <!DOCTYPE>, a file it names that is no regular
+    file, a placement, size or inertia that is not finite, a bound that is nan, or an MJCF file not named .xml."""
     try:
-        root = ET.parse(path).getroot()
+        size = path.stat().st_size
+        if size > MAX_ROBOT_FILE_BYTES:
+            raise RobotFileError(f"{path} is {size / 2**20:.0f} MB, more than the {MAX_ROBOT_FILE_BYTES // 2**20} MB a "
+                                 "robot file may be (robot files are kilobytes; meshes belong in their own files)")
+        builder = _DoctypeSeen()
+        root = ET.parse(path, ET.XMLParser(target=builder)).getroot()
     except ET.ParseError as exc:
         raise RobotFileError(f"malformed XML in {path}: {exc}") from None
     except OSError as exc:
         raise read_error(path, exc, RobotFileError, "cannot read robot file") from None
+    if builder.doctype_seen:  # MuJoCo's reader ends it at its first '>': a model inside an entity value became its root
+        raise RobotFileError(f"{path} has a <!DOCTYPE>, which neither MuJoCo nor URDF reads, and MuJoCo reads such a "
+                             "file otherwise than Pinocchio: remove it")
     formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
+    stack, depth = [(root, 1)], 0
+    while stack:  # (iteratively: the depth is what is in question)
+        element, level = stack.pop()
+        depth = max(depth, level)
+        stack.extend((child, level + 1) for child in element)
+    if depth > MAX_XML_DEPTH:
+        raise RobotFileError(f"{path} nests its elements {depth} deep, more than the {MAX_XML_DEPTH} MuJoCo's reader "
+                             "takes")
+    _refuse_special_files(path, root)
     parents = {child: parent for parent in root.iter() for child in parent}
     unread = {e for top in root.iter() if top.tag in _UNREAD_ELEMENTS for e in top.iter()}
     for element in (e for e in root.iter() if e not in unread):  # (Pinocchio spread a site's nan into an inertia)
@@ -321,6 +356,23 @@ def detect_format(path: Path) -> RobotFormat:
         raise RobotFileError(f"{path} is MJCF, which MuJoCo reads only from a file whose name ends in .xml (it picks "
                              f"its reader by the ending): rename it to {path.name.split('.')[0] or path.name}.xml")
     return formats[root.tag]
+
+
+def _refuse_special_files(path: Path, root) -> None:
+    """RobotFileError when a file the robot file names (an MJCF element's file=, a URDF mesh's filename=) is a FIFO,
+    a device or a directory where MuJoCo (or the viewer) would look for it: MuJoCo blocked reading a FIFO forever."""
+    compiler = {k: v for e in root.iter("compiler") for k, v in e.attrib.items()}
+    dirs = {"", *(compiler.get(k, "") for k in ("meshdir", "texturedir", "assetdir"))}
+    for element in root.iter():
+        name = element.get("file") or element.get("filename") or ""
+        if not name or "://" in name:  # (package:// paths are the viewer's to resolve)
+            continue
+        for where in dirs:
+            candidate = path.parent / where / name
+            with contextlib.suppress(OSError, ValueError):
+                if candidate.exists() and not candidate.is_file():
+                    raise RobotFileError(f"{path}: <{element.tag}> names {name!r}, which is no regular file "
+                                         f"({candidate} is a directory, a FIFO or a device): name a file")
 
 
 def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:

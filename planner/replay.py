@@ -882,7 +882,7 @@ def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> P
                                "result that run replaced, is not stored; `planner validate DIR` judges the one there "
                                "now")
         summary["validation"] = validation.to_json()
-        write_atomically(path, json.dumps(summary, indent=2) + "\n")
+        write_atomically(path, json.dumps(summary, indent=2) + "\n", follow_links=False)
     return path
 
 

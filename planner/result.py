@@ -1066,14 +1066,15 @@ def _umask() -> int:
     return umask
 
 
-def write_atomically(path: str | os.PathLike, write) -> None:
+def write_atomically(path: str | os.PathLike, write, follow_links: bool = True) -> None:
     """Write path through a temp file in the same directory, then os.replace: readers never see half a
     file, and a crash leaves the previous file as it was. write(f) gets the binary file object; a str
     or bytes is written as it is (str as UTF-8). The file gets the mode a plain open() would give (0666 less the
     umask), not mkstemp's private 0600. An OSError (no permission, a read-only directory) is an InputError naming
     the path. A symbolic link is written through: its target gets the file (`view --html LINK` replaced the link by a
-    file, the page it pointed at left stale)."""
-    path = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
+    file, the page it pointed at left stale); follow_links False replaces the link itself (a result directory's own
+    file: a summary.json linked to another directory's was rewritten there)."""
+    path = Path(os.path.realpath(path)) if follow_links and Path(path).is_symlink() else Path(path)
     _replace([(_stage(path, write), path)])
 
 

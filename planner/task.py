@@ -40,6 +40,8 @@ MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
+# a task file's bytes (the shipped ones are < 5 kB): a 200 MB array was parsed for minutes into 1.9 GB
+MAX_TASK_FILE_BYTES = 2**20
 # [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed into NaNs in the solve)
 MAX_STATE = 1e6
 # more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs
@@ -252,8 +254,11 @@ class Plan:
         # (a repeat doubled the rows: dependent constraints handed to IPOPT)
         _require(len(set(self.above_ground)) == len(self.above_ground), "plan.above_ground", list(self.above_ground),
                  "each point once")
-        _require(len(set(self.holes)) == len(self.holes), "plan.holes",
-                 [[h.x, h.z, h.a, h.b] for h in self.holes], "each hole once")
+        twice = next((i for i, h in enumerate(self.holes) if h in self.holes[:i]), None)  # (every hole was listed)
+        if twice is not None:
+            h = self.holes[twice]
+            _require(False, f"plan.holes[{twice}]", [h.x, h.z, h.a, h.b],
+                     f"each hole once (it repeats plan.holes[{self.holes.index(h)}])")
         if self.periodic is None and self.target_q is None:
             raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
         if self.periodic is not None:
@@ -790,6 +795,9 @@ def load_task(path: str | Path) -> Task:
                         "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}"
                         + _shipped_tasks_hint(path))
     try:
+        if path.stat().st_size > MAX_TASK_FILE_BYTES:
+            raise TaskError(f"{path} is {path.stat().st_size} bytes, more than the {MAX_TASK_FILE_BYTES} a task file "
+                            "may be (tasks are a few kilobytes)")
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (some editors) is not TOML
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None

@@ -1807,3 +1807,34 @@ def test_with_stderr_closed_a_quiet_failure_line_is_not_printed_on_stdout(tmp_pa
     assert main(["plan", "point_mass", "-q", "--json", "--out", str(tmp_path / "o")]) == cli.EXIT_FAILED
     monkeypatch.undo()
     assert capsys.readouterr().out == ""
+
+
+def test_downloaded_files_cannot_forge_lines_block_or_write_elsewhere(tmp_path, capsys):
+    """Hostile names and result directories (session 63's tester): a robot file named with a newline and escape
+    sequences is named on one line with them escaped (it forged a second "planner ..." line and set the terminal's
+    title); `validate` of a directory whose trajectory.npz is a FIFO ends in one line (it blocked forever); `validate`
+    of a directory whose summary.json links to another directory's writes the verdict into its own summary.json (it
+    rewrote the link's target)."""
+    import os
+
+    odd = tmp_path / "r\x1b]0;TITLE\x07\x1b[31mRED\nplanner plan: converged.xml"
+    odd.write_text("<mujoco>")
+    assert main(["check-model", str(odd)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "\x1b" not in err
+    assert "\\x1b]0;TITLE\\x07\\x1b[31mRED\\nplanner" in err
+    drop = tmp_path / "drop"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    (blocked / "summary.json").write_text((drop / "summary.json").read_text())
+    os.mkfifo(blocked / "trajectory.npz")
+    _one_line_exit_2(capsys, ["validate", str(blocked)], "trajectory.npz")
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "trajectory.npz").write_bytes((drop / "trajectory.npz").read_bytes())
+    (linked / "summary.json").symlink_to(drop / "summary.json")
+    before = (drop / "summary.json").read_text()
+    assert main(["validate", str(linked), "-q"]) in (0, 1)
+    assert (drop / "summary.json").read_text() == before and not (linked / "summary.json").is_symlink()
+    assert "validation" in json.loads((linked / "summary.json").read_text())

@@ -704,3 +704,39 @@ def test_an_error_line_another_thread_writes_during_an_mjcf_load_does_not_refuse
 
     monkeypatch.setattr(pin, "buildModelFromMJCF", logged_meanwhile)
     assert load_robot("point_mass").nv == 2
+
+
+def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(tmp_path):
+    """Robot files a user may download are refused with a RobotFileError before Pinocchio or MuJoCo reads them:
+    elements nested deeper than MuJoCo's reader takes (Pinocchio's MJCF parser crashed the process at 30000 levels,
+    inside an element it does not read), an <include> or mesh naming a FIFO (MuJoCo blocked on it forever) or a
+    directory, a file larger than MAX_ROBOT_FILE_BYTES (a 40 MB comment parsed for 78 s), and a <!DOCTYPE> (MuJoCo's
+    reader ends it at its first '>' and read another model than Pinocchio)."""
+    import os
+
+    from planner.model import MAX_ROBOT_FILE_BYTES, MAX_XML_DEPTH
+
+    text = (ROBOTS_DIR / "point_mass.xml").read_text()
+    deep = tmp_path / "deep.xml"
+    n = 30000
+    deep.write_text(text.replace("<worldbody>", "<custom>" + "<a>" * n + "</a>" * n + "</custom><worldbody>", 1))
+    os.mkfifo(tmp_path / "fifo")
+    os.mkfifo(tmp_path / "fifo.stl")
+    (tmp_path / "folder").mkdir()
+    cases = {deep: rf"nests its elements {n + 2} deep, more than the {MAX_XML_DEPTH}",
+             tmp_path / "inc.xml": (text.replace("<worldbody>", '<include file="fifo"/><worldbody>', 1),
+                                    r"<include> names 'fifo', which is no regular file"),
+             tmp_path / "mesh.xml": (text.replace("<worldbody>", '<asset><mesh name="m" file="fifo.stl"/></asset>'
+                                                  "<worldbody>", 1), r"<mesh> names 'fifo.stl', which is no regular"),
+             tmp_path / "dir.xml": (text.replace("<worldbody>", '<include file="folder"/><worldbody>', 1),
+                                    "names 'folder', which is no regular file"),
+             tmp_path / "doctype.xml": ('<?xml version="1.0"?>\n<!DOCTYPE mujoco [<!ENTITY e "x">]>\n' + text,
+                                        "has a <!DOCTYPE>, which neither MuJoCo nor URDF reads"),
+             tmp_path / "big.xml": (text.replace("<worldbody>", "<!--" + "x" * MAX_ROBOT_FILE_BYTES + "--><worldbody>"),
+                                    rf"is 20 MB, more than the {MAX_ROBOT_FILE_BYTES // 2**20} MB a robot file may be")}
+    for path, case in cases.items():
+        if isinstance(case, tuple):
+            path.write_text(case[0])
+            case = case[1]
+        with pytest.raises(RobotFileError, match=case):
+            load_robot(path)
