@@ -25,7 +25,6 @@ import contextlib
 import importlib
 import importlib.util
 import multiprocessing
-import pickle
 import re
 import sys
 import traceback
@@ -138,17 +137,11 @@ def default_workers(n_items: int) -> int:
 
 
 def _filters() -> tuple[list[tuple], ...]:
-    """The caller's warning filters as filterwarnings' arguments, those whose category pickles (a worker is
+    """The caller's warning filters as filterwarnings' arguments, each category by its module and name (a worker is
     spawned with Python's defaults: "ignore" did not silence a job's warnings, "error" did not make it a Crashed
     record)."""
-    out = []
-    for action, message, category, module, lineno in warnings.filters:
-        try:
-            pickle.dumps(category)
-        except Exception:  # noqa: BLE001 -- a category defined in a function: the worker cannot import it
-            continue
-        out.append((action, _pattern(message), category, _pattern(module), lineno))
-    return (out,)
+    return ([(action, _pattern(message), (category.__module__, category.__qualname__), _pattern(module), lineno)
+             for action, message, category, module, lineno in warnings.filters],)
 
 
 def _pattern(given) -> str:
@@ -157,10 +150,19 @@ def _pattern(given) -> str:
 
 
 def _worker_start(filters: list[tuple]) -> None:
-    """A local worker's start: it dies with the batch's process and runs with the caller's warning filters."""
+    """A local worker's start: it dies with the batch's process and runs with the caller's warning filters, but for
+    those whose category it cannot import (one defined under the caller's `if __name__ == "__main__":` or in a
+    function; as a pickled class it broke every worker's start). Warnings the worker's own imports issue fall under
+    them too (under "error" such a job is a Crashed record of the "import" stage)."""
     killed_with_parent()
     warnings.resetwarnings()
-    for action, message, category, module, lineno in reversed(filters):  # each inserted at the front
+    for action, message, (where, name), module, lineno in reversed(filters):  # each inserted at the front
+        try:
+            category = importlib.import_module(where)
+            for part in name.split("."):
+                category = getattr(category, part)
+        except Exception:  # noqa: BLE001 -- not importable here
+            continue
         warnings.filterwarnings(action, message, category, module, lineno)
 
 

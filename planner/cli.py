@@ -1125,6 +1125,7 @@ def _cmd_gait(args) -> int:
     if converged:
         _remove_failed(out / "failed")
     target = out if converged else out / "failed"  # run_gait's choice: a failure never overwrites a good gait
+    args.result_id, args.written = result.summary.get("result_id"), target  # (-q's failure line names it)
     if held[target]:
         _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked

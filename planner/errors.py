@@ -227,18 +227,24 @@ def plain(value):
 def real_array(value, what: str) -> np.ndarray:
     """`value` as a float array (a copy); an InputError naming `what` when it holds complex numbers (float() would
     drop the imaginary part with a warning), strings (numpy parsed "1.0"), None or a number no double holds."""
+    given = None
     try:
-        kind = "N" if value is None else np.asarray(value).dtype.kind
+        given = None if value is None else np.asarray(value)
+        kind = "N" if given is None else given.dtype.kind
+        if kind == "O" and any(v is None for v in given.ravel()):  # (float() of None is nan: no error)
+            kind = "N"
         if kind not in "cNUS":
             return np.array(value, dtype=float)
     except OverflowError:
         kind = "int"
-    except (TypeError, ValueError):  # ragged, or an object no float takes
+    except ValueError:
+        kind = "ragged" if given is None and value is not None else "O"  # (lists of several lengths; a float() refusal)
+    except TypeError:  # an object no float takes
         kind = "O"
     if kind == "c":
         raise InputError(f"{what} must hold real numbers, got complex numbers")
-    got = {"N": "None", "U": "strings", "S": "bytes",
-           "int": "an integer beyond a double's range"}.get(kind, shown(value))
+    got = {"N": "None", "U": "strings", "S": "bytes", "int": "an integer beyond a double's range",
+           "ragged": "sequences of different lengths"}.get(kind, shown(value))
     raise InputError(f"{what} must hold numbers a double can hold, got {got}")
 
 
@@ -309,7 +315,7 @@ def _as_float(value):
     if isinstance(value, (numbers.Real, decimal.Decimal)) and not isinstance(value, (int, float)):
         try:
             return float(value)
-        except OverflowError:
+        except (OverflowError, ValueError):  # (Decimal("sNaN") raises ValueError)
             pass
     return value
 
@@ -321,7 +327,8 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
     and what is allowed, not a TypeError or a silent nan from a range check later (values from JSON: `planner plan
     --solve`; `x > 0` is False for nan but True for inf). owner: how the message names the dataclass, as its own range
     checks do (e.g. "contact" for ValidationOptions.contact, "" for none); default its class name. A list given for a
-    tuple field is stored as a tuple, an int given for a float as a float."""
+    tuple field is stored as a tuple; an int, a Decimal, a Fraction or a long double given for a float as a float, and
+    -0.0 as 0.0 (equal options have one repr: Problem.signature)."""
     kinds = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string"}
     for f in fields(options):
         names = [t.strip() for t in str(f.type).split("|")]

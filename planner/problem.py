@@ -204,7 +204,8 @@ class ProblemOptions:
         if len(set(names)) != len(names):
             raise InputError(f"ProblemOptions.switch_scale names a function twice: {names}")
         # str(): a numpy name (np.str_) kept as given made equal options' reprs, so Problem.signature, differ
-        object.__setattr__(self, "switch_scale", tuple((str(name), float(plain(scale))) for name, scale in entries))
+        object.__setattr__(self, "switch_scale", tuple((str.__str__(name), float(plain(scale)))  # (an Enum's own str)
+                                                       for name, scale in entries))
 
 
 @dataclass(frozen=True)

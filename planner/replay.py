@@ -1624,10 +1624,10 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
     if control is not None and not callable(control):
         raise InputError(f"mujoco_rollout's control must be a function control(t, q, v) -> u or None, got "
                          f"{shown(control)}")
+    if duration > MAX_STEPS * scene.settings.timestep:  # 1e9 s asked numpy for 29 TiB (1e306 s: an OverflowError)
+        raise InputError(f"mujoco_rollout's duration {duration} s is more than {MAX_STEPS} MuJoCo steps of "
+                         f"{scene.settings.timestep} s: shorten it")
     steps = int(round(duration / scene.settings.timestep))
-    if steps > MAX_STEPS:  # 1e9 s asked numpy for 29 TiB
-        raise InputError(f"mujoco_rollout's duration {duration} s is {steps} MuJoCo steps of "
-                         f"{scene.settings.timestep} s; at most {MAX_STEPS}")
     steps -= steps % sample_every  # end on a sample
     if steps < sample_every:
         raise InputError(f"duration {duration} s is shorter than one sample ({sample_every} steps)")

@@ -73,11 +73,20 @@ def test_local_processes_match_serial():
     assert sorted(seen) == list(range(len(ITEMS)))
 
 
-def test_local_workers_run_with_the_callers_warning_filters(capfd):
+def test_local_workers_run_with_the_callers_warning_filters(capfd, monkeypatch):
     """Local workers take the caller's warning filters, as jobs run in this process do: under "error" a job's warning
     is its Crashed record, under "ignore" it is not printed (spawned workers started with Python's defaults: the
-    warning was printed both times and every job returned)."""
+    warning was printed both times and every job returned); a filter whose category a worker cannot import (one a
+    script defines under its `if __name__ == "__main__":`) is left out there (it broke every worker's start: each job
+    "the worker process died")."""
+    import sys
     import warnings
+
+    hidden = type("HiddenWarning", (UserWarning,), {"__module__": "__main__"})
+    monkeypatch.setattr(sys.modules["__main__"], "HiddenWarning", hidden, raising=False)  # pickles here only
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hidden)
+        assert run_batch(square_or_raise, [1, 2], workers=2) == [square_or_raise(1), square_or_raise(2)]
 
     for action in ("error", "ignore"):
         with warnings.catch_warnings():

@@ -123,6 +123,7 @@ def test_an_int_for_a_float_is_stored_as_a_float():
     problems built with them one signature (ProblemOptions(clock_weight=0) refused the plan of the default options as
     "other NLP variables"; FESDOptions(rho_h=1), clock_weight=-0.0 and switch_scale's np.str_("phi") likewise); the
     other real numbers were refused as "not a finite number"."""
+    import enum
     from decimal import Decimal
     from fractions import Fraction
 
@@ -131,13 +132,16 @@ def test_an_int_for_a_float_is_stored_as_a_float():
     assert repr(typed) == repr(_Typed(scale=2.0, items=(1.0, 2.5), limit=3.0))
     odd = _Typed(scale=Decimal("0.5"), items=(Fraction(1, 4), np.longdouble(2.5)), bound=-0.0)
     assert repr(odd) == repr(_Typed(scale=0.5, items=(0.25, 2.5), bound=0.0))
-    for bad in (Decimal("nan"), Decimal("1e400"), Fraction(10**400, 3)):
+    for bad in (Decimal("nan"), Decimal("sNaN"), Decimal("1e400"), Fraction(10**400, 3)):  # (sNaN: a ValueError)
         with pytest.raises(InputError, match="_Typed.scale = .* it must be a finite number"):
             _Typed(scale=bad)
     robot, task = load_robot("point_mass"), load_task(ROBOTS_DIR / "point_mass_hop.toml")
     for given, default in ((ProblemOptions(clock_weight=0), ProblemOptions(clock_weight=0.0)),
                            (ProblemOptions(clock_weight=-0.0), ProblemOptions(clock_weight=0.0)),
                            (ProblemOptions(switch_scale=((np.str_("phi"), np.float32(100.0)),)),
+                            ProblemOptions(switch_scale=(("phi", 100.0),))),
+                           # a str Enum's member: its own str() is "Names.PHI", which no function is named
+                           (ProblemOptions(switch_scale=((enum.Enum("Names", {"PHI": "phi"}, type=str).PHI, 100.0),)),
                             ProblemOptions(switch_scale=(("phi", 100.0),))),
                            (ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1)),
                             ProblemOptions(discretization="fesd", fesd=FESDOptions(rho_h=1.0)))):

@@ -578,7 +578,8 @@ def test_a_gaits_fall_is_the_quiet_failure_lines_reason():
 
 def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_path, capsys, monkeypatch):
     """`planner gait` exits 1 when its MuJoCo walk falls (mu = 0: it converged, printed "converged" and exited 0) or
-    when the gait violates its contacts (-q's line names them; without the walk it exited 0 in silence); a
+    when the gait violates its contacts (-q's line names them and where the result went; without the walk it exited 0
+    in silence); a
     coarse grid (N = 15: no sample in the last 100 ms) writes its result with the task it solved (task_json, which
     `view` reads from any directory) instead of a ValueError traceback; a task without both feet as contacts is
     refused before the solve (after it, or not at all with --no-validate); an earlier plan's plots in --out are removed
@@ -607,7 +608,8 @@ def test_gait_command_exits_1_when_the_walk_falls_and_checks_its_task_first(tmp_
     capsys.readouterr()
     monkeypatch.setattr(planner.gait, "contact_violations", lambda summary: ["the ground would have to pull"])
     assert main(["gait", "biped", "--task", str(coarse), "--out", str(tmp_path / "pull"), "--no-validate", "-q"]) == 1
-    assert capsys.readouterr().err.strip() == "planner gait: failed: the ground would have to pull"
+    assert capsys.readouterr().err.strip() == ("planner gait: failed: the ground would have to pull (results in "
+                                              f"{tmp_path / 'pull'})")  # (where the failed gait went: unsaid)
     monkeypatch.undo()
     one_foot = tmp_path / "one_foot.toml"
     text = gait1.split("[[contacts]]")

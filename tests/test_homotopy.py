@@ -468,6 +468,9 @@ def test_a_verdict_on_ungated_pairs_says_what_the_table_showed():
     record = dataclasses.replace(record, complementarity_residual=1e-4)
     message = H._result(prob, H.SolveOptions(), x, [record], None, 0.0, {}).stats.message
     assert "homotopy 1's 1.0e-04 is of the gated pairs" in message
+    same = dataclasses.replace(record, complementarity_residual=prob.complementarity_residual(x) * (1 - 1e-12))
+    # one rounding apart: nothing to explain
+    assert "gated pairs" not in H._result(prob, H.SolveOptions(), x, [same], None, 0.0, {}).stats.message
 
 
 def test_aux_continuation_scale_one_is_the_task():
@@ -881,7 +884,9 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
     # not numbers: numpy's ValueError before; an int of 400 digits an OverflowError, complex numbers and strings
     # solved (the imaginary part dropped, "1.0" parsed), None a point of "1 entries"
     for bad, got in ((["a"] * prob.nx, "strings"), ([10**400] * prob.nx, "an integer beyond a double's range"),
-                     (None, "None"), ([0.0] * prob.nx + [object()], "[0.0")):
+                     (None, "None"), ([0.0] * prob.nx + [object()], "[0.0"),
+                     ([None] + [0.0] * (prob.nx - 1), "None"),  # (a None inside was nan)
+                     ([[0.0] * 2, [0.0]], "sequences of different lengths")):
         for call in calls[:2]:
             with pytest.raises(InputError, match=rf"a point of this problem \({prob.nx} numbers\) must hold numbers a "
                                                  rf"double can hold, got {re.escape(got)}"):

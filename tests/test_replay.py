@@ -366,7 +366,9 @@ def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
     for call, message in ((dict(duration="0.05"), "duration must be a finite number >= 0 \\[s\\], got '0.05'"),
                           (dict(duration=np.nan), "duration must be a finite number"),
                           (dict(duration=np.inf), "duration must be a finite number"),
-                          (dict(duration=1e9), r"duration 1000000000.0 s is \d+ MuJoCo steps of .* at most 10000000"),
+                          (dict(duration=1e9), r"duration 1000000000.0 s is more than 10000000 MuJoCo steps of .*: "
+                                               "shorten it"),
+                          (dict(duration=1e306), "duration 1e\\+306 s is more than"),
                           (dict(sample_every=0), "sample_every must be an integer >= 1 \\[steps\\], got 0"),
                           (dict(sample_every=-1), "sample_every must be an integer >= 1"),
                           (dict(sample_every=2.5), "sample_every must be an integer >= 1"),

@@ -977,6 +977,7 @@ def test_an_io_error_reading_any_input_file_is_the_machines(tmp_path, monkeypatc
     def eio(*args, **kwargs):
         raise OSError(errno.EIO, os.strerror(errno.EIO))
 
+    (tmp_path / "robot.xml").write_text("<robot/>")  # (its size is read first)
     monkeypatch.setattr(ET, "parse", eio)
     with pytest.raises(PlannerError, match="cannot read robot file") as caught:
         detect_format(tmp_path / "robot.xml")
