@@ -310,8 +310,9 @@ def enum_field(options, key: str, enum: type, allowed: Iterable | None = None, o
     object.__setattr__(options, key, member)
 
 
-def _as_float(value):
-    """A Decimal, Fraction or long double as the double a float field stores (one too large for it as given)."""
+def as_float(value):
+    """A Decimal, Fraction or long double as the double it stands for (a float field stores; one too large for a
+    double, or Decimal's sNaN, as given), anything else as given."""
     if isinstance(value, (numbers.Real, decimal.Decimal)) and not isinstance(value, (int, float)):
         try:
             return float(value)
@@ -341,7 +342,7 @@ def check_field_types(options, owner: str | None = None, unbounded: Iterable[str
         if many and isinstance(value, (tuple, list)):
             value = [plain(v) for v in value]
         if kind == "float":  # Decimal, Fraction, np.longdouble were refused as "not a finite number"
-            value = [_as_float(v) for v in value] if many and isinstance(value, list) else _as_float(value)
+            value = [as_float(v) for v in value] if many and isinstance(value, list) else as_float(value)
         items = value if many and isinstance(value, (tuple, list)) else (value,)
         inf_ok = f.name in unbounded
         if many and not isinstance(value, (tuple, list)):

@@ -362,17 +362,21 @@ def _refuse_special_files(path: Path, root) -> None:
     """RobotFileError when a file the robot file names (an MJCF element's file=, a URDF mesh's filename=) is a FIFO,
     a device or a directory where MuJoCo (or the viewer) would look for it: MuJoCo blocked reading a FIFO forever."""
     compiler = {k: v for e in root.iter("compiler") for k, v in e.attrib.items()}
-    dirs = {"", *(compiler.get(k, "") for k in ("meshdir", "texturedir", "assetdir"))}
+    asset = compiler.get("assetdir", "")
+    # where MuJoCo looks: meshes, skins and height fields in meshdir (else assetdir), textures in texturedir (else
+    # assetdir), the rest (an include) beside the file; a URDF's meshes beside it (a directory of the mesh's name
+    # beside an MJCF file whose meshdir held the mesh was refused)
+    where = {"mesh": compiler.get("meshdir", asset), "skin": compiler.get("meshdir", asset),
+             "hfield": compiler.get("meshdir", asset), "texture": compiler.get("texturedir", asset)}
     for element in root.iter():
         name = element.get("file") or element.get("filename") or ""
         if not name or "://" in name:  # (package:// paths are the viewer's to resolve)
             continue
-        for where in dirs:
-            candidate = path.parent / where / name
-            with contextlib.suppress(OSError, ValueError):
-                if candidate.exists() and not candidate.is_file():
-                    raise RobotFileError(f"{path}: <{element.tag}> names {name!r}, which is no regular file "
-                                         f"({candidate} is a directory, a FIFO or a device): name a file")
+        candidate = path.parent / where.get(element.tag, "") / name
+        with contextlib.suppress(OSError, ValueError):
+            if candidate.exists() and not candidate.is_file():
+                raise RobotFileError(f"{path}: <{element.tag}> names {name!r}, which is no regular file "
+                                     f"({candidate} is a directory, a FIFO or a device): name a file")
 
 
 def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:

@@ -16,6 +16,7 @@ the slower arm could not win meant waiting for it.
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import pickle
@@ -110,8 +111,7 @@ def race(problem: Problem, arms, progress: Progress | None = None, processes: in
                     done[i] = ("died", None, time.perf_counter() - start)
                     continue
                 if kind == "log":  # one writer: the arms' lines never mix within a line
-                    sys.stdout.write("".join(f"[{names[i]}] {line}\n" for line in payload))
-                    sys.stdout.flush()
+                    _show(sys.stdout, "".join(f"[{names[i]}] {line}\n" for line in payload))
                 elif kind == "progress":
                     iterations[i] += payload.iterations
                     if progress:
@@ -175,6 +175,15 @@ def _arm(problem: Problem, options: SolveOptions, conn, name: str) -> None:
         conn.send(("error", (_portable(exc), traceback.format_exc())))
     finally:
         conn.close()
+
+
+def _show(stream, text: str) -> None:
+    """Write an arm's log lines to the race's stream; none (sys.stdout None: `2>&-` under -v, pythonw) or one whose
+    reader left drops them (the race's AttributeError lost the plan)."""
+    if stream is not None:
+        with contextlib.suppress(OSError, ValueError):  # (a broken pipe; a closed file)
+            stream.write(text)
+            stream.flush()
 
 
 RELAY_S = 0.1  # [s] how long an arm's log lines may wait to be sent to the race

@@ -41,7 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import (InputError, PlannerError, RobotFileError, UnknownNameError, check_field_types, check_interrupted,
-                     enum_field, expect, is_integer, plain, real_array, shown)
+                     as_float, enum_field, expect, is_integer, plain, real_array, shown)
 from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
 from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
                      read_summary, read_task, read_trajectory, result_dir, write_atomically)
@@ -1615,7 +1615,7 @@ def mujoco_rollout(scene: Scene, q0: Sequence[float], v0: Sequence[float], durat
     `impact_points` (I,) their contact points. Also returns `tau` = t and `y` = (q, v, t).
     """
     model = scene.model
-    duration, sample_every, min_flight_s = plain(duration), plain(sample_every), plain(min_flight_s)
+    duration, sample_every, min_flight_s = as_float(plain(duration)), plain(sample_every), as_float(plain(min_flight_s))
     for name, value in (("duration", duration), ("min_flight_s", min_flight_s)):  # a str or nan crashed in arithmetic
         if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value < math.inf):
             raise InputError(f"mujoco_rollout's {name} must be a finite number >= 0 [s], got {shown(value)}")

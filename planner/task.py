@@ -40,8 +40,9 @@ MAX_GAIT_STEPS = 1000
 # more steps than this are a typo, not a grid (the grids measured go to 10^3): `plan --steps 1000000000` built its NLP
 # for ever instead of saying so
 MAX_STEPS = 10**7
-# a task file's bytes (the shipped ones are < 5 kB): a 200 MB array was parsed for minutes into 1.9 GB
-MAX_TASK_FILE_BYTES = 2**20
+# a task file's bytes (the shipped ones are < 5 kB; a [simulate] schedule of 20000 controls ~1 MB): a 200 MB array was
+# parsed for minutes into 1.9 GB
+MAX_TASK_FILE_BYTES = 16 * 2**20
 # [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed into NaNs in the solve)
 MAX_STATE = 1e6
 # more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs

@@ -711,7 +711,7 @@ def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(
     elements nested deeper than MuJoCo's reader takes (Pinocchio's MJCF parser crashed the process at 30000 levels,
     inside an element it does not read), an <include> or mesh naming a FIFO (MuJoCo blocked on it forever) or a
     directory, a file larger than MAX_ROBOT_FILE_BYTES (a 40 MB comment parsed for 78 s), and a <!DOCTYPE> (MuJoCo's
-    reader ends it at its first '>' and read another model than Pinocchio)."""
+    reader ends it at its first '>' and read another model than Pinocchio); a file is looked for where MuJoCo looks."""
     import os
 
     from planner.model import MAX_ROBOT_FILE_BYTES, MAX_XML_DEPTH
@@ -740,3 +740,13 @@ def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(
             case = case[1]
         with pytest.raises(RobotFileError, match=case):
             load_robot(path)
+    # a directory of the mesh's name beside the file is not where MuJoCo looks when the file names a meshdir (it was
+    # refused): the check reads each element where MuJoCo does
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "folder").write_text("solid s\nendsolid s\n")
+    beside = tmp_path / "meshdir.xml"
+    beside.write_text(text.replace("<worldbody>", '<compiler meshdir="meshes"/><asset><mesh name="m" file="folder"/>'
+                                                  "</asset><worldbody>", 1))
+    from planner.model import detect_format
+
+    assert detect_format(beside) is RobotFormat.MJCF

@@ -79,6 +79,18 @@ def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_o
     assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
 
 
+def test_verbose_arms_without_a_stdout_still_race(hop_problem, one_by_one, monkeypatch):
+    """With print_level > 0 and sys.stdout None (`planner plan -v 2>&-`, pythonw) the arms' log lines are dropped and
+    the race returns its plan (writing them raised AttributeError: the plan was lost, exit 1)."""
+    import contextlib
+
+    monkeypatch.setattr(R, "start_method", lambda: "fork")
+    with contextlib.redirect_stdout(None):
+        result = R.race(hop_problem, R.default_arms(H.SolveOptions(print_level=3)), processes=2)
+    (won,) = [row["arm"] for row in result.extra["race"] if row["outcome"] == "won"]
+    assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
+
+
 def test_relayed_stream_sends_whole_lines_in_batches(monkeypatch):
     """_Relayed (an arm's sys.stdout) buffers a partial line until its end and sends complete lines in batches: once
     RELAY_LINES have gathered or RELAY_S has passed since the last batch (one message per line made a race at

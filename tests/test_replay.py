@@ -376,9 +376,12 @@ def test_mujoco_rollout_refuses_a_start_or_control_of_the_wrong_size(capler):
                           (dict(min_flight_s=np.nan), "min_flight_s must be a finite number >= 0")):
         with pytest.raises(InputError, match=f"^mujoco_rollout's {message}"):
             replay.mujoco_rollout(scene, start, np.zeros(4), **{"duration": 0.01, **call})
-    # numpy scalars are the numbers they hold
-    out = replay.mujoco_rollout(scene, start, np.zeros(4), np.float32(0.01), sample_every=np.int64(2))
-    assert out["t"].size == replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, sample_every=2)["t"].size
+    # numpy scalars, a long double and a Fraction are the numbers they hold (the latter two were refused)
+    from fractions import Fraction
+
+    size = replay.mujoco_rollout(scene, start, np.zeros(4), 0.01, sample_every=2)["t"].size
+    for duration in (np.float32(0.01), np.longdouble(0.01), Fraction(1, 100)):
+        assert replay.mujoco_rollout(scene, start, np.zeros(4), duration, sample_every=np.int64(2))["t"].size == size
 
 
 def test_a_diverging_rollout_is_flagged_not_printed(point_mass, tmp_path, monkeypatch, capfd):
