@@ -44,7 +44,7 @@ class UsageParser(argparse.ArgumentParser):
 
     def error(self, message):
         text = f"{message} (see --help)"
-        print(f"{self.prog}: error: {text}", file=sys.stderr)
+        print(f"{self.prog}: error: {text}".translate(_ESCAPED), file=sys.stderr)
         raise UsageExit(text)
 
 
@@ -485,7 +485,7 @@ def _written_line(args) -> None:
 
 # control characters escaped in a printed line: a file named with a newline or an escape sequence forged a second
 # "planner ..." line, coloured the terminal or set its title (a tab is printed as it is)
-_ESCAPED = {**{i: f"\\x{i:02x}" for i in range(32) if i != 9}, 10: "\\n", 13: "\\r", 127: "\\x7f"}
+_ESCAPED = {**{i: f"\\x{i:02x}" for i in (*range(32), *range(127, 160)) if i != 9}, 10: "\\n", 13: "\\r"}
 
 
 def _to_stderr(args, line: str) -> None:
@@ -499,7 +499,7 @@ def _to_stderr(args, line: str) -> None:
 def _progress(args, line: str) -> None:
     """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it."""
     if not args.quiet:
-        print(line, file=sys.stderr, flush=True)
+        print(line.translate(_ESCAPED), file=sys.stderr, flush=True)
 
 
 def _failure(summary: dict) -> str:

@@ -298,8 +298,8 @@ def _element_path(element: ET.Element, parents: dict) -> str:
 # a robot file's bytes: expat rescans a long token at every buffer fill (a 40 MB comment took 78 s, 200 MB did not end
 # in 5 minutes) and the file is parsed several times; the largest shipped or example-robot-data file is ~0.1 MB
 MAX_ROBOT_FILE_BYTES = 20 * 2**20
-# element nesting: MuJoCo's XML reader refuses deeper files, and Pinocchio's MJCF parser crashed (a segmentation
-# fault, no message) at 30000 levels, even inside an element it does not read
+# element nesting: MuJoCo's XML reader refuses files about this deep (499 levels and more, with its own message), and
+# Pinocchio's MJCF parser crashed (a segmentation fault, no message) at 30000 levels, inside an element it does not read
 MAX_XML_DEPTH = 500
 
 
@@ -319,8 +319,8 @@ def detect_format(path: Path) -> RobotFormat:
     try:
         size = path.stat().st_size
         if size > MAX_ROBOT_FILE_BYTES:
-            raise RobotFileError(f"{path} is {size / 2**20:.0f} MB, more than the {MAX_ROBOT_FILE_BYTES // 2**20} MB a "
-                                 "robot file may be (robot files are kilobytes; meshes belong in their own files)")
+            raise RobotFileError(f"{path} is {size} bytes, more than the {MAX_ROBOT_FILE_BYTES} (20 MB) a robot file "
+                                 "may be (robot files are kilobytes; meshes belong in their own files)")
         builder = _DoctypeSeen()
         root = ET.parse(path, ET.XMLParser(target=builder)).getroot()
     except ET.ParseError as exc:
@@ -333,11 +333,10 @@ def detect_format(path: Path) -> RobotFormat:
     formats = {"mujoco": RobotFormat.MJCF, "robot": RobotFormat.URDF}
     if root.tag not in formats:
         raise RobotFileError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>): root element <{root.tag}>")
-    stack, depth = [(root, 1)], 0
-    while stack:  # (iteratively: the depth is what is in question)
-        element, level = stack.pop()
-        depth = max(depth, level)
-        stack.extend((child, level + 1) for child in element)
+    level, depth = [root], 0
+    while level:  # level by level (iteratively: the depth is what is in question)
+        depth += 1
+        level = [child for element in level for child in element]
     if depth > MAX_XML_DEPTH:
         raise RobotFileError(f"{path} nests its elements {depth} deep, more than the {MAX_XML_DEPTH} MuJoCo's reader "
                              "takes")
@@ -358,25 +357,41 @@ def detect_format(path: Path) -> RobotFormat:
     return formats[root.tag]
 
 
+# attributes that name a file MuJoCo (or the viewer) opens: MJCF's file= (a cube texture's six faces too), URDF's
+# mesh filename=
+_FILE_KEYS = ("file", "filename", *(f"file{side}" for side in ("right", "left", "up", "down", "front", "back")))
+
+
 def _refuse_special_files(path: Path, root) -> None:
-    """RobotFileError when a file the robot file names (an MJCF element's file=, a URDF mesh's filename=) is a FIFO,
-    a device or a directory where MuJoCo (or the viewer) would look for it: MuJoCo blocked reading a FIFO forever."""
-    compiler = {k: v for e in root.iter("compiler") for k, v in e.attrib.items()}
+    """RobotFileError when a file the robot file or a file it includes names is a FIFO, a device or a directory where
+    MuJoCo (or the viewer) would look for it: MuJoCo blocked reading a FIFO forever."""
+    roots, seen = [(path, root)], {path.resolve()}
+    for where_from, tree in roots:  # (grows as included files are read)
+        for element in tree.iter("include"):
+            target = _include_target(element.get("file"), where_from, path.parent)
+            if target is not None and target.resolve() not in seen:
+                seen.add(target.resolve())
+                with contextlib.suppress(ET.ParseError, OSError, ValueError):  # (loading the robot says why)
+                    roots.append((target, ET.parse(target).getroot()))
+    compiler = {k: v for _, tree in roots for e in tree.iter("compiler") for k, v in e.attrib.items()}
+    strip = compiler.get("strippath", "false") == "true"  # MuJoCo then reads the name's last part only
     asset = compiler.get("assetdir", "")
     # where MuJoCo looks: meshes, skins and height fields in meshdir (else assetdir), textures in texturedir (else
     # assetdir), the rest (an include) beside the file; a URDF's meshes beside it (a directory of the mesh's name
     # beside an MJCF file whose meshdir held the mesh was refused)
     where = {"mesh": compiler.get("meshdir", asset), "skin": compiler.get("meshdir", asset),
              "hfield": compiler.get("meshdir", asset), "texture": compiler.get("texturedir", asset)}
-    for element in root.iter():
-        name = element.get("file") or element.get("filename") or ""
-        if not name or "://" in name:  # (package:// paths are the viewer's to resolve)
-            continue
-        candidate = path.parent / where.get(element.tag, "") / name
-        with contextlib.suppress(OSError, ValueError):
-            if candidate.exists() and not candidate.is_file():
-                raise RobotFileError(f"{path}: <{element.tag}> names {name!r}, which is no regular file "
-                                     f"({candidate} is a directory, a FIFO or a device): name a file")
+    for where_from, tree in roots:
+        for element in tree.iter():
+            for name in filter(None, (element.get(key) for key in _FILE_KEYS)):
+                if "://" in name:  # (package:// paths are the viewer's to resolve)
+                    continue
+                name = Path(name).name if strip and element.tag != "include" else name
+                candidate = path.parent / where.get(element.tag, "") / name
+                with contextlib.suppress(OSError, ValueError):
+                    if candidate.exists() and not candidate.is_file():
+                        raise RobotFileError(f"{where_from}: <{element.tag}> names {name!r}, which is no regular file "
+                                             f"({candidate} is a directory, a FIFO or a device): name a file")
 
 
 def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:

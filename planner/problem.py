@@ -203,8 +203,9 @@ class ProblemOptions:
         names = [name for name, _ in entries]
         if len(set(names)) != len(names):
             raise InputError(f"ProblemOptions.switch_scale names a function twice: {names}")
-        # str(): a numpy name (np.str_) kept as given made equal options' reprs, so Problem.signature, differ
-        object.__setattr__(self, "switch_scale", tuple((str.__str__(name), float(plain(scale)))  # (an Enum's own str)
+        # the plain str of the name: a numpy name (np.str_) kept as given made equal options' reprs, so
+        # Problem.signature, differ; str.__str__, not str(), which a str Enum's member answers with "Names.PHI"
+        object.__setattr__(self, "switch_scale", tuple((str.__str__(name), float(plain(scale)))
                                                        for name, scale in entries))
 
 

@@ -191,8 +191,9 @@ RELAY_LINES = 1000
 
 
 class _Relayed:
-    """An arm's sys.stdout: its complete lines sent to the race as ("log", lines), gathered for up to RELAY_S or
-    RELAY_LINES lines (one message per line took 3.7x the time at print_level 12), the rest by `send` and `finish`
+    """An arm's sys.stdout: its complete lines sent to the race as ("log", lines), at the first write RELAY_S after
+    the last batch or once RELAY_LINES have gathered (one message per line took 3.7x the time at print_level 12; lines
+    written before a long silence wait for the next write), the rest by `send` (before each NLP's record) and `finish`
     (a partial line as a line). The arm's own sys.stdout wrote to the race's only where it was the descriptor 1 they
     share: a caller's redirect_stdout (a StringIO, copied by the fork) or pytest's capture lost every line, and arms
     started by forkserver wrote to the server's descriptor 1."""

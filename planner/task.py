@@ -255,11 +255,11 @@ class Plan:
         # (a repeat doubled the rows: dependent constraints handed to IPOPT)
         _require(len(set(self.above_ground)) == len(self.above_ground), "plan.above_ground", list(self.above_ground),
                  "each point once")
-        twice = next((i for i, h in enumerate(self.holes) if h in self.holes[:i]), None)  # (every hole was listed)
-        if twice is not None:
-            h = self.holes[twice]
-            _require(False, f"plan.holes[{twice}]", [h.x, h.z, h.a, h.b],
-                     f"each hole once (it repeats plan.holes[{self.holes.index(h)}])")
+        first: dict = {}  # hole -> its first index (a list's `in` took 56 s for 20000 holes)
+        for i, h in enumerate(self.holes):
+            _require(h not in first, f"plan.holes[{i}]", [h.x, h.z, h.a, h.b],
+                     f"each hole once (it repeats plan.holes[{first.get(h)}])")  # (every hole was listed)
+            first[h] = i
         if self.periodic is None and self.target_q is None:
             raise TaskError("missing key 'plan.target_q' (required unless plan.periodic is given)")
         if self.periodic is not None:
@@ -796,9 +796,10 @@ def load_task(path: str | Path) -> Task:
                         "file (a device, a FIFO or a socket)" if path.exists() else f"task file not found: {path}"
                         + _shipped_tasks_hint(path))
     try:
-        if path.stat().st_size > MAX_TASK_FILE_BYTES:
-            raise TaskError(f"{path} is {path.stat().st_size} bytes, more than the {MAX_TASK_FILE_BYTES} a task file "
-                            "may be (tasks are a few kilobytes)")
+        size = path.stat().st_size
+        if size > MAX_TASK_FILE_BYTES:
+            raise TaskError(f"{path} is {size} bytes, more than the {MAX_TASK_FILE_BYTES} a task file may be (tasks "
+                            "are a few kilobytes)")
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (some editors) is not TOML
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # TOML is UTF-8 text
         raise TaskError(f"{path}: not valid TOML: {exc}") from None

@@ -1823,6 +1823,18 @@ def test_downloaded_files_cannot_forge_lines_block_or_write_elsewhere(tmp_path, 
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "\x1b" not in err
     assert "\\x1b]0;TITLE\\x07\\x1b[31mRED\\nplanner" in err
+    accented = tmp_path / "robot é\tü.xml"  # printable text prints as itself, a tab too
+    accented.write_text("<mujoco>")
+    assert main(["check-model", str(accented)]) == 2
+    assert str(accented) in capsys.readouterr().err
+    from types import SimpleNamespace
+
+    from planner.cli import _progress
+
+    _progress(SimpleNamespace(quiet=False), f"note: {odd}/summary.json has no robot_sha256")  # (validate's note)
+    assert "\x1b" not in capsys.readouterr().err
+    assert main(["check-model", "--no-such-flag\x1b[31m"]) == 2  # argparse's line
+    assert "\x1b" not in capsys.readouterr().err
     drop = tmp_path / "drop"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
     blocked = tmp_path / "blocked"

@@ -733,7 +733,7 @@ def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(
              tmp_path / "doctype.xml": ('<?xml version="1.0"?>\n<!DOCTYPE mujoco [<!ENTITY e "x">]>\n' + text,
                                         "has a <!DOCTYPE>, which neither MuJoCo nor URDF reads"),
              tmp_path / "big.xml": (text.replace("<worldbody>", "<!--" + "x" * MAX_ROBOT_FILE_BYTES + "--><worldbody>"),
-                                    rf"is 20 MB, more than the {MAX_ROBOT_FILE_BYTES // 2**20} MB a robot file may be")}
+                                    rf"is \d+ bytes, more than the {MAX_ROBOT_FILE_BYTES} \(20 MB\) a robot file")}
     for path, case in cases.items():
         if isinstance(case, tuple):
             path.write_text(case[0])
@@ -750,3 +750,19 @@ def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(
     from planner.model import detect_format
 
     assert detect_format(beside) is RobotFormat.MJCF
+    # what MuJoCo opens beyond the file's own <include> and mesh file=: an include's include, a mesh below an included
+    # <compiler meshdir>, a cube texture's faces, a path whose directories strippath drops (each blocked MuJoCo)
+    (tmp_path / "m").mkdir()
+    os.mkfifo(tmp_path / "m" / "deep.stl")
+    for sub, top, message in (('<mujoco><include file="fifo"/></mujoco>', "", "<include> names 'fifo'"),
+                              ('<mujoco><compiler meshdir="m"/><asset><mesh name="d" file="deep.stl"/></asset>'
+                               "</mujoco>", "", "<mesh> names 'deep.stl'"),
+                              ("<mujoco/>", '<asset><texture name="t" type="cube" fileright="fifo.stl"/></asset>',
+                               "<texture> names 'fifo.stl'"),
+                              ("<mujoco/>", '<compiler strippath="true"/><asset><mesh name="z" file="zz/fifo.stl"/>'
+                                            "</asset>", "<mesh> names 'fifo.stl'")):
+        (tmp_path / "sub.xml").write_text(sub)
+        main = tmp_path / "main.xml"
+        main.write_text(text.replace("<worldbody>", f'{top}<include file="sub.xml"/><worldbody>', 1))
+        with pytest.raises(RobotFileError, match=message):
+            detect_format(main)

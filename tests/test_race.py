@@ -61,7 +61,8 @@ def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_
 def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, method, monkeypatch):
     """With print_level > 0 the arms' logs reach the race's own sys.stdout (here a redirect_stdout StringIO: forked
     arms wrote to their copy of it and every line was lost, forkserver's arms to the server's descriptor 1), every line
-    starting with "[default] " or "[alternate] ", both arms' IPOPT logs there (their iteration tables); the winner's
+    starting with "[default] " or "[alternate] ", both arms' IPOPT logs there (their iteration tables, the winner's
+    EXIT line of each of its NLPs); the winner's
     plan is that arm's quiet plan bit for bit (printing does not change the arithmetic)."""
     import contextlib
     import io
@@ -77,6 +78,8 @@ def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_o
         assert any(line.startswith(label) and "iter    objective" in line for line in lines), label
     (won,) = [row["arm"] for row in result.extra["race"] if row["outcome"] == "won"]
     assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
+    # every NLP's log reached the race, its last NLP's too (the arm sends what it gathered before its result)
+    assert sum(line.startswith(f"[{won}] EXIT:") for line in lines) == len(result.nlps)
 
 
 def test_verbose_arms_without_a_stdout_still_race(hop_problem, one_by_one, monkeypatch):
