@@ -1833,8 +1833,9 @@ def test_downloaded_files_cannot_forge_lines_block_or_write_elsewhere(tmp_path, 
 
     _progress(SimpleNamespace(quiet=False), f"note: {odd}/summary.json has no robot_sha256")  # (validate's note)
     assert "\x1b" not in capsys.readouterr().err
-    assert main(["check-model", "--no-such-flag\x1b[31m"]) == 2  # argparse's line
-    assert "\x1b" not in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stopped:  # argparse's line (the usage error raises: exit 2)
+        main(["check-model", "--no-such-flag\x1b[31m"])
+    assert stopped.value.code == 2 and "\x1b" not in capsys.readouterr().err
     drop = tmp_path / "drop"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
     blocked = tmp_path / "blocked"
