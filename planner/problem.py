@@ -369,9 +369,11 @@ class Problem:
         if {"f", "g"} & set(self.edited):
             if self.f.shape != (1, 1):
                 raise InputError(f"problem.f must be a scalar expression, got shape {self.f.shape}")
-            if self.g.shape[1] != 1 or self.g.shape[0] != len(self.lbg) or self.g.shape[0] != len(self.ubg):
+            # np.size: bounds extended with casadi.vertcat are DMs, which have no len()
+            n_lbg, n_ubg = np.size(np.asarray(self.lbg)), np.size(np.asarray(self.ubg))
+            if self.g.shape[1] != 1 or self.g.shape[0] != n_lbg or self.g.shape[0] != n_ubg:
                 raise InputError(f"problem.g must be a column with one entry per lbg, ubg entry, got shape "
-                                 f"{self.g.shape} and {len(self.lbg)}, {len(self.ubg)} bounds")
+                                 f"{self.g.shape} and {n_lbg}, {n_ubg} bounds")
             # (by identity, not name: another build's x has the same names, and CasADi's error came after NLP 1)
             uses = ca.Function("edits", [self.x, self.p], [self.f, self.g], {"allow_free": True})
             free = sorted(str(s) for s in uses.free_sx()) if uses.has_free() else []

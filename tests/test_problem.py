@@ -651,7 +651,8 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
     """Problem.edited names the bounds, cost and rows changed after build_problem (what solve honours), and
     Problem.check_solvable (solve's and race's first check) refuses what the NLP was built from changed since: a robot,
     a task or options swapped by dataclasses.replace (planned for the old target, written with the new), y0 edited in
-    place, new variables, a vector cost or a symbol that is not x or p (the raw CasADi errors came after NLP 1)."""
+    place, new variables, a vector cost or a symbol that is not x or p (the raw CasADi errors came after NLP 1); bounds
+    extended with casadi.vertcat, as the rows are, are taken."""
     import casadi as ca
 
     robot = load_robot(f"{ROBOTS}/point_mass.xml")
@@ -664,6 +665,9 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
     edited.ubx[0] = 1.0
     assert edited.edited == ("f", "g", "ubx", "lbg", "ubg") and pb.edited == ()
     edited.check_solvable()
+    # the bounds extended as the rows are, with casadi.vertcat (README's pattern: "object of type 'DM' has no len()")
+    dm = dataclasses.replace(edited, lbg=ca.vertcat(pb.lbg, -np.inf), ubg=ca.vertcat(pb.ubg, 0.1))
+    assert dm.edited == edited.edited and dm.check_solvable() is None
     moved = dataclasses.replace(pb.task, plan=dataclasses.replace(pb.task.plan, target_q=(0.8, 0.0)))
     with pytest.raises(InputError, match=r"^problem.task changed after build_problem, which built the NLP from them: "
                                          r"build the problem again .*takes edits of f, g, lbx, ubx, lbg, ubg and x0"):
