@@ -165,14 +165,13 @@ def _arm(problem: Problem, options: SolveOptions, conn, name: str) -> None:
         conn.send(("progress", record))
 
     try:
-        result = solve(problem, options, progress)
-        if relay:
+        try:
+            message = ("done", solve(problem, options, progress))
+        except Exception as exc:  # the parent re-raises it if this arm's result is the one to return
+            message = ("error", (_portable(exc), traceback.format_exc()))
+        if relay:  # the log's last lines before the outcome
             relay.finish()
-        conn.send(("done", result))
-    except Exception as exc:  # the parent re-raises it if this arm's result is the one to return
-        if relay:
-            relay.finish()
-        conn.send(("error", (_portable(exc), traceback.format_exc())))
+        conn.send(message)
     finally:
         conn.close()
 
