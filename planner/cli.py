@@ -488,6 +488,12 @@ def _written_line(args) -> None:
 _ESCAPED = {**{i: f"\\x{i:02x}" for i in (*range(32), *range(127, 160)) if i != 9}, 10: "\\n", 13: "\\r"}
 
 
+def _escaped(text) -> str:
+    """str(text) with its control characters escaped (a tab kept): a path's newline forged a report line of its own
+    ("converged: ...")."""
+    return str(text).translate(_ESCAPED)
+
+
 def _to_stderr(args, line: str) -> None:
     """One line on the command's stderr (a reader may leave), none when it is closed (`2>&-`): print(file=None)
     wrote it on stdout, after or before --json's object."""
@@ -531,8 +537,8 @@ def _emit(args, summary: dict, text: str, written: bool = False) -> None:
     args.summary = summary  # the -q failure line reads it
     if args.json:
         print(json.dumps(summary), file=args.stdout)
-    elif not args.quiet:
-        print(text, file=args.stdout)
+    elif not args.quiet:  # a name's or path's escape sequences (a terminal's title, colours): escaped
+        print("\n".join(map(_escaped, text.split("\n"))), file=args.stdout)
 
 
 def _emit_then_plots(args, summary: dict, text: str, plots_drawn: Callable[[], None]) -> None:
@@ -760,7 +766,8 @@ def _cmd_simulate(args) -> int:
     result = simulate(robot, task, options)
     target, plots_drawn = _write(args, result, out)
     verdict = "converged" if result.stats.converged else "FAILED"
-    _emit_then_plots(args, result.summary(), f"{result.report()}\n{verdict}: results in {target}", plots_drawn)
+    text = f"{result.report()}\n{verdict}: results in {_escaped(target)}"
+    _emit_then_plots(args, result.summary(), text, plots_drawn)
     return EXIT_OK if result.stats.converged else EXIT_FAILED
 
 
@@ -927,7 +934,7 @@ def _cmd_plan(args) -> int:
                                     and result.trajectory.physical_duration > 0)
     target, plots_drawn = _write(args, result, out, background=validating)
     summary, ok = result.summary(), result.stats.converged
-    text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {target}"
+    text = f"{result.report()}\n{'converged' if ok else 'FAILED'}: results in {_escaped(target)}"
     if args.init is not None and not ok:
         args.advice = _replan_failed(args.init, result)
         text += "\n" + args.advice
@@ -1134,7 +1141,7 @@ def _cmd_gait(args) -> int:
     valid = walked and not gait_violations(result.summary)
     verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
                else "converged, but the gait violates its contacts or motor ranges") if converged else "FAILED"
-    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {target}", written=True)
+    _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {_escaped(target)}", written=True)
     return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 
 

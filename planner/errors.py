@@ -62,7 +62,11 @@ class UnknownNameError(InputError):
         """key: where the name was given (a task key such as "plan.joint_bounds[0].joint"), said first; ordered: list
         `valid` as given (joints in coordinate order, the order of the task's vectors), else sorted."""
         self.kind, self.name, self.valid = kind, name, list(valid) if ordered else sorted(valid)
-        super().__init__(f"{key + ': ' if key else ''}unknown {kind} {name!r}; valid {kind}s: {', '.join(self.valid) or '(none)'}")
+        # a name with spaces at its ends, a comma or a control character is quoted: "valid joints: x , z" hid that
+        # the joint was "x " (a joint "x, z" read as two)
+        listed = ", ".join(v if v.strip() == v and "," not in v and v.isprintable() and v else repr(v)
+                           for v in map(str, self.valid))
+        super().__init__(f"{key + ': ' if key else ''}unknown {kind} {name!r}; valid {kind}s: {listed or '(none)'}")
 
     def __reduce__(self):
         # pickle rebuilt it by calling __init__ with its message alone: a multiprocessing pool's result thread died

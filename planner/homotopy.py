@@ -49,8 +49,7 @@ from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
-from .task import MAX_NLPS
-from .timefreezing import contact_labels
+from .task import MAX_NLPS, contact_labels
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 

@@ -557,7 +557,10 @@ def _point_frames(model: pin.Model) -> dict[str, int]:
     body of the same name are the site (docs/tasks.md: a contact point is an MJCF site; the body's frame had won)."""
     points: dict[str, int] = {}  # in the frames' order
     for fid, frame in enumerate(model.frames):
-        if frame.type not in (pin.FrameType.OP_FRAME, pin.FrameType.BODY) or frame.name in ("universe", "world"):
+        # the universe and a "world" link are fixed, no points; a site of the robot's may be named so (it was left
+        # out: "unknown contact point 'world'; valid contact points: (none)")
+        if frame.type not in (pin.FrameType.OP_FRAME, pin.FrameType.BODY) or fid == 0 or (
+                frame.type == pin.FrameType.BODY and frame.name in ("universe", "world")):
             continue
         if frame.name not in points or (frame.type == pin.FrameType.OP_FRAME
                                         and model.frames[points[frame.name]].type != pin.FrameType.OP_FRAME):
@@ -654,6 +657,14 @@ def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...],
     return tuple(actuators), tuple(dof_names), passive
 
 
+def _unnamed(name: str, taken) -> str:
+    """The name of an element the file leaves unnamed: `name`, primed until no named element of its kind has it (an
+    unnamed motor's "actuator_0" and a motor named "actuator_0" were one key of the validation's saturations)."""
+    while name in taken:
+        name += "'"
+    return name
+
+
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
                                                      tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...],
                                                      tuple[str, ...]]:
@@ -686,15 +697,18 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     model.gravity = pin.Motion(np.array(mj.opt.gravity, dtype=float), np.zeros(3))
     dofs = np.bincount(mj.dof_jntid, minlength=mj.njnt)  # a joint of several (free, ball) names each: "root_0", ...
 
+    joint_names = {mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(mj.njnt)}
+    motor_names = {mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(mj.nu)}
+
     def dof_name(i: int) -> str:
         j = int(mj.dof_jntid[i])
-        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"dof_{i}"
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or _unnamed(f"dof_{i}", joint_names)
         return f"{name}_{i - int(mj.jnt_dofadr[j])}" if dofs[j] > 1 else name
 
     dof_names = tuple(dof_name(i) for i in range(mj.nv))
     actuators = []
     for i in range(mj.nu):
-        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator_{i}"
+        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or _unnamed(f"actuator_{i}", motor_names)
         # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only); the
         # joint's type is read for it alone (a site's or tendon's id is no joint's), as an int (numpy's int is no
         # member of a tuple of mjtJoint values)
@@ -787,11 +801,13 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
         # one "Composite_<first>" joint, so a planar base's slide "z" had no Pinocchio joint of its name (its range
         # kept Pinocchio's degrees-to-radians reading of its metres, and the file was refused)
         i = int(mj.jnt_qposadr[j])
-        if not mj.jnt_limited[j] and mj.jnt_range[j, 0] > mj.jnt_range[j, 1]:  # autolimits drops it: a sign typo
+        lo, hi = mj.jnt_range[j]
+        # autolimits drops a range whose lower is not below its upper: a sign typo, or "0.2 0.2" (a joint held at one
+        # value) planned as unlimited, silently; "0 0" is the default, no range
+        if not mj.jnt_limited[j] and (lo > hi or lo == hi != 0.0):
             name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}"
-            raise RobotFileError(f"{path}: joint {name!r}: its range {mj.jnt_range[j, 0]:g} {mj.jnt_range[j, 1]:g} is "
-                                 "no limit to MuJoCo (lower above upper); write the lower bound first, or remove the "
-                                 "range")
+            raise RobotFileError(f"{path}: joint {name!r}: its range {lo:g} {hi:g} is no limit to MuJoCo (lower not "
+                                 "below upper); write the lower bound first, or remove the range")
         lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 

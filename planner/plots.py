@@ -13,7 +13,7 @@ import pinocchio as pin
 
 from .model import coordinate_units
 from .result import TAP_SHARE, write_beside_result
-from .timefreezing import contact_labels
+from .task import contact_labels
 from .view import Result, load_result
 
 MAX_PANELS_PER_COLUMN = 8  # with more coordinates than this, several share a panel
@@ -37,17 +37,27 @@ def plot_results(out_dir) -> list[Path]:
     drawn from (summary.json's result_id): the paths returned are those written. Raises InputError for an unusable
     result directory.
     """
+    from matplotlib import rc_context
+
     res = load_result(out_dir)
     writers = [_states, _torques, _contact_forces, _clock, _foot_path]
     paths = []
-    for write in writers:
-        fig_and_name = write(res)
-        if fig_and_name is not None:
-            fig, name = fig_and_name
-            # only beside the result drawn: another run may have written its own into the directory meanwhile
-            if save_figure(fig, res.directory / name, result_id=res.summary.get("result_id")):
-                paths.append(res.directory / name)
+    # the robot file's names and the paths are text, not mathtext: a joint named "$\\foo$" failed the plots, so the
+    # command (exit 1) of a validated plan
+    with rc_context({"text.parse_math": False}):
+        for write in writers:
+            fig_and_name = write(res)
+            if fig_and_name is not None:
+                fig, name = fig_and_name
+                # only beside the result drawn: another run may have written its own into the directory meanwhile
+                if save_figure(fig, res.directory / name, result_id=res.summary.get("result_id")):
+                    paths.append(res.directory / name)
     return paths
+
+
+def _label(name: str) -> str:
+    """A name as a legend entry: matplotlib leaves out entries whose label starts with '_' (an actuator '_fx')."""
+    return " " + name if name.startswith("_") else name
 
 
 def save_figure(fig, path: Path, dpi: int = DPI, result_id: str | None = None) -> bool:
@@ -117,7 +127,7 @@ def _states(res: Result):
                 ax.set_visible(False)
                 continue
             for i in col_groups[r]:
-                ax.plot(res.t, values[:, i], linewidth=1.3, label=names[i])
+                ax.plot(res.t, values[:, i], linewidth=1.3, label=_label(names[i]))
             _mark_impacts(ax, res, legend=(r, c) == (0, 0))
             unit = {units[i] for i in col_groups[r]}
             unit_text = f" [{unit.pop()}]" if len(unit) == 1 and "" not in unit else ""
@@ -155,7 +165,7 @@ def _torques(res: Result):
         ax = axes[r, 0]
         for j in group:
             # u[i] is held from sample i-1 to sample i (zero-order hold): steps, not the ramps a line drew between them
-            label = names[j] if gears[j] == 1.0 else f"{names[j]} (gear {gears[j]:g} x u)"
+            label = _label(names[j] if gears[j] == 1.0 else f"{names[j]} (gear {gears[j]:g} x u)")
             ax.plot(res.t, gears[j] * res.u[:, j], linewidth=1.3, label=label, drawstyle="steps-pre")
         _mark_impacts(ax, res, legend=r == 0)
         # per panel, as the states' (a slide's N beside a hinge's N m left both panels without a unit)
@@ -187,9 +197,10 @@ def _contact_forces(res: Result):
     for i in range(n_contacts):
         # a sample's force is its step's (the step ending there): steps, as the torques (a take-off's ramp drew 4.9 N
         # on a point mass already in the air)
-        line, = axes[0, 0].plot(res.t, res.lambda_n[:, i], linewidth=1.3, label=names[i], drawstyle="steps-pre")
+        line, = axes[0, 0].plot(res.t, res.lambda_n[:, i], linewidth=1.3, label=_label(names[i]),
+                               drawstyle="steps-pre")
         if rows == 2:
-            axes[1, 0].plot(res.t, res.lambda_t[:, i], linewidth=1.3, color=line.get_color(), label=names[i],
+            axes[1, 0].plot(res.t, res.lambda_t[:, i], linewidth=1.3, color=line.get_color(), label=_label(names[i]),
                             drawstyle="steps-pre")
             if mus is not None and mus[i] > 0:
                 for sign in (1, -1):
@@ -282,7 +293,7 @@ def _foot_path(res: Result):
         ax.add_patch(Ellipse((h.x, h.z), 2 * h.a, 2 * h.b, facecolor="white", edgecolor="0.15", linewidth=1.0,
                              linestyle="--", zorder=1, label="hole (keep-out ellipse)" if i == 0 else None))
     for p in points:
-        line, = ax.plot(paths[p][:, 0], paths[p][:, 2], linewidth=1.6, zorder=3, label=f"{p} path")
+        line, = ax.plot(paths[p][:, 0], paths[p][:, 2], linewidth=1.6, zorder=3, label=_label(f"{p} path"))
         ax.plot(*paths[p][0, [0, 2]], "o", color=line.get_color(), markersize=5, zorder=4)
         ax.plot(*paths[p][-1, [0, 2]], "s", color=line.get_color(), markersize=5, zorder=4)
     for taps, style, label in ((False, dict(marker="x", color="tab:red", markersize=9, markeredgewidth=2), "impact"),

@@ -424,6 +424,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         raise InputError(f"task {task.source or '(in code)'} has no [[contacts]]; the time-freezing OCP needs at least "
                          "one contact point")
     task.check_against(robot)
+    task.require_actuators(robot)
     task.warn_dependent_contacts(robot)
     task.warn_buried_holes(options.scene_analysis)
     task.check_no_slip_forces(robot)

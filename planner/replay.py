@@ -62,6 +62,9 @@ CONTACT_GAP_TOL_M = 1e-3  # a point "is in contact" when its gap is below this [
 # simulations 6e-16 to 2.3e-2 (docs/validation.md, session 45, relative to the terms' sum; to the largest term since
 # session 60, up to ~2x that), controls set to zero ~1
 FLIGHT_RESIDUAL_TOL = 0.1
+# a plan at rest (its goal its start) moves by the solver's noise, ~1e-13 m/s: its positions' drift against its
+# velocities is judged on this speed at least [m/s or rad/s] (on the fastest's 1e-12 it failed as "edited samples")
+REST_SPEED = 1e-6
 WINDOW_S = 0.1  # length of the windowed tracking replays [s]: the window of the re-simulation
 #   defect (scripts/bench_work_precision.py), short against a hop's flight (~0.3 s)
 WINDOW_STRIDE_S = 0.025  # a window starts this often [s]; on the Capler plans the window statistics
@@ -1005,7 +1008,7 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     and simulations (measured against the terms' sum until session 60: up to ~2x that now), ~1 for controls that do
     not move the robot as its samples do (for other sources of samples see _stepped_by_implicit_euler). And on every
     running step (no impact in it, stance too) the positions' q+ = q + dt v+, relative to the coordinate's largest
-    speed (floored at 1e-3 of the fastest's). KinematicReport's flight fields (the larger of the two; flight_steps 0
+    speed (floored at 1e-3 of the fastest's and at REST_SPEED). KinematicReport's flight fields (the larger of the two; flight_steps 0
     and the positions' alone without a flight step); empty without a running step."""
     t, q, v, u = arrays["t"], arrays["q"], arrays["v"], arrays["u"]
     impacts = np.atleast_1d(arrays["impact_times"])
@@ -1041,7 +1044,7 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     # the samples' positions against their velocities (v zeroed, or z raised 5 cm over a flight, passed: the momentum
     # equation reads v and u only); a coordinate at rest is judged on the fastest one's speed, which the solver's
     # tolerance (~1e-8 m per step) cannot reach at 1e-3 of it
-    moved = np.abs(drift) / np.maximum(speed, 1e-3 * max(speed.max(), 1e-9))
+    moved = np.abs(drift) / np.maximum(speed, max(1e-3 * speed.max(), REST_SPEED))
     n, j = np.unravel_index(int(np.argmax(relative)), relative.shape) if steps else (0, 0)
     nq_, jq = np.unravel_index(int(np.argmax(moved)), moved.shape)
     positions = not steps or bool(moved[nq_, jq] > relative[n, j])

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, expect, is_integer, read_error, real_array, shown, signals_held, write_error
-from .task import Task, load_task, parse_task, task_to_json
+from .task import Task, contact_labels, load_task, parse_task, task_to_json
 
 
 def _read_only(obj) -> None:
@@ -319,7 +319,6 @@ class SimulationResult(ArraysReadOnly):
                          f"{where}): a simulation's no-slip contact holds the point with any tangential force "
                          "(docs/tasks.md)")
         if self.ends_in_impact:
-            from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 
             last, task = self.trajectory.impacts[-1], self.extra.get("_task")
             elastic = task is not None and any(label == last.contact and c.restitution > 0  # a corner's point#k too
@@ -396,7 +395,6 @@ def outside_cone(tr: Trajectory, task: Task | None) -> np.ndarray:
     False without the task (its mu) or for frictionless contacts."""
     if task is None:
         return np.zeros(len(tr.impacts), dtype=bool)
-    from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 
     mu = dict(zip(contact_labels(task.contacts), (c.mu for c in task.contacts)))
     return np.array([mu.get(imp.contact, 0.0) > 0.0 and abs(imp.impulse_tangential)
@@ -418,7 +416,6 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     samples = tr.contact_force_samples()
     if task is None or samples is None or samples[0].shape[1] != len(task.contacts):
         return []
-    from .timefreezing import contact_labels  # (CasADi: not for reading results only)
 
     lambda_n, lambda_t = samples
     out = []

@@ -46,8 +46,7 @@ import numpy as np
 
 from .dynamics import _expand
 from .model import Robot
-from .task import Task
-from .timefreezing import contact_labels
+from .task import Task, contact_labels
 
 REVOLUTE = ("revolute", "revolute_unbounded")
 
@@ -57,7 +56,7 @@ class Skips:
     """The scene analysis' decisions, with one reason per decision.
 
     enabled: False when ProblemOptions.scene_analysis is off (then nothing is skipped).
-    frictionless (n,): contact labels (timefreezing.contact_labels: a point, or point#k for one on several planes) of
+    frictionless (n,): contact labels (task.contact_labels: a point, or point#k for one on several planes) of
       the contacts (mu = 0, inelastic) without tangential machinery.
     never_touching (n,): contact points with touches = false: no contact machinery, gap >= 0 (and the holes) only.
     dropped_holes (n,): (contact point, hole index into task.plan.holes) pairs left out.

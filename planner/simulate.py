@@ -35,8 +35,8 @@ from .errors import InputError, check_field_types, enum_field, expect, interrupt
 from .model import Robot, coordinate_units
 from .result import (APPROACH_MPS, COLLAPSED, CONE_FLOOR_N, FROZEN_TOL, ON_PLANE_M, SimulationResult, SolveStats,
                      Trajectory, clock_ran, cone_breach, forces_outside_cone, recover)
-from .task import Task
-from .timefreezing import ContactModel, TimeFreezingSystem, contact_labels
+from .task import Task, contact_labels
+from .timefreezing import ContactModel, TimeFreezingSystem
 
 # An initial gap below -GAP_TOL [m] is "below the ground": the time-freezing system must start in c >= 0.
 GAP_TOL = 1e-9

@@ -421,6 +421,18 @@ class Gait:
         _require(1 <= self.steps <= MAX_GAIT_STEPS, "gait.steps", self.steps, f"in [1, {MAX_GAIT_STEPS}]")
 
 
+def contact_labels(contacts) -> tuple[str, ...]:
+    """One label per contact: its point name, or `point#k` (k = 1, 2, ...) for a point listed
+    several times (e.g. one point against two walls)."""
+    points = [c.point for c in contacts]
+    seen: dict[str, int] = {}
+    labels = []
+    for p in points:
+        seen[p] = seen.get(p, 0) + 1
+        labels.append(p if points.count(p) == 1 else f"{p}#{seen[p]}")
+    return tuple(labels)
+
+
 @dataclass(frozen=True)
 class Task:
     """A whole task file."""
@@ -446,6 +458,12 @@ class Task:
                     for i, (p, m) in enumerate(planes) for q, n in planes[i + 1:])
         _require(not twice, "contacts", [f"{p} {list(n)}" for p, n in planes],
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
+        # a repeated point's planes are labelled point#1, point#2, ...: a point of that name would share a label with
+        # one of them, and the forces and selectors looked up by label were the other's
+        labels = contact_labels(self.contacts)
+        _require(len(set(labels)) == len(labels), "contacts", list(labels),
+                 "labels that differ: a point listed on several planes is labelled point#1, point#2, ..., which no "
+                 "other contact point's name may be (rename the point in the robot file)")
         # touches = false drops a point's contact machinery, so it is the point's, not one plane's: false on one plane
         # of a corner dropped the other plane's contact as well, silently
         mixed = sorted({c.point for c in self.contacts} & {c.point for c in self.contacts if not c.touches}
@@ -502,6 +520,17 @@ class Task:
             if self.source:
                 exc.args = (f"{self.source}: {exc}",)
             raise
+
+    def require_actuators(self, robot) -> None:
+        """TaskError unless the robot has a motor to plan with (the plan's check; a simulation of a file without
+        motors reads no [plan] table, and its task was refused for having one)."""
+        from .model import RobotFormat  # here: reading a task needs no Pinocchio
+
+        if robot.nu == 0:
+            urdf = (" (a URDF joint is actuated by its <limit effort> > 0; <transmission> elements are not read)"
+                    if robot.format is RobotFormat.URDF else "")
+            raise TaskError(f"{self.source + ': ' if self.source else ''}the task has a [plan] but robot "
+                            f"{robot.name!r} has no actuators to plan with{urdf}")
 
     def _check_against(self, robot) -> None:
         from .model import RobotFormat  # here: reading a task needs no Pinocchio
@@ -561,10 +590,6 @@ class Task:
             self.pd_actuators(robot)
         if self.plan is None:
             return
-        if robot.nu == 0:
-            urdf = (" (a URDF joint is actuated by its <limit effort> > 0; <transmission> elements are not read)"
-                    if robot.format is RobotFormat.URDF else "")
-            raise TaskError(f"the task has a [plan] but robot {robot.name!r} has no actuators to plan with{urdf}")
         for i, p in enumerate(self.plan.above_ground):
             if p not in robot.points:
                 _not_on_the_world(p, robot, f"plan.above_ground[{i}]")

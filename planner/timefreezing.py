@@ -48,7 +48,7 @@ import numpy as np
 from .contact import ContactTerms, contact_terms
 from .dynamics import Dynamics
 from .errors import InputError
-from .task import Contact
+from .task import Contact, contact_labels
 
 # Wanted selectors on the sliding manifolds (Prop. 9, Sec. 6); xi* = alpha* in the simplified
 # frictional form. eta* = 1: in flight p rests at 0 and eta only multiplies identical fields.
@@ -217,18 +217,6 @@ class Factor:
     name: str
     definition: Poly
     upper: float
-
-
-def contact_labels(contacts) -> tuple[str, ...]:
-    """One label per contact: its point name, or `point#k` (k = 1, 2, ...) for a point listed
-    several times (e.g. one point against two walls)."""
-    points = [c.point for c in contacts]
-    seen: dict[str, int] = {}
-    labels = []
-    for p in points:
-        seen[p] = seen.get(p, 0) + 1
-        labels.append(p if points.count(p) == 1 else f"{p}#{seen[p]}")
-    return tuple(labels)
 
 
 class TimeFreezingSystem:

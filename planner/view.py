@@ -22,6 +22,7 @@ import os
 import re
 import time
 import warnings
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -144,7 +145,7 @@ class Result(ArraysReadOnly):
         if isinstance(contact, str) and contact in self.contact_points:
             return (contact,)
         point, _, k = contact.rpartition("#") if isinstance(contact, str) else ("", "", "")
-        if k.isdigit() and point in self.contact_points:  # a corner's plane (timefreezing.contact_labels): its point
+        if k.isdigit() and point in self.contact_points:  # a corner's plane (task.contact_labels): its point
             return (point,)
         return self.contact_points  # unnamed or unknown: do not guess which point hit
 
@@ -244,7 +245,10 @@ def robot_parts(robot: Robot) -> tuple[list[_Part], str | None]:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         return _skeleton_parts(robot), f"Pinocchio could not read the geometry of {robot.path} ({first})"
     parts, skipped = [], []
-    for obj in geom_model.geometryObjects:
+    # a part's name is its meshcat path: Pinocchio names an unnamed geom as a named one may be ("base" body's
+    # "baseGeom_0"), and the second part of one name replaced the first in the replay; '/' would nest it
+    repeated = Counter(obj.name for obj in geom_model.geometryObjects)
+    for i, obj in enumerate(geom_model.geometryObjects):
         pieces = _pieces(obj)
         if pieces is None:
             skipped.append(f"{obj.name} ({type(obj.geometry).__name__})")
@@ -254,7 +258,8 @@ def robot_parts(robot: Robot) -> tuple[list[_Part], str | None]:
         rgba = tuple(float(c) for c in obj.meshColor)
         if np.allclose(rgba, _PIN_DEFAULT_RGBA):
             rgba = ROBOT_RGBA
-        parts.append(_Part(obj.name, int(obj.parentJoint), obj.placement.homogeneous, tuple(pieces), rgba))
+        name = obj.name.replace("/", "|") + (f" #{i}" if repeated[obj.name] > 1 else "")
+        parts.append(_Part(name, int(obj.parentJoint), obj.placement.homogeneous, tuple(pieces), rgba))
     if skipped:
         warnings.warn(f"meshcat replay: cannot draw geometry {', '.join(skipped)} of {robot.path}", stacklevel=2)
     if not any(p.joint > 0 for p in parts):
@@ -674,6 +679,12 @@ def _script_safe(text: str) -> str:
     return re.sub(r"</(script)", r"<\\/\1", text, flags=re.IGNORECASE)
 
 
+def _json_in_script(value) -> str:
+    """value as a JavaScript literal inside <script>: every '<' escaped, as a name's "<!--<script>" put the HTML
+    parser into its script-data states and the rest of the page was read as script (a blank page)."""
+    return json.dumps(value).replace("<", "\\u003c")
+
+
 def _page(commands: list[bytes], overlay: dict) -> str:
     blobs = json.dumps([base64.b64encode(c).decode("ascii") for c in commands])
     return f"""<!DOCTYPE html>
@@ -702,7 +713,7 @@ var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
   for (var i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
   viewer.handle_command_bytearray(bytes);
 }});
-var planner = {_script_safe(json.dumps(overlay))};
+var planner = {_json_in_script(overlay)};
 // page.html#time=0.65 opens paused at that replay time [s] (a moment to link to, or to screenshot)
 var plannerSeek = /(?:^#|&)time=([0-9.eE+-]+)/.exec(location.hash);
 if (plannerSeek) {{

@@ -1851,3 +1851,13 @@ def test_downloaded_files_cannot_forge_lines_block_or_write_elsewhere(tmp_path, 
     assert main(["validate", str(linked), "-q"]) in (0, 1)
     assert (drop / "summary.json").read_text() == before and not (linked / "summary.json").is_symlink()
     assert "validation" in json.loads((linked / "summary.json").read_text())
+
+
+def test_a_reports_names_and_paths_cannot_forge_its_lines(tmp_path, capsys):
+    """The report on stdout escapes control characters in its lines and in the results path, as the stderr lines do:
+    an --out path with a newline and "converged: fake" printed that as a line of its own (session 64's tester)."""
+    out = tmp_path / "out\nconverged: fake\x1b[31m"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--no-plots"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert not any(line.startswith("converged: fake") for line in lines) and "\x1b" not in "".join(lines)
+    assert any("out\\nconverged: fake\\x1b[31m" in line for line in lines), lines

@@ -59,6 +59,16 @@ def test_unknown_name_errors_pickle_with_their_message_and_names():
     assert (back.kind, back.name, back.valid) == ("contact point", "foot", ["point"])
 
 
+def test_unknown_name_errors_quote_the_names_a_list_would_hide():
+    """The valid names are listed as they are, except those a comma-separated list hides (session 64's tester):
+    spaces at their ends ("valid joints: x , z" for "x "), a comma ("x, z" read as two joints), a control character
+    or the empty name are quoted."""
+    from planner.errors import UnknownNameError
+
+    exc = UnknownNameError("joint", "x", ["x ", "x, z", "a\nb", "", "knee ñ"], ordered=True)
+    assert str(exc) == "unknown joint 'x'; valid joints: 'x ', 'x, z', 'a\\nb', '', knee ñ"
+
+
 @pytest.mark.parametrize("kwargs, ok", [
     ({}, True), ({"scale": 2}, True), ({"limit": None}, True), ({"limit": 3}, True), ({"items": (1, 2.5)}, True),
     ({"bound": -INF}, True), ({"names": ("a", "b")}, True),

@@ -272,14 +272,19 @@ def test_limits_of_joints_sharing_a_body_are_mujocos(tmp_path):
 
 
 def test_an_inverted_joint_range_is_refused_and_mujocos_element_named(tmp_path):
-    """A joint range with its lower bound above the upper (MuJoCo reads it as no limit: a sign typo unbounded the joint
-    silently, or check-model blamed MuJoCo) is refused in MJCF and URDF, as an inverted ctrlrange is; MuJoCo's
+    """A joint range with its lower bound above the upper, or equal to it but not MuJoCo's default "0 0" (MuJoCo reads
+    both as no limit: a sign typo unbounded the joint silently, or check-model blamed MuJoCo) is refused in MJCF and URDF, as an inverted ctrlrange is; MuJoCo's
     compile error keeps the element it names (the body to fix was dropped)."""
     mjcf = tmp_path / "inverted.xml"
     mjcf.write_text('<mujoco><compiler angle="radian"/><worldbody><body name="b"><joint name="hip" type="hinge" '
                     'range="1 -1"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></worldbody></mujoco>')
     with pytest.raises(RobotFileError, match="joint 'hip': its range 1 -1 is no limit to MuJoCo"):
         load_robot(mjcf)
+    mjcf.write_text(mjcf.read_text().replace('range="1 -1"', 'range="0.2 0.2"'))  # (it planned as unlimited)
+    with pytest.raises(RobotFileError, match="joint 'hip': its range 0.2 0.2 is no limit to MuJoCo"):
+        load_robot(mjcf)
+    mjcf.write_text(mjcf.read_text().replace('range="0.2 0.2"', 'range="0 0"'))  # MuJoCo's default: no range
+    assert load_robot(mjcf).q_upper[0] == np.inf
     urdf = tmp_path / "inverted.urdf"
     urdf.write_text('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="1" '
                     'iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link><joint name="hip" type="revolute">'
@@ -374,6 +379,29 @@ def test_an_unnamed_site_is_no_point(tmp_path):
                        "horizon": {"tau_f": 0.4, "N": 4}})
     with pytest.raises(UnknownNameError, match="unknown contact point 'massSite_0'; valid contact points: foot"):
         task.check_against(robot)
+
+
+@pytest.mark.parametrize("name", ["world", "universe"])
+def test_a_site_named_world_is_a_point(tmp_path, name):
+    """A site of the robot's named "world" or "universe" (MuJoCo takes both) is a contact point at the site: it was
+    left out with the universe frame ("valid contact points: (none)", session 64's tester)."""
+    path = tmp_path / "site.xml"
+    path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/>'
+                    '<joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" '
+                    f'diaginertia="0.01 0.01 0.01"/><site name="{name}" pos="0 0 -0.1"/></body></worldbody></mujoco>')
+    robot = load_robot(path)
+    assert robot.points == ("mass", name) and robot.model.frames[robot.frame_id(name)].parentJoint > 0
+
+
+def test_an_unnamed_motor_is_named_apart_from_the_named_ones(tmp_path):
+    """An unnamed motor is named actuator_i, primed while a named motor has that name: the unnamed x motor and the z
+    motor named "actuator_0" were one key of the validation's saturation_by_actuator (one motor's number lost)."""
+    path = tmp_path / "motors.xml"
+    path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/>'
+                    '<joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" '
+                    'diaginertia="0.01 0.01 0.01"/><site name="foot"/></body></worldbody><actuator><motor joint="x"/>'
+                    '<motor name="actuator_0" joint="z"/><motor joint="z"/></actuator></mujoco>')
+    assert [a.name for a in load_robot(path).actuators] == ["actuator_0'", "actuator_0", "actuator_2"]
 
 
 def test_unnamed_joints_and_bodies_are_named_as_the_cause(tmp_path):
@@ -575,7 +603,7 @@ def test_the_robot_hash_covers_included_files(tmp_path):
 def test_urdf_transmissions_are_not_read_and_say_so(tmp_path):
     """A URDF's <transmission> elements are not read (a joint's motor is its <limit effort>, gear 1): loading warns, and
     a plan of such a file whose joints have effort 0 names the rule (it said only "no actuators to plan with", and a
-    mechanicalReduction of 2 was silently gear 1)."""
+    mechanicalReduction of 2 was silently gear 1); the task itself, [plan] and all, is one to simulate."""
     from planner.errors import TaskError
     from planner.task import parse_task
 
@@ -593,8 +621,11 @@ def test_urdf_transmissions_are_not_read_and_say_so(tmp_path):
         robot = load_robot(unactuated)
     task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.4, 0.0, 0.0]},
                        "horizon": {"tau_f": 1.0, "N": 10}, "plan": {"target_q": [0.5, 0.4, 0.0, 0.0]}})
+    from planner.problem import build_problem
+
     with pytest.raises(TaskError, match=r"no actuators to plan with \(a URDF joint is actuated by its <limit effort>"):
-        task.check_against(robot)
+        build_problem(robot, task)
+    task.check_against(robot)  # a simulation reads no [plan] table: its task was refused (session 64's tester)
 
 
 def test_a_urdf_is_read_by_mujoco_whatever_its_name_ends_in(tmp_path):

@@ -266,3 +266,22 @@ def test_a_failed_runs_plots_say_it_did_not_converge(result_dir):
         for draw in (plots._states, plots._torques, plots._clock):
             fig, _ = draw(shown)
             assert fig._suptitle.get_text().endswith(" (NOT converged)") is marked
+
+
+def test_names_are_drawn_as_text_and_listed_in_legends(result_dir, tmp_path, monkeypatch):
+    """The robot file's names are text, not mathtext: a robot named '$\\foo$' failed every plot (ParseFatalException),
+    so the command of a validated plan exited 1; an actuator named '_fx' is in its panel's legend (matplotlib leaves
+    out labels that start with '_')."""
+    import dataclasses
+
+    res = view.load_result(result_dir)
+    (tmp_path / "math.xml").write_text((ROBOTS / "capler.xml").read_text().replace('model="capler"', 'model="$\\foo$"'))
+    named = dataclasses.replace(res, robot=load_robot(tmp_path / "math.xml"))
+    assert named.robot.name == "$\\foo$"
+    monkeypatch.setattr(plots, "load_result", lambda out_dir: named)
+    assert {p.name for p in plots.plot_results(result_dir)} == ALL_PLOTS
+    fig = _torques_of(result_dir, tmp_path / "under.xml", 1.0, (
+        '<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" type="slide" '
+        'axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body></worldbody><actuator>'
+        '<motor name="_fx" joint="x"/><motor name="lift" joint="z"/></actuator></mujoco>'))
+    assert [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()][:1] == [" _fx"]

@@ -703,6 +703,22 @@ def test_positions_that_do_not_move_at_the_velocities_fail(point_mass):
     assert good.passed and good.kinematic.max_flight_residual < 1e-9
 
 
+def test_a_plan_at_rest_is_no_edited_trajectory(point_mass):
+    """Samples at rest up to the solver's noise (1e-13 m, a plan whose goal is its start) pass the positions'
+    check: their speed was floored at 1e-3 of the fastest's, 1e-13 m/s, and the noise failed as "its samples were
+    edited" (session 64's tester); raised 1 mm at one sample they still fail."""
+    task = _task("point", q0=(0.0, 1.0))
+    rng = np.random.default_rng(64)
+    noise = 1e-13 * rng.standard_normal((21, 2))
+    rest = {"t": 0.05 * np.arange(21), "q": [0.0, 1.0] + noise, "v": 1e-13 * rng.standard_normal((21, 2)),
+            "u": np.tile([0.0, 9.81], (21, 1)), "impact_times": np.zeros(0)}
+    good = replay.validate_trajectory(point_mass, task, rest, dynamics=True)
+    assert good.passed, good.failures
+    raised = {**rest, "q": rest["q"] + np.where(np.arange(21)[:, None] == 10, [0.0, 1e-3], 0.0)}
+    bad = replay.validate_trajectory(point_mass, task, raised, dynamics=True)
+    assert not bad.passed and bad.kinematic.flight_residual_positions, bad.failures
+
+
 def test_a_raised_flight_and_controls_12_percent_off_fail(point_mass):
     """The positions are held to the velocities on every running step, the take-off's from the ground too: a flight
     raised 5 cm whole (its steps' chords unchanged, the jump at the take-off) fails; it passed, that step being no

@@ -68,6 +68,10 @@ def _with(path: str, value):
         # the same plane by normals that normalize apart by rounding: two half impacts were reported
         ("contacts", [{"point": "foot", "normal": [1.0, 0.0, 1.0]}, {"point": "foot", "normal": [3.0, 0.0, 3.0]}],
          r"contacts = .* one entry per point and plane"),
+        # a point named like another's corner label: the plan reported 9.81 N on a point that never touched (the
+        # forces looked up by label were the corner's), or crashed in the build with friction (session 64's tester)
+        ("contacts", [{"point": "foot"}, {"point": "foot", "normal": [1.0, 0.0, 1.0]}, {"point": "foot#1"}],
+         r"contacts = \['foot#1', 'foot#2', 'foot#1'\] .* labels that differ: a point listed on several planes"),
         # beyond these the solve overflowed: nan in g (mu), inf in the Jacobian (a hole's half-axis)
         ("contacts", [{"point": "foot", "mu": 1e300}], r"contacts\[0\].mu = 1e\+300 .* in \[0, 1e\+06\]"),
         # a start or target of 1e300 (finite) overflowed in the solve: NaNs, exit 1, or an internal variable named
@@ -553,14 +557,16 @@ def test_a_u_bound_beyond_the_files_control_range_warns():
 
 
 def test_plan_needs_actuators(tmp_path):
-    """A task with a [plan] on a robot without motors is refused with a clear message."""
+    """A plan of a robot without motors is refused with a clear message; the same task simulates (a simulation reads
+    no [plan] table: the task was refused for having one, session 64's tester)."""
     xml = tmp_path / "passive.xml"
     xml.write_text('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1"/>'
                    '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="p"/></body></worldbody></mujoco>')
     task = parse_task({"contacts": [{"point": "p"}], "initial": {"q": [1.0]}, "horizon": {"tau_f": 1.0, "N": 5},
                        "plan": {"target_q": [1.0]}})
     with pytest.raises(TaskError, match="no actuators"):
-        task.check_against(load_robot(xml))
+        task.require_actuators(load_robot(xml))
+    task.check_against(load_robot(xml))
 
 
 def test_a_degree_of_freedom_too_light_to_resolve_is_refused(tmp_path):

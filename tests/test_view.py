@@ -260,6 +260,28 @@ def test_robot_geometry_comes_from_the_robot_file(robot_file, expected):
     assert all(p.joint > 0 and p.pieces for p in parts)
 
 
+def test_parts_of_one_name_are_drawn_apart(tmp_path):
+    """An unnamed geom that Pinocchio names as a named one ("baseGeom_0") is a part of its own: a part's name is its
+    meshcat path, and the second part of one name replaced the first (a sphere missing from the replay); a '/' in a
+    name does not nest its path (session 64's tester)."""
+    xml = tmp_path / "twins.xml"
+    xml.write_text((ROBOTS / "capler.xml").read_text().replace(
+        '<geom name="base_geom"', '<geom type="sphere" size="0.03"/><geom name="baseGeom_0" type="box" '
+        'size="0.01 0.01 0.01"/><geom name="a/b" type="sphere" size="0.02"/><geom name="base_geom"', 1))
+    names = [p.name for p in view.robot_parts(load_robot(xml))[0]]
+    assert len(set(names)) == len(names) == 6 and not any("/" in n for n in names), names
+
+
+def test_the_pages_overlay_keeps_the_html_parser_out_of_script_states():
+    """Names and paths in the page's overlay (its title, its note) are inlined with every '<' escaped: a robot named
+    'm<!--<script>x' put the browser's parser into its script-data escape states, and the rest of the page was read
+    as script (a blank page); the overlay still reads back as given."""
+    overlay = {"title": "m<!--<script>x", "note": "dir</script><b>"}
+    html = view._page([], overlay)
+    inlined = re.search(r"var planner = (.*);\n", html).group(1)
+    assert "<" not in inlined and json.loads(inlined) == overlay
+
+
 def test_kinematic_tree_fallback_for_a_robot_without_visuals(tmp_path):
     """Without visual geometry, the replay draws rods between joint origins and to named points."""
     inertia = '<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>'
