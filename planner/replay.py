@@ -1008,8 +1008,8 @@ def _flight_residual(robot: Robot, arrays: Mapping[str, np.ndarray], airborne: n
     and simulations (measured against the terms' sum until session 60: up to ~2x that now), ~1 for controls that do
     not move the robot as its samples do (for other sources of samples see _stepped_by_implicit_euler). And on every
     running step (no impact in it, stance too) the positions' q+ = q + dt v+, relative to the coordinate's largest
-    speed (floored at 1e-3 of the fastest's and at REST_SPEED). KinematicReport's flight fields (the larger of the two; flight_steps 0
-    and the positions' alone without a flight step); empty without a running step."""
+    speed (floored at 1e-3 of the fastest's and at REST_SPEED). KinematicReport's flight fields (the larger of the
+    two; flight_steps 0 and the positions' alone without a flight step); empty without a running step."""
     t, q, v, u = arrays["t"], arrays["q"], arrays["v"], arrays["u"]
     impacts = np.atleast_1d(arrays["impact_times"])
     model, data = robot.model, robot.model.createData()

@@ -273,8 +273,9 @@ def test_limits_of_joints_sharing_a_body_are_mujocos(tmp_path):
 
 def test_an_inverted_joint_range_is_refused_and_mujocos_element_named(tmp_path):
     """A joint range with its lower bound above the upper, or equal to it but not MuJoCo's default "0 0" (MuJoCo reads
-    both as no limit: a sign typo unbounded the joint silently, or check-model blamed MuJoCo) is refused in MJCF and URDF, as an inverted ctrlrange is; MuJoCo's
-    compile error keeps the element it names (the body to fix was dropped)."""
+    both as no limit: a sign typo unbounded the joint silently, or check-model blamed MuJoCo) is refused in MJCF and
+    URDF, as an inverted ctrlrange is; MuJoCo's compile error keeps the element it names (the body to fix was
+    dropped)."""
     mjcf = tmp_path / "inverted.xml"
     mjcf.write_text('<mujoco><compiler angle="radian"/><worldbody><body name="b"><joint name="hip" type="hinge" '
                     'range="1 -1"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></worldbody></mujoco>')
