@@ -16,7 +16,7 @@ from planner.model import load_robot
 from planner.problem import Penalty, ProblemOptions, build_problem
 from planner.task import Horizon, VelocityBound, load_task, parse_task
 
-ROBOTS = "robots"
+ROBOTS = pathlib.Path(__file__).resolve().parents[1] / "robots"  # (not the working directory's)
 SUM_ROUNDING_REL = 1e-12  # one sum of a few squares evaluated by CasADi and by NumPy: rounding only
 # M^-1 written symbolically (EXPLICIT) against M times the forward dynamics' solve (MASS_MATRIX), cond(M) ~ 5e3 on
 # Capler: rounding only (measured 5e-14 on rows of size ~10, contact_forces rows 5e-12)
