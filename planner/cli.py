@@ -44,7 +44,7 @@ class UsageParser(argparse.ArgumentParser):
 
     def error(self, message):
         text = f"{message} (see --help)"
-        print(f"{self.prog}: error: {text}".translate(_ESCAPED), file=sys.stderr)
+        print(_escaped(f"{self.prog}: error: {text}"), file=sys.stderr)
         raise UsageExit(text)
 
 
@@ -309,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
                 if next((f[0] for f in warnings.filters if issubclass(category, f[2])), "default") == "error":
                     warnings.simplefilter("default", category)
             warnings.showwarning = lambda message, category, *_: print(
-                f"planner {args.command}: warning: {str(message).translate(_ESCAPED)}"
+                f"planner {args.command}: warning: {_escaped(message)}"
                 + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
@@ -499,13 +499,13 @@ def _to_stderr(args, line: str) -> None:
     wrote it on stdout, after or before --json's object."""
     stream = getattr(args, "stderr", None) or sys.stderr
     if stream is not None:
-        print(line.translate(_ESCAPED), file=stream)
+        print(_escaped(line), file=stream)
 
 
 def _progress(args, line: str) -> None:
     """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it."""
     if not args.quiet:
-        print(line.translate(_ESCAPED), file=sys.stderr, flush=True)
+        print(_escaped(line), file=sys.stderr, flush=True)
 
 
 def _failure(summary: dict) -> str:
@@ -590,6 +590,7 @@ def _replan_failed(init: str, result) -> str:
     change may be too large; the start's own plan stands)."""
     from .replan import SAME_TASK
 
+    init = _escaped(init)
     if SAME_TASK in (result.extra.get("no_walk") or ""):
         return (f"the replan of {init}'s own task did not converge from its plan (the task is unchanged); that plan "
                 f"stands in {init}")
@@ -1177,7 +1178,7 @@ def _cmd_view(args) -> int:
 
     if args.html is not None:
         page = view.render_html(args.dir, args.html, slow_motion=args.slow_motion)
-        _emit(args, {"command": "view", "html": str(page)}, f"wrote {page}")
+        _emit(args, {"command": "view", "html": str(page)}, f"wrote {_escaped(page)}")
         return EXIT_OK
     # SIGTERM ends it as Ctrl-C does (main's _term_as_ctrl_c, installed before the server starts: a SIGTERM right after
     # the URL, CI's test, killed the command): meshcat stops its server at exit (atexit), a kill skipped it

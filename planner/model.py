@@ -665,6 +665,12 @@ def _unnamed(name: str, taken) -> str:
     return name
 
 
+def motor_names(mj) -> list[str]:
+    """The MuJoCo model mj's actuator names (nu,), an unnamed one's actuator_i primed apart from the named ones."""
+    taken = {mj.actuator(i).name for i in range(mj.nu)}
+    return [mj.actuator(i).name or _unnamed(f"actuator_{i}", taken) for i in range(mj.nu)]
+
+
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
                                                      tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...],
                                                      tuple[str, ...]]:
@@ -698,7 +704,6 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     dofs = np.bincount(mj.dof_jntid, minlength=mj.njnt)  # a joint of several (free, ball) names each: "root_0", ...
 
     joint_names = {mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(mj.njnt)}
-    motor_names = {mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(mj.nu)}
 
     def dof_name(i: int) -> str:
         j = int(mj.dof_jntid[i])
@@ -707,8 +712,7 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
 
     dof_names = tuple(dof_name(i) for i in range(mj.nv))
     actuators = []
-    for i in range(mj.nu):
-        name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or _unnamed(f"actuator_{i}", motor_names)
+    for i, name in enumerate(motor_names(mj)):
         # jointinparent is joint's transmission on a hinge or slide (they differ on ball and free joints only); the
         # joint's type is read for it alone (a site's or tendon's id is no joint's), as an int (numpy's int is no
         # member of a tuple of mjtJoint values)
@@ -807,7 +811,7 @@ def _mujoco_limits(path, model: pin.Model, mj, mujoco) -> None:
         if not mj.jnt_limited[j] and (lo > hi or lo == hi != 0.0):
             name = mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint_{j}"
             raise RobotFileError(f"{path}: joint {name!r}: its range {lo:g} {hi:g} is no limit to MuJoCo (lower not "
-                                 "below upper); write the lower bound first, or remove the range")
+                                 "below upper); give a lower bound below the upper, or remove the range")
         lower[i], upper[i] = mj.jnt_range[j] if mj.jnt_limited[j] else (-np.inf, np.inf)
     model.lowerPositionLimit, model.upperPositionLimit = lower, upper
 

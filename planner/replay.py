@@ -42,7 +42,7 @@ import pinocchio as pin
 
 from .errors import (InputError, PlannerError, RobotFileError, UnknownNameError, check_field_types, check_interrupted,
                      as_float, enum_field, expect, is_integer, plain, real_array, shown)
-from .model import MASSLESS_LINK_KG, Robot, mujoco_failure, mujoco_spec, mujoco_warnings
+from .model import MASSLESS_LINK_KG, Robot, motor_names, mujoco_failure, mujoco_spec, mujoco_warnings
 from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
                      read_summary, read_task, read_trajectory, result_dir, write_atomically)
 from .task import MAX_STEPS, Task
@@ -1269,7 +1269,7 @@ class _Reference:
 def resolve_gains(scene: Scene, gains: TrackingGains, q0: np.ndarray) -> ResolvedGains:
     """Per-actuator kp, kd (see TrackingGains) with the mass matrix at posture q0 (nq,): a gain given
     explicitly replaces the rule's, the other keeps the rule's (one given alone is not the other at 0)."""
-    names = tuple(scene.model.actuator(i).name or f"actuator_{i}" for i in range(scene.model.nu))
+    names = tuple(motor_names(scene.model))
     nu = scene.model.nu
     for key in ("kp", "kd"):
         values = getattr(gains, key)
@@ -1377,7 +1377,7 @@ def _replay(scene: Scene, ref: _Reference, gains: ResolvedGains | None, planned:
     saturated = (run.ctrl < scene.ctrl_lower) | (run.ctrl > scene.ctrl_upper)
     mj_impacts = detect_impacts(run.times, run.active, scene.points, options.min_flight_s, run.touching0)
     matches = _match_impacts(planned, mj_impacts)
-    names = [scene.model.actuator(i).name or f"actuator_{i}" for i in range(scene.model.nu)]
+    names = motor_names(scene.model)
     return RolloutReport(
         duration_s=float(ref.times[-1] - ref.times[0]), steps=ref.steps,
         max_base_error_m=float(base_err.max()), final_base_error_m=float(base_err[-1]),

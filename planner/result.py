@@ -319,7 +319,6 @@ class SimulationResult(ArraysReadOnly):
                          f"{where}): a simulation's no-slip contact holds the point with any tangential force "
                          "(docs/tasks.md)")
         if self.ends_in_impact:
-
             last, task = self.trajectory.impacts[-1], self.extra.get("_task")
             elastic = task is not None and any(label == last.contact and c.restitution > 0  # a corner's point#k too
                                                for label, c in zip(contact_labels(task.contacts), task.contacts))
@@ -395,7 +394,6 @@ def outside_cone(tr: Trajectory, task: Task | None) -> np.ndarray:
     False without the task (its mu) or for frictionless contacts."""
     if task is None:
         return np.zeros(len(tr.impacts), dtype=bool)
-
     mu = dict(zip(contact_labels(task.contacts), (c.mu for c in task.contacts)))
     return np.array([mu.get(imp.contact, 0.0) > 0.0 and abs(imp.impulse_tangential)
                      > CONE_SLACK * mu[imp.contact] * max(imp.impulse, 0.0) + CONE_FLOOR_NS for imp in tr.impacts], dtype=bool)
@@ -416,7 +414,6 @@ def forces_outside_cone(tr: Trajectory, task: Task | None) -> list[dict]:
     samples = tr.contact_force_samples()
     if task is None or samples is None or samples[0].shape[1] != len(task.contacts):
         return []
-
     lambda_n, lambda_t = samples
     out = []
     for c, (label, contact) in enumerate(zip(contact_labels(task.contacts), task.contacts)):

@@ -460,10 +460,12 @@ class Task:
                  "one entry per point and plane (a point repeats only with another normal, a corner)")
         # a repeated point's planes are labelled point#1, point#2, ...: a point of that name would share a label with
         # one of them, and the forces and selectors looked up by label were the other's
-        labels = contact_labels(self.contacts)
-        _require(len(set(labels)) == len(labels), "contacts", list(labels),
-                 "labels that differ: a point listed on several planes is labelled point#1, point#2, ..., which no "
-                 "other contact point's name may be (rename the point in the robot file)")
+        points = [c.point for c in self.contacts]
+        for j, label in enumerate(contact_labels(self.contacts)):
+            if label != points[j] and label in points:
+                _require(False, f"contacts[{points.index(label)}].point", label,
+                         f"another name than contacts[{j}]'s label: point {points[j]!r} on several planes is labelled "
+                         f"{points[j]}#1, {points[j]}#2, ... (rename the point in the robot file)")
         # touches = false drops a point's contact machinery, so it is the point's, not one plane's: false on one plane
         # of a corner dropped the other plane's contact as well, silently
         mixed = sorted({c.point for c in self.contacts} & {c.point for c in self.contacts if not c.touches}

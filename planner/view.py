@@ -247,7 +247,8 @@ def robot_parts(robot: Robot) -> tuple[list[_Part], str | None]:
     parts, skipped = [], []
     # a part's name is its meshcat path: Pinocchio names an unnamed geom as a named one may be ("base" body's
     # "baseGeom_0"), and the second part of one name replaced the first in the replay; '/' would nest it
-    repeated = Counter(obj.name for obj in geom_model.geometryObjects)
+    paths = [obj.name.replace("/", "|") for obj in geom_model.geometryObjects]
+    repeated = Counter(paths)
     for i, obj in enumerate(geom_model.geometryObjects):
         pieces = _pieces(obj)
         if pieces is None:
@@ -258,7 +259,7 @@ def robot_parts(robot: Robot) -> tuple[list[_Part], str | None]:
         rgba = tuple(float(c) for c in obj.meshColor)
         if np.allclose(rgba, _PIN_DEFAULT_RGBA):
             rgba = ROBOT_RGBA
-        name = obj.name.replace("/", "|") + (f" #{i}" if repeated[obj.name] > 1 else "")
+        name = paths[i] + (f" #{i}" if repeated[paths[i]] > 1 else "")
         parts.append(_Part(name, int(obj.parentJoint), obj.placement.homogeneous, tuple(pieces), rgba))
     if skipped:
         warnings.warn(f"meshcat replay: cannot draw geometry {', '.join(skipped)} of {robot.path}", stacklevel=2)

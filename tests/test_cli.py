@@ -1854,10 +1854,14 @@ def test_downloaded_files_cannot_forge_lines_block_or_write_elsewhere(tmp_path, 
 
 
 def test_a_reports_names_and_paths_cannot_forge_its_lines(tmp_path, capsys):
-    """The report on stdout escapes control characters in its lines and in the results path, as the stderr lines do:
-    an --out path with a newline and "converged: fake" printed that as a line of its own (session 64's tester)."""
+    """The report on stdout escapes control characters in its lines and in the paths the CLI adds (results in DIR,
+    view's "wrote PAGE"), as the stderr lines do: an --out path with a newline and "converged: fake" printed that as a
+    line of its own (session 64's tester and reviewer)."""
     out = tmp_path / "out\nconverged: fake\x1b[31m"
     assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(out), "--no-plots"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert not any(line.startswith("converged: fake") for line in lines) and "\x1b" not in "".join(lines)
     assert any("out\\nconverged: fake\\x1b[31m" in line for line in lines), lines
+    assert main(["view", str(out), "--html", str(tmp_path / "p\nconverged: fake.html")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wrote ") and lines[0].endswith("p\\nconverged: fake.html"), lines

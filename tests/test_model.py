@@ -395,14 +395,23 @@ def test_a_site_named_world_is_a_point(tmp_path, name):
 
 
 def test_an_unnamed_motor_is_named_apart_from_the_named_ones(tmp_path):
-    """An unnamed motor is named actuator_i, primed while a named motor has that name: the unnamed x motor and the z
-    motor named "actuator_0" were one key of the validation's saturation_by_actuator (one motor's number lost)."""
+    """An unnamed motor is named actuator_i, primed while a named motor has that name, in the robot and in the replay:
+    the unnamed x motor and the z motor named "actuator_0" were one key of the validation's saturation_by_actuator
+    (one motor's number lost)."""
     path = tmp_path / "motors.xml"
     path.write_text('<mujoco><worldbody><body name="mass"><joint name="x" type="slide" axis="1 0 0"/>'
                     '<joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" '
                     'diaginertia="0.01 0.01 0.01"/><site name="foot"/></body></worldbody><actuator><motor joint="x"/>'
                     '<motor name="actuator_0" joint="z"/><motor joint="z"/></actuator></mujoco>')
-    assert [a.name for a in load_robot(path).actuators] == ["actuator_0'", "actuator_0", "actuator_2"]
+    from planner import replay
+    from planner.task import parse_task
+
+    robot = load_robot(path)
+    assert [a.name for a in robot.actuators] == ["actuator_0'", "actuator_0", "actuator_2"]
+    task = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.0, 0.5]},
+                       "horizon": {"tau_f": 0.4, "N": 4}})
+    gains = replay.resolve_gains(replay.build_scene(robot, task), replay.TrackingGains(), np.array([0.0, 0.5]))
+    assert gains.actuators == ("actuator_0'", "actuator_0", "actuator_2")  # the replay's keys, as the robot's names
 
 
 def test_unnamed_joints_and_bodies_are_named_as_the_cause(tmp_path):

@@ -267,9 +267,10 @@ def test_parts_of_one_name_are_drawn_apart(tmp_path):
     xml = tmp_path / "twins.xml"
     xml.write_text((ROBOTS / "capler.xml").read_text().replace(
         '<geom name="base_geom"', '<geom type="sphere" size="0.03"/><geom name="baseGeom_0" type="box" '
-        'size="0.01 0.01 0.01"/><geom name="a/b" type="sphere" size="0.02"/><geom name="base_geom"', 1))
+        'size="0.01 0.01 0.01"/><geom name="a/b" type="sphere" size="0.02"/>'
+        '<geom name="a|b" type="sphere" size="0.02"/><geom name="base_geom"', 1))
     names = [p.name for p in view.robot_parts(load_robot(xml))[0]]
-    assert len(set(names)) == len(names) == 6 and not any("/" in n for n in names), names
+    assert len(set(names)) == len(names) == 7 and not any("/" in n for n in names), names
 
 
 def test_the_pages_overlay_keeps_the_html_parser_out_of_script_states():
