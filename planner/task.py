@@ -2,8 +2,8 @@
 
 Every key is validated when the file is read: an unknown key, a wrong type or a value out of range
 is a `TaskError` naming the key and what is allowed. Robot-dependent checks (vector lengths, point
-and joint names, targets inside joint limits) happen in `Task.check_against(robot)`.
-Keys are documented in docs/tasks.md.
+and joint names, targets inside joint limits) happen in `Task.check_against(robot)`; a plan's need of a motor in
+`Task.require_actuators(robot)` (build_problem calls both). Keys are documented in docs/tasks.md.
 """
 from __future__ import annotations
 
