@@ -25,7 +25,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import PATH_ERRNOS, InputError, PlannerError, enum_member, interruptible, options_record, shown
+from .errors import (PATH_ERRNOS, STOP_SIGNALS, InputError, PlannerError, enum_member, interruptible, options_record,
+                     shown)
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 # the commands that exit 1 when their check or solve fails (view has no such verdict)
@@ -353,12 +354,12 @@ def main(argv: list[str] | None = None) -> int:
 
 @contextlib.contextmanager
 def _interrupts_ignored():
-    """Ctrl-C and SIGTERM ignored while the interruption is reported (on the main thread), the handlers restored after:
-    a second Ctrl-C 10-80 ms after the first (a double press) printed a traceback from inside the report."""
+    """Ctrl-C, SIGTERM and SIGHUP ignored while the interruption is reported (on the main thread), the handlers restored
+    after: a second Ctrl-C 10-80 ms after the first (a double press) printed a traceback from inside the report."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
     try:
         yield
     finally:
@@ -368,10 +369,12 @@ def _interrupts_ignored():
 
 @contextlib.contextmanager
 def _term_as_ctrl_c():
-    """SIGTERM (`timeout`, a CI cancellation, systemd) handled as the Ctrl-C it stands for: the results are written
-    whole or not at all, and a good earlier result keeps its plots (a SIGTERM while they were set aside hid them in a
-    temporary directory; one while the new plots were drawn left none). Where Ctrl-C is ignored (a background job of
-    a script) it is raised as KeyboardInterrupt all the same; a forked child (a race's arm) ends as before."""
+    """SIGTERM (`timeout`, a CI cancellation, systemd) and SIGHUP (the terminal closed) handled as the Ctrl-C they
+    stand for: the results are written whole or not at all, and a good earlier result keeps its plots (a SIGTERM while
+    they were set aside hid them in a temporary directory; one while the new plots were drawn left none); `view`'s
+    meshcat server is stopped. Where Ctrl-C is ignored (a background job of a script) it is raised as
+    KeyboardInterrupt all the same; a forked child (a race's arm) ends as before. An ignored SIGHUP (`nohup`) stays
+    ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -379,15 +382,16 @@ def _term_as_ctrl_c():
 
     def term(signum, frame):
         if os.getpid() != owner:  # (the handler is inherited by fork)
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            os.kill(os.getpid(), signal.SIGTERM)
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
             return
         handler = signal.getsignal(signal.SIGINT)
         if not callable(handler):
             raise KeyboardInterrupt
         handler(signal.SIGINT, frame)
 
-    previous = signal.signal(signal.SIGTERM, term)
+    stops = [s for s in STOP_SIGNALS[1:] if s == signal.SIGTERM or signal.getsignal(s) is not signal.SIG_IGN]
+    previous = {s: signal.signal(s, term) for s in stops}
     # a background job's Ctrl-C is ignored, so errors.interruptible (IPOPT stops, the interruption is raised after it)
     # would stand aside and IPOPT's caught KeyboardInterrupt read as a failed NLP: the solve went on and exited 0
     ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
@@ -398,7 +402,8 @@ def _term_as_ctrl_c():
     finally:  # (None: a handler not installed from Python)
         if ignored:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
 
 
 def _asks_ipopt_log(args) -> bool:
@@ -629,9 +634,9 @@ def _write(args, result, out: Path, background: bool = False) -> tuple[Path, Cal
     ctx = multiprocessing.get_context("fork")  # the child needs nothing but the directory; fork starts it in ms
     reader, writer = ctx.Pipe(duplex=False)
     child = ctx.Process(target=_draw_into, args=(target, writer), name="planner-plots", daemon=True)
-    # Ctrl-C and SIGTERM masked over the fork (the child unblocks them): raised inside logging's fork handlers, they
-    # printed tracebacks
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    # Ctrl-C, SIGTERM and SIGHUP masked over the fork (the child unblocks them): raised inside logging's fork handlers,
+    # they printed tracebacks
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
     try:
         child.start()
     finally:
@@ -704,11 +709,11 @@ def _unexpected(exc: Exception) -> str:
 
 def _draw_into(target: Path, conn) -> None:
     """_draw in a child process: ("drawn", what it returns) goes back through `conn`, or ("error", one line).
-    Ctrl-C and SIGTERM (`timeout` signals the whole process group) are the parent's to handle: it waits for the plots,
-    then reports the interruption."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})  # (blocked by the parent's fork)
+    Ctrl-C, SIGTERM and SIGHUP (`timeout` and a closed terminal signal the whole process group) are the parent's to
+    handle: it waits for the plots, then reports the interruption."""
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # (blocked by the parent's fork)
     try:
         conn.send(("drawn", _draw(target)))
     except Exception as exc:  # an unexpected failure reaches the parent as one line, not as the child's traceback

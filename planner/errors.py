@@ -162,15 +162,21 @@ def captured_stdout():
         yield printed
 
 
+# what stops a command: Ctrl-C, SIGTERM (`timeout`, a CI cancellation) and SIGHUP (its terminal closed, its ssh
+# session ended: meshcat's server outlived a `planner view` that died of it)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 @contextlib.contextmanager
 def signals_held():
-    """Ctrl-C and SIGTERM wait until the block has ended (on the main thread), then come as they would have: Python's
-    KeyboardInterrupt, the CLI's handler, or death. They are held by handlers that note them, not by a signal mask,
-    which holds one thread only: with another thread in the process (a test suite's leftovers, a server) the kernel
-    gave the signal to that one and Python raised it inside the block (between a result's renames: files of two
-    results; inside a race's reaping: arms left unreaped). An ignored one stays ignored; off the main thread: none."""
+    """Ctrl-C, SIGTERM and SIGHUP (STOP_SIGNALS) wait until the block has ended (on the main thread), then come as
+    they would have: Python's KeyboardInterrupt, the CLI's handler, or death. They are held by handlers that note
+    them, not by a signal mask, which holds one thread only: with another thread in the process (a test suite's
+    leftovers, a server) the kernel gave the signal to that one and Python raised it inside the block (between a
+    result's renames: files of two results; inside a race's reaping: arms left unreaped). An ignored one stays
+    ignored; off the main thread: none."""
     main = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS} if main else {}
     swapped = [sig for sig, handler in previous.items() if handler is not signal.SIG_IGN and handler is not None]
     arrived: list[int] = []
     for sig in swapped:

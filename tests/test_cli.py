@@ -295,8 +295,8 @@ assert "\nN = 10\n" in HOP_TASK, "robots/point_mass_hop.toml's horizon line chan
 
 
 def test_the_plotting_child_is_forked_with_ctrl_c_held(tmp_path, capsys, monkeypatch):
-    """Ctrl-C and SIGTERM are blocked while the plotting child is forked (raised inside logging's fork handlers they
-    printed tracebacks, session 57's tester) and unblocked again after it, in the parent and in the child."""
+    """Ctrl-C, SIGTERM and SIGHUP are blocked while the plotting child is forked (raised inside logging's fork handlers
+    they printed tracebacks, session 57's tester) and unblocked again after it, in the parent and in the child."""
     import multiprocessing.context
     import signal
     from types import SimpleNamespace
@@ -314,16 +314,17 @@ def test_the_plotting_child_is_forked_with_ctrl_c_held(tmp_path, capsys, monkeyp
     task.write_text(HOP_TASK)
     out = str(tmp_path / "out")
     assert main(["plan", "point_mass", "--task", str(task), "--out", out, "-q", "--no-race"]) in (0, 1)
-    assert masks and all({signal.SIGINT, signal.SIGTERM} <= mask for mask in masks)
-    assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # as the child starts
+    stops = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    assert masks and all(stops <= mask for mask in masks)
+    assert not stops & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    handlers = {sig: signal.getsignal(sig) for sig in stops}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stops)  # as the child starts
     try:
         conn = SimpleNamespace(send=lambda message: None, close=lambda: None)
         planner.cli._draw_into(tmp_path / "nothing-here", conn)
-        assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+        assert not stops & signal.pthread_sigmask(signal.SIG_BLOCK, [])
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
 
@@ -1542,34 +1543,74 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         signal.signal(signal.SIGTERM, before)
 
 
-def test_the_plotting_process_finishes_its_plots_through_a_sigterm(tmp_path, monkeypatch):
-    """The child that draws a result's plots while the parent validates ignores SIGTERM as it ignores Ctrl-C: `timeout`
-    signals the whole process group, and the child died with part of the plots written and a temporary file left
-    (the parent, which handles it as Ctrl-C, waits for the plots)."""
+def test_a_sighup_is_a_ctrl_c_unless_nohup_ignores_it(tmp_path, capsys, monkeypatch, ctrl_c):
+    """The SIGHUP of a closed terminal (an ssh session that ended) is handled as Ctrl-C, as SIGTERM is: the deferred
+    block around a result's plots finishes, then exit 130 and one line (it killed the command, and `view`'s meshcat
+    server outlived it); the handler before is back afterwards. Under `nohup` (SIGHUP ignored) it stays ignored and the
+    command runs to its end."""
+    import os
+    import signal
+
+    import planner.cli as cli
+    from planner.errors import interruptible
+
+    finished = []
+
+    def plotting(args):
+        with interruptible(defer=True):
+            os.kill(os.getpid(), signal.SIGHUP)
+            finished.append(True)
+        return cli.EXIT_OK
+
+    def unhandled(signum, frame):  # (the default would end the test run itself)
+        raise AssertionError("the command left SIGHUP to the handler before it")
+
+    before = signal.signal(signal.SIGHUP, unhandled)
+    try:
+        monkeypatch.setattr(cli, "_cmd_simulate", plotting)
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
+        assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
+        assert signal.getsignal(signal.SIGHUP) is unhandled
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        finished.clear()
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 0 and finished == [True]
+        assert capsys.readouterr().err.strip() == ""
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
+@pytest.mark.parametrize("stop", ["SIGTERM", "SIGHUP"])
+def test_the_plotting_process_finishes_its_plots_through_a_sigterm(tmp_path, monkeypatch, stop):
+    """The child that draws a result's plots while the parent validates ignores SIGTERM and SIGHUP as it ignores Ctrl-C:
+    `timeout` and a closed terminal signal the whole process group, and the child died with part of the plots written
+    and a temporary file left (the parent, which handles them as Ctrl-C, waits for the plots)."""
     import multiprocessing
     import os
     import signal
 
     import planner.cli as cli
 
+    sig = getattr(signal, stop)
+
     def draw(target):
-        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), sig)
         return "drawn whole"
 
     monkeypatch.setattr(cli, "_draw", draw)
-    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(sig)
     reader, writer = multiprocessing.Pipe(duplex=False)
 
     def unhandled(signum, frame):  # (the default would end the test run itself)
-        raise AssertionError("the plotting process took the SIGTERM")
+        raise AssertionError(f"the plotting process took the {stop}")
 
-    signal.signal(signal.SIGTERM, unhandled)
+    signal.signal(sig, unhandled)
     try:
         cli._draw_into(tmp_path, writer)
         assert reader.recv() == ("drawn", "drawn whole")
     finally:
         signal.signal(signal.SIGINT, handlers[0])
-        signal.signal(signal.SIGTERM, handlers[1])
+        signal.signal(sig, handlers[1])
 
 
 def test_a_ctrl_c_a_library_swallowed_still_ends_in_exit_130(tmp_path, capsys, monkeypatch, ctrl_c):

@@ -728,11 +728,12 @@ def test_a_complementarity_of_negative_zero_is_zero():
     assert f"{SolveStats(True, 0.0, 1, 3, -0.0).complementarity_residual:.1e}" == "0.0e+00"
 
 
-def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch):
-    """A Ctrl-C that arrives while write_files renames its two files is held until both are renamed (it left a new
-    trajectory.npz beside the earlier summary.json: files of two results), then raised; also with another thread
-    alive, to which the kernel gives the signal when the main thread masks it (the mask held nothing then: this test
-    failed in the full suite, which leaves threads behind)."""
+@pytest.mark.parametrize("name", ["SIGINT", "SIGHUP"])
+def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch, name):
+    """A Ctrl-C (or a SIGHUP, which the CLI handles as one) that arrives while write_files renames its two files is
+    held until both are renamed (it left a new trajectory.npz beside the earlier summary.json: files of two results),
+    then raised; also with another thread alive, to which the kernel gives the signal when the main thread masks it
+    (the mask held nothing then: this test failed in the full suite, which leaves threads behind)."""
     import os
     import signal
     import threading
@@ -746,16 +747,16 @@ def test_ctrl_c_waits_for_both_renames(tmp_path, monkeypatch):
 
     def interrupted(src, dst):
         real_replace(src, dst)
-        os.kill(os.getpid(), signal.SIGINT)  # delivered between the two renames, were it not held
+        os.kill(os.getpid(), getattr(signal, name))  # delivered between the two renames, were it not held
 
     monkeypatch.setattr(os, "replace", interrupted)
     # Python's Ctrl-C handler, also where the suite runs with SIGINT ignored (a background job of a script: CI)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous = signal.signal(getattr(signal, name), signal.default_int_handler)
     try:
         with pytest.raises(KeyboardInterrupt):
             write_results(_tiny_result(3), tmp_path)
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(getattr(signal, name), previous)
         stop.set()
     monkeypatch.setattr(os, "replace", real_replace)
     summary, arrays = read_summary(tmp_path, require=()), dict(np.load(tmp_path / "trajectory.npz"))

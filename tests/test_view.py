@@ -493,11 +493,12 @@ def test_live_view_serves_the_scene_to_a_browser(result_dir, tmp_path, capsys):
 SERVER_START_S = 60  # [s] meshcat's server starts in ~1 s; a command that prints nothing by then is a failure, not a hang
 
 
-@pytest.mark.parametrize("quiet", [False, True])
-def test_live_view_stops_its_server_on_sigterm(result_dir, quiet):
-    """`planner view DIR` started its own meshcat server; a SIGTERM ends the command with exit 0 as Ctrl-C does, and
-    the server process it started is gone (it stayed behind, listening on its port). With -q the URL alone is printed
-    (nothing was: a server running that no one could find)."""
+@pytest.mark.parametrize("quiet, stop", [(False, "SIGTERM"), (True, "SIGTERM"), (False, "SIGHUP")])
+def test_live_view_stops_its_server_on_sigterm(result_dir, quiet, stop):
+    """`planner view DIR` started its own meshcat server; a SIGTERM, or the SIGHUP of a closed terminal, ends the
+    command with exit 0 as Ctrl-C does, and the server process it started is gone (it stayed behind, listening on its
+    port; after a SIGHUP until session 65). With -q the URL alone is printed (nothing was: a server running that no one
+    could find)."""
     import os
     import signal
     import subprocess
@@ -518,7 +519,7 @@ def test_live_view_stops_its_server_on_sigterm(result_dir, quiet):
             assert line.startswith("meshcat replay: ")
         children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
         assert children  # the meshcat server
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(getattr(signal, stop))
         assert proc.wait(timeout=30) == 0
         deadline = time.time() + 10
         while time.time() < deadline and any(_alive(c) for c in children):
