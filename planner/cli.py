@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import multiprocessing
 import os
@@ -418,9 +419,10 @@ def _asks_ipopt_log(args) -> bool:
 
 
 class _ReaderMayLeave:
-    """A text stream whose reader may go away (`planner plan ... 2>&1 | grep -m1 homotopy`): what is printed after that
-    is dropped and the command goes on, writes its results and exits as it would (the solve stopped at the first
-    progress line the pipe refused, nothing was written and the exit code was 0)."""
+    """A text stream whose reader may go away (`planner plan ... 2>&1 | grep -m1 homotopy`, or a terminal that closed):
+    what is printed after that is dropped and the command goes on, writes its results and exits as it would (the solve
+    stopped at the first progress line the pipe refused, nothing was written and the exit code was 0; a plan whose
+    terminal hung up exited 1 on the EIO of its "interrupted" line, not 130)."""
 
     def __init__(self, stream):
         self._stream = stream
@@ -428,7 +430,9 @@ class _ReaderMayLeave:
     def _guarded(self, name: str, *args):
         try:
             return getattr(self._stream, name)(*args)
-        except BrokenPipeError:
+        except OSError as exc:
+            if not isinstance(exc, BrokenPipeError) and exc.errno != errno.EIO:
+                raise
             # the stream's buffer still holds the text: flushed into /dev/null at exit, not another BrokenPipeError
             with contextlib.suppress(OSError, ValueError):
                 _to_devnull(self._stream.fileno())

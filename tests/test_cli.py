@@ -1580,6 +1580,70 @@ def test_a_sighup_is_a_ctrl_c_unless_nohup_ignores_it(tmp_path, capsys, monkeypa
         signal.signal(signal.SIGHUP, before)
 
 
+SOLVE_START_S = 120  # [s] the race's arms are forked ~3 s after the command starts; a loaded CI box takes longer
+HANGUP_EXIT_S = 30  # [s] the arms are killed and the line printed within a second; room for a loaded box
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; a pty's hang-up as Linux sends it")
+def test_a_plan_whose_terminal_hangs_up_ends_as_interrupted(tmp_path):
+    """A terminal that closes under a running `planner plan` (an ssh session that ended) sends its SIGHUP: the command
+    ends as Ctrl-C ends it, exit 130, no result written and no race arm left running. (It died of the signal, and
+    `view`'s meshcat server outlived it; with SIGHUP taken, the "interrupted" line's write to the closed terminal
+    failed with EIO and the command exited 1.)"""
+    import pty
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    pid, fd = pty.fork()
+    if pid == 0:  # the command, on the terminal's other end, its session's leader
+        os.environ["OMP_NUM_THREADS"] = "1"
+        os.execv(sys.executable, [sys.executable, "-m", "planner.cli", "plan", "capler", "--out", str(out),
+                                  "--no-validate"])
+    arms, status = [], None
+    try:
+        deadline = time.time() + SOLVE_START_S
+        while not arms and time.time() < deadline:
+            time.sleep(0.2)
+            arms = _children(pid)
+        assert arms, "the race's arms never started"
+        os.close(fd)  # the hang-up
+        fd = None
+        deadline = time.time() + HANGUP_EXIT_S
+        while status is None and time.time() < deadline:
+            done, code = os.waitpid(pid, os.WNOHANG)
+            status = os.waitstatus_to_exitcode(code) if done else time.sleep(0.1)
+        assert status == 130
+        assert not out.exists()
+        while any(_running(arm) for arm in arms) and time.time() < deadline:
+            time.sleep(0.1)
+        assert not any(_running(arm) for arm in arms)
+    finally:
+        if fd is not None:
+            os.close(fd)
+        for child in [pid] * (status is None) + arms:  # a failed check leaves nothing running
+            if _running(child):
+                os.kill(child, signal.SIGKILL)
+        if status is None:
+            os.waitpid(pid, 0)
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(c) for c in f.read().split()]
+    except OSError:
+        return []
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 @pytest.mark.parametrize("stop", ["SIGTERM", "SIGHUP"])
 def test_the_plotting_process_finishes_its_plots_through_a_sigterm(tmp_path, monkeypatch, stop):
     """The child that draws a result's plots while the parent validates ignores SIGTERM and SIGHUP as it ignores Ctrl-C:
