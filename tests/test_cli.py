@@ -1499,34 +1499,37 @@ def test_plots_that_cannot_be_removed_leave_the_earlier_result_whole(tmp_path, c
     assert (mine / "states.png").read_bytes() == b"my own figure"
 
 
-def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
-    """A SIGTERM (timeout, a CI cancellation) during a command is handled as Ctrl-C: inside the deferred block around
-    a result's plots the block finishes first, then exit 130 and one line (SIGTERM killed the process there, the
-    earlier result's plots left hidden in a temporary directory). The SIGTERM handler is the one before afterwards."""
+@pytest.mark.parametrize("name", ["SIGTERM", "SIGHUP"])
+def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c, name):
+    """A SIGTERM (timeout, a CI cancellation) or a SIGHUP (a closed terminal, an ssh session that ended) during a
+    command is handled as Ctrl-C: inside the deferred block around a result's plots the block finishes first, then
+    exit 130 and one line (the signal killed the process there, the earlier result's plots left hidden in a temporary
+    directory; a SIGHUP left `view`'s meshcat server running). The signal's handler is the one before afterwards. Under
+    `nohup` (SIGHUP ignored) a SIGHUP stays ignored and the command runs to its end."""
     import os
     import signal
 
     import planner.cli as cli
     from planner.errors import interruptible
 
-    finished = []
+    finished, sig = [], getattr(signal, name)
 
     def plotting(args):
         with interruptible(defer=True):
-            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), sig)
             finished.append(True)
         return cli.EXIT_OK
 
     def unhandled(signum, frame):  # (the default would end the test run itself)
-        raise AssertionError("the command left SIGTERM to the handler before it")
+        raise AssertionError(f"the command left {name} to the handler before it")
 
-    before = signal.signal(signal.SIGTERM, unhandled)
+    before = signal.signal(sig, unhandled)
     try:
         monkeypatch.setattr(cli, "_cmd_simulate", plotting)
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
-        assert signal.getsignal(signal.SIGTERM) is unhandled
-        # Ctrl-C ignored, as in a script's background job: the SIGTERM still ends the command as an interruption,
+        assert signal.getsignal(sig) is unhandled
+        # Ctrl-C ignored, as in a script's background job: the signal still ends the command as an interruption,
         # through the same blocks (IPOPT's caught interrupt read as a failed NLP there: the solve went on, exit 0), and
         # Ctrl-C is ignored again after it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -1539,45 +1542,14 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c):
         monkeypatch.setattr(cli, "_cmd_view", plotting)
         assert main(["view", str(tmp_path), "--html", str(tmp_path / "page.html")]) == 130
         assert capsys.readouterr().err.strip() == "planner view: interrupted"
+        if sig == signal.SIGHUP:  # nohup's
+            signal.signal(sig, signal.SIG_IGN)
+            finished.clear()
+            assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 0 and finished == [True]
+            assert capsys.readouterr().err.strip() == ""
+            assert signal.getsignal(sig) is signal.SIG_IGN
     finally:
-        signal.signal(signal.SIGTERM, before)
-
-
-def test_a_sighup_is_a_ctrl_c_unless_nohup_ignores_it(tmp_path, capsys, monkeypatch, ctrl_c):
-    """The SIGHUP of a closed terminal (an ssh session that ended) is handled as Ctrl-C, as SIGTERM is: the deferred
-    block around a result's plots finishes, then exit 130 and one line (it killed the command, and `view`'s meshcat
-    server outlived it); the handler before is back afterwards. Under `nohup` (SIGHUP ignored) it stays ignored and the
-    command runs to its end."""
-    import os
-    import signal
-
-    import planner.cli as cli
-    from planner.errors import interruptible
-
-    finished = []
-
-    def plotting(args):
-        with interruptible(defer=True):
-            os.kill(os.getpid(), signal.SIGHUP)
-            finished.append(True)
-        return cli.EXIT_OK
-
-    def unhandled(signum, frame):  # (the default would end the test run itself)
-        raise AssertionError("the command left SIGHUP to the handler before it")
-
-    before = signal.signal(signal.SIGHUP, unhandled)
-    try:
-        monkeypatch.setattr(cli, "_cmd_simulate", plotting)
-        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
-        assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
-        assert signal.getsignal(signal.SIGHUP) is unhandled
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
-        finished.clear()
-        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 0 and finished == [True]
-        assert capsys.readouterr().err.strip() == ""
-        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
-    finally:
-        signal.signal(signal.SIGHUP, before)
+        signal.signal(sig, before)
 
 
 SOLVE_START_S = 120  # [s] the race's arms are forked ~3 s after the command starts; a loaded CI box takes longer
