@@ -1570,6 +1570,7 @@ def test_a_plan_whose_terminal_hangs_up_ends_as_interrupted(tmp_path):
     pid, fd = pty.fork()
     if pid == 0:  # the command, on the terminal's other end, its session's leader
         os.environ["OMP_NUM_THREADS"] = "1"
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as a terminal's shell starts it (the suite may run under nohup)
         os.execv(sys.executable, [sys.executable, "-m", "planner.cli", "plan", "capler", "--out", str(out),
                                   "--no-validate"])
     arms, status = [], None

@@ -505,8 +505,10 @@ def test_live_view_stops_its_server_on_sigterm(result_dir, quiet, stop):
     import sys
     import time
 
+    # the signal's default in the command, as a terminal's shell starts it (the suite may run under nohup)
     proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "view", str(result_dir)] + ["-q"] * quiet,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(getattr(signal, stop), signal.SIG_DFL))
     children = []
     try:
         import select
