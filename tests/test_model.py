@@ -807,3 +807,24 @@ def test_hostile_robot_files_are_refused_in_one_line_before_a_parser_reads_them(
         main.write_text(text.replace("<worldbody>", f'{top}<include file="sub.xml"/><worldbody>', 1))
         with pytest.raises(RobotFileError, match=message):
             detect_format(main)
+
+
+FREE_BASE_LEG = """<mujoco><compiler angle="radian"/><worldbody><body name="base" pos="0 0 1"><freejoint name="root"/>
+  <geom type="box" size="0.1 0.1 0.1" mass="2"/>
+  <body name="leg" pos="0 0 -0.1"><joint name="hip" type="hinge" axis="0 1 0" range="-0.5 0.7" limited="true"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="1"/><site name="foot" pos="0 0 -0.3"/></body>
+</body></worldbody><actuator><motor joint="hip" ctrlrange="-10 10"/></actuator></mujoco>"""
+
+
+def test_a_hinges_limits_after_a_free_joint_are_at_its_qpos_address(tmp_path):
+    """A free joint takes 7 coordinates: the hinge after it gets MuJoCo's range at MuJoCo's qpos address of the hinge
+    (read by its joint index, the range landed on the base's y coordinate and the hinge kept Pinocchio's reading)."""
+    import mujoco
+
+    path = tmp_path / "free_base_leg.xml"
+    path.write_text(FREE_BASE_LEG)
+    robot, mj = load_robot(path), mujoco.MjModel.from_xml_path(str(path))
+    hip = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, "hip")
+    i = int(mj.jnt_qposadr[hip])
+    assert (robot.q_lower[i], robot.q_upper[i]) == tuple(mj.jnt_range[hip]) == (-0.5, 0.7)
+    assert robot.q_lower[1] != -0.5 and robot.q_upper[1] != 0.7  # the base's y is not the hip's range

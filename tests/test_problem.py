@@ -745,3 +745,97 @@ def test_every_row_of_a_step_is_a_row_of_the_nlp(form, fesd):
         rows = problem.stages.rows
         assert rows.min() >= 0 and len(set(rows.ravel().tolist())) == rows.size
 
+
+
+# path rows evaluated by CasADi against the same products in NumPy: rounding of a few products of numbers ~1
+PATH_ROW_ROUNDING = 1e-10
+
+
+def _rows_at(prob, x) -> np.ndarray:
+    """The NLP's constraint values g(x) at the default parameters (rho = 1)."""
+    import casadi as ca
+
+    return np.asarray(ca.Function("g", [prob.x, prob.p], [prob.g])(x, prob.params(rho=1.0)), float).ravel()
+
+
+def _capler(**changes):
+    """Capler's default task on a two-step grid, with `changes` to the Task; its build warnings (the grid) ignored."""
+    task = dataclasses.replace(load_task(ROBOTS / "capler.toml"), horizon=Horizon(tau_f=0.1, N=2), **changes)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return build_problem(load_robot(ROBOTS / "capler.xml"), task), task
+
+
+def test_above_ground_rows_are_heights_above_the_tasks_ground():
+    """plan.above_ground's rows are each point's height above ground_height, z(q) - ground_height, computed here by
+    Pinocchio's forward kinematics (the rows ignored ground_height and no test saw it: with a raised floor the knee
+    was planned below it)."""
+    from planner.dynamics import Dynamics
+
+    prob, task = _capler(ground_height=-0.05)
+    q0 = prob.y0[:4]
+    dyn = Dynamics(load_robot(ROBOTS / "capler.xml"))
+    want = [float(dyn.point_position(p)(q0)[2]) + 0.05 for p in task.plan.above_ground]
+    rows = _rows_at(prob, prob.x0)[prob.g_blocks["above_ground"]]
+    np.testing.assert_allclose(rows, np.tile(want, (prob.N, 1)), atol=PATH_ROW_ROUNDING)
+
+
+def test_friction_cone_rows_bound_both_directions():
+    """The friction cone's two rows per step are w (mu lam_n - lam_t) and w (mu lam_n + lam_t), w the rough field's
+    coefficient, at a random point (only their count was checked: a copy of the first row for the second let the
+    plan push tangentially beyond mu lam_n one way)."""
+    robot = load_robot(ROBOTS / "point_mass.xml")
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 0.2, "N": 2}, "plan": {"target_q": [0.1, 0.0], "u_bound": 30.0}})
+    prob = build_problem(robot, task)
+    x = np.random.default_rng(0).uniform(0.1, 0.9, prob.nx)
+    g, b = _rows_at(prob, x), prob.builder
+    j = [f.name for f in prob.system.fields].index("dae_f[point]")
+    for k in range(prob.N):
+        w = x[prob.var_blocks["w"][k]]
+        weight, lam = b.coefficients(w)[j], w[b.w_blocks["forces"]][b.mm.lam_index["point"]]
+        np.testing.assert_allclose(g[prob.g_blocks["friction_cone"][k]],
+                                   [weight * (0.5 * lam[0] - lam[1]), weight * (0.5 * lam[0] + lam[1])],
+                                   rtol=PATH_ROW_ROUNDING)
+
+
+def test_several_contacts_friction_cone_rows_bound_both_directions():
+    """With two rough contacts each point's cone rows are R (mu lam_n - lam_t) and R (mu lam_n + lam_t), R the ODE's
+    coefficient, at a random point (the several-contact build's rows, as the one-contact test above)."""
+    import casadi as ca
+
+    from planner.task import Contact
+
+    capler = load_task(ROBOTS / "capler.toml")
+    prob, _ = _capler(contacts=capler.contacts + (Contact("knee", mu=0.5, a_t=600.0),))
+    x = np.random.default_rng(3).uniform(0.1, 0.9, prob.nx)
+    g, b = _rows_at(prob, x), prob.builder
+    for k in range(prob.N):
+        w = x[prob.var_blocks["w"][k]]
+        R = float(np.asarray(ca.mtimes(ca.DM(b.C), b.monomials_of(w))).ravel()[0])
+        want = []
+        for label, mu in zip(prob.system.labels, (capler.contacts[0].mu, 0.5)):
+            lam = w[b.w_blocks["forces"]][b.mm.lam_index[label]]
+            want += [R * (mu * lam[0] - lam[1]), R * (mu * lam[0] + lam[1])]
+        np.testing.assert_allclose(g[prob.g_blocks["friction_cone"][k]], want, rtol=PATH_ROW_ROUNDING)
+
+
+def test_never_touching_rows_are_the_gap_to_a_tilted_plane_through_the_ground():
+    """A `touches = false` contact on a tilted plane, with ground_height != 0, is held off by its row c(q), the gap
+    contact.contact_terms gives that plane (the row used ground_height unscaled by the normal's z: the point was kept
+    off a plane shifted by (1 - n_z) ground_height)."""
+    import casadi as ca
+
+    from planner.contact import contact_terms
+    from planner.dynamics import Dynamics
+    from planner.task import Contact
+
+    normal = (0.6, 0.0, 0.8)
+    capler = load_task(ROBOTS / "capler.toml")
+    prob, _ = _capler(ground_height=-0.05, contacts=capler.contacts + (Contact("knee", normal=normal, touches=False),))
+    q = ca.SX.sym("q", 4)
+    terms = contact_terms(Dynamics(load_robot(ROBOTS / "capler.xml")), "knee", -0.05, q, ca.SX.sym("v", 4),
+                          ca.SX.sym("u", 2), surface=normal)
+    want = float(ca.Function("gap", [q], [terms.gap])(prob.y0[:4]))
+    rows = _rows_at(prob, prob.x0)[prob.g_blocks["never_touching"]].ravel()
+    np.testing.assert_allclose(rows, [want] * prob.N, atol=PATH_ROW_ROUNDING)

@@ -936,3 +936,12 @@ def test_tasks_between_takes_an_omitted_initial_v_as_zeros_and_ignores_the_simul
     moving = replace(still, initial=replace(still.initial, v=(0.2, 0.0, 0.0, 0.0)))
     mid = tasks_between(a, moving, 0.5)
     assert mid.initial.v == pytest.approx((0.1, 0.0, 0.0, 0.0), abs=ROUNDING) and mid.simulate == moving.simulate
+
+
+@pytest.mark.parametrize("normal", [(0.0, 1.0, 0.0), (0.6, 0.1, 0.8)])
+def test_a_contact_normal_out_of_the_x_z_plane_is_refused(normal):
+    """A contact plane's normal must lie in the x-z plane, where the planner's robots move: its y part would be dropped
+    by the contact model (0.6 0.1 0.8 a plane tilted otherwise than the user wrote; 0 1 0 a wall of Delassus 0), so it
+    is refused naming the plane (no test gave a normal with y != 0, and dropping the check left every test green)."""
+    with pytest.raises(TaskError, match=r"contacts\.normal = .*x-z plane"):
+        Contact("foot", normal=normal)

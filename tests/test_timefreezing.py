@@ -338,3 +338,44 @@ def test_several_contacts_step_forms_agree():
             ref = dyn_rows
         else:
             np.testing.assert_allclose(dyn_rows, ref, atol=1e-10)
+
+
+# closed-form quantities of a 2 kg point mass and of Capler's fields, evaluated by CasADi: rounding only
+FIELD_ROUNDING = 1e-9
+
+
+def test_elastic_oscillator_moves_the_normal_velocity_as_the_oscillator_for_any_mass(tmp_path):
+    """In the frozen oscillator (n^T v)' = -k p - c n^T v whatever the robot's Delassus D = n^T M^-1 n: here a 2 kg
+    point mass (D = 1/2; the oscillator's force multiplied by D instead of divided by it gave a restitution of 0.7 for
+    0.5, and the 1 kg point mass of every other elastic test, D = 1, cannot tell them apart)."""
+    path = tmp_path / "point_mass_2kg.xml"
+    source = load_robot("point_mass").path.read_text()
+    assert source.count('mass="1"') == 1
+    path.write_text(source.replace('mass="1"', 'mass="2"'))
+    s = TimeFreezingSystem(Dynamics(load_robot(path)), [Contact("point", restitution=0.5, a_n=16.0)])
+    k, c = oscillator_gains(0.5, 16.0)
+    y, u = np.array([0.2, 0.0, 0.7, -1.5, -0.05, 0.4]), np.array([3.0, 1.0])
+    ground = np.zeros(3)  # the selectors' corner of the frozen oscillator
+    F = np.asarray(ca.Function("F", [s.y, s.u], [s.vector_field(ground)])(y, u), float).ravel()
+    assert F[3] == pytest.approx(-k * y[4] - c * y[3], rel=FIELD_ROUNDING)  # n = (0, 1): n^T v = v_z
+
+
+@pytest.mark.parametrize("frictionless_tangential", [False, True])
+@pytest.mark.parametrize("mus", [(0.0, 0.0), (0.8, 0.0), (0.8, 0.8)])
+def test_impulse_rates_are_the_fields_generalized_forces(frictionless_tangential, mus):
+    """For every auxiliary field of Capler with two contacts, M(q) f_v(y) = sum_i n_i rate_n,i + t_i rate_t,i: the
+    impulse rates the result reads its impacts from are the forces the field applies (a frictionless contact's a_t
+    field reported a tangential rate it does not apply, and no test compared the two)."""
+    d = dyn("capler")
+    s = TimeFreezingSystem(d, (Contact("foot", mu=mus[0]), Contact("knee", mu=mus[1])), 0.0,
+                           frictionless_tangential=frictionless_tangential)
+    rng = np.random.default_rng(2)
+    y, u = np.concatenate([[0.1, 0.4, 0.3, -0.5], rng.normal(size=4), [0.0]]), rng.normal(size=2)
+    F, R = (np.asarray(f(y, u), float) for f in (s.fields_fn, s.impulse_fn))
+    M = np.asarray(d.mass(y[:4]), float)
+    directions = [[np.asarray(ca.Function("d", [s.y], [e])(y), float).ravel() for e in (ct.normal, ct.tangent)]
+                  for ct in s.terms]
+    for j, field in enumerate(s.fields):
+        if field.auxiliary:
+            forces = sum(n * R[2 * i, j] + t * R[2 * i + 1, j] for i, (n, t) in enumerate(directions))
+            np.testing.assert_allclose(M @ F[4:8, j], forces, atol=FIELD_ROUNDING, err_msg=field.name)
