@@ -818,7 +818,8 @@ FREE_BASE_LEG = """<mujoco><compiler angle="radian"/><worldbody><body name="base
 
 def test_a_hinges_limits_after_a_free_joint_are_at_its_qpos_address(tmp_path):
     """A free joint takes 7 coordinates: the hinge after it gets MuJoCo's range at MuJoCo's qpos address of the hinge
-    (read by its joint index, the range landed on the base's y coordinate and the hinge kept Pinocchio's reading)."""
+    (session 65's mutation testing: read by the joint's index, the range lands on the base's y coordinate and the
+    hinge keeps Pinocchio's reading, with every test green)."""
     import mujoco
 
     path = tmp_path / "free_base_leg.xml"

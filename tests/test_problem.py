@@ -768,8 +768,8 @@ def _capler(**changes):
 
 def test_above_ground_rows_are_heights_above_the_tasks_ground():
     """plan.above_ground's rows are each point's height above ground_height, z(q) - ground_height, computed here by
-    Pinocchio's forward kinematics (the rows ignored ground_height and no test saw it: with a raised floor the knee
-    was planned below it)."""
+    Pinocchio's forward kinematics (session 65's mutation testing: rows that ignore ground_height, which would plan
+    the knee below a raised floor, left every test green)."""
     from planner.dynamics import Dynamics
 
     prob, task = _capler(ground_height=-0.05)
@@ -782,8 +782,8 @@ def test_above_ground_rows_are_heights_above_the_tasks_ground():
 
 def test_friction_cone_rows_bound_both_directions():
     """The friction cone's two rows per step are w (mu lam_n - lam_t) and w (mu lam_n + lam_t), w the rough field's
-    coefficient, at a random point (only their count was checked: a copy of the first row for the second let the
-    plan push tangentially beyond mu lam_n one way)."""
+    coefficient, at a random point (only their count was checked: session 65's mutation testing made the second a
+    copy of the first, which lets the plan push tangentially beyond mu lam_n one way, and every test stayed green)."""
     robot = load_robot(ROBOTS / "point_mass.xml")
     task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
                        "horizon": {"tau_f": 0.2, "N": 2}, "plan": {"target_q": [0.1, 0.0], "u_bound": 30.0}})
@@ -822,8 +822,8 @@ def test_several_contacts_friction_cone_rows_bound_both_directions():
 
 def test_never_touching_rows_are_the_gap_to_a_tilted_plane_through_the_ground():
     """A `touches = false` contact on a tilted plane, with ground_height != 0, is held off by its row c(q), the gap
-    contact.contact_terms gives that plane (the row used ground_height unscaled by the normal's z: the point was kept
-    off a plane shifted by (1 - n_z) ground_height)."""
+    contact.contact_terms gives that plane (session 65's mutation testing: ground_height unscaled by the normal's z,
+    which keeps the point off a plane shifted by (1 - n_z) ground_height, left every test green)."""
     import casadi as ca
 
     from planner.contact import contact_terms

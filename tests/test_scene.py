@@ -305,8 +305,9 @@ HINGE_THEN_SLIDE = """<mujoco><worldbody><body name="arm" pos="0 0 1">
 
 def test_reach_box_of_a_slide_below_a_hinge_holds_every_sampled_position(tmp_path):
     """A slide below a hinge, its range [-0.5, 0.1] wider below zero than above: every sampled tip position lies in
-    the tip's reach box (the box's radius took the slide's upper end, not its larger magnitude, and a reachable hole
-    at (0, 0.3) was dropped as out of reach; Capler, the other reach-box test's robot, has no slide below a hinge)."""
+    the tip's reach box (session 65's mutation testing: a radius from the slide's upper end, not its larger
+    magnitude, drops a reachable hole at (0, 0.3) as out of reach; Capler, the other reach-box test's robot, has no
+    slide below a hinge to show it)."""
     from planner.dynamics import Dynamics
 
     path = tmp_path / "arm.xml"
@@ -321,8 +322,8 @@ def test_reach_box_of_a_slide_below_a_hinge_holds_every_sampled_position(tmp_pat
 
 def test_a_hole_below_the_ground_is_kept_when_a_point_touches_only_a_wall(capler):
     """A hole below the ground is dropped as buried only when every contact point is held above the ground; the
-    knee, whose only contact is a wall (normal along x), is not, so the hole stays (any point on the ground plane
-    dropped it for all, and the knee could be planned into it)."""
+    knee, whose only contact is a wall (normal along x), is not, so the hole stays (session 65's mutation testing:
+    `any` for `all` drops it, and the knee could be planned into it, with every test green)."""
     task = parse_task({"contacts": [{"point": "foot"}, {"point": "knee", "normal": [1.0, 0.0, 0.0]}],
                        "initial": {"q": [0.5, 0.4, 0.0, 0.0]}, "horizon": {"tau_f": 0.5, "N": 10},
                        "plan": {"target_q": [0.6, 0.4, 0.0, 0.0],

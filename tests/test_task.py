@@ -942,6 +942,7 @@ def test_tasks_between_takes_an_omitted_initial_v_as_zeros_and_ignores_the_simul
 def test_a_contact_normal_out_of_the_x_z_plane_is_refused(normal):
     """A contact plane's normal must lie in the x-z plane, where the planner's robots move: its y part would be dropped
     by the contact model (0.6 0.1 0.8 a plane tilted otherwise than the user wrote; 0 1 0 a wall of Delassus 0), so it
-    is refused naming the plane (no test gave a normal with y != 0, and dropping the check left every test green)."""
+    is refused naming the plane (no test gave a normal with y != 0: session 65's mutation testing dropped the check
+    and every test stayed green)."""
     with pytest.raises(TaskError, match=r"contacts\.normal = .*x-z plane"):
         Contact("foot", normal=normal)

@@ -346,8 +346,8 @@ FIELD_ROUNDING = 1e-9
 
 def test_elastic_oscillator_moves_the_normal_velocity_as_the_oscillator_for_any_mass(tmp_path):
     """In the frozen oscillator (n^T v)' = -k p - c n^T v whatever the robot's Delassus D = n^T M^-1 n: here a 2 kg
-    point mass (D = 1/2; the oscillator's force multiplied by D instead of divided by it gave a restitution of 0.7 for
-    0.5, and the 1 kg point mass of every other elastic test, D = 1, cannot tell them apart)."""
+    point mass (D = 1/2). Session 65's mutation testing: the oscillator's force multiplied by D instead of divided by
+    it gives a restitution of 0.7 for 0.5, which the 1 kg point mass of every other elastic test, D = 1, cannot see."""
     path = tmp_path / "point_mass_2kg.xml"
     source = load_robot("point_mass").path.read_text()
     assert source.count('mass="1"') == 1
@@ -364,8 +364,8 @@ def test_elastic_oscillator_moves_the_normal_velocity_as_the_oscillator_for_any_
 @pytest.mark.parametrize("mus", [(0.0, 0.0), (0.8, 0.0), (0.8, 0.8)])
 def test_impulse_rates_are_the_fields_generalized_forces(frictionless_tangential, mus):
     """For every auxiliary field of Capler with two contacts, M(q) f_v(y) = sum_i n_i rate_n,i + t_i rate_t,i: the
-    impulse rates the result reads its impacts from are the forces the field applies (a frictionless contact's a_t
-    field reported a tangential rate it does not apply, and no test compared the two)."""
+    impulse rates the result reads its impacts from are the forces the field applies (session 65's mutation testing:
+    a tangential rate reported for a frictionless contact's a_t field, which applies none, left every test green)."""
     d = dyn("capler")
     s = TimeFreezingSystem(d, (Contact("foot", mu=mus[0]), Contact("knee", mu=mus[1])), 0.0,
                            frictionless_tangential=frictionless_tangential)
