@@ -1475,3 +1475,100 @@ def test_a_trajectory_of_one_sample_is_said_to_have_no_motion():
            "impact_times": np.zeros(0)}
     with pytest.raises(InputError, match=r"^the trajectory holds one sample \(its run stopped at its first step\)"):
         replay.check_trajectory(robot, {k: one[k] for k in replay.REQUIRED_ARRAYS})
+
+
+# session 65's mutation testing (back of the data flow): verdicts that read the wrong quantity or limit left the
+# tests green where the defect changed both quantities at once; these change one at a time
+EXCURSION_M = 0.03  # [m] a base excursion mid-plan: 3x the tracking limit, ending on the plan
+MID_PLAN_S = (0.2, 0.3)  # [s] when, in the 0.6 s drop
+BETWEEN_LIMITS_M = 0.003  # [m] under the ground: above the 2 mm penetration limit, below the 10 mm tracking one
+OWN_STEP_RESIDUAL = 1e-4  # an implicit-Euler simulation's steps meet their equation to the simulator's tolerance
+
+
+def test_a_mid_plan_excursion_fails_the_tracking_verdict(capler, ground_truth):
+    """The tracking verdict reads the largest base error along the plan, not the final one: MuJoCo's own recording with
+    the base raised 3 cm for 0.1 s mid-plan ends on the plan, and fails (a verdict on the final error passed it)."""
+    robot, task = capler
+    traj, _ = ground_truth
+    q = traj["q"].copy()
+    q[(traj["t"] >= MID_PLAN_S[0]) & (traj["t"] < MID_PLAN_S[1]), 1] += EXCURSION_M
+    result = replay.validate_trajectory(robot, task, {**traj, "q": q})
+    assert result.final_tracking_error_m <= replay.MAX_TRACKING_ERROR_M < result.max_tracking_error_m
+    assert not result.passed and any("tracking error" in f for f in result.failures)
+
+
+def test_penetration_between_the_two_limits_fails_on_penetration_alone(capler, ground_truth):
+    """A plan 3 mm under the ground fails on penetration (limit 2 mm) and on nothing else: its tracking error is
+    within the 10 mm limit (a penetration compared with the tracking limit passed it; the test that lowered the plan
+    1 cm broke both limits)."""
+    robot, task = capler
+    traj, _ = ground_truth
+    result = replay.validate_trajectory(robot, task, {**traj, "q": traj["q"] - [0.0, BETWEEN_LIMITS_M, 0.0, 0.0]})
+    assert result.max_tracking_error_m <= replay.MAX_TRACKING_ERROR_M
+    assert not result.passed and [f.split()[0] for f in result.failures] == ["penetration"]
+
+
+def test_an_impact_between_a_grounded_and_an_airborne_sample_is_on_the_ground():
+    """A listed impact between a sample on the ground and one in the air is at a contact (judged at both samples: the
+    nearer one on the ground is contact enough; judged by the higher one, it failed "is listed with ... above the
+    ground")."""
+    flight = _pushed_flight()
+    t = np.concatenate([0.01 * np.arange(5), 0.04 + flight["t"][1:]])
+    q = np.vstack([np.zeros((5, 2)), flight["q"][1:] - [0.0, 1.0]])
+    v, u = np.vstack([np.zeros((5, 2)), flight["v"][1:]]), np.vstack([np.tile([0.0, 9.81], (5, 1)), flight["u"][1:]])
+    first_up = int(np.argmax(q[:, 1] > 0.005))  # the first sample clearly in the air: it follows the grounded ones
+    keep = np.r_[0:5, first_up:t.size]
+    t, q, v, u = t[keep], q[keep], v[keep], u[keep]
+    traj = {"t": t, "q": q, "v": v, "u": u, "impact_times": np.array([0.5 * (t[4] + t[5])])}
+    result = replay.validate_trajectory(load_robot("point_mass"), _task("point", q0=(0.0, 0.0)), traj,
+                                        impact_points=["point"])
+    assert not any("is listed with" in f for f in result.failures), result.failures
+
+
+def test_a_multibody_implicit_euler_flight_meets_its_own_dynamics():
+    """Capler's implicit-Euler flight, whose bias h depends on q and v (the point mass's does not), meets the
+    own-dynamics check's step equation to the simulator's tolerance: the check evaluates h at the step's end state
+    (at its start state the residual was 0.94, a false failure against the 0.1 limit)."""
+    import tomllib
+
+    from planner.simulate import simulate
+
+    robot = load_robot(ROBOTS_DIR / "capler.xml")
+    with open(ROBOTS_DIR / "capler.toml", "rb") as f:
+        task = parse_task({**tomllib.load(f), "initial": {"q": [0.0, 0.9, 0.3, -0.5], "v": [0.5, 0.0, 2.0, -3.0]},
+                           "horizon": {"tau_f": 0.3, "N": 30}})
+    tr = simulate(robot, task).trajectory
+    traj = {"t": tr.t, "q": tr.q, "v": tr.v, "u": tr.u, "impact_times": tr.impact_times}
+    own = replay.validate_trajectory(robot, task, traj, dynamics=True, holes=False).kinematic
+    assert own.flight_steps == 30 and own.max_flight_residual < OWN_STEP_RESIDUAL
+
+
+def test_a_bounce_shorter_than_the_minimum_flight_is_no_impact():
+    """A contact onset is an impact only after MIN_FLIGHT_S (10 ms) without contact: an 8 ms bounce is none, a 10 ms
+    flight is one, dated at its landing (a flight timed from one sample early counted the 8 ms bounce)."""
+    times = 0.002 * np.arange(20)
+    active = np.ones((20, 1), bool)
+    active[5:9, 0] = False  # free from 10 ms to 18 ms: 8 ms
+    assert replay.detect_impacts(times, active, ["foot"]) == []
+    active[5:10, 0] = False  # 10 ms
+    assert replay.detect_impacts(times, active, ["foot"]) == [("foot", pytest.approx(0.02))]
+
+
+def test_a_validation_write_that_fails_leaves_the_old_summary_whole(ground_truth, monkeypatch, tmp_path):
+    """write_validation replaces summary.json by a rename of a whole temporary file: with the rename failing (a full
+    disk) the error is raised and the earlier summary.json is left as it was (a write in place truncated it first)."""
+    import os
+
+    traj, out = ground_truth
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    before = (copy / "summary.json").read_bytes()
+    validation = replay.validate(copy)
+
+    def refuse(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", refuse)
+    with pytest.raises(PlannerError, match="No space left"):
+        replay.write_validation(copy, validation)
+    assert (copy / "summary.json").read_bytes() == before
