@@ -1027,3 +1027,31 @@ def test_write_atomically_reads_the_umask_without_changing_it(tmp_path, monkeypa
     finally:
         monkeypatch.undo()
         os.umask(umask)
+
+
+def test_each_frozen_steps_impulse_is_in_exactly_one_impact():
+    """Every frozen step's auxiliary impulse lands in exactly one impact (session 65's mutation testing found no test
+    of either end of a frozen run): a horizon that ends inside an impact gives one impact with all of its impulse
+    (3.5 N s, not 3.0 + 0.5 split at the last step), and landings at two consecutive nodes count each step's impulse
+    once (their total, not a step's impulse in both impacts)."""
+    tau, y, u, dt, dv, imp = handmade()
+    *_, impacts = recover(tau[:6], y[:6], u[:5], dt[:5], dv[:5], imp[:5], 1, 1, ("foot",))
+    assert [(i.impulse, i.tau_end) for i in impacts] == [pytest.approx((3.5, 0.5), abs=EXACT)]
+    # 1-DoF (q, v, t): steps 1 and 2 both partly frozen landing steps (0.5 N s each), at consecutive nodes 1 and 2
+    y2 = np.column_stack([[1.0, 0.9, 0.9, 0.9, 0.9], [-1.0, -1.0, -0.5, 0.0, 0.0], [0.0, 0.1, 0.15, 0.2, 0.3]])
+    dv2 = np.array([[0.0], [0.5], [0.5], [0.0]])
+    imp2 = dv2.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    *_, impacts = recover(0.1 * np.arange(5), y2, np.zeros((4, 1)), np.full(4, 0.1), dv2, imp2, 1, 1, ("foot",),
+                          landed=np.array([[False], [True], [True], [False]]))
+    assert sum(i.impulse for i in impacts) == pytest.approx(imp2[:, 0, 0].sum(), abs=EXACT)
+
+
+def test_taps_are_judged_by_the_impulse_norm():
+    """A tap is an impact whose impulse norm (normal and tangential) is below TAP_SHARE of the largest, as the README
+    says: an impact of 0.05 N s normal and 1 N s tangential is no tap beside one of 2 N s (judged by the normal part
+    alone it was; session 65's mutation testing)."""
+    trajectory = small_result().trajectory
+    impact = trajectory.impacts[0]
+    two = replace(trajectory, impacts=(replace(impact, impulse=2.0, impulse_tangential=0.0),
+                                       replace(impact, impulse=0.05, impulse_tangential=1.0)))
+    assert two.taps.tolist() == [False, False]
