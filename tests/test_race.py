@@ -363,3 +363,13 @@ def test_a_second_ctrl_c_while_the_arms_are_reaped_leaves_none_running(hop_probl
         multiprocessing.process.BaseProcess.join = join
         signal.signal(signal.SIGINT, previous)
     assert pressed and multiprocessing.active_children() == []
+
+
+def test_a_race_that_nobody_wins_returns_the_first_arms_result(hop_problem):
+    """When no arm converges (each stops at its iteration cap) the race returns the first arm's result, as its
+    docstring says and the plain solve with the first arm's options would (session 65's mutation testing: the last
+    arm's was returned and no test could tell, the one test of a lost race having both arms raise the same error)."""
+    arms = (("first", H.SolveOptions(max_iter=2, polish=H.Polish.NONE)),
+            ("second", H.SolveOptions(max_iter=3, polish=H.Polish.NONE)))
+    result = R.race(hop_problem, arms, processes=2)
+    assert not result.stats.converged and result.options["solve"]["max_iter"] == 2
