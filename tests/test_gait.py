@@ -162,6 +162,9 @@ def test_a_gait_that_asks_the_ground_to_pull_or_slide_says_so():
     for change, message in cases:
         (line,) = contact_violations({**good, **change})
         assert message in line
+    # backwards too (session 65's mutation testing: the tangential impulse's sign kept, 19.5 N s backwards passed)
+    (line,) = contact_violations({**good, "impact_impulse_N_s": [-19.5, 1.9]})
+    assert "is 10.3 times its normal one 1.9 N s, beyond mu = 1" in line
     # within the 1 % slack the plans' impacts and the stance force have (result.CONE_SLACK): no violation; beyond, one
     assert contact_violations({**good, "impact_impulse_N_s": [10.05, 10.0]}) == []
     assert len(contact_violations({**good, "impact_impulse_N_s": [10.2, 10.0]})) == 1
@@ -184,6 +187,12 @@ def test_motor_commands_beyond_the_files_range_are_a_violation(tmp_path):
                            "[-30, 30] of 'hip_1', 'hip_2'"), line
     assert motor_violations(robot, layout, np.clip(u, -30.0, 30.0)) == []
     assert gait_violations({"contact_violations": ["a"], "motor_violations": [line]}) == ["a", line]
+    # the other motor weak instead (session 65's mutation testing: the first motor's range alone passed this test)
+    second = xml.index('ctrlrange="-500 500"', xml.index('ctrlrange="-500 500"') + 1)
+    path.write_text(xml[:second] + xml[second:].replace('ctrlrange="-500 500"', 'ctrlrange="-30 30"', 1))  # hip_2
+    robot = load_robot(path)
+    (line,) = motor_violations(robot, find_layout(robot), u)
+    assert "[-30, 30] of 'hip_1', 'hip_2'" in line, line
 
 
 @pytest.mark.parametrize("old, new, differs", [('mass="5"', 'mass="5.5"', "mass matrix"),

@@ -107,3 +107,13 @@ def test_bad_options_are_input_errors():
             ProntoOptions(**{"feedback_q": (1.0,), "feedback_r": (1.0,), **empty})
     with pytest.raises(InputError, match="feedback"):
         Pronto(_pendulum(), ProntoOptions(feedback_q=(1.0,), feedback_r=(1.0,)))
+
+
+def test_every_accepted_step_meets_the_armijo_condition(pendulum_solution):
+    """Each accepted PRONTO step decreases the cost by the Armijo rule: g_new <= g + c gamma slope (slope < 0). The
+    pendulum converges whatever the line search accepts, so its solution alone could not tell a sign slip that took
+    steps raising the cost (172 -> 177 -> 195; session 65's mutation testing)."""
+    _, result = pendulum_solution
+    history, c = result.history, ProntoOptions(feedback_q=(DT * 10, DT), feedback_r=(DT * 0.1,)).armijo_c
+    assert len(history) > 2
+    assert all(b.cost <= a.cost + c * a.step * a.slope for a, b in zip(history, history[1:]))
