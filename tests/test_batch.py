@@ -258,3 +258,10 @@ def test_default_workers_count_the_cpus_the_process_may_run_on(monkeypatch):
         pytest.skip("no CPU affinity on this platform")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
     assert default_workers(8) == 1
+
+
+def test_in_process_runs_what_no_worker_could_import():
+    """workers=0 runs the jobs in this process, so a function no worker process could import (a lambda) runs too
+    (session 65's mutation testing sent workers=0 to a process pool, which refused the lambda, and every test stayed
+    green: the in-process test's function imports anywhere)."""
+    assert run_batch(lambda x: 2 * x, [1, 2], workers=0) == [2, 4]

@@ -1141,3 +1141,19 @@ def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
     res = H.solve(edited, H.SolveOptions(max_iter=500))
     assert res.stats.converged and [j["joint"] for j in res.extra["joints_outside_range"]] == ["x"]
 
+
+
+def test_the_homotopy_never_stops_at_its_holes_relaxed_nlp():
+    """early_stop_comp ends the homotopy only at an NLP with the holes at full size (SolveOptions' docstring): with
+    no soft-terminal NLP and a threshold every NLP meets, the point-mass hop over a hole still runs on to hole scale 1
+    (session 65's mutation testing let it stop at NLP 1, holes relaxed, and every test stayed green)."""
+    from planner.task import parse_task
+
+    hole = {"x": 0.25, "z": 0.0, "a": 0.05, "b": 0.05}
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 100.0}],
+                       "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 30},
+                       "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0, "holes": [hole]}})
+    result = H.solve(build_problem(load_robot(POINT_MASS_XML), task),
+                     H.SolveOptions(early_stop_comp=1e3, soft_terminal_nlps=0))
+    homotopy = [r for r in result.nlps if r.label.startswith("homotopy")]
+    assert homotopy[0].hole_scale < 1.0 and homotopy[-1].hole_scale == 1.0, [(r.label, r.hole_scale) for r in homotopy]

@@ -568,3 +568,18 @@ def test_without_a_task_the_page_has_no_ground(result_dir, tmp_path):
                if c["type"] == "set_object"}
     assert f"{view.ROOT}/robot/thigh_geom/0" in objects
     assert not any(p.startswith((f"{view.ROOT}/ground", f"{view.ROOT}/holes", f"{view.ROOT}/contacts")) for p in objects)
+
+
+def test_the_physical_timeline_ends_on_the_final_state(tmp_path):
+    """The animation's last frame is the plan's last sample also when the duration is no multiple of 1/FPS (the
+    fixture's 0.8 s is one: session 65's mutation testing dropped the final frame, up to 1/FPS before the end, and
+    every test stayed green)."""
+    from test_result import small_result
+
+    from planner.result import write_results
+
+    write_results(small_result(), tmp_path / "r")
+    res = view.load_result(tmp_path / "r")
+    assert not math.isclose((res.t[-1] - res.t[0]) * view.FPS % 1.0, 0.0, abs_tol=1e-6)  # no multiple of 1/FPS
+    tl = view._timeline(res, slow_motion=False)
+    assert tl.t[-1] == pytest.approx(res.t[-1] - res.t[0]) and np.max(np.abs(tl.q[-1] - res.q[-1])) < Q_TOL
