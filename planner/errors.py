@@ -205,7 +205,12 @@ def killed_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
     except (OSError, AttributeError):  # not Linux: the parent's own cleanup is all there is
         pass
-    if os.getppid() == 1:
+    import multiprocessing
+
+    # reparented to PID 1: orphaned, unless the parent is PID 1 itself (the planner as a container's first process,
+    # `docker run` without --init: every race arm and batch worker took itself for an orphan and the race failed)
+    parent = multiprocessing.parent_process()
+    if os.getppid() == 1 and (parent is None or parent.pid != 1):
         os._exit(1)
 
 

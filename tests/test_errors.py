@@ -462,3 +462,31 @@ def test_solve_options_built_in_two_threads_leave_sys_stdout_as_it_was():
     for t in threads:
         t.join()
     assert sys.stdout is stdout
+
+
+@pytest.mark.parametrize("parent_pid, exits", [(1, False), (4242, True)])
+def test_a_worker_whose_parent_is_pid_1_is_no_orphan(monkeypatch, parent_pid, exits):
+    """killed_with_parent ends a worker reparented to PID 1 (its parent died before the death signal was set), but
+    not one whose parent is PID 1 itself: the planner as a container's first process (every race arm and batch worker
+    exited as an orphan there). The prctl call is left out: it would apply to this test process."""
+    import ctypes
+    import multiprocessing
+    import os
+
+    from planner.errors import killed_with_parent
+
+    def no_prctl(*args, **kwargs):
+        raise OSError("not here")
+
+    def exit_(code):
+        raise SystemExit(code)
+
+    monkeypatch.setattr(ctypes, "CDLL", no_prctl)
+    monkeypatch.setattr(os, "getppid", lambda: 1)
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: type("Parent", (), {"pid": parent_pid})())
+    monkeypatch.setattr(os, "_exit", exit_)
+    if exits:
+        with pytest.raises(SystemExit):
+            killed_with_parent()
+    else:
+        killed_with_parent()

@@ -373,3 +373,28 @@ def test_a_race_that_nobody_wins_returns_the_first_arms_result(hop_problem):
             ("second", H.SolveOptions(max_iter=3, polish=H.Polish.NONE)))
     result = R.race(hop_problem, arms, processes=2)
     assert not result.stats.converged and result.options["solve"]["max_iter"] == 2
+
+
+def _pid_namespaces() -> bool:
+    """Whether this process may start a command as PID 1 of a new PID namespace (root, or user namespaces)."""
+    import shutil
+
+    if shutil.which("unshare") is None:
+        return False
+    return subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", "true"], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or not _pid_namespaces(),
+                    reason="needs `unshare --pid` (root or user namespaces)")
+def test_a_race_run_as_pid_1_converges(tmp_path):
+    """`planner plan` as the first process of a PID namespace (a container's, `docker run` without --init) races its
+    arms and converges: an arm whose parent is PID 1 is not an orphan (each arm exited at once as one, and the race
+    failed with "arm 'default' died", exit 1; --no-race converged)."""
+    from planner.model import ROBOTS_DIR
+
+    task = ROBOTS_DIR / "point_mass_hop.toml"
+    run = subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-m", "planner.cli", "plan",
+                          "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate", "-q"],
+                         capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "out" / "summary.json").is_file()
