@@ -46,7 +46,8 @@ class UsageParser(argparse.ArgumentParser):
 
     def error(self, message):
         text = f"{message} (see --help)"
-        print(_escaped(f"{self.prog}: error: {text}"), file=sys.stderr)
+        if sys.stderr is not None:  # (closed, `2>&-`: print(file=None) wrote it on stdout)
+            print(_escaped(f"{self.prog}: error: {text}"), file=sys.stderr)
         raise UsageExit(text)
 
 
@@ -310,9 +311,9 @@ def main(argv: list[str] | None = None) -> int:
                 # which made the planner's input warnings tracebacks (PYTHONWARNINGS=ignore still silences them)
                 if next((f[0] for f in warnings.filters if issubclass(category, f[2])), "default") == "error":
                     warnings.simplefilter("default", category)
-            warnings.showwarning = lambda message, category, *_: print(
-                f"planner {args.command}: warning: {_escaped(message)}"
-                + ("" if category is UserWarning else f" ({category.__name__})"), file=sys.stderr)
+            warnings.showwarning = lambda message, category, *_: _to_stderr(
+                args, f"planner {args.command}: warning: {message}"
+                + ("" if category is UserWarning else f" ({category.__name__})"))
             code = args.run(args)
         # -q hides the report, not the failure (an exit 1 printed nothing at all)
         if code == EXIT_FAILED and getattr(args, "quiet", False):  # where its diagnostics went, and a replan's advice
@@ -393,16 +394,12 @@ def _term_as_ctrl_c():
 
     stops = [s for s in STOP_SIGNALS[1:] if s == signal.SIGTERM or signal.getsignal(s) is not signal.SIG_IGN]
     previous = {s: signal.signal(s, term) for s in stops}
-    # a background job's Ctrl-C is ignored, so errors.interruptible (IPOPT stops, the interruption is raised after it)
-    # would stand aside and IPOPT's caught KeyboardInterrupt read as a failed NLP: the solve went on and exited 0
-    ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-    if ignored:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    # an ignored Ctrl-C (a script's background job, which the script's Ctrl-C must not stop) stays ignored: it was
+    # switched on, and a Ctrl-C meant for the script stopped the plan. SIGTERM's handler raises the KeyboardInterrupt
+    # itself, and errors.interruptible wraps that handler as it wraps Ctrl-C's (IPOPT stops, then the interruption)
     try:
         yield
     finally:  # (None: a handler not installed from Python)
-        if ignored:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
 
@@ -512,8 +509,9 @@ def _to_stderr(args, line: str) -> None:
 
 
 def _progress(args, line: str) -> None:
-    """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it."""
-    if not args.quiet:
+    """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it, and a closed stderr
+    (`2>&-`) drops it (print(file=None) wrote it into stdout's report)."""
+    if not args.quiet and sys.stderr is not None:
         print(_escaped(line), file=sys.stderr, flush=True)
 
 
@@ -1196,7 +1194,8 @@ def _cmd_view(args) -> int:
         _emit(args, {"command": "view", "url": url}, f"meshcat replay: {url}  (Ctrl-C to stop)")
         if args.quiet and not args.json:  # the URL is the result: a server left running, none to find it (port 7000+)
             print(url, file=args.stdout)
-        args.stdout.flush()
+        if args.stdout is not None:  # (closed, `>&-`: an AttributeError's traceback)
+            args.stdout.flush()
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:

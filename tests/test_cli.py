@@ -1537,6 +1537,12 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c, name):
         assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 130 and finished == [True]
         assert capsys.readouterr().err.strip() == "planner simulate: interrupted"
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        # and a Ctrl-C meant for the script stays ignored by the command (it was switched on, and stopped the plan)
+        finished.clear()
+        monkeypatch.setattr(cli, "_cmd_simulate", lambda args: (os.kill(os.getpid(), signal.SIGINT),
+                                                                finished.append(True), cli.EXIT_OK)[-1])
+        assert main(["simulate", "point_mass", "--out", str(tmp_path / "out")]) == 0 and finished == [True]
+        monkeypatch.setattr(cli, "_cmd_simulate", plotting)
         # `view --html` too (it ended by the signal, exit 143 and no word; only the live view had a handler)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         monkeypatch.setattr(cli, "_cmd_view", plotting)
@@ -1550,6 +1556,21 @@ def test_a_sigterm_is_a_ctrl_c(tmp_path, capsys, monkeypatch, ctrl_c, name):
             assert signal.getsignal(sig) is signal.SIG_IGN
     finally:
         signal.signal(sig, before)
+
+
+def test_a_closed_stderr_keeps_the_progress_out_of_stdout(tmp_path):
+    """With stderr closed (`2>&-`) the progress lines are dropped, not printed into stdout's report (print(file=None)
+    wrote them on stdout, mixed into the summary; signals tester, session 65): stdout is the report alone."""
+    run = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--task",
+                          str(ROBOTS_DIR / "point_mass_hop.toml"), "--out", str(tmp_path / "out"), "--no-validate"],
+                         stdout=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(2),
+                         env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600)
+    assert run.returncode == 0
+    assert run.stdout.startswith("plan point_mass.xml: converged"), run.stdout[:300]
+    assert not re.search(r"^\s+(default|alternate): ", run.stdout, re.M), run.stdout
+    usage = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--no-such-flag"],
+                           stdout=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(2), timeout=600)
+    assert (usage.returncode, usage.stdout) == (2, "")  # a usage error's line too
 
 
 SOLVE_START_S = 120  # [s] the race's arms are forked ~3 s after the command starts; a loaded CI box takes longer

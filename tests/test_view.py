@@ -583,3 +583,58 @@ def test_the_physical_timeline_ends_on_the_final_state(tmp_path):
     assert not math.isclose((res.t[-1] - res.t[0]) * view.FPS % 1.0, 0.0, abs_tol=1e-6)  # no multiple of 1/FPS
     tl = view._timeline(res, slow_motion=False)
     assert tl.t[-1] == pytest.approx(res.t[-1] - res.t[0]) and np.max(np.abs(tl.q[-1] - res.q[-1])) < Q_TOL
+
+
+def test_a_stop_signal_waits_until_meshcats_server_has_started(result_dir, monkeypatch):
+    """A Ctrl-C while serve starts meshcat's server comes once the server has started and meshcat has registered its
+    cleanup at exit (signals tester, session 65: one between meshcat's Popen and its atexit.register, 6 of 12 Ctrl-Cs
+    0.5 s after `planner view`, left the server running on its port)."""
+    import os
+    import signal
+
+    started = []
+
+    def visualizer(window, zmq_url=None):
+        os.kill(os.getpid(), signal.SIGINT)  # as a Ctrl-C between meshcat's Popen and its atexit.register
+        started.append(True)
+        return None
+
+    monkeypatch.setattr(view, "_visualizer", visualizer)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # (the suite may run with SIGINT ignored)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            view.serve(result_dir)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert started == [True]
+
+
+def test_the_live_view_with_stdout_closed_serves_until_stopped(result_dir):
+    """`planner view DIR >&-` (stdout closed) serves until its SIGTERM and exits 0 without a traceback (it flushed
+    the missing stdout: AttributeError, exit 1; signals tester, session 65)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "view", str(result_dir)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1))
+    children = []
+    try:
+        deadline = time.time() + SERVER_START_S
+        while not children and proc.poll() is None and time.time() < deadline:
+            time.sleep(0.2)
+            children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
+        assert proc.poll() is None, proc.stderr.read()
+        time.sleep(1.0)  # past the URL, where the flush was
+        assert proc.poll() is None, proc.stderr.read()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        assert "Traceback" not in proc.stderr.read()
+    finally:
+        proc.kill()
+        proc.wait()
+        for child in children:
+            if _alive(child):
+                os.kill(child, signal.SIGKILL)
