@@ -292,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     # stdout is the command's summary (--json: one JSON object); everything else printed there (IPOPT's log with -v,
     # which CasADi writes to sys.stdout, also from the race's forked arms) goes to stderr
     # (None: closed by the shell, >&-)
-    out, err = (None if stream is None else _ReaderMayLeave(stream) for stream in (sys.stdout, sys.stderr))
+    out, err = (None if stream is None else _ReaderMayLeave(stream, diagnostics) for stream, diagnostics in
+                ((sys.stdout, False), (sys.stderr, True)))
     args.stdout, args.stderr = out, err
     redirect = getattr(args, "json", False) or getattr(args, "verbose", False) or _asks_ipopt_log(args)
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
@@ -419,16 +420,18 @@ class _ReaderMayLeave:
     """A text stream whose reader may go away (`planner plan ... 2>&1 | grep -m1 homotopy`, or a terminal that closed):
     what is printed after that is dropped and the command goes on, writes its results and exits as it would (the solve
     stopped at the first progress line the pipe refused, nothing was written and the exit code was 0; a plan whose
-    terminal hung up exited 1 on the EIO of its "interrupted" line, not 130)."""
+    terminal hung up exited 1 on the EIO of its "interrupted" line, not 130). diagnostics: stderr, whose every write
+    error drops the text (`2>/dev/full` stopped a solve at its first progress line, exit 1, nothing written); a full
+    stdout still fails the command ("No space left on device", exit 1: --json's reader would get nothing)."""
 
-    def __init__(self, stream):
-        self._stream = stream
+    def __init__(self, stream, diagnostics: bool = False):
+        self._stream, self._diagnostics = stream, diagnostics
 
     def _guarded(self, name: str, *args):
         try:
             return getattr(self._stream, name)(*args)
         except OSError as exc:
-            if not isinstance(exc, BrokenPipeError) and exc.errno != errno.EIO:
+            if not (self._diagnostics or isinstance(exc, BrokenPipeError) or exc.errno == errno.EIO):
                 raise
             # the stream's buffer still holds the text: flushed into /dev/null at exit, not another BrokenPipeError
             with contextlib.suppress(OSError, ValueError):

@@ -1573,6 +1573,20 @@ def test_a_closed_stderr_keeps_the_progress_out_of_stdout(tmp_path):
     assert (usage.returncode, usage.stdout) == (2, "")  # a usage error's line too
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_full_stderr_does_not_stop_the_solve(tmp_path):
+    """Progress to a stderr that refuses every write (`2>/dev/full`) is dropped and the plan goes on to its results,
+    exit 0 (it stopped at the first progress line: exit 1, nothing written, no word anywhere; signals tester,
+    session 65)."""
+    with open("/dev/full", "w") as full:
+        run = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--task",
+                              str(ROBOTS_DIR / "point_mass_hop.toml"), "--out", str(tmp_path / "out"), "--no-validate"],
+                             stdout=subprocess.PIPE, stderr=full, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
+                             timeout=600)
+    assert run.returncode == 0 and run.stdout.startswith("plan point_mass.xml: converged"), run.stdout[:300]
+    assert (tmp_path / "out" / "summary.json").is_file()
+
+
 SOLVE_START_S = 120  # [s] the race's arms are forked ~3 s after the command starts; a loaded CI box takes longer
 HANGUP_EXIT_S = 30  # [s] the arms are killed and the line printed within a second; room for a loaded box
 
