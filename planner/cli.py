@@ -15,6 +15,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import sys
 import tempfile
 import threading
@@ -281,6 +282,7 @@ def _options_of(command: argparse.ArgumentParser, tokens: list[str], top: set[st
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    _closed_to_devnull()
     parser = build_parser()
     try:
         args = _parse(parser, argv)
@@ -393,7 +395,7 @@ def _term_as_ctrl_c():
             raise KeyboardInterrupt
         handler(signal.SIGINT, frame)
 
-    stops = [s for s in STOP_SIGNALS[1:] if s == signal.SIGTERM or signal.getsignal(s) is not signal.SIG_IGN]
+    stops = [signal.SIGTERM] + [signal.SIGHUP] * (signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN)
     previous = {s: signal.signal(s, term) for s in stops}
     # an ignored Ctrl-C (a script's background job, which the script's Ctrl-C must not stop) stays ignored: it was
     # switched on, and a Ctrl-C meant for the script stopped the plan. SIGTERM's handler raises the KeyboardInterrupt
@@ -431,12 +433,20 @@ class _ReaderMayLeave:
         try:
             return getattr(self._stream, name)(*args)
         except OSError as exc:
-            if not (self._diagnostics or isinstance(exc, BrokenPipeError) or exc.errno == errno.EIO):
+            if not (self._diagnostics or isinstance(exc, BrokenPipeError) or exc.errno == errno.EIO and self._tty()):
                 raise
             # the stream's buffer still holds the text: flushed into /dev/null at exit, not another BrokenPipeError
             with contextlib.suppress(OSError, ValueError):
                 _to_devnull(self._stream.fileno())
             return len(args[0]) if args else None
+
+    def _tty(self) -> bool:
+        """Whether the stream is a terminal's (a character device: a hung-up one is no tty to isatty), whose EIO is
+        its hang-up; a file's EIO is a failing disk, which still fails the command (--json's file was cut short)."""
+        try:
+            return stat.S_ISCHR(os.fstat(self._stream.fileno()).st_mode)
+        except (OSError, ValueError, AttributeError):
+            return False
 
     def write(self, text: str):
         try:
@@ -451,6 +461,20 @@ class _ReaderMayLeave:
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
+
+
+def _closed_to_devnull() -> None:
+    """The standard descriptors the shell closed (`<&-`, `>&-`, `2>&-`) opened on /dev/null: left free, the next file
+    opened took the number (a plot's temporary file became descriptor 2, where C libraries write their warnings).
+    sys.stdout and sys.stderr stay None, so the command's own lines still skip them."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            devnull = os.open(os.devnull, os.O_RDWR)  # (the lowest free number: fd itself, as they are taken in order)
+            if devnull != fd:
+                os.dup2(devnull, fd)
+                os.close(devnull)
 
 
 def _to_devnull(fd: int) -> None:
@@ -508,14 +532,13 @@ def _to_stderr(args, line: str) -> None:
     wrote it on stdout, after or before --json's object."""
     stream = getattr(args, "stderr", None) or sys.stderr
     if stream is not None:
-        print(_escaped(line), file=stream)
+        print(_escaped(line), file=stream, flush=True)
 
 
 def _progress(args, line: str) -> None:
-    """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it, and a closed stderr
-    (`2>&-`) drops it (print(file=None) wrote it into stdout's report)."""
-    if not args.quiet and sys.stderr is not None:
-        print(_escaped(line), file=sys.stderr, flush=True)
+    """Progress goes to stderr, so that --json keeps stdout to one JSON object; -q hides it."""
+    if not args.quiet:
+        _to_stderr(args, line)
 
 
 def _failure(summary: dict) -> str:
@@ -545,6 +568,8 @@ def _emit(args, summary: dict, text: str, written: bool = False) -> None:
         from .result import software_versions
         summary = {**summary, "versions": software_versions(), "result_id": args.result_id}
     args.summary = summary  # the -q failure line reads it
+    if args.stdout is None:  # closed (`>&-`): print(file=None) wrote --json's object on stderr
+        return
     if args.json:
         print(json.dumps(summary), file=args.stdout)
     elif not args.quiet:  # a name's or path's escape sequences (a terminal's title, colours): escaped

@@ -16,6 +16,7 @@ Also here: `load_result`, the reader of the result-directory contract (shared wi
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
 import os
@@ -621,9 +622,10 @@ def serve(out_dir, slow_motion: bool = False, zmq_url: str | None = None, *, blo
     if zmq_url is not None:
         _check_server(zmq_url)  # meshcat itself would wait forever for a server that is not there
     try:
-        # meshcat prints its own banner; keep stdout for --json. A stop signal waits until the server has started and
-        # meshcat registered its cleanup at exit: one in between left the server running (6 of 12 Ctrl-Cs 0.5 s in)
-        with captured_stdout(), signals_held():
+        # meshcat prints its own banner; keep stdout for --json. A stop signal waits until the server it starts has
+        # started and meshcat registered its cleanup at exit: one in between left the server running (6 of 12 Ctrl-Cs
+        # 0.5 s in). Not when it connects to a running one: a server that stops answering would block it for good
+        with captured_stdout(), signals_held() if zmq_url is None else contextlib.nullcontext():
             vis = _visualizer(None, zmq_url=zmq_url)
     except PlannerError:
         raise

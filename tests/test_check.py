@@ -201,7 +201,6 @@ def test_bad_robot_files(tmp_path, text, message):
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
-
 @pytest.mark.parametrize("name", ["robot.txt", "robot.XML", "robot", "robot.xml.bak"])  # (the last: robot.xml.xml)
 def test_an_mjcf_file_not_named_xml_is_refused_with_the_rename(tmp_path, name):
     """MuJoCo picks its reader by the file name's ending and reads MJCF only from .xml: such a file was planned and
@@ -328,7 +327,6 @@ def test_a_site_on_the_world_body_is_no_point_of_the_robot(tmp_path, capsys):
     assert load_robot(framed).unread_sites == ("foot",)  # a task naming it is told why (it read "valid: (none)")
     with pytest.raises(TaskError, match=r"contacts\[0\].point = 'foot' is a site Pinocchio's MJCF parser skips"):
         parse_task({**base, "contacts": [{"point": "foot"}]}).check_against(load_robot(framed))
-
 
 
 PLANAR_URDF = """<robot name="p"><link name="world"/><link name="base"><inertial><mass value="1"/>

@@ -154,7 +154,6 @@ def test_fesd_hop_impact_time_is_exact(hop):
     assert impact.time == pytest.approx(t + root, abs=IMPACT_TIME_TOL)
 
 
-
 def test_fesd_impacts_end_in_the_plans_state(hop):
     """An FESD impact's post-impact velocity is the state where its run of frozen elements ends: the stance whose
     element runs the clock at 95 % (the a_n field carrying part of the weight) and the landing both end at rest, so

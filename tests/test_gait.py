@@ -107,7 +107,6 @@ def test_impact_map_matches_appendix_c(biped):
         assert np.max(np.abs(biped.delta_inverse(biped.delta(x)) - x)) < 1e-12
 
 
-
 def test_the_impacts_contact_quantities_are_mujocos(robot, biped):
     """The gait's impact as the contacts see it (summary.json's impact_impulse_N_s, trailing_foot_lift_off_m_s) equals
     an inelastic no-slip impact computed from MuJoCo's mass matrix and Jacobians of the same file at gait 1's

@@ -1142,7 +1142,6 @@ def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
     assert res.stats.converged and [j["joint"] for j in res.extra["joints_outside_range"]] == ["x"]
 
 
-
 def test_the_homotopy_never_stops_at_its_holes_relaxed_nlp():
     """early_stop_comp ends the homotopy only at an NLP with the holes at full size (SolveOptions' docstring): with
     no soft-terminal NLP and a threshold every NLP meets, the point-mass hop over a hole still runs on to hole scale 1

@@ -36,7 +36,6 @@ def test_every_plot_is_written_and_not_blank(result_dir):
     assert not list(result_dir.glob(".*.tmp"))  # atomic writes leave no temporary files
 
 
-
 def test_plots_are_not_written_beside_another_runs_result(result_dir, monkeypatch):
     """A plot is renamed in only while summary.json is still the result it was drawn from: a run's plots, drawn after
     its result was written, landed beside the result another run wrote into the same directory meanwhile (session

@@ -746,7 +746,6 @@ def test_every_row_of_a_step_is_a_row_of_the_nlp(form, fesd):
         assert rows.min() >= 0 and len(set(rows.ravel().tolist())) == rows.size
 
 
-
 # path rows evaluated by CasADi against the same products in NumPy: rounding of a few products of numbers ~1
 PATH_ROW_ROUNDING = 1e-10
 

@@ -229,7 +229,6 @@ def test_scene_keeps_dynamics_and_moves_ground(point_mass, capler):
     assert dist[0] == pytest.approx(0.0005, abs=1e-12) and not active[0]
 
 
-
 def test_the_replays_control_bounds_are_the_robots(point_mass, tmp_path):
     """The replay clamps and counts saturation at the robot's control bounds, a motor's forcerange included (the scene
     read the ctrlrange alone, so a plan at a 30 N forcerange under a 100 N ctrlrange never saturated)."""

@@ -441,7 +441,6 @@ def _tiny_result(n: int = 1) -> SimulationResult:
                             h=0.1, rho_f=1.0)
 
 
-
 def test_the_force_samples_skip_a_frozen_steps_clock_leak():
     """contact_force_samples reads a step as running when its clock ran more than FROZEN_TOL of it: a frozen impact
     step whose clock leaked 1e-7 s (IPOPT's tolerance; a biped landing's step ran 2e-6 of itself) gave the impact's

@@ -244,7 +244,6 @@ def test_constant_controls_beyond_the_actuators_range_warn():
         parse_task(_with("simulate", late)).warn_controls_beyond_range(capler)
 
 
-
 def test_a_hole_wholly_below_the_ground_warns():
     """A hole whose top (z + b) is at or below ground_height warns naming it and its z's meaning: with ground_height
     0.3 and z left out (0) the hole did nothing and the plan was the hole-free one, unsaid. A hole reaching above the

@@ -9,6 +9,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -535,6 +536,18 @@ def test_live_view_stops_its_server_on_sigterm(result_dir, quiet, stop):
                 os.kill(child, signal.SIGKILL)
 
 
+def _children(pid: int) -> list[int]:
+    return [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == pid]
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
 def _parent(pid: int) -> int | None:
     try:
         with open(f"/proc/{pid}/status") as f:
@@ -625,8 +638,8 @@ def test_the_live_view_with_stdout_closed_serves_until_stopped(result_dir):
         deadline = time.time() + SERVER_START_S
         while not children and proc.poll() is None and time.time() < deadline:
             time.sleep(0.2)
-            children = [int(p) for p in os.listdir("/proc") if p.isdigit() and _parent(int(p)) == proc.pid]
-        assert proc.poll() is None, proc.stderr.read()
+            children = [c for c in _children(proc.pid) if "meshcat.servers.zmqserver" in _cmdline(c)]
+        assert children and proc.poll() is None, proc.stderr.read()
         time.sleep(1.0)  # past the URL, where the flush was
         assert proc.poll() is None, proc.stderr.read()
         proc.send_signal(signal.SIGTERM)
@@ -638,3 +651,48 @@ def test_the_live_view_with_stdout_closed_serves_until_stopped(result_dir):
         for child in children:
             if _alive(child):
                 os.kill(child, signal.SIGKILL)
+
+
+LATE_ANSWER_S = 10.0  # [s] the fake server's answer to meshcat's request; a Ctrl-C must not wait for it
+INTERRUPT_AFTER_S = 1.0  # [s] the Ctrl-C, while meshcat waits
+PROMPT_S = 5.0  # [s] KeyboardInterrupt within this of the start: Python's handler runs at once, pyzmq checks signals
+
+
+def test_a_ctrl_c_stops_serve_waiting_on_a_server_that_stopped_answering(result_dir):
+    """serve(zmq_url=...) on a server that answered the check and then stops answering is stopped by Ctrl-C at once:
+    the signals are held only while serve starts a server of its own (reviewer, session 65: held around the
+    connection, a Ctrl-C waited for an answer that might never come)."""
+    import signal
+    import threading
+    import time
+
+    import zmq
+
+    ctx = zmq.Context()
+    rep = ctx.socket(zmq.REP)
+    rep.setsockopt(zmq.LINGER, 0)
+    port = rep.bind_to_random_port("tcp://127.0.0.1")
+
+    def server():  # answers the check at once, meshcat's request late, anything after that at once
+        try:
+            for late in (False, True, *[False] * 1000):
+                rep.recv()
+                time.sleep(LATE_ANSWER_S if late else 0.0)
+                rep.send(b"http://127.0.0.1:7000/static/")
+        except zmq.ZMQError:  # (the socket closed at the test's end)
+            pass
+
+    threading.Thread(target=server, daemon=True).start()
+    timer = threading.Timer(INTERRUPT_AFTER_S, lambda: os.kill(os.getpid(), signal.SIGINT))
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # (the suite may run with SIGINT ignored)
+    start = time.time()
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            view.serve(result_dir, zmq_url=f"tcp://127.0.0.1:{port}", print_url=False)
+        assert time.time() - start < PROMPT_S
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+        rep.close()
+        ctx.term()
