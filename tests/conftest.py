@@ -46,3 +46,16 @@ def robots_dir() -> Path:
 def erd_robot():
     """erd_robot(name) -> Robot: an example-robot-data robot by short name (see ERD_ROBOTS), loaded once."""
     return _load_erd
+
+
+@pytest.fixture
+def robot_variant(tmp_path):
+    """robot_variant(text, old, new, name="variant.xml") -> Robot: a robot file's text with its one `old` replaced by
+    `new`, written under tmp_path and loaded (a test's variant of a shipped robot: its gravity, a motor, a joint)."""
+    def make(text: str, old: str, new: str, name: str = "variant.xml") -> Robot:
+        assert text.count(old) == 1, old
+        path = tmp_path / name
+        path.write_text(text.replace(old, new))
+        return load_robot(path)
+
+    return make

@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.check import TOLERANCE, ModelCheck, check_model, random_state
+from planner.check import TOLERANCE, ModelCheck, check_model, random_state, reading_differences
 from planner.errors import InputError, RobotFileError, UnknownNameError
 from planner.model import ROBOTS_DIR, load_robot
 
@@ -149,9 +149,9 @@ def test_random_state_normalizes_quaternions(erd_robot):
 
 
 def test_bad_arguments():
-    """samples < 1, > MAX_SAMPLES or not an integer (nan, 2.5, a bool), a negative or non-integer seed and an unknown timing point are
-    input errors; the unknown point's message lists the valid ones. A robot's name in place of the Robot is one too
-    (an AttributeError on str)."""
+    """samples < 1, > MAX_SAMPLES or not an integer (nan, 2.5, a bool), a negative or non-integer seed and an unknown
+    timing point are input errors; the unknown point's message lists the valid ones. A robot's name in place of the
+    Robot is one too (an AttributeError on str)."""
     robot = load_robot("capler")
     with pytest.raises(InputError, match="check_model's robot .* must be a Robot, got str 'capler'"):
         check_model("capler")
@@ -366,8 +366,8 @@ def test_urdf_siblings_out_of_name_order_are_named_with_the_fix(tmp_path):
 
 
 def test_a_file_mujoco_reads_otherwise_fails(tmp_path):
-    """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed,
-    so check-model fails saying why (it said PASSED, the comparison "skipped"), and simulate and plan refuse it (they ran
+    """A URDF whose knee is `continuous` (Pinocchio: cos and sin, nq 5; MuJoCo: an angle, nq 4) cannot be replayed, so
+    check-model fails saying why (it said PASSED, the comparison "skipped"), and simulate and plan refuse it (they ran
     on it); a free flyer only Pinocchio adds is still a documented skip."""
     urdf = (ROBOTS_DIR / "capler.urdf").read_text()
     assert urdf.count('<joint name="knee" type="revolute">') == 1
@@ -702,3 +702,94 @@ def test_check_model_lists_the_ranges_with_units_and_a_degree_files_degrees(tmp_
     ranges = check_model(load_robot(forgot), samples=1).ranges
     assert ranges[2] == "[-0.02056167584, 0.02056167584] rad (the file's -1.178097245 1.178097245 degrees)"
 
+
+SEED = 0  # the seeded states below
+
+
+def test_a_margin_on_an_unlimited_joint_is_no_difference(robot_variant, tmp_path):
+    """A joint margin acts on a limit only (MuJoCo: no range, no limit constraint, margin or not): a file whose
+    <default><joint margin="0.2"/> reaches an unlimited slide reads as MuJoCo reads it, no named difference, and
+    check-model passes. A check that named every margin (its limited test dropped) refused such files (a mutant of
+    session 65's mutation testing); the limited joint's margin stays named."""
+    robot = robot_variant(POINT_MASS, X_JOINT, '<joint name="x" type="slide" axis="1 0 0" margin="0.2"/>')
+    assert robot.q_lower[0] == -np.inf and robot.q_upper[0] == np.inf
+    assert reading_differences(robot) == ()
+    assert check_model(robot, samples=2).passed
+    limited = robot_variant(POINT_MASS, X_JOINT, '<joint name="x" type="slide" axis="1 0 0" range="-1 1" '
+                       'margin="0.2"/>', "limited.xml")
+    assert any(d.startswith("joint 'x': margin 0.2") for d in reading_differences(limited))
+
+
+def test_a_wrong_point_rotation_fails_the_check(monkeypatch):
+    """check-model compares each named point's rotation with Pinocchio's oMf (not only its position): a dynamics whose
+    point_rotation is transposed (Capler's foot turns with the hip and knee) fails with max_err_frames of order 1. With
+    the rotation left out of the comparison (a mutant of session 65's mutation testing), a wrong rotation passed."""
+    import casadi as ca
+
+    from planner.dynamics import Dynamics
+
+    right = Dynamics.point_rotation
+
+    def transposed(self, name):
+        f = right(self, name)
+        q = ca.SX.sym("q", self.nq)
+        return ca.Function(f"{f.name()}_t", [q], [f(q).T])
+
+    robot = load_robot("capler")
+    assert check_model(robot, samples=3).passed
+    monkeypatch.setattr(Dynamics, "point_rotation", transposed)
+    result = check_model(robot, samples=3)
+    assert not result.passed and result.max_err_frames > 0.1, result.max_errors
+
+
+def test_random_states_cover_both_signs_of_an_unbounded_coordinate():
+    """random_state draws a coordinate without a range uniformly in [-1, 1] (its docstring), both signs: of 200 seeded
+    states, Capler's base x and z (no range in capler.xml) reach below -0.9 and above 0.9. Drawn in [0, 1] (a mutant of
+    session 65's mutation testing), check-model never compared the dynamics at a negative base coordinate; test_seeded
+    checked |q| <= 1 only."""
+    robot = load_robot("capler")
+    rng = np.random.default_rng(SEED)
+    qs = np.array([random_state(robot.model, rng)[0] for _ in range(200)])
+    assert np.all(qs[:, :2].min(axis=0) < -0.9) and np.all(qs[:, :2].max(axis=0) > 0.9)
+
+
+def test_the_passive_gap_is_mujocos_passive_force(robot_variant, tmp_path):
+    """check-model's mujoco.max_err_passive is the largest MuJoCo passive force at its states: a slide with damping 5
+    at the seeded velocities gives 5 max |v_x| (ground truth: MuJoCo's damper, qfrc_passive = -b v). A gap read as 0
+    (a mutant of session 65's mutation testing) hid it in the report, which printed "passive 0" next to "damping 5"."""
+    robot = robot_variant(POINT_MASS, X_JOINT, '<joint name="x" type="slide" axis="1 0 0" damping="5"/>')
+    samples = 4
+    result = check_model(robot, samples=samples, seed=SEED)
+    rng = np.random.default_rng(SEED)
+    v_x = [random_state(robot.model, rng)[1][0] for _ in range(samples)]
+    assert result.mujoco.max_err_passive == pytest.approx(5.0 * max(abs(v) for v in v_x), rel=1e-12)
+    assert not result.passed
+
+
+def test_a_negative_gears_force_range_is_compared_with_the_joints(robot_variant, tmp_path):
+    """Two motors on Capler's hip, one of gear -2 with ctrlrange [0, 10] (forces [-20, 0]: a negative gear swaps its
+    ends) and one of gear 1 with [0, 10], and the joint's actuatorfrcrange [-15, 15]: MuJoCo clamps their summed force,
+    which reaches -20, so the reading check names the range (ground truth: MuJoCo's qfrc_actuator at the controls' ends
+    is -15, not the planner's B u = -20). Read as gear * lower (a mutant of session 65's mutation testing) the reach was
+    [0, 10] and the file passed, to be planned with a force MuJoCo's replay clamps."""
+    import mujoco
+
+    hip = '<joint name="hip" type="hinge" axis="0 1 0"'
+    assert CAPLER.count(hip) == 1
+    text = CAPLER.replace(hip, hip + ' actuatorfrcrange="-15 15"')
+    old = '<motor name="hip_motor" joint="hip" gear="1" ctrlrange="-60 60"/>'
+    new = ('<motor name="hip_motor" joint="hip" gear="-2" ctrlrange="0 10"/>'
+           '<motor name="hip_motor2" joint="hip" gear="1" ctrlrange="0 10"/>')
+    robot = robot_variant(text, old, new)
+    mj = mujoco.MjModel.from_xml_path(str(robot.path))
+    data = mujoco.MjData(mj)
+    names = [a.name for a in robot.actuators]
+    u = np.zeros(robot.nu)
+    u[names.index("hip_motor")] = 10.0
+    mujoco.mj_forward(mj, data)
+    data.ctrl[:] = u
+    mujoco.mj_forward(mj, data)
+    dof = robot.actuators[names.index("hip_motor")].dof
+    assert (robot.actuation_matrix @ u)[dof] == pytest.approx(-20.0) and data.qfrc_actuator[dof] == pytest.approx(-15.0)
+    assert any(d.startswith("joint 'hip': actuatorfrcrange [-15, 15] narrower than its motors' force range [-20, 10]")
+               for d in reading_differences(robot)), reading_differences(robot)

@@ -10,7 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.check import random_state
+from planner.check import check_model, random_state
 from planner.dynamics import Dynamics, UnsupportedJointError
 from planner.errors import UnknownNameError
 from planner.model import ROBOTS_DIR, Robot, RobotFormat, load_robot
@@ -356,3 +356,34 @@ def test_accurate_far_from_origin():
     far = q + np.array([1e3, -1e3, 0, 0])
     np.testing.assert_allclose(_np(dyn.mass(far)), _np(dyn.mass(q)), rtol=0, atol=TOL_SAME_ROBOT)
     np.testing.assert_allclose(_np(dyn.bias(far, v)), _np(dyn.bias(q, v)), rtol=0, atol=TOL_SAME_ROBOT)
+
+
+# the point mass's file and its <option> line, whose gravity a variant replaces
+POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()
+OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio="10"/>'
+
+
+@pytest.mark.parametrize("gravity", ["0 0 -1.62", "1.5 0 -9.81"])
+def test_the_files_gravity_is_the_dynamics_gravity(robot_variant, tmp_path, gravity):
+    """A file's <option gravity> (the Moon's; a slope's tilted one) is the gravity of the planner's dynamics: the bias
+    forces h(q, v) equal MuJoCo's qfrc_bias of the same file at seeded states (ground truth: MuJoCo's RNE), and
+    check-model passes. Every shipped robot has gravity (0, 0, -9.81), so a dynamics that ignored
+    Pinocchio's model.gravity for a hardcoded -9.81 passed every test (a mutant of session 65's mutation testing)."""
+    import mujoco
+
+    from planner.dynamics import Dynamics
+
+    robot = robot_variant(POINT_MASS, OPTION, OPTION.replace("0 0 -9.81", gravity))
+    mj = mujoco.MjModel.from_xml_path(str(robot.path))
+    data = mujoco.MjData(mj)
+    dyn = Dynamics(robot)
+    rng = np.random.default_rng(SEED)
+    for _ in range(5):
+        q, v = random_state(robot.model, rng)
+        data.qpos[:], data.qvel[:] = q, v
+        mujoco.mj_forward(mj, data)
+        h = np.asarray(dyn.bias(q, v), float).ravel()
+        assert np.max(np.abs(h - data.qfrc_bias)) <= TOL_MUJOCO, (h, data.qfrc_bias)
+    assert np.allclose(np.asarray(dyn.bias(np.zeros(2), np.zeros(2)), float).ravel(),
+                       -np.array([float(g) for g in gravity.split()])[[0, 2]], rtol=0.0, atol=TOL_MUJOCO)
+    assert check_model(robot, samples=2).passed

@@ -547,8 +547,9 @@ def test_limits_and_force_ranges_are_mujocos_and_contacts_are_sites(tmp_path):
     """A hinge's range with a ref is MuJoCo's (Pinocchio's parser shifted it by -ref, refusing targets MuJoCo allows); a
     joint's actuatorfrcrange bounds its one motor's control as forcerange does (the plan used the motor's +-20 where
     MuJoCo clamps at +-5), with two motors the joint's range is checked against their summed reach (a negative gear
-    swaps its ends), and a control range those limits leave empty is refused (it was kept inverted); a contact point that is an MJCF body, not a site, is refused by the task's check (the
-    simulation ran, and its validation found no MuJoCo site); a tendon motor is named in its refusal."""
+    swaps its ends), and a control range those limits leave empty is refused (it was kept inverted); a contact point
+    that is an MJCF body, not a site, is refused by the task's check (the simulation ran, and its validation found no
+    MuJoCo site); a tendon motor is named in its refusal."""
     from planner.errors import TaskError
     from planner.task import parse_task
 
@@ -702,9 +703,9 @@ def test_no_usable_temporary_directory_is_not_blamed_on_the_robot_file(tmp_path,
 
 
 def test_robots_loaded_from_several_threads_leave_the_process_streams_as_they_were(monkeypatch):
-    """Loads from several threads take the parser's stderr capture (model._quiet) one at a time and leave sys.stdout
-    and descriptor 2 as they found them: interleaved swaps left descriptor 2 on a deleted temporary file and sys.stdout
-    on a StringIO for the rest of the process (prints and tracebacks lost). The parser is slowed so the loads overlap."""
+    """Loads from several threads take the parser's stderr capture (model._quiet) one at a time and leave sys.stdout and
+    descriptor 2 as they found them: interleaved swaps left descriptor 2 on a deleted temporary file and sys.stdout on a
+    StringIO for the rest of the process (prints and tracebacks lost). The parser is slowed so the loads overlap."""
     import os
     import sys
     import threading
@@ -829,3 +830,43 @@ def test_a_hinges_limits_after_a_free_joint_are_at_its_qpos_address(tmp_path):
     i = int(mj.jnt_qposadr[hip])
     assert (robot.q_lower[i], robot.q_upper[i]) == tuple(mj.jnt_range[hip]) == (-0.5, 0.7)
     assert robot.q_lower[1] != -0.5 and robot.q_upper[1] != 0.7  # the base's y is not the hip's range
+
+
+@pytest.mark.parametrize("joint, dof", [('<joint name="root" type="free" stiffness="5"/>', "root_0"),
+                                        ('<joint name="ball" type="ball" stiffness="5"/>', "ball_0")])
+def test_a_multi_dof_joints_stiffness_is_named_once(tmp_path, joint, dof):
+    """MuJoCo's joint stiffness is one spring per joint (jnt_stiffness), not one per degree of freedom: a free or ball
+    joint with stiffness 5 is named once in Robot.passive, at its first degree of freedom (ground truth: MuJoCo's model
+    has one stiffness entry for the joint). Spread over the joint's dofs (a mutant of session 65's mutation testing) the
+    refusal listed the same spring six (three) times, as six springs."""
+    import mujoco
+
+    path = tmp_path / "multi.xml"
+    body = f'{joint}<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="s"/>'
+    if "ball" in joint:  # a ball below a slide (a free joint is a root's)
+        body = ('<joint name="x" type="slide" axis="1 0 0"/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/>'
+                f'<body name="c">{body}</body>')
+    path.write_text(f'<mujoco><worldbody><body name="b">{body}</body></worldbody></mujoco>')
+    mj = mujoco.MjModel.from_xml_path(str(path))
+    assert np.count_nonzero(mj.jnt_stiffness) == 1
+    assert load_robot(path).passive == (f"joint {dof!r}: stiffness 5",)
+
+
+POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()  # the file a variant edits
+
+
+@pytest.mark.parametrize("motor, bounds", [
+    ('<motor name="force_x" joint="x"/>', (-np.inf, np.inf)),
+    ('<motor name="force_x" joint="x" gear="2" forcerange="-5 5"/>', (-5.0, 5.0))])
+def test_a_motor_without_a_ctrlrange_is_unbounded_or_bounded_by_its_forcerange(robot_variant, tmp_path, motor, bounds):
+    """A <motor> without ctrlrange is no control limit to MuJoCo (actuator_ctrllimited 0, its ctrlrange stored as 0 0):
+    its control bounds are (-inf, inf), or its forcerange (MuJoCo clamps the force ctrl before the gear) when it has
+    one. Read as its stored ctrlrange (a mutant of session 65's mutation testing) the motor was bounded to [0, 0]:
+    planned with no force at all, and no test noticed (every shipped motor has a ctrlrange)."""
+    import mujoco
+
+    robot = robot_variant(POINT_MASS, '<motor name="force_x" joint="x" gear="1" ctrlrange="-100 100"/>', motor)
+    mj = mujoco.MjModel.from_xml_path(str(robot.path))
+    assert not mj.actuator_ctrllimited[0] and tuple(mj.actuator_ctrlrange[0]) == (0.0, 0.0)
+    assert (robot.u_lower[0], robot.u_upper[0]) == bounds
+    assert (robot.u_lower[1], robot.u_upper[1]) == (-100.0, 100.0)

@@ -15,7 +15,7 @@ import pytest
 from planner.discretization import Discretization, FESDOptions
 from planner.dynamics import Dynamics
 from planner.errors import InputError
-from planner.model import load_robot
+from planner.model import ROBOTS_DIR, load_robot
 from planner.simulate import SimulateOptions, Strategy, simulate
 from planner.task import parse_task
 from planner.timefreezing import PUSH_SPEED
@@ -967,3 +967,118 @@ def test_a_simulation_through_a_hole_warns_that_it_has_flat_ground():
     assert any(m.startswith("'point' is inside plan.holes[0] from t = 0.29 s: a simulation runs on flat ground")
                for m in drop(0.25))
     assert not any("plan.holes" in m for m in drop(2.0))
+
+
+SEED = 0  # the seeded states below
+POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()  # the file a variant edits
+
+
+def test_pd_gains_are_joint_gains_whatever_the_gear(robot_variant, tmp_path):
+    """[simulate.pd]'s kp, kd are the joint's stiffness and damping [N/m, N s/m] (docs/tasks.md: u += (kp (q_ref - q)
+    - kd v) / g): on the point mass with force_x at gear 2 (and -0.5), the generalized force of the PD law, B u, is
+    kp (q_ref - x) - kd v_x exactly (analytic). Every shipped robot has gear 1, so a law that left out the division by
+    the gear (a mutant of session 65's mutation testing) doubled the stiffness of a geared joint unnoticed."""
+    from planner.simulate import pd_law
+
+    kp, kd, x_ref = 40.0, 3.0, 0.25
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.1, 0.5]},
+                       "horizon": {"tau_f": 0.1, "N": 10},
+                       "simulate": {"pd": {"joints": ["x"], "kp": [kp], "kd": [kd], "q_ref": [x_ref]}}})
+    rng = np.random.default_rng(SEED)
+    for gear in ("2", "-0.5"):
+        robot = robot_variant(POINT_MASS, '<motor name="force_x" joint="x" gear="1"',
+                         f'<motor name="force_x" joint="x" gear="{gear}"', f"gear{gear}.xml")
+        law = pd_law(robot, task)
+        for _ in range(3):
+            q, v = rng.uniform(-1.0, 1.0, 2), rng.uniform(-1.0, 1.0, 2)
+            force = robot.actuation_matrix @ law(np.zeros(robot.nu), q, v)
+            assert force == pytest.approx([kp * (x_ref - q[0]) - kd * v[0], 0.0], abs=1e-12)
+
+
+TWO_SITES = ('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" '
+             'mass="1" diaginertia="1 1 1"/><site name="high" pos="0 0 0.05"/><site name="low" pos="0 0 0"/></body>'
+             '</worldbody></mujoco>')
+
+
+def test_the_penetration_names_the_contact_with_the_lowest_gap(tmp_path):
+    """summary.json's `penetration` names the contact point whose gap is the lowest over the nodes and the clock there:
+    a slider falling with two contact points, "high" 5 cm above "low" and listed first, names "low" at the last node,
+    with max_m = max(0, -min gap of "low") (ground truth: the gaps, z and z + 0.05, at the states). A report that named
+    the first contact whatever its gap (a mutant of session 65's mutation testing) sent the user to the wrong foot of a
+    robot."""
+    from planner.simulate import simulate
+
+    path = tmp_path / "two_sites.xml"
+    path.write_text(TWO_SITES)
+    task = parse_task({"contacts": [{"point": "high"}, {"point": "low"}], "initial": {"q": [0.1]},
+                       "horizon": {"tau_f": 0.1, "N": 5}})
+    r = simulate(load_robot(path), task)
+    assert r.stats.converged, r.stats.message
+    z = r.trajectory.y[:, 0]
+    k = int(np.argmin(z))
+    assert r.extra["penetration"] == {"max_m": max(0.0, -float(z[k])), "point": "low",
+                                      "t": float(r.trajectory.y[k, -1])}
+
+
+def test_fesd_collocates_only_the_steps_that_start_on_the_ground():
+    """FESD with n_s >= 2 solves a step with the COLLOCATED n^T v switching function only for a contact that starts it
+    in persistent contact: on its plane (gap multiplier lambda1 of c(q) ~ 0) with n^T v ~ 0 (SimulateOptions'
+    velocity_switch, docs/formulation.md "FESD in persistent contact"). The point mass released at rest 0.5 m above the
+    table (n^T v = 0, gap 0.5 m) and falling 0.06 s never touches it: no step is collocated (ground truth: the gaps at
+    the steps' starts are > 0.48 m). Weights read from n^T v alone (a mutant of session 65's mutation testing)
+    collocated the first step of every fall from rest, and of every apex, in the air."""
+    from planner.discretization import Discretization
+    from planner.simulate import SimulateOptions, simulate
+
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.5]},
+                       "horizon": {"tau_f": 0.06, "N": 3}})
+    r = simulate(load_robot("point_mass"), task, SimulateOptions(discretization=Discretization.FESD))
+    assert r.stats.converged and r.trajectory.y[:, 1].min() > 0.48
+    assert r.extra["discretization"]["velocity_switch"] == "collocated"
+    assert r.extra["discretization"]["collocated_steps"] == 0
+
+
+def test_the_reported_complementarity_is_the_worst_steps(monkeypatch):
+    """stats.complementarity_residual of a STEPWISE simulation is the largest residual over its steps (the run is as
+    complementary as its worst step): with the steps' homotopies stubbed to report 5e-10 for step 0 and 1e-12 after
+    it (the real solves' points, both under comp_tol), the run reports 5e-10. Read from the last step alone (mutant
+    S18), an early step's residual up to comp_tol was hidden behind a later one's 1e-12."""
+    import planner.simulate as sim
+    from planner.simulate import SimulateOptions, simulate
+
+    real, calls = sim._solve_homotopy, []
+
+    def stubbed(*args, **kwargs):
+        x, lam, _, n_nlp, iterations, ok, message = real(*args, **kwargs)
+        calls.append(None)
+        return x, lam, 5e-10 if len(calls) == 1 else 1e-12, n_nlp, iterations, ok, message
+
+    monkeypatch.setattr(sim, "_solve_homotopy", stubbed)
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.5]},
+                       "horizon": {"tau_f": 0.04, "N": 3}})
+    r = simulate(load_robot("point_mass"), task, SimulateOptions(restarts=False))
+    assert r.stats.converged and len(calls) == 3
+    assert r.stats.complementarity_residual == 5e-10
+
+
+def test_step_elements_integrate_h_times_the_speed_of_time():
+    """step_elements turns N implicit-Euler steps into element_trajectory's elements with the integrated lengths
+    dt = h S_k (its docstring: step k integrates h S[k] F; a plan with horizon.physical_time has a speed of time
+    S_k != 1 per step), and dt = h without S (a simulation). The impulses, the auxiliary velocity increments and the
+    contact forces' clock share of a plan's recovered trajectory are quadratures over dt. Built with h alone (mutant
+    S25), a timed plan's impacts were reported with impulses off by the factor S_k."""
+    from planner.discretization import ImplicitEulerStep
+    from planner.dynamics import Dynamics
+    from planner.simulate import step_elements
+    from planner.task import Contact
+    from planner.timefreezing import TimeFreezingSystem
+
+    sys_ = TimeFreezingSystem(Dynamics(load_robot("point_mass")), [Contact("point")])
+    builder = ImplicitEulerStep(sys_)
+    N, h = 4, 0.02
+    rng = np.random.default_rng(SEED)
+    Y, W, U = rng.normal(size=(N + 1, sys_.ny)), rng.normal(size=(N, builder.nw)), rng.normal(size=(N, sys_.nu))
+    S = rng.uniform(0.5, 2.0, N)
+    tau, Y_b, Ys, Ws, Us, dt = step_elements(sys_, builder, Y, W, U, h, S)
+    assert dt == pytest.approx(h * S, rel=1e-15) and tau == pytest.approx(h * np.arange(N + 1))
+    assert step_elements(sys_, builder, Y, W, U, h)[-1] == pytest.approx(np.full(N, h), rel=1e-15)
