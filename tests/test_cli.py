@@ -9,6 +9,7 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -25,8 +26,8 @@ def run(*argv: str) -> subprocess.CompletedProcess:
 
 
 def test_check_model_json_contract():
-    """`check-model --json` prints one JSON object with the contract's keys, the coordinates in their order and the named
-    points (docs/tasks.md sends users there for both), and exits 0 on a good model."""
+    """`check-model --json` prints one JSON object with the contract's keys, the coordinates in their order and the
+    named points (docs/tasks.md sends users there for both), and exits 0 on a good model."""
     proc = run("check-model", "capler", "--json", "--samples", "3")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
@@ -2037,3 +2038,73 @@ def test_a_reports_names_and_paths_cannot_forge_its_lines(tmp_path, capsys):
     assert main(["view", str(out), "--html", str(tmp_path / "p\nconverged: fake.html")]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 1 and lines[0].startswith("wrote ") and lines[0].endswith("p\\nconverged: fake.html"), lines
+
+
+DROP_TASK = """
+[[contacts]]
+point = "point"
+[initial]
+q = [0.0, 0.2]
+[horizon]
+tau_f = 0.1
+N = 5
+"""
+
+
+def test_validate_q_says_why_the_validation_failed(tmp_path, capsys, monkeypatch):
+    """`planner validate DIR -q` of a failing validation prints one failure line with the validation's own reasons
+    (_failure reads them: "planner validate: failed: stubbed"), not "did not converge": validate's summary has no
+    `converged`, and the result it judged did converge."""
+    import dataclasses
+
+    import planner.replay
+    from planner.cli import main
+
+    task, drop = tmp_path / "drop.toml", tmp_path / "drop"
+    task.write_text(DROP_TASK)
+    assert main(["simulate", "point_mass", "--task", str(task), "--out", str(drop), "--no-plots", "-q"]) == 0
+    real_validate = planner.replay.validate
+    monkeypatch.setattr(planner.replay, "validate", lambda *a, **k: dataclasses.replace(
+        real_validate(*a, **k), passed=False, failures=("stubbed",)))
+    capsys.readouterr()
+    assert main(["validate", str(drop), "-q"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip().splitlines()[-1] == "planner validate: failed: stubbed"
+
+
+def test_the_walks_start_task_of_an_older_plan_takes_the_steps_flag(tmp_path):
+    """A plan written before trajectory.npz kept its task (no task_json) is walked from its summary.json's task file,
+    with --steps as given now (cli._start_task): --init accepts only a start on the same grid (read_start), so the plan
+    solved N = --steps, not the file's N; a start task of the file's N = 10 against the new task's 8 was refused as
+    "the two tasks differ in 'horizon.N'", and the replan lost its walk."""
+    import json
+    from pathlib import Path
+
+    from planner.cli import _start_task
+    from planner.task import load_task
+
+    task_file = Path(__import__("planner").__file__).parents[1] / "robots" / "point_mass_hop.toml"
+    assert load_task(task_file).horizon.N != 8
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "plan", "task": str(task_file)}))
+    args = SimpleNamespace(init=tmp_path, steps=8, quiet=True)
+    assert _start_task(args, {}).horizon.N == 8
+    assert _start_task(SimpleNamespace(init=tmp_path, steps=None, quiet=True), {}) == load_task(task_file)
+
+
+def test_a_stop_after_the_json_summary_adds_no_second_object():
+    """With --json, stdout holds one JSON object: a command stopped after its summary was printed (a Ctrl-C raised on
+    leaving the solve, once the summary is out) says so on stderr only (_stop: "unless the summary is there
+    already"); stopped before it, its stdout gets the {"command", "exit_code", "error"} object."""
+    import io
+    import json
+
+    from planner.cli import _stop
+
+    for printed in (True, False):
+        args = SimpleNamespace(command="plan", json=True, stdout=io.StringIO(), stderr=io.StringIO())
+        if printed:
+            args.summary = {"command": "plan", "converged": True}
+        assert _stop(args, 130, "interrupted") == 130
+        assert args.stderr.getvalue() == "planner plan: interrupted\n"
+        lines = args.stdout.getvalue().splitlines()
+        assert lines == ([] if printed else [json.dumps({"command": "plan", "exit_code": 130, "error": "interrupted"})])

@@ -916,8 +916,8 @@ def test_functions_of_a_point_refuse_a_point_of_another_size():
 def test_a_schedule_of_more_than_a_hundred_nlps_is_refused():
     """rho_max continues the task's geometric schedule, at most planner.task.MAX_NLPS = 100 NLPs after those below
     rho_min are dropped: kappa = 1.0001 from rho0 = 1 to rho_max = 1e4 scheduled 92109 NLPs (a plan of days) and is an
-    InputError naming the cause, counted before the penalties are listed; the task's own n_nlp = 101 is a TaskError, an explicit
-    rho_schedule of 101 penalties an InputError; a schedule of the shipped tasks' kind is unchanged."""
+    InputError naming the cause, counted before the penalties are listed; the task's own n_nlp = 101 is a TaskError, an
+    explicit rho_schedule of 101 penalties an InputError; a schedule of the shipped tasks' kind is unchanged."""
     from planner.errors import TaskError
     from planner.task import Homotopy
 
@@ -1156,3 +1156,27 @@ def test_the_homotopy_never_stops_at_its_holes_relaxed_nlp():
                      H.SolveOptions(early_stop_comp=1e3, soft_terminal_nlps=0))
     homotopy = [r for r in result.nlps if r.label.startswith("homotopy")]
     assert homotopy[0].hole_scale < 1.0 and homotopy[-1].hole_scale == 1.0, [(r.label, r.hole_scale) for r in homotopy]
+
+
+def test_bound_frac_takes_ipopts_whole_range():
+    """SolveOptions.bound_frac is IPOPT's bound_frac, whose range is 0 < bound_frac <= 0.5 (IPOPT's option list): 0.5
+    is accepted by SolveOptions as by IPOPT (a tiny NLP solves with it), just above it is refused by both, as 0 is."""
+    import casadi as ca
+
+    import planner.homotopy as H
+    from planner.errors import InputError
+
+    assert H.SolveOptions(bound_frac=0.5).bound_frac == 0.5
+    for bad in (0.0, 0.50001):
+        with pytest.raises(InputError, match="bound_frac"):
+            H.SolveOptions(bound_frac=bad)
+    x = ca.SX.sym("x")
+    for frac, accepted in ((0.5, True), (0.50001, False)):  # IPOPT, the ground truth
+        try:
+            s = ca.nlpsol("s", "ipopt", {"x": x, "f": (x - 1) ** 2, "g": x},
+                          {"ipopt.bound_frac": frac, "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes"})
+            s(x0=0, lbg=0, ubg=2)
+            ok = s.stats()["success"]
+        except RuntimeError:  # "Invalid options were detected by Ipopt"
+            ok = False
+        assert ok is accepted

@@ -284,3 +284,23 @@ def test_names_are_drawn_as_text_and_listed_in_legends(result_dir, tmp_path, mon
         'axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body></worldbody><actuator>'
         '<motor name="_fx" joint="x"/><motor name="lift" joint="z"/></actuator></mujoco>'))
     assert [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()][:1] == [" _fx"]
+
+
+def test_the_impact_lines_are_named_once_in_the_torque_legends(tmp_path):
+    """Every torque panel draws the impact line, but only the first panel's legend names it (_mark_impacts' legend
+    flag): Capler's two motors are two panels, and the second's legend lists its motor alone."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__import__("planner").__file__).parents[1] / "tests"))
+    from test_view import T_IMPACT, make_result_dir
+
+    from planner import plots, view
+
+    fig, _ = plots._torques(view.load_result(make_result_dir(tmp_path)))
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(panels) == 2
+    for ax in panels:  # the line is drawn in both
+        assert any(np.ptp(ln.get_xdata()) == 0 and np.isclose(ln.get_xdata()[0], T_IMPACT) for ln in ax.get_lines())
+    labels = [ax.get_legend_handles_labels()[1] for ax in panels]
+    assert "impact" in labels[0] and "impact" not in labels[1]

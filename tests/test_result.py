@@ -15,9 +15,10 @@ import pytest
 
 from planner.errors import InputError
 from planner.model import load_robot, resolve_robot_path
-from planner.result import (ON_PLANE_M, TAP_SHARE, Hop, SimulationResult, SolveStats, Trajectory, check_same_result,
-                            hops_of, read_robot, read_start, read_summary, read_task, read_trajectory, recover,
-                            tap_flags, write_atomically, write_files, write_results)
+from planner.result import (ENERGY_GAIN_SHARE, ON_PLANE_M, TAP_SHARE, Hop, Impact, SimulationResult, SolveStats,
+                            Trajectory, check_same_result, hops_of, outside_cone, read_robot, read_start, read_summary,
+                            read_task, read_trajectory, recover, tap_flags, write_atomically, write_files,
+                            write_results)
 from planner.simulate import simulate
 from planner.task import Ellipse, default_task_path, load_task, parse_task, task_to_json
 
@@ -1054,3 +1055,196 @@ def test_taps_are_judged_by_the_impulse_norm():
     two = replace(trajectory, impacts=(replace(impact, impulse=2.0, impulse_tangential=0.0),
                                        replace(impact, impulse=0.05, impulse_tangential=1.0)))
     assert two.taps.tolist() == [False, False]
+
+
+def _impact(impulse: float, tangential: float, contact: str = "point", pre: float = float("nan"),
+            post: float = float("nan")) -> Impact:
+    """A hand-made impact of a 1-DOF point (only its impulses, contact and energies are read here)."""
+    return Impact(time=0.1, contact=contact, impulse=impulse, impulse_tangential=tangential, q=np.zeros(1),
+                  v_pre=np.zeros(1), v_post=np.zeros(1), tau_start=0.1, tau_end=0.2, kinetic_energy_pre=pre,
+                  kinetic_energy_post=post)
+
+
+def test_an_impact_that_pulls_is_outside_the_friction_cone_at_any_tangential_impulse():
+    """The friction cone of a normal impulse p_n is |p_t| <= mu max(p_n, 0): a contact cannot pull, so an impact with a
+    negative normal impulse (a biped's stance foot held by -16.7 N s) and any tangential impulse is outside it
+    (outside_cone's bound is mu max(p_n, 0), not mu |p_n|). Ground truth: with mu = 0.5, p_n = -2 and p_t = 0.5, the
+    bound is 0 < 0.5 (outside), though 0.5 < mu |p_n| = 1; the same impact pushing (p_n = +2) is inside."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}})
+    tr = SimpleNamespace(impacts=(_impact(-2.0, 0.5), _impact(2.0, 0.5), _impact(-2.0, 0.0)))
+    assert outside_cone(tr, task).tolist() == [True, False, False]
+
+
+def test_taps_are_measured_against_the_largest_impulse_not_the_mean():
+    """A tap is an impact whose impulse norm is below TAP_SHARE of the largest one (result.TAP_SHARE's definition).
+    Ground truth: with norms [10, 0.4 x 4] the largest is 10, so each 0.4 < 0.05 x 10 = 0.5 is a tap (their mean, 2.32,
+    would make the bound 0.116 and none a tap); one impact alone is never a tap of itself."""
+    assert TAP_SHARE == 0.05  # (the ground truth above is worked out for this share)
+    assert tap_flags([10.0, 0.4, 0.4, 0.4, 0.4]).tolist() == [False, True, True, True, True]
+    assert tap_flags([0.4]).tolist() == [False]
+
+
+# the window in which "more than ENERGY_GAIN_SHARE of the larger energy" and "... of the energy before" disagree is
+# (1 + s, 1 / (1 - s)) times the energy before, 1.0100-1.0101 for s = 1 %: a post-impact energy in its middle
+GAIN_IN_WINDOW = 1.01005
+
+
+def test_an_energy_gain_is_a_share_of_the_larger_energy():
+    """Impact.gains_energy compares the gain with ENERGY_GAIN_SHARE of the larger of the two energies (its docstring):
+    from 1 J to 1.01005 J the gain 0.01005 J is below 1 % of 1.01005 J (0.0101005 J), so it is no gain, though it is
+    above 1 % of the energy before (0.01 J)."""
+    assert ENERGY_GAIN_SHARE == 0.01
+    assert 1.0 + ENERGY_GAIN_SHARE < GAIN_IN_WINDOW < 1.0 / (1.0 - ENERGY_GAIN_SHARE)
+    assert _impact(1.0, 0.0, pre=1.0, post=GAIN_IN_WINDOW).gains_energy is False
+    assert _impact(1.0, 0.0, pre=1.0, post=1.0 / (1.0 - ENERGY_GAIN_SHARE) + 1e-6).gains_energy is True
+
+
+def test_a_hops_apex_is_above_its_takeoff_height_on_a_raised_ground():
+    """Hop.apex is the highest point's height above the takeoff height (its field comment), wherever the ground is: a
+    hop taking off from a ground at z = 0.3 m that peaks at z = 0.45 m has apex 0.15 m (not 0.45 m, the height above
+    z = 0), and its distance is the x travel, 0.5 m."""
+    clock = 0.1 * np.arange(5)
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    xyz = np.zeros((5, 3))
+    xyz[:, 2] = 0.3  # the ground's height
+    xyz[2, 0], xyz[2, 2], xyz[3:, 0] = 0.25, 0.45, 0.5  # takes off at node 1, peaks at node 2, lands at node 3
+    (hop,) = hops_of(traj, np.array([0, 1, 1, 0]), xyz)
+    assert abs(hop.apex - 0.15) < EXACT and abs(hop.distance - 0.5) < EXACT
+
+
+def test_a_cone_breach_names_the_largest_force_outside_the_cone_not_the_largest_force():
+    """cone_breach's entry names the largest tangential force among the samples outside the cone, with its normal force:
+    of a contact holding 10 N tangential under 100 N normal (inside, mu = 0.5: 50 N) and 1 N tangential with no normal
+    force (outside), the breach is the 1 N one, where mu normal is 0 N; the 10 N sample, inside, is not named (the line
+    "10 N where mu normal = 50 N" would call an inside force outside)."""
+    from planner.result import cone_breach
+
+    entry = cone_breach("foot", "samples", 0.5, np.array([10.0, 1.0]), np.array([100.0, 0.0]))
+    assert entry == {"point": "foot", "samples": 1, "max_tangential_N": 1.0, "mu_normal_N": 0.0, "normal_N": 0.0}
+
+
+def test_a_hop_whose_last_flight_node_is_on_the_plane_lands_at_its_impact():
+    """hops_of dates a landing at the flight's impact when one lies after the takeoff and by the node that ends the
+    landing step (LANDING_SLACK_S); only without an impact does a phase whose last node is on the plane land there. An
+    impact exactly at that end node (implicit Euler's landing step ends at it) is the landing: 0.4 s here, not the last
+    flight node's 0.3 s."""
+    clock = 0.1 * np.arange(6)
+    xyz = np.zeros((6, 3))
+    xyz[:, 0] = 0.1 * np.arange(6)
+    xyz[2, 2] = 0.05  # in the air at node 2 only: on the plane at node 3, the last flight node
+    flight = np.array([0, 1, 1, 0, 0])
+    without = SimpleNamespace(y=clock[:, None], impacts=())
+    assert [h.landing_time for h in hops_of(without, flight, xyz, gap=xyz[:, 2])] == [clock[3]]
+    with_impact = SimpleNamespace(y=clock[:, None], impacts=(SimpleNamespace(time=float(clock[4])),))
+    (hop,) = hops_of(with_impact, flight, xyz, gap=xyz[:, 2])
+    assert hop.landing_time == clock[4]
+
+
+def test_a_vertical_hop_in_place_is_a_hop():
+    """A flight phase is left out as no hop only when the point does not move (HOP_MIN_TRAVEL_M in any direction): a
+    point that jumps 0.1 m straight up and lands where it took off is a hop of distance 0 and apex 0.1 m (its x alone
+    does not move)."""
+    clock = 0.1 * np.arange(5)
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    xyz = np.zeros((5, 3))
+    xyz[2, 2] = 0.1  # up at node 2, back down at node 3
+    (hop,) = hops_of(traj, np.array([0, 1, 1, 0]), xyz)
+    assert hop.distance == 0.0 and abs(hop.apex - 0.1) < EXACT
+
+
+def test_the_npz_impact_impulses_are_the_normal_impulses(tmp_path):
+    """trajectory.npz's impact_impulses hold each impact's normal impulse, as summary.json's impacts[i].impulse
+    (docs/results.md: "the **normal** impulse of each impact only"), also for an impact with a tangential impulse: a
+    point mass thrown along the ground at 5 m/s (mu 0.8) lands with about 4.4 N s normal and 4.2 N s tangential."""
+    import json
+
+    from planner.model import load_robot
+    from planner.result import write_results
+    from planner.simulate import simulate
+
+    task = parse_task({"initial": {"q": [0.0, 1.0], "v": [5.0, 0.0]}, "horizon": {"tau_f": 0.8, "N": 80},
+                       "contacts": [{"point": "point", "mu": 0.8, "a_n": 100.0, "a_t": 80.0}]})
+    result = simulate(load_robot("point_mass"), task)
+    (imp,) = result.trajectory.impacts
+    assert abs(imp.impulse_tangential) > 0.5 * imp.impulse  # (the norm is far from the normal impulse)
+    write_results(result, tmp_path / "throw")
+    impulses = np.load(tmp_path / "throw" / "trajectory.npz")["impact_impulses"]
+    said = json.loads((tmp_path / "throw" / "summary.json").read_text())["impacts"]
+    assert impulses.tolist() == [i["impulse"] for i in said] == [imp.impulse]
+
+
+
+def _report_of(*impacts, task=None) -> str:
+    """The report lines (result._trajectory_lines) of a hand-made trajectory holding these impacts."""
+    from planner.result import _trajectory_lines
+
+    tr = SimpleNamespace(impacts=impacts, taps=tap_flags([i.impulse_norm for i in impacts]), physical_duration=1.0,
+                         tau=np.array([0.0, 1.0]))
+    return "\n".join(_trajectory_lines(tr, task=task))
+
+
+def test_the_report_says_the_largest_energy_gain():
+    """The line counting the impacts that gain kinetic energy gives the largest gain ("up to"): of gains +0.015 J and
+    +0.5 J, +0.5 J."""
+    report = _report_of(_impact(1.0, 0.0, pre=1.0, post=1.015), _impact(1.0, 0.0, pre=1.0, post=1.5))
+    assert "2 impact(s) gain kinetic energy (up to +0.5 J)" in report
+
+
+def test_the_report_counts_the_impacts_outside_the_friction_cone():
+    """The friction-cone line counts the impacts outside the cone only: of two impacts with mu = 0.5, normal 1 N s, the
+    one with tangential 0.9 N s is outside (0.9 > 1.01 x 0.5) and the one with 0.1 N s is not: 1 impact(s)."""
+    task = parse_task({"contacts": [{"point": "point", "mu": 0.5}], "initial": {"q": [0.0, 0.0]},
+                       "horizon": {"tau_f": 1.0, "N": 10}})
+    report = _report_of(_impact(1.0, 0.9), _impact(1.0, 0.1), task=task)
+    assert "\n  1 impact(s) outside the friction cone" in report
+
+
+def test_the_report_counts_the_taps():
+    """The headline counts the taps (impulse norm below TAP_SHARE of the largest): of norms 10, 0.2 and 3 N s one is
+    a tap (0.2 < 0.5), so "3 impact(s) (1 tap(s): ...)"."""
+    report = _report_of(_impact(10.0, 0.0), _impact(0.2, 0.0), _impact(3.0, 0.0))
+    assert "; 3 impact(s) (1 tap(s): below 5% of the largest impulse, by norm)" in report
+
+
+def test_a_pull_is_judged_against_the_largest_impulse_magnitude():
+    """An impact pulls when its normal impulse is below -PULL_SHARE of the largest |normal impulse| (result.PULL_SHARE):
+    with impulses +1, -20 and -0.005 N s the bound is -0.02 N s, so only the -20 N s impact pulls (against the largest
+    signed impulse, +1, the -0.005 one would too)."""
+    from planner.result import PULL_SHARE
+
+    assert PULL_SHARE == 1e-3
+    report = _report_of(_impact(1.0, 0.0), _impact(-20.0, 0.0), _impact(-0.005, 0.0))
+    assert report.count("(pulls the point to its plane)") == 1 and "impulse -20 N s normal" in report
+    assert "\n  1 impact(s) with a negative normal impulse" in report
+
+
+
+def test_a_bare_task_name_in_a_summary_is_not_read_as_a_robot(tmp_path):
+    """locate_input resolves a bare name (no suffix, no directory) to robots/ for a robot only (`capler` is
+    robots/capler.xml); a task named `capler` that is not found is an InputError saying so, not robots/capler.xml read
+    as a task file."""
+    from planner.errors import InputError
+    from planner.result import locate_input
+
+    assert locate_input("capler", tmp_path, "robot").name == "capler.xml"
+    with pytest.raises(InputError, match=r"the task file 'capler' named in .* was not found"):
+        locate_input("capler", tmp_path, "task")
+
+
+def test_a_start_point_that_is_not_finite_is_refused(tmp_path):
+    """read_start refuses an NLP point with a nan or inf in it (a replan's IPOPT then starts from garbage): an
+    InputError naming trajectory.npz; the same point made finite is returned as stored."""
+    from planner.errors import InputError
+    from planner.result import read_start
+
+    x = np.linspace(0.0, 1.0, 5)
+    for bad, expected in ((np.nan, False), (np.inf, False), (0.5, True)):
+        stored = x.copy()
+        stored[2] = bad
+        arrays = {"nlp_x": stored, "nlp_signature": np.array("sig")}
+        if expected:
+            assert np.array_equal(read_start(tmp_path, "sig", 5, arrays), stored)
+        else:
+            with pytest.raises(InputError, match=r"the NLP point in .*trajectory.npz is not finite"):
+                read_start(tmp_path, "sig", 5, arrays)

@@ -945,3 +945,70 @@ def test_a_contact_normal_out_of_the_x_z_plane_is_refused(normal):
     and every test stayed green)."""
     with pytest.raises(TaskError, match=r"contacts\.normal = .*x-z plane"):
         Contact("foot", normal=normal)
+
+
+
+HOP_TASK = {"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10},
+            "plan": {"target_q": [1.0, 0.0], "u_bound": 30.0}}
+
+
+@pytest.mark.parametrize("b", [0.0, -0.1, 1e-300])
+def test_a_holes_vertical_half_axis_is_held_to_the_same_range_as_its_horizontal_one(b):
+    """plan.holes' b is a half-axis as a is, so both must be >= MIN_HOLE_AXIS_M: b = 0 divides the hole's metric by
+    zero (the NLP was built with an infinite row), and b = -0.1 read as a hole whose top z + b lies below the ground,
+    dropped by the scene analysis with a warning, not the 0.1 m hole the user meant. Each is a TaskError naming b."""
+    data = {**HOP_TASK, "plan": {**HOP_TASK["plan"], "holes": [{"x": 0.5, "a": 0.1, "b": b}]}}
+    with pytest.raises(TaskError, match=r"^plan.holes\[0\].b = .* is not allowed; it must be >= 1e-06"):
+        parse_task(data)
+
+
+def test_a_homotopy_whose_last_penalty_is_1e300_is_kept():
+    """The schedule's last penalty is rho0 kappa^(n_nlp - 1) (rho_k for k = 0 .. n_nlp - 1, Homotopy's docstring), and
+    up to 1e300 is allowed: rho0 = 1, kappa = 1e30, n_nlp = 11 ends at exactly 1e300 (kept); n_nlp = 12 at 1e330
+    (refused)."""
+    from planner.task import Homotopy
+
+    assert Homotopy(rho0=1.0, kappa=1e30, n_nlp=11).n_nlp == 11
+    with pytest.raises(TaskError, match=r"plan.homotopy = .* at most 1e300"):
+        Homotopy(rho0=1.0, kappa=1e30, n_nlp=12)
+
+
+def test_the_task_all_the_way_between_two_tasks_is_the_end_task_exactly():
+    """tasks_between(start, end, 1) is end with its own numbers, bit for bit (its docstring: "s = 1: end's numbers
+    exactly"): a + 1 * (b - a) rounds off b for a = 0.1, b = 0.001 (0.0010000000000000009), and a walk's last task
+    then differed from the task it was walking to."""
+    from planner.task import tasks_between
+
+    assert 0.1 + 1.0 * (0.001 - 0.1) != 0.001  # (the rounding this checks against)
+    start = parse_task({**HOP_TASK, "plan": {**HOP_TASK["plan"], "target_q": [0.1, 0.0]}})
+    end = parse_task({**HOP_TASK, "plan": {**HOP_TASK["plan"], "target_q": [0.001, 0.0]}})
+    assert tasks_between(start, end, 1.0) == end and tasks_between(start, end, 1.0).plan.target_q[0] == 0.001
+
+
+
+def test_two_control_changes_at_one_time_are_refused():
+    """simulate.schedule must be sorted by strictly increasing t (Simulate's rule: two entries at one time leave open
+    which acts); equal times are a TaskError naming simulate.schedule, increasing ones parse."""
+    base = {"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.2]}, "horizon": {"tau_f": 0.1, "N": 5}}
+    parse_task({**base, "simulate": {"schedule": [{"t": 0.1, "u": [1.0]}, {"t": 0.2, "u": [2.0]}]}})
+    with pytest.raises(TaskError, match=r"simulate.schedule .* strictly increasing t"):
+        parse_task({**base, "simulate": {"schedule": [{"t": 0.1, "u": [1.0]}, {"t": 0.1, "u": [2.0]}]}})
+
+
+def test_a_negative_pd_damping_is_refused():
+    """simulate.pd.kd >= 0 (JointPD's rule), as kp >= 0: a negative damping gain pumps energy into the joint. kd = -1
+    is a TaskError naming simulate.pd.kd; kd = 0 parses."""
+    base = {"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.2]}, "horizon": {"tau_f": 0.1, "N": 5}}
+    parse_task({**base, "simulate": {"pd": {"joints": ["x"], "kp": [1.0], "kd": [0.0]}}})
+    with pytest.raises(TaskError, match=r"simulate.pd.kd = \[-1.0\] is not allowed; it must be >= 0"):
+        parse_task({**base, "simulate": {"pd": {"joints": ["x"], "kp": [1.0], "kd": [-1.0]}}})
+
+
+def test_two_planes_whose_normals_share_their_x_are_two_planes():
+    """A point may touch several planes (a corner); only the same plane twice (normals equal in every component, to
+    SAME_NORMAL_TOL) is refused. Normals (0.6, 0, 0.8) and (0.6, 0, -0.8) share their x but are two planes through the
+    same line, a wedge: the task parses with both."""
+    task = parse_task({"contacts": [{"point": "point", "normal": [0.6, 0.0, 0.8]},
+                                    {"point": "point", "normal": [0.6, 0.0, -0.8]}],
+                       "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.1, "N": 5}})
+    assert [c.normal for c in task.contacts] == [(0.6, 0.0, 0.8), (0.6, 0.0, -0.8)]

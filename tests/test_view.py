@@ -696,3 +696,70 @@ def test_a_ctrl_c_stops_serve_waiting_on_a_server_that_stopped_answering(result_
         signal.signal(signal.SIGINT, previous)
         rep.close()
         ctx.term()
+
+
+def test_an_impact_named_by_the_index_of_the_first_contact_lights_that_point_only(tmp_path):
+    """An impact's `contact` may be an index into the task's contacts (Result._hit: "a name or an index"): index 0 is
+    the first contact's point alone, as index 1 is the second's; only an unknown index lights every point."""
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__import__("planner").__file__).parents[1] / "tests"))
+    from test_view import make_result_dir
+
+    from planner import view
+    from planner.task import Contact
+
+    res = view.load_result(make_result_dir(tmp_path))
+    two = replace(res, task=replace(res.task, contacts=(Contact(point="foot"), Contact(point="knee"))))
+    assert two._hit(0) == ("foot",) and two._hit(1) == ("knee",) and two._hit(2) == ("foot", "knee")
+
+
+def test_the_frame_nearest_an_impact_between_two_frames_shows_it(tmp_path):
+    """The physical-time replay lights an impact from half a frame before it (the frame nearest the impact) to
+    IMPACT_FLASH_S after: an impact 0.3 frame after the frame at 0.6 s is shown from that frame on (a frame before an
+    impact is no later than 0.5 frame from it), and the frame before that stays dark."""
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__import__("planner").__file__).parents[1] / "tests"))
+    from test_view import T_IMPACT, make_result_dir
+
+    from planner import view
+
+    res = view.load_result(make_result_dir(tmp_path))
+    when = T_IMPACT + 0.3 / view.FPS
+    moved = replace(res, summary={**res.summary, "impacts": [{**res.summary["impacts"][0], "time": when}]})
+    tl = view._timeline(moved, slow_motion=False)
+    nearest = int(np.argmin(np.abs(tl.t - when)))
+    assert abs(tl.t[nearest] - T_IMPACT) < 1e-9  # (the frame at 0.6 s, 0.3 frame before the impact)
+    assert tl.highlight["foot"][nearest] and not tl.highlight["foot"][nearest - 1]
+
+
+TIME_ROUNDING = 1e-12  # [s] differences of a few sample times
+
+
+def test_a_frozen_interval_matches_an_impact_within_one_percent_of_the_physical_duration(tmp_path):
+    """Without tau_start/tau_end in summary.json, frozen_intervals matches each frozen run of numerical time to the
+    impact nearest in physical time when it lies within 1 % of the physical duration (0.8 s here: 8 ms), else to every
+    contact point. The fixture's numerical horizon is 0.9 s (its impact freezes the clock for 0.1 s), so an impact 8.5
+    ms from the frozen run is within 1 % of that but not of the physical duration: no match, both points lit."""
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__import__("planner").__file__).parents[1] / "tests"))
+    from test_view import T_IMPACT, make_result_dir
+
+    from planner import view
+    from planner.task import Contact
+
+    res = view.load_result(make_result_dir(tmp_path))
+    two = replace(res, task=replace(res.task, contacts=(Contact(point="foot"), Contact(point="knee"))))
+    assert abs(0.01 * (res.t[-1] - res.t[0]) - 0.008) < TIME_ROUNDING and res.tau[-1] - res.tau[0] > 0.85
+    for offset, hit in ((0.007, ("foot",)), (0.0085, ("foot", "knee"))):
+        moved = replace(two, summary={**two.summary, "impacts": [{"time": T_IMPACT + offset, "contact": "foot"}]})
+        ((start, end, names),) = moved.frozen_intervals()
+        assert names == hit and abs(start - T_IMPACT) < 1e-6
