@@ -2077,13 +2077,10 @@ def test_the_walks_start_task_of_an_older_plan_takes_the_steps_flag(tmp_path):
     with --steps as given now (cli._start_task): --init accepts only a start on the same grid (read_start), so the plan
     solved N = --steps, not the file's N; a start task of the file's N = 10 against the new task's 8 was refused as
     "the two tasks differ in 'horizon.N'", and the replan lost its walk."""
-    import json
-    from pathlib import Path
-
     from planner.cli import _start_task
     from planner.task import load_task
 
-    task_file = Path(__import__("planner").__file__).parents[1] / "robots" / "point_mass_hop.toml"
+    task_file = ROBOTS_DIR / "point_mass_hop.toml"
     assert load_task(task_file).horizon.N != 8
     (tmp_path / "summary.json").write_text(json.dumps({"command": "plan", "task": str(task_file)}))
     args = SimpleNamespace(init=tmp_path, steps=8, quiet=True)

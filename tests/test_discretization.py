@@ -291,10 +291,9 @@ def test_an_unregularized_selector_has_no_rho_f_term():
         sigma = rng.uniform(0.0, 1.0, sys_.n_sigma)
         w = builder.w_from(sigma, np.zeros(sys_.n_sigma), np.zeros(sys_.n_sigma))
         expected = rho_f * np.sum((sigma - sys_.wanted)[keep] ** 2)
-        assert float(objective(w)) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+        assert float(objective(w)) == pytest.approx(expected, rel=EVAL_TOL, abs=EVAL_TOL * rho_f)
     zeta = np.flatnonzero(~keep).tolist()
     assert not ca.depends_on(step.objective, step.sigma[zeta])
-
 
 
 def test_the_several_contacts_guess_switches_the_selectors_of_its_own_forces():

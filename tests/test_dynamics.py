@@ -364,7 +364,7 @@ OPTION = '<option timestep="0.001" gravity="0 0 -9.81" cone="elliptic" impratio=
 
 
 @pytest.mark.parametrize("gravity", ["0 0 -1.62", "1.5 0 -9.81"])
-def test_the_files_gravity_is_the_dynamics_gravity(robot_variant, tmp_path, gravity):
+def test_the_files_gravity_is_the_dynamics_gravity(robot_variant, gravity):
     """A file's <option gravity> (the Moon's; a slope's tilted one) is the gravity of the planner's dynamics: the bias
     forces h(q, v) equal MuJoCo's qfrc_bias of the same file at seeded states (ground truth: MuJoCo's RNE), and
     check-model passes. Every shipped robot has gravity (0, 0, -9.81), so a dynamics that ignored

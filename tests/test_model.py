@@ -858,7 +858,7 @@ POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()  # the file a variant e
 @pytest.mark.parametrize("motor, bounds", [
     ('<motor name="force_x" joint="x"/>', (-np.inf, np.inf)),
     ('<motor name="force_x" joint="x" gear="2" forcerange="-5 5"/>', (-5.0, 5.0))])
-def test_a_motor_without_a_ctrlrange_is_unbounded_or_bounded_by_its_forcerange(robot_variant, tmp_path, motor, bounds):
+def test_a_motor_without_a_ctrlrange_is_unbounded_or_bounded_by_its_forcerange(robot_variant, motor, bounds):
     """A <motor> without ctrlrange is no control limit to MuJoCo (actuator_ctrllimited 0, its ctrlrange stored as 0 0):
     its control bounds are (-inf, inf), or its forcerange (MuJoCo clamps the force ctrl before the gear) when it has
     one. Read as its stored ctrlrange (a mutant of session 65's mutation testing) the motor was bounded to [0, 0]:

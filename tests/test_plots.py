@@ -289,14 +289,6 @@ def test_names_are_drawn_as_text_and_listed_in_legends(result_dir, tmp_path, mon
 def test_the_impact_lines_are_named_once_in_the_torque_legends(tmp_path):
     """Every torque panel draws the impact line, but only the first panel's legend names it (_mark_impacts' legend
     flag): Capler's two motors are two panels, and the second's legend lists its motor alone."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__import__("planner").__file__).parents[1] / "tests"))
-    from test_view import T_IMPACT, make_result_dir
-
-    from planner import plots, view
-
     fig, _ = plots._torques(view.load_result(make_result_dir(tmp_path)))
     panels = [ax for ax in fig.axes if ax.get_visible()]
     assert len(panels) == 2

@@ -1174,7 +1174,6 @@ def test_the_npz_impact_impulses_are_the_normal_impulses(tmp_path):
     assert impulses.tolist() == [i["impulse"] for i in said] == [imp.impulse]
 
 
-
 def _report_of(*impacts, task=None) -> str:
     """The report lines (result._trajectory_lines) of a hand-made trajectory holding these impacts."""
     from planner.result import _trajectory_lines
@@ -1217,7 +1216,6 @@ def test_a_pull_is_judged_against_the_largest_impulse_magnitude():
     report = _report_of(_impact(1.0, 0.0), _impact(-20.0, 0.0), _impact(-0.005, 0.0))
     assert report.count("(pulls the point to its plane)") == 1 and "impulse -20 N s normal" in report
     assert "\n  1 impact(s) with a negative normal impulse" in report
-
 
 
 def test_a_bare_task_name_in_a_summary_is_not_read_as_a_robot(tmp_path):

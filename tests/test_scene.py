@@ -332,7 +332,6 @@ def test_a_hole_below_the_ground_is_kept_when_a_point_touches_only_a_wall(capler
     assert analyze_scene(capler, task).dropped_holes == ()
 
 
-# [m] a sampled position against its box: the box is built from the same kinematics, rounding only
 # a hinge whose tip sits at a diagonal offset (0.3, 0, -0.4) from it: 0.5 m away, though no component exceeds 0.4 m
 DIAGONAL_ARM = """<mujoco><worldbody><body name="arm" pos="0 0 1">
   <joint name="hinge" type="hinge" axis="0 1 0"/>
@@ -340,26 +339,25 @@ DIAGONAL_ARM = """<mujoco><worldbody><body name="arm" pos="0 0 1">
   <site name="tip" pos="0.3 0 -0.4"/>
 </body></worldbody>
 <actuator><motor joint="hinge"/></actuator></mujoco>"""
+DIAGONAL_SEED = 3  # the sampled hinge angles
 
 
 def test_the_reach_of_a_diagonal_offset_below_a_hinge_is_its_length(tmp_path):
     """Below a hinge, a point reaches as far as the length of its offset from the hinge (the module docstring: R is
     the sum of the offsets' lengths): the tip 0.5 m from the hinge sweeps a circle of radius 0.5 m, so every sampled
-    tip position lies in its reach box, and a small hole at 0.47 m from the hinge, which the tip passes through, is
-    kept (a radius from the offset's largest component, 0.4 m, dropped it as out of reach, and the plan could cross
-    it)."""
+    tip position lies in its reach box, and a small hole 0.47-0.51 m from the hinge, around the tip's point (0.5, 1),
+    is kept (session 65's mutation testing: a radius from the offset's largest component, 0.4 m, dropped it as out of
+    reach, and the plan could cross it)."""
     from planner.dynamics import Dynamics
-    from planner.model import load_robot
-    from planner.scene import analyze_scene, reach_box
 
     path = tmp_path / "arm.xml"
     path.write_text(DIAGONAL_ARM)
     robot = load_robot(str(path))
     lo, hi = reach_box(robot, "tip", robot.q_lower, robot.q_upper)
-    tip, rng = Dynamics(robot).point_position("tip"), np.random.default_rng(3)
+    tip, rng = Dynamics(robot).point_position("tip"), np.random.default_rng(DIAGONAL_SEED)
     for angle in rng.uniform(-np.pi, np.pi, SAMPLES):
         p = np.asarray(tip(np.array([angle])), float).ravel()
         assert np.all(p >= lo - BOX_ROUNDING) and np.all(p <= hi + BOX_ROUNDING), (angle, p, lo, hi)
     task = parse_task({"contacts": [{"point": "tip"}], "initial": {"q": [0.0]}, "horizon": {"tau_f": 1.0, "N": 10},
-                       "plan": {"target_q": [0.5], "holes": [{"x": 0.47, "z": 1.0, "a": 0.02, "b": 0.02}]}})
+                       "plan": {"target_q": [0.5], "holes": [{"x": 0.49, "z": 1.0, "a": 0.02, "b": 0.02}]}})
     assert analyze_scene(robot, task).dropped_holes == ()

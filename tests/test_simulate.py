@@ -970,10 +970,12 @@ def test_a_simulation_through_a_hole_warns_that_it_has_flat_ground():
 
 
 SEED = 0  # the seeded states below
+PD_ROUNDING = 1e-12  # [N] the PD law's force through gear and back: a few products of numbers ~10
+ONE_PRODUCT = 1e-15  # h S computed once each way: one product's rounding
 POINT_MASS = (ROBOTS_DIR / "point_mass.xml").read_text()  # the file a variant edits
 
 
-def test_pd_gains_are_joint_gains_whatever_the_gear(robot_variant, tmp_path):
+def test_pd_gains_are_joint_gains_whatever_the_gear(robot_variant):
     """[simulate.pd]'s kp, kd are the joint's stiffness and damping [N/m, N s/m] (docs/tasks.md: u += (kp (q_ref - q)
     - kd v) / g): on the point mass with force_x at gear 2 (and -0.5), the generalized force of the PD law, B u, is
     kp (q_ref - x) - kd v_x exactly (analytic). Every shipped robot has gear 1, so a law that left out the division by
@@ -987,12 +989,12 @@ def test_pd_gains_are_joint_gains_whatever_the_gear(robot_variant, tmp_path):
     rng = np.random.default_rng(SEED)
     for gear in ("2", "-0.5"):
         robot = robot_variant(POINT_MASS, '<motor name="force_x" joint="x" gear="1"',
-                         f'<motor name="force_x" joint="x" gear="{gear}"', f"gear{gear}.xml")
+                              f'<motor name="force_x" joint="x" gear="{gear}"', f"gear{gear}.xml")
         law = pd_law(robot, task)
         for _ in range(3):
             q, v = rng.uniform(-1.0, 1.0, 2), rng.uniform(-1.0, 1.0, 2)
             force = robot.actuation_matrix @ law(np.zeros(robot.nu), q, v)
-            assert force == pytest.approx([kp * (x_ref - q[0]) - kd * v[0], 0.0], abs=1e-12)
+            assert force == pytest.approx([kp * (x_ref - q[0]) - kd * v[0], 0.0], abs=PD_ROUNDING)
 
 
 TWO_SITES = ('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" '
@@ -1002,22 +1004,23 @@ TWO_SITES = ('<mujoco><worldbody><body name="b"><joint name="z" type="slide" axi
 
 def test_the_penetration_names_the_contact_with_the_lowest_gap(tmp_path):
     """summary.json's `penetration` names the contact point whose gap is the lowest over the nodes and the clock there:
-    a slider falling with two contact points, "high" 5 cm above "low" and listed first, names "low" at the last node,
-    with max_m = max(0, -min gap of "low") (ground truth: the gaps, z and z + 0.05, at the states). A report that named
-    the first contact whatever its gap (a mutant of session 65's mutation testing) sent the user to the wrong foot of a
-    robot."""
+    a slider falling with two contact points, "high" 5 cm above "low", listed either way round, names "low" at the
+    last node (ground truth: the gaps, z and z + 0.05, at the states; the slider does not reach the ground, so max_m is
+    0). A report that named the first contact whatever its gap (a mutant of session 65's mutation testing) sent the
+    user to the wrong foot of a robot."""
     from planner.simulate import simulate
 
     path = tmp_path / "two_sites.xml"
     path.write_text(TWO_SITES)
-    task = parse_task({"contacts": [{"point": "high"}, {"point": "low"}], "initial": {"q": [0.1]},
-                       "horizon": {"tau_f": 0.1, "N": 5}})
-    r = simulate(load_robot(path), task)
-    assert r.stats.converged, r.stats.message
-    z = r.trajectory.y[:, 0]
-    k = int(np.argmin(z))
-    assert r.extra["penetration"] == {"max_m": max(0.0, -float(z[k])), "point": "low",
-                                      "t": float(r.trajectory.y[k, -1])}
+    for order in (["high", "low"], ["low", "high"]):
+        task = parse_task({"contacts": [{"point": point} for point in order], "initial": {"q": [0.1]},
+                           "horizon": {"tau_f": 0.1, "N": 5}})
+        r = simulate(load_robot(path), task)
+        assert r.stats.converged, r.stats.message
+        z = r.trajectory.y[:, 0]
+        k = int(np.argmin(z))
+        assert z[k] > 0.0 and r.extra["penetration"] == {"max_m": 0.0, "point": "low",
+                                                          "t": float(r.trajectory.y[k, -1])}
 
 
 def test_fesd_collocates_only_the_steps_that_start_on_the_ground():
@@ -1040,9 +1043,9 @@ def test_fesd_collocates_only_the_steps_that_start_on_the_ground():
 
 def test_the_reported_complementarity_is_the_worst_steps(monkeypatch):
     """stats.complementarity_residual of a STEPWISE simulation is the largest residual over its steps (the run is as
-    complementary as its worst step): with the steps' homotopies stubbed to report 5e-10 for step 0 and 1e-12 after
-    it (the real solves' points, both under comp_tol), the run reports 5e-10. Read from the last step alone (mutant
-    S18), an early step's residual up to comp_tol was hidden behind a later one's 1e-12."""
+    complementary as its worst step): with the steps' homotopies stubbed to report 5e-10 for step 0 and 1e-12 after it
+    (the real solves' points, both under comp_tol), the run reports 5e-10. Read from the last step alone (a mutant of
+    session 65's mutation testing), an early step's residual up to comp_tol was hidden behind a later one's 1e-12."""
     import planner.simulate as sim
     from planner.simulate import SimulateOptions, simulate
 
@@ -1062,11 +1065,11 @@ def test_the_reported_complementarity_is_the_worst_steps(monkeypatch):
 
 
 def test_step_elements_integrate_h_times_the_speed_of_time():
-    """step_elements turns N implicit-Euler steps into element_trajectory's elements with the integrated lengths
-    dt = h S_k (its docstring: step k integrates h S[k] F; a plan with horizon.physical_time has a speed of time
-    S_k != 1 per step), and dt = h without S (a simulation). The impulses, the auxiliary velocity increments and the
-    contact forces' clock share of a plan's recovered trajectory are quadratures over dt. Built with h alone (mutant
-    S25), a timed plan's impacts were reported with impulses off by the factor S_k."""
+    """step_elements turns N implicit-Euler steps into element_trajectory's elements with the integrated lengths dt = h
+    S_k (its docstring: step k integrates h S[k] F; a plan with horizon.physical_time has a speed of time S_k != 1 per
+    step), and dt = h without S (a simulation). The impulses, the auxiliary velocity increments and the contact forces'
+    clock share of a plan's recovered trajectory are quadratures over dt. Built with h alone (a mutant of session 65's
+    mutation testing), a timed plan's impacts were reported with impulses off by the factor S_k."""
     from planner.discretization import ImplicitEulerStep
     from planner.dynamics import Dynamics
     from planner.simulate import step_elements
@@ -1080,5 +1083,5 @@ def test_step_elements_integrate_h_times_the_speed_of_time():
     Y, W, U = rng.normal(size=(N + 1, sys_.ny)), rng.normal(size=(N, builder.nw)), rng.normal(size=(N, sys_.nu))
     S = rng.uniform(0.5, 2.0, N)
     tau, Y_b, Ys, Ws, Us, dt = step_elements(sys_, builder, Y, W, U, h, S)
-    assert dt == pytest.approx(h * S, rel=1e-15) and tau == pytest.approx(h * np.arange(N + 1))
-    assert step_elements(sys_, builder, Y, W, U, h)[-1] == pytest.approx(np.full(N, h), rel=1e-15)
+    assert dt == pytest.approx(h * S, rel=ONE_PRODUCT) and tau == pytest.approx(h * np.arange(N + 1))
+    assert step_elements(sys_, builder, Y, W, U, h)[-1] == pytest.approx(np.full(N, h), rel=ONE_PRODUCT)

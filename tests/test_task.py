@@ -947,7 +947,6 @@ def test_a_contact_normal_out_of_the_x_z_plane_is_refused(normal):
         Contact("foot", normal=normal)
 
 
-
 HOP_TASK = {"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 1.0, "N": 10},
             "plan": {"target_q": [1.0, 0.0], "u_bound": 30.0}}
 
@@ -964,7 +963,7 @@ def test_a_holes_vertical_half_axis_is_held_to_the_same_range_as_its_horizontal_
 
 def test_a_homotopy_whose_last_penalty_is_1e300_is_kept():
     """The schedule's last penalty is rho0 kappa^(n_nlp - 1) (rho_k for k = 0 .. n_nlp - 1, Homotopy's docstring), and
-    up to 1e300 is allowed: rho0 = 1, kappa = 1e30, n_nlp = 11 ends at exactly 1e300 (kept); n_nlp = 12 at 1e330
+    up to 1e300 is allowed: rho0 = 1, kappa = 1e30, n_nlp = 11 ends at log10 exactly 300 (kept); n_nlp = 12 at 1e330
     (refused)."""
     from planner.task import Homotopy
 
@@ -983,7 +982,6 @@ def test_the_task_all_the_way_between_two_tasks_is_the_end_task_exactly():
     start = parse_task({**HOP_TASK, "plan": {**HOP_TASK["plan"], "target_q": [0.1, 0.0]}})
     end = parse_task({**HOP_TASK, "plan": {**HOP_TASK["plan"], "target_q": [0.001, 0.0]}})
     assert tasks_between(start, end, 1.0) == end and tasks_between(start, end, 1.0).plan.target_q[0] == 0.001
-
 
 
 def test_two_control_changes_at_one_time_are_refused():
