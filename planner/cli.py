@@ -471,19 +471,18 @@ def _closed_to_devnull() -> None:
         try:
             os.fstat(fd)
         except OSError:
-            devnull = os.open(os.devnull, os.O_RDWR)  # (the lowest free number: fd itself, as they are taken in order)
-            if devnull != fd:
-                os.dup2(devnull, fd)
-                os.close(devnull)
+            _to_devnull(fd)
 
 
 def _to_devnull(fd: int) -> None:
-    """Point descriptor `fd` at /dev/null: what is still buffered for a reader that left is dropped at exit."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, fd)
-    finally:
-        os.close(devnull)
+    """Point descriptor `fd` at /dev/null: what is still buffered for a reader that left is dropped at exit. A closed
+    `fd` below which every descriptor is open (the standard ones, taken in order) is the number the open takes."""
+    devnull = os.open(os.devnull, os.O_RDWR)
+    if devnull != fd:
+        try:
+            os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)
 
 
 def _stop(args, code: int, text: str) -> int:
