@@ -2,6 +2,8 @@
 the check of the public functions' arguments."""
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -490,3 +492,13 @@ def test_a_worker_whose_parent_is_pid_1_is_no_orphan(monkeypatch, parent_pid, ex
             killed_with_parent()
     else:
         killed_with_parent()
+
+
+def test_usable_cpus_are_the_affinity_masks():
+    """usable_cpus() counts the CPUs the process may run on (taskset, a container's cpuset), not the machine's: under a
+    one-CPU affinity it is 1, so a race runs one arm there (session 66's mutation testing: os.cpu_count() read 2 on this
+    2-CPU box with every test green)."""
+    code = ("import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+            "from planner.errors import usable_cpus; print(usable_cpus())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "1"

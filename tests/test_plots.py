@@ -296,3 +296,41 @@ def test_the_impact_lines_are_named_once_in_the_torque_legends(tmp_path):
         assert any(np.ptp(ln.get_xdata()) == 0 and np.isclose(ln.get_xdata()[0], T_IMPACT) for ln in ax.get_lines())
     labels = [ax.get_legend_handles_labels()[1] for ax in panels]
     assert "impact" in labels[0] and "impact" not in labels[1]
+
+
+def test_the_cone_lines_are_mu_times_the_normal_force(result_dir):
+    """contact_forces.png's dotted cone lines are +-mu lambda_n of the task's contact, as its legend says (session 66's
+    mutation testing: drawn at +-lambda_n, a cone 1/mu times too wide, with every test green)."""
+    res = view.load_result(result_dir)
+    mu = res.task.contacts[0].mu
+    assert mu not in (0.0, 1.0)
+    fig, _ = plots._contact_forces(res)
+    dotted = [line for line in fig.axes[1].get_lines() if line.get_linestyle() == ":"]
+    assert len(dotted) == 2
+    for line, sign in zip(dotted, (1.0, -1.0)):
+        np.testing.assert_allclose(line.get_ydata(), sign * mu * res.lambda_n[:, 0])
+
+
+def test_velocity_panels_are_per_second(result_dir):
+    """states.png's four velocity panels are in m/s or rad/s (session 66's mutation testing: labelled m and rad with
+    every test green)."""
+    fig, _ = plots._states(view.load_result(result_dir))
+    labels = [ax.get_ylabel() for ax in fig.axes if ax.get_visible()]
+    assert sum(label.endswith("/s]") for label in labels) == 4, labels
+
+
+def test_the_impact_is_marked_where_the_foot_is_at_it(result_dir):
+    """The impact cross sits at the foot's forward kinematics at the impact's sample, also when the foot moves on after
+    it (here the whole robot moved 0.1 m along x from the sample after the impact's pair; session 66's mutation
+    testing: the cross at the next sample, 0.1 m off, with every test green)."""
+    import dataclasses
+
+    res = view.load_result(result_dir)
+    ((t_impact, _),) = res.impacts()
+    first = int(np.searchsorted(res.t, t_impact))
+    assert res.t[first + 1] == res.t[first]  # the impact's pair of samples
+    q = res.q.copy()
+    q[first + 2:, 0] += 0.1  # base_x
+    fig, _ = plots._foot_path(dataclasses.replace(res, q=q))
+    (impact,) = [line for line in fig.axes[0].get_lines() if line.get_label() == "impact"]
+    assert np.allclose([impact.get_xdata()[0], impact.get_ydata()[0]], [1.0, 0.0], atol=POS_TOL)

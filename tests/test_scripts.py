@@ -2076,3 +2076,171 @@ def test_probe_equivalents_mirror_map_mirrors_capler():
         for point in ("foot", "knee", "base"):
             p, m = (np.asarray(dyn.point_position(point)(x), float).ravel() for x in (q, mirror.sign * q))
             np.testing.assert_allclose(m, p * [-1.0, 1.0, 1.0], rtol=0, atol=EQUIVALENT_TOL)
+
+
+class _ClockedSolver:
+    """A solver whose call takes 1 s of CPU and 3 s of wall (a loaded machine) on a fake clock, 10 iterations."""
+
+    def __init__(self, monkeypatch, module, stats):
+        self.clock = {"cpu": 0.0, "wall": 0.0}
+        self.stats_ = stats
+        monkeypatch.setattr(module.time, "process_time", lambda: self.clock["cpu"])
+        monkeypatch.setattr(module.time, "perf_counter", lambda: self.clock["wall"])
+
+    def __call__(self, **kwargs):
+        self.clock["cpu"] += 1.0
+        self.clock["wall"] += 3.0
+        return {"f": 1.0, "x": np.zeros(1)}
+
+    def stats(self):
+        return self.stats_
+
+
+def test_bench_pipeline_times_cpu_as_process_time_and_takes_the_repeats_median(monkeypatch):
+    """bench_pipeline's cpu_ms_per_iter is process time, wall_ms_per_iter wall time, the rest CPU less the callbacks'
+    CPU; over repeats the record is the median (session 66's mutation testing: CPU measured as wall, the callbacks'
+    wall subtracted, the mean taken, each with every test green). Ground truth: a fake clock."""
+    pipeline = _load("bench_pipeline")
+    stats = {"iter_count": 10, "return_status": "Maximum_Iterations_Exceeded"}
+    for name in pipeline.CALLBACKS:
+        stats[f"t_proc_nlp_{name}"], stats[f"t_wall_nlp_{name}"] = 0.01, 0.2
+    record = pipeline.run_once(_ClockedSolver(monkeypatch, pipeline, stats), {})
+    assert record["cpu_ms_per_iter"] == pytest.approx(100.0) and record["wall_ms_per_iter"] == pytest.approx(300.0)
+    assert record["rest_cpu_ms_per_iter"] == pytest.approx(100.0 - len(pipeline.CALLBACKS) * 1.0)
+    runs = [{**record, "cpu_ms_per_iter": ms} for ms in (1.0, 2.0, 30.0)]
+    assert pipeline.median_record(runs)["cpu_ms_per_iter"] == 2.0
+
+
+def test_bench_pipeline_tables_columns_are_the_records():
+    """The table's CPU and wall ms/it columns are the record's cpu_ms_per_iter and wall_ms_per_iter, the columns
+    docs/benchmarks.md copies (session 66's mutation testing: the wall column showed the CPU number)."""
+    pipeline = _load("bench_pipeline")
+    record = {"iterations": 10, "objective": 1.0, "cpu_ms_per_iter": 11.0, "wall_ms_per_iter": 33.0,
+              "rest_cpu_ms_per_iter": 6.0, "eval_cpu_ms_per_iter": {name: 1.0 for name in pipeline.CALLBACKS},
+              "create_s": 0.5}
+    text = pipeline.table([{"case": "hop", "variants": {"baseline": record}, "full_solves": []}])
+    row = next(line for line in text.splitlines() if line.startswith("| hop"))
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert (cells[4], cells[7]) == ("11.00", "33.00"), cells
+
+
+def test_bench_fatrop_times_cpu_as_process_time(monkeypatch):
+    """bench_fatrop's cpu_s and cpu_ms_per_iter are process time, wall_s wall time (session 66's mutation testing: CPU
+    measured as wall, with every test green). Ground truth: a fake clock."""
+    fatrop = _load("bench_fatrop")
+    stats = {"iter_count": 10, "return_status": "Solve_Succeeded", "success": True}
+    record, _ = fatrop.run(_ClockedSolver(monkeypatch, fatrop, stats), {})
+    assert (record["cpu_s"], record["wall_s"]) == (1.0, 3.0) and record["cpu_ms_per_iter"] == pytest.approx(100.0)
+
+
+def test_stress_median_time_is_the_median_and_a_crash_of_an_infeasible_task_is_unexpected(stress):
+    """summarize's median_time_s is the median of the tasks' times; an expected-infeasible task that crashed is
+    unexpected, as test_stress_summary_rates_count_only_feasible_tasks states (session 66's mutation testing: the mean,
+    and a crash let through, each with every test green)."""
+    from planner.batch import Crashed
+
+    base = {"family": "f", "index": 0, "seed": 0, "base": "point_mass", "params": {}, "task": {}, "expect": "feasible?"}
+    records = [stress.finish({**base, "id": str(i)}, {**base, "id": str(i), "outcome": stress.CONVERGED_VALID,
+                                                      "nonfinite": [], "times": {"total_s": s}})
+               for i, s in enumerate((1.0, 2.0, 30.0))]
+    assert stress.summarize(records)["total"]["median_time_s"] == 2.0
+    crashed = stress.finish({**base, "id": "c", "expect": "infeasible"},
+                            Crashed(stage="solve", error="RuntimeError: boom", traceback=""))
+    assert crashed["outcome"] == stress.CRASHED and crashed["unexpected"] is True
+
+
+def test_report_stamps_the_load_averages_in_order(monkeypatch):
+    """results.json's run.load_average is (1, 5, 15 min) as os.getloadavg gives them (session 66's mutation testing:
+    reversed, with every test green)."""
+    report = importlib.import_module("scripts._report")
+    monkeypatch.setattr(report.os, "getloadavg", lambda: (1.0, 2.0, 3.0))
+    assert report.machine_info()["load_average"] == [1.0, 2.0, 3.0]
+
+
+def test_exact_flight_follows_each_control_piece(bench):
+    """A point mass leaving the ground at v = (1, 3) m/s, unpushed for 0.1 s and then pushed along x (a piece of
+    constant acceleration a), sampled exactly every 0.05 s on the two parabolas until it lands at 6 / g: flight error
+    and landing time error ~0 (session 66's mutation testing: every sample read on the first piece's parabola, off by
+    a (t - 0.1)^2 / 2, with every test green)."""
+    from types import SimpleNamespace
+
+    from planner.dynamics import Dynamics
+
+    robot = load_robot("point_mass")
+    dyn, task = Dynamics(robot), bench.point_mass_hop_task(20)
+    g, land, t_push, push = bench.G, 6.0 / bench.G, 0.1, np.array([2.0, 0.0])
+    a = np.asarray(dyn.forward(np.zeros(2), np.zeros(2), push), float).ravel()
+    assert a[0] > 0.5 and a[1] == pytest.approx(-g)
+    ts = np.append(np.arange(0.0, land, 0.05), [land, land])
+    pushed = np.maximum(ts - t_push, 0.0)  # time under the push [s]
+    q = np.column_stack([ts + a[0] * pushed**2 / 2, 3 * ts - g * ts**2 / 2])
+    q[-2:, 1] = 0.0
+    v = np.column_stack([1.0 + a[0] * pushed, 3 - g * ts])
+    v[-1] = 0.0
+    u = np.where((ts > t_push + 1e-12)[:, None], push, 0.0)  # u[i] acts on [t[i-1], t[i])
+    traj = SimpleNamespace(t=ts, q=q, v=v, u=u, impacts=(SimpleNamespace(time=land),))
+    out = bench.exact_flight(robot, dyn, task, traj)
+    assert out["flight_error_m"] < 1e-9 and out["landing_time_error_s"] < 1e-9
+
+
+def test_resimulation_defect_is_the_worst_windows(bench, monkeypatch):
+    """defect_base_m is the largest of the windows' base errors, as its docstring says: a fake simulation that lands
+    each window's base 1, 2 and 3 cm off along x gives 0.03 m (session 66's mutation testing: the smallest, with every
+    test green)."""
+    from types import SimpleNamespace
+
+    from planner import replay
+    from planner.dynamics import Dynamics
+
+    robot, task = load_robot("point_mass"), load_task(Path("robots") / "point_mass_hop.toml")
+    t = np.linspace(0.0, 0.3, 31)
+    traj = SimpleNamespace(t=t, q=np.column_stack([t, np.full_like(t, 0.5)]), v=np.zeros((31, 2)), u=np.zeros((31, 2)))
+    calls = []
+
+    def simulate_off(robot_, window_task, dynamics=None):
+        calls.append(window_task)
+        ts = np.linspace(0.0, 0.2, 201)
+        x0, z0 = np.asarray(window_task.initial.q, float)
+        q = np.column_stack([x0 + ts + 0.01 * len(calls), np.full_like(ts, z0)])
+        return SimpleNamespace(stats=SimpleNamespace(converged=True), trajectory=SimpleNamespace(t=ts, q=q))
+
+    monkeypatch.setattr(bench, "simulate", simulate_off)
+    defect = bench.resimulation_defect(robot, Dynamics(robot), task, traj, replay.build_scene(robot, task), window=0.1)
+    bases = [w["base_m"] for w in defect["per_window"]]
+    assert defect["windows"] == 3 and max(bases) == pytest.approx(0.03, abs=1e-9)
+    assert defect["defect_base_m"] == pytest.approx(max(bases))
+
+
+def test_interpolated_error_reads_the_kink_at_the_exact_impact(bench):
+    """Samples at 0.40 s (in flight, exact) and 0.46 s (landed, z = 0) of the drop from 1 m (impact at 0.4515 s): the
+    chord's largest error is at the exact impact, where the truth has its kink, z_chord(t_impact) - 0, and no
+    subdivision point falls there (session 66's mutation testing: without the impact's own point, 0.028 m against
+    0.0305, with every test green)."""
+    drop = bench.Drop(z0=1.0)
+    t = np.array([0.40, 0.46])
+    q = np.column_stack([np.zeros(2), [drop.q(t[:1])[0, 1], 0.0]])
+    chord_at_impact = q[0, 1] * (t[1] - drop.impact_time) / (t[1] - t[0])
+    assert bench.interpolated_error(t, q, drop, 0.5) == pytest.approx(chord_at_impact, rel=1e-9)
+
+
+def test_point_mass_impact_time_error_is_a_magnitude(bench, monkeypatch):
+    """A simulation landing 0.01 s before the exact impact records impact_time_error_s = 0.01, a magnitude the
+    log-scale plot draws (session 66's mutation testing: -0.01, which a log axis drops silently, with every test
+    green)."""
+    from types import SimpleNamespace
+
+    from planner.dynamics import Dynamics
+
+    drop = bench.Drop(z0=1.0)
+    t = np.linspace(0.0, 0.6, 61)
+    q = drop.q(t)
+    impact = SimpleNamespace(time=drop.impact_time - 0.01, tau_end=0.5, v_post=drop.v_post)
+    traj = SimpleNamespace(t=t, tau=t, q=q, y=np.column_stack([q, np.zeros_like(q), t]), impacts=[impact],
+                           physical_duration=0.6)
+    stats = SimpleNamespace(converged=True, solve_time_s=0.0, n_nlp=1, ipopt_iterations=1, complementarity_residual=0.0)
+    monkeypatch.setattr(bench, "simulate", lambda *args, **kwargs: SimpleNamespace(
+        stats=stats, trajectory=traj, h=0.01, strategy="x", rho_f=0.0))
+    case = bench.PointMassCase("pm", {"mu": 0.0}, drop, 0.6, 0.5, (0.01,))
+    robot = load_robot("point_mass")
+    (record,) = bench.point_mass_records(case, robot, Dynamics(robot), 1, lambda r: None)
+    assert record["errors"]["impact_time_error_s"] == pytest.approx(0.01, rel=1e-9)

@@ -28,7 +28,21 @@ def test_same_values_up_to_permutation(capler_staged):
     f(x), its rows are the original g(x) rows permuted (every original row exactly once), the added
     gap rows (y_{k+1} - z_k, s_c copies) are 0, its bounds are the original bounds of the variables
     they copy, and restrict(lift(x)) = x."""
-    pb, st = capler_staged
+    _assert_same_values(*capler_staged)
+
+
+def test_a_timed_tasks_staged_nlp_is_its_problems_nlp():
+    """A task with plan.physical_time (its rows "physical_time", its step sizes s_k) is staged too, with the same
+    values as the Problem's NLP (session 66's mutation testing: either of two slips refused every such task, with
+    every test green)."""
+    task = load_task(f"{ROBOTS}/point_mass_hop.toml")
+    pb = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"),
+                       dataclasses.replace(task, horizon=Horizon(tau_f=1.0, N=4, physical_time=0.8)))
+    assert "physical_time" in pb.g_blocks and "s" in pb.var_blocks
+    _assert_same_values(pb, staged_nlp(pb))
+
+
+def _assert_same_values(pb, st):
     rng = np.random.default_rng(7)
     x = rng.uniform(-2.0, 2.0, pb.nx)
     p = pb.params(rng.uniform(1, 1e3), rng.uniform(0, 1), terminal_weight=rng.uniform(0, 100), rho_l1=rng.uniform(0, 10))
