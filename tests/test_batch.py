@@ -78,7 +78,9 @@ def test_local_workers_run_with_the_callers_warning_filters(capfd, monkeypatch):
     is its Crashed record, under "ignore" it is not printed (spawned workers started with Python's defaults: the
     warning was printed both times and every job returned); a filter whose category a worker cannot import (one a
     script defines under its `if __name__ == "__main__":`) is left out there (it broke every worker's start: each job
-    "the worker process died")."""
+    "the worker process died"). The latest filter takes precedence, as in this process: "ignore" for the job's message
+    after "error" for everything gives the workers=0 results (session 66's mutation testing: the workers applied the
+    filters in reverse, so every job of a sweep was a Crashed record, with every test green)."""
     import sys
     import warnings
 
@@ -97,6 +99,31 @@ def test_local_workers_run_with_the_callers_warning_filters(capfd, monkeypatch):
                        for r, x in zip(results, [1, 2]))
         else:
             assert results == [1, 2] and "is odd" not in capfd.readouterr().err
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", message=r"item \d+ is odd")
+        assert run_batch(warns, [1, 2], workers=2) == run_batch(warns, [1, 2], workers=0) == [1, 2]
+
+
+def returns_a_lock(x):
+    """A job whose result does not pickle (a lock), so it cannot travel back from a worker."""
+    import threading
+
+    return threading.Lock()
+
+
+def test_a_result_that_does_not_pickle_is_a_crash_of_the_transfer():
+    """A job that returns in its worker but whose result cannot be sent back is a Crashed record of stage "transfer"
+    naming pickle's error, so a sweep's summary tells it from a worker that died (session 66's mutation testing: it was
+    recorded under stage "worker", with every test green)."""
+    import pickle
+
+    with pytest.raises(TypeError) as raised:  # the ground truth: pickle's own refusal
+        pickle.dumps(returns_a_lock(0))
+    (crashed,) = run_batch(returns_a_lock, [0], workers=1)
+    assert isinstance(crashed, Crashed) and crashed.stage == "transfer"
+    assert str(raised.value) in crashed.error, crashed.error
 
 
 def test_system_exit_is_a_crash_not_the_end_of_the_sweep():

@@ -154,7 +154,11 @@ def test_a_list_for_a_tuple_field_is_stored_as_the_tuple():
                                          ({"an_schedule": (0.0,)}, "an_schedule"), ({"at_schedule": ()}, "at_schedule"),
                                          ({"l1_schedule": (1.0, -0.5)}, "l1_schedule"), ({"soft_terminal_nlps": -1}, "soft_terminal_nlps"),
                                          ({"soft_terminal_weight": 0.0}, "soft_terminal_weight"), ({"hybrid_ratio": -2.0}, "hybrid_ratio"),
-                                         ({"hybrid_rho": 0.0}, "hybrid_rho"), ({"intermediate_tol": 0.0}, "intermediate_tol")])
+                                         ({"hybrid_rho": 0.0}, "hybrid_rho"),
+                                         ({"intermediate_tol": 0.0}, "intermediate_tol"),
+                                         # no polish start is no polish at all (session 66's mutation testing: 0 was
+                                         # accepted and the polish silently skipped, with every test green)
+                                         ({"polish_starts": 0}, "polish_starts = 0 is not allowed; it must be >= 1")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=re.escape(key)):
@@ -1180,3 +1184,166 @@ def test_bound_frac_takes_ipopts_whole_range():
         except RuntimeError:  # "Invalid options were detected by Ipopt"
             ok = False
         assert ok is accepted
+
+
+def test_a_one_nlp_homotopy_solves_with_its_holes_at_full_size():
+    """holes = relaxed_first relaxes the holes in NLP 1 only when a later NLP enforces them: a homotopy of one NLP (a
+    rho_schedule of one penalty) solves that NLP with the task's holes (hole scale 1, the parameter IPOPT gets), else
+    the homotopy's point is planned as if the holes were not there; with two NLPs the first is relaxed (session 66's
+    mutation testing: the only NLP was solved with the holes relaxed, with every test green)."""
+    prob = build_problem(load_robot(POINT_MASS_XML), hop_task(N=3))
+    one = H.SolveOptions(rho_schedule=(1e4,), holes=H.HoleSchedule.RELAXED_FIRST)
+    assert len(H.homotopy_rhos(prob, one)) == 1
+    only = H.homotopy_nlp(prob, one, 0)
+    assert only.hole_scale == 1.0 and only.p[1] == 1.0  # (Problem.params' second entry is the hole scale)
+    two = dataclasses.replace(one, rho_schedule=(1e3, 1e4))
+    assert [H.homotopy_nlp(prob, two, i).p[1] for i in range(2)] == [0.0, 1.0]
+
+
+def test_the_homotopy_never_stops_at_a_soft_terminal_nlp():
+    """early_stop_comp ends the homotopy only at an NLP whose terminal rows are constraints (SolveOptions' docstring):
+    with two soft-terminal NLPs, the holes enforced in every NLP and a threshold every NLP meets, the hop runs on to
+    NLP 3, the first hard-terminal one, which meets the target (the soft ones end 0.1 and 0.3 m off it) (session 66's
+    mutation testing: it stopped at NLP 1, whose terminal is only a penalty, with every test green;
+    test_the_homotopy_never_stops_at_its_holes_relaxed_nlp guards the condition's holes half)."""
+    prob = build_problem(load_robot(POINT_MASS_XML), hop_task(N=20))
+    options = H.SolveOptions(early_stop_comp=1e3, soft_terminal_nlps=2, holes=H.HoleSchedule.ENFORCED,
+                             polish=H.Polish.NONE)
+    homotopy = [r for r in H.solve(prob, options).nlps if r.label.startswith("homotopy")]
+    soft = [H.homotopy_nlp(prob, options, i).soft for i in range(len(homotopy))]
+    assert soft == [True, True, False], [(r.label, r.terminal_error) for r in homotopy]
+    assert homotopy[-1].success and homotopy[-1].terminal_error <= TERMINAL_TOL
+
+
+def test_a_polish_not_accepted_leaves_the_verdict_to_the_homotopys_point(hop):
+    """When no polish is accepted the plan is the homotopy's last point, and the verdict judges it by that NLP's
+    record: a failed polish's record after the homotopy's gives the verdict and message of the same point with no
+    polish at all (session 66's mutation testing: the failed polish's record was judged, "IPOPT did not converge in
+    polish", failing a good plan, with every test green). The point is the hop's plan (complementary, at its target)."""
+    prob, res, _ = hop
+    homotopy = [r for r in res.nlps if r.label.startswith("homotopy")]
+    failed = dataclasses.replace(next(r for r in res.nlps if r.label == "polish"), success=False,
+                                 status="Maximum_Iterations_Exceeded")
+    x = res.extra["_x"]
+    alone = H._result(prob, H.SolveOptions(), x, homotopy, None, 0.0, {})
+    after = H._result(prob, H.SolveOptions(), x, homotopy + [failed], None, 0.0, {})
+    assert alone.stats.converged, alone.stats.message
+    assert (after.stats.converged, after.stats.message) == (alone.stats.converged, alone.stats.message)
+
+
+# [m] an error put into one dynamics state of a polish point: far beyond SolveOptions.constraint_tol (1e-6, in x's
+# units), while IPOPT's success is judged on its scaled NLP with its own tolerances
+DYNAMICS_DEFECT = 1e-3
+
+
+def test_a_polish_point_that_breaks_a_constraint_is_not_accepted(hop):
+    """A polishing NLP's point stands in for the homotopy's only if it keeps the constraints within constraint_tol,
+    whatever IPOPT's success says: with a record IPOPT calls solved, the hop's plan is accepted and the same point
+    DYNAMICS_DEFECT off one dynamics state (its violation recomputed: beyond constraint_tol) is not, so the next start
+    or the homotopy's point is used (session 66's mutation testing: it was accepted on IPOPT's success and terminal
+    error alone, and the verdict then failed the plan, with every test green)."""
+    prob, res, _ = hop
+    options = H.SolveOptions()
+    solved = next(r for r in res.nlps if r.label == "polish")
+    assert solved.success and solved.terminal_error <= options.terminal_tol
+    x = res.extra["_x"]
+    off = x.copy()
+    off[prob.var_blocks["y"][3, 0]] += DYNAMICS_DEFECT
+    assert H.constraint_violation(prob, off)["dynamics"] > options.constraint_tol
+    assert H._accepted(prob, options, x, solved) and not H._accepted(prob, options, off, solved)
+
+
+def test_polish_after_failure_false_skips_the_polish_once_any_homotopy_nlp_stopped_early():
+    """polish_after_failure = False polishes only a homotopy whose every NLP IPOPT solved: on the N = 10 hop with
+    max_iter 95 NLP 4 stops at the cap while the others succeed, and no polishing NLP runs (session 66's mutation
+    testing: one solved NLP was enough to polish, with every test green; the option's one other test has every NLP
+    fail). The cap sits midway between NLPs 1-3's 54-59 iterations and NLP 4's 130 (measured), so rounding on another
+    machine does not move an NLP across it."""
+    prob = build_problem(load_robot(POINT_MASS_XML), hop_task(N=10))
+    res = H.solve(prob, H.SolveOptions(max_iter=95, polish_after_failure=False))
+    solved = [r.success for r in res.nlps if r.label.startswith("homotopy")]
+    assert any(solved) and not all(solved), solved  # (else this is not the mixed case)
+    assert all(r.label.startswith("homotopy") for r in res.nlps) and not res.polished, [r.label for r in res.nlps]
+
+
+# the KKT stationarity at NLP 1's solution: IPOPT's tol is 1e-8 (measured 7e-11 on the N = 6 hop); bound multipliers
+# scaled the wrong way leave ~1
+STATIONARITY_TOL = 1e-6
+
+
+def test_a_scaled_warm_start_hands_ipopt_the_multipliers_of_the_scaled_nlp(monkeypatch):
+    """WarmStart.PRIMAL_DUAL with VariableScaling.FIRST_NLP: NLP 2 starts from NLP 1's KKT point in the scaled
+    variables (xs = x / D, so the bound multipliers are D lam_x): with the x0, lam_x0 and lam_g0 handed to IPOPT the
+    scaled NLP's Lagrangian is stationary for NLP 1's parameters, recomputed by CasADi (session 66's mutation testing:
+    lam_x was divided by D, IPOPT converged along another path, with every test green). The solver is replaced by
+    one that records its arguments: what NLP 2 starts from is all this reads."""
+    prob = build_problem(load_robot(POINT_MASS_XML), hop_task(N=6))
+    options = H.SolveOptions(warm_start=H.WarmStart.PRIMAL_DUAL, variable_scaling=H.VariableScaling.FIRST_NLP)
+    solvers = H._Solvers(prob, options)
+    first, second = H.homotopy_nlp(prob, options, 0), H.homotopy_nlp(prob, options, 1)
+    x, lam_x, lam_g, rec = H._run(prob, solvers, prob.x0, None, None, first.p, prob.lbx, prob.ubx, first.label,
+                                  first.lbg, first.ubg, loose=first.loose)
+    assert rec.success, rec.status
+    solvers.set_scale(H.variable_scale(prob, x))
+    assert solvers.sees_scale(warm=True) and solvers.scale.max() > 1.0
+    handed = {}
+
+    class Handed(Exception):
+        pass
+
+    def recording(**args):
+        handed.update(args)
+        raise Handed
+
+    monkeypatch.setattr(solvers, "get", lambda *args, **kwargs: recording)
+    with pytest.raises(Handed):
+        H._run(prob, solvers, x, lam_x, lam_g, second.p, prob.lbx, prob.ubx, second.label, second.lbg, second.ubg,
+               loose=second.loose)
+    nlp = solvers.scaled_nlp
+    lam = ca.SX.sym("lam", prob.ng)
+    grad = ca.Function("grad", [nlp["x"], nlp["p"], lam], [ca.gradient(nlp["f"] + ca.dot(lam, nlp["g"]), nlp["x"])])
+    stationarity = np.asarray(grad(handed["x0"], first.p, handed["lam_g0"])).ravel() + handed["lam_x0"]
+    assert np.abs(stationarity).max() <= STATIONARITY_TOL
+
+
+def test_a_failed_hybrid_stage_leaves_the_polish_to_start_from_the_homotopys_point(hop, monkeypatch):
+    """polish = hybrid: when the hybrid stage fails, the active-set polish starts from the homotopy's point (its
+    active-set start, recomputed by active_set_bounds), not from where the failed stage stopped (session 66's mutation
+    testing: the failed stage's point was taken, 9 -> 1742 polish iterations on the hop, with every test green). The
+    NLPs are stubbed, every one failing 0.3 off its start: the hop's hybrid stage succeeds, and the polish's start is
+    all this reads."""
+    prob, res, _ = hop
+    x = res.extra["_x"]
+    starts = {}
+
+    def failing(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, *args, **kwargs):
+        starts[label] = np.array(x0, float)
+        rec = dataclasses.replace(res.nlps[-1], label=label, success=False, status="Maximum_Iterations_Exceeded")
+        return np.asarray(x0, float) + 0.3, lam_x, lam_g, rec
+
+    monkeypatch.setattr(H, "_run", failing)
+    records = []
+    assert H._polish(prob, None, H.SolveOptions(polish=H.Polish.HYBRID), x, None, None, records, None, "polish") is None
+    assert [r.label for r in records] == ["hybrid", "polish"]
+    homotopys = H.ungate(prob, x) if "gates" in prob.notes else x  # (the polish reads the ungated point)
+    np.testing.assert_array_equal(starts["polish"], H.active_set_bounds(prob, homotopys)[2])
+
+
+@pytest.mark.parametrize("held, new", [
+    (("point", 8, 10, 1.0), True),  # begins where the start's ends: the spans are half-open, so they share no step
+    (("point", 2, 5, 1.0), True),  # ends where the start's begins
+    (("point", 12, 14, 1.0), True),  # apart
+    (("point", 7, 10, 1.0), False),  # shares the start's last step: the same impact, ending later
+    (("other", 5, 8, 1.0), True),  # the same steps at another contact point
+    (("point", 8, 10, 0.99 * TAP_SHARE * 2.0), False),  # a tap: below TAP_SHARE of the start's 2 N s
+    (("point", 8, 10, TAP_SHARE * 2.0), True),
+])
+def test_an_impact_is_new_unless_it_shares_a_step_with_one_of_the_starts_or_is_a_tap(hop, monkeypatch, held, new):
+    """_new_impacts: an impact of the held schedule's point (steps first .. last + 1, half-open) is new when it shares
+    no step with an impact of the start at the same contact point and its impulse is at least TAP_SHARE of the start's
+    largest; the start has one impact at steps 5-7 of 2 N s, the held point that one and `held` (session 66's mutation
+    testing: an impact beginning at the step after the start's one took it for the same, with every test green)."""
+    impacts = {"start": [("point", 5, 8, 2.0)], "held": [("point", 5, 8, 2.0), held]}
+    monkeypatch.setattr(H, "_impacts", lambda problem, x, options: impacts[x])
+    said = H._new_impacts(hop[0], H.SolveOptions(), "start", "held")
+    assert said.startswith("set aside: it adds 1 impact(s)") if new else said == "", said

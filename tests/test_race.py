@@ -57,6 +57,30 @@ def test_race_returns_a_converged_arms_own_plan_bit_for_bit(hop_problem, one_by_
     assert f"race of default {table['default']['outcome']}" in result.stats.message
 
 
+def test_a_race_never_takes_an_unconverged_arm_over_a_converged_one(hop_problem, one_by_one):
+    """An arm that finishes first without converging (capped at one IPOPT iteration per NLP) does not win: the race
+    waits for the arm that converges and returns its plan, bit for bit that arm's plain solve, the capped arm listed as
+    not converged (session 66's mutation testing: the first arm to finish won, converged or not, and the converging
+    arm was stopped, with every test green)."""
+    arms = (("capped", H.SolveOptions(max_iter=1)), ("default", H.SolveOptions()))
+    result = R.race(hop_problem, arms, processes=2)
+    assert result.stats.converged, result.stats.message
+    assert np.array_equal(result.extra["_x"], one_by_one["default"].extra["_x"])
+    assert [(row["arm"], row["outcome"]) for row in result.extra["race"]] == [("capped", "not converged"),
+                                                                              ("default", "won")]
+
+
+def test_the_alternate_arm_keeps_the_users_mumps_permuting_scaling():
+    """default_arms' alternate arm turns MUMPS's permuting scaling off (SECOND_ARM_IPOPT) unless the user's options set
+    it: a user's own mumps_permuting_scaling is kept in both arms, as the module says (session 66's mutation testing:
+    the arm's 0 replaced the user's 1, with every test green)."""
+    def scaling(options):
+        return [dict(arm.ipopt).get("mumps_permuting_scaling") for _, arm in R.default_arms(options)]
+
+    assert scaling(H.SolveOptions(ipopt={"mumps_permuting_scaling": 1})) == [1, 1]
+    assert scaling(H.SolveOptions()) == [None, 0]
+
+
 @pytest.mark.parametrize("method", ["fork", "forkserver"])
 def test_verbose_arms_label_every_line_of_their_ipopt_logs(hop_problem, one_by_one, method, monkeypatch):
     """With print_level > 0 the arms' logs reach the race's own sys.stdout (here a redirect_stdout StringIO: forked
@@ -188,10 +212,20 @@ def test_a_failing_arm_loses_and_the_first_arms_error_is_raised_when_none_conver
         R.race(hop_problem, arms, processes=2)
 
 
+class TwoPartInputError(InputError):
+    """A user error whose constructor needs two arguments: pickle cannot rebuild it from its message."""
+
+    def __init__(self, what, where):
+        super().__init__(f"{what} at {where}")
+
+
 @pytest.mark.parametrize("make, expected, fragment", [
     (lambda: type("Local", (Exception,), {})("no pickle"), SolveError, "Local: no pickle"),  # a class pickle cannot find
     # (required init args: it arrived as an InputError by its message; since session 61 it pickles, as itself)
     (lambda: UnknownNameError("joint", "elbow", ["hip", "knee"]), InputError, "valid joints: hip, knee"),
+    # one that does not pickle (session 66's mutation testing: it arrived as a SolveError, the CLI's exit 1, with every
+    # test green: UnknownNameError, above, no longer reached the rule)
+    (lambda: TwoPartInputError("bad joint", "elbow"), InputError, "bad joint at elbow"),
 ])
 def test_arm_errors_that_do_not_pickle_arrive_as_the_nearest_planner_error(hop_problem, monkeypatch, make, expected, fragment):
     """An arm's exception that cannot cross the process boundary arrives with its message: a user error as an
@@ -368,11 +402,16 @@ def test_a_second_ctrl_c_while_the_arms_are_reaped_leaves_none_running(hop_probl
 def test_a_race_that_nobody_wins_returns_the_first_arms_result(hop_problem):
     """When no arm converges (each stops at its iteration cap) the race returns the first arm's result, as its
     docstring says and the plain solve with the first arm's options would (session 65's mutation testing: the last
-    arm's was returned and no test could tell, the one test of a lost race having both arms raise the same error)."""
+    arm's was returned and no test could tell, the one test of a lost race having both arms raise the same error). No
+    arm is listed as having won, in the table (summary.json) or the message (session 66's mutation testing: the first
+    arm "won" a race nobody converged in, with every test green)."""
     arms = (("first", H.SolveOptions(max_iter=2, polish=H.Polish.NONE)),
             ("second", H.SolveOptions(max_iter=3, polish=H.Polish.NONE)))
     result = R.race(hop_problem, arms, processes=2)
     assert not result.stats.converged and result.options["solve"]["max_iter"] == 2
+    assert [(row["arm"], row["outcome"]) for row in result.extra["race"]] == [("first", "not converged"),
+                                                                              ("second", "not converged")]
+    assert "won" not in result.stats.message, result.stats.message
 
 
 # a command as PID 1 of a new PID namespace, its user mapped to root in a new user namespace (so also without root);

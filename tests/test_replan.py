@@ -106,14 +106,25 @@ def _steps(res) -> list[str]:
     return [h for i, h in enumerate(heads) if i == 0 or h != heads[i - 1] or h.startswith("walk")]
 
 
-def test_a_stalled_walk_retimes_with_the_penalty_replan(hop_plan, basin):
+def test_a_stalled_walk_retimes_with_the_penalty_replan(hop_plan, basin, monkeypatch):
     """0.5 -> 0.8 m with that held schedule: the walk halves its step after each refusal and doubles it after each
     acceptance (0.5, 0.25 refused, 0.125 accepted, 0.375 refused, 0.25 accepted, 0.5 refused); after MAX_REFUSALS + 1
     refusals the penalty replan takes the refused task (0.5) from the walk's last plan, and the walk goes on from
     its plan, the rest of the way at once, until a second stall is re-timed at the task itself. The plan
-    converges at 0.8 m."""
+    converges at 0.8 m. Each re-timing's NLPs are capped at RETIME_MAX_ITER iterations, or the options' max_iter if
+    lower (session 66's mutation testing: they ran to max_iter 3000, a failing re-timing's ~300 s on Capler, with every
+    test green)."""
     prob, x0 = hop_plan
+    retimings, real = [], R.solve
+
+    def solve(problem, options, progress=None):
+        if not options.keep_schedule:  # (the walk's held schedules keep it; a re-timing is the penalty replan)
+            retimings.append(options.max_iter)
+        return real(problem, options, progress)
+
+    monkeypatch.setattr(R, "solve", solve)
     res = replan(_moved(prob, x0, 0.8), H.replan_options(), prob.task)
+    assert retimings == [min(H.replan_options().max_iter, R.RETIME_MAX_ITER)] * 2
     assert _steps(res) == ["schedule", "walk 0.5", "walk 0.25", "walk 0.125", "walk 0.375", "walk 0.25", "walk 0.5", "retime 0.5",
                            "walk 1", "walk 0.75", "walk 0.625", "walk 0.875", "walk 0.75", "walk 1", "retime 1"]
     assert res.extra["walk"] == [0.125, 0.25, 0.5, 0.625, 0.75, 1.0]
