@@ -7,14 +7,16 @@ import json
 import re
 import tomllib
 
+import casadi as ca
 import numpy as np
 import pytest
 
 from planner.errors import InputError, TaskError
-from planner.gait import (STOPPED, GaitSpec, PhaseReference, PinnedBiped, WalkGains, desired_curve, final_low,
-                          find_layout, replay_gait, run_gait, solve_gait, solve_gait_ipopt)
+from planner.gait import (STOPPED, GaitOCP, GaitSpec, PhaseReference, PinnedBiped, WalkGains, _impact_contact,
+                          _output_control, desired_curve, final_low, find_layout, periodic_walk, replay_gait, run_gait,
+                          solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
-from planner.task import Simulate, load_task, parse_task
+from planner.task import GaitPronto, Simulate, load_task, parse_task
 
 M_LEG, M_HIP, M_TORSO, R_LEG, L_TORSO, G = 5.0, 15.0, 10.0, 1.0, 0.5, 9.81
 CLOSED_FORM_TOL = 1e-9  # the issue's bound; derivation and closed form differ by round-off only (~1e-14)
@@ -26,6 +28,10 @@ WALK_ANGLE_TOL = np.deg2rad(2.0)  # [rad] hinge and torso error against the plan
 WALK_TORQUE_MARGIN = 1.5  # the replay's peak torque over the plan's: feedback corrections, no landing spikes
 SPLINE_TOL = 1e-12  # the phase reference interpolates the plan's samples and slopes exactly (round-off)
 DIFF_TOL = 1e-9  # [rad/s] the five-point difference is exact for a cubic; round-off ~1e-16 rad / 10 ms
+NEWTON_RATE = 100.0  # [1 / error unit] Newton on x_T: e_next <= C e^2; C <= 12 measured on both coarse gaits
+ROUND_OFF_ERROR = 1e-12  # ||x(T) - x_f|| at round-off level, where the quadratic rate no longer shows
+EOM_TOL_N = 1e-6  # [N, N m] the floating equation of motion at ~300 N ground forces: round-off (1e-11 measured)
+COMPUTED_TORQUE_TOL = 1e-9  # [rad/s^2] y'' = w of the computed torque: round-off (~1e-15 measured)
 
 
 def appendix_b(th, thd):
@@ -699,3 +705,145 @@ def test_a_biped_whose_root_joints_are_in_another_order_is_refused(tmp_path, ord
     path.write_text(text)
     with pytest.raises(InputError, match=rf"root joints in the order slide x .* this file's are {', '.join(order)}: "):
         find_layout(load_robot(path))
+
+
+def test_the_desired_input_drives_the_papers_dynamics_along_the_desired_curve(biped):
+    """Gait 1's u_d (desired_input = "inverse_dynamics") is the input that moves the biped along the desired curve:
+    with the spline's acceleration (a five-point difference of its rates, exact for the cubic's quadratic rates),
+    Appendix B's M(theta) theta'' + C + G equals (B.4)'s B u plus the torso torque u_emb on theta3 at every inner
+    sample; else gait 1 is another gait than the paper's OCP (session 66's mutation testing: the inverse dynamics
+    with -h_r, gait 1 converged to cost 119 instead of 14.0, with every test green)."""
+    spec = _spec("biped_gait1.toml", N=153)
+    t, xd, ude = desired_curve(biped, spec.x0, biped.delta_inverse(spec.x0), spec.T, spec.N)
+    rates = xd[:, 3:]
+    acc = (-rates[4:] + 8 * rates[3:-1] - 8 * rates[1:-3] + rates[:-4]) / (12 * (t[1] - t[0]))
+    for x, u, a in zip(xd[2:-2], ude[2:-2], acc):
+        M, h = appendix_b(x[:3], x[3:])
+        U = np.array([u[0], u[1], -u[0] - u[1] + u[2]])  # (B.4) with u_paper = -u; u_emb acts on theta3
+        assert np.max(np.abs(M @ a + h - U)) < CLOSED_FORM_TOL
+
+
+def test_the_embedded_stage_cost_is_paper_eq_8(biped):
+    """The embedded OCP's cost is paper eq. (8): 1/2 dt (||x - xd||_Q^2 + ||u - ud||_R^2 + rho_emb^2 u_emb^2) per
+    step and 1/2 rho_f^2 ||x_N - x_T||^2, written out with numpy at a random point; the continuation on rho_emb is
+    tuned to the square (session 66's mutation testing: rho_emb not squared, the embedding took 14 outer loops
+    instead of 8, with every test green)."""
+    spec = _spec("biped_gait1.toml", N=20)
+    ocp = GaitOCP(biped, spec)
+    rng = np.random.default_rng(5)
+    x, xd, x_target = rng.normal(size=(3, 6))
+    ue, ud, rho_emb, rho_f = rng.normal(size=3), rng.normal(size=2), 3.0, 7.0
+    theta = np.concatenate([[rho_emb, rho_f], x_target])
+    stage = 0.5 * ocp.dt * (spec.Q @ (x - xd) ** 2 + spec.R @ (ue[:2] - ud) ** 2 + rho_emb**2 * ue[2] ** 2)
+    assert abs(float(ocp.embedded.stage(x, ue, np.concatenate([xd, ud]), theta)) - stage) < CLOSED_FORM_TOL
+    assert abs(float(ocp.embedded.terminal(x, theta)) - 0.5 * rho_f**2 * np.sum((x - x_target) ** 2)) < CLOSED_FORM_TOL
+
+
+def test_the_gait_pronto_settings_reach_both_pronto_solvers(biped):
+    """gait.pronto's iteration limit and tolerance are those of both PRONTO solvers, the embedded one (step 2) and the
+    underactuated one (step 3); a user's looser tolerance must not be silently ignored in step 3 (session 66's
+    mutation testing: step 3's solver kept the default tolerance 1e-12, with every test green)."""
+    spec = dataclasses.replace(_spec("biped_gait1.toml", N=20), pronto=GaitPronto(max_iterations=7, tolerance=1e-6))
+    ocp = GaitOCP(biped, spec)
+    for solver in (ocp.pronto_e, ocp.pronto_u):
+        assert (solver.options.max_iterations, solver.options.tolerance) == (7, 1e-6)
+
+
+def test_the_newton_loop_on_the_target_converges_quadratically(gaits):
+    """Once ||x(T) - x_f|| is within newton_radius, each Newton update of the target x_T squares the final-state
+    error (docs/biped.md: 1e-4, 4e-8, 5e-15 on gait 1), down to round-off: a loop that stalls costs an outer loop
+    and a PRONTO solve each (session 66's mutation testing: without PRONTO's final Newton step the loop stalled
+    between 3e-8 and 9e-8 for 26 of 40 outer loops, with every test green)."""
+    for sol in gaits.values():
+        pairs = [(a.final_error, b.final_error) for a, b in zip(sol.loops, sol.loops[1:]) if a.action == "newton x_T"]
+        assert len(pairs) >= 3
+        assert all(b <= NEWTON_RATE * a**2 or b < ROUND_OFF_ERROR for a, b in pairs)
+
+
+def test_the_embedding_ends_with_a_small_torso_torque_over_the_whole_step(gaits):
+    """The embedding stage drops u_emb only when max |u_emb| over the whole step is below
+    gait.continuation.emb_tolerance, and its progress record (emb_max) reports that maximum (session 66's mutation
+    testing: only the last sample was measured, the record said 4.7e-4 N m while u_emb reached 3.2e-2 N m, with every
+    test green)."""
+    for name, sol in gaits.items():
+        last = [loop for loop in sol.loops if loop.stage == "embedding"][-1]
+        assert last.action == "drop u_emb"
+        assert last.emb_max == np.max(np.abs(sol.u_emb[:, 2])) < _spec(name).continuation.emb_tolerance
+
+
+def test_the_stance_force_satisfies_the_floating_robots_equation_of_motion(gaits, biped):
+    """The stance foot's ground force (summary.json's min_normal_force_N, friction_needed, and the contact
+    violations read from them) closes the floating robot's equation of motion J' lambda = M v' + h - B u at both ends
+    of every interval of both gaits, v' the time derivative of the floating velocity along the pinned motion
+    (session 66's mutation testing: the stance force with +B u, gait 1's minimum normal force 229 N for 241 N, with
+    every test green)."""
+    th, thd, thdd = ca.SX.sym("theta", 3), ca.SX.sym("dtheta", 3), ca.SX.sym("ddtheta", 3)
+    v_dot = ca.Function("v_dot", [th, thd, thdd],
+                        [ca.jtimes(biped.v_of(th, thd), ca.vertcat(th, thd), ca.vertcat(thd, thdd))])
+    dyn, lay = biped.dyn, biped.layout
+    B = dyn.actuation[:, [lay.stance_motor, lay.swing_motor]]
+    for sol in gaits.values():
+        for x, u in zip(sol.x, np.vstack([sol.u, sol.u[-1:]])):  # the last state with the input held into it
+            q, v = biped.floating(x[:3], x[3:])
+            acc = np.array(biped.xdot(x, np.concatenate([u, [0.0]]))).ravel()[3:]
+            M, h = np.array(dyn.mass(q)), np.array(dyn.bias(q, v)).ravel()
+            J = np.array(dyn.point_jacobian(lay.stance_foot)(q))[[0, 2]]
+            lam = np.array(biped.stance_force(x, u)).ravel()
+            residual = J.T @ lam - (M @ np.array(v_dot(x[:3], x[3:], acc)).ravel() + h - B @ u)
+            assert np.max(np.abs(residual)) < EOM_TOL_N
+
+
+def test_the_phase_control_imposes_the_output_acceleration(biped):
+    """WalkControl.PHASE's computed torque gives y'' = w for y = (theta2, theta3) - y_d(theta1), whatever the state
+    and the reference's slope dy and curvature d2y: with Appendix B's dynamics (B.1)-(B.4) at random values,
+    theta''[1:] - dy theta1'' - d2y theta1'^2 = w; else the MuJoCo replay tracks its plan worse (session 66's
+    mutation testing: the curvature term's sign flipped, the hinge error 3.7 deg for 0.4 deg, with every test
+    green)."""
+    control = _output_control(biped)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        th, thd = rng.uniform(-0.8, 0.8, 3), rng.uniform(-2, 2, 3)
+        dy, d2y, w = rng.normal(size=(3, 2))
+        u = np.array(control(th, thd, dy, d2y, w)).ravel()
+        M, h = appendix_b(th, thd)
+        acc = np.linalg.solve(M, np.array([u[0], u[1], -u[0] - u[1]]) - h)  # (B.4) with u_paper = -u
+        assert np.max(np.abs(acc[1:] - dy * acc[0] - d2y * thd[0] ** 2 - w)) < COMPUTED_TORQUE_TOL
+
+
+def test_the_walks_impacts_name_the_foot_that_lands_in_front(gaits, biped):
+    """Each impact of the walk (summary.json's impacts, Walk.impacts) names the foot that lands: at the step's
+    pre-impact sample, the one ahead of the other (session 66's mutation testing: every impact named the foot that
+    lifts off, with every test green)."""
+    sol = gaits["biped_gait1.toml"]
+    N, feet = len(sol.u), (biped.layout.stance_foot, biped.layout.swing_foot)
+    walk = periodic_walk(biped, sol, 3)
+    for j, (time, foot, _, _) in enumerate(walk.impacts):
+        before = (j + 1) * (N + 1) - 1  # the step's last, pre-impact sample
+        assert walk.t[before] == time
+        x = {name: float(np.array(biped.dyn.point_position(name)(walk.q[before])).ravel()[0]) for name in feet}
+        assert x[foot] == max(x.values()) > min(x.values())
+
+
+def test_the_walks_impacts_give_the_normal_then_the_tangential_impulse(gaits, biped):
+    """Walk.impacts (summary.json, trajectory.npz) hold (time, foot, normal, tangential impulse) as documented: the
+    impulse of the impact checked against MuJoCo (_impact_contact: tangential, normal), the normal one pushing
+    (session 66's mutation testing: the two swapped, a normal impulse of -15.4 N s, with every test green)."""
+    sol = gaits["biped_gait1.toml"]
+    tangential, normal = _impact_contact(biped, sol.x[-1])["impact_impulse_N_s"]
+    walk = periodic_walk(biped, sol, 2)
+    assert [impact[2:] for impact in walk.impacts] == [(normal, tangential)] * 2 and normal > 0
+
+
+def test_the_walks_last_sample_is_the_next_steps_first(gaits, biped):
+    """A walk's last sample, the post-impact state of its last landing, is the state a longer walk starts its next
+    step from (legs relabelled as that step's): trajectory.npz's final velocity is the robot's (session 66's mutation
+    testing: the last sample's legs swapped the wrong way, its hinge rates exchanged by 0.87 rad/s, with every test
+    green)."""
+    sol = gaits["biped_gait1.toml"]
+    N = len(sol.u)
+    for steps in (1, 2):
+        walk, longer = periodic_walk(biped, sol, steps), periodic_walk(biped, sol, steps + 1)
+        first = steps * (N + 1)  # the first sample of the longer walk's next step
+        assert walk.t[-1] == longer.t[first]
+        assert np.max(np.abs(walk.q[-1] - longer.q[first])) < 10 * FINAL_STATE_TOL
+        assert np.max(np.abs(walk.v[-1] - longer.v[first])) < 10 * FINAL_STATE_TOL
