@@ -751,9 +751,10 @@ def test_the_gait_pronto_settings_reach_both_pronto_solvers(biped):
 
 def test_the_newton_loop_on_the_target_converges_quadratically(gaits):
     """Once ||x(T) - x_f|| is within newton_radius, each Newton update of the target x_T squares the final-state
-    error (docs/biped.md: 1e-4, 4e-8, 5e-15 on gait 1), down to round-off: a loop that stalls costs an outer loop
-    and a PRONTO solve each (session 66's mutation testing: without PRONTO's final Newton step the loop stalled
-    between 3e-8 and 9e-8 for 26 of 40 outer loops, with every test green)."""
+    error (gait 1 on this coarse grid: 1.0e-4, 3.8e-8, 5.2e-15; docs/biped.md gives the paper grid's 1.5e-4, 8.0e-8,
+    7.9e-15), down to round-off: a loop that stalls costs an outer loop and a PRONTO solve each (session 66's
+    mutation testing: without PRONTO's final Newton step the loop stalled between 3e-8 and 9e-8 for 26 of 40 outer
+    loops, with every test green)."""
     for sol in gaits.values():
         pairs = [(a.final_error, b.final_error) for a, b in zip(sol.loops, sol.loops[1:]) if a.action == "newton x_T"]
         assert len(pairs) >= 3

@@ -2157,6 +2157,10 @@ def test_report_stamps_the_load_averages_in_order(monkeypatch):
     assert report.machine_info()["load_average"] == [1.0, 2.0, 3.0]
 
 
+# [m, s] the work-precision tests' fake trajectories are the closed forms themselves: round-off only
+CLOSED_FORM_TOL = 1e-9
+
+
 def test_exact_flight_follows_each_control_piece(bench):
     """A point mass leaving the ground at v = (1, 3) m/s, unpushed for 0.1 s and then pushed along x (a piece of
     constant acceleration a), sampled exactly every 0.05 s on the two parabolas until it lands at 6 / g: flight error
@@ -2180,7 +2184,7 @@ def test_exact_flight_follows_each_control_piece(bench):
     u = np.where((ts > t_push + 1e-12)[:, None], push, 0.0)  # u[i] acts on [t[i-1], t[i])
     traj = SimpleNamespace(t=ts, q=q, v=v, u=u, impacts=(SimpleNamespace(time=land),))
     out = bench.exact_flight(robot, dyn, task, traj)
-    assert out["flight_error_m"] < 1e-9 and out["landing_time_error_s"] < 1e-9
+    assert out["flight_error_m"] < CLOSED_FORM_TOL and out["landing_time_error_s"] < CLOSED_FORM_TOL
 
 
 def test_resimulation_defect_is_the_worst_windows(bench, monkeypatch):
@@ -2207,7 +2211,7 @@ def test_resimulation_defect_is_the_worst_windows(bench, monkeypatch):
     monkeypatch.setattr(bench, "simulate", simulate_off)
     defect = bench.resimulation_defect(robot, Dynamics(robot), task, traj, replay.build_scene(robot, task), window=0.1)
     bases = [w["base_m"] for w in defect["per_window"]]
-    assert defect["windows"] == 3 and max(bases) == pytest.approx(0.03, abs=1e-9)
+    assert defect["windows"] == 3 and max(bases) == pytest.approx(0.03, abs=CLOSED_FORM_TOL)
     assert defect["defect_base_m"] == pytest.approx(max(bases))
 
 
@@ -2220,7 +2224,7 @@ def test_interpolated_error_reads_the_kink_at_the_exact_impact(bench):
     t = np.array([0.40, 0.46])
     q = np.column_stack([np.zeros(2), [drop.q(t[:1])[0, 1], 0.0]])
     chord_at_impact = q[0, 1] * (t[1] - drop.impact_time) / (t[1] - t[0])
-    assert bench.interpolated_error(t, q, drop, 0.5) == pytest.approx(chord_at_impact, rel=1e-9)
+    assert bench.interpolated_error(t, q, drop, 0.5) == pytest.approx(chord_at_impact, rel=CLOSED_FORM_TOL)
 
 
 def test_point_mass_impact_time_error_is_a_magnitude(bench, monkeypatch):
@@ -2243,4 +2247,4 @@ def test_point_mass_impact_time_error_is_a_magnitude(bench, monkeypatch):
     case = bench.PointMassCase("pm", {"mu": 0.0}, drop, 0.6, 0.5, (0.01,))
     robot = load_robot("point_mass")
     (record,) = bench.point_mass_records(case, robot, Dynamics(robot), 1, lambda r: None)
-    assert record["errors"]["impact_time_error_s"] == pytest.approx(0.01, rel=1e-9)
+    assert record["errors"]["impact_time_error_s"] == pytest.approx(0.01, rel=CLOSED_FORM_TOL)
