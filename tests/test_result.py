@@ -1246,3 +1246,59 @@ def test_a_start_point_that_is_not_finite_is_refused(tmp_path):
         else:
             with pytest.raises(InputError, match=r"the NLP point in .*trajectory.npz is not finite"):
                 read_start(tmp_path, "sig", 5, arrays)
+
+
+def test_a_start_with_only_one_of_its_two_arrays_holds_no_nlp_point(tmp_path):
+    """A trajectory.npz with nlp_x but no nlp_signature, or the signature without the point (a plan of an older
+    planner, or an edited file), holds no NLP point to start from: one InputError that says so, and an older plan's
+    summary.json (command "plan") gets the older-planner hint (session 66's mutation testing: only a file without both
+    refused, a KeyError traceback for one with one of them, with every test green)."""
+    from planner.result import read_start
+
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "plan"}))
+    for arrays in ({"nlp_x": np.zeros(5)}, {"nlp_signature": np.array("sig")}):
+        with pytest.raises(InputError, match="holds no NLP point: the plan was written by an older planner"):
+            read_start(tmp_path, "sig", 5, arrays)
+
+
+def test_read_task_keeps_the_solved_task_when_given_the_read_files(tmp_path):
+    """read_task given trajectory.npz's arrays and summary.json already read (as load_result and validate call it)
+    still returns task_json's task, the one solved (here with another N, as `--steps` makes it), over the task file
+    that summary.json names (session 66's mutation testing: the named file taken first when a summary is passed, a
+    replay of an edited file's task, with every test green)."""
+    task_file = tmp_path / "task.toml"
+    shutil.copy(default_task_path(resolve_robot_path("point_mass")), task_file)
+    on_file = load_task(task_file)
+    solved = replace(on_file, horizon=replace(on_file.horizon, N=on_file.horizon.N + 3))
+    (tmp_path / "summary.json").write_text(json.dumps({"robot": "point_mass", "task": str(task_file)}))
+    np.savez(tmp_path / "trajectory.npz", t=np.zeros(1), task_json=np.array(task_to_json(solved)))
+    task = read_task(tmp_path, read_trajectory(tmp_path), read_summary(tmp_path))
+    assert task.horizon.N == solved.horizon.N != on_file.horizon.N
+
+
+def test_an_input_named_in_a_summary_is_found_from_the_working_directory_first(tmp_path, monkeypatch):
+    """locate_input reads a path summary.json names as written, from the working directory, before trying it relative
+    to the result directory (as its docstring says): with a file of that name in both, the working directory's
+    (session 66's mutation testing: the result directory's taken first, with every test green)."""
+    from planner.result import locate_input
+
+    out, cwd = tmp_path / "out", tmp_path / "cwd"
+    for d in (out, cwd):
+        (d / "robots").mkdir(parents=True)
+        (d / "robots" / "r.xml").write_text(d.name)
+    monkeypatch.chdir(cwd)
+    assert locate_input("robots/r.xml", out, "robot").read_text() == "cwd"
+    (cwd / "robots" / "r.xml").unlink()
+    assert locate_input("robots/r.xml", out, "robot").read_text() == "out"
+
+
+def test_a_joint_outside_its_range_of_an_older_summary_without_units_is_reported():
+    """An older summary's joints_outside_range entries have no "unit" (results written before it was kept): the report
+    line is written without one, the rest as for a new entry (session 66's mutation testing: the unit read as always
+    present, a KeyError for an older result, with every test green)."""
+    from planner.result import _outside_range_lines
+
+    entry = {"joint": "x", "nodes": 3, "farthest": 1.5, "lower": -1.0, "upper": 1.0}
+    (old,) = _outside_range_lines({"joints_outside_range": [entry]}, 10, "why")
+    (new,) = _outside_range_lines({"joints_outside_range": [entry | {"unit": "m"}]}, 10, "why")
+    assert old == new.replace("[-1, 1] m", "[-1, 1]") and "[-1, 1] at 3 of 10 nodes (to 1.5)" in old

@@ -1085,3 +1085,32 @@ def test_step_elements_integrate_h_times_the_speed_of_time():
     tau, Y_b, Ys, Ws, Us, dt = step_elements(sys_, builder, Y, W, U, h, S)
     assert dt == pytest.approx(h * S, rel=ONE_PRODUCT) and tau == pytest.approx(h * np.arange(N + 1))
     assert step_elements(sys_, builder, Y, W, U, h)[-1] == pytest.approx(np.full(N, h), rel=ONE_PRODUCT)
+
+
+def test_the_pd_summary_gives_each_joints_reference():
+    """summary.json's pd.q_ref lists each PD joint's reference in the order of pd.joints: the task's q_ref, else the
+    joint's initial.q (docs/tasks.md); here z (q index 1) before x, so each joint's entry is its own coordinate's, not
+    that of the coordinate at the joint's position in the list (session 66's mutation testing: q_ref read at the list's
+    index, x's and z's references swapped, Capler's hip and knee given those of x_B and z_B, with every test green)."""
+    robot = load_robot("point_mass")
+    for q_ref, expected in ((None, [0.5, 0.3]), ([0.7, 0.2], [0.7, 0.2])):
+        pd = {"joints": ["z", "x"], "kp": [10.0, 20.0], "kd": [1.0, 2.0]} | ({} if q_ref is None else {"q_ref": q_ref})
+        task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.3, 0.5]},
+                           "horizon": {"tau_f": 0.02, "N": 2}, "simulate": {"pd": pd}})
+        assert simulate(robot, task).summary()["pd"]["q_ref"] == expected
+
+
+def test_a_velocity_switch_given_is_the_one_fesd_steps_use():
+    """SimulateOptions.velocity_switch, when given, is the switching function of the steps, also where the default
+    would differ: FESD with 2 stages (default COLLOCATED) asked for POINT runs POINT, as summary.json's
+    discretization says, and no step is collocated (session 66's mutation testing: the option ignored, every FESD run
+    collocated, with every test green)."""
+    from planner.discretization import SwitchVelocity
+
+    task = parse_task({"contacts": [{"point": "point"}], "initial": {"q": [0.0, 0.5]},
+                       "horizon": {"tau_f": 0.06, "N": 3}})
+    options = SimulateOptions(discretization=Discretization.FESD, velocity_switch=SwitchVelocity.POINT)
+    assert options.fesd.n_s >= 2  # where the default is COLLOCATED
+    r = simulate(load_robot("point_mass"), task, options)
+    assert r.stats.converged and r.extra["discretization"]["velocity_switch"] == "point"
+    assert "collocated_steps" not in r.extra["discretization"]

@@ -6,6 +6,7 @@ import math
 
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 import pytest
 from scipy.linalg import expm
 
@@ -299,6 +300,49 @@ def test_frozen_impact_stops_the_clock_and_other_pulls():
     assert c[names.index("ode")] == 0.0 and c[names.index("a_n[foot_1]")] == c[names.index("a_n[foot_2]")] == 1.0
 
 
+@pytest.mark.parametrize("mu, frictionless_tangential", [(0.8, False), (0.0, True)])
+def test_several_contacts_in_flight_give_the_free_ode(mu, frictionless_tangential):
+    """With both biped feet above the ground (beta_i = 1), whatever the other selectors, F is f_ODE: coefficient 1 on
+    f_ODE and 0 on every auxiliary field (a_n and a_t of both feet), with the contact forces 0 that the force rows
+    switched off ((1 - beta)(1 - gamma) = 0) give; so a flight with tangential speed (zeta at 0 or 1) is not braked
+    and its clock runs. Ground truth: free flight, M v' = B u - h (session 66's mutation testing: the a_t term not
+    gated by (1 - beta_i), a tangential kick in every flight, with every test green)."""
+    s = TimeFreezingSystem(dyn("biped"), [Contact("foot_1", mu=mu), Contact("foot_2", mu=mu)],
+                           frictionless_tangential=frictionless_tangential)
+    betas = [i for i, sw in enumerate(s.switches) if sw.function == "c(q)"]
+    assert len(betas) == 2 and sum(sw.function == "t^T v" for sw in s.switches) == 2
+    rng = np.random.default_rng(4)
+    q, v, _, u = biped_standing(5)
+    y = s.initial_state(q + np.array([0.0, 0.5, 0.0, 0.0, 0.0]), v)  # lifted 0.5 m: both feet in the air
+    model = dyn("biped").robot.model
+    free = pin.aba(model, model.createData(), y[:5], v, np.asarray(dyn("biped").actuation, float) @ u)
+    for sigma in [rng.uniform(size=s.n_sigma) for _ in range(10)] + [rng.integers(0, 2, size=s.n_sigma) * 1.0]:
+        sigma[betas] = 1.0
+        assert [float(switch(sigma)) for switch in s.constraint_switches] == [0.0] * s.n_lambda
+        coef = s.coefficient_vector(sigma, np.zeros(s.n_lambda))
+        np.testing.assert_allclose(coef, [1.0] + [0.0] * (s.n_fields - 1), atol=FIELD_TOL)
+        F = np.asarray(s.vector_field(sigma, y, u, np.zeros(s.n_lambda)), float).ravel()
+        np.testing.assert_allclose(F[5:10], free, atol=FIELD_TOL * np.abs(free).max())
+        np.testing.assert_allclose(np.append(F[:5], F[-1]), np.append(v, 1.0), atol=FIELD_TOL)  # q' = v, t' = 1
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.5])
+def test_each_factors_upper_bound_is_its_largest_value(mu):
+    """Each factor variable (clock factor r_i, gate g_i, chain products) of a point against three planes is bounded
+    above by `upper` (the step NLP's bound), which is its largest value over the selectors' box: the factors are
+    multi-affine in the selectors, so the largest is at a vertex; every vertex is enumerated. r_i = 2 at a lift-off
+    (alpha_i = 1, beta_i = 0), so a bound of 1 would cut lift-offs out of the step's feasible set (session 66's
+    mutation testing: r_i's upper bound 1 instead of 1/alpha* = 2, with every test green)."""
+    import itertools
+
+    planes = [Contact("point", mu=mu, normal=(math.sin(0.1 * k), 0.0, math.cos(0.1 * k))) for k in range(3)]
+    s = TimeFreezingSystem(dyn("point_mass"), planes)
+    values = np.array([s.variables(np.array(v, float))[s.n_sigma:]
+                       for v in itertools.product((0.0, 1.0), repeat=s.n_sigma)])
+    np.testing.assert_allclose(values.max(axis=0), [f.upper for f in s.factors], rtol=FIELD_TOL)
+    assert values.min() >= 0.0 and max(f.upper for f in s.factors) > 1.0
+
+
 @pytest.mark.parametrize("mu", [0.0, 0.5])
 def test_several_contacts_scale_linearly(mu):
     """m contacts (one point against m planes): fields, selectors, factor variables and the lifted
@@ -379,3 +423,25 @@ def test_impulse_rates_are_the_fields_generalized_forces(frictionless_tangential
         if field.auxiliary:
             forces = sum(n * R[2 * i, j] + t * R[2 * i + 1, j] for i, (n, t) in enumerate(directions))
             np.testing.assert_allclose(M @ F[4:8, j], forces, atol=FIELD_ROUNDING, err_msg=field.name)
+
+
+@pytest.mark.parametrize("frictionless_tangential", [False, True])
+@pytest.mark.parametrize("mus", [(0.8, 0.0), (0.0, 0.8)])
+def test_the_mass_matrix_forms_forces_are_m_times_the_fields(frictionless_tangential, mus):
+    """For every field of Capler with two contacts, one with friction and one without, the mass-matrix form's
+    generalized force is M(q) times the explicit field's velocity rows, and its q and clock rows are the field's: a
+    frictionless contact's a_t (carried with frictionless_tangential) applies no force in either form (session 66's
+    mutation testing: the mass-matrix form gave that a_t the gain a_t, a tangential impulse the explicit form does not
+    apply, with every test green)."""
+    d = dyn("capler")
+    s = TimeFreezingSystem(d, (Contact("foot", mu=mus[0]), Contact("knee", mu=mus[1])), 0.0,
+                           frictionless_tangential=frictionless_tangential)
+    form = s.mass_matrix_form()
+    rng = np.random.default_rng(6)
+    y, u = np.concatenate([[0.1, 0.4, 0.3, -0.5], rng.normal(size=4), [0.0]]), rng.normal(size=2)
+    F = np.asarray(s.fields_fn(y, u), float)
+    G = np.asarray(form.fn(y, u, np.zeros(form.z.shape[0]))[0], float)
+    M = np.asarray(d.mass(y[:4]), float)
+    for j, field in enumerate(s.fields):
+        np.testing.assert_allclose(G[4:8, j], M @ F[4:8, j], atol=FIELD_ROUNDING, err_msg=field.name)
+        np.testing.assert_array_equal(np.delete(G[:, j], range(4, 8)), np.delete(F[:, j], range(4, 8)))

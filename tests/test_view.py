@@ -751,3 +751,177 @@ def test_a_frozen_interval_matches_an_impact_within_one_percent_of_the_physical_
         moved = replace(two, summary={**two.summary, "impacts": [{"time": T_IMPACT + offset, "contact": "foot"}]})
         ((start, end, names),) = moved.frozen_intervals()
         assert names == hit and abs(start - T_IMPACT) < TIME_ROUNDING
+
+
+# --- the scene against MuJoCo and the page's timing (session 66's third mutation round) ----------------------------
+
+# [m] MuJoCo's and Pinocchio's kinematics of one file agree to rounding; meshcat keeps positions as float64
+SCENE_TOL = 1e-9
+
+
+def _keyed_pose(clip: dict, frame: int) -> np.ndarray:
+    """The (4, 4) pose a meshcat clip's .position and .quaternion tracks ([x, y, z, w], three.js) give at `frame`."""
+    import pinocchio as pin
+
+    tracks = {t["name"]: {k["time"]: k["value"] for k in t["keys"]} for t in clip["tracks"]}
+    x, y, z, w = tracks[".quaternion"][frame]
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = pin.Quaternion(w, x, y, z).matrix(), tracks[".position"][frame]
+    return pose
+
+
+def test_the_scene_puts_each_geom_and_contact_point_where_mujoco_does(result_dir, tmp_path):
+    """At keyframes that are samples of the motion, each geom of capler.xml drawn in the page (a part's keyed pose times
+    its piece's fixed pose) is where MuJoCo puts that geom at the sample's q, with MuJoCo's size: the box centred with
+    its half sizes, a capsule's cylinder centred along the geom's z axis (three.js cylinders run along y) and its two
+    caps at +-half-length; the contact marker is MuJoCo's foot site (session 66's mutation testing: a pose composed
+    as placement @ joint pose, caps along y, a box of half its size, an unrotated cylinder, and the marker at the
+    shank's joint instead of the foot, with every test green)."""
+    import mujoco
+
+    res = view.load_result(result_dir)
+    commands = _page_commands(view.render_html(result_dir, tmp_path / "page.html").read_text())
+    geometry = {c["path"]: c["object"]["geometries"][0] for c in commands
+                if c["type"] == "set_object" and "geometries" in c["object"]}
+    fixed = {c["path"]: np.array(c["matrix"]).reshape(4, 4).T for c in commands if c["type"] == "set_transform"}
+    (anim,) = [c for c in commands if c["type"] == "set_animation"]
+    clips = {a["path"]: a["clip"] for a in anim["animations"]}
+    mj = mujoco.MjModel.from_xml_path(str(ROBOTS / "capler.xml"))
+    data = mujoco.MjData(mj)
+    for t in (0.0, 0.35, T_END):  # frames 0, 21, 48: samples of the fixture (a flight pose bends the knee)
+        frame = int(round(t * view.FPS))
+        data.qpos[:] = res.q[int(np.argmin(np.abs(res.t - t)))]
+        mujoco.mj_kinematics(mj, data)
+        for name in ("base_geom", "thigh_geom", "shank_geom"):
+            g = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, name)
+            centre, axes, size = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3), mj.geom_size[g]
+            part = _keyed_pose(clips[f"{view.ROOT}/robot/{name}"], frame)
+            world = [part @ fixed[f"{view.ROOT}/robot/{name}/{k}"] for k in range(3 if name != "base_geom" else 1)]
+            assert np.max(np.abs(world[0][:3, 3] - centre)) < SCENE_TOL, (name, t)
+            if name == "base_geom":
+                box = geometry[f"{view.ROOT}/robot/{name}/0"]
+                assert np.allclose([box["width"], box["height"], box["depth"]], 2 * size, atol=SCENE_TOL)
+                assert np.max(np.abs(world[0][:3, :3] - axes)) < SCENE_TOL
+                continue
+            cylinder = geometry[f"{view.ROOT}/robot/{name}/0"]
+            assert abs(cylinder["height"] - 2 * size[1]) < SCENE_TOL
+            assert abs(cylinder["radiusTop"] - size[0]) < SCENE_TOL
+            assert abs(abs(world[0][:3, 1] @ axes[:, 2]) - 1.0) < SCENE_TOL, (name, t)  # along the geom's z axis
+            caps = sorted((w[:3, 3] for w in world[1:]), key=lambda p: float(p @ axes[:, 2]))
+            for cap, s in zip(caps, (-1.0, 1.0)):
+                assert np.max(np.abs(cap - (centre + s * size[1] * axes[:, 2]))) < SCENE_TOL, (name, t)
+        foot = data.site_xpos[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_SITE, "foot")]
+        assert np.max(np.abs(_keyed_pose(clips[f"{view.ROOT}/contacts/foot"], frame)[:3, 3] - foot)) < SCENE_TOL, t
+
+
+def test_the_pages_last_keyframe_and_clock_end_are_the_replays_end(result_dir, tmp_path):
+    """The page's last keyframe is at the replay's exact end in frames ((t_end - t_0) FPS, no whole number for a
+    duration that is no multiple of 1/FPS), and the overlay's clock shows its last frame from that end on: in
+    physical time t_end - t_0, in slow motion tau_end - tau_0 (0.9 s for the fixture, whose physical end is 0.8 s).
+    The animation loops (session 66's mutation testing: the last keyframe at its index instead of its time, the
+    slow-motion clock's end at the physical end, and a replay that played once, with every test green)."""
+    from test_result import small_result
+
+    from planner.result import write_results
+
+    write_results(small_result(), tmp_path / "r")
+    for directory, slow in ((tmp_path / "r", False), (result_dir, True)):
+        res = view.load_result(directory)
+        html = view.render_html(directory, tmp_path / f"page_{slow}.html", slow_motion=slow).read_text()
+        grid = res.tau if slow else res.t
+        end = float(grid[-1] - grid[0])
+        assert slow or not math.isclose(end * view.FPS % 1.0, 0.0, abs_tol=1e-6)  # no multiple of 1/FPS
+        (anim,) = [c for c in _page_commands(html) if c["type"] == "set_animation"]
+        assert anim["options"]["repetitions"] > 1
+        keys = [a["clip"]["tracks"][0]["keys"] for a in anim["animations"]]
+        assert all(k[-1]["time"] == pytest.approx(end * view.FPS, abs=TIME_ROUNDING) for k in keys), (slow, end)
+        overlay = json.loads(re.search(r"var planner = (.*);\n", html).group(1))
+        assert overlay["end"] == pytest.approx(end, abs=TIME_ROUNDING), slow
+
+
+def test_the_ground_is_the_tasks_plane_and_the_camera_frames_the_motion(result_dir, tmp_path):
+    """The ground slab's top face is the task's ground height (0.2 m here), under the robot; ROOT is shifted so that
+    the camera, which looks along +y at the origin from its distance, has every keyframed part and contact point within
+    its field of view and is aimed at their middle (session 66's mutation testing: a slab above the plane and the scene
+    shifted the wrong way in z, with every test green)."""
+    lifted, source = tmp_path / "lifted.toml", (ROBOTS / "capler.toml").read_text()
+    assert source.count("ground_height = 0.0\n") == 1
+    lifted.write_text(source.replace("ground_height = 0.0\n", f"ground_height = {GROUND_Z}\n"))
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({**summary, "task": str(lifted)}))
+    commands = _page_commands(view.render_html(result_dir, tmp_path / "page.html").read_text())
+    box = {c["path"]: c["object"]["geometries"][0] for c in commands
+           if c["type"] == "set_object" and "geometries" in c["object"]}[f"{view.ROOT}/ground"]
+    fixed = {c["path"]: np.array(c["matrix"]).reshape(4, 4).T for c in commands if c["type"] == "set_transform"}
+    assert abs(fixed[f"{view.ROOT}/ground"][2, 3] + box["depth"] / 2 - GROUND_Z) < SCENE_TOL
+    distance = [c["value"][2] for c in commands if c["type"] == "set_property" and c["property"] == "position"][-1]
+    tan_half = math.tan(math.radians(view.CAMERA_FOV_DEG) / 2)
+    (anim,) = [c for c in commands if c["type"] == "set_animation"]
+    shift = fixed[view.ROOT][:3, 3]
+    keyed = np.array([k["value"] for a in anim["animations"] for track in a["clip"]["tracks"]
+                      if track["name"] == ".position" for k in track["keys"]]) + shift
+    assert np.all(np.abs(keyed[:, 0]) <= distance * tan_half * view.CAMERA_ASPECT)
+    assert np.all(np.abs(keyed[:, 2]) <= distance * tan_half)
+    # aimed at the middle of what it shows (the slab's bottom to the highest part) up to the half robot size of slack
+    # the framing adds around the parts' origins
+    bottom = GROUND_Z - box["depth"] + shift[2]
+    slack = view._robot_size(load_robot(ROBOTS / "capler.xml")) / 2
+    assert abs((bottom + keyed[:, 2].max()) / 2) <= slack + SCENE_TOL, (bottom, keyed[:, 2].max(), slack)
+
+
+GROUND_Z = 0.2  # [m] a raised ground, so that a slab drawn with its top anywhere else shows
+
+
+def test_a_mesh_is_drawn_at_its_files_scale(tmp_path):
+    """A URDF mesh's scale attribute (2, 3, 4) is the scale of its piece (session 66's mutation testing: the scale
+    dropped, every mesh drawn at unit scale, with every test green)."""
+    import itertools
+
+    stl = tmp_path / "tet.stl"
+    corners = ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1))  # a tetrahedron
+    facets = "".join("facet normal 0 0 0\nouter loop\n" + "".join(f"vertex {a} {b} {c}\n" for a, b, c in tri)
+                     + "endloop\nendfacet\n" for tri in itertools.combinations(corners, 3))
+    stl.write_text(f"solid t\n{facets}endsolid t\n")
+    source = (ROBOTS / "capler.urdf").read_text()
+    urdf = tmp_path / "mesh.urdf"
+    urdf.write_text(source.replace('<box size="0.12 0.08 0.08"/>', f'<mesh filename="{stl}" scale="2 3 4"/>'))
+    parts, note = view.robot_parts(load_robot(urdf))
+    assert note is None
+    (base,) = [p for p in parts if p.name.startswith("base")]
+    assert np.array_equal(base.pieces[0][1], np.diag([2.0, 3.0, 4.0, 1.0]))
+
+
+def test_load_result_reads_each_array_as_written(result_dir):
+    """load_result's arrays are trajectory.npz's own, each under its own name: lambda_t is the file's lambda_t (a tenth
+    of lambda_n in the fixture), not lambda_n (session 66's mutation testing: lambda_t read from lambda_n, with every
+    test green)."""
+    res = view.load_result(result_dir)
+    with np.load(result_dir / "trajectory.npz") as npz:
+        for key in ("t", "q", "v", "u", "y", "lambda_n", "lambda_t"):
+            assert np.array_equal(getattr(res, key), npz[key]), key
+
+
+def test_an_older_summary_without_impacts_takes_them_from_the_trajectory(result_dir):
+    """A summary.json without "impacts" (an older result) has its impacts from trajectory.npz's impact_times, each on
+    every contact point, and the physical-time replay lights the foot at T_IMPACT (session 66's mutation testing: no
+    impacts at all for such a result, nothing lit, with every test green)."""
+    summary = json.loads((result_dir / "summary.json").read_text())
+    (result_dir / "summary.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "impacts"}))
+    res = view.load_result(result_dir)
+    assert res.impacts() == [(T_IMPACT, ("foot",))] and res.impacts(taps=True) == []
+    tl = view._timeline(res, slow_motion=False)
+    assert tl.highlight["foot"][int(np.argmin(np.abs(tl.t - T_IMPACT)))]
+
+
+def test_slow_motion_lights_the_frames_at_both_ends_of_a_frozen_interval(result_dir):
+    """A frozen interval [tau_start, tau_end] is closed: the slow-motion frames at its two ends are lit, the frames
+    just outside it are not (session 66's mutation testing: an open interval that left the frames where the clock
+    stops and restarts dark, with every test green)."""
+    from dataclasses import replace
+
+    res = view.load_result(result_dir)
+    start, end = (float(res.tau[0] + k / view.FPS) for k in (36, 42))  # the frame times the timeline computes
+    moved = replace(res, summary={**res.summary, "impacts": [{**res.summary["impacts"][0], "tau_start": start,
+                                                              "tau_end": end}]})
+    lit = np.flatnonzero(view._timeline(moved, slow_motion=True).highlight["foot"])
+    assert lit.tolist() == list(range(36, 43))
