@@ -292,3 +292,35 @@ def test_in_process_runs_what_no_worker_could_import():
     (session 65's mutation testing sent workers=0 to a process pool, which refused the lambda, and every test stayed
     green: the in-process test's function imports anywhere)."""
     assert run_batch(lambda x: 2 * x, [1, 2], workers=0) == [2, 4]
+
+
+def kills_its_worker(arg):
+    """("ok", marker): returns "ok"; ("once", marker): kills its worker the first time (marker file absent), then
+    returns "once"; ("always", marker): kills its worker every time."""
+    import os
+    import pathlib
+    import signal
+
+    kind, marker = arg
+    if kind == "always" or (kind == "once" and not os.path.exists(marker)):
+        if kind == "once":
+            pathlib.Path(marker).write_text("killed")
+        os.kill(os.getpid(), signal.SIGKILL)
+    return kind
+
+
+def test_the_jobs_of_a_dead_worker_are_rerun_each_once_in_its_own_process(tmp_path):
+    """A worker's death loses the jobs its pool had not returned; each is rerun once in a fresh process (module
+    docstring): a job killed once from outside gives its own result, without a trace; the job that kills its worker
+    again is the one Crashed record, of stage "worker", "the worker process died"; the jobs after it are not hurt;
+    progress is called once per item (session 66's mutation testing: a lost job made a Crashed record without its
+    rerun; the reruns sharing one pool, whose break made every later job a crash; a lost job's progress called twice,
+    first with None; the rerun's death recorded as stage "transfer"; with every test green)."""
+    marker = str(tmp_path / "marker")
+    items = [("ok", marker), ("once", marker), ("always", marker), ("ok", marker)]
+    seen = []
+    results = run_batch(kills_its_worker, items, workers=1, progress=lambda i, result: seen.append(i))
+    assert results[0] == results[3] == "ok" and results[1] == "once", results
+    assert isinstance(results[2], Crashed) and results[2].stage == "worker", results[2]
+    assert results[2].error.startswith("the worker process died")
+    assert sorted(seen) == [0, 1, 2, 3]

@@ -362,3 +362,77 @@ def test_a_collapsed_element_is_left_out_of_a_simulation():
     # the PD summary counts steps from every element's controls, collapsed ones too (it reshaped the kept ones)
     held = parse_task({**data, "simulate": {"pd": {"joints": ["x"], "kp": [0.0], "kd": [0.0]}}})
     assert simulate(load_robot("point_mass"), held, options).extra["pd"]["steps_beyond_actuator_bounds"] == 0
+
+
+# The 2-stage Radau IIA weights in closed form (Hairer & Wanner, Table IV.5.6): b = (3/4, 1/4)
+RADAU2_B = (0.75, 0.25)
+
+
+def test_fesd_objective_is_the_step_equilibration_plus_the_regularization_quadrature():
+    """An FESD step's objective, against its formula recomputed from the element lengths and the stage selectors
+    (point mass, n_s = 2, n_fe = 3, random lengths and selectors): the step equilibration
+    rho_h sum_n ((h_n - H / n_fe) / (H / n_fe))^2 (also alone as Interval.equilibration), plus the stages' rho_f
+    ||sigma - sigma*||^2 (regularized selectors) weighted by the Radau weight b_j times h_n / H (session 66's
+    mutation testing: the equilibration divided by H instead of H / n_fe, its target H / (n_fe + 1), and the
+    weights b_j / n_fe that let a collapsed element's selectors go to sigma* for free, each killed only by a test
+    that asserts a simulation's failure or a collapsed element, with every test green)."""
+    rho_f, rho_h, H, n_s, n_fe = 0.7, 2.5, 0.06, 2, 3
+    system = TimeFreezingSystem(point_mass()[1], [Contact("point", mu=0.5)])
+    fesd = FESDInterval(ImplicitEulerStep(system, rho_f=rho_f), FESDOptions(n_s=n_s, n_fe=n_fe, rho_h=rho_h))
+    y_k, u = ca.SX.sym("y_k", system.ny), ca.SX.sym("u", system.nu)
+    iv = fesd.build(y_k, lambda y: u, H, ca.DM.zeros(2 * system.n_sigma))
+    f = ca.Function("f", [y_k, u, iv.x], [iv.objective, iv.equilibration])
+    rng = np.random.default_rng(7)
+    x = rng.uniform(size=fesd.nx)
+    x[:n_fe] = rng.uniform(0.0, H, n_fe)  # lengths that do not sum to H: the objective reads each
+    objective, equilibration = (float(v) for v in f(rng.normal(size=system.ny), rng.normal(size=system.nu), x))
+    h_bar = H / n_fe
+    expected_eq = rho_h * sum(((h - h_bar) / h_bar) ** 2 for h in x[:n_fe])
+    wanted, regularized = system.wanted, np.asarray(system.regularized, bool)
+    sig = fesd.step.w_blocks["sigma"]
+    expected_reg = 0.0
+    for e in range(n_fe):
+        for j in range(n_s):
+            sigma = x[fesd.stage_slice(e, j)][system.ny:][sig]
+            expected_reg += RADAU2_B[j] * x[e] / H * rho_f * np.sum((sigma - wanted)[regularized] ** 2)
+    assert equilibration == pytest.approx(expected_eq, rel=EVAL_TOL)
+    assert objective == pytest.approx(expected_eq + expected_reg, rel=EVAL_TOL)
+
+
+def test_collocated_switch_velocity_of_a_later_element_starts_at_its_left_boundary():
+    """SwitchVelocity.COLLOCATED in the second element of an FESD step (Capler, n_s = 2, n_fe = 2): at stage states
+    whose velocities are each element's collocation polynomial's q-derivative, the n^T v switching function of
+    stage j of element 1 is that element's derivative of the foot's gap from its left boundary (element 0's last
+    stage), sum_l (A^-1)_jl (c(q_1l) - c(q_0,last)) / h_1, as element 0's is from the step's start (session 66's
+    mutation testing: every element's gap increments taken from the step's start y_k, which the test above, of one
+    element, cannot see, with every test green)."""
+    from planner.discretization import SwitchVelocity
+
+    system = TimeFreezingSystem(Dynamics(load_robot("capler")), [Contact("foot", mu=0.8)])
+    ia = [sw.function for sw in system.switches].index("n^T v")
+    nq, ny, n_s, n_fe, h_n = system.nq, system.ny, 2, 2, 0.005
+    A_inv = np.linalg.inv(radau_iia(n_s)[0])
+    gap = system.dyn.point_position("foot")
+    rng = np.random.default_rng(6)
+    q0 = np.array([0.0, 0.35, 0.4, -0.8])
+    Q = [[q0 + rng.normal(size=nq) * 0.2 for _ in range(n_s)] for _ in range(n_fe)]  # the stages' postures
+    starts = [q0, Q[0][-1]]  # each element's left boundary
+    step = ImplicitEulerStep(system, velocity_switch=SwitchVelocity.COLLOCATED)
+    fesd = FESDInterval(step, FESDOptions(n_s=n_s, n_fe=n_fe))
+    y_k = ca.SX.sym("y_k", ny)
+    iv = fesd.build(y_k, lambda y: ca.DM.zeros(system.nu), n_fe * h_n, ca.DM.zeros(2 * system.n_sigma))
+    x = np.zeros(fesd.nx)
+    x[:n_fe] = h_n
+    for e in range(n_fe):
+        for j in range(n_s):
+            v = sum(A_inv[j, l] * (Q[e][l] - starts[e]) for l in range(n_s)) / h_n  # q' of the element's polynomial
+            sl = fesd.stage_slice(e, j)
+            x[sl.start : sl.start + ny] = np.concatenate([Q[e][j], v, [0.3]])  # w = 0: the multipliers are zero
+    y0 = np.concatenate([q0, rng.normal(size=nq), [0.3]])
+    g = np.asarray(ca.Function("g", [y_k, iv.x], [iv.g])(y0, x), float).ravel()
+    rows = g[iv.g_blocks["stationarity"]].reshape(n_fe, n_s, system.n_sigma)  # = the switching functions
+    for e in range(n_fe):
+        c = [float(gap(q)[2]) for q in [starts[e]] + Q[e]]
+        for j in range(n_s):
+            rate = sum(A_inv[j, l] * (c[l + 1] - c[0]) for l in range(n_s)) / h_n
+            assert rows[e, j, ia] == pytest.approx(rate, abs=COLLOCATED_TOL)

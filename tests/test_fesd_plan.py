@@ -257,6 +257,17 @@ def test_the_fesd_stage_after_implicit_euler_takes_a_given_soft_terminal_weight(
     the FESD stage's options without refusing it there (soft_terminal_nlps = 0 there: the refusal of a weight no NLP
     reads fired after the whole implicit-Euler solve, exit 2)."""
     problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4), fesd_options(2, 2))
+    given = _stages_stubbed(monkeypatch, None)
+    with pytest.raises(KeyboardInterrupt):
+        H._solve_through_implicit_euler(problem, H.SolveOptions(soft_terminal_weight=1e3,
+                                                                fesd_start=H.FESDStart.IMPLICIT_EULER), None)
+    assert given[0][1].soft_terminal_weight == 1e3 and given[1][1].soft_terminal_nlps == 0
+
+
+def _stages_stubbed(monkeypatch, mapped):
+    """Stub FESDStart.IMPLICIT_EULER's two solves: the implicit-Euler stage returns a converged stub, the FESD stage
+    raises KeyboardInterrupt once it has its (problem, options), and the mapping returns `mapped`. Returns the list
+    the two solves' (problem, options) are appended to."""
     given = []
 
     class Stub:
@@ -265,14 +276,45 @@ def test_the_fesd_stage_after_implicit_euler_takes_a_given_soft_terminal_weight(
                              complementarity_residual=0.0, message="")
 
     def solved(prob, options, progress=None):
-        given.append(options)
+        given.append((prob, options))
         if len(given) == 2:
-            raise KeyboardInterrupt  # (the FESD stage's own solve is not this test's)
+            raise KeyboardInterrupt  # (the FESD stage's own solve is not these tests')
         return Stub()
 
     monkeypatch.setattr(H, "solve", solved)
-    monkeypatch.setattr("planner.problem.fesd_start_from_implicit_euler", lambda *args: None)
+    monkeypatch.setattr("planner.problem.fesd_start_from_implicit_euler", lambda *args: mapped)
+    return given
+
+
+def test_the_fesd_stage_after_implicit_euler_starts_from_the_mapped_plan_with_its_own_schedule(monkeypatch):
+    """FESDStart.IMPLICIT_EULER solves the FESD problem from fesd_start_from_implicit_euler's point (the implicit-Euler
+    stage's plan mapped), over fesd_rho_schedule (not rho_schedule, the implicit-Euler stage's), with the holes
+    enforced from its first NLP (the mapped start already keeps them) whatever the given hole schedule (session 66's
+    mutation testing: the FESD stage started from the problem's own x0, took rho_schedule, or relaxed the holes at
+    its first NLP, with every test green)."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4), fesd_options(2, 2))
+    mapped = np.full(problem.nx, 0.25)  # a point no solve would give: the mapping's, passed on as it is
+    given = _stages_stubbed(monkeypatch, mapped)
+    options = H.SolveOptions(fesd_start=H.FESDStart.IMPLICIT_EULER, holes=H.HoleSchedule.RELAXED_FIRST,
+                             rho_schedule=(1e2, 1e3), fesd_rho_schedule=(1e4, 1e5))
     with pytest.raises(KeyboardInterrupt):
-        H._solve_through_implicit_euler(problem, H.SolveOptions(soft_terminal_weight=1e3,
-                                                                fesd_start=H.FESDStart.IMPLICIT_EULER), None)
-    assert given[0].soft_terminal_weight == 1e3 and given[1].soft_terminal_nlps == 0
+        H._solve_through_implicit_euler(problem, options, None)
+    (euler, first), (fesd, second) = given
+    assert euler.fesd is None and first.rho_schedule == (1e2, 1e3) and first.holes is H.HoleSchedule.RELAXED_FIRST
+    assert fesd.fesd is not None and np.array_equal(fesd.x0, mapped)
+    assert second.rho_schedule == (1e4, 1e5) and second.holes is H.HoleSchedule.ENFORCED
+    assert second.fesd_start is H.FESDStart.HINT_FREE
+
+
+def test_a_solve_through_implicit_euler_counts_the_nlps_of_both_stages():
+    """FESDStart.IMPLICIT_EULER's result (the point-mass hop, N = 5, n_s = 1, n_fe = 2) records every NLP of both
+    stages, the implicit-Euler ones first and labelled "implicit Euler: ...": its n_nlp is their number, its IPOPT
+    iterations their sum, and extra["implicit_euler"]'s iterations the sum over the implicit-Euler ones (session 66's
+    mutation testing: the FESD stage's iterations alone, and its NLP records alone, with every test green)."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=5), fesd_options(1, 2))
+    res = H.solve(problem, H.SolveOptions(fesd_start=H.FESDStart.IMPLICIT_EULER))
+    euler = [r for r in res.nlps if r.label.startswith("implicit Euler: ")]
+    assert euler and len(euler) < len(res.nlps) and res.nlps[: len(euler)] == tuple(euler)
+    assert res.stats.n_nlp == len(res.nlps)
+    assert res.stats.ipopt_iterations == sum(r.iterations for r in res.nlps)
+    assert res.extra["implicit_euler"]["ipopt_iterations"] == sum(r.iterations for r in euler)

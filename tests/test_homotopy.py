@@ -1347,3 +1347,16 @@ def test_an_impact_is_new_unless_it_shares_a_step_with_one_of_the_starts_or_is_a
     monkeypatch.setattr(H, "_impacts", lambda problem, x, options: impacts[x])
     said = H._new_impacts(hop[0], H.SolveOptions(), "start", "held")
     assert said.startswith("set aside: it adds 1 impact(s)") if new else said == "", said
+
+
+def test_rho_refine_adds_only_new_penalties_inside_the_kept_schedule():
+    """rho_refine sorts in only penalties that are inside the schedule as rho_min and rho_max leave it and not in it
+    already: against the geometric schedule rho0 kappa^i written out, a refine equal to one of its values (1e4) adds
+    no second NLP at that penalty, one below rho_min (50, inside the schedule before rho_min drops its start) none
+    (session 66's mutation testing: a value kept when it differed from any schedule value, not from all, and the
+    refines picked before rho_min, with every test green)."""
+    from types import SimpleNamespace
+    hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
+    geometric = [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]  # 1 * 10^i from rho_min 100 to rho_max 1e7
+    assert H.task_rho_schedule(hom, 100.0, 1e7, (1e4,)) == geometric
+    assert H.task_rho_schedule(hom, 100.0, 1e7, (50.0, 3e3)) == sorted(geometric + [3e3])

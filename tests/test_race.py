@@ -438,3 +438,77 @@ def test_a_race_run_as_pid_1_converges(tmp_path):
                          capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_an_arm_sends_its_log_lines_before_each_record_and_its_last_partial_line_before_its_result(monkeypatch):
+    """An arm at print_level > 0 (_arm, run here with a recording connection and a solve that prints): the lines
+    written before an NLP's record reach the race before that record, in order, even when RELAY_S has not passed;
+    after the record a partial last line (no newline) is sent as a line before the result; a line written after
+    the RELAY_S batch waits for the next batch (session 66's mutation testing: the record sent before its NLP's
+    lines, the last partial line dropped at the end, and every line after the first RELAY_S its own message, with
+    every test green)."""
+    import io
+
+    sent = []
+
+    class Conn:
+        def send(self, message):
+            sent.append(message)
+
+        def close(self):
+            pass
+
+    def solve(problem, options, progress):
+        print("iter 1")
+        print("EXIT: first")
+        progress("record 1")
+        print("EXIT: last", end="")
+        return "result"
+
+    clock = [0.0]
+    monkeypatch.setattr(R.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(R, "_die_with_parent", lambda: None)  # (not in a process of its own here)
+    monkeypatch.setattr(R, "solve", solve)
+    monkeypatch.setattr(sys, "stdout", io.StringIO())  # _arm replaces sys.stdout with its relay
+    R._arm(None, H.SolveOptions(print_level=5), Conn(), "default")
+    assert sent == [("log", ["iter 1", "EXIT: first"]), ("progress", "record 1"), ("log", ["EXIT: last"]),
+                    ("done", "result")]
+    # the batches: one at RELAY_S, then nothing until RELAY_S has passed again
+    sent.clear()
+    stream = R._Relayed(io.StringIO(), Conn())
+    clock[0] = R.RELAY_S
+    stream.write("one\n")
+    stream.write("two\n")
+    assert sent == [("log", ["one"])]
+    clock[0] = 2 * R.RELAY_S
+    stream.write("three\n")
+    assert sent == [("log", ["one"]), ("log", ["two", "three"])]
+
+
+def test_the_race_writes_each_relayed_line_once_whole_and_labelled(hop_problem, one_by_one, monkeypatch):
+    """The race writes the log batches its arms send (arms stubbed: two batches each, then the arm's plan marked not
+    converged, so that the race reads every arm to its end) to its sys.stdout as they were written: every line of
+    every batch once, whole, in order, with its arm's label and a newline. The verbose race's IPOPT logs are long
+    enough to pass either way (session 66's mutation testing: each batch's first line dropped, and each batch's last
+    line run into the next batch's first for want of its newline, with every test green)."""
+    import contextlib
+    import io
+
+    def arm(problem, options, conn, name):
+        conn.send(("log", [f"{name} 1", f"{name} 2"]))
+        conn.send(("log", [f"{name} 3"]))
+        plan = one_by_one[name]
+        conn.send(("done", dataclasses.replace(plan, stats=dataclasses.replace(plan.stats, converged=False))))
+        conn.close()
+
+    monkeypatch.setattr(R, "start_method", lambda: "fork")
+    monkeypatch.setattr(R, "_arm", arm)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        R.race(hop_problem, R.default_arms(H.SolveOptions()), processes=2)
+    text = out.getvalue()
+    assert text.endswith("\n")
+    for name in one_by_one:
+        mine = [line for line in text.splitlines() if line.startswith(f"[{name}] ")]
+        assert mine == [f"[{name}] {name} {k}" for k in (1, 2, 3)], text
+    assert len(text.splitlines()) == 3 * len(one_by_one)

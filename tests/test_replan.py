@@ -250,3 +250,24 @@ def test_an_edited_problem_or_the_same_task_is_not_walked(hop_plan, basin):
     simulated = dataclasses.replace(moved.task, simulate=dataclasses.replace(moved.task.simulate, rho_f=2.0))
     same = replan(moved, H.replan_options(), simulated)
     assert same.extra["no_walk"].startswith("no walk from the start's task: the start's task is this task")
+
+
+def test_a_task_between_of_other_nlp_variables_ends_the_walk_not_the_replan(hop_plan, basin, monkeypatch):
+    """A task between whose problem has another Problem.signature than the task's (here built with another
+    switch_scale: the same number of variables in other units, which a start x could be solved from without an
+    error) is not solved from the walk's point: the walk ends there, no_walk names the fraction of the way, and the
+    penalty replan runs (session 66's mutation testing: the signature compared at the task itself only, and the
+    walk's step solved in the wrong units, with every test green)."""
+    prob, x0 = hop_plan
+    real = R.build_problem
+
+    def rescaled(robot, task, options, **kw):
+        return real(robot, task, dataclasses.replace(options, switch_scale=(("c(q)", 100.0),)), **kw)
+
+    monkeypatch.setattr(R, "build_problem", rescaled)
+    res = replan(_moved(prob, x0, 0.6), H.replan_options(), prob.task)
+    monkeypatch.setattr(R, "build_problem", real)
+    no_walk = res.extra.get("no_walk", "")
+    assert "the task 0.5 of the way there has other NLP variables" in no_walk, res.extra.get("walk")
+    assert _steps(res)[:2] == ["schedule", "homotopy 1"] and "walk" not in res.extra
+    assert res.stats.converged, res.stats.message
