@@ -311,11 +311,11 @@ def kills_its_worker(arg):
 
 def test_the_jobs_of_a_dead_worker_are_rerun_each_once_in_its_own_process(tmp_path):
     """A worker's death loses the jobs its pool had not returned; each is rerun once in a fresh process (module
-    docstring): a job killed once from outside gives its own result, without a trace; the job that kills its worker
-    again is the one Crashed record, of stage "worker", "the worker process died"; the jobs after it are not hurt;
-    progress is called once per item (session 66's mutation testing: a lost job made a Crashed record without its
-    rerun; the reruns sharing one pool, whose break made every later job a crash; a lost job's progress called twice,
-    first with None; the rerun's death recorded as stage "transfer"; with every test green)."""
+    docstring): a job whose worker dies once (SIGKILL) gives its own result on its rerun, without a trace; the job
+    that kills its worker again is the one Crashed record, of stage "worker", "the worker process died"; the jobs after
+    it are not hurt; progress is called once per item (session 66's mutation testing: a lost job made a Crashed record
+    without its rerun; the reruns sharing one pool, whose break made every later job a crash; a lost job's progress
+    called twice, first with None; the rerun's death recorded as stage "transfer"; with every test green)."""
     marker = str(tmp_path / "marker")
     items = [("ok", marker), ("once", marker), ("always", marker), ("ok", marker)]
     seen = []

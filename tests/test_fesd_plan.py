@@ -258,15 +258,19 @@ def test_the_fesd_stage_after_implicit_euler_takes_a_given_soft_terminal_weight(
     reads fired after the whole implicit-Euler solve, exit 2)."""
     problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=4), fesd_options(2, 2))
     given = _stages_stubbed(monkeypatch, None)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(_FesdStageReached):
         H._solve_through_implicit_euler(problem, H.SolveOptions(soft_terminal_weight=1e3,
                                                                 fesd_start=H.FESDStart.IMPLICIT_EULER), None)
     assert given[0][1].soft_terminal_weight == 1e3 and given[1][1].soft_terminal_nlps == 0
 
 
+class _FesdStageReached(Exception):
+    """Raised by _stages_stubbed's FESD stage: its own solve is not these tests'."""
+
+
 def _stages_stubbed(monkeypatch, mapped):
     """Stub FESDStart.IMPLICIT_EULER's two solves: the implicit-Euler stage returns a converged stub, the FESD stage
-    raises KeyboardInterrupt once it has its (problem, options), and the mapping returns `mapped`. Returns the list
+    raises _FesdStageReached once it has its (problem, options), and the mapping returns `mapped`. Returns the list
     the two solves' (problem, options) are appended to."""
     given = []
 
@@ -278,7 +282,7 @@ def _stages_stubbed(monkeypatch, mapped):
     def solved(prob, options, progress=None):
         given.append((prob, options))
         if len(given) == 2:
-            raise KeyboardInterrupt  # (the FESD stage's own solve is not these tests')
+            raise _FesdStageReached
         return Stub()
 
     monkeypatch.setattr(H, "solve", solved)
@@ -297,7 +301,7 @@ def test_the_fesd_stage_after_implicit_euler_starts_from_the_mapped_plan_with_it
     given = _stages_stubbed(monkeypatch, mapped)
     options = H.SolveOptions(fesd_start=H.FESDStart.IMPLICIT_EULER, holes=H.HoleSchedule.RELAXED_FIRST,
                              rho_schedule=(1e2, 1e3), fesd_rho_schedule=(1e4, 1e5))
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(_FesdStageReached):
         H._solve_through_implicit_euler(problem, options, None)
     (euler, first), (fesd, second) = given
     assert euler.fesd is None and first.rho_schedule == (1e2, 1e3) and first.holes is H.HoleSchedule.RELAXED_FIRST

@@ -495,13 +495,18 @@ def test_aux_continuation_scale_one_is_the_task():
 
 def test_task_rho_schedule():
     """rho_min drops the weak penalties, rho_max continues the task's geometric schedule (and refuses a rho0 above
-    it), refine sorts extra values in (only inside the schedule's range)."""
+    it), refine sorts extra values in: only inside the schedule as rho_min and rho_max leave it and not in it already
+    (a refine equal to a schedule value adds no second NLP at that penalty, one below rho_min none; session 66's
+    mutation testing: a value kept when it differed from any schedule value, not from all, and the refines picked
+    before rho_min, with every test green)."""
     from types import SimpleNamespace
     hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
     assert H.task_rho_schedule(hom) == [1.0, 10.0, 100.0, 1000.0, 10000.0]
     assert H.task_rho_schedule(hom, 100.0, 1e7) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
     assert H.task_rho_schedule(hom, 1e9) == [1e4]
     assert H.task_rho_schedule(hom, 100.0, 1e7, (3e3, 1e9)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
+    assert H.task_rho_schedule(hom, 100.0, 1e7, (1e4,)) == [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]
+    assert H.task_rho_schedule(hom, 100.0, 1e7, (50.0, 3e3)) == [100.0, 1000.0, 3e3, 1e4, 1e5, 1e6, 1e7]
     # a rho0 above rho_max ran its NLP anyway (1e200: 3000 iterations to objective -1e192, blamed on the target)
     with pytest.raises(InputError, match=r"plan.homotopy.rho0 = 1e\+200 is above rho_max = 1000000.0"):
         H.task_rho_schedule(SimpleNamespace(rho0=1e200, kappa=10.0, n_nlp=1), None, 1e6)
@@ -1347,16 +1352,3 @@ def test_an_impact_is_new_unless_it_shares_a_step_with_one_of_the_starts_or_is_a
     monkeypatch.setattr(H, "_impacts", lambda problem, x, options: impacts[x])
     said = H._new_impacts(hop[0], H.SolveOptions(), "start", "held")
     assert said.startswith("set aside: it adds 1 impact(s)") if new else said == "", said
-
-
-def test_rho_refine_adds_only_new_penalties_inside_the_kept_schedule():
-    """rho_refine sorts in only penalties that are inside the schedule as rho_min and rho_max leave it and not in it
-    already: against the geometric schedule rho0 kappa^i written out, a refine equal to one of its values (1e4) adds
-    no second NLP at that penalty, one below rho_min (50, inside the schedule before rho_min drops its start) none
-    (session 66's mutation testing: a value kept when it differed from any schedule value, not from all, and the
-    refines picked before rho_min, with every test green)."""
-    from types import SimpleNamespace
-    hom = SimpleNamespace(rho0=1.0, kappa=10.0, n_nlp=5)
-    geometric = [100.0, 1000.0, 1e4, 1e5, 1e6, 1e7]  # 1 * 10^i from rho_min 100 to rho_max 1e7
-    assert H.task_rho_schedule(hom, 100.0, 1e7, (1e4,)) == geometric
-    assert H.task_rho_schedule(hom, 100.0, 1e7, (50.0, 3e3)) == sorted(geometric + [3e3])
