@@ -119,29 +119,44 @@ def test_verbose_arms_without_a_stdout_still_race(hop_problem, one_by_one, monke
     assert np.array_equal(result.extra["_x"], one_by_one[won].extra["_x"])
 
 
-def test_relayed_stream_sends_whole_lines_in_batches(monkeypatch):
+class _Recording:
+    """An arm's end of the pipe that records what it is sent (sent: the messages, in order)."""
+
+    def __init__(self):
+        self.sent = []
+
+    def send(self, message):
+        self.sent.append(message)
+
+    def close(self):
+        pass
+
+
+@pytest.fixture
+def relay_clock(monkeypatch):
+    """race.py's time.monotonic frozen at clock[0] [s], which the test moves."""
+    clock = [0.0]
+    monkeypatch.setattr(R.time, "monotonic", lambda: clock[0])
+    return clock
+
+
+def test_relayed_stream_sends_whole_lines_in_batches(monkeypatch, relay_clock):
     """_Relayed (an arm's sys.stdout) buffers a partial line until its end and sends complete lines in batches: once
     RELAY_LINES have gathered or RELAY_S has passed since the last batch (one message per line made a race at
     print_level 12 3.7x slower), the rest at send() or finish(), which also sends a last partial line; each line once,
     in order; other attributes are the arm's own stream's."""
     import io
 
-    sent = []
-
-    class Conn:
-        def send(self, message):
-            sent.append(message)
-
-    clock = [0.0]
-    monkeypatch.setattr(R.time, "monotonic", lambda: clock[0])
+    conn = _Recording()
+    sent = conn.sent
     monkeypatch.setattr(R, "RELAY_LINES", 3)
-    stream = R._Relayed(io.StringIO("x"), Conn())
+    stream = R._Relayed(io.StringIO("x"), conn)
     stream.write("one\ntw")
     assert sent == []  # gathered
     stream.write("o\n\nthree")
     assert sent == [("log", ["one", "two", ""])]  # RELAY_LINES reached
     stream.write("\nfour\n")
-    clock[0] = R.RELAY_S
+    relay_clock[0] = R.RELAY_S
     stream.write("five")
     assert sent[-1] == ("log", ["three", "four"])  # RELAY_S passed
     stream.flush()
@@ -440,7 +455,8 @@ def test_a_race_run_as_pid_1_converges(tmp_path):
     assert (tmp_path / "out" / "summary.json").is_file()
 
 
-def test_an_arm_sends_its_log_lines_before_each_record_and_its_last_partial_line_before_its_result(monkeypatch):
+def test_an_arm_sends_its_log_lines_before_each_record_and_its_last_partial_line_before_its_result(monkeypatch,
+                                                                                                      relay_clock):
     """An arm at print_level > 0 (_arm, run here with a recording connection and a solve that prints): the lines
     written before an NLP's record reach the race before that record, in order, even when RELAY_S has not passed;
     after the record a partial last line (no newline) is sent as a line before the result; a line written after
@@ -449,14 +465,8 @@ def test_an_arm_sends_its_log_lines_before_each_record_and_its_last_partial_line
     every test green)."""
     import io
 
-    sent = []
-
-    class Conn:
-        def send(self, message):
-            sent.append(message)
-
-        def close(self):
-            pass
+    conn = _Recording()
+    sent = conn.sent
 
     def solve(problem, options, progress):
         print("iter 1")
@@ -465,22 +475,20 @@ def test_an_arm_sends_its_log_lines_before_each_record_and_its_last_partial_line
         print("EXIT: last", end="")
         return "result"
 
-    clock = [0.0]
-    monkeypatch.setattr(R.time, "monotonic", lambda: clock[0])
     monkeypatch.setattr(R, "_die_with_parent", lambda: None)  # (not in a process of its own here)
     monkeypatch.setattr(R, "solve", solve)
     monkeypatch.setattr(sys, "stdout", io.StringIO())  # _arm replaces sys.stdout with its relay
-    R._arm(None, H.SolveOptions(print_level=5), Conn(), "default")
+    R._arm(None, H.SolveOptions(print_level=5), conn, "default")
     assert sent == [("log", ["iter 1", "EXIT: first"]), ("progress", "record 1"), ("log", ["EXIT: last"]),
                     ("done", "result")]
     # the batches: one at RELAY_S, then nothing until RELAY_S has passed again
     sent.clear()
-    stream = R._Relayed(io.StringIO(), Conn())
-    clock[0] = R.RELAY_S
+    stream = R._Relayed(io.StringIO(), conn)
+    relay_clock[0] = R.RELAY_S
     stream.write("one\n")
     stream.write("two\n")
     assert sent == [("log", ["one"])]
-    clock[0] = 2 * R.RELAY_S
+    relay_clock[0] = 2 * R.RELAY_S
     stream.write("three\n")
     assert sent == [("log", ["one"]), ("log", ["two", "three"])]
 
