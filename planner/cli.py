@@ -13,6 +13,7 @@ import json
 import multiprocessing
 import os
 import re
+import select
 import shutil
 import signal
 import stat
@@ -48,7 +49,8 @@ class UsageParser(argparse.ArgumentParser):
     def error(self, message):
         text = f"{message} (see --help)"
         if sys.stderr is not None:  # (closed, `2>&-`: print(file=None) wrote it on stdout)
-            print(_escaped(f"{self.prog}: error: {text}"), file=sys.stderr)
+            # a full stderr (`2>/dev/full`) made the line's OSError a traceback: exit 1, not 2, and no --json object
+            print(_escaped(f"{self.prog}: error: {text}"), file=_ReaderMayLeave(sys.stderr, diagnostics=True))
         raise UsageExit(text)
 
 
@@ -418,19 +420,33 @@ def _asks_ipopt_log(args) -> bool:
     return False
 
 
+# [s] how long a write to a non-blocking stream waits for its reader to take any byte before the reader counts as
+# gone: a blocking stream waits for ever, but a reader that stopped for good (a paused pipeline) must not hang the solve
+# or, with Ctrl-C ignored while it is reported, the "interrupted" line; a slow reader (`| less`, a busy terminal
+# multiplexer) takes some bytes well within it
+STALLED_READER_S = 10.0
+
+
 class _ReaderMayLeave:
     """A text stream whose reader may go away (`planner plan ... 2>&1 | grep -m1 homotopy`, or a terminal that closed):
-    what is printed after that is dropped and the command goes on, writes its results and exits as it would (the solve
-    stopped at the first progress line the pipe refused, nothing was written and the exit code was 0; a plan whose
-    terminal hung up exited 1 on the EIO of its "interrupted" line, not 130). diagnostics: stderr, whose every write
-    error drops the text (`2>/dev/full` stopped a solve at its first progress line, exit 1, nothing written); a full
-    stdout still fails the command ("No space left on device", exit 1: --json's reader would get nothing)."""
+    at the first write or flush error that says so (a broken pipe; a terminal's hang-up, EIO) the stream's descriptor
+    is pointed at /dev/null, so that the text and all later output of the run are dropped, and the command goes on,
+    writes its results and exits as it would (the solve stopped at the first progress line the pipe refused, nothing
+    was written and the exit code was 0; a plan whose terminal hung up exited 1 on the EIO of its "interrupted" line,
+    not 130). diagnostics: stderr, where any other write or flush error does the same (`2>/dev/full` stopped a solve at
+    its first progress line, exit 1, nothing written); a full stdout still fails the command ("No space left on
+    device", exit 1: --json's reader would get nothing). A non-blocking stream (a terminal multiplexer's, or a pipe
+    another process set so) whose reader is momentarily behind is not one that left: the text is written as bytes
+    straight to its descriptor, waiting for the reader while it takes any byte within STALLED_READER_S (the first time
+    its pipe was full, the rest of the run's stderr went to /dev/null); one that takes nothing for so long is gone."""
 
     def __init__(self, stream, diagnostics: bool = False):
         self._stream, self._diagnostics = stream, diagnostics
 
     def _guarded(self, name: str, *args):
         try:
+            if self._nonblocking():
+                return self._patiently(name, *args)
             return getattr(self._stream, name)(*args)
         except OSError as exc:
             if not (self._diagnostics or isinstance(exc, BrokenPipeError) or exc.errno == errno.EIO and self._tty()):
@@ -439,6 +455,42 @@ class _ReaderMayLeave:
             with contextlib.suppress(OSError, ValueError):
                 _to_devnull(self._stream.fileno())
             return len(args[0]) if args else None
+
+    def _nonblocking(self) -> bool:
+        """Whether the stream has a descriptor set non-blocking (checked at each write: a terminal multiplexer may set
+        it at any time); a stream without one (a StringIO) is not."""
+        try:
+            return not os.get_blocking(self._stream.fileno())
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def _patiently(self, name: str, *args):
+        """The stream's `name` ("write" or "flush") on its non-blocking descriptor, every byte written once and in
+        order: the text layer of a TextIOWrapper cannot say which of its bytes a BlockingIOError lost (and over an
+        unbuffered descriptor, PYTHONUNBUFFERED=1, it drops them without one), so what the stream holds is flushed
+        first (a buffered stream keeps what it could not write, and the flush is tried again) and the text is encoded
+        and written by os.write, which says how many bytes it took. Raises the BlockingIOError when the reader took
+        nothing for STALLED_READER_S."""
+        fd = self._stream.fileno()
+
+        def waiting(call, *call_args):
+            deadline = time.monotonic() + STALLED_READER_S
+            while True:
+                try:
+                    return call(*call_args)
+                except BlockingIOError:
+                    left = deadline - time.monotonic()
+                    if left <= 0 or not select.select([], [fd], [], left)[1]:
+                        raise
+
+        waiting(self._stream.flush)
+        if name == "flush":
+            return None
+        encoding, errors = (getattr(self._stream, a, None) for a in ("encoding", "errors"))
+        data = memoryview(args[0].encode(encoding or "utf-8", errors or "strict"))
+        while data:
+            data = data[waiting(os.write, fd, data):]
+        return len(args[0])
 
     def _tty(self) -> bool:
         """Whether the stream is a terminal's (a character device: a hung-up one is no tty to isatty), whose EIO is

@@ -1586,6 +1586,16 @@ def test_a_full_stderr_does_not_stop_the_solve(tmp_path):
     assert (tmp_path / "out" / "summary.json").is_file()
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_usage_error_with_a_full_stderr_still_exits_2_with_its_json():
+    """A usage error whose line a full stderr (`2>/dev/full`) refuses still exits 2 with --json's object on stdout:
+    the line's OSError was a traceback, exit 1 and nothing on stdout, so a script read no JSON and a wrong code."""
+    with open("/dev/full", "w") as full:
+        usage = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "point_mass", "--bogus", "--json"],
+                               stdout=subprocess.PIPE, stderr=full, text=True, timeout=120)
+    assert (usage.returncode, json.loads(usage.stdout)["exit_code"]) == (2, 2), usage.stdout
+
+
 def test_an_eio_is_a_hang_up_only_on_a_terminal(tmp_path):
     """The command's output stream drops an EIO only where it is a terminal's hang-up (a character device); a file's
     EIO is a failing disk, and it still fails the command (reviewer, session 65: dropped everywhere, `--json >
@@ -1608,6 +1618,76 @@ def test_an_eio_is_a_hang_up_only_on_a_terminal(tmp_path):
         with pytest.raises(OSError, match="Input/output error"):
             _ReaderMayLeave(Failing(regular.fileno())).write("{}")
         assert _ReaderMayLeave(Failing(character.fileno())).write("{}") == 2
+
+
+SLOW_READER_START_S = 0.05  # [s] the reader's first read waits so long: the writer fills the 64 KiB pipe meanwhile
+SLOW_READER_PAUSE_S = 0.001  # [s] between its 4 KiB reads, so that the pipe is full again at almost every write
+READER_DONE_S = 30  # [s] the reader has read everything well within it; room for a loaded box
+
+
+@pytest.mark.parametrize("unbuffered", [False, True], ids=["line-buffered", "PYTHONUNBUFFERED"])
+def test_a_slow_reader_of_a_non_blocking_stderr_gets_every_line(unbuffered):
+    """stderr set non-blocking (a terminal multiplexer, or `planner plan ... -v 2>&1 | slow_reader` with a pipe set
+    so) whose reader is momentarily behind is waited for, not taken for one that left: 144 kB of lines, more than the
+    pipe holds, all arrive once, whole and in order (its first full pipe sent the text and the rest of the run's
+    stderr, the final "interrupted" or error line included, to /dev/null; under PYTHONUNBUFFERED=1 the text layer
+    dropped what the pipe refused without an error)."""
+    import io
+    import threading
+    import time
+
+    from planner.cli import _ReaderMayLeave
+
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    arrived = bytearray()
+
+    def slow_reader():
+        time.sleep(SLOW_READER_START_S)
+        while chunk := os.read(read_end, 4096):
+            arrived.extend(chunk)
+            time.sleep(SLOW_READER_PAUSE_S)
+
+    reader = threading.Thread(target=slow_reader, daemon=True)
+    reader.start()
+    try:  # sys.stderr's two kinds: line-buffered over a BufferedWriter, and write-through over the descriptor's FileIO
+        raw = io.FileIO(write_end, "w", closefd=False)
+        stream = io.TextIOWrapper(raw if unbuffered else io.BufferedWriter(raw), encoding="utf-8",
+                                  errors="backslashreplace", line_buffering=not unbuffered, write_through=unbuffered)
+        err = _ReaderMayLeave(stream, diagnostics=True)
+        lines = [f"{i:04d} über {'x' * 60}\n" for i in range(2000)]  # (a two-byte character: bytes, not characters)
+        for line in lines:
+            print(line, end="", file=err, flush=True)
+        stream.flush()
+    finally:
+        os.close(write_end)
+        reader.join(READER_DONE_S)
+        os.close(read_end)
+    assert arrived.decode() == "".join(lines)
+
+
+STALL_S = 0.05  # [s] STALLED_READER_S for the test: the write must give up soon after it
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/fd")
+def test_a_non_blocking_stderr_whose_reader_stopped_does_not_hang_the_run(monkeypatch):
+    """stderr set non-blocking whose reader stopped reading for good (a paused pipeline) counts as gone once it took
+    nothing for STALLED_READER_S: the write returns, so the solve and its "interrupted" line, printed with Ctrl-C
+    ignored, do not wait for ever, and stderr is pointed at /dev/null as for a reader that left."""
+    import planner.cli
+
+    monkeypatch.setattr(planner.cli, "STALLED_READER_S", STALL_S)
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    try:
+        with open(write_end, "w", buffering=1, closefd=False) as stream:
+            err = planner.cli._ReaderMayLeave(stream, diagnostics=True)
+            for _ in range(2):  # more than the 64 KiB pipe holds
+                assert err.write("x" * 65536 + "\n") == 65537
+            assert os.readlink(f"/proc/self/fd/{write_end}") == os.devnull
+    finally:
+        os.close(write_end)
+        os.close(read_end)
 
 
 CLOSED_RUN = """import os, sys
