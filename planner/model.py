@@ -315,7 +315,8 @@ class _DoctypeSeen(ET.TreeBuilder):
 def detect_format(path: Path) -> RobotFormat:
     """MJCF or URDF from the XML root element (<mujoco> or <robot>); RobotFileError for a file larger than
     MAX_ROBOT_FILE_BYTES, nested deeper than MAX_XML_DEPTH or with a <!DOCTYPE>, a file it names that is no regular
-    file, a placement, size or inertia that is not finite, a bound that is nan, or an MJCF file not named .xml."""
+    file, a placement, size or inertia that is not finite, a bound that is nan, a name with a control (unprintable)
+    character, or an MJCF file not named .xml."""
     try:
         size = path.stat().st_size
         if size > MAX_ROBOT_FILE_BYTES:
@@ -344,6 +345,12 @@ def detect_format(path: Path) -> RobotFormat:
     parents = {child: parent for parent in root.iter() for child in parent}
     unread = {e for top in root.iter() if top.tag in _UNREAD_ELEMENTS for e in top.iter()}
     for element in (e for e in root.iter() if e not in unread):  # (Pinocchio spread a site's nan into an inertia)
+        name = element.get("name") or (element.get("model") if element is root else None) or ""
+        unprintable = next((c for c in name if not c.isprintable()), None)
+        if unprintable is not None:  # a newline in a site's name split `check-model`'s and the report's lines in two
+            named = _element_path(element, parents) if element.get("name") else f"<{root.tag} model={name!r}>"
+            raise RobotFileError(f"{path}: {named} has a name with the unprintable character {unprintable!r}, which "
+                                 "would break the lines that name it; rename it")
         for key, value in element.attrib.items():
             must_be_finite = key in _FINITE_ATTRIBUTES or (element.tag == "mass" and key == "value")
             numbers = _numbers(value) if must_be_finite or key in _BOUND_ATTRIBUTES else []

@@ -870,3 +870,25 @@ def test_a_motor_without_a_ctrlrange_is_unbounded_or_bounded_by_its_forcerange(r
     assert not mj.actuator_ctrllimited[0] and tuple(mj.actuator_ctrlrange[0]) == (0.0, 0.0)
     assert (robot.u_lower[0], robot.u_upper[0]) == bounds
     assert (robot.u_lower[1], robot.u_upper[1]) == (-100.0, 100.0)
+
+
+CAPLER_URDF = (ROBOTS_DIR / "capler.urdf").read_text()
+
+
+@pytest.mark.parametrize("text, old, new, named", [
+    (POINT_MASS, '<site name="point"', '<site name="point&#10;x"',
+     r"<site name='point\\nx'> has a name with the unprintable character '\\n'"),
+    (POINT_MASS, '<joint name="z"', '<joint name="z&#13;"', r"<joint name='z\\r'> .* character '\\r'"),
+    (POINT_MASS, '<mujoco model="point_mass">', '<mujoco model="point&#9;mass">',
+     r"<mujoco model='point\\tmass'> .* character '\\t'"),
+    (CAPLER_URDF, '<link name="foot"/>', '<link name="foot&#10;x"/>', r"<link name='foot\\nx'> .* character '\\n'"),
+])
+def test_a_name_with_a_control_character_is_refused_naming_its_element(robot_variant, text, old, new, named):
+    """A robot file's element name holding a newline, a carriage return or a tab (an MJCF site, joint or model name, a
+    URDF link) is refused at load with a RobotFileError naming the element, the name escaped: such a name went into
+    the one-line-per-item reports (`check-model`'s points line, a plan's impact lines) and split them in two, so a
+    reader of the lines saw broken records."""
+    name = "variant.urdf" if old.startswith("<link") else "variant.xml"
+    with pytest.raises(RobotFileError, match=named) as caught:
+        robot_variant(text, old, new, name)
+    assert "\n" not in str(caught.value)
