@@ -45,6 +45,10 @@ MAX_STEPS = 10**7
 MAX_TASK_FILE_BYTES = 16 * 2**20
 # [m, rad, m/s, rad/s] a start or target coordinate beyond this is a typo (1e300 overflowed into NaNs in the solve)
 MAX_STATE = 1e6
+# [s] a horizon beyond this is a typo too: the clock t, a state like q and v, runs to about tau_f, so it gets their
+# range (11.6 days of motion; the shipped tasks' are 0.6-2.5 s). tau_f = 1e300 overflowed h g into inf and nan: a plan
+# failed with a 300-digit physical time in its report, a simulation on a restoration failure of its first step
+MAX_HORIZON_S = MAX_STATE
 # more NLPs than this in one homotopy are a typo too (the shipped tasks solve 3-5): kappa = 1.0001 scheduled 92109 NLPs
 MAX_NLPS = 100
 
@@ -115,6 +119,7 @@ class Horizon:
     def __post_init__(self):
         _typed(self, "horizon")
         _require(self.tau_f > 0, "horizon.tau_f", self.tau_f, "> 0")
+        _require(self.tau_f <= MAX_HORIZON_S, "horizon.tau_f", self.tau_f, f"at most {MAX_HORIZON_S:g} s")
         _require(1 <= self.N <= MAX_STEPS, "horizon.N", self.N, f"in [1, {MAX_STEPS}]")
         if self.physical_time is not None:
             _require(0 < self.physical_time <= self.tau_f, "horizon.physical_time", self.physical_time, "in (0, tau_f]")

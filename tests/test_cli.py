@@ -1395,7 +1395,7 @@ BAD_ALLOC = RuntimeError("Error in Function::factory for 'nlp_hess_l' [MXFunctio
 
 @pytest.mark.parametrize("error", [MemoryError(), BAD_ALLOC])
 def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch, error):
-    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e8 s that MuJoCo replays at its 1 ms step) or CasADi's
+    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e6 s that MuJoCo replays at its 0.25 ms step) or CasADi's
     C++ std::bad_alloc (N = 5000 under a 2.5 GB limit: it was a 35-line traceback, session 57's tester) is one line,
     exit 1, naming both causes (it named N only, which was 20) and the memory a step takes."""
     import planner.replay as replay
@@ -1408,7 +1408,7 @@ def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path
                  "--no-plots", "-q", "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == ("planner plan: failed: out of memory (is horizon.N or --steps far too large, ~1 MB per step for "
-                       "a robot of Capler's size, or the physical time MuJoCo replays, e.g. tau_f = 1e8 s?)")
+                       "a robot of Capler's size, or the physical time MuJoCo replays, e.g. tau_f = 1e6 s?)")
 
 
 def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):

@@ -102,6 +102,9 @@ def _with(path: str, value):
         # kappa = 1.0001 scheduled 92109 NLPs through SolveOptions.rho_max; n_nlp itself is capped too
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.01, "n_nlp": 101}}, r"n_nlp = 101 .* \[1, 100\]"),
         ("horizon", {"tau_f": 2.5, "N": 10**9}, r"horizon.N = 1000000000 .* in \[1, 10000000\]"),  # built for ever
+        # a finite but absurd horizon overflowed h g: a plan's report gave a physical time of 300 digits
+        ("horizon", {"tau_f": 1e300, "N": 10},
+         r"^horizon.tau_f = 1e\+300 is not allowed; it must be at most 1e\+06 s$"),
         ("contacts", [{"point": "foot", "a_n": 1e7}], r"contacts\[0\].a_n = 10000000.0 .* in \(0, 1e\+06\]"),  # clock at 1.44x
         ("contacts", [{"point": "foot", "a_t": 1e9}], r"contacts\[0\].a_t = 1000000000.0 .* in \(0, 1e\+06\]"),  # flight sped up
         # a range error names the entry, as a type error does (with two contacts the user could not tell which)
