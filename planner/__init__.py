@@ -26,8 +26,20 @@ def _same_blas_kernels() -> None:
 
 _same_blas_kernels()
 
-from .errors import InputError, PlannerError, SolveError  # noqa: E402
-from .model import Robot, load_robot  # noqa: E402
-
-__all__ = ["InputError", "PlannerError", "Robot", "SolveError", "load_robot"]
+# each name the package gives, by the module that defines it
+_NAMES = {"InputError": "errors", "PlannerError": "errors", "SolveError": "errors", "Robot": "model",
+          "load_robot": "model"}
+__all__ = sorted(_NAMES)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """The package's names, imported on first use (PEP 562): the `planner` command imports this package before its
+    main runs, and a Ctrl-C while NumPy and Pinocchio loaded here printed a traceback (exit by SIGINT) instead of the
+    one line and exit 130 that main gives once it runs, where they now load."""
+    if name not in _NAMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from importlib import import_module
+
+    value = globals()[name] = getattr(import_module(f".{_NAMES[name]}", __name__), name)
+    return value

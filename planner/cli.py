@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import importlib
 import json
 import multiprocessing
 import os
@@ -302,6 +303,9 @@ def main(argv: list[str] | None = None) -> int:
     redirect = getattr(args, "json", False) or getattr(args, "verbose", False) or _asks_ipopt_log(args)
     quiet_stdout = contextlib.redirect_stdout(err if redirect else out)
     try:
+        # NumPy and Pinocchio before the command's own libraries, as `import planner` loaded them (the shared objects'
+        # load order of every documented run), here where a Ctrl-C during their load is the one line as well
+        importlib.import_module(".model", __package__)
         # restores showwarning for an in-process caller
         # a solving command's Ctrl-C that a library swallowed (CasADi's callbacks) is raised once it returns (view's
         # server ends by Ctrl-C, exit 0)

@@ -18,8 +18,11 @@ import threading
 from collections.abc import Iterable
 from dataclasses import fields, is_dataclass
 from enum import Enum
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # NumPy loads where it is used: the `planner` command imports this module before main can catch a
+    # Ctrl-C, and NumPy's import took a third of that time
+    import numpy as np
 
 
 # OS errors about a path the user gave (a name too long, a loop of links, a file where a directory should be, no
@@ -149,6 +152,13 @@ def check_interrupted() -> None:
                 raise raised[0]
 
 
+def interrupted() -> bool:
+    """Whether check_interrupted would raise: for a callback whose exceptions its caller swallows (IPOPT's iteration
+    callback, homotopy._StopWhenInterrupted)."""
+    return (threading.current_thread() is threading.main_thread()
+            and any(raised and not defer for raised, defer in _PENDING))
+
+
 _STDOUT = threading.Lock()  # sys.stdout is the process's: two threads' swaps interleaved left it on a StringIO
 os.register_at_fork(after_in_child=lambda: globals().update(_STDOUT=threading.Lock()))  # (held by another thread)
 
@@ -242,6 +252,8 @@ def plain(value):
 def real_array(value, what: str) -> np.ndarray:
     """`value` as a float array (a copy); an InputError naming `what` when it holds complex numbers (float() would
     drop the imaginary part with a warning), strings (numpy parsed "1.0"), None or a number no double holds."""
+    import numpy as np
+
     given = None
     try:
         given = None if value is None else np.asarray(value)

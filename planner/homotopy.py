@@ -44,7 +44,7 @@ import numpy as np
 
 from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
-                     options_record, plain, real_array, representable)
+                     interrupted, options_record, plain, real_array, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of)
@@ -729,6 +729,44 @@ def ipopt_options(options: SolveOptions, warm: bool, loose: bool = False) -> dic
 Progress = Callable[[NlpRecord], None]
 
 
+class _StopWhenInterrupted(ca.Callback):
+    """IPOPT's iteration callback (CasADi's iteration_callback) where IPOPT prints its log (print_level > 0): it stops
+    the NLP (User_Requested_Stop) once a Ctrl-C was taken (errors.interrupted); errors.interruptible raises it after.
+    CasADi prints the log through Python's sys.stdout, and a Ctrl-C that Python took inside that write raised its
+    KeyboardInterrupt there, which the write dropped (PySys_WriteStdout drops a write's error): CasADi's own check saw
+    no signal left and the NLP ran to its end (seconds on the Capler task; 0.2 s without -v). It reads the iterate
+    only: the solve's numbers are the same."""
+
+    def __init__(self, nlp: dict):
+        ca.Callback.__init__(self)
+        nx, ng, n_p = (nlp[k].numel() if k in nlp else 0 for k in ("x", "g", "p"))
+        # the inputs are nlpsol's outputs, by name
+        self._sizes = [{"x": nx, "f": 1, "g": ng, "lam_x": nx, "lam_g": ng, "lam_p": n_p}[ca.nlpsol_out(i)]
+                       for i in range(ca.nlpsol_n_out())]
+        self.construct("stop_when_interrupted", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self._sizes[i], 1)
+
+    def eval(self, arg):
+        return [1.0 if interrupted() else 0.0]  # (nonzero: IPOPT stops)
+
+
+def _nlpsol(name: str, nlp: dict, opts: dict, keep: list) -> ca.Function:
+    """ca.nlpsol(name, "ipopt", nlp, opts), with _StopWhenInterrupted where IPOPT prints its log (kept alive in
+    `keep`: CasADi holds no reference to a Python callback)."""
+    if opts["ipopt"].get("print_level", 5) > 0:  # (IPOPT's default level is 5)
+        keep.append(_StopWhenInterrupted(nlp))
+        opts = dict(opts, iteration_callback=keep[-1])
+    return ca.nlpsol(name, "ipopt", nlp, opts)
+
+
 class _Solvers:
     """IPOPT for the problem's NLP, created on first use: cold (NLP 1) and warm (later NLPs).
     They differ only in IPOPT options that CasADi fixes at creation."""
@@ -744,6 +782,7 @@ class _Solvers:
         self.scale = None  # D (nx,) once set_scale was called: the warm solvers then solve for xs = x / D
         self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
         self.options, self.cache, self.setup_time_s = options, {}, 0.0
+        self.callbacks: list[_StopWhenInterrupted] = []  # those of the solvers made (_nlpsol)
         self.eval_s: dict[str, dict[str, float]] = {}  # IPOPT's name -> callback -> wall s, summed over all its calls
         self.problem = problem
         self._derivs, self._derivs_stepwise = None, False
@@ -840,7 +879,7 @@ class _Solvers:
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
             _users_last(opts, self.options, False)
             opts.update(self.derivatives(scaled, projection=True))
-            self.cache["projection"] = ca.nlpsol("tf_ocp_projection", "ipopt", nlp, opts)
+            self.cache["projection"] = _nlpsol("tf_ocp_projection", nlp, opts, self.callbacks)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
 
@@ -864,7 +903,7 @@ class _Solvers:
                 # another path (472 / 1391 / 693 / 2129 / 934 iterations instead of 472 / 1535 / 839 to a plan of cost
                 # 125.5 instead of 99.4)
                 opts.update(self.derivatives(scaled, homotopy=not schedule))
-            self.cache[key] = ca.nlpsol(f"tf_ocp_{name}", "ipopt", self.scaled_nlp if scaled else self.nlp, opts)
+            self.cache[key] = _nlpsol(f"tf_ocp_{name}", self.scaled_nlp if scaled else self.nlp, opts, self.callbacks)
             self.setup_time_s += time.perf_counter() - t0
         return self.cache[key]
 

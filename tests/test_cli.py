@@ -951,6 +951,72 @@ def test_ctrl_c_inside_ipopt_stops_the_command(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_ctrl_c_while_ipopts_log_is_written_stops_the_nlp(tmp_path, monkeypatch, ctrl_c):
+    """With -v, a Ctrl-C that Python takes while IPOPT's log line is written (CasADi prints it through sys.stdout)
+    stops the NLP there, exit 130 and one line: the write dropped the KeyboardInterrupt, CasADi's own check saw no
+    signal left, and the NLP ran to its end first (6-7 s on the default Capler task, 0.2 s without -v). The hop's
+    NLP 1 takes 59 iterations; the signal lands in the write of its 20th."""
+    import io
+    import signal
+
+    task = tmp_path / "hop.toml"
+    task.write_text(HOP_TASK)
+    iterations, after = [], []  # IPOPT's iteration lines up to the signal; all text written after it
+
+    class Stderr(io.StringIO):
+        def write(self, text):
+            if len(iterations) == 20:
+                after.append(text)
+            elif re.match(r"\s*\d+\s+-?\d\.\d+e[+-]\d+ ", text):  # "  19  1.1e+02 ...": an iteration's line
+                iterations.append(text)
+                if len(iterations) == 20:
+                    os.kill(os.getpid(), signal.SIGINT)
+            return len(text)
+
+    monkeypatch.setattr(sys, "stderr", Stderr())
+    code = main(["plan", "point_mass", "--task", str(task), "--out", str(tmp_path / "out"), "--no-validate",
+                 "--no-plots", "--no-race", "-v"])
+    log = "".join(after)
+    assert code == 130 and log.strip().splitlines()[-1] == "planner plan: interrupted", log
+    assert "Optimal Solution Found" not in log and not (tmp_path / "out").exists(), log
+
+
+# a sitecustomize that sends its process a SIGINT as the module named by $STOP_AT is first imported: a Ctrl-C at a
+# chosen point of the command's imports, not at a time that a slow or loaded machine would shift
+STOP_AT_IMPORT = """
+import os, signal, sys
+
+class _StopAt:
+    def find_spec(self, name, path=None, target=None):
+        if name == os.environ["STOP_AT"]:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, _StopAt())
+"""
+
+
+@pytest.mark.parametrize("library", ["numpy", "pinocchio"])
+@pytest.mark.parametrize("entry", [
+    ["-c", "import sys\nfrom planner.cli import main\nsys.exit(main())"],  # the console script pip writes
+    ["-m", "planner"]])
+def test_ctrl_c_while_the_libraries_load_is_one_line_and_exit_130(tmp_path, library, entry):
+    """A Ctrl-C in the first fraction of a second of a command, while NumPy or Pinocchio loads, ends it as a later one
+    does: the line "planner COMMAND: interrupted" and exit 130. `import planner` loaded them before main ran, so the
+    user saw Python's traceback and the process died of the SIGINT (-2 here)."""
+    import signal
+
+    (tmp_path / "sitecustomize.py").write_text(STOP_AT_IMPORT)
+    env = {**os.environ, "STOP_AT": library,
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")]))}
+    proc = subprocess.run([sys.executable, *entry, "check-model", "point_mass", "--samples", "1"], env=env,
+                          capture_output=True, text=True, timeout=60,
+                          # Ctrl-C's default also where the suite runs with SIGINT ignored (as in the test above)
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert (proc.returncode, proc.stderr) == (130, "planner check-model: interrupted\n")
+
+
 def test_a_failed_verdict_exits_1_and_a_failed_simulation_keeps_its_diagnostics(tmp_path, capsys, monkeypatch):
     """Exit code 1 (a valid input whose run failed), never 0 or 2: a simulation whose step did not converge (IPOPT's
     failure stubbed at a complementary point) exits 1 and writes its diagnostics to DIR/failed; `validate` of a
