@@ -1,5 +1,11 @@
 """planner: contact-implicit motion planning with the time-freezing reformulation."""
 import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the names' types for a user's type checker (the package ships py.typed); at run time they load
+    # on first use (__getattr__)
+    from .errors import InputError, PlannerError, SolveError
+    from .model import Robot, load_robot
 
 # One BLAS thread unless the caller chose (set before numpy and CasADi's IPOPT load their OpenBLAS): a second core
 # does not make an IPOPT iteration faster (docs/benchmarks.md, session 6), and the thread count changes the rounding
@@ -29,7 +35,8 @@ _same_blas_kernels()
 # each name the package gives, by the module that defines it
 _NAMES = {"InputError": "errors", "PlannerError": "errors", "SolveError": "errors", "Robot": "model",
           "load_robot": "model"}
-__all__ = sorted(_NAMES)
+# spelled out, not sorted(_NAMES): pyflakes and type checkers read a literal list (strict mypy re-exports only these)
+__all__ = ["InputError", "PlannerError", "Robot", "SolveError", "load_robot"]
 __version__ = "0.1.0"
 
 
@@ -43,3 +50,8 @@ def __getattr__(name: str):
 
     value = globals()[name] = getattr(import_module(f".{_NAMES[name]}", __name__), name)
     return value
+
+
+def __dir__() -> list[str]:
+    """The module's names with the ones not loaded yet (dir(), help() and tab completion listed none of them)."""
+    return sorted(set(globals()) | set(_NAMES))

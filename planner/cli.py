@@ -424,10 +424,11 @@ def _asks_ipopt_log(args) -> bool:
     return False
 
 
-# [s] how long a write to a non-blocking stream waits for its reader to take any byte before the reader counts as
+# [s] how long a write to a non-blocking stderr waits for its reader to take any byte before the reader counts as
 # gone: a blocking stream waits for ever, but a reader that stopped for good (a paused pipeline) must not hang the solve
 # or, with Ctrl-C ignored while it is reported, the "interrupted" line; a slow reader (`| less`, a busy terminal
-# multiplexer) takes some bytes well within it
+# multiplexer) takes some bytes well within it. stdout has none: it is written after the results, and its reader
+# (--json's) needs the whole text, which a reader that paused longer got cut short with exit 1
 STALLED_READER_S = 10.0
 
 
@@ -441,8 +442,9 @@ class _ReaderMayLeave:
     its first progress line, exit 1, nothing written); a full stdout still fails the command ("No space left on
     device", exit 1: --json's reader would get nothing). A non-blocking stream (a terminal multiplexer's, or a pipe
     another process set so) whose reader is momentarily behind is not one that left: the text is written as bytes
-    straight to its descriptor, waiting for the reader while it takes any byte within STALLED_READER_S (the first time
-    its pipe was full, the rest of the run's stderr went to /dev/null); one that takes nothing for so long is gone."""
+    straight to its descriptor, waiting for the reader as a blocking stream would (the first time its pipe was full,
+    the rest of the run's stderr went to /dev/null); for diagnostics, only while it takes any byte within
+    STALLED_READER_S: one that takes nothing for so long is gone."""
 
     def __init__(self, stream, diagnostics: bool = False):
         self._stream, self._diagnostics = stream, diagnostics
@@ -473,18 +475,20 @@ class _ReaderMayLeave:
         order: the text layer of a TextIOWrapper cannot say which of its bytes a BlockingIOError lost (and over an
         unbuffered descriptor, PYTHONUNBUFFERED=1, it drops them without one), so what the stream holds is flushed
         first (a buffered stream keeps what it could not write, and the flush is tried again) and the text is encoded
-        and written by os.write, which says how many bytes it took. Raises the BlockingIOError when the reader took
-        nothing for STALLED_READER_S."""
+        and written by os.write, which says how many bytes it took. Raises the BlockingIOError when diagnostics' reader
+        took nothing for STALLED_READER_S; a Ctrl-C interrupts the wait."""
         fd = self._stream.fileno()
+        writable = select.poll()  # (select.select refuses a descriptor of 1024 or more: a ValueError, a traceback)
+        writable.register(fd, select.POLLOUT)
 
         def waiting(call, *call_args):
-            deadline = time.monotonic() + STALLED_READER_S
+            deadline = time.monotonic() + STALLED_READER_S if self._diagnostics else None
             while True:
                 try:
                     return call(*call_args)
                 except BlockingIOError:
-                    left = deadline - time.monotonic()
-                    if left <= 0 or not select.select([], [fd], [], left)[1]:
+                    left_ms = None if deadline is None else (deadline - time.monotonic()) * 1000  # (None: no timeout)
+                    if left_ms is not None and left_ms <= 0 or not writable.poll(left_ms):
                         raise
 
         waiting(self._stream.flush)

@@ -142,21 +142,26 @@ def interruptible(defer: bool = False):
 _PENDING: list = []  # (exceptions raised by signal handlers, defer) of each interruptible block (main thread only)
 
 
+def _pending_interrupt() -> BaseException | None:
+    """The first exception a signal's handler raised during an interruptible block that does not defer it; off the
+    main thread (whose blocks these are), none."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return next((raised[0] for raised, defer in list(_PENDING) if raised and not defer), None)
+
+
 def check_interrupted() -> None:
     """The exception a signal's handler raised during an interruptible block that does not defer it, when a library
     swallowed it: for loops of many CasADi calls (a MuJoCo replay's controller), which otherwise ran to their end
     (`planner gait` walked all its steps and printed its summary, then exited 130). Off the main thread: nothing."""
-    if threading.current_thread() is threading.main_thread():
-        for raised, defer in list(_PENDING):
-            if raised and not defer:
-                raise raised[0]
+    if (exc := _pending_interrupt()) is not None:
+        raise exc
 
 
 def interrupted() -> bool:
     """Whether check_interrupted would raise: for a callback whose exceptions its caller swallows (IPOPT's iteration
     callback, homotopy._StopWhenInterrupted)."""
-    return (threading.current_thread() is threading.main_thread()
-            and any(raised and not defer for raised, defer in _PENDING))
+    return _pending_interrupt() is not None
 
 
 _STDOUT = threading.Lock()  # sys.stdout is the process's: two threads' swaps interleaved left it on a StringIO

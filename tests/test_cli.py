@@ -1691,6 +1691,7 @@ SLOW_READER_PAUSE_S = 0.001  # [s] between its 4 KiB reads, so that the pipe is 
 READER_DONE_S = 30  # [s] the reader has read everything well within it; room for a loaded box
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="sets the pipe's size")
 @pytest.mark.parametrize("unbuffered", [False, True], ids=["line-buffered", "PYTHONUNBUFFERED"])
 def test_a_slow_reader_of_a_non_blocking_stderr_gets_every_line(unbuffered):
     """stderr set non-blocking (a terminal multiplexer, or `planner plan ... -v 2>&1 | slow_reader` with a pipe set
@@ -1704,8 +1705,7 @@ def test_a_slow_reader_of_a_non_blocking_stderr_gets_every_line(unbuffered):
 
     from planner.cli import _ReaderMayLeave
 
-    read_end, write_end = os.pipe()
-    os.set_blocking(write_end, False)
+    read_end, write_end, _ = _small_nonblocking_pipe()  # (one page: 144 kB fill it on any page size)
     arrived = bytearray()
 
     def slow_reader():
@@ -1733,27 +1733,77 @@ def test_a_slow_reader_of_a_non_blocking_stderr_gets_every_line(unbuffered):
 
 
 STALL_S = 0.05  # [s] STALLED_READER_S for the test: the write must give up soon after it
+# [s] how much later than STALL_S a stopped reader's write may give up: room for a loaded box, and well under the
+# 10 s of the real STALLED_READER_S that a write ignoring the patched one would take
+GIVE_UP_SLACK_S = 3.0
+PAUSED_READER_S = 0.5  # [s] the stdout reader's pause before its first read: ten times STALL_S
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/fd")
+def _small_nonblocking_pipe() -> tuple[int, int, int]:
+    """A pipe (read end, write end) whose write end is non-blocking, and the bytes it holds [B]: set to one page (the
+    kernel's least), so that a write of that many bytes plus one fills it on any page size (64 KiB pages: 1 MiB by
+    default)."""
+    import fcntl
+
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)
+    os.set_blocking(write_end, False)
+    return read_end, write_end, fcntl.fcntl(write_end, fcntl.F_GETPIPE_SZ)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/fd, sets the pipe's size")
 def test_a_non_blocking_stderr_whose_reader_stopped_does_not_hang_the_run(monkeypatch):
     """stderr set non-blocking whose reader stopped reading for good (a paused pipeline) counts as gone once it took
-    nothing for STALLED_READER_S: the write returns, so the solve and its "interrupted" line, printed with Ctrl-C
-    ignored, do not wait for ever, and stderr is pointed at /dev/null as for a reader that left."""
+    nothing for STALLED_READER_S: the write returns soon after it, so the solve and its "interrupted" line, printed
+    with Ctrl-C ignored, do not wait for ever, and stderr is pointed at /dev/null as for a reader that left."""
+    import time
+
     import planner.cli
 
     monkeypatch.setattr(planner.cli, "STALLED_READER_S", STALL_S)
-    read_end, write_end = os.pipe()
-    os.set_blocking(write_end, False)
+    read_end, write_end, size = _small_nonblocking_pipe()
     try:
         with open(write_end, "w", buffering=1, closefd=False) as stream:
             err = planner.cli._ReaderMayLeave(stream, diagnostics=True)
-            for _ in range(2):  # more than the 64 KiB pipe holds
-                assert err.write("x" * 65536 + "\n") == 65537
+            start = time.monotonic()
+            assert err.write("x" * size + "\n") == size + 1  # one byte more than the pipe holds
+            assert time.monotonic() - start < STALL_S + GIVE_UP_SLACK_S
             assert os.readlink(f"/proc/self/fd/{write_end}") == os.devnull
     finally:
         os.close(write_end)
         os.close(read_end)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="sets the pipe's size")
+def test_a_non_blocking_stdout_waits_for_a_reader_that_pauses_longer_than_stderr_would(monkeypatch):
+    """stdout set non-blocking whose reader pauses for longer than STALLED_READER_S (--json's reader busy elsewhere)
+    is waited for as a blocking stream is, and the reader gets the whole text: stdout is written after the results,
+    and a write that gave up there ended the run with exit 1 and half a JSON object."""
+    import threading
+    import time
+
+    import planner.cli
+
+    monkeypatch.setattr(planner.cli, "STALLED_READER_S", STALL_S)
+    read_end, write_end, size = _small_nonblocking_pipe()
+    arrived = bytearray()
+
+    def paused_reader():
+        time.sleep(PAUSED_READER_S)
+        while chunk := os.read(read_end, 65536):
+            arrived.extend(chunk)
+
+    reader = threading.Thread(target=paused_reader, daemon=True)
+    reader.start()
+    text = "x" * 2 * size + "\n"  # twice what the pipe holds
+    try:
+        with open(write_end, "w", closefd=False) as stream:
+            assert planner.cli._ReaderMayLeave(stream).write(text) == len(text)
+    finally:
+        os.close(write_end)
+        reader.join(READER_DONE_S)
+        os.close(read_end)
+    assert arrived.decode() == text
 
 
 CLOSED_RUN = """import os, sys

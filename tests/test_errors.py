@@ -409,6 +409,40 @@ def test_a_deferred_signal_is_not_lost_behind_the_blocks_error_nor_a_handler_set
         signal.signal(signal.SIGUSR1, previous_usr1)
 
 
+def test_a_swallowed_ctrl_c_is_seen_by_interrupted_and_raised_by_check_interrupted_alike():
+    """A Ctrl-C that a library swallowed inside an interruptible block is what interrupted() reports and
+    check_interrupted() raises (IPOPT's callback stops the NLP on the one, a replay's loop stops on the other: they
+    must agree), on the main thread only; a deferring block's Ctrl-C is neither until the block ends."""
+    import contextlib
+    import os
+    import signal
+    import threading
+
+    from planner.errors import check_interrupted, interruptible, interrupted
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        seen = []
+        with pytest.raises(KeyboardInterrupt):
+            with interruptible():
+                with contextlib.suppress(KeyboardInterrupt):  # as CasADi's callbacks swallow it
+                    os.kill(os.getpid(), signal.SIGINT)
+                other = threading.Thread(target=lambda: seen.append(interrupted()))
+                other.start()
+                other.join()
+                seen.append(interrupted())
+                with pytest.raises(KeyboardInterrupt):
+                    check_interrupted()
+        with pytest.raises(KeyboardInterrupt):
+            with interruptible(defer=True):
+                os.kill(os.getpid(), signal.SIGINT)
+                seen.append(interrupted())
+                check_interrupted()
+        assert seen == [False, True, False] and not interrupted()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def test_an_exception_a_signal_handler_raises_while_ipopt_iterates_is_raised_after_it():
     """An alarm that fires while CasADi's IPOPT iterates (a long unconstrained solve: all of its time is IPOPT's) is
     raised by interruptible once IPOPT has stopped: IPOPT caught it and returned as a failed NLP."""

@@ -37,12 +37,15 @@ def test_the_same_blas_kernels_on_every_avx2_cpu_unless_the_caller_chose():
 def test_the_package_names_load_their_libraries_on_first_use():
     """`import planner` loads neither NumPy nor Pinocchio (the `planner` command imports the package before its main
     can turn a Ctrl-C into its one line and exit 130: a Ctrl-C while they loaded was a traceback), and the package's
-    names still come from it: `from planner import Robot, load_robot, InputError, PlannerError, SolveError`."""
-    code = ("import sys, planner; before = sorted({'numpy', 'pinocchio'} & set(sys.modules)); "
+    names still come from it: `from planner import Robot, load_robot, InputError, PlannerError, SolveError`, and
+    dir(planner) lists them before their first use (help(planner) and tab completion showed none of them)."""
+    code = ("import sys, planner; listed = {'Robot', 'load_robot', 'InputError'} <= set(dir(planner)); "
+            "before = sorted({'numpy', 'pinocchio'} & set(sys.modules)); "
             "from planner import *; import planner.model, planner.errors; "
-            "print(before, load_robot is planner.model.load_robot, InputError is planner.errors.InputError)")
+            "print(before, listed, sorted(planner.__all__) == sorted(planner._NAMES), "
+            "load_robot is planner.model.load_robot, InputError is planner.errors.InputError)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
-    assert out == "[] True True"
+    assert out == "[] True True True True"
 
 
 # the modules planner imports that come from another distribution than their name says, or only with an extra
