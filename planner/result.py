@@ -757,21 +757,22 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     u_steps (K-1, nu) control, dt_steps (K-1,) numerical-time length h s [s], dv_aux (K-1, nv)
     velocity increment of the auxiliary fields, impulses (K-1, n_contacts, 2) normal and tangential
     impulse [N s]. A step is frozen when its clock advanced less than (1 - frozen_tol) h s, fully frozen
-    when less than frozen_tol h s. A run of frozen steps (one impact) is a first frozen step, the fully
-    frozen steps after it and at most one more frozen step (a landing: the clock runs, the impact, the
-    clock runs again; not when its contacts rest on their planes at that step's start, by `resting`: the impact was
-    over); a frozen step after a partly frozen one that is not the run's first starts the next run. A partly frozen
-    step whose contacts (those taking its normal impulse) rest at both its ends is support, no frozen step. A run
+    when less than still h s, still = min(frozen_tol, 1 - frozen_tol) (several contacts pass 1 - FROZEN_TOL). A run
+    of frozen steps (one impact) is a first frozen step, the fully frozen steps after it and at most one more frozen
+    step (a landing: the clock runs, the impact, the clock runs again; not when its contacts rest on their planes at
+    that step's start, by `resting`: the impact was over); a frozen step after a partly frozen one that is not the
+    run's first starts the next run. A partly frozen step whose contacts (those taking its normal impulse) rest at both
+    its ends is support, no frozen step. A run
     that ends with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse)
     still moves into its plane at the step's end, or a run of one step whose landing inside it is still on there,
-    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
-    A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
+    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below still).
+    A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than still) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
     tau_start is that step's. approach (K-1 or K, n_contacts) [m/s]: each contact's normal velocity at the start of
     each step (and at the last node), moving into its plane below -APPROACH_MPS (None: no such step is taken).
     resting (K-1 or K, n_contacts) bool: each contact on its plane (ON_PLANE_M) and at rest along its normal
     (APPROACH_MPS) there (None: no step is read as support, no impact ended by it). A run is an impact when the
-    numerical time it froze, sum(h s - clock advance), is at least frozen_tol times the longest step (so a FESD element
+    numerical time it froze, sum(h s - clock advance), is at least still times the longest step (so a FESD element
     a few 1e-8 s long is none).
     A frozen interval gives one Impact per contact whose normal impulse is at least IMPULSE_SHARE of
     the largest (the largest first; one contact: always one Impact), all with the interval's time,
@@ -794,7 +795,11 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     dt_steps = np.asarray(dt_steps, float)
     # a FESD element collapsed to length ~0 (no switch to pin it) advances nothing and is no impact
     frozen = (advance < (1.0 - frozen_tol) * dt_steps) & (dt_steps > COLLAPSED * np.max(dt_steps, initial=0.0))
-    fully = advance < frozen_tol * dt_steps  # the clock (nearly) stood still over the whole step
+    # with several contacts frozen_tol is 1 - FROZEN_TOL (a step is frozen only when the clock stood still): the clock
+    # stood still, and a run's last step ran it, by the smaller share (0.99 had dropped the end sample of a tail step
+    # that ran the clock for 87.5 % of it after a bounder's landing, and the validation then blamed the user)
+    still = min(frozen_tol, 1.0 - frozen_tol)
+    fully = advance < still * dt_steps  # the clock (nearly) stood still over the whole step
     # a partly frozen step whose contacts (those taking its normal impulse) rest on their planes at both ends is
     # support, not an impact: its auxiliary field carried part of the weight (a Coulomb slide read as 13 impacts, a
     # physical_time stance as 12 to 25 that MuJoCo never saw); its end is a physical sample
@@ -802,7 +807,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     for k in range(n_steps if resting is not None and not switch_at_start and len(contacts) else 0):
         if frozen[k] and not fully[k] and _at_rest(resting, k, impulses[k]) and _at_rest(resting, k + 1, impulses[k]):
             frozen[k] = False
-    min_frozen = frozen_tol * np.max(dt_steps, initial=0.0)  # [s] of numerical time
+    min_frozen = still * np.max(dt_steps, initial=0.0)  # [s] of numerical time
     nu = u_steps.shape[1] if u_steps.ndim == 2 else 0
     u0 = u_steps[0] if n_steps else np.zeros(nu)
     ts, qs, vs, us = [clock[0]], [y[0, :nq]], [y[0, nq : nq + nv]], [u0]
@@ -884,7 +889,7 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             or (fully[a] and not switch_at_start))
         for vel in (v_pre, v_post)[int(repeated):]:
             ts.append(t_imp); qs.append(q_imp); vs.append(vel); us.append(u_steps[a])
-        if clock[b + 1] > t_imp + frozen_tol * dt_steps[b]:  # the run's last step also ran the clock
+        if clock[b + 1] > t_imp + still * dt_steps[b]:  # the run's last step also ran the clock
             ts.append(clock[b + 1]); qs.append(y[b + 1, :nq]); vs.append(y[b + 1, nq : nq + nv]); us.append(u_steps[b])
         k, run_end = b + 1, b
     return np.array(ts), np.array(qs), np.array(vs), np.array(us).reshape(len(ts), nu), tuple(impacts)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError
+from planner.homotopy import SolveOptions
 from planner.model import load_robot, resolve_robot_path
 from planner.result import (ENERGY_GAIN_SHARE, ON_PLANE_M, TAP_SHARE, Hop, Impact, SimulationResult, SolveStats,
                             Trajectory, check_same_result, hops_of, outside_cone, read_robot, read_start, read_summary,
@@ -142,6 +143,41 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
                         dv_whole.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2), 1, 1, ("foot",))[4]
     assert (impact.v_post[0], impact.tau_end) == pytest.approx((0.0, 0.2))
 
+
+def test_recover_keeps_the_end_of_a_tail_step_that_ran_the_clock_with_several_contacts():
+    """With several contacts a step is frozen only when its clock stood still (SolveOptions.frozen_tol_several), but a
+    run's tail step that ran the clock after the impact (87.5 % of h) still ends at a physical sample: its end state is
+    the plan's node, so the samples move at their velocities. Dropped (a bounder's landing lost its next node), the
+    next samples were two steps apart and `planner validate` told the user their samples had been edited."""
+    clock = [0.0, 0.1, 0.2, 0.2, 0.2875, 0.3875]  # h = 0.1: two flight steps, a fully frozen one, its tail, a stance
+    y = np.column_stack([[1.0, 0.8, 0.5, 0.5, 0.5, 0.5], [-1.0, -2.0, -3.0, -0.4, 0.0, 0.0], clock])
+    dv = np.array([[0.0], [0.0], [2.6], [0.4], [0.0]])
+    imp = np.zeros((5, 2, 2))
+    imp[:, 0, 0] = dv[:, 0]  # the landing front contact; the back one is in the air
+    t, q, vs, _, impacts = recover(0.1 * np.arange(6), y, np.zeros((5, 1)), np.full(5, 0.1), dv, imp, 1, 1,
+                                   ("front", "back"), SolveOptions().frozen_tol_several,
+                                   approach=np.column_stack([y[:5, 1], np.zeros(5)]))
+    (impact,) = impacts
+    assert (impact.time, impact.v_pre[0], impact.v_post[0], impact.impulse) == pytest.approx((0.2, -3.0, 0.0, 3.0))
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.2, 0.2, 0.2875, 0.3875], atol=EXACT)
+    np.testing.assert_allclose(np.column_stack([q[:, 0], vs[:, 0]])[4], [0.5, 0.0], atol=EXACT)
+
+
+def test_recover_finds_an_impact_in_a_short_frozen_element_with_several_contacts():
+    """With several contacts a FESD impact in an element half as long as the longest (clock stood still over its
+    0.05 s) is an impact: a run is a sliver (no impact) only when it froze less than FROZEN_TOL of the longest
+    element, as with one contact, not 1 - FROZEN_TOL of it (frozen_tol_several), which dropped every impact of a
+    shorter element."""
+    clock = [0.0, 0.1, 0.1, 0.2]  # elements of 0.1, 0.05 (frozen: the impact at its start) and 0.1 s
+    y = np.column_stack([[0.2, 0.0, 0.0, 0.0], [-2.0, -2.0, 0.0, 0.0], clock])
+    dv = np.array([[0.0], [2.0], [0.0]])
+    imp = np.zeros((3, 2, 2))
+    imp[:, 0, 0] = dv[:, 0]
+    t, _, _, _, impacts = recover(np.array([0.0, 0.1, 0.15, 0.25]), y, np.zeros((3, 1)), np.array([0.1, 0.05, 0.1]),
+                                  dv, imp, 1, 1, ("front", "back"), SolveOptions().frozen_tol_several,
+                                  switch_at_start=True)
+    assert [(im.contact, im.time, im.impulse) for im in impacts] == [("front", pytest.approx(0.1), pytest.approx(2.0))]
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.1, 0.2], atol=EXACT)  # FESD's three: the flight's end repeated
 
 def test_recover_reads_a_partly_frozen_step_at_rest_as_support_and_ends_an_impact_there():
     """A partly frozen step whose contacts (those taking its normal impulse) rest on their planes at both ends (on the
