@@ -475,14 +475,18 @@ class _ReaderMayLeave:
         order: the text layer of a TextIOWrapper cannot say which of its bytes a BlockingIOError lost (and over an
         unbuffered descriptor, PYTHONUNBUFFERED=1, it drops them without one), so what the stream holds is flushed
         first (a buffered stream keeps what it could not write, and the flush is tried again) and the text is encoded
-        and written by os.write, which says how many bytes it took. Raises the BlockingIOError when diagnostics' reader
-        took nothing for STALLED_READER_S; a Ctrl-C interrupts the wait."""
+        and written by os.write, which says how many bytes it took. Raises the BlockingIOError when the reader took
+        nothing for STALLED_READER_S, for diagnostics or while Ctrl-C is ignored; otherwise a Ctrl-C ends the wait."""
         fd = self._stream.fileno()
         writable = select.poll()  # (select.select refuses a descriptor of 1024 or more: a ValueError, a traceback)
         writable.register(fd, select.POLLOUT)
 
+        # a wait nothing can stop (Ctrl-C ignored: while an interruption is reported, or in a background job) gives
+        # up as stderr's does: after a Ctrl-C a full stdout's --json line hung the command, deaf to SIGTERM too
+        bounded = self._diagnostics or signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
         def waiting(call, *call_args):
-            deadline = time.monotonic() + STALLED_READER_S if self._diagnostics else None
+            deadline = time.monotonic() + STALLED_READER_S if bounded else None
             while True:
                 try:
                     return call(*call_args)
@@ -547,14 +551,19 @@ def _to_devnull(fd: int) -> None:
 
 def _stop(args, code: int, text: str) -> int:
     """A command that ended early: `planner COMMAND: TEXT` on stderr and, with --json, {"command", "exit_code",
-    "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code."""
-    _to_stderr(args, f"planner {args.command}: {text}")
-    if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
-        with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
-            # the exit code says which kind: "error: " or "failed: " is stderr's prefix
-            reason = text.split(": ", 1)[1] if text.startswith(("error: ", "failed: ")) else text
-            print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout,
-                  flush=True)
+    "error"} on stdout unless the summary is there already (a script reading it got no JSON); returns code, or
+    EXIT_INTERRUPTED when a Ctrl-C stops the writing (a reader that stalled): main calls it from its except clauses,
+    whose sibling `except KeyboardInterrupt` cannot catch it, and it escaped as a traceback."""
+    try:
+        _to_stderr(args, f"planner {args.command}: {text}")
+        if getattr(args, "json", False) and args.stdout is not None and not hasattr(args, "summary"):  # one object only
+            with contextlib.suppress(OSError):  # (a closed or broken stdout: the line above said it)
+                # the exit code says which kind: "error: " or "failed: " is stderr's prefix
+                reason = text.split(": ", 1)[1] if text.startswith(("error: ", "failed: ")) else text
+                print(json.dumps({"command": args.command, "exit_code": code, "error": reason}), file=args.stdout,
+                      flush=True)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
     return code
 
 

@@ -765,8 +765,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     its ends is support, no frozen step. A run
     that ends with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse)
     still moves into its plane at the step's end, or a run of one step whose landing inside it is still on there,
-    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below still).
-    A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than still) began
+    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
+    A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
     tau_start is that step's. approach (K-1 or K, n_contacts) [m/s]: each contact's normal velocity at the start of
     each step (and at the last node), moving into its plane below -APPROACH_MPS (None: no such step is taken).

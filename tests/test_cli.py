@@ -1779,6 +1779,7 @@ def test_a_non_blocking_stdout_waits_for_a_reader_that_pauses_longer_than_stderr
     """stdout set non-blocking whose reader pauses for longer than STALLED_READER_S (--json's reader busy elsewhere)
     is waited for as a blocking stream is, and the reader gets the whole text: stdout is written after the results,
     and a write that gave up there ended the run with exit 1 and half a JSON object."""
+    import signal
     import threading
     import time
 
@@ -1796,14 +1797,72 @@ def test_a_non_blocking_stdout_waits_for_a_reader_that_pauses_longer_than_stderr
     reader = threading.Thread(target=paused_reader, daemon=True)
     reader.start()
     text = "x" * 2 * size + "\n"  # twice what the pipe holds
+    # Ctrl-C as in a terminal, also where the suite runs with it ignored (nohup, a background job): a wait nothing
+    # could stop gives up as stderr's does
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with open(write_end, "w", closefd=False) as stream:
             assert planner.cli._ReaderMayLeave(stream).write(text) == len(text)
     finally:
+        signal.signal(signal.SIGINT, previous)
         os.close(write_end)
         reader.join(READER_DONE_S)
         os.close(read_end)
     assert arrived.decode() == text
+
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="sets the pipe's size")
+def test_a_non_blocking_stdout_whose_reader_stopped_gives_up_while_ctrl_c_is_ignored(monkeypatch):
+    """stdout set non-blocking whose reader stopped for good gives up after STALLED_READER_S, as stderr does, while
+    Ctrl-C is ignored (the report of an interruption, a background job): nothing could end that wait, and after a
+    Ctrl-C a full stdout's --json line hung the command for good, SIGTERM ignored too (second reviewer, session 67)."""
+    import signal
+    import threading
+    import time
+
+    import planner.cli
+
+    monkeypatch.setattr(planner.cli, "STALLED_READER_S", STALL_S)
+    read_end, write_end, size = _small_nonblocking_pipe()
+    outcome = []
+
+    def writer():
+        start = time.monotonic()
+        try:
+            with open(write_end, "w", closefd=False) as stream:
+                planner.cli._ReaderMayLeave(stream).write("x" * size + "\n")  # one byte more than the pipe holds
+        except BlockingIOError:
+            outcome.append(time.monotonic() - start)
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        thread = threading.Thread(target=writer, daemon=True)  # (one that waits for ever must not hold the suite)
+        thread.start()
+        thread.join(STALL_S + GIVE_UP_SLACK_S)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        os.close(read_end)  # (a writer still waiting wakes on the broken pipe)
+        thread.join(READER_DONE_S)
+        os.close(write_end)
+    assert len(outcome) == 1 and outcome[0] < STALL_S + GIVE_UP_SLACK_S, outcome
+
+
+def test_a_ctrl_c_while_an_error_line_is_written_is_exit_130(tmp_path, monkeypatch):
+    """A Ctrl-C that lands while a command's error line (or --json's object) is written, a reader having stalled, ends
+    the command with exit 130 as any Ctrl-C does: main writes it from an except clause, where the KeyboardInterrupt
+    escaped as a traceback (second reviewer, session 67)."""
+    import planner.cli
+
+    def interrupted(args, text):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(planner.cli, "_to_stderr", interrupted)
+    try:
+        code = main(["plan", str(tmp_path / "missing.xml"), "--out", str(tmp_path / "out")])
+    except KeyboardInterrupt:
+        code = "a traceback"
+    assert code == 130
 
 
 CLOSED_RUN = """import os, sys
