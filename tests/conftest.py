@@ -1,13 +1,27 @@
-"""Shared fixtures: the example-robot-data robots folder and a loader for its robots."""
+"""Shared fixtures: the example-robot-data robots folder and a loader for its robots; the stop signals' handlers
+restored after each test."""
 from __future__ import annotations
 
 import functools
 import importlib.metadata
+import signal
 from pathlib import Path
 
 import pytest
 
+from planner.errors import STOP_SIGNALS
 from planner.model import Robot, load_robot
+
+
+@pytest.fixture(autouse=True)
+def _stop_signals_restored():
+    """Each test leaves SIGINT, SIGTERM and SIGHUP as it found them: code under test ignores them (the plotting child,
+    an interruption's report), and a test that left SIGTERM ignored hung a later one for good (Pool.terminate's
+    SIGTERM could not stop its worker; session 67's CI)."""
+    handlers = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    yield
+    for s, handler in handlers.items():
+        signal.signal(s, handler if handler is not None else signal.SIG_DFL)
 
 
 @functools.cache
