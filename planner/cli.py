@@ -427,8 +427,8 @@ def _asks_ipopt_log(args) -> bool:
 # [s] how long a write to a non-blocking stderr waits for its reader to take any byte before the reader counts as
 # gone: a blocking stream waits for ever, but a reader that stopped for good (a paused pipeline) must not hang the solve
 # or, with Ctrl-C ignored while it is reported, the "interrupted" line; a slow reader (`| less`, a busy terminal
-# multiplexer) takes some bytes well within it. stdout has none: it is written after the results, and its reader
-# (--json's) needs the whole text, which a reader that paused longer got cut short with exit 1
+# multiplexer) takes some bytes well within it. stdout has none while a Ctrl-C can end its wait: it is written after
+# the results, and its reader (--json's) needs the whole text, which a reader that paused longer got cut short (exit 1)
 STALLED_READER_S = 10.0
 
 

@@ -762,10 +762,10 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     step (a landing: the clock runs, the impact, the clock runs again; not when its contacts rest on their planes at
     that step's start, by `resting`: the impact was over); a frozen step after a partly frozen one that is not the
     run's first starts the next run. A partly frozen step whose contacts (those taking its normal impulse) rest at both
-    its ends is support, no frozen step. A run
-    that ends with a fully frozen step whose contact (the one taking the run's first step's largest normal impulse)
-    still moves into its plane at the step's end, or a run of one step whose landing inside it is still on there,
-    takes the next step too when that froze more than TAIL_SHARE of it (the impact's end, below frozen_tol).
+    its ends is support, no frozen step. A run that ends with a fully frozen step whose contact (the one taking the
+    run's first step's largest normal impulse) still moves into its plane at the step's end, or a run of one step
+    whose landing inside it is still on there, takes the next step too when that froze more than TAIL_SHARE of it (the
+    impact's end, below frozen_tol).
     A landing at a node (below) whose step before froze more than TAIL_SHARE of it (and less than frozen_tol) began
     there: that step's increment and impulse are the impact's start, the node's sample becomes its pre-impact one, and
     tau_start is that step's. approach (K-1 or K, n_contacts) [m/s]: each contact's normal velocity at the start of
