@@ -47,7 +47,7 @@ from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, 
                      interrupted, options_record, plain, real_array, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
-                     Trajectory, hops_of)
+                     Trajectory, hops_of, slides_of)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
 from .task import MAX_NLPS, contact_labels
 
@@ -1579,15 +1579,20 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]
     beta = W[:, problem.builder.w_blocks["sigma"]][:, [i for i, n in enumerate(sig_names) if n.startswith("beta")]]
-    contact = problem.system.contacts[0].point
-    foot = np.array([np.asarray(problem.system.dyn.point_position(contact)(y[: problem.system.nq]), float).ravel() for y in nodes])
+    # each contact point's positions at the nodes (n_c, K+1, 3) [m]
+    points = [np.array([np.asarray(problem.system.dyn.point_position(c.point)(y[: problem.system.nq]), float).ravel()
+                        for y in nodes]) for c in problem.system.contacts]
     # the robot flies when every contact point does (one contact: its beta): so its gap is the smallest
     gap = gaps.min(axis=1, initial=np.inf)
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
     skims: list = []
-    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), foot, problem.system.contacts[0].normal,
-                   gap, problem.task.plan.holes, skims)
+    hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), points[0],
+                   problem.system.contacts[0].normal, gap, problem.task.plan.holes, skims)
+    # per contact, by its own beta and gap: a foot that slides while another stands is no flight of the robot
+    slides = [s for i, c in enumerate(problem.system.contacts)
+              for s in slides_of(traj, beta[:, i], points[i], gaps[:, i], c.point, problem.task.plan.holes,
+                                 skims if i == 0 else ())]
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
@@ -1596,6 +1601,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
                              **({"skims": [s.to_json() for s in skims]} if skims else {}),
+                             **({"slides": slides} if slides else {}),
                              **({"joints_outside_range": outside}
                                 if (outside := _outside_range(problem, traj)) else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})

@@ -538,6 +538,28 @@ def _passes_over(hole, start, end) -> bool:
     return hole.metric(start[0] + s * dx, start[2] + s * dz) < 1.0
 
 
+def _flight_phases(flight):
+    """The flight phases of the per-step flight indicator `flight` (N,) (beta, 1 in flight) as (a, k): steps a..k-1
+    end in flight, nodes a..k; node a is the last on the ground."""
+    # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
+    # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
+    air = np.asarray(flight, float).ravel() > 0.5
+    k, N = 0, len(air)
+    while k < N:
+        if not air[k]:
+            k += 1
+            continue
+        a = k
+        while k < N and air[k]:
+            k += 1
+        yield a, k
+
+
+def _over_hole(seg, holes) -> bool:
+    """Whether the polyline through the nodes seg (n, 3) [m] passes over one of holes (the task's Ellipses)."""
+    return any(_passes_over(hole, seg[s], seg[s + 1]) for hole in holes for s in range(len(seg) - 1))
+
+
 def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=(),
             skims: list | None = None) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
@@ -551,25 +573,15 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     slide is unless one of its steps does; skims, when given, gets each skim as a Hop (takeoff and landing at its two
     nodes)."""
     clock = traj.y[:, -1]
-    # (beta > 0.5 also reads a sliding stance, beta 0.82-0.92 with the point on the ground, as flight; a one-step phase
-    # cannot be told apart by the point's height: a one-step hop over a hole starts and ends on the ground, session 48)
-    air = np.asarray(flight, float).ravel() > 0.5
-    hops, k, N = [], 0, len(air)
-    while k < N:
-        if not air[k]:
-            k += 1
-            continue
-        a = k
-        while k < N and air[k]:
-            k += 1
-        # steps a..k-1 end in flight: nodes a..k; node a is the last on the ground
+    hops, N = [], len(np.asarray(flight).ravel())
+    for a, k in _flight_phases(flight):
         if a == 0 and gap is not None and gap[0] > ON_PLANE_M:  # (a drop was a hop with takeoff 0.0)
             continue
         # (the landing step's travel was left out of the distance: a drop with a_n = 20 landed 1 cm past it)
         seg = point_xyz[a : k + 2 if gap is not None and gap[k] > ON_PLANE_M and k < N else k + 1]
         if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M:
             continue
-        over_hole = any(_passes_over(hole, seg[s], seg[s + 1]) for hole in holes for s in range(len(seg) - 1))
+        over_hole = _over_hole(seg, holes)
         distance, apex = float(seg[-1, 0] - seg[0, 0]), float(seg[:, 2].max() - seg[0, 2])
         if k - a >= 2 and np.abs((seg - seg[0]) @ np.asarray(normal, float)).max() <= ON_PLANE_M and not over_hole:
             continue
@@ -590,6 +602,26 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
                       default=float(clock[k]) if on_plane else end)
         hops.append(Hop(float(clock[a]), float(landing), distance, apex))
     return hops
+
+
+def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), skims=()) -> list[dict]:
+    """The slides of one contact point along its plane in flight mode, where no friction acts: its flight phases (its
+    own beta, `flight` (N,), read as hops_of reads it) whose nodes all keep its own gap (N+1,) within ON_PLANE_M of its
+    plane and that move it (point_xyz (N+1, 3) [m]) by more than HOP_MIN_TRAVEL_M without passing over one of holes
+    (then hops_of's hop). Each as {"point", "start_time", "end_time" [s] (its first and last node's clocks),
+    "distance" [m] (along x, as a hop's)}; the phases of skims (Hops hops_of listed for this point) are left out: the
+    report's skim line names them."""
+    clock = traj.y[:, -1]
+    listed = {(s.takeoff_time, s.landing_time) for s in skims}
+    slides = []
+    for a, k in _flight_phases(flight):
+        seg = point_xyz[a : k + 1]
+        if (max(gap[a : k + 1]) > ON_PLANE_M or np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M
+                or _over_hole(seg, holes) or (float(clock[a]), float(clock[k])) in listed):
+            continue
+        slides.append({"point": point, "start_time": float(clock[a]), "end_time": float(clock[k]),
+                       "distance": float(seg[-1, 0] - seg[0, 0])})
+    return slides
 
 
 def _outside_range_lines(extra: dict, nodes: int, why: str) -> list[str]:
@@ -665,6 +697,10 @@ class PlanResult(ArraysReadOnly):
             lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "
                          "friction acts (no hops): " + ", ".join(f"t = {s['takeoff_time']:.4g} s {s['distance']:+.3g} m"
                                                                 for s in self.extra["skims"]))
+        if self.extra.get("slides"):  # (several contacts: a foot slid so while another stood, and went unreported)
+            lines.append(f"  {len(self.extra['slides'])} slide(s) of a contact point along its plane in flight mode, "
+                         "where no friction acts: " + ", ".join(f"{s['point']} t = {s['start_time']:.4g} s "
+                                                               f"{s['distance']:+.3g} m" for s in self.extra["slides"]))
         if "control_cost" in self.extra:
             lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others

@@ -343,6 +343,48 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert len(hops_of(traj, np.array([0, 1, 1, 1, 0]), slope)) == 1  # (by its height it would be a hop)
 
 
+def test_each_contacts_frictionless_slides_are_found_by_its_own_beta_and_gap():
+    """slides_of lists one contact point's flight-mode phases (its own beta > 0.5) that keep it on its plane at every
+    node and move it, with their first and last node's clocks and x distance: the back foot of a bounder slid +0.194,
+    +0.208 and -0.150 m so while the front foot stood, where no friction acts and MuJoCo's replay then fails the plan,
+    and hops_of, which reads the robot's flight (every beta) and the first contact, saw none of it. A phase that leaves
+    the plane at a node, does not move the point, or passes over a hole (a hop) is no slide, and a phase the skim line
+    lists already (hops_of's skims of this point) is left out."""
+    from planner.result import slides_of
+
+    clock = np.arange(10) / 10  # (0.6 exactly: a skim's times are matched as they are)
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    beta = np.zeros((9, 2))  # the front foot (column 0) stands throughout
+    beta[[1, 2, 3, 5, 7], 1] = 1.0  # the back foot flies in steps 1-3, 5 and 7
+    front, back = np.zeros((10, 3)), np.zeros((10, 3))
+    back[:, 0] = (0.0, 0.0, 0.05, 0.15, 0.2, 0.2, 0.1, 0.1, 0.1, 0.1)  # slides 0.2 m on, 0.1 m back, rests in step 7
+    gaps = np.column_stack([front[:, 2], back[:, 2]])
+    assert hops_of(traj, beta.min(axis=1), front, gap=gaps.min(axis=1), skims=(skims := [])) == [] and skims == []
+    slides = slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot")
+    assert slides == [{"point": "back_foot", "start_time": 0.1, "end_time": 0.4, "distance": pytest.approx(0.2)},
+                      {"point": "back_foot", "start_time": 0.5, "end_time": 0.6, "distance": pytest.approx(-0.1)}]
+    assert slides_of(traj, beta[:, 0], front, gaps[:, 0], "front_foot") == []
+    assert slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", skims=[Hop(0.5, 0.6, -0.1, 0.0)]) == slides[:1]
+    assert slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", holes=(Ellipse(x=0.1, a=0.02, b=0.05),)) == []
+    lifted = back.copy()
+    lifted[2, 2] = 10 * ON_PLANE_M  # off the plane at one node of the first phase: a flight, not a slide
+    assert slides_of(traj, beta[:, 1], lifted, lifted[:, 2], "back_foot") == slides[1:]
+
+
+def test_the_report_and_summary_name_each_slide():
+    """A plan's extra["slides"] gives one report line that counts the slides and names each point, start time and
+    distance, and summary.json carries them, so a user sees why a plan that slides a foot in flight mode (no friction)
+    fails MuJoCo's replay; a plan without slides has no such line."""
+    plan = _hop_plan()
+    assert "slide(s)" not in plan.report()
+    slides = [{"point": "back_foot", "start_time": 0.41, "end_time": 0.47, "distance": 0.194},
+              {"point": "back_foot", "start_time": 1.372, "end_time": 1.422, "distance": -0.15}]
+    sliding = replace(plan, extra={**plan.extra, "slides": slides})
+    assert ("\n  2 slide(s) of a contact point along its plane in flight mode, where no friction acts: back_foot "
+            "t = 0.41 s +0.194 m, back_foot t = 1.372 s -0.15 m\n") in sliding.report()
+    assert sliding.summary()["slides"] == slides
+
+
 def test_write_results_follows_the_contract(tmp_path):
     """trajectory.npz and summary.json carry the contract's keys with consistent shapes, the impacts
     as objects with time, contact, impulse; no temporary file is left behind. Trajectory.taps is computed once
