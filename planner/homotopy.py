@@ -47,7 +47,7 @@ from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, 
                      interrupted, options_record, plain, real_array, representable)
 from .problem import Penalty, Problem, plane_gap
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
-                     Trajectory, hops_of, slides_of)
+                     Trajectory, hops_of, slides_of, unrecorded_landings)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
 from .task import MAX_NLPS, contact_labels
 
@@ -1586,13 +1586,21 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     gap = gaps.min(axis=1, initial=np.inf)
     if converged:
         _warn_never_touching_on_plane(problem, nodes)
-    skims: list = []
+    # the robot's flights (every contact point in flight mode), measured on the first contact point; a one-step
+    # phase along the ground is no hop
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), points[0],
-                   problem.system.contacts[0].normal, gap, problem.task.plan.holes, skims)
-    # per contact, by its own beta and gap: a foot that slides while another stands is no flight of the robot
+                   problem.system.contacts[0].normal, gap, problem.task.plan.holes)
+    # skims and slides per contact, by its own beta and gap: a foot that slides while another stands is no flight of
+    # the robot (one contact: the same skims as the robot's)
+    skims: list = []
     slides = [s for i, c in enumerate(problem.system.contacts)
-              for s in slides_of(traj, beta[:, i], points[i], gaps[:, i], c.point, problem.task.plan.holes,
-                                 skims if i == 0 else ())]
+              for s in slides_of(traj, beta[:, i], points[i], gaps[:, i], c.point, problem.task.plan.holes, skims)]
+    skims.sort(key=lambda s: s["takeoff_time"])
+    landings = []
+    if len(problem.system.contacts) > 1:  # (one contact: a landing is frozen when the clock ran < 99 % of the step)
+        u0 = np.zeros(problem.system.nu)
+        approach = np.array([np.asarray(problem.system.normal_velocity_fn(y, u0), float).ravel() for y in nodes])
+        landings = unrecorded_landings(traj, approach, gaps, elements[5], problem.system.labels)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
@@ -1600,8 +1608,9 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                       robot_sha256=problem.robot.sha256,
                       # (an edited problem's plan is not the task file's alone: its readers are told)
                       extra={"braked_outside_friction_cone": braked,
-                             **({"skims": [s.to_json() for s in skims]} if skims else {}),
+                             **({"skims": skims} if skims else {}),
                              **({"slides": slides} if slides else {}),
+                             **({"unrecorded_landings": landings} if landings else {}),
                              **({"joints_outside_range": outside}
                                 if (outside := _outside_range(problem, traj)) else {}),
                              **({"edited_problem": list(problem.edited)} if problem.edited else {})})

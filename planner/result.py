@@ -604,24 +604,74 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     return hops
 
 
-def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), skims=()) -> list[dict]:
+def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), skims: list | None = None) -> list[dict]:
     """The slides of one contact point along its plane in flight mode, where no friction acts: its flight phases (its
-    own beta, `flight` (N,), read as hops_of reads it) whose nodes all keep its own gap (N+1,) within ON_PLANE_M of its
-    plane and that move it (point_xyz (N+1, 3) [m]) by more than HOP_MIN_TRAVEL_M without passing over one of holes
-    (then hops_of's hop). Each as {"point", "start_time", "end_time" [s] (its first and last node's clocks),
-    "distance" [m] (along x, as a hop's)}; the phases of skims (Hops hops_of listed for this point) are left out: the
-    report's skim line names them."""
+    own beta, `flight` (N,), read as hops_of reads it) of two steps or more whose nodes all keep its own gap (N+1,)
+    within ON_PLANE_M of its plane and that move it (point_xyz (N+1, 3) [m]) by more than HOP_MIN_TRAVEL_M without
+    passing over one of holes (then hops_of's hop). Each as {"point", "start_time", "end_time" [s] (its first and last
+    node's clocks), "distance" [m] (along x, as a hop's)}. Such a phase of one step is a skim, no slide: skims, when
+    given, gets each as {"point", "takeoff_time", "landing_time" [s] (its two nodes' clocks), "distance", "apex" [m]
+    (as a hop's)}."""
     clock = traj.y[:, -1]
-    listed = {(s.takeoff_time, s.landing_time) for s in skims}
     slides = []
     for a, k in _flight_phases(flight):
         seg = point_xyz[a : k + 1]
-        if (max(gap[a : k + 1]) > ON_PLANE_M or np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M
-                or _over_hole(seg, holes) or (float(clock[a]), float(clock[k])) in listed):
+        if max(gap[a : k + 1]) > ON_PLANE_M or np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M or _over_hole(seg, holes):
+            continue
+        distance = float(seg[-1, 0] - seg[0, 0])
+        if k - a == 1:  # (one step: hops_of's skim, which read the robot's flight and the first contact only)
+            if skims is not None:
+                skims.append({"point": point, "takeoff_time": float(clock[a]), "landing_time": float(clock[k]),
+                              "distance": distance, "apex": float(seg[:, 2].max() - seg[0, 2])})
             continue
         slides.append({"point": point, "start_time": float(clock[a]), "end_time": float(clock[k]),
-                       "distance": float(seg[-1, 0] - seg[0, 0])})
+                       "distance": distance})
     return slides
+
+
+# [m/s] an unrecorded landing is listed when its point approached at least this fast: slower runs are the implicit
+# step settling a foot onto its plane (the biped's default plan: 0.03 and 0.07 m/s; a bounder's 3.5-11 mm/s), no landing
+# a user needs to hear of (a 1 kg foot at 0.1 m/s carries 5 mJ)
+LANDING_MIN_MPS = 0.1
+
+
+def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
+    """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
+    (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
+    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node). With several
+    contacts the recovery freezes a step only when its clock stood still, so a landing in steps that ran the clock is no
+    impact (docs/formulation.md, "Partly frozen stance"). Each as {"point", "time" [s] (the run's first node's clock),
+    "approach_mps" (the fastest approach of the run, and of the node before it when that was off the plane: a step that
+    runs the clock can brake part of the landing before the node; runs slower than LANDING_MIN_MPS are left out),
+    "clock_share" (how much of the run's first step, length dt_steps (K-1,) [s] of numerical time, its clock ran)}, in
+    time order. contacts (n_c,): their names."""
+    clock, tau = traj.y[:, -1], traj.tau
+    approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
+    landing = (gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)
+    for c, point in enumerate(contacts):
+        for k in range(len(clock) - 1):
+            landing[k, c] &= not any(i.contact == point and (i.tau_start <= tau[k] < i.tau_end
+                                                            or abs(i.time - clock[k]) <= LANDING_SLACK_S)
+                                     for i in traj.impacts)
+    landing[-1] = False  # (the last node starts no step)
+    found = []
+    for c, point in enumerate(contacts):
+        k = 0
+        while k < len(clock):
+            if not landing[k, c]:
+                k += 1
+                continue
+            a = k
+            while k < len(clock) and landing[k, c]:
+                k += 1
+            fastest = -approach[a:k, c].min()
+            if a and gap[a - 1, c] > ON_PLANE_M:
+                fastest = max(fastest, -approach[a - 1, c])
+            if fastest < LANDING_MIN_MPS:
+                continue
+            found.append({"point": point, "time": float(clock[a]), "approach_mps": float(fastest),
+                          "clock_share": float((clock[a + 1] - clock[a]) / dt_steps[a])})
+    return sorted(found, key=lambda f: f["time"])
 
 
 def _outside_range_lines(extra: dict, nodes: int, why: str) -> list[str]:
@@ -687,6 +737,11 @@ class PlanResult(ArraysReadOnly):
                   f"objective {r.objective:10.4g}  complementarity {r.complementarity_residual:.1e}  {r.status}"
                   + (f"; {r.note}" if r.note else "") for r in self.nlps]
         lines += _trajectory_lines(tr, f", {len(self.hops)} hop(s)", self.extra.get("_task"))
+        if self.extra.get("unrecorded_landings"):  # (a bounder's feet landed at 1-5 m/s beside "0 impact(s)")
+            lines.append(f"  {len(self.extra['unrecorded_landings'])} landing(s) with no impact record, in steps that "
+                         "ran the clock (several contacts: docs/formulation.md, \"Partly frozen stance\"): "
+                         + ", ".join(f"{f['point']} t = {f['time']:.4g} s at {f['approach_mps']:.3g} m/s (clock "
+                                     f"{f['clock_share']:.0%} of the step)" for f in self.extra["unrecorded_landings"]))
         # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]
@@ -695,8 +750,8 @@ class PlanResult(ArraysReadOnly):
         lines += _braked_lines(self.extra)
         if self.extra.get("skims"):  # (they were counted as hops: frictionless slides of the foot along the ground)
             lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "
-                         "friction acts (no hops): " + ", ".join(f"t = {s['takeoff_time']:.4g} s {s['distance']:+.3g} m"
-                                                                for s in self.extra["skims"]))
+                         "friction acts (no hops): " + ", ".join(f"{s['point']} t = {s['takeoff_time']:.4g} s "
+                                                                f"{s['distance']:+.3g} m" for s in self.extra["skims"]))
         if self.extra.get("slides"):  # (several contacts: a foot slid so while another stood, and went unreported)
             lines.append(f"  {len(self.extra['slides'])} slide(s) of a contact point along its plane in flight mode, "
                          "where no friction acts: " + ", ".join(f"{s['point']} t = {s['start_time']:.4g} s "

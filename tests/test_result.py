@@ -344,15 +344,16 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
 
 
 def test_each_contacts_frictionless_slides_are_found_by_its_own_beta_and_gap():
-    """slides_of lists one contact point's flight-mode phases (its own beta > 0.5) that keep it on its plane at every
-    node and move it, with their first and last node's clocks and x distance: the back foot of a bounder slid +0.194,
-    +0.208 and -0.150 m so while the front foot stood, where no friction acts and MuJoCo's replay then fails the plan,
-    and hops_of, which reads the robot's flight (every beta) and the first contact, saw none of it. A phase that leaves
-    the plane at a node, does not move the point, or passes over a hole (a hop) is no slide, and a phase the skim line
-    lists already (hops_of's skims of this point) is left out."""
+    """slides_of lists one contact point's flight-mode phases (its own beta > 0.5) of two steps or more that keep it on
+    its plane at every node and move it, with their first and last node's clocks and x distance: the back foot of a
+    bounder slid so while the front foot stood, where no friction acts and MuJoCo's replay then fails the plan, and
+    hops_of, which reads the robot's flight (every beta) and the first contact, saw none of it. A phase that leaves the
+    plane at a node, does not move the point, or passes over a hole (a hop) is no slide; a one-step phase is a skim,
+    listed once, in skims when given, by its point's name (it was listed as a slide too when hops_of's skim matched it,
+    and under the first contact's name and distance when it did not)."""
     from planner.result import slides_of
 
-    clock = np.arange(10) / 10  # (0.6 exactly: a skim's times are matched as they are)
+    clock = np.arange(10) / 10
     traj = SimpleNamespace(y=clock[:, None], impacts=())
     beta = np.zeros((9, 2))  # the front foot (column 0) stands throughout
     beta[[1, 2, 3, 5, 7], 1] = 1.0  # the back foot flies in steps 1-3, 5 and 7
@@ -360,15 +361,66 @@ def test_each_contacts_frictionless_slides_are_found_by_its_own_beta_and_gap():
     back[:, 0] = (0.0, 0.0, 0.05, 0.15, 0.2, 0.2, 0.1, 0.1, 0.1, 0.1)  # slides 0.2 m on, 0.1 m back, rests in step 7
     gaps = np.column_stack([front[:, 2], back[:, 2]])
     assert hops_of(traj, beta.min(axis=1), front, gap=gaps.min(axis=1), skims=(skims := [])) == [] and skims == []
-    slides = slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot")
-    assert slides == [{"point": "back_foot", "start_time": 0.1, "end_time": 0.4, "distance": pytest.approx(0.2)},
-                      {"point": "back_foot", "start_time": 0.5, "end_time": 0.6, "distance": pytest.approx(-0.1)}]
-    assert slides_of(traj, beta[:, 0], front, gaps[:, 0], "front_foot") == []
-    assert slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", skims=[Hop(0.5, 0.6, -0.1, 0.0)]) == slides[:1]
+    slides = slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", skims=(skims := []))
+    assert slides == [{"point": "back_foot", "start_time": 0.1, "end_time": 0.4, "distance": pytest.approx(0.2)}]
+    assert skims == [{"point": "back_foot", "takeoff_time": 0.5, "landing_time": 0.6, "distance": pytest.approx(-0.1),
+                      "apex": 0.0}]
+    assert slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot") == slides  # (no list: skims are not slides)
+    assert slides_of(traj, beta[:, 0], front, gaps[:, 0], "front_foot", skims=(none := [])) == [] and none == []
     assert slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", holes=(Ellipse(x=0.1, a=0.02, b=0.05),)) == []
     lifted = back.copy()
     lifted[2, 2] = 10 * ON_PLANE_M  # off the plane at one node of the first phase: a flight, not a slide
-    assert slides_of(traj, beta[:, 1], lifted, lifted[:, 2], "back_foot") == slides[1:]
+    assert slides_of(traj, beta[:, 1], lifted, lifted[:, 2], "back_foot") == []
+
+
+def test_one_contacts_skims_are_the_robots():
+    """With one contact point, slides_of's skims are hops_of's (same phases, times, distance and apex, now named by the
+    point), so a one-contact plan's skims (Capler's, the hopper's) are the same as when they were the robot's."""
+    from planner.result import slides_of
+
+    clock = np.arange(6) / 10
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    flight = np.array([0, 1, 0, 1, 1])
+    xyz = np.zeros((6, 3))
+    xyz[:, 0] = (0.0, 0.0, 0.1, 0.1, 0.3, 0.4)
+    xyz[4, 2] = 0.05  # steps 3-4: a hop (its middle node is off the ground)
+    hop_skims, point_skims = [], []
+    assert len(hops_of(traj, flight, xyz, gap=xyz[:, 2], skims=hop_skims)) == 1
+    assert slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=point_skims) == []
+    assert point_skims == [{"point": "foot", **h.to_json()} for h in hop_skims] and len(point_skims) == 1
+
+
+def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_clock():
+    """unrecorded_landings lists each contact point's runs of nodes on its plane while moving into it faster than
+    APPROACH_MPS that no Impact of that point holds, with the run's first node's clock, its fastest approach (the node
+    before counts when it was off the plane: the running step before can brake part of the landing) and the share of
+    its first step the clock ran: a bounder's feet landed at 3.2-5.5 m/s in steps that ran the clock, which the
+    several-contact recovery records as no impact, and the report said "0 impact(s), 2 hop(s)". A point resting on its
+    plane (drift below APPROACH_MPS) or moving into it off the plane is no landing, nor one an Impact of its own holds
+    (another point's does not), nor a run slower than LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07 m/s)."""
+    from planner.result import APPROACH_MPS, LANDING_MIN_MPS, unrecorded_landings
+
+    h = 0.05
+    clock = h * np.array([0.0, 1.0, 1.98, 2.96, 3.9, 4.9, 5.9])  # (the clock ran 98 % of steps 1 and 2)
+    traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(7), impacts=())
+    gap = np.zeros((7, 2))
+    gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
+    approach = np.zeros((7, 2))
+    approach[:, 0] = 0.1 * APPROACH_MPS  # the front foot rests (drift below the threshold)
+    approach[1:5, 1] = (-5.5, -1.2, -0.4, 0.01)  # on the ground at -1.2 m/s after -5.5 m/s in the air, then stops
+    dt, feet = np.full(6, h), ("front_foot", "back_foot")
+    landing = {"point": "back_foot", "time": pytest.approx(clock[2], abs=EXACT),
+               "approach_mps": pytest.approx(5.5, abs=EXACT), "clock_share": pytest.approx(0.98, abs=EXACT)}
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
+    held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[2], tau_start=traj.tau[2], tau_end=traj.tau[4])
+    for impact, found in ((held, []), (replace(held, contact="front_foot"), [landing])):
+        assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (impact,)}), approach, gap, dt,
+                                   feet) == found
+    approach[6, 0] = -1.0  # (the last node starts no step, so holds no landing)
+    gap[4, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air)
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
+    approach[1:4, 1] = (-0.9, -0.5, -0.2) * np.array(LANDING_MIN_MPS)  # a foot settling onto its plane
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == []
 
 
 def test_the_report_and_summary_name_each_slide():
@@ -383,6 +435,27 @@ def test_the_report_and_summary_name_each_slide():
     assert ("\n  2 slide(s) of a contact point along its plane in flight mode, where no friction acts: back_foot "
             "t = 0.41 s +0.194 m, back_foot t = 1.372 s -0.15 m\n") in sliding.report()
     assert sliding.summary()["slides"] == slides
+
+
+def test_the_report_and_summary_name_each_skims_point_and_each_landing_without_an_impact():
+    """A plan's extra["skims"] names each skim's contact point in its report line, and extra["unrecorded_landings"]
+    gives one line that counts them and names each point, time, approach speed and the share of the step the clock
+    ran, and summary.json carries both: a bounder's report read "0 impact(s), 2 hop(s)" while its feet landed at
+    3.2-5.5 m/s, and its one skim line gave the front foot's time beside no name. A plan without them has no such
+    lines."""
+    plan = _hop_plan()
+    assert "landing(s) with no impact record" not in plan.report() and "skim(s)" not in plan.report()
+    skims = [{"point": "back_foot", "takeoff_time": 0.285, "landing_time": 0.374, "distance": 0.194, "apex": 0.0},
+             {"point": "front_foot", "takeoff_time": 1.372, "landing_time": 1.422, "distance": 0.107, "apex": 0.0}]
+    landings = [{"point": "back_foot", "time": 0.3961, "approach_mps": 5.54, "clock_share": 0.981},
+                {"point": "front_foot", "time": 1.337, "approach_mps": 4.9, "clock_share": 1.401}]
+    marked = replace(plan, extra={**plan.extra, "skims": skims, "unrecorded_landings": landings})
+    assert ("\n  2 skim(s) along the ground in one flight-mode step, where no friction acts (no hops): back_foot "
+            "t = 0.285 s +0.194 m, front_foot t = 1.372 s +0.107 m") in marked.report()
+    assert ("\n  2 landing(s) with no impact record, in steps that ran the clock (several contacts: "
+            "docs/formulation.md, \"Partly frozen stance\"): back_foot t = 0.3961 s at 5.54 m/s (clock 98% of the step), front_foot "
+            "t = 1.337 s at 4.9 m/s (clock 140% of the step)\n") in marked.report()
+    assert marked.summary()["skims"] == skims and marked.summary()["unrecorded_landings"] == landings
 
 
 def test_write_results_follows_the_contract(tmp_path):
