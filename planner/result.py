@@ -840,7 +840,7 @@ def _at_rest(resting, k: int, step_impulses) -> bool:
 
 def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, contacts: tuple[str, ...],
             frozen_tol: float = FROZEN_TOL, switch_at_start: bool = False,
-            landed=None, approach=None, resting=None
+            landed=None, approach=None, resting=None, pre_impact=None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[Impact, ...]]:
     """Physical-time samples and impacts from a solved discretization (Thm. 10).
 
@@ -877,6 +877,9 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     step's start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated
     at the step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
     its pre-impact velocity.
+    pre_impact (dv (K-1, nv), dimp (K-1, n_contacts, 2)) or None: added to the pre-impact velocity and the impulse of
+    a landing inside step k (implicit Euler's joint PD reacted to the post-impact velocity there; simulate's
+    _pd_before_landing); v_post stays the run's end state.
     Returns t (P,), q (P, nq), v (P, nv), u (P, nu), impacts.
     """
     y, u_steps = np.asarray(y, float), np.asarray(u_steps, float)
@@ -963,6 +966,8 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
             v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
             v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
         imp = np.sum(impulses[first : b + 1], axis=0)  # (n_contacts, 2)
+        if pre_impact is not None and not (switch_at_start or at_node):
+            v_pre, imp = v_pre + pre_impact[0][a], imp + pre_impact[1][a]
         order = np.argsort(-np.abs(imp[:, 0]), kind="stable") if len(contacts) else np.zeros(1, int)
         # one Impact per contact that took a normal impulse in this frozen interval, the largest first;
         # with one contact (or none) exactly one Impact, as before

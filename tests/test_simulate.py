@@ -571,6 +571,33 @@ def test_pd_is_an_implicit_controller():
     np.testing.assert_allclose(whole.trajectory.y, tr.y, atol=SOLVER_TOL)
 
 
+# A body on a vertical slide carrying a foot on a prismatic leg (the leg under PD): the foot's impulse only stops the
+# foot (J M^-1 J^T = 1 / FOOT_MASS), so an inelastic landing takes FOOT_MASS times the touchdown speed.
+BODY_MASS, FOOT_MASS = 5.0, 0.5  # [kg]
+LEGGED_SLIDER = f"""<mujoco><worldbody><body name="body"><joint name="z" type="slide" axis="0 0 1"/>
+<inertial pos="0 0 0" mass="{BODY_MASS}" diaginertia="0.05 0.05 0.05"/><body name="foot" pos="0 0 -0.5">
+<joint name="leg" type="slide" axis="0 0 -1"/><inertial pos="0 0 0" mass="{FOOT_MASS}" diaginertia="0.002 0.002 0.002"/>
+<site name="foot"/></body></body></worldbody><actuator><motor name="leg_m" joint="leg"/></actuator></mujoco>"""
+
+
+def test_a_landing_under_pd_records_the_flight_before_it(tmp_path):
+    """A drop held by a stiff leg PD falls rigidly (zero error, zero speed: no force), so the impact record must read
+    free fall, v_pre = (-g t, 0), and the inelastic impulse FOOT_MASS g t at its time t. The implicit step evaluates
+    the PD at its end, after the impact: its reaction to the leg's post-impact compression had been read into v_pre
+    (the leg moving at 0.8 m/s in free fall) and the impulse (55 % too large on a hopper), misleading a user who checks
+    the energy lost at impacts."""
+    path = tmp_path / "legged_slider.xml"
+    path.write_text(LEGGED_SLIDER)
+    t = parse_task({"contacts": [{"point": "foot"}], "initial": {"q": [0.6, 0.0]}, "horizon": {"tau_f": 0.3, "N": 15},
+                    "simulate": {"pd": {"joints": ["leg"], "kp": [2000.0], "kd": [50.0]}}})
+    r = simulate(load_robot(path), t)
+    assert r.stats.converged and len(r.trajectory.impacts) == 1
+    (imp,) = r.trajectory.impacts
+    np.testing.assert_allclose(imp.v_pre, [-G * imp.time, 0.0], atol=SOLVER_TOL)
+    assert imp.impulse == pytest.approx(FOOT_MASS * G * imp.time, abs=SOLVER_TOL)
+    assert imp.kinetic_energy_pre == pytest.approx(0.5 * (BODY_MASS + FOOT_MASS) * (G * imp.time) ** 2, abs=SOLVER_TOL)
+
+
 def test_simulate_pd_keys_are_validated():
     """[simulate.pd]: one kp, kd (>= 0) and q_ref per joint, no repeated joints; against the robot:
     known joints with exactly one actuator. Every error names the key."""
