@@ -45,7 +45,7 @@ import numpy as np
 from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
                      interrupted, options_record, plain, real_array, representable)
-from .problem import Penalty, Problem, plane_gap
+from .problem import Penalty, Problem, plane_gap, static_controls
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of, slides_of, unrecorded_landings)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
@@ -180,6 +180,13 @@ class FESDStart(Enum):
     IMPLICIT_EULER = "implicit_euler"
 
 
+class ControlStart(Enum):
+    """The controls u of the hint-free start (SolveOptions.start_controls)."""
+
+    ZERO = "zero"  # the paper's: u = 0 at every step
+    STATIC = "static"  # the least-norm torques holding the start's configuration at rest (problem.static_controls)
+
+
 class Polish(Enum):
     NONE = "none"
     ACTIVE_SET = "active_set"
@@ -189,7 +196,7 @@ class Polish(Enum):
 # the SolveOptions fields that take an Enum (solve_options_from_dict reads them by value)
 ENUM_FIELDS = {"mu_strategy": MuStrategy, "holes": HoleSchedule, "polish": Polish, "warm_start": WarmStart,
                "mumps_ordering": MumpsOrdering, "variable_scaling": VariableScaling, "regularization": Regularization,
-               "fesd_start": FESDStart, "derivation": Derivation}
+               "fesd_start": FESDStart, "derivation": Derivation, "start_controls": ControlStart}
 
 
 @dataclass(frozen=True)
@@ -339,6 +346,13 @@ class SolveOptions:
     created in ~1 s instead of ~4 s on the default Capler task, the values equal to rounding, which takes the
     homotopy on another path: over seven Capler tasks 24047 iterations against 21714, plans 10 % dearer
     (docs/benchmarks.md, session 26).
+    start_controls: ControlStart. ZERO (default): the paper's hint-free start, u = 0 at every step. STATIC: u starts
+    at every step at the least-norm torques that hold the start's configuration at rest on the contact points
+    touching there (problem.static_controls: friction cones kept when they can be, bounds clipped), the step's
+    algebraic variables guessed with them; the states stay y_0 everywhere. Only from the hint-free start (problem.x0
+    as built) of an implicit-Euler problem. Measured (docs/benchmarks.md, "The static-torque start", session 68): a
+    pitched quadruped standing still 1016 iterations to cost 0.18 against 2675 to 1.85; a crouched Capler 1207 against
+    1486, 11 % dearer; Capler's straight leg needs no torque (the same start), so the default stays ZERO.
     """
 
     tol: float = 1e-8
@@ -391,6 +405,7 @@ class SolveOptions:
     reoptimize: bool = True
     rho_f_schedule: tuple[float, ...] | None = None
     derivation: Derivation = Derivation.WHOLE_GRAPH
+    start_controls: ControlStart = ControlStart.ZERO
 
     def __post_init__(self):
         check_field_types(self)
@@ -999,6 +1014,27 @@ def solve(problem: Problem, options: SolveOptions = SolveOptions(), progress: Pr
         return _solve(problem, options, progress)
 
 
+def _static_start(problem: Problem) -> np.ndarray:
+    """problem.x0 (nx,), the hint-free start, with u at every step at problem.static_controls and the step's algebraic
+    variables guessed with it (a copy); an InputError for another start (a plan: --init), which has its own u, and
+    for FESD, whose stages this does not guess."""
+    if problem.fesd is not None:
+        raise InputError("SolveOptions.start_controls = static applies to discretization implicit_euler only; leave it "
+                         "at zero with fesd")
+    if not np.array_equal(problem.x0, problem.notes.get("hint_free_x0")):
+        raise InputError("SolveOptions.start_controls = static replaces the u of the hint-free start, but this "
+                         "problem starts from another point (a plan, e.g. planner plan --init); leave start_controls "
+                         "at zero there")
+    u, _ = static_controls(problem)
+    x0, blocks = problem.x0.copy(), problem.var_blocks
+    x0[blocks["u"]] = u
+    x0[blocks["w"]] = problem.builder.guess(problem.y0, u)
+    if "s_c" in blocks:  # the slack at the largest product of the new guess, as build_problem sets it
+        scaled = np.asarray(problem.products(x0), float).ravel() / problem.pair_scale
+        x0[blocks["s_c"]] = float(np.max(scaled, initial=0.0))
+    return x0
+
+
 def _solve(problem: Problem, options: SolveOptions, progress: Progress | None) -> PlanResult:
     """solve()'s work."""
     expect(problem, Problem, "solve's problem")
@@ -1025,10 +1061,11 @@ def _solve(problem: Problem, options: SolveOptions, progress: Progress | None) -
     if options.fesd_rho_schedule != SolveOptions.fesd_rho_schedule:  # (accepted and ignored before)
         raise InputError(f"SolveOptions.fesd_rho_schedule = {options.fesd_rho_schedule} applies to discretization fesd "
                          "with fesd_start implicit_euler only; this solve's penalties are rho_schedule's")
+    first = _static_start(problem) if options.start_controls is ControlStart.STATIC else problem.x0.copy()
     start = time.perf_counter()
     hom = problem.task.plan.homotopy
     solvers = _Solvers(problem, options)
-    x, lam_x, lam_g = problem.x0.copy(), None, None
+    x, lam_x, lam_g = first, None, None
     records: list[NlpRecord] = []
     starts = []  # (x, lam_x, lam_g, label) of the last homotopy NLPs, the latest first
     timings = {"build_s": problem.build_time_s}

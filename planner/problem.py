@@ -685,6 +685,86 @@ def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_
     lbx[len(y0) - 1] = ubx[len(y0) - 1] = y0[-1]
 
 
+# [m] a contact point this close to its plane at the start bears weight in the static start (a start typed to 7 digits,
+# as a tester's 0.3821346 m, sits ~1e-8 m off its plane; a point 1 mm up is in the air)
+STATIC_GAP_M = 1e-6
+# [N, N m] the static balance B u + J^T lambda = g(q0) that the cone-constrained forces must meet: else they are not
+# taken and lambda goes free (rounding of a solvable balance is ~1e-12 on the shipped robots)
+STATIC_BALANCE_TOL = 1e-6
+# relative: singular values below this in the static balance are rounding of a direction the contacts span (a planar
+# quadruped's was 1.3e-14 of 10, which NumPy's default cut-off 1e-15 inverted into a torque of rounding noise)
+STATIC_RCOND = 1e-10
+
+
+def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """The least-norm controls u (nu,) [N m or N] that hold the start's configuration q0 at rest, and the contact
+    forces (n_contacts, 2) [N] (normal, tangential along the plane, per problem.system.contacts) they go with:
+    B u + sum_i (n_i lambda_n,i + t_i lambda_t,i) = g(q0) (g: the gravity term, RNEA at zero velocity and
+    acceleration), with only the points whose gap is <= STATIC_GAP_M at the start bearing (the others, and a
+    frictionless point's tangential force, 0). The forces keep lambda_n >= 0 and |lambda_t| <= mu lambda_n when such
+    forces balance q0 (a small QP); else they are free (the least-squares u with any contact force). u is clipped
+    to its bounds (problem.lbx, ubx)."""
+    system, dyn = problem.system, problem.system.dyn
+    nq, nu = system.nq, system.nu
+    q0 = problem.y0[:nq]
+    grav = np.asarray(dyn.bias(q0, np.zeros(system.nv)), float).ravel()
+    B = np.asarray(dyn.actuation, float)
+    gaps = np.asarray(system.gap_fn(problem.y0, np.zeros(nu)), float).ravel()
+    columns, cone, slots = [], [], []  # contact force directions (nv,), (normal col, tangent col or None, mu), (i, k)
+    for i, (contact, model) in enumerate(zip(system.contacts, system.models)):
+        if gaps[i] > STATIC_GAP_M:
+            continue
+        J = np.asarray(dyn.point_jacobian(contact.point)(q0), float)
+        normal, tangent = (np.asarray(d) for d in plane_axes(contact.normal))
+        columns.append(J.T @ normal)
+        slots.append((i, 0))
+        tangential = model is ContactModel.NO_SLIP
+        if tangential:
+            columns.append(J.T @ tangent)
+            slots.append((i, 1))
+        cone.append((len(columns) - 1 - tangential, len(columns) - 1 if tangential else None, contact.mu))
+    Jc = np.column_stack(columns) if columns else np.zeros((system.nv, 0))
+    # lambda free: the min-norm u balancing what the contacts cannot (least squares), then the forces for the rest
+    rest = np.eye(system.nv) - Jc @ np.linalg.pinv(Jc, rcond=STATIC_RCOND)
+    u = np.linalg.pinv(rest @ B, rcond=STATIC_RCOND) @ (rest @ grav)
+    lam = np.linalg.pinv(Jc, rcond=STATIC_RCOND) @ (grav - B @ u)
+    if cone and not _in_cones(lam, cone):
+        u, lam = _static_in_cones(B, Jc, grav, cone, u, lam)
+    forces = np.zeros((len(system.contacts), 2))
+    for (i, k), value in zip(slots, lam):
+        forces[i, k] = value
+    u_block = problem.var_blocks["u"][0]
+    return np.clip(u, problem.lbx[u_block], problem.ubx[u_block]), forces
+
+
+def _in_cones(lam: np.ndarray, cone, tol: float = 0.0) -> bool:
+    """Whether each bearing point's forces in lam keep lambda_n >= 0 and |lambda_t| <= mu lambda_n (to tol [N])."""
+    return all(lam[n] >= -tol and (t is None or abs(lam[t]) <= mu * lam[n] + tol) for n, t, mu in cone)
+
+
+def _static_in_cones(B, Jc, grav, cone, u, lam) -> tuple[np.ndarray, np.ndarray]:
+    """static_controls' QP: min ||u||^2 over (u, lambda) with B u + Jc lambda = grav and the forces in their cones
+    (linear in the plane: lambda_n >= 0, mu lambda_n -+ lambda_t >= 0), from the free forces' (u, lam); those when
+    no such forces balance."""
+    from scipy.optimize import minimize  # (imported here: only a start whose free forces leave a cone needs SciPy)
+
+    nu = B.shape[1]
+    eye, rows = np.eye(Jc.shape[1]), []
+    for n, t, mu in cone:
+        rows += [eye[n]] + ([] if t is None else [mu * eye[n] - eye[t], mu * eye[n] + eye[t]])
+    C = np.hstack([np.zeros((len(rows), nu)), np.array(rows)])
+    A = np.hstack([B, Jc])
+    found = minimize(lambda z: z[:nu] @ z[:nu], np.concatenate([u, np.maximum(lam, 0.0)]),
+                     jac=lambda z: np.concatenate([2 * z[:nu], np.zeros(Jc.shape[1])]), method="SLSQP",
+                     constraints=[{"type": "eq", "fun": lambda z: A @ z - grav, "jac": lambda z: A},
+                                  {"type": "ineq", "fun": lambda z: C @ z, "jac": lambda z: C}])
+    z = found.x
+    balanced = np.abs(A @ z - grav).max() <= STATIC_BALANCE_TOL
+    if found.success and balanced and _in_cones(z[nu:], cone, STATIC_BALANCE_TOL):
+        return z[:nu], z[nu:]
+    return u, lam
+
+
 def _hint_free_start(nx: int, var_blocks, y0: np.ndarray, N: int, h: float, clock_running: bool) -> tuple[np.ndarray, np.ndarray]:
     """The paper's hint-free start: x0 (nx,) with y_0 in the periodic block "y0" and speeds of time 1
     where those blocks exist (zeros elsewhere), and the node states (N, ny) to place: y_0 at every node,

@@ -13,10 +13,11 @@ import pytest
 from planner import homotopy as H
 from planner.errors import InputError
 from planner.model import load_robot
-from planner.problem import build_problem
+from planner.problem import build_problem, static_controls
 from planner.result import TAP_SHARE
+from planner.task import Horizon, load_task
 
-from test_problem import hop_task
+from test_problem import CROUCH_Q, hop_task
 
 POINT_MASS_XML = pathlib.Path(__file__).resolve().parents[1] / "robots" / "point_mass.xml"  # (not the cwd's)
 # Verdict thresholds of the issue: complementarity residual and terminal error at most 1e-6.
@@ -158,7 +159,9 @@ def test_a_list_for_a_tuple_field_is_stored_as_the_tuple():
                                          ({"intermediate_tol": 0.0}, "intermediate_tol"),
                                          # no polish start is no polish at all (session 66's mutation testing: 0 was
                                          # accepted and the polish silently skipped, with every test green)
-                                         ({"polish_starts": 0}, "polish_starts = 0 is not allowed; it must be >= 1")])
+                                         ({"polish_starts": 0}, "polish_starts = 0 is not allowed; it must be >= 1"),
+                                         ({"start_controls": "gravity"}, "start_controls = 'gravity' is not allowed"),
+                                         ({"start_controls": True}, "start_controls = True is not allowed")])
 def test_bad_options(kwargs, key):
     """Out-of-range or wrongly typed options are InputErrors naming the option."""
     with pytest.raises(InputError, match=re.escape(key)):
@@ -195,6 +198,28 @@ def test_options_their_solve_does_not_read_are_refused(kwargs, key, needs):
     with pytest.raises(InputError, match=re.escape(key) + r".* unless"):
         H.SolveOptions(**kwargs)
     H.SolveOptions(**{**kwargs, **needs})
+
+
+def test_static_start_puts_the_static_torques_at_every_step():
+    """SolveOptions.start_controls = static (by its JSON value, as planner plan --solve gives it) starts every step's
+    u at problem.static_controls, the states at y_0 and the algebraic guess consistent with them (every product 0),
+    leaving problem.x0 as built; a start that is not the hint-free one (a plan, --init) is refused before any NLP,
+    as its u is the plan's."""
+    opts = H.solve_options_from_dict({"start_controls": "static"})
+    assert opts.start_controls is H.ControlStart.STATIC and H.SolveOptions().start_controls is H.ControlStart.ZERO
+    task = load_task("robots/capler.toml")
+    task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=CROUCH_Q), horizon=Horizon(0.5, 10))
+    prob = build_problem(load_robot("robots/capler.xml"), task)
+    built = prob.x0.copy()
+    x = H._static_start(prob)
+    u, _ = static_controls(prob)
+    np.testing.assert_array_equal(x[prob.var_blocks["u"]], np.tile(u, (prob.N, 1)))
+    np.testing.assert_array_equal(x[prob.var_blocks["y"]], built[prob.var_blocks["y"]])
+    assert np.abs(u).max() > 0 and prob.complementarity_residual(x) == 0.0
+    np.testing.assert_array_equal(prob.x0, built)
+    prob.x0 = x
+    with pytest.raises(InputError, match="start_controls = static replaces the u of the hint-free start"):
+        H.solve(prob, opts)
 
 
 def test_replan_options_refuse_what_they_replace():

@@ -13,7 +13,7 @@ import pytest
 from planner.discretization import StepForm
 from planner.errors import InputError, shown_up
 from planner.model import load_robot
-from planner.problem import Penalty, ProblemOptions, build_problem
+from planner.problem import Penalty, ProblemOptions, build_problem, static_controls
 from planner.task import Horizon, VelocityBound, load_task, parse_task
 
 ROBOTS = pathlib.Path(__file__).resolve().parents[1] / "robots"  # (not the working directory's)
@@ -78,6 +78,49 @@ def test_initial_guess_is_hint_free(capler_small):
     assert np.allclose(W, W[0][None, :])
     # the guess is consistent with the switching functions at y0: every product is zero
     assert prob.complementarity_residual(prob.x0) == pytest.approx(0.0, abs=1e-12)
+
+
+# the static balance B u + J^T lambda = g(q0) by the planner's CasADi functions and by Pinocchio's numeric rnea and
+# frame Jacobians: rounding of terms ~60 N (measured 1e-14); the cones and bounds hold to the QP's tolerance
+STATIC_TOL = 1e-8  # [N, N m]
+CROUCH_Q = (0.0, 0.4 * math.cos(0.3), 0.3, -0.6)  # Capler's foot on the ground under a bent knee [m, m, rad, rad]
+
+
+# (the biped's splayed stance needs no torque where its feet may push sideways, 18.5 N at 171.7 N, and hip torque
+# where the cone forbids that: mu = 0.05 the QP's case, mu = 0 the frictionless contacts')
+@pytest.mark.parametrize("robot_name, initial_q, mu, torque", [("capler", CROUCH_Q, None, True),
+                                                               ("biped", None, None, False), ("biped", None, 0.05, True),
+                                                               ("biped", None, 0.0, True)])
+def test_static_controls_hold_the_start_against_gravity(robot_name, initial_q, mu, torque):
+    """static_controls (SolveOptions.start_controls = static) gives torques u and contact forces that hold the start
+    at rest: B u + sum_i J_i^T (n lambda_n + t lambda_t) equals the gravity term, Pinocchio's rnea at zero velocity
+    and acceleration (with its own frame Jacobians), the forces push (lambda_n >= 0) inside each friction cone and u
+    is within its bounds: a start that is statically feasible, on one contact (a crouched Capler, whose knee needs
+    torque) and on two (the biped's feet, also on slippery ground, where the torques must do what friction cannot)."""
+    import pinocchio as pin
+
+    robot = load_robot(f"{ROBOTS}/{robot_name}.xml")
+    task = load_task(f"{ROBOTS}/{robot_name}.toml")
+    if initial_q is not None:
+        task = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=initial_q),
+                                   horizon=Horizon(tau_f=0.5, N=10))
+    if mu is not None:
+        task = dataclasses.replace(task, contacts=tuple(dataclasses.replace(c, mu=mu) for c in task.contacts))
+    prob = build_problem(robot, task)
+    u, forces = static_controls(prob)
+    q0 = prob.y0[: robot.nq]
+    data = robot.model.createData()
+    gravity = pin.rnea(robot.model, data, q0, np.zeros(robot.nv), np.zeros(robot.nv))
+    pin.computeJointJacobians(robot.model, data, q0)
+    pin.updateFramePlacements(robot.model, data)
+    balance = robot.actuation_matrix @ u
+    for contact, (lam_n, lam_t) in zip(prob.system.contacts, forces):
+        J = pin.getFrameJacobian(robot.model, data, robot.frame_id(contact.point), pin.LOCAL_WORLD_ALIGNED)[:3]
+        balance += J.T @ (np.array([0.0, 0.0, 1.0]) * lam_n + np.array([1.0, 0.0, 0.0]) * lam_t)
+        assert lam_n > 0 and abs(lam_t) <= contact.mu * lam_n + STATIC_TOL
+    np.testing.assert_allclose(balance, gravity, atol=STATIC_TOL)
+    u_block = prob.var_blocks["u"][0]
+    assert np.all(u >= prob.lbx[u_block]) and np.all(u <= prob.ubx[u_block]) and (np.abs(u).max() > 0.1) == torque
 
 
 def test_mass_matrix_and_explicit_forms_agree_at_a_point(capler_small):
