@@ -1076,8 +1076,8 @@ def dynamics_failure(kinematic: KinematicReport, tracked: bool = True) -> str | 
     where = f"in {k.flight_residual_dof!r} at t = {k.flight_residual_time_s:.4g} s > {FLIGHT_RESIDUAL_TOL}"
     if k.flight_residual_positions:
         return (f"the trajectory's own dynamics: its positions do not move at its velocities ((q+ - q) / dt - v+ is "
-                f"{k.max_flight_residual:.3g} of its speed {where}): its samples were edited, or are not the "
-                "planner's implicit-Euler steps")
+                f"{k.max_flight_residual:.3g} of its speed {where}): its samples are not consecutive implicit-Euler "
+                "steps (one edited or missing; a plan's own: please report it)")
     return (f"the trajectory's own dynamics: in flight its controls do not give its motion (M a + h - B u is "
             f"{k.max_flight_residual:.3g} of its terms {where})"
             + ("; the tracking replay's feedback can hide that on a robot whose every coordinate has a motor"
