@@ -560,8 +560,7 @@ def _over_hole(seg, holes) -> bool:
     return any(_passes_over(hole, seg[s], seg[s + 1]) for hole in holes for s in range(len(seg) - 1))
 
 
-def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=(),
-            skims: list | None = None) -> list[Hop]:
+def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=None, holes=()) -> list[Hop]:
     """Flight phases from the per-step flight indicator `flight` (N,) (beta, 1 in flight) and the
     contact point's positions point_xyz (N+1, 3) at the nodes; times are the node clocks. A phase in which the point
     does not move (HOP_MIN_TRAVEL_M), or of two steps or more whose nodes all keep the point's distance from its
@@ -570,8 +569,7 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
     is a fall, no hop, a phase whose last node is off them lands in the next step (partly frozen), whose end node it
     takes too, and one whose last node is on them without an impact lands there; a one-step phase on the planes at
     both ends is a skim, no hop, unless its point passes over one of holes (the task's Ellipses) on the way, as a
-    slide is unless one of its steps does; skims, when given, gets each skim as a Hop (takeoff and landing at its two
-    nodes)."""
+    slide is unless one of its steps does (slides_of lists each point's skims)."""
     clock = traj.y[:, -1]
     hops, N = [], len(np.asarray(flight).ravel())
     for a, k in _flight_phases(flight):
@@ -588,8 +586,6 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
         # (flight mode along the ground is frictionless: Capler at N = 50 slid its foot 7-10 cm so, twice backwards,
         # 4-8 mm below the ground between the nodes; a one-step hop over a hole starts and ends on the ground)
         if k - a == 1 and gap is not None and max(gap[a], gap[k]) <= ON_PLANE_M and not over_hole:
-            if skims is not None:
-                skims.append(Hop(float(clock[a]), float(clock[k]), distance, apex))
             continue
         end = float(clock[min(k + 1, N)])
         # the touchdown is the flight's impact: implicit Euler's landing step ends at it (node k + 1), but FESD's frozen
@@ -635,10 +631,12 @@ def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), sk
 LANDING_MIN_MPS = 0.1
 
 
-def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
+def unrecorded_landings(traj: Trajectory, approach, gap, flight, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node). With several
+    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node), that end the
+    point's own flight: the node before is off the plane or its step in flight mode (flight (K-1, n_c), its beta; a
+    standing foot's normal velocity drifts by up to ~0.7 m/s on the plane, which is no landing). With several
     contacts the recovery freezes a step only when its clock stood still, so a landing in steps that ran the clock is no
     impact (docs/formulation.md, "Partly frozen stance"). Each as {"point", "time" [s] (the run's first node's clock),
     "approach_mps" (the fastest approach of the run, and of the node before it when that was off the plane: a step that
@@ -647,6 +645,7 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     time order. contacts (n_c,): their names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
+    flight = np.asarray(flight, float).reshape(len(clock) - 1, -1)
     landing = (gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)
     for c, point in enumerate(contacts):
         for k in range(len(clock) - 1):
@@ -664,6 +663,8 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
             a = k
             while k < len(clock) and landing[k, c]:
                 k += 1
+            if not (a and (gap[a - 1, c] > ON_PLANE_M or flight[a - 1, c] > 0.5)):
+                continue
             fastest = -approach[a:k, c].min()
             if a and gap[a - 1, c] > ON_PLANE_M:
                 fastest = max(fastest, -approach[a - 1, c])

@@ -16,7 +16,7 @@ import pytest
 from planner.errors import InputError
 from planner.homotopy import SolveOptions
 from planner.model import load_robot, resolve_robot_path
-from planner.result import (ENERGY_GAIN_SHARE, ON_PLANE_M, TAP_SHARE, Hop, Impact, SimulationResult, SolveStats,
+from planner.result import (ENERGY_GAIN_SHARE, ON_PLANE_M, TAP_SHARE, Impact, SimulationResult, SolveStats,
                             Trajectory, check_same_result, hops_of, outside_cone, read_robot, read_start, read_summary,
                             read_task, read_trajectory, recover, tap_flags, write_atomically, write_files,
                             write_results)
@@ -323,9 +323,7 @@ def test_a_phase_that_keeps_the_point_on_its_plane_is_a_slide_not_a_hop():
     assert len(hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz)) == 1
     # with the gaps: a skim, unless a hole lies between its nodes (x = 0.1 and 0.2 m); then its last node is on the
     # ground, so it lands there (it read a step later, node 3's 0.3 s)
-    skims = []
-    assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], skims=skims) == []
-    assert skims == [Hop(takeoff_time=0.1, landing_time=0.2, distance=pytest.approx(0.1), apex=0.0)]
+    assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2]) == []
     aside, between = Ellipse(x=0.35, a=0.02, b=0.05), Ellipse(x=0.15, a=0.02, b=0.05)
     assert hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside,)) == []
     (over,) = hops_of(traj, np.array([0, 1, 0, 0, 0]), xyz, gap=xyz[:, 2], holes=(aside, between))
@@ -360,7 +358,7 @@ def test_each_contacts_frictionless_slides_are_found_by_its_own_beta_and_gap():
     front, back = np.zeros((10, 3)), np.zeros((10, 3))
     back[:, 0] = (0.0, 0.0, 0.05, 0.15, 0.2, 0.2, 0.1, 0.1, 0.1, 0.1)  # slides 0.2 m on, 0.1 m back, rests in step 7
     gaps = np.column_stack([front[:, 2], back[:, 2]])
-    assert hops_of(traj, beta.min(axis=1), front, gap=gaps.min(axis=1), skims=(skims := [])) == [] and skims == []
+    assert hops_of(traj, beta.min(axis=1), front, gap=gaps.min(axis=1)) == []
     slides = slides_of(traj, beta[:, 1], back, gaps[:, 1], "back_foot", skims=(skims := []))
     assert slides == [{"point": "back_foot", "start_time": 0.1, "end_time": 0.4, "distance": pytest.approx(0.2)}]
     assert skims == [{"point": "back_foot", "takeoff_time": 0.5, "landing_time": 0.6, "distance": pytest.approx(-0.1),
@@ -373,9 +371,11 @@ def test_each_contacts_frictionless_slides_are_found_by_its_own_beta_and_gap():
     assert slides_of(traj, beta[:, 1], lifted, lifted[:, 2], "back_foot") == []
 
 
-def test_one_contacts_skims_are_the_robots():
-    """With one contact point, slides_of's skims are hops_of's (same phases, times, distance and apex, now named by the
-    point), so a one-contact plan's skims (Capler's, the hopper's) are the same as when they were the robot's."""
+def test_one_contacts_skims_are_the_phases_hops_of_leaves_out():
+    """With one contact point, slides_of's skims are the one-step phases on the ground at both ends that hops_of leaves
+    out as no hops, with their nodes' clocks, x distance and apex, named by the point, while the phase that leaves the
+    ground stays hops_of's hop: a one-contact plan's skims (Capler's, the hopper's) are the robot's, as when hops_of
+    listed them."""
     from planner.result import slides_of
 
     clock = np.arange(6) / 10
@@ -384,10 +384,11 @@ def test_one_contacts_skims_are_the_robots():
     xyz = np.zeros((6, 3))
     xyz[:, 0] = (0.0, 0.0, 0.1, 0.1, 0.3, 0.4)
     xyz[4, 2] = 0.05  # steps 3-4: a hop (its middle node is off the ground)
-    hop_skims, point_skims = [], []
-    assert len(hops_of(traj, flight, xyz, gap=xyz[:, 2], skims=hop_skims)) == 1
-    assert slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=point_skims) == []
-    assert point_skims == [{"point": "foot", **h.to_json()} for h in hop_skims] and len(point_skims) == 1
+    (hop,) = hops_of(traj, flight, xyz, gap=xyz[:, 2])
+    assert (hop.takeoff_time, hop.landing_time) == (0.3, 0.5)
+    assert slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=(skims := [])) == []
+    assert skims == [{"point": "foot", "takeoff_time": 0.1, "landing_time": 0.2, "distance": pytest.approx(0.1),
+                      "apex": 0.0}]
 
 
 def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_clock():
@@ -396,8 +397,9 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     before counts when it was off the plane: the running step before can brake part of the landing) and the share of
     its first step the clock ran: a bounder's feet landed at 3.2-5.5 m/s in steps that ran the clock, which the
     several-contact recovery records as no impact, and the report said "0 impact(s), 2 hop(s)". A point resting on its
-    plane (drift below APPROACH_MPS) or moving into it off the plane is no landing, nor one an Impact of its own holds
-    (another point's does not), nor a run slower than LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07 m/s)."""
+    plane (drift below APPROACH_MPS, or faster in contact mode: no flight of its own ends there) or moving into it off
+    the plane is no landing, nor one an Impact of its own holds (another point's does not), nor a run slower than
+    LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07 m/s)."""
     from planner.result import APPROACH_MPS, LANDING_MIN_MPS, unrecorded_landings
 
     h = 0.05
@@ -405,22 +407,31 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(7), impacts=())
     gap = np.zeros((7, 2))
     gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
+    flight = np.zeros((6, 2))
+    flight[:2, 1] = 1.0  # (its steps 0-1 in flight mode; the front foot's all in contact mode)
     approach = np.zeros((7, 2))
     approach[:, 0] = 0.1 * APPROACH_MPS  # the front foot rests (drift below the threshold)
     approach[1:5, 1] = (-5.5, -1.2, -0.4, 0.01)  # on the ground at -1.2 m/s after -5.5 m/s in the air, then stops
     dt, feet = np.full(6, h), ("front_foot", "back_foot")
     landing = {"point": "back_foot", "time": pytest.approx(clock[2], abs=EXACT),
                "approach_mps": pytest.approx(5.5, abs=EXACT), "clock_share": pytest.approx(0.98, abs=EXACT)}
-    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
+    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
     held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[2], tau_start=traj.tau[2], tau_end=traj.tau[4])
     for impact, found in ((held, []), (replace(held, contact="front_foot"), [landing])):
-        assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (impact,)}), approach, gap, dt,
+        assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (impact,)}), approach, gap, flight, dt,
                                    feet) == found
+    # a standing foot's normal velocity drifting on its plane (a bounder's at 0.18-0.69 m/s) is no landing, unless
+    # its step before was in flight mode (a skim that ends there)
+    approach[2:4, 0] = -0.7
+    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
+    flight[1, 0] = 1.0
+    assert [f["point"] for f in unrecorded_landings(traj, approach, gap, flight, dt, feet)] == ["front_foot", "back_foot"]
+    flight[1, 0], approach[2:4, 0] = 0.0, 0.1 * APPROACH_MPS
     approach[6, 0] = -1.0  # (the last node starts no step, so holds no landing)
     gap[4, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air)
-    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
+    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
     approach[1:4, 1] = (-0.9, -0.5, -0.2) * np.array(LANDING_MIN_MPS)  # a foot settling onto its plane
-    assert unrecorded_landings(traj, approach, gap, dt, feet) == []
+    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == []
 
 
 def test_the_report_and_summary_name_each_slide():
