@@ -24,6 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import InputError, PlannerError, RobotFileError, UnknownNameError, expect, plain, read_error
+from .result import ON_PLANE_M
 
 _HERE = Path(__file__).resolve().parent
 # the shipped robot files and tasks: planner/robots in an installed wheel, the checkout's robots/ otherwise
@@ -201,31 +202,40 @@ class Robot:
                 return True
         return False
 
-    def contact_rank(self, contacts, q: np.ndarray, height: float,
-                     touch_tol: float = 1e-6) -> tuple[list[int], int, int]:
+    def touching_contacts(self, contacts, q: np.ndarray, height: float,
+                          touch_tol: float = ON_PLANE_M) -> list[tuple[int, np.ndarray, np.ndarray | None]]:
         """Of the contacts (point, unit plane normal (3,), frictional), those whose point lies on its plane (through
-        (0, 0, height) [m]) at q (nq,) to touch_tol [m]: (their indices, the rank of their normal rows n^T J_p(q),
-        the rank of those rows and the frictional ones' tangent rows together). A rank below the rows' count: the
-        forces of those contacts together are not unique."""
+        (0, 0, height) [m]) at q (nq,) to touch_tol [m], each as (its index, J_p(q)^T n (nv,), J_p(q)^T t (nv,) or None
+        when not frictional): the generalized forces of a unit normal and tangential contact force (plane_axes' n and
+        t; J_p the point's world-frame translational Jacobian (3, nv))."""
         from .contact import plane_axes  # (contact imports the dynamics, which import this module)
 
         model, data, q = self.model, self.model.createData(), np.asarray(q, float)
         pin.framesForwardKinematics(model, data, q)
-        on, normal_rows, tangent_rows = [], [], []
+        touching = []
         for i, (point, surface, frictional) in enumerate(contacts):
             frame, (n, t) = self.frame_id(point), (np.array(a) for a in plane_axes(surface))
             if abs(n @ (data.oMf[frame].translation - np.array([0.0, 0.0, height]))) > touch_tol:
                 continue
-            J = np.asarray(pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))[:3]
-            on.append(i)
-            normal_rows.append(n @ J)
-            tangent_rows += [t @ J] if frictional else []
+            J = np.asarray(pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
+            J = J.reshape(6, -1)[:3]  # (6,) for one DoF
+            touching.append((i, J.T @ n, J.T @ t if frictional else None))
+        return touching
 
-        def rank(rows):
-            # (k, nv) also for one degree of freedom, whose rows are scalars: a 1-D array's rank is 1 if any is nonzero
-            return int(np.linalg.matrix_rank(np.array(rows).reshape(len(rows), -1), tol=1e-9)) if rows else 0
+    def contact_rank(self, contacts, q: np.ndarray, height: float,
+                     touch_tol: float = ON_PLANE_M) -> tuple[list[int], int, int]:
+        """Of the contacts (point, unit plane normal (3,), frictional), those whose point lies on its plane (through
+        (0, 0, height) [m]) at q (nq,) to touch_tol [m] (touching_contacts): (their indices, the rank of their normal
+        rows n^T J_p(q), the rank of those rows and the frictional ones' tangent rows together). A rank below the rows'
+        count: the forces of those contacts together are not unique."""
+        touching = self.touching_contacts(contacts, q, height, touch_tol)
+        normal_rows = [normal for _, normal, _ in touching]
+        tangent_rows = [tangent for _, _, tangent in touching if tangent is not None]
 
-        return on, rank(normal_rows), rank(normal_rows + tangent_rows)
+        def rank(rows):  # rows: (nv,) each
+            return int(np.linalg.matrix_rank(np.array(rows), tol=1e-9)) if rows else 0
+
+        return [i for i, _, _ in touching], rank(normal_rows), rank(normal_rows + tangent_rows)
 
     def dof_index(self, joint: str, key: str = "") -> int:
         """Velocity index of a 1-DoF joint by name; UnknownNameError lists the valid names (and names `key`, the task

@@ -685,9 +685,6 @@ def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_
     lbx[len(y0) - 1] = ubx[len(y0) - 1] = y0[-1]
 
 
-# [m] a contact point this close to its plane at the start bears weight in the static start (a start typed to 7 digits,
-# as a tester's 0.3821346 m, sits ~1e-8 m off its plane; a point 1 mm up is in the air)
-STATIC_GAP_M = 1e-6
 # [N, N m] the static balance B u + J^T lambda = g(q0) that the cone-constrained forces must meet: else they are not
 # taken and lambda goes free (rounding of a solvable balance is ~1e-12 on the shipped robots)
 STATIC_BALANCE_TOL = 1e-6
@@ -700,29 +697,26 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     """The least-norm controls u (nu,) [N m or N] that hold the start's configuration q0 at rest, and the contact
     forces (n_contacts, 2) [N] (normal, tangential along the plane, per problem.system.contacts) they go with:
     B u + sum_i (n_i lambda_n,i + t_i lambda_t,i) = g(q0) (g: the gravity term, RNEA at zero velocity and
-    acceleration), with only the points whose gap is <= STATIC_GAP_M at the start bearing (the others, and a
+    acceleration), with only the points on their plane at the start bearing (Robot.touching_contacts, to
+    result.ON_PLANE_M: a start typed to 7 digits sits ~1e-8 m off its plane; the others, and a
     frictionless point's tangential force, 0). The forces keep lambda_n >= 0 and |lambda_t| <= mu lambda_n when such
     forces balance q0 (a small QP); else they are free (the least-squares u with any contact force). u is clipped
     to its bounds (problem.lbx, ubx)."""
     system, dyn = problem.system, problem.system.dyn
-    nq, nu = system.nq, system.nu
-    q0 = problem.y0[:nq]
+    q0 = problem.y0[: system.nq]
     grav = np.asarray(dyn.bias(q0, np.zeros(system.nv)), float).ravel()
     B = np.asarray(dyn.actuation, float)
-    gaps = np.asarray(system.gap_fn(problem.y0, np.zeros(nu)), float).ravel()
     columns, cone, slots = [], [], []  # contact force directions (nv,), (normal col, tangent col or None, mu), (i, k)
-    for i, (contact, model) in enumerate(zip(system.contacts, system.models)):
-        if gaps[i] > STATIC_GAP_M:
-            continue
-        J = np.asarray(dyn.point_jacobian(contact.point)(q0), float)
-        normal, tangent = (np.asarray(d) for d in plane_axes(contact.normal))
-        columns.append(J.T @ normal)
+    for i, normal, tangent in problem.robot.touching_contacts(
+            [(c.point, c.normal, model is ContactModel.NO_SLIP) for c, model in zip(system.contacts, system.models)],
+            q0, problem.task.ground_height):
+        columns.append(normal)
         slots.append((i, 0))
-        tangential = model is ContactModel.NO_SLIP
+        tangential = tangent is not None
         if tangential:
-            columns.append(J.T @ tangent)
+            columns.append(tangent)
             slots.append((i, 1))
-        cone.append((len(columns) - 1 - tangential, len(columns) - 1 if tangential else None, contact.mu))
+        cone.append((len(columns) - 1 - tangential, len(columns) - 1 if tangential else None, system.contacts[i].mu))
     Jc = np.column_stack(columns) if columns else np.zeros((system.nv, 0))
     # lambda free: the min-norm u balancing what the contacts cannot (least squares), then the forces for the rest
     rest = np.eye(system.nv) - Jc @ np.linalg.pinv(Jc, rcond=STATIC_RCOND)

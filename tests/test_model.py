@@ -892,3 +892,30 @@ def test_a_name_with_a_control_character_is_refused_naming_its_element(robot_var
     with pytest.raises(RobotFileError, match=named) as caught:
         robot_variant(text, old, new, name)
     assert "\n" not in str(caught.value)
+
+
+# [m/m] Pinocchio's numeric frame Jacobian and the planner's CasADi one of the same point: the same arithmetic (equal
+# to the bit on Capler), so only rounding may tell them apart
+JACOBIAN_TOL = 1e-12
+
+
+def test_touching_contacts_are_the_points_on_their_plane_with_their_force_directions():
+    """Robot.touching_contacts, which both the task's contact-rank check and the static-torque start
+    (problem.static_controls) read, keeps a point within result.ON_PLANE_M of its plane and leaves out one twice that
+    above it (in the air), and gives each kept point's generalized force directions J^T n and J^T t (None for a
+    frictionless point) as the planner's CasADi dynamics have them: the two callers see the same touching points."""
+    from planner.contact import plane_axes
+    from planner.result import ON_PLANE_M
+
+    robot = load_robot("capler")
+    slope = (0.6, 0.0, 0.8)  # a tilted plane through the origin, under the foot as the ground is
+    contacts = [("foot", (0.0, 0.0, 1.0), True), ("foot", slope, False), ("knee", (0.0, 0.0, 1.0), True)]
+    q = np.array([0.0, 0.4, 0.0, 0.0])  # the straight leg's foot on the ground [m, m, rad, rad]
+    J = np.asarray(Dynamics(robot).point_jacobian("foot")(q), float)
+    for lift, touching in ((0.0, [0, 1]), (0.5 * ON_PLANE_M, [0, 1]), (2.0 * ON_PLANE_M, [])):
+        found = robot.touching_contacts(contacts, q + [0.0, lift, 0.0, 0.0], 0.0)
+        assert [i for i, _, _ in found] == touching == robot.contact_rank(contacts, q + [0.0, lift, 0.0, 0.0], 0.0)[0]
+    (_, ground_n, ground_t), (_, slope_n, slope_t) = robot.touching_contacts(contacts, q, 0.0)
+    for found, surface, axis in ((ground_n, (0.0, 0.0, 1.0), 0), (ground_t, (0.0, 0.0, 1.0), 1), (slope_n, slope, 0)):
+        np.testing.assert_allclose(found, J.T @ np.array(plane_axes(surface)[axis]), rtol=0.0, atol=JACOBIAN_TOL)
+    assert slope_t is None
