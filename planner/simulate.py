@@ -658,7 +658,8 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
     the last stage the element's end; implicit Euler: n_s = 1, b = (1,)). Selectors and forces are
     reported at the elements' last stage. switch_at_start: impacts start at an element boundary
     (FESD; see result.recover). law: the joint PD the steps applied at their ends (implicit Euler: a landing inside a
-    step reads its pre-impact velocity and impulse from the flight before it, _pd_before_landing)."""
+    step that starts with no contact at rest reads its pre-impact velocity and impulse from the flight before it,
+    _pd_before_landing)."""
     N = len(Ws)
     nq, nv = system.nq, system.nv
     n_c = len(system.contacts)
@@ -675,7 +676,7 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
         landed = (gaps[:N] <= ON_PLANE_M) & (approach[:N] < -APPROACH_MPS)  # (N, n_c)
         resting = (gaps <= ON_PLANE_M) & (np.abs(approach) <= APPROACH_MPS)  # (N + 1, n_c)
     pre_impact = None if switch_at_start or law is None else _pd_before_landing(system, builder, law, Y, W, U, dt,
-                                                                                  dv_aux, impulses, frozen_tol)
+                                                                                  dv_aux, impulses, frozen_tol, resting)
     t, q, v, u, impacts = recover(tau, Y, U, dt, dv_aux, impulses, nq, nv, system.labels, frozen_tol,
                                   switch_at_start=switch_at_start, landed=landed, approach=approach, resting=resting,
                                   pre_impact=pre_impact)
@@ -691,20 +692,24 @@ def element_trajectory(system: TimeFreezingSystem, builder: ImplicitEulerStep, t
 
 
 def _pd_before_landing(system: TimeFreezingSystem, builder: ImplicitEulerStep, law: PDLaw, Y, W, U, dt, dv_aux,
-                       impulses, frozen_tol) -> tuple[np.ndarray, np.ndarray]:
+                       impulses, frozen_tol, resting) -> tuple[np.ndarray, np.ndarray]:
     """Per implicit-Euler step k, the corrections (dv (N, nv) [m/s, rad/s], dimp (N, n_contacts, 2) [N s]) of the
     pre-impact velocity and the impulse that result.recover reads for a landing inside it (Y (N+1, ny), W (N, nw),
-    U (N, nu) applied controls, dt (N,) [s], dv_aux and impulses as _auxiliary_parts gives them).
+    U (N, nu) applied controls, dt (N,) [s], dv_aux and impulses as _auxiliary_parts gives them, resting (N+1,
+    n_contacts) the contacts at rest on their planes at the nodes, as element_trajectory finds them, or None).
 
     The step evaluates its fields at its end, after the impact: in its running share the PD reacted to the post-impact
     velocity and to the posture q_{k+1} = q_k + h v_{k+1} it moved to (a hopper's leg slide read 0.83 m/s in free fall,
-    its impulse 1.05 N s for m v = 0.70), and with several contacts their persistent forces held the robot up already.
+    its impulse 1.05 N s for m v = 0.70), and with several feet landing in it their persistent forces held it up.
     recover dates the impact at the step's end: the clock's advance d is flight up to it. So the pre-impact velocity is
     that flight, the free field f_ODE from y_k over d by implicit Euler with the PD at its end, as in a flight step
     (Newton from y_k). The auxiliary impulse also stopped what the end-point reading r = v_pre,step - v_pre drove into
     the contacts; dimp adds r's least-squares part (in the kinetic metric M) along the auxiliary fields of the contacts
     that took the step's impulse (G^-1 J r for one contact, G = J M^-1 J^T), so that the impulse takes the contacts
-    from v_pre to v_post. Zero for steps that ran the clock (not frozen)."""
+    from v_pre to v_post. Zero for steps that ran the clock (not frozen) and for steps that start with a contact at rest
+    on its plane: their flight is not free (a second foot landing beside a standing one), and f_ODE alone would drop
+    the standing foot's support, reading free fall into v_pre and the support over d into an impulse (a bounder's
+    standing front foot 0.44 N s for its 0.06 N s tap), so the step's own reading stays there."""
     nq, nv, N = system.nq, system.nv, len(W)
     dv, dimp = np.zeros((N, nv)), np.zeros((N, len(system.contacts), 2))
     frozen = np.flatnonzero(np.diff(np.asarray(Y, float)[:, -1]) < (1.0 - frozen_tol) * np.asarray(dt, float))
@@ -718,6 +723,8 @@ def _pd_before_landing(system: TimeFreezingSystem, builder: ImplicitEulerStep, l
     flight = ca.rootfinder("flight", "newton", residual, {"error_on_fail": False})
     aux = system.auxiliary_mask
     for k in frozen:
+        if resting is not None and resting[k].any():
+            continue  # (a standing contact holds the robot over d: no free flight, the step's own reading stays)
         y1, u1 = Y[k + 1], U[k]
         ff = u1 - law(np.zeros(system.nu), y1[:nq], y1[nq : nq + nv])  # the step's feed-forward
         y_pre = np.asarray(flight(Y[k], np.concatenate([Y[k], ff, [Y[k + 1, -1] - Y[k, -1]]])), float).ravel()

@@ -598,6 +598,34 @@ def test_a_landing_under_pd_records_the_flight_before_it(tmp_path):
     assert imp.kinetic_energy_pre == pytest.approx(0.5 * (BODY_MASS + FOOT_MASS) * (G * imp.time) ** 2, abs=SOLVER_TOL)
 
 
+# LEGGED_SLIDER with two legs, the "low" foot 3 cm below the "high" one: the low foot lands first and stands while its
+# leg's PD brakes the body, then the high foot lands inside a step.
+TWO_LEGGED_SLIDER = f"""<mujoco><worldbody><body name="body"><joint name="z" type="slide" axis="0 0 1"/>
+<inertial pos="0 0 0" mass="{BODY_MASS}" diaginertia="0.05 0.05 0.05"/><body name="low" pos="0.1 0 -0.53">
+<joint name="low" type="slide" axis="0 0 -1"/><inertial pos="0 0 0" mass="{FOOT_MASS}" diaginertia="0.002 0.002 0.002"/>
+<site name="low"/></body><body name="high" pos="-0.1 0 -0.5"><joint name="high" type="slide" axis="0 0 -1"/>
+<inertial pos="0 0 0" mass="{FOOT_MASS}" diaginertia="0.002 0.002 0.002"/><site name="high"/></body></body></worldbody>
+<actuator><motor name="low_m" joint="low"/><motor name="high_m" joint="high"/></actuator></mujoco>"""
+
+
+def test_a_landing_beside_a_standing_foot_under_pd_keeps_its_support(tmp_path):
+    """When the second foot lands inside a step while the first stands on the ground, the standing foot must not move
+    into the ground at the impact: its pre-impact velocity along the normal, v_z - v_low, is zero. That flight is not
+    free; a reading of the free field alone dropped the standing foot's support and had it sink at 1.2 m/s in v_pre
+    (the body in free fall, a bounder's standing foot recorded with a 0.44 N s impact for its 0.06 N s tap)."""
+    path = tmp_path / "two_legged_slider.xml"
+    path.write_text(TWO_LEGGED_SLIDER)
+    t = parse_task({"contacts": [{"point": "low"}, {"point": "high"}], "initial": {"q": [0.6, 0.0, 0.0]},
+                    "horizon": {"tau_f": 0.3, "N": 15},
+                    "simulate": {"pd": {"joints": ["low", "high"], "kp": [2000.0] * 2, "kd": [50.0] * 2}}})
+    r = simulate(load_robot(path), t)
+    assert r.stats.converged
+    assert [imp.contact for imp in r.trajectory.impacts] == ["low", "high"]
+    landing = r.trajectory.impacts[-1]
+    assert landing.time > r.trajectory.impacts[0].time
+    assert landing.v_pre[0] - landing.v_pre[1] == pytest.approx(0.0, abs=SOLVER_TOL)
+
+
 def test_simulate_pd_keys_are_validated():
     """[simulate.pd]: one kp, kd (>= 0) and q_ref per joint, no repeated joints; against the robot:
     known joints with exactly one actuator. Every error names the key."""
