@@ -1295,9 +1295,11 @@ def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, Pinn
     rotated to start there (`landing_first`), so the step runs from landing to landing on one stance
     foot. The stance foot is the contact point that moves least along x over the step, the other one
     swings; plan.periodic.swap must exchange exactly their two leg hinges (the relabelling of the walk).
-    Of samples at one physical time (a frozen impact) the last, post-impact one is kept; u[i] drove
-    sample i-1 to i (planner.result.recover). Raises TaskError for a task without plan.periodic, not
-    two contacts, or another swap; InputError when the robot is not the floating planar biped.
+    Of samples at one physical time (a frozen impact) the last, post-impact one is kept, but at the
+    step's end the first, pre-impact one: the step runs from a landing's post-impact state to the next
+    one's pre-impact state (PinnedGait); u[i] drove sample i-1 to i (planner.result.recover). Raises
+    TaskError for a task without plan.periodic, not two contacts, or another swap; InputError when the
+    robot is not the floating planar biped.
     """
     points = check_walkable(robot, task)
     t, q, v, u = landing_first(robot, task, arrays)
@@ -1306,7 +1308,10 @@ def plan_step(robot: Robot, task: Task, arrays: dict) -> tuple[PinnedBiped, Pinn
     stance, swing = (points[0], points[1]) if travel[0] <= travel[1] else (points[1], points[0])
     model = PinnedBiped(robot, dyn, find_layout(robot, stance, swing))
     lay = model.layout
-    keep = np.append(np.diff(t) > 0, True)  # the last sample of each physical time
+    # the walk reads the step's last state as the landing's pre-impact one (the impact map, the speed loop's rate):
+    # ending on the post-impact sample gave them the stance foot's rebound
+    last, first = np.append(np.diff(t) > 0, True), np.insert(np.diff(t) > 0, 0, True)
+    keep = np.where(t == t[-1], first, last)
     t, q, v, u = t[keep], q[keep], v[keep], u[keep]
     rows = [lay.stance_hinge, lay.swing_hinge]
     x = np.column_stack([q[:, lay.torso, None] + np.column_stack([q[:, rows], np.zeros(len(t))]),

@@ -819,6 +819,9 @@ def clock_ran(clock: np.ndarray, lengths: np.ndarray) -> np.ndarray:
 COLLAPSED = 1e-6
 # A step after a fully frozen one that stopped the clock for more than this share of it ends that impact.
 TAIL_SHARE = 1e-6
+# A fully frozen step whose clock advanced less than this share of it did not run it: IPOPT's bound relaxation leaks
+# ~1e-6 of a step (2.3e-6 on the default biped plan's landing, 1.9e-7 on a bounder's), no physical time.
+CLOCK_LEAK = 1e-5
 # Several contacts: a contact takes part in an impact (gets its own Impact record, same time and
 # velocities) when its normal impulse over the frozen interval is at least this share of the
 # largest one; smaller shares are the implicit step's drift corrections of contacts at rest.
@@ -872,10 +875,12 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
     switch_at_start: the first frozen step of an interval starts at the impact (FESD puts the switch on
     an element boundary), so the impact's time, posture and pre-impact velocity are its start point;
     otherwise (implicit Euler) the landing happens inside that step and they are taken at its end, less the step's
-    auxiliary increment, unless landed[a, c] (K-1, n_contacts) says the step starts with contact c, the one taking the
-    step's largest normal impulse, already on its plane and moving into it (a landing that ended a whole flight step at
-    a node) and the step ran the clock for part of its length (not fully frozen): then the impact comes first, at the
-    step's start point, and the clock runs after it (the stance), so a frozen step after it is the next impact; dated
+    auxiliary increment (the time: the node's before it when the step was fully frozen and its clock leaked less than
+    CLOCK_LEAK of it, that node's sample then the pre-impact one), unless landed[a, c] (K-1, n_contacts) says the step
+    starts with contact c, the one taking the step's largest normal impulse, already on its plane and moving into it (a
+    landing that ended a whole flight step at a node) and the step ran the clock for part of its length (not fully
+    frozen): then the impact comes first, at the step's start point, and the clock runs after it (the stance), so a
+    frozen step after it is the next impact; dated
     at the step's end, it was one step late (a point-mass hop's landing 46 ms, Capler's 12-19 ms) with the stance's motion in
     its pre-impact velocity.
     pre_impact (dv (K-1, nv), dimp (K-1, n_contacts, 2)) or None: added to the pre-impact velocity and the impulse of
@@ -964,6 +969,10 @@ def recover(tau, y, u_steps, dt_steps, dv_aux, impulses, nq: int, nv: int, conta
                 vs[-1] = v_pre
         else:
             t_imp, q_imp = max(clock[a + 1], ts[-1]), y[a + 1, :nq]
+            if fully[a] and t_imp - ts[-1] < CLOCK_LEAK * dt_steps[a]:
+                # the impact is at the node's time, whose sample is then its pre-impact one (below): dated at the
+                # leaked clock, the node's state was repeated 4.5e-8 s later as the pre-impact sample, three in all
+                t_imp = ts[-1]
             v_pre = y[a + 1, nq : nq + nv] - dv_aux[a]
             v_post = v_pre + np.sum(dv_aux[a : b + 1], axis=0)
         imp = np.sum(impulses[first : b + 1], axis=0)  # (n_contacts, 2)

@@ -13,8 +13,8 @@ import pytest
 
 from planner.errors import InputError, TaskError
 from planner.gait import (STOPPED, GaitOCP, GaitSpec, PhaseReference, PinnedBiped, WalkGains, _impact_contact,
-                          _output_control, desired_curve, final_low, find_layout, periodic_walk, replay_gait, run_gait,
-                          solve_gait, solve_gait_ipopt)
+                          _output_control, desired_curve, final_low, find_layout, periodic_walk, plan_step, replay_gait,
+                          run_gait, solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
 from planner.task import GaitPronto, Simulate, load_task, parse_task
 
@@ -849,3 +849,18 @@ def test_the_walks_last_sample_is_the_next_steps_first(gaits, biped):
         assert walk.t[-1] == longer.t[first]
         assert np.max(np.abs(walk.q[-1] - longer.q[first])) < SAME_STATE_TOL
         assert np.max(np.abs(walk.v[-1] - longer.v[first])) < SAME_STATE_TOL
+
+
+def test_a_plans_step_runs_from_a_post_impact_state_to_a_pre_impact_one(robot):
+    """plan_step keeps, of a plan's samples at one physical time (an impact's pre- and post-impact ones), the last at
+    the step's start and in it but the first at its end: the walk reads the step's last state as the next landing's
+    pre-impact one (its impact map, the speed loop's stance-leg rate). Ending on the post-impact sample, the default
+    biped plan's step lost its pre-impact node once the recovery wrote a landing's two samples at one time."""
+    t = np.array([0.0, 0.0, 0.1, 0.2, 0.2])  # a landing at either end, pre and post; no impact_times: not rotated
+    q = np.tile([0.0, 1.0, 0.0, 0.1, -0.1], (len(t), 1))
+    v = np.outer(np.arange(len(t)), [0.0, 0.0, 1.0, 0.0, 0.0])  # sample i: the torso turning at i rad/s
+    u = np.outer(np.arange(len(t)), [1.0, 1.0])
+    _, step = plan_step(robot, load_task(ROBOTS_DIR / "biped.toml"), {"t": t, "q": q, "v": v, "u": u})
+    np.testing.assert_array_equal(step.t, [0.0, 0.1, 0.2])
+    np.testing.assert_array_equal(step.x[:, 5], [1.0, 2.0, 3.0])  # the post-impact start, the pre-impact end
+    np.testing.assert_array_equal(step.u, [[2.0, 2.0], [3.0, 3.0]])  # u[i] drove sample i-1 to i

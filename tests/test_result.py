@@ -144,6 +144,23 @@ def test_recover_ends_an_impact_in_the_step_that_froze_its_last_bit():
     assert (impact.v_post[0], impact.tau_end) == pytest.approx((0.0, 0.2))
 
 
+def test_recover_dates_an_impact_at_the_node_when_its_frozen_step_only_leaked_the_clock():
+    """A fully frozen first step whose clock leaked 2e-8 s (2e-7 of h: IPOPT's bound relaxation, 4.5e-8 s on the
+    default biped plan's landing) starts its impact at the node before it: two samples at one time, the node's (the
+    pre-impact one) and the post-impact one. Dated at the leaked clock, the node's state was repeated 2e-8 s later as
+    the pre-impact sample: three samples of one instant in trajectory.npz, the middle one the node's again to ~1e-7."""
+    leak = 2e-8  # [s] of clock over the frozen step
+    clock = [0.0, 0.1, 0.1 + leak, 0.19992, 0.29992]  # the test above's, its fully frozen step leaking
+    y = np.column_stack([np.zeros(5), [-1.0, -2.0, -0.1, 0.0, 0.0], clock])
+    dv = np.array([[0.0], [1.9], [0.1], [0.0]])
+    imp = dv.reshape(4, 1, 1) * np.array([1.0, 0.0]).reshape(1, 1, 2)
+    t, _, vs, _, (impact,) = recover(0.1 * np.arange(5), y, np.zeros((4, 1)), np.full(4, 0.1), dv, imp, 1, 1,
+                                     ("foot",), approach=y[:4, 1:2])
+    assert impact.time == 0.1 and (impact.v_pre[0], impact.v_post[0]) == pytest.approx((-2.0, 0.0))
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.1, 0.19992, 0.29992], atol=EXACT)
+    np.testing.assert_allclose(vs[:3, 0], [-1.0, -2.0, 0.0], atol=EXACT)
+
+
 def test_recover_keeps_the_end_of_a_tail_step_that_ran_the_clock_with_several_contacts():
     """With several contacts a step is frozen only when its clock stood still (SolveOptions.frozen_tol_several), but a
     run's tail step that ran the clock after the impact (87.5 % of h) still ends at a physical sample: its end state is
