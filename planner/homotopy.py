@@ -1637,7 +1637,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     if len(problem.system.contacts) > 1:  # (one contact: a landing is frozen when the clock ran < 99 % of the step)
         u0 = np.zeros(problem.system.nu)
         approach = np.array([np.asarray(problem.system.normal_velocity_fn(y, u0), float).ravel() for y in nodes])
-        landings = unrecorded_landings(traj, approach, gaps, beta, elements[5], problem.system.labels)
+        landings = unrecorded_landings(traj, approach, gaps, elements[5], problem.system.labels)
     return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,

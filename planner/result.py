@@ -631,21 +631,22 @@ def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), sk
 LANDING_MIN_MPS = 0.1
 
 
-def unrecorded_landings(traj: Trajectory, approach, gap, flight, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
+def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node), that end the
-    point's own flight: the node before is off the plane or its step in flight mode (flight (K-1, n_c), its beta; a
-    standing foot's normal velocity drifts by up to ~0.7 m/s on the plane, which is no landing). With several
+    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node), that come from
+    the air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing
+    or skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
+    ~4 m/s while the point stays on it: no landing). With several
     contacts the recovery freezes a step only when its clock stood still, so a landing in steps that ran the clock is no
     impact (docs/formulation.md, "Partly frozen stance"). Each as {"point", "time" [s] (the run's first node's clock),
-    "approach_mps" (the fastest approach of the run, and of the node before it when that was off the plane: a step that
-    runs the clock can brake part of the landing before the node; runs slower than LANDING_MIN_MPS are left out),
+    "approach_mps" (the fastest approach of the run, and of the node before it when the step before that moved the
+    point down to it: a step that runs the clock can brake part of the landing before the node; a node velocity that
+    moved the point up did not approach; runs slower than LANDING_MIN_MPS are left out),
     "clock_share" (how much of the run's first step, length dt_steps (K-1,) [s] of numerical time, its clock ran)}, in
     time order. contacts (n_c,): their names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
-    flight = np.asarray(flight, float).reshape(len(clock) - 1, -1)
     landing = (gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)
     for c, point in enumerate(contacts):
         for k in range(len(clock) - 1):
@@ -663,10 +664,10 @@ def unrecorded_landings(traj: Trajectory, approach, gap, flight, dt_steps, conta
             a = k
             while k < len(clock) and landing[k, c]:
                 k += 1
-            if not (a and (gap[a - 1, c] > ON_PLANE_M or flight[a - 1, c] > 0.5)):
+            if a and gap[a - 1, c] <= ON_PLANE_M:
                 continue
             fastest = -approach[a:k, c].min()
-            if a and gap[a - 1, c] > ON_PLANE_M:
+            if a == 1 or (a > 1 and gap[a - 2, c] > gap[a - 1, c]):
                 fastest = max(fastest, -approach[a - 1, c])
             if fastest < LANDING_MIN_MPS:
                 continue

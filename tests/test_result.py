@@ -411,12 +411,12 @@ def test_one_contacts_skims_are_the_phases_hops_of_leaves_out():
 def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_clock():
     """unrecorded_landings lists each contact point's runs of nodes on its plane while moving into it faster than
     APPROACH_MPS that no Impact of that point holds, with the run's first node's clock, its fastest approach (the node
-    before counts when it was off the plane: the running step before can brake part of the landing) and the share of
+    before's counts when its step moved the point down: the running step before can brake part of the landing) and the share of
     its first step the clock ran: a bounder's feet landed at 3.2-5.5 m/s in steps that ran the clock, which the
-    several-contact recovery records as no impact, and the report said "0 impact(s), 2 hop(s)". A point resting on its
-    plane (drift below APPROACH_MPS, or faster in contact mode: no flight of its own ends there) or moving into it off
-    the plane is no landing, nor one an Impact of its own holds (another point's does not), nor a run slower than
-    LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07 m/s)."""
+    several-contact recovery records as no impact, and the report said "0 impact(s), 2 hop(s)". A point on its plane at
+    the node before (whatever its node velocity) or moving into it off the plane is no landing, nor one an Impact of its
+    own holds (another point's does not), nor a run slower than LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07
+    m/s); the node before's velocity is the approach only when its step moved the point down."""
     from planner.result import APPROACH_MPS, LANDING_MIN_MPS, unrecorded_landings
 
     h = 0.05
@@ -424,31 +424,32 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(7), impacts=())
     gap = np.zeros((7, 2))
     gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
-    flight = np.zeros((6, 2))
-    flight[:2, 1] = 1.0  # (its steps 0-1 in flight mode; the front foot's all in contact mode)
     approach = np.zeros((7, 2))
     approach[:, 0] = 0.1 * APPROACH_MPS  # the front foot rests (drift below the threshold)
     approach[1:5, 1] = (-5.5, -1.2, -0.4, 0.01)  # on the ground at -1.2 m/s after -5.5 m/s in the air, then stops
     dt, feet = np.full(6, h), ("front_foot", "back_foot")
     landing = {"point": "back_foot", "time": pytest.approx(clock[2], abs=EXACT),
                "approach_mps": pytest.approx(5.5, abs=EXACT), "clock_share": pytest.approx(0.98, abs=EXACT)}
-    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
     held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[2], tau_start=traj.tau[2], tau_end=traj.tau[4])
     for impact, found in ((held, []), (replace(held, contact="front_foot"), [landing])):
-        assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (impact,)}), approach, gap, flight, dt,
+        assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (impact,)}), approach, gap, dt,
                                    feet) == found
-    # a standing foot's normal velocity drifting on its plane (a bounder's at 0.18-0.69 m/s) is no landing, unless
-    # its step before was in flight mode (a skim that ends there)
+    # a foot on its plane at the node before (standing, or skimming along it) whose node velocity J v points into it
+    # while it stays put (a bounder's, its joints turning 0.4-2.5 rad per step: 0.18-3.9 m/s) is no landing
     approach[2:4, 0] = -0.7
-    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
-    flight[1, 0] = 1.0
-    assert [f["point"] for f in unrecorded_landings(traj, approach, gap, flight, dt, feet)] == ["front_foot", "back_foot"]
-    flight[1, 0], approach[2:4, 0] = 0.0, 0.1 * APPROACH_MPS
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
+    approach[2:4, 0] = 0.1 * APPROACH_MPS
+    # the node before's velocity counts only when its step moved the foot down to it (a bounder's 16.3 m/s was read
+    # from a node whose step had lifted the foot 12 cm)
+    gap[:2, 1] = (0.05, 0.2)
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [{**landing, "approach_mps": pytest.approx(1.2)}]
+    gap[:2, 1] = (0.2, 0.05)
     approach[6, 0] = -1.0  # (the last node starts no step, so holds no landing)
     gap[4, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air)
-    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == [landing]
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
     approach[1:4, 1] = (-0.9, -0.5, -0.2) * np.array(LANDING_MIN_MPS)  # a foot settling onto its plane
-    assert unrecorded_landings(traj, approach, gap, flight, dt, feet) == []
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == []
 
 
 def test_the_report_and_summary_name_each_slide():
