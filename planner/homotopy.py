@@ -350,9 +350,10 @@ class SolveOptions:
     at every step at the least-norm torques that hold the start's configuration at rest on the contact points
     touching there (problem.static_controls: friction cones kept when they can be, bounds clipped), the step's
     algebraic variables guessed with them; the states stay y_0 everywhere. Only from the hint-free start (problem.x0
-    as built) of an implicit-Euler problem. Measured (docs/benchmarks.md, "The static-torque start", session 68): a
-    pitched quadruped standing still 1016 iterations to cost 0.18 against 2675 to 1.85; a crouched Capler 1207 against
-    1486, 11 % dearer; Capler's straight leg needs no torque (the same start), so the default stays ZERO.
+    as built) of an implicit-Euler problem, with a contact point on its plane there. Measured (docs/benchmarks.md, "The
+    static-torque start", session 68) on four robots standing on bent legs: a pitched quadruped standing still 1016
+    iterations to cost 0.18 against 2675 to 1.85, but on the other three dearer plans that failed MuJoCo; Capler's
+    straight leg needs no torque (the same start), so the default stays ZERO.
     """
 
     tol: float = 1e-8

@@ -701,7 +701,9 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     result.ON_PLANE_M: a start typed to 7 digits sits ~1e-8 m off its plane; the others, and a
     frictionless point's tangential force, 0). The forces keep lambda_n >= 0 and |lambda_t| <= mu lambda_n when such
     forces balance q0 (a small QP); else they are free (the least-squares u with any contact force). u is clipped
-    to its bounds (problem.lbx, ubx)."""
+    to its bounds (problem.lbx, ubx). An InputError when no contact point touches its plane at the start (nothing can
+    hold it at rest: the least-squares u bent a falling hopper's leg); a UserWarning when the u and forces found do
+    not hold it (torque bounds, friction cones), naming the imbalance."""
     system, dyn = problem.system, problem.system.dyn
     q0 = problem.y0[: system.nq]
     grav = np.asarray(dyn.bias(q0, np.zeros(system.nv)), float).ravel()
@@ -717,7 +719,11 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
             columns.append(tangent)
             slots.append((i, 1))
         cone.append((len(columns) - 1 - tangential, len(columns) - 1 if tangential else None, system.contacts[i].mu))
-    Jc = np.column_stack(columns) if columns else np.zeros((system.nv, 0))
+    if not columns:
+        raise InputError("SolveOptions.start_controls = static holds the start at rest on the contact points that touch "
+                         f"their plane there, but none of {', '.join(system.labels)} does (the start is in the air); "
+                         "leave start_controls at zero")
+    Jc = np.column_stack(columns)
     # lambda free: the min-norm u balancing what the contacts cannot (least squares), then the forces for the rest
     rest = np.eye(system.nv) - Jc @ np.linalg.pinv(Jc, rcond=STATIC_RCOND)
     u = np.linalg.pinv(rest @ B, rcond=STATIC_RCOND) @ (rest @ grav)
@@ -728,7 +734,14 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     for (i, k), value in zip(slots, lam):
         forces[i, k] = value
     u_block = problem.var_blocks["u"][0]
-    return np.clip(u, problem.lbx[u_block], problem.ubx[u_block]), forces
+    u = np.clip(u, problem.lbx[u_block], problem.ubx[u_block])
+    imbalance = np.abs(B @ u + Jc @ lam - grav).max()
+    if imbalance > STATIC_BALANCE_TOL or not _in_cones(lam, cone, STATIC_BALANCE_TOL):
+        warnings.warn(f"the static start does not hold the start at rest: {imbalance:.3g} N or N m of gravity left "
+                      "unbalanced (torque bounds)" if imbalance > STATIC_BALANCE_TOL else
+                      "the static start holds the start at rest only with contact forces outside their friction "
+                      "cones or pulling; its u is that of those forces", UserWarning, stacklevel=2)
+    return u, forces
 
 
 def _in_cones(lam: np.ndarray, cone, tol: float = 0.0) -> bool:
