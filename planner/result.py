@@ -602,17 +602,17 @@ def hops_of(traj: Trajectory, flight, point_xyz, normal=(0.0, 0.0, 1.0), gap=Non
 
 def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), skims: list | None = None) -> list[dict]:
     """The slides of one contact point along its plane in flight mode, where no friction acts: its flight phases (its
-    own beta, `flight` (N,), read as hops_of reads it) of two steps or more whose nodes all keep its own gap (N+1,)
-    within ON_PLANE_M of its plane and that move it (point_xyz (N+1, 3) [m]) by more than HOP_MIN_TRAVEL_M without
+    own beta, `flight` (N,), read as hops_of reads it), or runs of their steps, of two steps or more whose nodes all
+    keep its own gap (N+1,) within ON_PLANE_M of its plane and that move it (point_xyz (N+1, 3) [m]) by more than HOP_MIN_TRAVEL_M without
     passing over one of holes (then hops_of's hop). Each as {"point", "start_time", "end_time" [s] (its first and last
     node's clocks), "distance" [m] (along x, as a hop's)}. Such a phase of one step is a skim, no slide: skims, when
     given, gets each as {"point", "takeoff_time", "landing_time" [s] (its two nodes' clocks), "distance", "apex" [m]
     (as a hop's)}."""
     clock = traj.y[:, -1]
     slides = []
-    for a, k in _flight_phases(flight):
+    for a, k in ((i, j) for p, e in _flight_phases(flight) for i, j in _on_plane_runs(gap, p, e)):
         seg = point_xyz[a : k + 1]
-        if max(gap[a : k + 1]) > ON_PLANE_M or np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M or _over_hole(seg, holes):
+        if np.abs(seg - seg[0]).max() <= HOP_MIN_TRAVEL_M or _over_hole(seg, holes):
             continue
         distance = float(seg[-1, 0] - seg[0, 0])
         if k - a == 1:  # (one step: hops_of's skim, which read the robot's flight and the first contact only)
@@ -623,6 +623,23 @@ def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), sk
         slides.append({"point": point, "start_time": float(clock[a]), "end_time": float(clock[k]),
                        "distance": distance})
     return slides
+
+
+def _on_plane_runs(gap, a: int, k: int):
+    """The runs (i, j) of two nodes or more within nodes a..k at which gap (N+1,) [m] keeps the point on its plane
+    (ON_PLANE_M): the steps i..j-1 of a flight phase that move the point along the plane (a biped's swing foot slid
+    3.1 cm at 1.5 m/s in one such step inside a longer flight, unreported)."""
+    i = a
+    while i < k:
+        if gap[i] > ON_PLANE_M:
+            i += 1
+            continue
+        j = i
+        while j < k and gap[j + 1] <= ON_PLANE_M:
+            j += 1
+        if j > i:
+            yield i, j
+        i = j + 1
 
 
 # [m/s] an unrecorded landing is listed when its point approached at least this fast: slower runs are the implicit
@@ -637,9 +654,9 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node), that come from
     the air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing
     or skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
-    ~4 m/s while the point stays on it: no landing). With several
-    contacts the recovery freezes a step only when its clock stood still, so a landing in steps that ran the clock is no
-    impact (docs/formulation.md, "Partly frozen stance"). Each as {"point", "time" [s] (the run's first node's clock),
+    ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
+    clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md, "Partly frozen
+    stance"). Each as {"point", "time" [s] (the run's first node's clock),
     "approach_mps" (the fastest approach of the run, and of the node before it when the step before that moved the
     point down to it: a step that runs the clock can brake part of the landing before the node; a node velocity that
     moved the point up did not approach; runs slower than LANDING_MIN_MPS are left out),

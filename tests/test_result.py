@@ -408,6 +408,29 @@ def test_one_contacts_skims_are_the_phases_hops_of_leaves_out():
                       "apex": 0.0}]
 
 
+def test_a_step_along_the_plane_inside_a_longer_flight_is_a_skim():
+    """slides_of also reads the runs of a flight phase's steps that keep the point on its plane: one such step inside a
+    longer flight (the point up, then along the ground, then up again) moves it without friction as a one-step phase
+    does, and is a skim (the default biped plan's swing foot slid 3.1 cm at 1.5 m/s so, unreported: a session-68
+    tester); two such steps a slide; a step whose ends are on the plane but that does not move the point is neither."""
+    from planner.result import slides_of
+
+    clock = np.arange(8) / 10
+    traj = SimpleNamespace(y=clock[:, None], impacts=())
+    flight = np.array([0, 1, 1, 1, 1, 1, 0])  # one flight phase: nodes 1-6
+    xyz = np.zeros((8, 3))
+    xyz[:, 0] = (0.0, 0.0, 0.05, 0.1, 0.13, 0.2, 0.2, 0.2)
+    xyz[[2, 5], 2] = 0.02  # up at nodes 2 and 5, on the ground at 3-4 (moving) and 6
+    assert slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=(skims := [])) == []
+    assert skims == [{"point": "foot", "takeoff_time": 0.3, "landing_time": 0.4, "distance": pytest.approx(0.03),
+                      "apex": 0.0}]
+    xyz[5, 2] = 0.0  # on the ground at nodes 3-6: two moving steps and a still one
+    (slide,) = slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=(skims := []))
+    assert (slide["start_time"], slide["end_time"], skims) == (0.3, 0.6, [])
+    xyz[4, 0], xyz[5, 2] = 0.1, 0.02  # on the ground at nodes 3-4 again, but at one place
+    assert slides_of(traj, flight, xyz, xyz[:, 2], "foot", skims=(skims := [])) == [] and skims == []
+
+
 def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_clock():
     """unrecorded_landings lists each contact point's runs of nodes on its plane while moving into it faster than
     APPROACH_MPS that no Impact of that point holds, with the run's first node's clock, its fastest approach (the node
