@@ -734,13 +734,17 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     for (i, k), value in zip(slots, lam):
         forces[i, k] = value
     u_block = problem.var_blocks["u"][0]
+    unclipped = np.abs(B @ u + Jc @ lam - grav).max()
     u = np.clip(u, problem.lbx[u_block], problem.ubx[u_block])
     imbalance = np.abs(B @ u + Jc @ lam - grav).max()
-    if imbalance > STATIC_BALANCE_TOL or not _in_cones(lam, cone, STATIC_BALANCE_TOL):
+    if imbalance > STATIC_BALANCE_TOL:
         warnings.warn(f"the static start does not hold the start at rest: {imbalance:.3g} N or N m of gravity left "
-                      "unbalanced (torque bounds)" if imbalance > STATIC_BALANCE_TOL else
-                      "the static start holds the start at rest only with contact forces outside their friction "
-                      "cones or pulling; its u is that of those forces", UserWarning, stacklevel=2)
+                      "unbalanced " + ("(no torque can hold this posture on the contact points touching: its weight "
+                                       "is not over them)" if unclipped > STATIC_BALANCE_TOL else
+                                       "(the torque bounds)"), UserWarning, stacklevel=2)
+    elif not _in_cones(lam, cone, STATIC_BALANCE_TOL):
+        warnings.warn("the static start holds the start at rest only with contact forces outside their friction cones "
+                      "or pulling; its u is that of those forces", UserWarning, stacklevel=2)
     return u, forces
 
 

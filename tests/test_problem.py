@@ -130,7 +130,8 @@ def test_static_controls_hold_the_start_against_gravity(robot_name, initial_q, m
 def test_static_controls_refuse_a_start_in_the_air_and_warn_when_they_cannot_hold_it():
     """static_controls refuses a start with no contact point on its plane (an InputError naming the points: nothing
     can hold it at rest, and the least-squares torques bent a falling hopper's leg, exit 0 and no word), and warns
-    when the torques its bounds allow leave gravity unbalanced (a session-68 tester's bounder: 1.44 N m left, unsaid)."""
+    when the torques its bounds allow leave gravity unbalanced (a session-68 tester's bounder: 1.44 N m left, unsaid),
+    naming the cause: the bounds, or a posture whose weight is not over its touching points, which no torque holds."""
     robot = load_robot(f"{ROBOTS}/capler.xml")
     task = load_task(f"{ROBOTS}/capler.toml")
     crouch = dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=CROUCH_Q), horizon=Horizon(0.5, 10))
@@ -144,8 +145,17 @@ def test_static_controls_refuse_a_start_in_the_air_and_warn_when_they_cannot_hol
         u, _ = static_controls(prob)  # (held within its bounds: no warning)
     u_block = prob.var_blocks["u"][0]
     prob.lbx[u_block], prob.ubx[u_block] = -0.1 * np.abs(u), 0.1 * np.abs(u)
-    with pytest.warns(UserWarning, match="does not hold the start at rest: .* N or N m of gravity left unbalanced"):
+    with pytest.warns(UserWarning, match="does not hold the start at rest: .* N or N m of gravity left unbalanced "
+                                         r"\(the torque bounds\)"):
         static_controls(prob)
+    # a pitched quadruped on its front foot alone (docs/examples' bounder, the back knee bent to lift the back foot):
+    # its weight is not over the foot, which no torque mends (the warning had blamed the bounds, u at 0.26 of 5)
+    examples = pathlib.Path(__file__).resolve().parents[1] / "docs" / "examples"
+    bounder = load_task(examples / "bounder_stand.toml")
+    one_foot = dataclasses.replace(bounder, initial=dataclasses.replace(
+        bounder.initial, q=(0.0, 0.3821346, 0.0, 0.3, -0.6, 0.3, -1.0)))
+    with pytest.warns(UserWarning, match="gravity left unbalanced .no torque can hold this posture"):
+        static_controls(build_problem(load_robot(examples / "bounder.xml"), one_foot))
 
 
 def test_mass_matrix_and_explicit_forms_agree_at_a_point(capler_small):

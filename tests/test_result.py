@@ -465,13 +465,21 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     approach[2:4, 0] = 0.1 * APPROACH_MPS
     # the node before's velocity counts only when its step moved the foot down to it (a bounder's 16.3 m/s was read
     # from a node whose step had lifted the foot 12 cm)
-    gap[:2, 1] = (0.05, 0.2)
+    gap[:2, 1] = (0.05, 0.01)
+    approach[1, 1] = 5.5  # (moving up at node 1: its step lifted the foot, and the node's velocity is no approach)
+    gap[0, 1] = 0.005
     assert unrecorded_landings(traj, approach, gap, dt, feet) == [{**landing, "approach_mps": pytest.approx(1.2)}]
-    gap[:2, 1] = (0.2, 0.05)
+    # the gap it came down over its last step's physical time, when the node reads slower (a tribot's foot came down
+    # 6.75 cm in a whole step read at 0.21 m/s by its node's J v)
+    gap[1, 1] = 0.1
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == [
+        {**landing, "approach_mps": pytest.approx(0.1 / (clock[2] - clock[1]))}]
+    gap[:2, 1], approach[1, 1] = (0.2, 0.05), -5.5
     approach[6, 0] = -1.0  # (the last node starts no step, so holds no landing)
     gap[4, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air)
     assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
     approach[1:4, 1] = (-0.9, -0.5, -0.2) * np.array(LANDING_MIN_MPS)  # a foot settling onto its plane
+    gap[1, 1] = 0.2 * LANDING_MIN_MPS * (clock[2] - clock[1])  # (from just above it)
     assert unrecorded_landings(traj, approach, gap, dt, feet) == []
 
 
