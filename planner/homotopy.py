@@ -1629,7 +1629,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     hops = hops_of(traj, beta.min(axis=1) if beta.size else np.zeros(len(W)), points[0],
                    problem.system.contacts[0].normal, gap, problem.task.plan.holes)
     # skims and slides per contact, by its own beta and gap: a foot that slides while another stands is no flight of
-    # the robot (one contact: the same skims as the robot's)
+    # the robot
     skims: list = []
     slides = [s for i, c in enumerate(problem.system.contacts)
               for s in slides_of(traj, beta[:, i], points[i], gaps[:, i], c.point, problem.task.plan.holes, skims)]

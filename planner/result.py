@@ -656,12 +656,12 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     or skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
     ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
     clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md, "Partly frozen
-    stance"). Each as {"point", "time" [s] (the run's first node's clock),
-    "approach_mps" (the fastest approach of the run, the mean speed at which it came down over its last step, and the
-    approach of the node before it when the step before that moved the point down to it: a step that runs the clock can brake part of the landing before the node; a node velocity that
-    moved the point up did not approach; runs slower than LANDING_MIN_MPS are left out),
-    "clock_share" (how much of the run's first step, length dt_steps (K-1,) [s] of numerical time, its clock ran)}, in
-    time order. contacts (n_c,): their names."""
+    stance"). Each as {"point", "time" [s] (the run's first node's clock), "approach_mps" (the fastest approach of the
+    run, the mean speed at which the point came down over its last step, and the approach of the node before it when
+    the step before that moved the point down to it: a step that runs the clock can brake part of the landing before
+    the node; a node velocity that moved the point up did not approach; runs slower than LANDING_MIN_MPS are left
+    out), "clock_share" (how much of the run's first step, length dt_steps (K-1,) [s] of numerical time, its clock
+    ran)}, in time order. contacts (n_c,): their names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
     landing = (gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)
