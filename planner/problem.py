@@ -703,7 +703,8 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     forces balance q0 (a small QP); else they are free (the least-squares u with any contact force). u is clipped
     to its bounds (problem.lbx, ubx). An InputError when no contact point touches its plane at the start (nothing can
     hold it at rest: the least-squares u bent a falling hopper's leg); a UserWarning when the u and forces found do
-    not hold it (torque bounds, friction cones), naming the imbalance."""
+    not hold it (the torque bounds, a posture whose weight is not over its touching points, the friction cones), naming
+    the imbalance."""
     system, dyn = problem.system, problem.system.dyn
     q0 = problem.y0[: system.nq]
     grav = np.asarray(dyn.bias(q0, np.zeros(system.nv)), float).ravel()
@@ -728,7 +729,7 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     rest = np.eye(system.nv) - Jc @ np.linalg.pinv(Jc, rcond=STATIC_RCOND)
     u = np.linalg.pinv(rest @ B, rcond=STATIC_RCOND) @ (rest @ grav)
     lam = np.linalg.pinv(Jc, rcond=STATIC_RCOND) @ (grav - B @ u)
-    if cone and not _in_cones(lam, cone):
+    if not _in_cones(lam, cone):
         u, lam = _static_in_cones(B, Jc, grav, cone, u, lam)
     forces = np.zeros((len(system.contacts), 2))
     for (i, k), value in zip(slots, lam):
