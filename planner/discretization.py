@@ -28,6 +28,7 @@ import numpy as np
 
 from .contact import plane_axes
 from .errors import InputError, check_field_types, enum_member, shown
+from .result import ON_PLANE_M
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # The algebraic variables of a step, in this order (StepForm.MASS_MATRIX appends "forces").
@@ -317,17 +318,26 @@ class ImplicitEulerStep:
         """Initial guess (nw,) consistent with the switching functions at a numeric state y (ny,), u (nu,):
         sigma = 1 where h > 0, 0 where h < 0, sigma* where h = 0; lambda1 = max(h, 0), lambda0 = max(-h, 0);
         MASS_MATRIX: the force variables that solve their equations at (y, u). Several contacts: the
-        forces of the points on the ground (beta = 0), then gamma from their sign."""
+        forces of the points on the ground (beta = 0), then gamma from their sign. A gap c(q) within
+        result.ON_PLANE_M [m] of 0 counts as 0 (on the plane), as in problem.static_controls."""
         sys_ = self.system
+        # a start typed to 7 digits leaves its feet ~4e-9 m up: by the exact sign beta would be 1 (flight) and
+        # the static start's standing torques would act on a robot guessed in free fall
+        gap = np.array([s.function == "c(q)" for s in sys_.switches], dtype=bool)
+
+        def switching(*args):
+            h = np.asarray(sys_.switching_fn(*args), dtype=float).ravel()
+            return np.where(gap & (np.abs(h) <= ON_PLANE_M), 0.0, h) / self.switch_scale
+
         if sys_.n_lambda:
             sigma = sys_.wanted.copy()
             for _ in range(2):  # forces with the selectors so far, then the selectors from the forces
                 lam = self.contact_forces(y, u, sigma)
-                hval = np.asarray(sys_.switching_fn(y, u, lam), dtype=float).ravel() / self.switch_scale
+                hval = switching(y, u, lam)
                 sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, sys_.wanted))
             forces = self.forces_at(y, u, sigma) if "forces" in self.w_blocks else None
             return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)
-        hval = np.asarray(sys_.switching_fn(y, u), dtype=float).ravel() / self.switch_scale
+        hval = switching(y, u)
         sigma = np.where(hval > 0, 1.0, np.where(hval < 0, 0.0, sys_.wanted))
         forces = self.forces_at(y, u) if self.mm is not None else None
         return self.w_from(sigma, np.maximum(-hval, 0.0), np.maximum(hval, 0.0), forces)

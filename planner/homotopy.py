@@ -351,9 +351,11 @@ class SolveOptions:
     touching there (problem.static_controls: friction cones kept when they can be, bounds clipped), the step's
     algebraic variables guessed with them; the states stay y_0 everywhere. Only from the hint-free start (problem.x0
     as built) of an implicit-Euler problem, with a contact point on its plane there. Measured (docs/benchmarks.md, "The
-    static-torque start", session 68) on four robots standing on bent legs: a pitched quadruped standing still 1016
-    iterations to cost 0.18 against 2675 to 1.85, but on the other three dearer plans that failed MuJoCo; Capler's
-    straight leg needs no torque (the same start), so the default stays ZERO.
+    static-torque start", session 68) on four robots standing on bent legs: a planar quadruped standing still 97
+    iterations to cost 0.016 (MuJoCo passed) against 597 to 0.057 (failed), without its torso pitch 85 against 388 to
+    the same plan, but a three-contact tribot 1133 iterations to 0.045 (failed) against 477 to 0.008 (passed) and the
+    crouched Capler 1092 to 63.1 against 1746 to 39.4; Capler's straight leg needs no torque (the same start), so the
+    default stays ZERO.
     """
 
     tol: float = 1e-8

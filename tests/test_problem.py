@@ -87,6 +87,9 @@ STATIC_TOL = 1e-8  # [N, N m]
 # 18.4 (Capler's crouch, the biped on slippery ground), those that need none get rounding (~1e-16)
 STATIC_TORQUE_NM = 0.1
 CROUCH_Q = (0.0, 0.4 * math.cos(0.3), 0.3, -0.6)  # Capler's foot on the ground under a bent knee [m, m, rad, rad]
+# [m/s^2, rad/s^2] the guessed acceleration of a start held at rest is rounding (~3e-15 on the crouched Capler): far
+# below the ~1e3 rad/s^2 of the standing torques on a robot guessed in flight
+REST_ACCEL_TOL = 1e-9
 
 
 # (the biped's splayed stance needs no torque where its feet may push sideways, 18.5 N at 171.7 N, and hip torque
@@ -156,6 +159,33 @@ def test_static_controls_refuse_a_start_in_the_air_and_warn_when_they_cannot_hol
         bounder.initial, q=(0.0, 0.3821346, 0.0, 0.3, -0.6, 0.3, -1.0)))
     with pytest.warns(UserWarning, match="gravity left unbalanced .no torque can hold this posture"):
         static_controls(build_problem(load_robot(examples / "bounder.xml"), one_foot))
+
+
+def test_a_start_nanometres_above_the_ground_is_guessed_standing():
+    """The step guess of a start 5e-9 m up (a height typed to 7 digits: docs/examples' tasks start 4.35e-9 m up) is
+    the guess of the same start exactly on the ground, whose gap static_controls counts as touching (ON_PLANE_M): its
+    selectors in contact mode (beta = 0) and, with the static torques (SolveOptions.start_controls = static), zero
+    acceleration. By the gap's exact sign the guess was in flight (beta = 1): the crouched Capler's standing torques
+    bent its free-floating knee at 1491 rad/s^2 and the zero start was a free fall, not the start the docs describe."""
+    robot = load_robot(f"{ROBOTS}/capler.xml")
+    task = load_task(f"{ROBOTS}/capler.toml")
+
+    def crouched(dz):
+        q = (0.0, CROUCH_Q[1] + dz, *CROUCH_Q[2:])
+        return build_problem(robot, dataclasses.replace(task, initial=dataclasses.replace(task.initial, q=q),
+                                                        horizon=Horizon(0.5, 10)))
+
+    on, up = crouched(0.0), crouched(5e-9)
+    system, nq, nv = on.system, on.system.nq, on.system.nv
+    u, _ = static_controls(on)
+    for controls in (u, np.zeros(system.nu)):
+        w_on, w_up = on.builder.guess(on.y0, controls), up.builder.guess(up.y0, controls)
+        sigma = on.builder.w_blocks["sigma"]
+        np.testing.assert_array_equal(w_up[sigma], w_on[sigma])
+        assert w_up[sigma][[s.name == "beta[foot]" for s in system.switches]] == 0.0
+    w = up.builder.guess(up.y0, u)
+    field = np.asarray(system.fields_fn(up.y0, u), float) @ np.asarray(up.builder.coefficients(w), float).ravel()
+    np.testing.assert_allclose(field[nq : nq + nv], 0.0, atol=REST_ACCEL_TOL)
 
 
 def test_mass_matrix_and_explicit_forms_agree_at_a_point(capler_small):
