@@ -626,9 +626,13 @@ def slides_of(traj: Trajectory, flight, point_xyz, gap, point: str, holes=(), sk
 
 
 def _on_plane_runs(gap, a: int, k: int):
-    """The runs (i, j) of two nodes or more within nodes a..k at which gap (N+1,) [m] keeps the point on its plane
-    (ON_PLANE_M): the steps i..j-1 of a flight phase that move the point along the plane (a biped's swing foot slid
-    3.1 cm at 1.5 m/s in one such step inside a longer flight, unreported)."""
+    """The runs (i, j) of two nodes or more within the flight phase's nodes a..k at which gap (N+1,) [m] keeps the
+    point on its plane (ON_PLANE_M): the whole phase when it does so at every node, else the steps i..j-1 inside it
+    that move the point along the plane (a biped's swing foot slid 3.1 cm at 1.5 m/s in one such step inside a longer
+    flight, unreported), not those at its first or last node: a hop's take-off and landing, its distance already."""
+    if max(gap[a : k + 1]) <= ON_PLANE_M:
+        yield a, k
+        return
     i = a
     while i < k:
         if gap[i] > ON_PLANE_M:
@@ -637,7 +641,7 @@ def _on_plane_runs(gap, a: int, k: int):
         j = i
         while j < k and gap[j + 1] <= ON_PLANE_M:
             j += 1
-        if j > i:
+        if j > i and i > a and j < k:
             yield i, j
         i = j + 1
 
@@ -684,8 +688,9 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
             if a and gap[a - 1, c] <= ON_PLANE_M:
                 continue
             fastest = -approach[a:k, c].min()
-            if a and clock[a] > clock[a - 1]:  # the gap it came down over the step's physical time (a node's J v read
-                # 0.21 m/s for a tribot's foot that came down 6.75 cm in a whole step of 0.05 s)
+            if a and clock[a] - clock[a - 1] > CLOCK_LEAK * dt_steps[a - 1]:  # the gap it came down over the step's
+                # physical time (a node's J v read 0.21 m/s for a tribot's foot that came down 6.75 cm in a whole step
+                # of 0.05 s; a fully frozen step's leaked clock would divide solver noise)
                 fastest = max(fastest, (gap[a - 1, c] - gap[a, c]) / (clock[a] - clock[a - 1]))
             if a == 1 or (a > 1 and gap[a - 2, c] > gap[a - 1, c]):
                 fastest = max(fastest, -approach[a - 1, c])
