@@ -39,7 +39,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
                      interruptible, is_integer, plain, real_array, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import CONE_SLACK, ArraysReadOnly, task_path, write_files
+from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, task_path, write_files
 from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -433,10 +433,6 @@ class GaitOCP:
         return float(ca.sum2(self.objective(x[:-1].T, u.T, np.hstack([xd[:-1], ud]).T)))
 
 
-# |swing foot height| [m] allowed at the landing Delta^-1(x0): a foot 31 mm below the ground was "converged"
-LANDING_GAP_M = 1e-6
-
-
 def _check_hip(model: PinnedBiped, x0: np.ndarray) -> None:
     """TaskError when x0 (6,) puts the hip at or below the ground: |theta1| >= pi/2, a stance leg above its hip, had
     "converged" in 100 s to a ground that pulls."""
@@ -467,7 +463,7 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         raise TaskError(f"gait.x0 does not come from the jump set: Delta^-1(x0) has theta1 = {xf[0]:.9g} rad, but "
                         f"gait.jump_angle = {spec.jump_angle:.9g} rad (theta2 of x0 must equal jump_angle)")
     gap = float(model.swing_height(xf[:3]))  # the impact happens where the swing foot lands: on the ground
-    if abs(gap) > LANDING_GAP_M:
+    if abs(gap) > ON_PLANE_M:  # (a foot 31 mm below the ground was "converged")
         raise TaskError(f"gait.x0 lands its swing foot {abs(gap) * 1e3:.3g} mm {'below' if gap < 0 else 'above'} the ground "
                         f"(at Delta^-1(x0), the state before the impact): the impact map applies on the ground only; "
                         f"with legs of equal length theta1 of x0 must be -theta2 of x0")

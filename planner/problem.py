@@ -736,13 +736,15 @@ def static_controls(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
         forces[i, k] = value
     u_block = problem.var_blocks["u"][0]
     unclipped = np.abs(B @ u + Jc @ lam - grav).max()
-    u = np.clip(u, problem.lbx[u_block], problem.ubx[u_block])
+    clipped = np.clip(u, problem.lbx[u_block], problem.ubx[u_block])
+    # (a posture whose weight is not over its points, under torque bounds that clipped its u, blamed the posture alone)
+    causes = (["no torque can hold this posture on the contact points touching: its weight is not over them"]
+              if unclipped > STATIC_BALANCE_TOL else []) + (["the torque bounds"] if np.any(clipped != u) else [])
+    u = clipped
     imbalance = np.abs(B @ u + Jc @ lam - grav).max()
     if imbalance > STATIC_BALANCE_TOL:
         warnings.warn(f"the static start does not hold the start at rest: {imbalance:.3g} N or N m of gravity left "
-                      "unbalanced " + ("(no torque can hold this posture on the contact points touching: its weight "
-                                       "is not over them)" if unclipped > STATIC_BALANCE_TOL else
-                                       "(the torque bounds)"), UserWarning, stacklevel=2)
+                      f"unbalanced ({'; and '.join(causes)})", UserWarning, stacklevel=2)
     elif not _in_cones(lam, cone, STATIC_BALANCE_TOL):
         warnings.warn("the static start holds the start at rest only with contact forces outside their friction cones "
                       "or pulling; its u is that of those forces", UserWarning, stacklevel=2)

@@ -767,8 +767,11 @@ class PlanResult(ArraysReadOnly):
         if self.extra.get("unrecorded_landings"):  # (a bounder's feet landed at 1-5 m/s beside "0 impact(s)")
             lines.append(f"  {len(self.extra['unrecorded_landings'])} landing(s) with no impact record, in steps that "
                          "ran the clock (several contacts: docs/formulation.md, \"Partly frozen stance\"): "
-                         + ", ".join(f"{f['point']} t = {f['time']:.4g} s at {f['approach_mps']:.3g} m/s (clock "
-                                     f"{f['clock_share']:.0%} of the step)" for f in self.extra["unrecorded_landings"]))
+                         + ", ".join(f"{f['point']} t = {f['time']:.4g} s at {f['approach_mps']:.3g} m/s (the clock "
+                                     # (a share, "clock 140% of the step", read as a bug: docs/results.md says why
+                                     # it can exceed 1)
+                                     f"ran {f['clock_share']:.2g} times the step's numerical length)"
+                                     for f in self.extra["unrecorded_landings"]))
         # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]

@@ -96,11 +96,12 @@ def table(rows: list[dict]) -> str:
     lines = ["| lower bound [rad/s] | step [m] | exit | IPOPT it. | solve [s] | cost | impact / period [s] | MuJoCo walk |",
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        walk = ("not run" if r["walk_passed"] is None and r["exit_code"] == 0 else
+        # (planner plan validates converged plans only: a failed solve's row read "refused: the stance-leg angle is
+        # not monotonic", a refusal the walk never made)
+        walk = ("not validated: the solve did not converge" if not r["converged"] else
+                "not run" if r["walk_passed"] is None and r["exit_code"] == 0 else
                 f"{r['steps_walked']} of 10, max torque {r['max_torque_Nm']:.0f} N m" if r["steps_walked"] is not None
                 else "refused: the stance-leg angle is not monotonic")
-        if not r["converged"]:
-            walk = "(not converged) " + walk
         impacts = ", ".join(f"{t:.3f}" for t in r["impact_times_s"]) or "none"
         lower = "none" if r["lower_rad_s"] is None else format(r["lower_rad_s"], "g")
         lines.append(f"| {lower} | {r['step_m']:g} | {r['exit_code']} | {r['ipopt_iterations']} | {r['solve_time_s']:.1f} | "

@@ -161,6 +161,24 @@ def test_static_controls_refuse_a_start_in_the_air_and_warn_when_they_cannot_hol
         static_controls(build_problem(load_robot(examples / "bounder.xml"), one_foot))
 
 
+def test_static_controls_name_both_the_posture_and_the_torque_bounds_when_both_leave_gravity_unbalanced():
+    """When a posture whose weight is not over its touching points leaves gravity unbalanced and the torque bounds
+    also clip the torques that balance the rest, the warning names both causes: it named the posture alone, so a user
+    who moved the robot over its feet would meet the bounds' imbalance only on the next run."""
+    examples = pathlib.Path(__file__).resolve().parents[1] / "docs" / "examples"
+    bounder = load_task(examples / "bounder_stand.toml")
+    one_foot = dataclasses.replace(bounder, initial=dataclasses.replace(
+        bounder.initial, q=(0.0, 0.3821346, 0.0, 0.3, -0.6, 0.3, -1.0)))  # (the pitched bounder on its front foot)
+    prob = build_problem(load_robot(examples / "bounder.xml"), one_foot)
+    with pytest.warns(UserWarning, match="no torque can hold this posture"):
+        u, _ = static_controls(prob)
+    u_block = prob.var_blocks["u"][0]
+    prob.lbx[u_block], prob.ubx[u_block] = -0.1 * np.abs(u), 0.1 * np.abs(u)
+    with pytest.warns(UserWarning, match=r"gravity left unbalanced \(no torque can hold this posture on the contact "
+                                         r"points touching: its weight is not over them; and the torque bounds\)"):
+        static_controls(prob)
+
+
 def test_a_start_nanometres_above_the_ground_is_guessed_standing():
     """The step guess of a start 5e-9 m up (a height typed to 7 digits: docs/examples' tasks start 4.35e-9 m up) is
     the guess of the same start exactly on the ground, whose gap static_controls counts as touching (ON_PLANE_M): its

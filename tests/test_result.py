@@ -525,9 +525,21 @@ def test_the_report_and_summary_name_each_skims_point_and_each_landing_without_a
     assert ("\n  2 skim(s) along the ground in one flight-mode step, where no friction acts (no hops): back_foot "
             "t = 0.285 s +0.194 m, front_foot t = 1.372 s +0.107 m") in marked.report()
     assert ("\n  2 landing(s) with no impact record, in steps that ran the clock (several contacts: "
-            "docs/formulation.md, \"Partly frozen stance\"): back_foot t = 0.3961 s at 5.54 m/s (clock 98% of the step), front_foot "
-            "t = 1.337 s at 4.9 m/s (clock 140% of the step)\n") in marked.report()
+            "docs/formulation.md, \"Partly frozen stance\"): back_foot t = 0.3961 s at 5.54 m/s (the clock ran 0.98 "
+            "times the step's numerical length), front_foot t = 1.337 s at 4.9 m/s (the clock ran 1.4 times the step's "
+            "numerical length)\n") in marked.report()
     assert marked.summary()["skims"] == skims and marked.summary()["unrecorded_landings"] == landings
+
+
+def test_an_unrecorded_landings_clock_above_its_step_reads_as_a_rate_not_a_share():
+    """A landing whose step ran the clock longer than the step's numerical length (clock_share 1.4: a stance step's
+    clock rate or speed of time above 1) is reported as the clock running 1.4 times the step's numerical length, not
+    as "140% of the step", which a tester read as a share that cannot exceed 100 % and so as a bug."""
+    plan = _hop_plan()
+    landing = {"point": "front_foot", "time": 1.337, "approach_mps": 4.9, "clock_share": 1.401}
+    report = replace(plan, extra={**plan.extra, "unrecorded_landings": [landing]}).report()
+    assert "front_foot t = 1.337 s at 4.9 m/s (the clock ran 1.4 times the step's numerical length)\n" in report
+    assert "%" not in report.split("landing(s) with no impact record")[1].splitlines()[0]
 
 
 def test_write_results_follows_the_contract(tmp_path):

@@ -986,6 +986,26 @@ def test_bench_biped_walk_does_not_read_an_earlier_runs_result(tmp_path, monkeyp
         bench.run("0.3", bench.DEFAULT_STEP, tmp_path, quick=True)
 
 
+def test_bench_biped_walk_labels_a_failed_solve_not_validated(tmp_path, monkeypatch):
+    """A run whose solve did not converge (exit 1, summary.json in plan/failed, no validation: planner plan validates
+    converged plans only) is labelled not validated because the solve did not converge, not refused for a
+    non-monotonic stance-leg angle, a reason the walk never gave for it."""
+    bench = _load("bench_biped_walk")
+
+    def failed_solve(argv):
+        failed = Path(argv[argv.index("--out") + 1]) / "failed"
+        failed.mkdir(parents=True)
+        (failed / "summary.json").write_text(json.dumps({
+            "converged": False, "ipopt_iterations": 3000, "solve_time_s": 90.0, "control_cost": 12.0,
+            "physical_duration_s": 0.5, "impacts": []}))
+        return 1
+
+    monkeypatch.setattr(bench, "planner_command", failed_solve)
+    row = bench.run("0.3", bench.DEFAULT_STEP, tmp_path, quick=False)
+    assert not row["converged"] and row["steps_walked"] is None
+    walk = bench.table([row]).splitlines()[-1].split(" | ")[-1]
+    assert walk == "not validated: the solve did not converge |"
+
 def test_bench_replan_records_a_refused_value_and_goes_on(tmp_path, monkeypatch):
     """A value whose task planner refuses (exit 2, nothing written: Capler's target 2.7 m stands in a hole) is a row
     marked refused and the other values still run (the whole benchmark stopped, its finished rows lost); a run's
