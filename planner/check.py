@@ -378,7 +378,8 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
             out.append(f"joint {joint!r}: margin {mj.jnt_margin[j]:g}: MuJoCo's limit pushes that far inside the "
                        "range, where the planner's bounds allow motion; remove margin")
         mujoco_range = tuple(float(x) for x in mj.jnt_range[j]) if mj.jnt_limited[j] else (-np.inf, np.inf)
-        if not np.allclose(mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):
+        if mj.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE and not np.allclose(
+                mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):  # (a free joint: Pinocchio's placeholders)
             out.append(f"joint {joint!r}: range [{mujoco_range[0]:g}, {mujoco_range[1]:g}] in MuJoCo, [{lower[i]:g}, {upper[i]:g}] in Pinocchio")
     return tuple(out)
 
@@ -612,9 +613,16 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     import mujoco
 
     mj, kind, why = _compile(robot)
+    mass, bias, position = dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q)
+    if mj is None and kind == SKIPPED:
+        mapped = _free_joint_map(robot)
+        if mapped is not None:  # free joints: compare in MuJoCo's coordinates
+            mj, to_mujoco, to_pinocchio = mapped
+            mass, bias, position = _in_mujoco_coordinates(dyn, to_pinocchio)
+            states = [to_mujoco(q, v) for q, v in states]
     if mj is None:
         return None, why if kind == SKIPPED else MUJOCO_FAILED + why
-    gaps = _mujoco_gaps(mj, states, dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q), robot)
+    gaps = _mujoco_gaps(mj, states, mass, bias, position, robot)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     missing = tuple(name for name in names if name and name not in robot.points and name not in robot.world_sites)
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
@@ -630,3 +638,75 @@ def _mean_us(call) -> float:
     for _ in range(TIMING_EVALUATIONS):
         call()
     return (time.perf_counter() - start) / TIMING_EVALUATIONS * 1e6
+
+
+def _free_joint_map(robot: Robot):
+    """(MuJoCo's compiled model, to_mujoco(q, v) -> (qpos, qvel), to_pinocchio(qpos, qvel) -> (q, v, T, Tdot_v)) when
+    the robot's only joints other than hinges and slides are MJCF free joints at the same coordinate addresses in
+    both readings, else None. A free joint: MuJoCo's qpos is the body's world pose (position, wxyz quaternion),
+    Pinocchio's q is relative to the joint's placement (position, xyzw); MuJoCo's linear velocity is in the world
+    frame, Pinocchio's in the body frame (qvel = T v, T = blockdiag(R, I) on the joint's block)."""
+    import mujoco
+
+    model = robot.model
+    try:
+        spec = mujoco_spec(robot, robot.points, check_order=False)
+        if robot.floating:  # Pinocchio's free-flyer root (--floating): the same joint on MuJoCo's root link
+            spec.worldbody.first_body().add_freejoint()
+        mj = spec.compile()
+    except (RobotFileError, ValueError):
+        return None
+    free = [j for j in range(1, model.njoints) if model.joints[j].shortname() == "JointModelFreeFlyer"]
+    if any(model.joints[j].nq != model.joints[j].nv for j in range(1, model.njoints) if j not in free):
+        return None
+    mj_free = [k for k in range(mj.njnt) if mj.jnt_type[k] == mujoco.mjtJoint.mjJNT_FREE]
+    if (mj.nq, mj.nv) != (model.nq, model.nv) or len(mj_free) != len(free) or any(
+            (model.joints[j].idx_q, model.joints[j].idx_v) != (mj.jnt_qposadr[k], mj.jnt_dofadr[k])
+            for j, k in zip(free, mj_free)):
+        return None
+    blocks = [(model.joints[j].idx_q, model.joints[j].idx_v, model.jointPlacements[j]) for j in free]
+
+    def to_mujoco(q, v):
+        qm, vm = np.array(q, float), np.array(v, float)
+        for iq, iv, placement in blocks:
+            world = placement * pin.XYZQUATToSE3(q[iq:iq + 7])
+            quat = pin.Quaternion(world.rotation)
+            qm[iq:iq + 7] = [*world.translation, quat.w, quat.x, quat.y, quat.z]
+            vm[iv:iv + 3] = world.rotation @ v[iv:iv + 3]
+        return qm, vm
+
+    def to_pinocchio(qm, vm):
+        q, v = np.array(qm, float), np.array(vm, float)
+        T, Tdot_v = np.eye(model.nv), np.zeros(model.nv)
+        for iq, iv, placement in blocks:
+            w, x, y, z = qm[iq + 3:iq + 7]
+            R = pin.Quaternion(w, x, y, z).normalized().matrix()
+            local = placement.inverse() * pin.SE3(R, np.array(qm[iq:iq + 3], float))
+            q[iq:iq + 7] = pin.SE3ToXYZQUAT(local)
+            v[iv:iv + 3] = R.T @ vm[iv:iv + 3]
+            T[iv:iv + 3, iv:iv + 3] = R
+            Tdot_v[iv:iv + 3] = R @ np.cross(v[iv + 3:iv + 6], v[iv:iv + 3])
+        return q, v, T, Tdot_v
+
+    return mj, to_mujoco, to_pinocchio
+
+
+def _in_mujoco_coordinates(dyn: Dynamics, to_pinocchio):
+    """mass(qpos), bias(qpos, qvel) and position(point, qpos) of the CasADi dynamics in MuJoCo's coordinates:
+    qvel = T v gives M_mj = T^-T M T^-1 and h_mj = T^-T h - M_mj Tdot v."""
+    def mass(qm):
+        q, _, T, _ = to_pinocchio(qm, np.zeros(dyn.nv))
+        Ti = np.linalg.inv(T)
+        return Ti.T @ np.asarray(dyn.mass(q), float) @ Ti
+
+    def bias(qm, vm):
+        q, v, T, Tdot_v = to_pinocchio(qm, vm)
+        Ti = np.linalg.inv(T)
+        M = Ti.T @ np.asarray(dyn.mass(q), float) @ Ti
+        return Ti.T @ np.asarray(dyn.bias(q, v), float).ravel() - M @ Tdot_v
+
+    def position(name, qm):
+        q, _, _, _ = to_pinocchio(qm, np.zeros(dyn.nv))
+        return dyn.point_position(name)(q)
+
+    return mass, bias, position

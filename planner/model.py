@@ -186,21 +186,26 @@ class Robot:
         return _point_frames(self.model)[point]
 
     def moves_out_of_plane(self, point: str, samples: int = 3, tol: float = 1e-9) -> bool:
-        """Whether the named point can move along the world's y axis: its translational Jacobian's y row is nonzero
+        """Whether the named point can move along the world's y axis: its translational Jacobian's y row is above tol
         at one of `samples` seeded configurations (joint values in [-1, 1] [rad or m], clipped to the limits). The
         planner's contacts are planar (normal and tangent in the x-z plane), so such a point would slide along y
         without friction."""
+        return bool(self.out_of_plane_rates(point, samples, tol))
+
+    def out_of_plane_rates(self, point: str, samples: int = 3, tol: float = 1e-9) -> dict[str, float]:
+        """Per degree of freedom that moves the named point along y at one of the seeded samples (moves_out_of_plane),
+        the largest |dy/dq| [m/m or m/rad] seen; {} when none does."""
         model, frame = self.model, self.frame_id(point)
         data = model.createData()
         rng = np.random.default_rng(0)
+        rates = np.zeros(model.nv)
         for _ in range(samples):
             q = pin.neutral(model)
             if model.nq == model.nv:
                 q = np.clip(rng.uniform(-1.0, 1.0, model.nq), self.q_lower, self.q_upper)
             J = pin.computeFrameJacobian(model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-            if np.max(np.abs(np.asarray(J).reshape(6, -1)[1]), initial=0.0) > tol:  # (6,) for one DoF
-                return True
-        return False
+            rates = np.maximum(rates, np.abs(np.asarray(J).reshape(6, -1)[1]))
+        return {self.dof_names[i]: float(r) for i, r in enumerate(rates) if r > tol}
 
     def touching_contacts(self, contacts, q: np.ndarray, height: float,
                           touch_tol: float = ON_PLANE_M) -> list[tuple[int, np.ndarray, np.ndarray | None]]:

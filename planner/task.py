@@ -568,9 +568,14 @@ class Task:
                 raise TaskError(f"contacts[{i}].point: contact point {c.point!r} is an MJCF body, not a site; add "
                                 f"<site name=\"...\"/> where the body touches and name it (sites: "
                                 f"{', '.join(sorted(robot.sites)) or 'none'})")
-            if robot.moves_out_of_plane(c.point):
+            rates = robot.out_of_plane_rates(c.point)
+            if rates:
+                largest = ", ".join(f"{j} {r:.3g}" for j, r in sorted(rates.items(), key=lambda item: -item[1]))
+                tiny = (" (so small a rate is a joint axis a little off y in the robot file, e.g. a rounded rpy or axis: "
+                        "write it to full precision)" if max(rates.values()) < 1e-4 else "")
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
-                                "friction in the x-z plane), so it would slide along y without friction")
+                                "friction in the x-z plane), so it would slide along y without friction; dy/dq up to "
+                                f"{largest} (m per m or rad) at seeded postures{tiny}")
         kept = {robot.carrier(c.point) for c in self.contacts}  # (by the joint that moves them: a URDF's fixed links)
         kept |= {robot.carrier(p) for p in (self.plan.above_ground if self.plan else ()) if p in robot.points}
         loose = [b for b in robot.colliding if robot.carrier(b, body=True) not in kept | {0}]

@@ -59,7 +59,7 @@ def test_solo12_passes_and_is_timed(erd_robot):
     """A free-flyer quadruped passes; the Jacobian timed is the first foot's. MuJoCo is skipped with a reason (its URDF
     has no free joint: Pinocchio adds it)."""
     result = check_model(erd_robot("solo12"), samples=SAMPLES)
-    assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is None and result.mujoco_skipped
+    assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is not None  # free joint added
     assert result.timing.point == "FL_FOOT"
 
 
@@ -265,8 +265,20 @@ def test_an_mjcf_free_joint_passes_with_mujoco_skipped(tmp_path):
     path.write_text('<mujoco><worldbody><body name="b"><freejoint name="root"/><inertial pos="0 0 0" mass="1" '
                     'diaginertia="1 1 1"/><site name="s"/></body></worldbody></mujoco>')
     result = check_model(load_robot(path), samples=2)
-    assert result.passed and result.mujoco is None
-    assert result.mujoco_skipped.startswith("free/ball joints root:")
+    assert result.passed and result.mujoco is not None and result.mujoco_skipped is None
+
+
+def test_an_mjcf_free_joint_is_compared_with_mujoco(tmp_path):
+    """A free body placed and turned in the file is compared in MuJoCo's coordinates (world pose, wxyz, world linear
+    velocity), so a body MuJoCo weighs by its geoms and Pinocchio not fails (it passed with the comparison skipped)."""
+    body = '<body name="b" pos="0 0 0.5" quat="0.9659 0.2588 0 0"><freejoint name="root"/>{}<geom type="box" size=".2 .1 .05" contype="0" conaffinity="0"/><site name="s" pos=".2 .1 -.05"/></body>'
+    path = tmp_path / "free.xml"
+    inertial = '<inertial pos="0 0 0" mass="1" diaginertia=".01 .02 .025"/>'
+    path.write_text(f"<mujoco><worldbody>{body.format(inertial)}</worldbody></mujoco>")
+    assert check_model(load_robot(path), samples=3).passed
+    path.write_text(f"<mujoco><worldbody>{body.format('')}</worldbody></mujoco>")
+    result = check_model(load_robot(path), samples=3)
+    assert not result.passed and "body masses b 8 kg in MuJoCo, 0 kg in Pinocchio" in result.report()
 
 
 def test_result_is_frozen():
