@@ -655,10 +655,12 @@ LANDING_MIN_MPS = 0.1
 def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), outside every Impact of that point (its tau_start..tau_end, or dated at the node), that come from
-    the air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing
-    or skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
-    ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
+    -APPROACH_MPS), its first node also whatever its approach when the node before is off the plane (a step that runs
+    the clock can brake the point to rest before the node), outside every Impact of that point (its
+    tau_start..tau_end, dated at the node, or over the step that brought the point down), that come from the air: the
+    node before is off the plane, or the run starts at the start (a point on its plane before, standing or skimming,
+    has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to ~4 m/s while
+    the point stays on it: no landing). With several contacts the recovery freezes a step only when its
     clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md, "Partly frozen
     stance"). Each as {"point", "time" [s] (the run's first node's clock), "approach_mps" (the fastest approach of the
     run, the mean speed at which the point came down over its last step, and the approach of the node before it when
@@ -668,11 +670,18 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     ran)}, in time order. contacts (n_c,): their names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
-    landing = (gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)
+    # a node on its plane whose node before is in the air is a landing whatever its J v: the auxiliary dynamics of a
+    # step that runs the clock can brake the point to rest before the node, where J v then reads ~0
+    from_air = np.zeros_like(gap, dtype=bool)
+    from_air[1:] = gap[:-1] > ON_PLANE_M
+    landing = (gap <= ON_PLANE_M) & ((approach < -APPROACH_MPS) | from_air)
     for c, point in enumerate(contacts):
         for k in range(len(clock) - 1):
+            # (an Impact over the step that brought the point down holds its landing too: one frozen step's impact
+            # ends at the node, dated at the node before when its clock leaked)
             landing[k, c] &= not any(i.contact == point and (i.tau_start <= tau[k] < i.tau_end
-                                                            or abs(i.time - clock[k]) <= LANDING_SLACK_S)
+                                                            or abs(i.time - clock[k]) <= LANDING_SLACK_S
+                                                            or from_air[k, c] and i.tau_start <= tau[k - 1] < i.tau_end)
                                      for i in traj.impacts)
     landing[-1] = False  # (the last node starts no step)
     found = []

@@ -488,10 +488,37 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     clock[1] = h
     gap[:2, 1], approach[1, 1] = (0.2, 0.05), -5.5
     approach[6, 0] = -1.0  # (the last node starts no step, so holds no landing)
-    gap[4, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air)
+    gap[4:, 0], approach[4, 0] = 0.1, -2.0  # (off the plane: still in the air, to the end: no landing after it)
     assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
     approach[1:4, 1] = (-0.9, -0.5, -0.2) * np.array(LANDING_MIN_MPS)  # a foot settling onto its plane
     gap[1, 1] = 0.2 * LANDING_MIN_MPS * (clock[2] - clock[1])  # (from just above it)
+    assert unrecorded_landings(traj, approach, gap, dt, feet) == []
+
+
+def test_unrecorded_landings_find_a_landing_braked_to_rest_before_its_node():
+    """A point that comes down from the air to its plane over a step that ran the clock lands there even when its node
+    velocity J v no longer points into the plane: the step's auxiliary dynamics can brake it to rest before the node,
+    and the report must not hide that landing (listed at the mean speed it came down over the step's physical time).
+    An Impact of that point over the step that brought it down holds it (one frozen step's impact ends at the node and
+    is dated at the node before when its clock leaked), and a point that settles from just above its plane slower than
+    LANDING_MIN_MPS is no landing."""
+    from planner.result import LANDING_MIN_MPS, unrecorded_landings
+
+    h = 0.05
+    clock = h * np.array([0.0, 1.0, 1.98, 2.96, 3.96])  # (the clock ran 98 % of steps 1 to 3)
+    traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(5), impacts=())
+    gap = np.zeros((5, 2))
+    gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
+    approach = np.zeros((5, 2))
+    dt, feet = np.full(4, h), ("front_foot", "back_foot")
+    for approach[1, 1] in (-1.0, 1.0):  # (J v at node 1 down or up alike: J v at the landing node is 0)
+        assert unrecorded_landings(traj, approach, gap, dt, feet) == [
+            {"point": "back_foot", "time": pytest.approx(clock[2], abs=EXACT),
+             "approach_mps": pytest.approx(0.05 / (clock[2] - clock[1]), abs=EXACT),
+             "clock_share": pytest.approx(0.98, abs=EXACT)}], approach[1, 1]
+    held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[1], tau_start=traj.tau[1], tau_end=traj.tau[2])
+    assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (held,)}), approach, gap, dt, feet) == []
+    gap[1, 1] = 0.5 * LANDING_MIN_MPS * (clock[2] - clock[1])  # settling from just above the plane
     assert unrecorded_landings(traj, approach, gap, dt, feet) == []
 
 
