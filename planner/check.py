@@ -89,8 +89,10 @@ class ModelCheck:
     # the file's passive joint terms and couplings (Robot.passive), which fail the check with or without the MuJoCo
     # comparison (a file with damping passed under --floating, where MuJoCo's was skipped)
     passive: tuple[str, ...] = ()
-    # (nq,) each coordinate's range as the planner reads it, with its unit and a degree file's degrees (a file of radian
-    # numbers without <compiler angle="radian"> is read in degrees: its ranges said nothing of it)
+    # (nv,) each degree of freedom's range as the planner reads it, with its unit and a degree file's degrees (a file of
+    # radian numbers without <compiler angle="radian"> is read in degrees: its ranges said nothing of it); "" for one
+    # whose coordinates are no angle or length (a free joint's, a URDF continuous joint's cos and sin): a floating
+    # robot's hip and knee ranges were dropped with them
     ranges: tuple[str, ...] = ()
 
     @property
@@ -162,10 +164,11 @@ class ModelCheck:
             [
                 f"check-model {self.robot} ({self.format}, nq={self.nq}, nv={self.nv}, backend {self.backend}, "
                 f"{self.samples} samples, seed {self.seed}): {'PASSED' if self.passed else 'FAILED'} (tolerance {TOLERANCE:g})",
-                f"  coordinates:  {', '.join(self.dof_names)}; points: {', '.join(self.points)}; controls (u) drive: "
-                f"{', '.join(self.controls) or 'none'}",
-                *([f"  ranges:       {', '.join(f'{n} {r}' for n, r in zip(self.dof_names, self.ranges))}"]
-                  if self.ranges else []),
+                # (nq > nv: the names are the nv velocities', which the header's nq contradicted as "coordinates")
+                f"  {'coordinates:' if self.nq == self.nv else 'velocities: '}  {', '.join(self.dof_names)}; points: "
+                f"{', '.join(self.points)}; controls (u) drive: {', '.join(self.controls) or 'none'}",
+                *([f"  ranges:       {', '.join(f'{n} {r}' for n, r in zip(self.dof_names, self.ranges) if r)}"]
+                  if any(self.ranges) else []),
                 f"  vs Pinocchio: {pinocchio}",
                 f"  vs MuJoCo:    {mujoco}",
                 f"  timing:       build {t.build_s * 1e3:.1f} ms (+{t.point_build_s * 1e3:.1f} ms for {t.point}); "
@@ -246,8 +249,19 @@ def check_model(robot: Robot, samples: int = 20, seed: int = 0, point: str | Non
         mujoco_skipped=skipped,
         timing=timing,
         passive=robot.passive,
-        ranges=tuple(robot.range_text(i) for i in range(robot.nq)) if robot.nq == robot.nv else (),
+        ranges=_dof_ranges(robot),
     )
+
+
+def _dof_ranges(robot: Robot) -> tuple[str, ...]:
+    """(nv,) Robot.range_text of each degree of freedom whose joint has as many coordinates as velocities (hinges,
+    slides), "" for the others' (a free joint's position and quaternion, a continuous joint's cos and sin)."""
+    model, out = robot.model, []
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        out += ([robot.range_text(joint.idx_q + k) for k in range(joint.nq)] if joint.nq == joint.nv
+                else [""] * joint.nv)
+    return tuple(out)
 
 
 def _err(a, b) -> float:
@@ -286,25 +300,31 @@ SKIPPED, UNREADABLE, DIFFERENT = "skipped", "unreadable", "different"  # why _co
 
 def _compile(robot: Robot):
     """(MuJoCo's compiled model of the robot file, None, None), or (None, kind, why): SKIPPED when MuJoCo's coordinates
-    cannot be compared with Pinocchio's (a free or ball joint, Pinocchio's own free flyer), UNREADABLE when MuJoCo
-    cannot read or compile the file (the replay cannot run), DIFFERENT when MuJoCo reads other coordinates or another
-    joint order than the planner plans for."""
+    cannot be compared directly with Pinocchio's (a free or ball joint, Pinocchio's own free flyer), UNREADABLE when
+    MuJoCo cannot read or compile the file (the replay cannot run), DIFFERENT when MuJoCo reads other coordinates or
+    another joint order than the planner plans for."""
     import mujoco
 
-    if robot.floating:
-        return None, SKIPPED, "Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads"
+    if robot.floating:  # (_mujoco_errors adds it to MuJoCo's root body; this is why when that fails)
+        return None, SKIPPED, ("Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads, and "
+                               "with a free joint added to its root body MuJoCo cannot compile it or reads other "
+                               "coordinates (e.g. that body has joints of its own)")
     try:
         spec = mujoco_spec(robot, robot.points, check_order=False)
     except RobotFileError as exc:
         return None, UNREADABLE, str(exc)
     kept = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-    other = [j.name or f"joint_{i}" for i, j in enumerate(spec.joints) if int(j.type) not in kept]
+    kinds = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
+    other = [f"{kinds[int(j.type)]} joint {j.name or f'joint_{i}'}" for i, j in enumerate(spec.joints)
+             if int(j.type) not in kept]
     try:
         mj = spec.compile()
     except ValueError as exc:  # e.g. a URDF's meshes MuJoCo cannot find, an inertia it refuses: the replay cannot run
         return None, UNREADABLE, mujoco_failure(robot.path, exc)
     if other:  # before the names: a free joint is one MuJoCo joint and six named degrees of freedom (root_0 ...)
-        return None, SKIPPED, f"free/ball joints {', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's"
+        # (a ball joint reaches here with the pinocchio.casadi backend only: the symbolic one refuses it)
+        return None, SKIPPED, (f"{', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's, and check-model "
+                               "converts a free joint's only in a robot of free, hinge and slide joints")
     names = tuple(j.name for j in spec.joints)
     if names != robot.dof_names:  # a URDF planar joint (MuJoCo's three, Pinocchio's one), URDF siblings
         return None, DIFFERENT, (f"MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}"
@@ -603,10 +623,11 @@ def _parser_gaps(root: ET.Element) -> list[str]:
 def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | None, str | None]:
     """CasADi vs MuJoCo on the same robot file, or (None, reason) when the coordinates differ.
 
-    Only hinge and slide joints are compared: there qpos and qvel are Pinocchio's q and v in the
-    same depth-first order. A free joint's qpos holds a wxyz quaternion and its linear velocity is
-    in the world frame (Pinocchio: xyzw, body frame), a ball joint's likewise; converting M and h
-    needs the velocity map and its time derivative, so such files are skipped instead.
+    For hinge and slide joints qpos and qvel are Pinocchio's q and v in the same depth-first order.
+    A free joint's qpos holds the world pose with a wxyz quaternion and its linear velocity is in
+    the world frame (Pinocchio: xyzw, body frame): a robot of free, hinge and slide joints is
+    compared in MuJoCo's coordinates (_free_joint_map); one that also has a ball joint, or a
+    --floating URDF MuJoCo cannot read with a free root joint, is skipped.
     Sites are matched to named points by name. MuJoCo's passive forces are compared with zero (the planner has none),
     and what _named_differences finds fails the check, as do the file's Robot.passive terms.
     """

@@ -56,8 +56,8 @@ def test_third_party_urdf_matches_mujoco(erd_robot, name):
 
 
 def test_solo12_passes_and_is_timed(erd_robot):
-    """A free-flyer quadruped passes; the Jacobian timed is the first foot's. MuJoCo is skipped with a reason (its URDF
-    has no free joint: Pinocchio adds it)."""
+    """A free-flyer quadruped passes; the Jacobian timed is the first foot's. MuJoCo is compared (its URDF has no free
+    joint: Pinocchio adds it, and check-model adds one to MuJoCo's root body)."""
     result = check_model(erd_robot("solo12"), samples=SAMPLES)
     assert result.passed and (result.nq, result.nv) == (19, 18) and result.mujoco is not None  # free joint added
     assert result.timing.point == "FL_FOOT"
@@ -258,9 +258,10 @@ def test_report_text():
     assert "vs MuJoCo:    skipped: " in check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).report()
 
 
-def test_an_mjcf_free_joint_passes_with_mujoco_skipped(tmp_path):
+def test_an_mjcf_free_joint_passes_with_mujoco_compared(tmp_path):
     """An MJCF <freejoint/> is one MuJoCo joint and six named degrees of freedom (root_0 ... root_5): check-model
-    compares it with Pinocchio and skips MuJoCo, naming the joint (it failed every such file on the joint names)."""
+    compares it with Pinocchio and with MuJoCo in MuJoCo's coordinates (it failed every such file on the joint names,
+    then skipped MuJoCo)."""
     path = tmp_path / "free.xml"
     path.write_text('<mujoco><worldbody><body name="b"><freejoint name="root"/><inertial pos="0 0 0" mass="1" '
                     'diaginertia="1 1 1"/><site name="s"/></body></worldbody></mujoco>')
@@ -862,3 +863,74 @@ def test_without_a_foot_the_last_point_is_timed(robot_variant):
     robot = robot_variant((ROBOTS_DIR / "capler.xml").read_text(), '<site name="foot"', '<site name="toe"')
     assert not any("foot" in point for point in robot.points) and len(robot.points) >= 2
     assert check_model(robot, samples=1).timing.point == robot.points[-1] == "toe"
+
+
+# A free body placed and turned in the file, with a hinge (its range in radians) and an off-axis mass below it.
+FREE_ARM = """<mujoco><compiler angle="radian"/><worldbody>
+<body name="b" pos="0.1 -0.2 0.5" quat="0.9659 0.2588 0 0"><freejoint name="root"/>
+<inertial pos="0.01 0 0" mass="1" diaginertia=".01 .02 .025"/>
+<body name="arm" pos="0.2 0 0"><joint name="hip" type="hinge" axis="0 1 0" range="-0.5 0.5"/>
+<inertial pos="0 0.03 -0.1" mass="0.3" diaginertia=".002 .003 .001"/><site name="foot" pos="0 0 -0.2"/></body>
+</body></worldbody></mujoco>"""
+ROUND_TRIP = 1e-12  # a pose through an SE3 product, a quaternion and back: rounding of numbers ~1
+
+
+def test_a_floating_robots_report_names_its_velocities_and_its_joints_ranges(tmp_path):
+    """check-model's report on a free-base robot (nq 8 > nv 7) heads its names "velocities" (they are the nv
+    velocity coordinates; "coordinates" contradicted the header's nq) and lists the hinge's range, which was dropped
+    with the free joint's; JSON `ranges` runs along dof_names with "" for the free joint's six."""
+    path = tmp_path / "free_arm.xml"
+    path.write_text(FREE_ARM)
+    result = check_model(load_robot(path), samples=1)
+    text = result.report()
+    assert (result.nq, result.nv) == (8, 7) and "  velocities:   root_0, root_1" in text
+    assert "  ranges:       hip [-0.5, 0.5] rad\n" in text
+    assert result.to_json()["ranges"] == [""] * 6 + ["[-0.5, 0.5] rad"]
+
+
+def test_the_free_joint_map_is_mujocos_reading(tmp_path):
+    """_free_joint_map's state map, checked against MuJoCo itself: a seeded (q, v) mapped to MuJoCo's coordinates and
+    back is the same state (the quaternion up to its sign), and in MuJoCo's coordinates the mapped mass matrix and bias
+    forces of a placed, turned free body with a hinge are MuJoCo's mj_fullM and qfrc_bias (check-model's free-joint
+    comparison stands on this map: a wrong frame or a missing velocity-map derivative would compare wrong numbers)."""
+    import mujoco
+
+    from planner.check import _free_joint_map, _in_mujoco_coordinates
+    from planner.dynamics import Dynamics
+
+    path = tmp_path / "free_arm.xml"
+    path.write_text(FREE_ARM)
+    robot = load_robot(path)
+    mj, to_mujoco, to_pinocchio = _free_joint_map(robot)
+    mass, bias, _ = _in_mujoco_coordinates(Dynamics(robot), to_pinocchio)
+    data, rng = mujoco.MjData(mj), np.random.default_rng(SEED)
+    for _ in range(3):
+        q, v = random_state(robot.model, rng)
+        qm, vm = to_mujoco(q, v)
+        back, v_back, _, _ = to_pinocchio(qm, vm)
+        sign = np.sign(back[3:7] @ q[3:7])
+        assert np.allclose(back, np.r_[q[:3], sign * q[3:7], q[7:]], rtol=0.0, atol=ROUND_TRIP)
+        assert np.allclose(v_back, v, rtol=0.0, atol=ROUND_TRIP)
+        data.qpos[:], data.qvel[:] = qm, vm
+        mujoco.mj_forward(mj, data)
+        full = np.zeros((mj.nv, mj.nv))
+        mujoco.mj_fullM(mj, data, full)
+        assert np.allclose(mass(qm), full, rtol=0.0, atol=TOL_CHECK)
+        assert np.allclose(bias(qm, vm), data.qfrc_bias, rtol=0.0, atol=TOL_CHECK)
+
+
+def test_the_skip_reason_names_each_joints_type(tmp_path):
+    """When MuJoCo's reading is skipped, the reason names each joint that is no hinge or slide with its type ("free
+    joint root, ball joint hip", where "free/ball joints root, hip" left the user to guess which is which, and a ball
+    joint reaches it with the pinocchio.casadi backend only), and a --floating URDF's says that the free joint
+    check-model adds to MuJoCo's root body did not give Pinocchio's coordinates (Capler's carriage has joints of its
+    own): "is not in the file MuJoCo reads" alone no longer said why, as files with one added are compared."""
+    from planner.check import SKIPPED, _compile
+
+    path = tmp_path / "ball.xml"
+    path.write_text(FREE_ARM.replace('<joint name="hip" type="hinge" axis="0 1 0" range="-0.5 0.5"/>',
+                                     '<joint name="hip" type="ball"/>'))
+    _, kind, why = _compile(load_robot(path))  # (the symbolic dynamics refuses the ball joint; pinocchio.casadi not)
+    assert kind == SKIPPED and why.startswith("free joint root, ball joint hip: MuJoCo's coordinates differ"), why
+    skipped = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
+    assert "with a free joint added to its root body MuJoCo cannot compile it or reads other coordinates" in skipped

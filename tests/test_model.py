@@ -362,6 +362,14 @@ def test_a_site_wins_over_a_body_of_the_same_name_and_planar_contacts_are_checke
         task.check_against(sideways)
 
 
+def test_out_of_plane_rates_name_each_joint_that_moves_a_point_along_y(tmp_path):
+    """Robot.out_of_plane_rates gives, per degree of freedom that moves the point along y, its largest |dy/dq| (the
+    task's refusal quotes them so the user finds the joint): {} for a planar hopper, and for one whose second base
+    slide runs along y that slide alone at 1 m/m (the x slide and the hip about y move the foot in x-z only)."""
+    assert load_robot(_hopper(tmp_path)).out_of_plane_rates("foot") == {}
+    assert load_robot(_hopper(tmp_path, base='axis="0 1 0"')).out_of_plane_rates("foot") == {"z": 1.0}
+
+
 def test_an_unnamed_site_is_no_point(tmp_path):
     """A site without a name is no contact point: Pinocchio names it ("massSite_0") and simulate planned on it, then
     validate refused the result (MuJoCo has no site of that name). Named sites stay points."""

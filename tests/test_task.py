@@ -1013,3 +1013,19 @@ def test_two_planes_whose_normals_share_their_x_are_two_planes():
                                     {"point": "point", "normal": [0.6, 0.0, -0.8]}],
                        "initial": {"q": [0.0, 0.0]}, "horizon": {"tau_f": 0.1, "N": 5}})
     assert [c.normal for c in task.contacts] == [(0.6, 0.0, 0.8), (0.6, 0.0, -0.8)]
+
+
+def test_a_rounded_joint_axis_is_named_in_the_out_of_plane_refusal(tmp_path):
+    """A URDF whose hip axis is turned onto y by a CAD-rounded rpy (1.5708 for pi/2: the axis 4e-6 rad off y) moves the
+    foot along y by ~1e-6 m per rad: the refusal names the joints with their dy/dq and says to write the rotation to
+    full precision. It named the task's contact point only, so the user looked for the cause in the task file."""
+    text = (ROBOTS / "capler.urdf").read_text()
+    hip, knee = '<child link="thigh"/>\n    <axis xyz="0 1 0"/>', '<child link="shank"/>\n    <origin xyz="0 0 -0.2"/>'
+    assert text.count(hip) == text.count(knee) == 1
+    rounded = tmp_path / "rounded.urdf"  # (the knee turned back, so only the hip's axis is off y)
+    rounded.write_text(text.replace(hip, '<child link="thigh"/><origin rpy="1.5708 0 0"/><axis xyz="0 0 -1"/>').replace(
+        knee, '<child link="shank"/><origin xyz="0 -0.2 0" rpy="-1.5708 0 0"/>'))
+    with pytest.raises(TaskError, match=r"contact point 'foot' can move along y: .*; dy/dq up to (.*, )?hip "
+                                        r"\d\.\d+e-0[5-7].* \(so small a rate is a joint axis a little off y in the "
+                                        r"robot file, e\.g\. a rounded rpy or axis: write it to full precision\)"):
+        parse_task(MINIMAL).check_against(load_robot(rounded))
