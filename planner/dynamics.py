@@ -109,12 +109,14 @@ def dynamics_for(robot: Robot, dynamics: Dynamics | None = None) -> Dynamics:
 class Dynamics:
     """CasADi functions of a robot's dynamics; built once, evaluated fast (SX).
 
-    Attributes (casadi.Function unless noted):
+    Attributes (casadi.Function unless noted). A Function called on numbers returns a casadi.DM matrix, its
+    vectors columns (nv, 1): np.asarray(...).ravel() for a NumPy vector (nv,) (a column minus B u (nv,)
+    broadcasts to (nv, nv) without an error):
       mass      (q) -> M (nv, nv) [kg, kg m, kg m^2], symmetric, armature included
-      bias      (q, v) -> h (nv,) = C(q, v) v + g(q) [N, N m], i.e. RNEA(q, v, 0)
+      bias      (q, v) -> h column (nv, 1) = C(q, v) v + g(q) [N, N m], i.e. RNEA(q, v, 0)
       actuation B (nv, nu) numpy array: generalized forces = B u
-      forward   (q, v, u) -> dv/dt (nv,) = M^-1 (B u - h)
-      integrate (q, dq) -> q (+) dq (nq,): identity-plus for Euclidean joints, the group
+      forward   (q, v, u) -> dv/dt column (nv, 1) = M^-1 (B u - h)
+      integrate (q, dq) -> q (+) dq column (nq, 1): identity-plus for Euclidean joints, the group
                 exponential (Pinocchio's integrate) for free-flyer, planar and unbounded joints;
                 dq is a tangent vector (nv,), e.g. v * dt
       nq, nv, nu (int), backend ("symbolic" or "pinocchio.casadi")
@@ -144,7 +146,7 @@ class Dynamics:
         self._points: dict[str, dict[str, ca.Function]] = {}
 
     def point_position(self, name: str) -> ca.Function:
-        """(q) -> position (3,) [m] of a named point in the world frame."""
+        """(q) -> position, a casadi.DM column (3, 1) [m], of a named point in the world frame."""
         return self._point(name)["position"]
 
     def point_rotation(self, name: str) -> ca.Function:
@@ -160,7 +162,7 @@ class Dynamics:
         return self._point(name)["frame_jacobian"]
 
     def point_drift(self, name: str) -> ca.Function:
-        """(q, v) -> dJ/dt v (3,) [m/s^2]: the point's world-frame acceleration when dv/dt = 0."""
+        """(q, v) -> dJ/dt v, a casadi.DM column (3, 1) [m/s^2]: the point's world-frame acceleration when dv/dt = 0."""
         return self._point(name)["drift"]
 
     def _point(self, name: str) -> dict[str, ca.Function]:

@@ -113,8 +113,10 @@ def freed_memory_kept():
 
 
 class MuStrategy(Enum):
-    ADAPTIVE = "adaptive"
-    MONOTONE = "monotone"
+    """IPOPT's barrier-parameter update (its mu_strategy option; SolveOptions.mu_strategy)."""
+
+    ADAPTIVE = "adaptive"  # IPOPT's adaptive rule sets mu at every iteration (default)
+    MONOTONE = "monotone"  # mu decreases from mu_init (warm_mu_init for the later NLPs), which only this one reads
 
 
 class HoleSchedule(Enum):
@@ -188,8 +190,10 @@ class ControlStart(Enum):
 
 
 class Polish(Enum):
-    NONE = "none"
-    ACTIVE_SET = "active_set"
+    """The NLP after the homotopy that makes complementarity exact (SolveOptions.polish; the module docstring)."""
+
+    NONE = "none"  # no polish: the last homotopy NLP's point is returned
+    ACTIVE_SET = "active_set"  # fix every pair's smaller side to zero, no penalty; accepted only if it converges
     HYBRID = "hybrid"  # fix only the clearly separated pairs, penalize the rest (rho = hybrid_rho), then ACTIVE_SET
 
 

@@ -41,8 +41,10 @@ MIN_AXIS = 1e-6
 
 
 class RobotFormat(Enum):
-    MJCF = "mjcf"
-    URDF = "urdf"
+    """The robot file's format (Robot.format), from its root element."""
+
+    MJCF = "mjcf"  # MuJoCo XML, <mujoco>
+    URDF = "urdf"  # <robot>
 
 
 @dataclass(frozen=True)

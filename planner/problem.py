@@ -81,7 +81,7 @@ import numpy as np
 
 from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitEulerStep, StepForm, SwitchVelocity
 from .dynamics import Dynamics, dynamics_for
-from .errors import InputError, check_field_types, enum_field, expect, plain, real_array, shown_up
+from .errors import InputError, check_field_types, enum_field, expect, plain, real_array, shown, shown_up
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
@@ -248,9 +248,10 @@ class Problem:
     (1,) if present, "y0" (ny,) with plan.periodic. g_blocks: name -> int index array into g (see the
     module docstring). pairs: the complementarity pairs over the whole horizon (Pair, in x
     indices); pair_scale (n_pairs,) multiplies a product to give it in unscaled units.
-    objective_parts: name -> ca.Function(x, p) -> scalar. Functions: products(x) -> (n_pairs,)
-    unscaled products; trajectory parts via `split(x)`. skips: the scene analysis' record (planner.scene);
-    system.contacts are the task's contacts without the never-touching ones.
+    objective_parts: name -> ca.Function(x, p) -> scalar. Functions: products(x) -> unscaled products, a
+    casadi.DM column (n_pairs, 1) (np.asarray(...).ravel() for a vector); trajectory parts via `split(x)`.
+    skips: the scene analysis' record (planner.scene); system.contacts are the task's contacts without the
+    never-touching ones.
     """
 
     robot: Robot
@@ -354,7 +355,21 @@ class Problem:
         """InputError when an input build_problem baked into the NLP changed since (BUILT_INPUTS: the robot, the task,
         the options, N, h, y0, the variables): the NLP would solve the old one while the result recorded the new (a
         task swapped by dataclasses.replace was planned for its old target and written with the new, a robot for the
-        old masses and written as the new file's). f must stay a scalar and f, g functions of x and p only."""
+        old masses and written as the new file's). f must stay a scalar and f, g functions of x and p only. Each
+        g_blocks entry must be row indices of g (a list or range is made an int array in place): constraint_violation
+        reads them only after the homotopy, where a bad one crashed the solve and a negative one named another row."""
+        for name, rows in self.g_blocks.items():
+            try:
+                idx = np.asarray(rows)
+            except (ValueError, TypeError):  # (a ragged list)
+                idx = None
+            if idx is not None and idx.size == 0:
+                idx = idx.astype(int)
+            if idx is None or idx.dtype.kind not in "iu" or (idx.size and (idx.min() < 0 or idx.max() >= self.ng)):
+                raise InputError(f"problem.g_blocks[{name!r}] = {shown(rows)} is not allowed; it must be row indices "
+                                 f"of problem.g, integers in 0 .. {self.ng - 1} (a list, range or int array, e.g. "
+                                 "np.arange(first, last + 1))")
+            self.g_blocks[name] = idx
         built = self.notes.get("built")
         if built is None:
             return

@@ -445,15 +445,23 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
 
 @dataclass(frozen=True)
 class Thresholds:
-    """Pass/fail limits [m] and the tolerances the metrics depend on."""
+    """Pass/fail limits and the tolerances the metrics depend on (ValidationOptions' fields of the same names).
+
+    max_tracking_error_m, max_penetration_m [m]: pass/fail limits. open_loop_band_m [m]: the open-loop replay's band
+    (information only). contact_gap_tol_m [m]: a point is in contact below this gap. min_flight_s [s]: a MuJoCo
+    impact follows at least this long without contact. min_hole_metric (no unit: the ellipse metric
+    ((x - xc)/a)^2 + ((z - zc)/b)^2, 1 on the rim): a plan's contact points between samples must stay at or above it
+    (KinematicReport.min_hole_metric). max_flight_residual (no unit: relative to the largest term): the plan's own
+    flight dynamics (KinematicReport.max_flight_residual).
+    """
 
     max_tracking_error_m: float
     max_penetration_m: float
     open_loop_band_m: float
     contact_gap_tol_m: float
     min_flight_s: float
-    min_hole_metric: float = HOLE_PASS_METRIC  # a plan's contact points between samples (KinematicReport.min_hole_metric)
-    max_flight_residual: float = FLIGHT_RESIDUAL_TOL  # the plan's own flight dynamics, relative (KinematicReport)
+    min_hole_metric: float = HOLE_PASS_METRIC
+    max_flight_residual: float = FLIGHT_RESIDUAL_TOL
 
 
 @dataclass(frozen=True)
@@ -605,8 +613,10 @@ class Validation(ArraysReadOnly):
 
     max_tracking_error_m / final_tracking_error_m: the base position error [m] of the tracking
     replay (of the first contact point when the base does not translate: `tracked` says
-    which); max_penetration_m: the kinematic penetration [m]. Passed when both are within the
-    thresholds and MuJoCo did not diverge.
+    which); max_penetration_m: the kinematic penetration [m]. `passed` when `failures` (one line per failed check)
+    is empty: MuJoCo did not diverge in the tracking replay, the tracking error and the penetration are within the
+    thresholds, no contact point goes through a hole (plans), every planned impact's point is on the ground, the
+    trajectory's own flight dynamics hold (implicit-Euler samples) and, for validate(DIR), the result converged.
     """
 
     passed: bool

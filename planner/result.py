@@ -127,21 +127,27 @@ def tap_flags(impulse_norms) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Impact(ArraysReadOnly):
-    """One recovered impact (one frozen interval)."""
+    """One recovered impact (one frozen interval).
 
-    time: float  # physical time [s]
-    contact: str  # contact point name
-    impulse: float  # normal impulse int a_n dtau [N s] (eq. 22)
-    impulse_tangential: float  # tangential impulse int (1 - 2 zeta) a_t dtau [N s] (0 if frictionless)
-    q: np.ndarray  # configuration at the impact (nq,)
-    # pre-impact velocity (nv,): implicit Euler's, the landing step's end velocity less its auxiliary increment, so it
-    # holds what the step's smooth part did in its running share (a contact-mode push at the step's end: O(h), e.g. a
-    # falling walker's pitch rate -0.43 rad/s at v_pre where the sample before had 0)
+    time: physical time [s]; contact: the contact point's name; impulse: normal impulse int a_n dtau [N s] (eq. 22);
+    impulse_tangential: tangential impulse int (1 - 2 zeta) a_t dtau [N s] (0 if frictionless);
+    q (nq,): configuration at the impact; v_pre (nv,): pre-impact velocity, implicit Euler's: the landing step's end
+    velocity less its auxiliary increment, so it holds what the step's smooth part did in its running share (a
+    contact-mode push at the step's end: O(h), e.g. a falling walker's pitch rate -0.43 rad/s at v_pre where the
+    sample before had 0); v_post (nv,): post-impact velocity; tau_start, tau_end: numerical time where the frozen
+    interval starts and ends [s]; kinetic_energy_pre, kinetic_energy_post: 1/2 v^T M(q) v at q before (v_pre) and
+    after (v_post) [J], nan where not computed.
+    """
+
+    time: float
+    contact: str
+    impulse: float
+    impulse_tangential: float
+    q: np.ndarray
     v_pre: np.ndarray
-    v_post: np.ndarray  # post-impact velocity (nv,)
-    tau_start: float  # numerical time where the frozen interval starts [s]
-    tau_end: float  # numerical time where it ends [s]
-    # kinetic energy 1/2 v^T M(q) v at q before (v_pre) and after (v_post) [J]; nan where not computed
+    v_post: np.ndarray
+    tau_start: float
+    tau_end: float
     kinetic_energy_pre: float = float("nan")
     kinetic_energy_post: float = float("nan")
 
@@ -247,6 +253,7 @@ class Trajectory(ArraysReadOnly):
 
     @property
     def impact_times(self) -> np.ndarray:
+        """(I,) physical times of the impacts [s], in order (Impact.time)."""
         return np.array([imp.time for imp in self.impacts], dtype=float)
 
     @cached_property  # read by the summary, the report, the plots and the validation's matching
@@ -257,18 +264,25 @@ class Trajectory(ArraysReadOnly):
 
     @property
     def physical_duration(self) -> float:
+        """Physical time from the first sample to the last [s] (0 without samples)."""
         return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
 
 
 @dataclass(frozen=True)
 class SolveStats:
-    """How the numerics went: totals over every NLP solved."""
+    """How the numerics went: totals over every NLP solved.
+
+    converged: the verdict of the solve (planner.homotopy's module docstring says when a plan converged);
+    solve_time_s: wall time of the solve [s]; n_nlp: NLPs solved; ipopt_iterations: IPOPT iterations of them all;
+    complementarity_residual: max over all pairs of a * b at the solution (the switching functions' units);
+    message: how the run ended, or why it failed.
+    """
 
     converged: bool
     solve_time_s: float
     n_nlp: int
     ipopt_iterations: int
-    complementarity_residual: float  # max over all pairs of a * b at the solution
+    complementarity_residual: float
     message: str = ""
 
     def __post_init__(self):
@@ -479,19 +493,26 @@ def _trajectory_lines(tr: Trajectory, extra: str = "", task: Task | None = None)
 
 @dataclass(frozen=True)
 class NlpRecord:
-    """One NLP of the plan's homotopy (or its polishing NLP)."""
+    """One NLP of the plan's homotopy (or its polishing NLP).
 
-    label: str  # "homotopy 1" .. "homotopy n", "polish"
-    rho: float  # complementarity penalty
-    hole_scale: float  # scale r of the holes (0: relaxed, 1: the task's)
-    objective: float  # NLP objective at its solution
-    complementarity_residual: float  # max over all pairs of a * b (unscaled; with gating the largest gated product)
-    iterations: int  # IPOPT iterations
-    time_s: float  # wall time of the IPOPT call [s]
-    status: str  # IPOPT return status
+    label: "homotopy 1" .. "homotopy n", "polish"; rho: complementarity penalty; hole_scale: scale r of the holes
+    (0: relaxed, 1: the task's); objective: NLP objective at its solution; complementarity_residual: max over all
+    pairs of a * b (unscaled; with gating the largest gated product); iterations: IPOPT iterations; time_s: wall time
+    of the IPOPT call [s]; status: IPOPT return status; success: IPOPT's success flag; terminal_error: the terminal
+    rows' largest distance outside [lbg, ubg] [m, rad (, m/s, rad/s)]; note: why the planner set aside the NLP's
+    point though IPOPT succeeded (a held schedule that adds an impact), or "".
+    """
+
+    label: str
+    rho: float
+    hole_scale: float
+    objective: float
+    complementarity_residual: float
+    iterations: int
+    time_s: float
+    status: str
     success: bool
-    terminal_error: float  # the terminal rows' largest distance outside [lbg, ubg] [m, rad (, m/s, rad/s)]
-    # why the planner set aside the NLP's point though IPOPT succeeded (a held schedule that adds an impact), or ""
+    terminal_error: float
     note: str = ""
 
     def __post_init__(self):
@@ -503,12 +524,17 @@ class NlpRecord:
 
 @dataclass(frozen=True)
 class Hop:
-    """One flight phase of a contact point: from the step that leaves the ground to the impact."""
+    """One flight phase of a contact point: from the step that leaves the ground to the impact.
 
-    takeoff_time: float  # physical time of the last ground step [s]
-    landing_time: float  # physical time of the touchdown (the impact time) [s]
-    distance: float  # horizontal distance of the point from takeoff to landing [m]
-    apex: float  # highest point height above its takeoff height [m]
+    takeoff_time: physical time of the last ground step [s]; landing_time: physical time of the touchdown (the
+    impact time) [s]; distance: horizontal distance of the point from takeoff to landing [m]; apex: the point's
+    highest height above its takeoff height [m].
+    """
+
+    takeoff_time: float
+    landing_time: float
+    distance: float
+    apex: float
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -729,7 +755,19 @@ def _braked_lines(extra: dict) -> list[str]:
 
 @dataclass(frozen=True, eq=False)
 class PlanResult(ArraysReadOnly):
-    """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops."""
+    """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops.
+
+    robot: robot file path; task: the task's source (its file path, "" for one built in code); trajectory; stats;
+    h: step length tau_f / N [s of numerical time]; rho_f: the task's weight of ||sigma - sigma*||^2;
+    terminal_error: the terminal rows' largest distance outside their bounds [m, rad (, m/s, rad/s)]; nlps: one
+    NlpRecord per NLP solved, in order; hops: the robot's flight phases (Hop); polished: the returned point is a
+    polishing NLP's; constraint_violation: block name of Problem.g_blocks (but the penalty's) -> largest violation
+    at the returned point in the constraint's units, and "bounds" of the variable bounds; timings: where the wall
+    time went [s] (build_s, solver_setup_s, ipopt_s, ...; docs/results.md); options: "problem" and "solve", the
+    ProblemOptions and SolveOptions field by field; extra: what the report and summary.json add (e.g. skims,
+    slides, race; keys starting with "_" are private); robot_sha256: the robot file's contents as planned (validate
+    and --init refuse the file changed since). docs/results.md describes each as summary.json holds it.
+    """
 
     robot: str
     task: str
@@ -746,7 +784,7 @@ class PlanResult(ArraysReadOnly):
     options: dict = field(default_factory=dict)
     command: str = "plan"
     extra: dict = field(default_factory=dict)
-    robot_sha256: str = ""  # the robot file's contents as planned (validate and --init refuse the file changed since)
+    robot_sha256: str = ""
 
     def nlp_point(self, problem) -> np.ndarray:
         """The NLP point (problem.nx,) this plan ended at, to start `problem` from (a replan:
@@ -765,6 +803,7 @@ class PlanResult(ArraysReadOnly):
         return np.array(self.extra["_x"], dtype=float)
 
     def report(self) -> str:
+        """A few human-readable lines for the terminal (what `planner plan` prints)."""
         tr, st = self.trajectory, self.stats
         task = self.extra.get("_task")  # a periodic plan's terminal rows are its periodicity (it read "terminal error")
         residual = "periodicity" if task is not None and task.is_periodic else "terminal"
@@ -814,6 +853,7 @@ class PlanResult(ArraysReadOnly):
         return "\n".join(lines)
 
     def summary(self) -> dict:
+        """The summary.json object (contract keys first), without result_id, versions and validation."""
         st = self.stats
         return {
             **_contract_keys(self, terminal_error=self.terminal_error),

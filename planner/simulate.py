@@ -45,8 +45,10 @@ RANGE_TOL = 1e-9
 
 
 class Strategy(Enum):
-    STEPWISE = "stepwise"
-    HORIZON = "horizon"
+    """How `simulate` solves its steps (SimulateOptions.strategy; the module docstring)."""
+
+    STEPWISE = "stepwise"  # one OSNP at a time, a small NLP built once (default)
+    HORIZON = "horizon"  # all N steps as one NLP
 
 
 @dataclass(frozen=True)

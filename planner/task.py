@@ -131,7 +131,8 @@ class Horizon:
 
 @dataclass(frozen=True)
 class Ellipse:
-    """A hole or obstacle the contact points must stay out of: ((x-xc)/a)^2 + ((z-zc)/b)^2 >= 1 [m]."""
+    """A hole or obstacle the contact points must stay out of: centre (x, z), semi-axes a, b [m]; a point (px, pz)
+    is outside when ((px - x)/a)^2 + ((pz - z)/b)^2 >= 1."""
 
     x: float
     a: float
@@ -148,8 +149,8 @@ class Ellipse:
                      f"within ±{MAX_STATE:g} m")
 
     def metric(self, x, z):
-        """((x - xc)/a)^2 + ((z - zc)/b)^2 of points x, z [m] (floats, arrays or CasADi expressions): 1 on the rim,
-        below 1 inside."""
+        """((x - self.x)/a)^2 + ((z - self.z)/b)^2 of points x, z [m] (floats, arrays or CasADi expressions): 1 on the
+        rim, below 1 inside."""
         return ((x - self.x) / self.a) ** 2 + ((z - self.z) / self.b) ** 2
 
 

@@ -818,6 +818,28 @@ def test_a_built_problem_names_its_edits_and_refuses_changed_inputs():
         dataclasses.replace(pb, f=pb.f + other.x[0] ** 2).check_solvable()
 
 
+def test_a_bad_g_blocks_entry_is_refused_before_the_solve():
+    """solve refuses a problem.g_blocks entry that is not row indices of g (a float, a row past the end, a negative one)
+    before IPOPT starts, naming the block and what is allowed: constraint_violation read it only after the whole
+    homotopy (40-60 s on Capler) and crashed with an IndexError, or silently reported another row for a negative one.
+    A list or range of rows, the obvious "indices", is taken and made an int array."""
+    from planner.homotopy import constraint_violation, solve
+
+    pb = build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), hop_task(N=4))
+    last = pb.ng - 1
+    for rows in (np.array([0.5]), [pb.ng], np.array([-1]), "terminal", [[0], [1, 2]]):
+        pb.g_blocks["mine"] = rows
+        started = []
+        with pytest.raises(InputError, match=rf"^problem.g_blocks\['mine'\] = .* is not allowed; it must be row "
+                                             rf"indices of problem.g, integers in 0 \.\. {last} \(a list, range"):
+            solve(pb, progress=started.append)
+        assert started == [], rows
+    for rows in ([last], range(last - 1, last + 1), []):
+        pb.g_blocks["mine"] = rows
+        pb.check_solvable()
+        assert pb.g_blocks["mine"].dtype.kind == "i" and "mine" in constraint_violation(pb, pb.x0)
+
+
 def test_a_plan_without_contacts_names_its_task(tmp_path):
     """build_problem refuses a task without [[contacts]] naming the task file, as the other task errors do (it named
     none)."""
