@@ -308,7 +308,8 @@ def _compile(robot: Robot):
     if robot.floating:  # (_mujoco_errors adds it to MuJoCo's root body; this is why when that fails)
         return None, SKIPPED, ("Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads, and "
                                "with a free joint added to its root body MuJoCo cannot compile it or reads other "
-                               "coordinates (e.g. that body has joints of its own)")
+                               "coordinates (e.g. that body has joints of its own, or the root link is named world, "
+                               "which MuJoCo reads as its world body, so the free joint would move the link after it)")
     try:
         spec = mujoco_spec(robot, robot.points, check_order=False)
     except RobotFileError as exc:
@@ -325,10 +326,9 @@ def _compile(robot: Robot):
         # (a ball joint reaches here with the pinocchio.casadi backend only: the symbolic one refuses it)
         return None, SKIPPED, (f"{', '.join(other)}: MuJoCo's coordinates differ from Pinocchio's, and check-model "
                                "converts a free joint's only in a robot of free, hinge and slide joints")
-    names = tuple(j.name for j in spec.joints)
-    if names != robot.dof_names:  # a URDF planar joint (MuJoCo's three, Pinocchio's one), URDF siblings
-        return None, DIFFERENT, (f"MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}"
-                                 f"{order_hint(robot, names)}")
+    order = _order_difference(robot, tuple(j.name for j in spec.joints))
+    if order:
+        return None, DIFFERENT, order
     if (mj.nq, mj.nv) != (robot.nq, robot.nv):  # e.g. a URDF continuous joint: Pinocchio (cos, sin), MuJoCo an angle
         model = robot.model
         unbounded = [f"{model.names[j]!r}" for j in range(1, model.njoints) if model.joints[j].nq == 2 and model.joints[j].nv == 1]
@@ -336,6 +336,14 @@ def _compile(robot: Robot):
                "revolute with limits)" if unbounded else "")
         return None, DIFFERENT, f"MuJoCo has nq, nv = {mj.nq}, {mj.nv} but Pinocchio {robot.nq}, {robot.nv}{why}"
     return mj, None, None
+
+
+def _order_difference(robot: Robot, names: tuple[str, ...]) -> str | None:
+    """Why MuJoCo's joints, named along its velocities (names, (nv,)), are not the robot's dof_names, or None."""
+    if names == robot.dof_names:
+        return None
+    # a URDF planar joint (MuJoCo's three, Pinocchio's one), URDF siblings
+    return f"MuJoCo orders the joints {names}, Pinocchio {robot.dof_names}{order_hint(robot, names)}"
 
 
 def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
@@ -626,8 +634,9 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     For hinge and slide joints qpos and qvel are Pinocchio's q and v in the same depth-first order.
     A free joint's qpos holds the world pose with a wxyz quaternion and its linear velocity is in
     the world frame (Pinocchio: xyzw, body frame): a robot of free, hinge and slide joints is
-    compared in MuJoCo's coordinates (_free_joint_map); one that also has a ball joint, or a
-    --floating URDF MuJoCo cannot read with a free root joint, is skipped.
+    compared in MuJoCo's coordinates (_free_joint_map), a --floating URDF's other joints in Pinocchio's order only
+    (as _compile's); one that also has a ball joint, or a --floating URDF MuJoCo cannot read with a free root joint
+    at Pinocchio's root link (e.g. a root link named world), is skipped.
     Sites are matched to named points by name. MuJoCo's passive forces are compared with zero (the planner has none),
     and what _named_differences finds fails the check, as do the file's Robot.passive terms.
     """
@@ -641,6 +650,12 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
             mj, to_mujoco, to_pinocchio = mapped
             mass, bias, position = _in_mujoco_coordinates(dyn, to_pinocchio)
             states = [to_mujoco(q, v) for q, v in states]
+            # _compile's order check never ran, and a URDF's sibling branches may be ordered otherwise (an MJCF file's
+            # are in file order in both readings): MuJoCo's first joint is the free root, named as Pinocchio's six
+            order = robot.floating and _order_difference(
+                robot, robot.dof_names[:6] + tuple(mj.joint(k).name for k in range(1, mj.njnt)))
+            if order:
+                mj, kind, why = None, DIFFERENT, order
     if mj is None:
         return None, why if kind == SKIPPED else MUJOCO_FAILED + why
     gaps = _mujoco_gaps(mj, states, mass, bias, position, robot)
@@ -677,6 +692,8 @@ def _free_joint_map(robot: Robot):
         mj = spec.compile()
     except (RobotFileError, ValueError):
         return None
+    if robot.floating and not _is_free_flyer_body(model, mj.body(1).name):
+        return None
     free = [j for j in range(1, model.njoints) if model.joints[j].shortname() == "JointModelFreeFlyer"]
     if any(model.joints[j].nq != model.joints[j].nv for j in range(1, model.njoints) if j not in free):
         return None
@@ -710,6 +727,16 @@ def _free_joint_map(robot: Robot):
         return q, v, T, Tdot_v
 
     return mj, to_mujoco, to_pinocchio
+
+
+def _is_free_flyer_body(model: pin.Model, name: str) -> bool:
+    """Whether the link MuJoCo gave the free joint (name) sits at Pinocchio's free flyer: a root link named world is
+    MuJoCo's world body, so the free joint goes to the link after it, at the fixed joint's offset, and the two readings'
+    free-joint poses would differ by that offset."""
+    if not model.existFrame(name, pin.FrameType.BODY):
+        return False
+    frame = model.frames[model.getFrameId(name, pin.FrameType.BODY)]
+    return frame.parentJoint == 1 and frame.placement.isIdentity()
 
 
 def _in_mujoco_coordinates(dyn: Dynamics, to_pinocchio):

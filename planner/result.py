@@ -676,31 +676,41 @@ def _on_plane_runs(gap, a: int, k: int):
 # step settling a foot onto its plane (the biped's default plan: 0.03 and 0.07 m/s; a bounder's 3.5-11 mm/s), no landing
 # a user needs to hear of (a 1 kg foot at 0.1 m/s carries 5 mJ)
 LANDING_MIN_MPS = 0.1
+# [m] a point on its plane whose node velocity does not point into it landed from the air only when the node before
+# was at least this high: a point hovering a few micrometres above ON_PLANE_M that drifts onto it is no fall, whatever
+# the step's clock (2 um -> 0.5 um read 0.30 m/s over a step whose clock leaked 1e-4 h); 100 ON_PLANE_M, far below a
+# flight step's fall (the saved plans' landings and impacts came down from 2.3 mm to 23 cm)
+FALL_MIN_M = 1e-4
 
 
 def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), its first node also whatever its approach when the node before is off the plane (a step that runs
-    the clock can brake the point to rest before the node), outside every Impact of that point (its
-    tau_start..tau_end, dated at the node, or over the step that brought the point down), that come from the air: the
-    node before is off the plane, or the run starts at the start (a point on its plane before, standing or skimming,
-    has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to ~4 m/s while
-    the point stays on it: no landing). With several contacts the recovery freezes a step only when its
+    -APPROACH_MPS), its first node also whatever its approach when the node before is FALL_MIN_M or more above the
+    plane (a step that runs the clock can brake the point to rest before the node), outside every Impact of that
+    point (its tau_start..tau_end, dated at the node, or over the step that brought the point down), that come from the
+    air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing or
+    skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
+    ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
     clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md, "Partly frozen
     stance"). Each as {"point", "time" [s] (the run's first node's clock), "approach_mps" (the fastest approach of the
     run, the mean speed at which the point came down over its last step, and the approach of the node before it when
     the step before that moved the point down to it: a step that runs the clock can brake part of the landing before
-    the node; a node velocity that moved the point up did not approach; runs slower than LANDING_MIN_MPS are left
-    out), "clock_share" (how much of the run's first step, length dt_steps (K-1,) [s] of numerical time, its clock
-    ran)}, in time order. contacts (n_c,): their names."""
+    the node; a node velocity that moved the point up did not
+    approach; runs slower than LANDING_MIN_MPS are left out), "clock_share" (how much of the step that braked it,
+    length dt_steps (K-1,) [s] of numerical time, its clock ran: the step from the run's first node, which a recovered
+    impact freezes, or the step before it for a point braked before its node)}, in time order. contacts (n_c,): their
+    names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
-    # a node on its plane whose node before is in the air is a landing whatever its J v: the auxiliary dynamics of a
-    # step that runs the clock can brake the point to rest before the node, where J v then reads ~0
     from_air = np.zeros_like(gap, dtype=bool)
     from_air[1:] = gap[:-1] > ON_PLANE_M
-    landing = (gap <= ON_PLANE_M) & ((approach < -APPROACH_MPS) | from_air)
+    # a node on its plane that fell from FALL_MIN_M or higher is a landing whatever its J v: the auxiliary dynamics of
+    # a step that runs the clock can brake the point to rest before the node, where J v then reads ~0
+    braked = np.zeros_like(gap, dtype=bool)
+    braked[1:] = gap[:-1] >= FALL_MIN_M
+    braked &= (gap <= ON_PLANE_M) & (approach >= -APPROACH_MPS)
+    landing = ((gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)) | braked
     for c, point in enumerate(contacts):
         for k in range(len(clock) - 1):
             # (an Impact over the step that brought the point down holds its landing too: one frozen step's impact
@@ -731,8 +741,10 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
                 fastest = max(fastest, -approach[a - 1, c])
             if fastest < LANDING_MIN_MPS:
                 continue
+            b = a - 1 if braked[a, c] else a  # the step that braked it (a recovered impact freezes the step from its
+            # first node, where the point arrives moving into the plane; a braked point stopped in the step before)
             found.append({"point": point, "time": float(clock[a]), "approach_mps": float(fastest),
-                          "clock_share": float((clock[a + 1] - clock[a]) / dt_steps[a])})
+                          "clock_share": float((clock[b + 1] - clock[b]) / dt_steps[b])})
     return sorted(found, key=lambda f: f["time"])
 
 

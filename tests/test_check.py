@@ -934,3 +934,44 @@ def test_the_skip_reason_names_each_joints_type(tmp_path):
     assert kind == SKIPPED and why.startswith("free joint root, ball joint hip: MuJoCo's coordinates differ"), why
     skipped = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
     assert "with a free joint added to its root body MuJoCo cannot compile it or reads other coordinates" in skipped
+
+
+# A base with two identical legs whose joints the file lists out of their names' order (z_hip before a_hip), no motors
+INERTIAL = ('<inertial><origin xyz="{}"/><mass value="{}"/>'
+            '<inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>')
+LEG_JOINT = ('<joint name="{}" type="revolute"><parent link="base"/><child link="{}"/><origin xyz="0.2 0 0"/>'
+             '<axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="0" velocity="10"/></joint>')
+TWO_LEGS = ('<link name="base">' + INERTIAL.format("0 0 0", 2, i=0.1) + "</link>"
+            + "".join(f'<link name="leg_{s}">' + INERTIAL.format("0 0 -0.1", 0.5, i=0.01) + "</link>" for s in "za")
+            + LEG_JOINT.format("z_hip", "leg_z") + LEG_JOINT.format("a_hip", "leg_a"))
+
+
+def test_floating_urdf_siblings_out_of_name_order_fail_on_the_order(tmp_path):
+    """A --floating URDF whose sibling branches are not listed in their joints' name order fails check-model with the
+    order and its fix, as without --floating: it PASSED when the legs were identical, MuJoCo's z_hip compared with
+    Pinocchio's a_hip (the free-joint comparison skipped the order check), so a wrong-joint replay went unflagged."""
+    path = tmp_path / "legs.urdf"
+    path.write_text(f'<robot name="legs">{TWO_LEGS}</robot>')
+    result = check_model(load_robot(path, floating=True), samples=1)
+    assert not result.passed and result.mujoco is None
+    (failure,) = result.failures
+    assert failure.startswith("MuJoCo orders the joints") and failure.endswith(
+        "(Pinocchio's URDF parser orders sibling branches by their joints' names, MuJoCo as the file lists "
+        "them: write the <joint> elements of each link's children in the order of their names)"), failure
+
+
+def test_a_floating_urdf_rooted_at_world_is_skipped_with_why(tmp_path):
+    """A --floating URDF whose root link is `world` (MuJoCo's world body, so its free joint moves the next link, at
+    the fixed joint's offset, where Pinocchio's free flyer moves `world`) skips MuJoCo saying so: it FAILED on mass,
+    bias and sites gaps the file does not have. The same robot rooted at another link is still compared and passes."""
+    fixed = ('<joint name="fix" type="fixed"><parent link="{}"/><child link="base"/>'
+             '<origin xyz="0.05 0.02 0.3" rpy="0.3 0.2 0.1"/></joint>')
+    for root, compared in (("world", False), ("footprint", True)):
+        path = tmp_path / f"{root}.urdf"
+        path.write_text(f'<robot name="legs"><link name="{root}"/>{fixed.format(root)}'
+                        f'{TWO_LEGS.replace("a_hip", "b_hip").replace("z_hip", "a_hip")}</robot>')  # in name order
+        result = check_model(load_robot(path, floating=True), samples=1)
+        assert result.passed, result.failures
+        assert (result.mujoco is not None) is compared
+        if not compared:
+            assert "the root link is named world, which MuJoCo reads as its world body" in result.mujoco_skipped

@@ -442,16 +442,18 @@ def test_a_step_along_the_plane_inside_a_longer_flight_is_a_skim():
 def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_clock():
     """unrecorded_landings lists each contact point's runs of nodes on its plane while moving into it faster than
     APPROACH_MPS that no Impact of that point holds, with the run's first node's clock, its fastest approach (the node
-    before's counts when its step moved the point down: the running step before can brake part of the landing) and the share of
-    its first step the clock ran: a bounder's feet landed at 3.2-6.8 m/s in steps that ran the clock, which the
-    several-contact recovery records as no impact, and the report said "0 impact(s), 2 hop(s)". A point on its plane at
-    the node before (whatever its node velocity) or moving into it off the plane is no landing, nor one an Impact of its
-    own holds (another point's does not), nor a run slower than LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07
-    m/s); the node before's velocity is the approach only when its step moved the point down."""
+    before's counts when its step moved the point down: the running step before can brake part of the landing) and the
+    share of the step from that node the clock ran (where the point, arriving into the plane, is braked: the step a
+    recovered impact freezes, not the flight step that brought it down): a bounder's feet landed at 3.2-6.8 m/s in
+    steps that ran the clock, which the several-contact recovery records as no impact, and the report said "0
+    impact(s), 2 hop(s)". A point on its plane at the node before (whatever its node velocity) or moving into it off
+    the plane is no landing, nor one an Impact of its own holds (another point's does not), nor a run slower than
+    LANDING_MIN_MPS (a foot settling: the biped's 0.03-0.07 m/s); the node before's velocity is the approach only
+    when its step moved the point down."""
     from planner.result import APPROACH_MPS, LANDING_MIN_MPS, unrecorded_landings
 
     h = 0.05
-    clock = h * np.array([0.0, 1.0, 1.98, 2.96, 3.9, 4.9, 5.9])  # (the clock ran 98 % of steps 1 and 2)
+    clock = h * np.array([0.0, 1.0, 1.98, 2.9, 3.9, 4.9, 5.9])  # (the clock ran 98 % of step 1, 92 % of step 2)
     traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(7), impacts=())
     gap = np.zeros((7, 2))
     gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
@@ -460,7 +462,7 @@ def test_unrecorded_landings_name_each_point_that_lands_in_steps_that_ran_the_cl
     approach[1:5, 1] = (-5.5, -1.2, -0.4, 0.01)  # on the ground at -1.2 m/s after -5.5 m/s in the air, then stops
     dt, feet = np.full(6, h), ("front_foot", "back_foot")
     landing = {"point": "back_foot", "time": pytest.approx(clock[2], abs=EXACT),
-               "approach_mps": pytest.approx(5.5, abs=EXACT), "clock_share": pytest.approx(0.98, abs=EXACT)}
+               "approach_mps": pytest.approx(5.5, abs=EXACT), "clock_share": pytest.approx(0.92, abs=EXACT)}
     assert unrecorded_landings(traj, approach, gap, dt, feet) == [landing]
     held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[2], tau_start=traj.tau[2], tau_end=traj.tau[4])
     for impact, found in ((held, []), (replace(held, contact="front_foot"), [landing])):
@@ -501,11 +503,13 @@ def test_unrecorded_landings_find_a_landing_braked_to_rest_before_its_node():
     and the report must not hide that landing (listed at the mean speed it came down over the step's physical time).
     An Impact of that point over the step that brought it down holds it (one frozen step's impact ends at the node and
     is dated at the node before when its clock leaked), and a point that settles from just above its plane slower than
-    LANDING_MIN_MPS is no landing."""
+    LANDING_MIN_MPS is no landing, while one that fell fast to just above it over the step before landed at the node
+    before's J v (in implicit Euler that velocity moved it down). Its clock_share is that of the step that brought it
+    down and braked it, where an impact would have been, not of the step after."""
     from planner.result import LANDING_MIN_MPS, unrecorded_landings
 
     h = 0.05
-    clock = h * np.array([0.0, 1.0, 1.98, 2.96, 3.96])  # (the clock ran 98 % of steps 1 to 3)
+    clock = h * np.array([0.0, 1.0, 1.98, 2.9, 3.9])  # (the clock ran 98 % of step 1, 92 % of steps 2 and 3)
     traj = SimpleNamespace(y=clock[:, None], tau=h * np.arange(5), impacts=())
     gap = np.zeros((5, 2))
     gap[:2, 1] = (0.2, 0.05)  # the back foot falls, and lies on the ground from node 2
@@ -518,8 +522,40 @@ def test_unrecorded_landings_find_a_landing_braked_to_rest_before_its_node():
              "clock_share": pytest.approx(0.98, abs=EXACT)}], approach[1, 1]
     held = replace(_impact(2.0, 0.0, "back_foot"), time=clock[1], tau_start=traj.tau[1], tau_end=traj.tau[2])
     assert unrecorded_landings(SimpleNamespace(**{**vars(traj), "impacts": (held,)}), approach, gap, dt, feet) == []
-    gap[1, 1] = 0.5 * LANDING_MIN_MPS * (clock[2] - clock[1])  # settling from just above the plane
-    assert unrecorded_landings(traj, approach, gap, dt, feet) == []
+    settle = 0.5 * LANDING_MIN_MPS * (clock[2] - clock[1])  # settling from just above the plane, 2.45 mm
+    gap[:2, 1] = (2 * settle, settle)
+    for approach[1, 1] in (0.0, -settle / (clock[1] - clock[0])):  # (the node before's J v as slow as its fall)
+        assert unrecorded_landings(traj, approach, gap, dt, feet) == [], approach[1, 1]
+    gap[0, 1] = 0.2  # (it fell from 0.2 m to 2.45 mm over the step before: a landing at that J v, 3.95 m/s)
+    approach[1, 1] = -(0.2 - settle) / (clock[1] - clock[0])
+    assert [f["approach_mps"] for f in unrecorded_landings(traj, approach, gap, dt, feet)] == [
+        pytest.approx(-approach[1, 1], abs=EXACT)]
+
+
+def test_unrecorded_landings_leave_out_a_point_hovering_just_above_its_plane():
+    """A point a few micrometres above its plane (ON_PLANE_M) that drifts onto it made no landing, whatever the step's
+    clock or the node before's J v: a 1.5 um drift over a step whose clock ran 1e-4 h reads 0.30 m/s, and a J v of
+    -0.5 m/s at the node before hovering 2 um up is no fall either; nor is a point that an Impact left 1.2 um above its
+    plane reaching it at the next node (the impact recorded that landing). Listing these would report landings at
+    0.2-0.5 m/s that MuJoCo's replay never sees."""
+    from planner.result import unrecorded_landings
+
+    h, feet = 0.05, ("front_foot", "back_foot")
+    dt, tau = np.full(4, h), h * np.arange(5)
+    gap, approach = np.zeros((5, 2)), np.zeros((5, 2))
+    gap[:, 1] = (3e-6, 2e-6, 0.5e-6, 0.5e-6, 0.5e-6)  # (above ON_PLANE_M at nodes 0 and 1, on it from node 2)
+    leaked = h * np.array([0.0, 1.0, 1.0001, 2.0001, 3.0])  # (step 1's clock ran 1e-4 of it)
+    assert unrecorded_landings(SimpleNamespace(y=leaked[:, None], tau=tau, impacts=()), approach, gap, dt, feet) == []
+    running = SimpleNamespace(y=tau[:, None], tau=tau, impacts=())
+    approach[1, 1] = -0.5
+    assert unrecorded_landings(running, approach, gap, dt, feet) == []
+    # a fall onto the plane in a frozen step 1, its Impact ending at node 2 with the foot 1.2 um up, still
+    # approaching: the foot reaches the plane at node 3
+    clock = h * np.array([0.0, 1.0, 1.0 + 2e-6, 2.0, 3.0])
+    impact = replace(_impact(2.0, 0.0, "back_foot"), time=clock[1], tau_start=tau[1], tau_end=tau[2])
+    gap[:, 1], approach[:3, 1] = (0.1, 0.02, 1.2e-6, 0.5e-6, 0.5e-6), (-3.0, -3.0, -0.2)
+    assert unrecorded_landings(SimpleNamespace(y=clock[:, None], tau=tau, impacts=(impact,)), approach, gap, dt,
+                               feet) == []
 
 
 def test_the_report_and_summary_name_each_slide():
