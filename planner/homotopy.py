@@ -49,7 +49,7 @@ from .problem import Penalty, Problem, plane_gap, static_controls
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of, slides_of, unrecorded_landings)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
-from .task import MAX_NLPS, contact_labels
+from .task import MAX_NLPS, contact_labels, task_source
 
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc mallopt parameters (malloc.h)
 
@@ -1645,7 +1645,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
         u0 = np.zeros(problem.system.nu)
         approach = np.array([np.asarray(problem.system.normal_velocity_fn(y, u0), float).ravel() for y in nodes])
         landings = unrecorded_landings(traj, approach, gaps, elements[5], problem.system.labels)
-    return PlanResult(robot=str(problem.robot.path), task=problem.task.source, trajectory=traj, stats=stats, h=problem.h,
+    return PlanResult(robot=str(problem.robot.path), task=task_source(problem.task), trajectory=traj, stats=stats,
+                      h=problem.h,
                       rho_f=problem.task.plan.rho_f, terminal_error=term, nlps=tuple(records), hops=tuple(hops), polished=polished,
                       constraint_violation=viol, timings=timings,
                       options={"problem": options_record(problem.options), "solve": options_record(options)},

@@ -85,7 +85,7 @@ from .errors import InputError, check_field_types, enum_field, expect, plain, re
 from .contact import plane_axes
 from .model import Robot
 from .scene import Skips, analyze_scene
-from .task import Task
+from .task import Task, task_source
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 
@@ -434,10 +434,10 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     expect(options, ProblemOptions, "build_problem's options")
     dyn = dynamics_for(robot, dynamics)
     if task.plan is None:
-        raise InputError(f"task {task.source or '(in code)'} has no [plan] table; `planner plan` needs one")
+        raise InputError(f"task {task_source(task) or '(in code)'} has no [plan] table; `planner plan` needs one")
     if not task.contacts:
-        raise InputError(f"task {task.source or '(in code)'} has no [[contacts]]; the time-freezing OCP needs at least "
-                         "one contact point")
+        raise InputError(f"task {task_source(task) or '(in code)'} has no [[contacts]]; the time-freezing OCP needs at "
+                         "least one contact point")
     task.check_against(robot)
     task.require_actuators(robot)
     task.warn_dependent_contacts(robot)

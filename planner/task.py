@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import (RobotFileError, TaskError, UnknownNameError, check_field_types, expect, plain, read_error,
-                     representable)
+from .errors import (PlannerError, RobotFileError, TaskError, UnknownNameError, check_field_types, expect, plain,
+                     read_error, representable)
 
 
 # gains a_n, a_t [N] (an elastic contact's a_n: a stiffness [1/s^2]) above this make the auxiliary fields stiffer than
@@ -526,7 +526,7 @@ class Task:
             self._check_against(robot)
         except (TaskError, UnknownNameError) as exc:  # ("contacts[0].point: unknown ..." named no file)
             if self.source:
-                exc.args = (f"{self.source}: {exc}",)
+                exc.args = (f"{task_source(self)}: {exc}",)
             raise
 
     def require_actuators(self, robot) -> None:
@@ -537,7 +537,7 @@ class Task:
         if robot.nu == 0:
             urdf = (" (a URDF joint is actuated by its <limit effort> > 0; <transmission> elements are not read)"
                     if robot.format is RobotFormat.URDF else "")
-            raise TaskError(f"{self.source + ': ' if self.source else ''}the task has a [plan] but robot "
+            raise TaskError(f"{task_source(self) + ': ' if self.source else ''}the task has a [plan] but robot "
                             f"{robot.name!r} has no actuators to plan with{urdf}")
 
     def _check_against(self, robot) -> None:
@@ -853,6 +853,25 @@ def load_task(path: str | Path) -> Task:
     except TaskError as exc:  # "missing key 'contacts'" named no file
         exc.args = (f"{path}: {exc}",)
         raise
+
+
+# after a task's path: the task differs from what that file holds (edited in code, by --steps, or the file changed)
+EDITED = " (edited)"
+
+
+def task_source(task: Task) -> str:
+    """task.source for a result and a message: its file's path, or that path (absolute) + EDITED when the task is no
+    longer what the file holds. dataclasses.replace keeps the source: a plan of a target edited to 0.3 m named, as its
+    task, a file whose target is 0.5 m, and an error blamed that file for a value it does not contain. Only a .toml
+    source is read back (a task read from a plan's trajectory.npz names that file, which load_task cannot read)."""
+    path = Path(task.source)
+    if not task.source or path.suffix != ".toml" or not path.is_file():
+        return task.source
+    try:
+        same = load_task(path) == task  # (equality leaves the source out)
+    except PlannerError:  # the file changed since into something that is not a task
+        same = False
+    return task.source if same else f"{path.absolute()}{EDITED}"
 
 
 def parse_task(data: dict, source: str = "") -> Task:

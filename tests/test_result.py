@@ -1117,6 +1117,23 @@ def test_an_impact_that_pulls_its_point_to_the_plane_is_said():
     assert lines[-1].startswith("  1 impact(s) with a negative normal impulse: the contact held its point on the plane")
 
 
+def test_a_plan_of_a_task_edited_in_code_does_not_claim_its_file():
+    """summary.json's task (and PlanResult.task) of a plan whose task was edited in code with dataclasses.replace,
+    which keeps the file's source, is the file's absolute path followed by " (edited)": it named point_mass_hop.toml,
+    whose target is 0.5 m, for a plan to 0.3 m. A plan of the task as its file holds it keeps the plain path."""
+    from planner.homotopy import solve
+    from planner.problem import build_problem
+    from planner.result import task_path
+    from planner.task import EDITED, task_source
+
+    on_file = load_task("point_mass_hop")
+    # N = 10 keeps the solve short: an edit like the target's
+    edited = replace(on_file, plan=replace(on_file.plan, target_q=(0.3, 0.0)), horizon=replace(on_file.horizon, N=10))
+    path = str(Path(on_file.source).absolute())
+    assert task_path(task_source(on_file)) == path
+    marked = solve(build_problem(load_robot("point_mass"), edited), SolveOptions())
+    assert marked.summary()["task"] == marked.task == path + EDITED
+
 def _hop_plan():
     """A converged plan of the point mass's hop on 10 steps (~0.5 s): a PlanResult with every dict field filled."""
     from planner.homotopy import SolveOptions, solve

@@ -206,6 +206,21 @@ def test_a_robot_dependent_error_names_the_task_file(tmp_path):
         parse_task(_with("initial.q", [0.0, 1.0])).check_against(load_robot("capler"))
 
 
+def test_an_error_in_a_task_edited_in_code_says_it_is_not_the_files(tmp_path):
+    """A task edited in code (dataclasses.replace keeps its file's source) is named "FILE (edited)" in a
+    check_against error, not as the file: a target edited to hip = 1.5 rad was reported as capler.toml's, which holds
+    hip = 0. The unedited task still names its file plainly, and so does one whose source load_task cannot read back
+    (read_task's trajectory.npz)."""
+    from planner.task import EDITED, task_source
+
+    on_file = load_task(ROBOTS / "capler.toml")
+    edited = replace(on_file, plan=replace(on_file.plan, target_q=(3.0, 0.4, 1.5, 0.0)))
+    with pytest.raises(TaskError, match=rf"^{re.escape(str(ROBOTS / 'capler.toml') + EDITED)}: plan\.target_q\[2\]"):
+        edited.check_against(load_robot("capler"))
+    assert task_source(on_file) == on_file.source
+    npz = replace(edited, source=str(tmp_path / "trajectory.npz"))
+    assert task_source(npz) == npz.source
+
 def test_the_tables_a_task_lacks_are_task_errors():
     """Task.periodic_map and Task.pd_actuators on a task without plan.periodic or simulate.pd raise TaskErrors
     saying so (an AttributeError on NoneType through the API)."""
