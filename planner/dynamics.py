@@ -110,8 +110,8 @@ class Dynamics:
     """CasADi functions of a robot's dynamics; built once, evaluated fast (SX).
 
     Attributes (casadi.Function unless noted). A Function called on numbers returns a casadi.DM matrix, its
-    vectors columns (nv, 1): np.asarray(...).ravel() for a NumPy vector (nv,) (a column minus B u (nv,)
-    broadcasts to (nv, nv) without an error):
+    vectors columns (nv, 1): np.asarray(...).ravel() for a NumPy vector (nv,) (np.asarray of a column minus
+    B u (nv,) broadcasts to (nv, nv) without an error):
       mass      (q) -> M (nv, nv) [kg, kg m, kg m^2], symmetric, armature included
       bias      (q, v) -> h column (nv, 1) = C(q, v) v + g(q) [N, N m], i.e. RNEA(q, v, 0)
       actuation B (nv, nu) numpy array: generalized forces = B u

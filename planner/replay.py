@@ -445,7 +445,8 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
 
 @dataclass(frozen=True)
 class Thresholds:
-    """Pass/fail limits and the tolerances the metrics depend on (ValidationOptions' fields of the same names).
+    """Pass/fail limits and the tolerances the metrics depend on: the first five are ValidationOptions' fields of the
+    same names, the last two the module constants HOLE_PASS_METRIC and FLIGHT_RESIDUAL_TOL.
 
     max_tracking_error_m, max_penetration_m [m]: pass/fail limits. open_loop_band_m [m]: the open-loop replay's band
     (information only). contact_gap_tol_m [m]: a point is in contact below this gap. min_flight_s [s]: a MuJoCo

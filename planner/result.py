@@ -686,9 +686,9 @@ FALL_MIN_M = 1e-4
 def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), its first node also whatever its approach when the node before is FALL_MIN_M or more above the
-    plane (a step that runs the clock can brake the point to rest before the node), outside every Impact of that
-    point (its tau_start..tau_end, dated at the node, or over the step that brought the point down), that come from the
+    -APPROACH_MPS), its first node also whatever its approach when the point fell FALL_MIN_M or more onto it over
+    the step before or the two steps before (a step that runs the clock can brake the point to rest before the node), outside every Impact of that
+    point (its tau_start..tau_end, dated at the node, or over a step that brought the point down), that come from the
     air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing or
     skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
     ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
@@ -706,18 +706,22 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     from_air = np.zeros_like(gap, dtype=bool)
     from_air[1:] = gap[:-1] > ON_PLANE_M
     # a node on its plane that fell from FALL_MIN_M or higher is a landing whatever its J v: the auxiliary dynamics of
-    # a step that runs the clock can brake the point to rest before the node, where J v then reads ~0
-    braked = np.zeros_like(gap, dtype=bool)
-    braked[1:] = gap[:-1] >= FALL_MIN_M
-    braked &= (gap <= ON_PLANE_M) & (approach >= -APPROACH_MPS)
+    # a step that runs the clock can brake the point to rest before the node, where J v then reads ~0; the fall is
+    # read over two steps too (a flight step can leave the point tens of micrometres up, still falling at 4 m/s)
+    fell = np.zeros_like(gap, dtype=bool)
+    fell[1:] = gap[:-1] >= FALL_MIN_M
+    fell[2:] |= gap[:-2] - gap[2:] >= FALL_MIN_M
+    braked = fell & (gap <= ON_PLANE_M) & (approach >= -APPROACH_MPS)
     landing = ((gap <= ON_PLANE_M) & (approach < -APPROACH_MPS)) | braked
     for c, point in enumerate(contacts):
         for k in range(len(clock) - 1):
-            # (an Impact over the step that brought the point down holds its landing too: one frozen step's impact
-            # ends at the node, dated at the node before when its clock leaked)
+            # (an Impact over a step that brought the point down holds its landing too: one frozen step's impact
+            # ends at the node, dated at the node before when its clock leaked, or leaves the point micrometres up)
             landing[k, c] &= not any(i.contact == point and (i.tau_start <= tau[k] < i.tau_end
                                                             or abs(i.time - clock[k]) <= LANDING_SLACK_S
-                                                            or from_air[k, c] and i.tau_start <= tau[k - 1] < i.tau_end)
+                                                            or from_air[k, c] and i.tau_start <= tau[k - 1] < i.tau_end
+                                                            or braked[k, c] and k > 1
+                                                            and i.tau_start <= tau[k - 2] < i.tau_end)
                                      for i in traj.impacts)
     landing[-1] = False  # (the last node starts no step)
     found = []

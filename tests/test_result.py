@@ -536,7 +536,7 @@ def test_unrecorded_landings_leave_out_a_point_hovering_just_above_its_plane():
     """A point a few micrometres above its plane (ON_PLANE_M) that drifts onto it made no landing, whatever the step's
     clock or the node before's J v: a 1.5 um drift over a step whose clock ran 1e-4 h reads 0.30 m/s, and a J v of
     -0.5 m/s at the node before hovering 2 um up is no fall either; nor is a point that an Impact left 1.2 um above its
-    plane reaching it at the next node (the impact recorded that landing). Listing these would report landings at
+    plane reaching it at the next node (the impact recorded that landing: without it, that node is listed). Listing these would report landings at
     0.2-0.5 m/s that MuJoCo's replay never sees."""
     from planner.result import unrecorded_landings
 
@@ -556,6 +556,25 @@ def test_unrecorded_landings_leave_out_a_point_hovering_just_above_its_plane():
     gap[:, 1], approach[:3, 1] = (0.1, 0.02, 1.2e-6, 0.5e-6, 0.5e-6), (-3.0, -3.0, -0.2)
     assert unrecorded_landings(SimpleNamespace(y=clock[:, None], tau=tau, impacts=(impact,)), approach, gap, dt,
                                feet) == []
+    assert [f["time"] for f in unrecorded_landings(SimpleNamespace(y=clock[:, None], tau=tau, impacts=()), approach,
+                                                   gap, dt, feet)] == [pytest.approx(clock[3], abs=EXACT)]
+
+
+def test_unrecorded_landings_find_a_fall_that_a_flight_step_left_micrometres_up():
+    """A point that a flight step brings down at 4 m/s to 50 um above its plane (below FALL_MIN_M), and the next step,
+    which runs the clock, stops on the plane with J v 0 at the node, landed: the fall is read over the two steps, at the
+    node before's J v (listed at b70ba65's 4 m/s; the height rule alone dropped it)."""
+    from planner.result import unrecorded_landings
+
+    h, feet = 0.05, ("front_foot", "back_foot")
+    tau = h * np.arange(5)
+    gap, approach = np.zeros((5, 2)), np.zeros((5, 2))
+    gap[:2, 1] = (0.2, 5e-5)
+    approach[1, 1] = -(0.2 - 5e-5) / h
+    listed = unrecorded_landings(SimpleNamespace(y=tau[:, None], tau=tau, impacts=()), approach, gap, np.full(4, h),
+                                 feet)
+    assert [(f["point"], f["time"], f["approach_mps"]) for f in listed] == [
+        ("back_foot", pytest.approx(tau[2], abs=EXACT), pytest.approx(-approach[1, 1], abs=EXACT))]
 
 
 def test_the_report_and_summary_name_each_slide():
