@@ -40,7 +40,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
 from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, task_path, write_files
-from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_to_json
+from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_source, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
 RELABEL = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -265,7 +265,7 @@ class GaitSpec(ArraysReadOnly):
         """From a task with a [gait] table; N overrides horizon.N (e.g. a coarser grid in CI)."""
         g = task.gait
         if g is None:
-            raise TaskError(f"{task.source or 'the task'} has no [gait] table; `planner gait` needs one (docs/tasks.md)")
+            raise TaskError(f"{task_source(task) or 'the task'} has no [gait] table; `planner gait` needs one (docs/tasks.md)")
         # the gait model stands on z = 0 with the period tau_f: these were ignored (a ground at 0.3 m planned the same
         # gait, then MuJoCo's replay on the moved ground "fell" after one step)
         ignored = [f"ground_height = {task.ground_height:g}"] if task.ground_height != 0 else []
@@ -281,11 +281,11 @@ class GaitSpec(ArraysReadOnly):
             ignored.append(f"horizon.physical_time = {task.horizon.physical_time:g}")
         ignored += ["[simulate]"] * (task.simulate != Simulate())  # ([plan] beside [gait] is refused by parse_task)
         if ignored:
-            raise TaskError(f"{task.source or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
+            raise TaskError(f"{task_source(task) or 'the task'}: {', '.join(ignored)} would be ignored by `planner gait`, "
                             "whose model walks on the ground z = 0 with the period horizon.tau_f and lands with paper "
                             "001's inelastic impact map; remove them")
         if N is None and task.horizon.N < 2:  # (said of the file, as its other values are, not of GaitSpec)
-            raise TaskError(f"{task.source or 'the task'}: horizon.N = {task.horizon.N} is not allowed; a gait's "
+            raise TaskError(f"{task_source(task) or 'the task'}: horizon.N = {task.horizon.N} is not allowed; a gait's "
                             f"horizon.N must be an integer in [2, {MAX_STEPS}] (its swing foot's clearance is read at "
                             "the inner nodes)")
         return cls(T=task.horizon.tau_f, N=task.horizon.N if N is None else N, x0=np.array(g.x0, float), jump_angle=g.jump_angle,
@@ -1176,7 +1176,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
         failed = Path(out_dir) / "failed"
         # the contract's keys as a converged gait's summary has them (they were missing: KeyError in a reader)
         write_files(failed, {"task_json": np.array(task_to_json(task))},
-                    {"command": "gait", "robot": str(robot.path), "task": task_path(task.source),
+                    {"command": "gait", "robot": str(robot.path), "task": task_path(task_source(task)),
                      "robot_sha256": robot.sha256, "converged": False, "solve_time_s": time.perf_counter() - start,
                      "n_nlp": len(loops), "ipopt_iterations": sum(loop.pronto_iterations for loop in loops),
                      "iterations_solver": "pronto", "complementarity_residual": None, "terminal_error": None,
@@ -1197,7 +1197,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     # the smaller of the two feet's mu: each is the stance foot and the landing foot every other step
     feet_mu = min(c.mu for c in task.contacts if c.point in (g.stance, g.swing))
     summary = {
-        "command": "gait", "robot": str(robot.path), "task": task_path(task.source), "robot_sha256": robot.sha256,
+        "command": "gait", "robot": str(robot.path), "task": task_path(task_source(task)), "robot_sha256": robot.sha256,
         "converged": sol.converged, "solve_time_s": sol.solve_time_s,
         "n_nlp": len(sol.loops), "ipopt_iterations": sol.pronto_iterations, "iterations_solver": "pronto",
         "complementarity_residual": None,  # no complementarity: the contact sequence is fixed
@@ -1229,7 +1229,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
                   "state_names": np.array(list(robot.dof_names) + [f"d{n}" for n in robot.dof_names] + ["t"], dtype=str),
                   "task_json": np.array(task_to_json(task))}  # the task solved: view and validate read it from any directory
         write_files(Path(out_dir) if summary["converged"] else Path(out_dir) / "failed", arrays, summary, result_id)
-    return GaitRunResult(robot=str(robot.path), task=task.source, solution=sol, walk=walk, walking=walking, summary=summary)
+    return GaitRunResult(robot=str(robot.path), task=task_source(task), solution=sol, walk=walk, walking=walking, summary=summary)
 
 
 # ==================================================================================================
@@ -1272,7 +1272,7 @@ def check_walkable(robot: Robot, task: Task) -> list[str]:
     not the leg hinges; InputError when the robot is not the floating planar biped."""
     per = task.plan.periodic if task.plan is not None else None
     if per is None:
-        raise TaskError(f"{task.source or 'the task'} has no [plan.periodic]: only a periodic plan can be walked")
+        raise TaskError(f"{task_source(task) or 'the task'} has no [plan.periodic]: only a periodic plan can be walked")
     points = [c.point for c in task.contacts]
     if len(points) != 2:
         raise TaskError(f"walking a periodic plan needs two contact points (the feet); the task has {points}")

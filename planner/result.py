@@ -677,7 +677,7 @@ def _on_plane_runs(gap, a: int, k: int):
 # a user needs to hear of (a 1 kg foot at 0.1 m/s carries 5 mJ)
 LANDING_MIN_MPS = 0.1
 # [m] a point on its plane whose node velocity does not point into it landed from the air only when the node before
-# was at least this high: a point hovering a few micrometres above ON_PLANE_M that drifts onto it is no fall, whatever
+# was at least this high, or it fell this far over the two steps before: a point hovering a few micrometres above ON_PLANE_M that drifts onto it is no fall, whatever
 # the step's clock (2 um -> 0.5 um read 0.30 m/s over a step whose clock leaked 1e-4 h); 100 ON_PLANE_M, far below a
 # flight step's fall (the saved plans' landings and impacts came down from 2.3 mm to 23 cm)
 FALL_MIN_M = 1e-4
@@ -737,10 +737,13 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
             if a and gap[a - 1, c] <= ON_PLANE_M:
                 continue
             fastest = -approach[a:k, c].min()
-            if a and clock[a] - clock[a - 1] > CLOCK_LEAK * dt_steps[a - 1]:  # the gap it came down over the step's
-                # physical time (a node's J v read 0.21 m/s for a tribot's foot that came down 6.75 cm in a whole step
-                # of 0.05 s; a fully frozen step's leaked clock would divide solver noise)
-                fastest = max(fastest, (gap[a - 1, c] - gap[a, c]) / (clock[a] - clock[a - 1]))
+            # the gap it came down over the step's physical time (a node's J v read 0.21 m/s for a tribot's foot that
+            # came down 6.75 cm in a whole step of 0.05 s; a fully frozen step's leaked clock would divide solver
+            # noise), over both steps when only those two made the fall (a micrometre drift over one step whose
+            # clock leaked 1e-4 h read 0.2 m/s)
+            s = a - 2 if braked[a, c] and gap[a - 1, c] < FALL_MIN_M else a - 1
+            if a and clock[a] - clock[s] > CLOCK_LEAK * dt_steps[s:a].sum():
+                fastest = max(fastest, (gap[s, c] - gap[a, c]) / (clock[a] - clock[s]))
             if a == 1 or (a > 1 and gap[a - 2, c] > gap[a - 1, c]):
                 fastest = max(fastest, -approach[a - 1, c])
             if fastest < LANDING_MIN_MPS:
@@ -773,7 +776,8 @@ def _braked_lines(extra: dict) -> list[str]:
 class PlanResult(ArraysReadOnly):
     """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops.
 
-    robot: robot file path; task: the task's source (its file path, "" for one built in code); trajectory; stats;
+    robot: robot file path; task: the task's source (its file path, "" for one built in code; "ABSOLUTE_PATH (edited)", planner.task.EDITED, when
+    the task solved differs from that file: extra["_task"] and trajectory.npz's task_json hold it); trajectory; stats;
     h: step length tau_f / N [s of numerical time]; rho_f: the task's weight of ||sigma - sigma*||^2;
     terminal_error: the terminal rows' largest distance outside their bounds [m, rad (, m/s, rad/s)]; nlps: one
     NlpRecord per NLP solved, in order; hops: the robot's flight phases (Hop); polished: the returned point is a

@@ -35,7 +35,7 @@ from .errors import InputError, check_field_types, enum_field, expect, interrupt
 from .model import Robot, coordinate_units
 from .result import (APPROACH_MPS, COLLAPSED, CONE_FLOOR_N, FROZEN_TOL, IMPULSE_SHARE, ON_PLANE_M, SimulationResult,
                      SolveStats, Trajectory, clock_ran, cone_breach, forces_outside_cone, recover)
-from .task import Task, contact_labels
+from .task import Task, contact_labels, task_source
 from .timefreezing import ContactModel, TimeFreezingSystem
 
 # An initial gap below -GAP_TOL [m] is "below the ground": the time-freezing system must start in c >= 0.
@@ -229,7 +229,7 @@ def simulate(robot: Robot, task: Task, options: SimulateOptions = SimulateOption
     extra["forces_outside_friction_cone"] = forces_outside_cone(trajectory, task)
     extra["braked_outside_friction_cone"] = braked_outside_cone(system, builder, elements, weights, options.frozen_tol,
                                                                 trajectory)
-    result = SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task.source, trajectory=trajectory,
+    result = SimulationResult(robot=str(robot.path), robot_sha256=robot.sha256, task=task_source(task), trajectory=trajectory,
                               stats=solve, strategy=options.strategy.value, h=h, rho_f=rho_f, extra=extra,
                               options=options_record(options))
     if result.ends_in_impact:  # unfinished: its v_post is partial, no energy to judge (a passive ball's last, partial

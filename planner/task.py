@@ -862,10 +862,10 @@ EDITED = " (edited)"
 def task_source(task: Task) -> str:
     """task.source for a result and a message: its file's path, or that path (absolute) + EDITED when the task is no
     longer what the file holds. dataclasses.replace keeps the source: a plan of a target edited to 0.3 m named, as its
-    task, a file whose target is 0.5 m, and an error blamed that file for a value it does not contain. Only a .toml
-    source is read back (a task read from a plan's trajectory.npz names that file, which load_task cannot read)."""
+    task, a file whose target is 0.5 m, and an error blamed that file for a value it does not contain. A source that is no
+    file is kept, and so is a trajectory.npz's (read_task's; load_task cannot read it)."""
     path = Path(task.source)
-    if not task.source or path.suffix != ".toml" or not path.is_file():
+    if not task.source or path.suffix == ".npz" or not path.is_file():  # (read_task's trajectory.npz)
         return task.source
     try:
         same = load_task(path) == task  # (equality leaves the source out)

@@ -571,7 +571,7 @@ def test_gait_spec_checks_its_grid_and_is_frozen_through_its_arrays():
         with pytest.raises(InputError, match=r"GaitSpec.N = .* an integer in \[2, 10000000\]"):
             GaitSpec.from_task(task, N)
     one = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, N=1))  # said of the file, not GaitSpec
-    with pytest.raises(TaskError, match=r"biped_gait1.toml: horizon.N = 1 is not allowed; a gait's horizon.N must be"):
+    with pytest.raises(TaskError, match=r"biped_gait1.toml \(edited\): horizon.N = 1 is not allowed; a gait's horizon.N must be"):
         GaitSpec.from_task(one)
     spec = GaitSpec.from_task(task)
     with pytest.raises(ValueError, match="read-only"):

@@ -536,7 +536,8 @@ def test_unrecorded_landings_leave_out_a_point_hovering_just_above_its_plane():
     """A point a few micrometres above its plane (ON_PLANE_M) that drifts onto it made no landing, whatever the step's
     clock or the node before's J v: a 1.5 um drift over a step whose clock ran 1e-4 h reads 0.30 m/s, and a J v of
     -0.5 m/s at the node before hovering 2 um up is no fall either; nor is a point that an Impact left 1.2 um above its
-    plane reaching it at the next node (the impact recorded that landing: without it, that node is listed). Listing these would report landings at
+    plane reaching it at the next node (the impact recorded that landing: without it, that node is listed), nor one
+    that settled slowly from 0.1 mm over two steps, the last one's clock leaked. Listing these would report landings at
     0.2-0.5 m/s that MuJoCo's replay never sees."""
     from planner.result import unrecorded_landings
 
@@ -558,6 +559,10 @@ def test_unrecorded_landings_leave_out_a_point_hovering_just_above_its_plane():
                                feet) == []
     assert [f["time"] for f in unrecorded_landings(SimpleNamespace(y=clock[:, None], tau=tau, impacts=()), approach,
                                                    gap, dt, feet)] == [pytest.approx(clock[3], abs=EXACT)]
+    # settling at 2 mm/s from 102 um to 1.5 um, then 1 um onto the plane over a step whose clock leaked 1e-4 h: its
+    # fall over the two steps, not the last step's drift over the leaked clock (read 0.2 m/s)
+    gap[:, 1], approach[:, 1] = (1.02e-4, 1.5e-6, 0.5e-6, 0.5e-6, 0.5e-6), (0.0, -2e-3, 0.0, 0.0, 0.0)
+    assert unrecorded_landings(SimpleNamespace(y=leaked[:, None], tau=tau, impacts=()), approach, gap, dt, feet) == []
 
 
 def test_unrecorded_landings_find_a_fall_that_a_flight_step_left_micrometres_up():
@@ -1139,7 +1144,7 @@ def test_an_impact_that_pulls_its_point_to_the_plane_is_said():
 def test_a_plan_of_a_task_edited_in_code_does_not_claim_its_file():
     """summary.json's task (and PlanResult.task) of a plan whose task was edited in code with dataclasses.replace,
     which keeps the file's source, is the file's absolute path followed by " (edited)": it named point_mass_hop.toml,
-    whose target is 0.5 m, for a plan to 0.3 m. A plan of the task as its file holds it keeps the plain path."""
+    whose target is 0.5 m, for a plan to 0.3 m. The task as its file holds it keeps the plain path (task_source)."""
     from planner.homotopy import solve
     from planner.problem import build_problem
     from planner.result import task_path
@@ -1152,6 +1157,7 @@ def test_a_plan_of_a_task_edited_in_code_does_not_claim_its_file():
     assert task_path(task_source(on_file)) == path
     marked = solve(build_problem(load_robot("point_mass"), edited), SolveOptions())
     assert marked.summary()["task"] == marked.task == path + EDITED
+
 
 def _hop_plan():
     """A converged plan of the point mass's hop on 10 steps (~0.5 s): a PlanResult with every dict field filled."""

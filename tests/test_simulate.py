@@ -1169,3 +1169,17 @@ def test_a_velocity_switch_given_is_the_one_fesd_steps_use():
     r = simulate(load_robot("point_mass"), task, options)
     assert r.stats.converged and r.extra["discretization"]["velocity_switch"] == "point"
     assert "collocated_steps" not in r.extra["discretization"]
+
+
+def test_a_simulation_of_a_task_edited_in_code_does_not_claim_its_file():
+    """A simulation's task (summary.json's "task") of a task edited in code with dataclasses.replace, which keeps the
+    file's source, is that file's absolute path followed by " (edited)": point_mass.toml with N edited to 3 was named
+    plainly, though its file's N is 150 (as a plan's since session 69)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from planner.task import EDITED, load_task
+
+    on_file = load_task(ROBOTS_DIR / "point_mass.toml")
+    edited = replace(on_file, horizon=replace(on_file.horizon, N=3))
+    assert simulate(robot(), edited, dynamics=dynamics()).task == str(Path(on_file.source).absolute()) + EDITED

@@ -221,6 +221,7 @@ def test_an_error_in_a_task_edited_in_code_says_it_is_not_the_files(tmp_path):
     npz = replace(edited, source=str(tmp_path / "trajectory.npz"))
     assert task_source(npz) == npz.source
 
+
 def test_the_tables_a_task_lacks_are_task_errors():
     """Task.periodic_map and Task.pd_actuators on a task without plan.periodic or simulate.pd raise TaskErrors
     saying so (an AttributeError on NoneType through the API)."""
