@@ -257,7 +257,8 @@ class SolveOptions:
     re-optimized on the fixed active set. The projection runs IPOPT's monotone barrier from mu = 1e-9:
     its start is feasible to ~1e-6, and from mu = 1e-4 the adaptive rule raised mu to 1e-2, left the
     point and took 904-1322 iterations back (default Capler task; now 10-19; docs/formulation.md,
-    round 7). With variable_scaling the distance is measured in xs = x / D.
+    round 7). With variable_scaling the distance is measured in xs = x / D. It gives up after
+    PROJECTION_MAX_RESTO_ITER successive restoration iterations (a projection there had left its start for good).
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
@@ -663,6 +664,12 @@ SCHEDULE_IPOPT = {"mu_strategy": "monotone", "mu_init": 1e-9, "bound_push": 1e-9
 # 45 ms, the penalty replan's polish 24 iterations at 17 instead of 65 ms. On the homotopy's NLPs it changes the
 # path, not the cost (docs/benchmarks.md, "Full solves and the gap", session 13).
 SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
+# The projection polish starts next to a feasible point, so a restoration phase there (IPOPT's search for any feasible
+# point, the distance to the start ignored) ends far from it if at all: Capler without holes at N = 40 stalled at a
+# violation of 1.8e-8 (the fixed active set's floor, above tol 1e-8), entered restoration at iteration ~200 and stayed
+# in it to the 3000 cap from both starts (8448 iterations, 130 s). With this cap each fails in ~300 iterations
+# (docs/formulation.md, the session-69 note after the FESD table); IPOPT's default is 3000000.
+PROJECTION_MAX_RESTO_ITER = 100
 
 
 def _users_last(opts: dict, options: SolveOptions, warm: bool) -> None:
@@ -893,7 +900,8 @@ class _Solvers:
             # start next to x_ref and stay there: x_ref is feasible to ~1e-6, so a monotone barrier at 1e-9 is a
             # Newton projection (10 iterations on the default Capler task); the adaptive rule from 1e-4 raised
             # mu to 1e-2, left the point and took 1322 iterations back (docs/formulation.md, round 7)
-            opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6)
+            opts["ipopt"].update(mu_init=1e-9, mu_strategy="monotone", bound_push=1e-6, bound_frac=1e-6,
+                                 max_resto_iter=PROJECTION_MAX_RESTO_ITER)
             opts["ipopt"].update(_small_mu_ipopt(self.options))
             if pb.fesd is not None and self.scale is not None:
                 # FESD Capler's gamma multipliers have D ~4e5 (flight stages), and the polished point of N = 50 broke

@@ -445,6 +445,27 @@ def test_the_users_ipopt_options_reach_the_schedule_and_projection_nlps(monkeypa
     assert {k: seen["tf_ocp_projection"][k] for k in given} == given
 
 
+def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
+    """The projection polish's IPOPT, and only it, stops after PROJECTION_MAX_RESTO_ITER successive restoration
+    iterations: a projection starts next to a feasible point, and one that entered restoration (Capler without holes,
+    N = 40) stayed there to the 3000 cap from both starts, 130 s for a failed solve. The homotopy's NLPs keep IPOPT's
+    default: their restoration is how a warm start far from feasible comes back."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    seen, real = {}, H.ca.nlpsol
+
+    def spy(name, solver, nlp, opts):
+        seen[name] = dict(opts["ipopt"])
+        return real(name, solver, nlp, opts)
+
+    monkeypatch.setattr(H.ca, "nlpsol", spy)
+    solvers = H._Solvers(problem, H.SolveOptions())
+    solvers.get(False)
+    solvers.get(True)
+    solvers.projection()
+    assert seen["tf_ocp_projection"]["max_resto_iter"] == H.PROJECTION_MAX_RESTO_ITER
+    assert [n for n, opts in seen.items() if "max_resto_iter" in opts] == ["tf_ocp_projection"]
+
+
 def test_gating_and_ungate_keep_the_trajectory():
     """ProblemOptions.gating: the penalty's products of alpha/zeta are weighted by 1 - beta and of
     gamma by (1 - beta) alpha; ungate resets the selectors a gate switches off to theta(h) without
