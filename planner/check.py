@@ -483,10 +483,6 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
     out += _hints(robot, gaps, mj)
-    if out and robot.format is RobotFormat.MJCF and included_files(robot.path):
-        # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
-        out.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: "
-                   "the differences above may be theirs; write them into the file")
     return tuple(out)
 
 
@@ -504,7 +500,12 @@ def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
                 "parser does not; remove it and give each link its own <inertial>"
                 for c in root.iter("compiler") for key, what in (("boundmass", "masses"), ("boundinertia", "inertias"))
                 if _positive(c.get(key))]
-    return _body_masses(robot, mj, root) + _parser_gaps(root)
+    found = _body_masses(robot, mj, root) + _parser_gaps(root)
+    if included_files(robot.path):
+        # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
+        found.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not "
+                     "read: the differences above may be theirs; write them into the file")
+    return found
 
 
 def _positive(text: str | None) -> bool:

@@ -75,11 +75,17 @@ class Robot:
     floating: bool = False  # a URDF read with the free-flyer root joint only Pinocchio adds (load_robot's floating)
     world_sites: tuple[str, ...] = ()  # an MJCF file's sites on the world body (markers): fixed, no points of the robot
     unread_sites: tuple[str, ...] = ()  # an MJCF file's sites MuJoCo reads, Pinocchio's parser not (<frame>, 2nd body)
-    ground_z: float | None = None  # height [m] of an MJCF file's plane geom "ground" (the task's ground_height rules)
+    ground_z: float | None = None  # height [m] of an MJCF file's ground plane (the task's ground_height rules)
+    # that plane's geom: the world plane named "ground", else the file's only world plane (Menagerie's "floor"); a
+    # file of several planes and none named "ground" has none ("", no ground_z), and its planes are scenery
+    ground_geom: str = ""
     # the moving bodies (MJCF) or links (URDF) with geoms that can touch the ground in MuJoCo (contype/conaffinity bits
     # that meet the world's, a <pair> with a world geom, a URDF <collision>): the planner's contacts are the task's
     # points only (Task.check_against warns of those no contact or above_ground point moves with)
     colliding: tuple[str, ...] = ()
+    # an MJCF file's geoms fixed to the world, other than the ground plane, with contype or conaffinity nonzero (steps,
+    # boxes): the planner and its validation model the ground only (Task.check_against warns)
+    scenery: tuple[str, ...] = ()
     # an MJCF file whose angles MuJoCo reads in degrees (<compiler angle="degree">, MuJoCo's default): the planner's
     # hinge coordinates, ranges and task values are radians all the same (Robot.range_text says both)
     degrees: bool = False
@@ -449,8 +455,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     except PlannerError:  # the environment's, not the file's
         raise
     except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError with its parser's text
-        hint = (" (the file has an <include>: Pinocchio's MJCF parser does not read included bodies; write them into "
-                "the file)" if fmt is RobotFormat.MJCF and included_files(path) else
+        hint = (f" (the file includes {_included_tags(path)}: Pinocchio's MJCF parser skips <include>s; "
+                "write them into the file: MuJoCo's mujoco.MjSpec.from_file(FILE).to_xml(), saved beside it, is the "
+                "file in one)" if fmt is RobotFormat.MJCF and included_files(path) else
                 " (the file's <default> comes after <worldbody>: Pinocchio's MJCF parser reads the classes only before "
                 "their use; move <default> above <worldbody>)"
                 if fmt is RobotFormat.MJCF and _defaults_late(path) else "")
@@ -488,9 +495,10 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
     if model.nv == 0:  # nothing to simulate or plan (check-model crashed in Pinocchio's algorithms)
         raise RobotFileError(f"{path}: the robot has no degrees of freedom (no joints); a robot needs at least one")
     _refuse_negative_inertia(path, model)
-    world_sites, unread_sites, ground_z, unnamed = (), (), None, ()
+    world_sites, unread_sites, (ground_z, ground_geom), unnamed, scenery = (), (), (None, ""), (), ()
     if fmt is RobotFormat.MJCF:
-        actuators, dof_names, passive, world_sites, unread_sites, ground_z, unnamed, colliding = _mjcf_info(path, model)
+        actuators, dof_names, passive, world_sites, unread_sites, (ground_z, ground_geom), unnamed, \
+            (colliding, scenery) = _mjcf_info(path, model)
     else:
         actuators, dof_names, passive = _urdf_info(model)
         root = ET.parse(path).getroot()
@@ -525,7 +533,9 @@ def load_robot(spec: str | os.PathLike, floating: bool = False) -> Robot:
         world_sites=world_sites,
         unread_sites=unread_sites,
         ground_z=ground_z,
+        ground_geom=ground_geom,
         colliding=colliding,
+        scenery=scenery,
         degrees=fmt is RobotFormat.MJCF and _in_degrees(path),
     )
 
@@ -567,6 +577,15 @@ def _included(path: Path, model_dir: Path, seen: set) -> list[tuple[str, bytes]]
             continue
         found += _included(target, model_dir, seen)
     return found
+
+
+def _included_tags(path: Path) -> str:
+    """The top-level elements of the files an MJCF file includes, e.g. "<default>, <worldbody>"."""
+    tags = []
+    for _, data in included_files(path):
+        with contextlib.suppress(ET.ParseError):
+            tags += [e.tag for e in ET.fromstring(data) if isinstance(e.tag, str) and e.tag not in tags]
+    return ", ".join(f"<{t}>" for t in tags) or "a file"
 
 
 def _include_target(name: str | None, path: Path, model_dir: Path) -> Path | None:
@@ -696,14 +715,14 @@ def motor_names(mj) -> list[str]:
 
 
 def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...],
-                                                     tuple[str, ...], tuple[str, ...], float | None, tuple[str, ...],
-                                                     tuple[str, ...]]:
+                                                     tuple[str, ...], tuple[str, ...], tuple[float | None, str],
+                                                     tuple[str, ...], tuple[tuple[str, ...], tuple[str, ...]]]:
     """MJCF: joint motors, joint names, passive joint terms (Robot.passive), the sites on the world body
     (Robot.world_sites), those Pinocchio's parser skips (Robot.unread_sites), the ground plane's
-    height (Robot.ground_z) read from MuJoCo's compiled model of the same
+    height and geom (Robot.ground_z, Robot.ground_geom) read from MuJoCo's compiled model of the same
     file, the names Pinocchio made up for unnamed sites (no points: MuJoCo's replay has no site of
-    that name) and the bodies with colliding geoms (Robot.colliding); Pinocchio's joint limits made MuJoCo's
-    (_mujoco_limits).
+    that name), and the bodies with colliding geoms and the world's colliding geoms (Robot.colliding, Robot.scenery);
+    Pinocchio's joint limits made MuJoCo's (_mujoco_limits).
 
     MuJoCo and Pinocchio both number degrees of freedom depth-first through the tree, so MuJoCo's
     dof address is Pinocchio's velocity index (check-model proves it by comparing mass matrices).
@@ -758,9 +777,12 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
                                       ("forcerange", mj.actuator_forcelimited[i], mj.actuator_forcerange[i])):
             if not limited and np.any(values != 0.0):  # autolimits drops a range whose lower is not below its upper:
                 # a sign typo unbounded the motor silently
+                flag = what.replace("range", "limited")  # (an ordered range told to "write the lower bound first")
+                why, fix = (("lower not below upper", "write the lower bound first, or remove the range")
+                            if values[0] >= values[1] else
+                            (f'{flag}="false"', f'remove {flag}="false" (or its default class\'s), or the range'))
                 raise RobotFileError(f"{path}: actuator {name!r}: its {what} {values[0]:g} {values[1]:g} is no "
-                                     "limit to MuJoCo (lower not below upper, or limited=\"false\"); write the lower "
-                                     "bound first, or remove the range")
+                                     f"limit to MuJoCo ({why}); {fix}")
         lo, hi = (mj.actuator_ctrlrange[i] if mj.actuator_ctrllimited[i] else (-np.inf, np.inf))
         if mj.actuator_forcelimited[i]:  # MuJoCo clamps the motor's force ctrl (gain 1) to forcerange before the gear
             flo, fhi = mj.actuator_forcerange[i]
@@ -786,11 +808,20 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     frames = {f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME}  # (a body of the site's name hid it)
     unread = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] != 0 and name not in frames)
     ground = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground")
+    planes = [g for g in range(mj.ngeom) if mj.geom_bodyid[g] == 0 and mj.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
+    if ground < 0 and len(planes) == 1:  # a Menagerie-style "floor": the file's one plane is its ground
+        ground = planes[0]
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
+    ground_geom = (mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_GEOM, ground) or f"geom {ground}") if ground >= 0 else ""
+    # (a box in a jointless body is as fixed as one in <worldbody>: a step written either way was passed through)
+    scenery = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}" for g in range(mj.ngeom)
+                    if mj.body_weldid[mj.geom_bodyid[g]] == 0 and g != ground
+                    and (mj.geom_contype[g] or mj.geom_conaffinity[g]))
     unnamed = tuple(f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME and f.name not in site_names)
     colliding = _colliding_bodies(mj)
-    return tuple(actuators), dof_names, passive, world_sites, unread, ground_z, unnamed, colliding
+    return (tuple(actuators), dof_names, passive, world_sites, unread, (ground_z, ground_geom), unnamed,
+            (colliding, scenery))
 
 
 def _carrier(model: pin.Model, body: str) -> int:

@@ -590,9 +590,15 @@ class Task:
                           + ("set the geoms' contype and conaffinity to 0" if mjcf else "remove the <collision>s"))
         if robot.ground_z is not None and abs(robot.ground_z - self.ground_height) > GROUND_MISMATCH_M:
             # (the task's value left out: a replan's walk checks tasks in between, which warned once each)
-            warnings.warn(f"the robot file's ground plane (geom 'ground') is at z = {robot.ground_z:g} m, not at the "
-                          "task's ground_height: the planner uses the task's and MuJoCo's replay moves the plane "
-                          "there; set ground_height to the file's if that is the ground meant")
+            warnings.warn(f"the robot file's ground plane (geom {robot.ground_geom!r}) is at z = {robot.ground_z:g} m, "
+                          "not at the task's ground_height: the planner and MuJoCo's replay use the task's; set "
+                          "ground_height to the file's if that is the ground meant")
+        if robot.scenery:  # the replay clears their collisions too (replay.build_scene): a step was passed through
+            warnings.warn(f"{robot.path}: the world's geom(s) {', '.join(map(repr, robot.scenery))} can collide in "
+                          "MuJoCo (contype or conaffinity nonzero), but the planner and its validation model the "
+                          "ground plane only (the plane named 'ground', else the file's only plane): a plan or "
+                          "simulation may pass through them; set their contype and conaffinity to 0 if they are "
+                          "decoration")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
             _length("initial.v", self.initial.v, robot.nv)

@@ -614,6 +614,28 @@ def test_an_included_compiler_is_named_as_a_possible_cause(tmp_path):
     assert len(found) >= 2 and found[-1].startswith("the file has an <include>, whose <compiler> and <default>"), found
 
 
+def test_check_model_names_an_included_compiler_as_a_possible_cause(tmp_path):
+    """check-model's "vs MuJoCo" line (and its failures) ends with the <include> as the possible cause of the gaps it
+    measures: a radian file whose <compiler> is included was FAILED there without a cause, while `plan` named the
+    include and sent the user to check-model."""
+    (tmp_path / "common_rad.xml").write_text('<mujocoinclude><compiler angle="radian" autolimits="true"/>'
+                                             '</mujocoinclude>')
+    path = tmp_path / "rad_inc.xml"
+    path.write_text('<mujoco><include file="common_rad.xml"/><default><geom contype="0" conaffinity="0"/></default>'
+                    '<worldbody><geom name="ground" type="plane" size="5 1 0.1" contype="1" conaffinity="1"/>'
+                    '<body name="base" pos="0 0 0.4"><joint name="base_x" type="slide" axis="1 0 0"/><joint '
+                    'name="base_z" type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="4" '
+                    'diaginertia="0.01 0.01 0.01"/><body name="thigh" euler="0 0.3 0"><joint name="hip" type="hinge" '
+                    'axis="0 1 0" range="-1 1"/><inertial pos="0 0 -0.1" mass="1.5" diaginertia="0.005 0.005 0.0005"/>'
+                    '<site name="foot" pos="0 0 -0.2"/></body></body></worldbody><actuator><motor name="hm" '
+                    'joint="hip" ctrlrange="-30 30"/></actuator></mujoco>')
+    result = check_model(load_robot(path), samples=2)
+    assert not result.passed
+    assert "Pinocchio's parser reads otherwise: the file has an <include>, whose <compiler>" in result.report(), \
+        result.report()
+    assert any("the file has an <include>" in f for f in result.failures), result.failures
+
+
 def test_mujoco_prints_no_warning_of_its_own_when_a_robot_is_read(tmp_path, capfd, monkeypatch):
     """Reading a robot file MuJoCo warns about (a deprecated settotalmass) prints nothing raw on stderr and writes no
     MUJOCO_LOG.TXT into the working directory (both went through -q); the check says it as a Python warning."""

@@ -165,6 +165,22 @@ def test_motors_that_do_nothing_or_lost_their_limit_are_refused(tmp_path, actuat
         load_robot(_hopper(tmp_path, actuator=actuator))
 
 
+@pytest.mark.parametrize("attributes, message", [
+    ('ctrllimited="false" ctrlrange="-30 30"', r'ctrlrange -30 30 is no limit to MuJoCo \(ctrllimited="false"\); '
+                                               r'remove ctrllimited="false" \(or its default class\'s\), or the '
+                                               r'range$'),
+    ('forcelimited="false" forcerange="-5 5"', r'forcerange -5 5 is no limit to MuJoCo \(forcelimited="false"\); '
+                                               r'remove forcelimited="false"'),
+    ('ctrlrange="20 -20"', r"ctrlrange 20 -20 is no limit to MuJoCo \(lower not below upper\); write the lower "
+                           r"bound first, or remove the range$")])
+def test_a_range_declared_unlimited_is_told_the_fix_that_applies(tmp_path, attributes, message):
+    """A motor whose range is ordered but declared ctrllimited/forcelimited="false" is told to remove that attribute
+    (or the range), and a reversed range to write its lower bound first: the declared one was told to "write the lower
+    bound first" though it was, a fix that changes nothing."""
+    with pytest.raises(RobotFileError, match=message):
+        load_robot(_hopper(tmp_path, actuator=f'<motor name="m" joint="hip" {attributes}/>'))
+
+
 @pytest.mark.parametrize("text, name", [
     ('<mujoco><worldbody><body name="b"><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/><site name="s"/></body>'
      '</worldbody></mujoco>', "ball.xml"),
@@ -203,7 +219,22 @@ def test_an_include_pinocchio_cannot_read_is_named(tmp_path):
                                        '<inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></mujoco>')
     path = tmp_path / "robot.xml"
     path.write_text('<mujoco><worldbody><include file="body.xml"/></worldbody></mujoco>')
-    with pytest.raises(RobotFileError, match="has an <include>: Pinocchio's MJCF parser does not read included"):
+    with pytest.raises(RobotFileError, match="includes <body>: Pinocchio's MJCF parser skips <include>s"):
+        load_robot(path)
+
+
+def test_an_included_default_is_named_as_what_pinocchio_cannot_read(tmp_path):
+    """An MJCF file that includes only its <default> classes (its bodies in the file, using childclass="leg") is
+    refused naming <default> as what the include holds: the error blamed "included bodies" in a file that includes
+    none, and the user looked for bodies to move."""
+    (tmp_path / "defaults.xml").write_text('<mujocoinclude><default><default class="leg"><joint type="hinge" '
+                                           'axis="0 1 0"/></default></default></mujocoinclude>')
+    path = tmp_path / "robot.xml"
+    path.write_text('<mujoco><include file="defaults.xml"/><worldbody><body name="b" childclass="leg"><joint '
+                    'name="hip"/><inertial pos="0 0 -0.1" mass="1" diaginertia="1 1 1"/></body></worldbody></mujoco>')
+    with pytest.raises(RobotFileError, match=r"\(the file includes <default>: Pinocchio's MJCF parser skips "
+                                             r"<include>s; write them into the file: MuJoCo's "
+                                             r"mujoco.MjSpec.from_file\(FILE\).to_xml\(\), saved beside it"):
         load_robot(path)
 
 

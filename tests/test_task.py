@@ -316,11 +316,55 @@ def test_a_ground_height_other_than_the_files_ground_plane_warns(tmp_path):
     with pytest.warns(UserWarning, match=r"ground plane \(geom 'ground'\) is at z = 0 m, not at the task's "
                                          r"ground_height"):
         parse_task({**MINIMAL, "ground_height": -0.1}).check_against(capler)
-    # a URDF has no ground plane to compare, nor has an MJCF file without a plane named ground
+    # a URDF has no ground plane to compare, nor has an MJCF file without a plane
     assert load_robot("robots/capler.urdf").ground_z is None
     plank = tmp_path / "plank.xml"
     plank.write_text(PLANK)
     assert load_robot(plank).ground_z is None
+
+
+def test_a_files_only_plane_is_its_ground_whatever_its_name(tmp_path):
+    """A file whose one world plane is not named ground (Menagerie's and Gym's "floor") has that plane read as its
+    ground, and the ground-height warning names it: a floor at z = 0.1 m under a task at ground_height 0 was passed
+    without a word, the robot moving 0.1 m below the file's floor. Of several planes none named ground, none is the
+    ground: each is named as scenery instead (the warning says which plane is read)."""
+    floor = tmp_path / "floor.xml"
+    floor.write_text((ROBOTS / "capler.xml").read_text().replace('<geom name="ground" type="plane"',
+                                                                   '<geom name="floor" type="plane" pos="0 0 0.1"'))
+    with pytest.warns(UserWarning, match=r"ground plane \(geom 'floor'\) is at z = 0.1 m, not at the task's"):
+        parse_task(MINIMAL).check_against(load_robot(floor))
+    floors = tmp_path / "floors.xml"
+    floors.write_text(floor.read_text().replace("</worldbody>", '<geom name="floor2" type="plane" size="1 1 0.1" '
+                                                                'contype="1" conaffinity="1"/></worldbody>'))
+    robot = load_robot(floors)
+    assert robot.ground_z is None and robot.scenery == ("floor", "floor2")
+    with pytest.warns(UserWarning, match=r"'floor', 'floor2' can collide .*\(the plane named 'ground', else the "
+                                         r"file's only plane\)"):
+        parse_task(MINIMAL).check_against(robot)
+
+
+def test_colliding_geoms_fixed_to_the_world_warn(tmp_path):
+    """A world geom other than the ground that can collide (a box "step" in the path, in <worldbody> or in a body
+    without joints) warns naming it: the planner and its validation (which clears its collisions) model the ground
+    only, and a plan slid its foot 40 mm deep through such a step, validated. A geom with contype = conaffinity = 0
+    (decoration) does not warn, nor does any shipped robot file."""
+    text = (ROBOTS / "capler.xml").read_text()
+    step = tmp_path / "step.xml"
+    step.write_text(text.replace("</worldbody>", '<geom name="step" type="box" pos="0.5 0 0.04" size="0.03 0.3 0.04" '
+                                                 'contype="1" conaffinity="1"/><body name="rock" pos="1 0 0"><geom '
+                                                 'name="rock_geom" type="box" size="0.1 0.1 0.1" contype="1" '
+                                                 'conaffinity="1"/></body></worldbody>'))
+    assert load_robot(step).scenery == ("step", "rock_geom")
+    with pytest.warns(UserWarning, match=r"step.xml: the world's geom\(s\) 'step', 'rock_geom' can collide in MuJoCo"):
+        parse_task(MINIMAL).check_against(load_robot(step))
+    decoration = tmp_path / "decoration.xml"
+    decoration.write_text(text.replace("</worldbody>", '<geom name="step" type="box" pos="0.5 0 0.04" size="0.03 '
+                                                       '0.3 0.04" contype="0" conaffinity="0"/></worldbody>'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parse_task(MINIMAL).check_against(load_robot(decoration))
+    shipped = sorted(ROBOTS.glob("*.xml")) + sorted((ROBOTS.parent / "docs" / "examples").glob("*.xml"))
+    assert shipped and {path.name: load_robot(path).scenery for path in shipped} == {p.name: () for p in shipped}
 
 def test_a_tasks_source_is_not_part_of_its_equality(tmp_path):
     """The same task read from its file by a relative and an absolute path, parsed from its data, or read back
@@ -374,6 +418,7 @@ def test_range_messages_give_units_and_a_degree_files_own_degrees(tmp_path):
         replace(task, plan=replace(task.plan, target_q=tuple(target), joint_bounds=())).check_against(robot)
 
 
+@pytest.mark.filterwarnings("ignore:.*the world's geom\\(s\\) 'geom \\d+' can collide")  # (the rock: checked below)
 def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
     """A robot file whose bodies' geoms collide in MuJoCo (contype/conaffinity, an explicit <pair>, a URDF
     <collision>) warns naming the bodies that carry no contact or above_ground point of the task: the plan and the
@@ -390,7 +435,8 @@ def test_colliding_geoms_without_a_contact_point_warn(tmp_path):
         parse_task(MINIMAL).check_against(robot)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        load_task(ROBOTS / "capler.toml").check_against(robot)  # above_ground = ["knee", "base"] keeps the others
+        with pytest.warns(UserWarning, match=r"the world's geom\(s\) 'geom \d+' can collide"):  # the rock, only
+            load_task(ROBOTS / "capler.toml").check_against(robot)  # above_ground = ["knee", "base"] keeps the others
         parse_task(MINIMAL).check_against(load_robot("capler"))
     paired = tmp_path / "paired.xml"  # contype 0 everywhere, one explicit pair of the thigh with the ground
     paired.write_text(text.replace("</worldbody>",
