@@ -483,7 +483,7 @@ def reading_differences(robot: Robot) -> tuple[str, ...]:
             out.append(text.format(gaps[key]))
     out += [f"point {point!r} is up to {err:.3g} m apart" for point, err in gaps["sites"].items() if not err <= TOLERANCE]
     out += _hints(robot, gaps, mj)
-    return tuple(out)
+    return tuple(out + (_include_hint(robot) if out else []))
 
 
 def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
@@ -500,12 +500,17 @@ def _hints(robot: Robot, gaps: dict, mj) -> list[str]:
                 "parser does not; remove it and give each link its own <inertial>"
                 for c in root.iter("compiler") for key, what in (("boundmass", "masses"), ("boundinertia", "inertias"))
                 if _positive(c.get(key))]
-    found = _body_masses(robot, mj, root) + _parser_gaps(root)
-    if included_files(robot.path):
-        # (an included <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none)
-        found.append("the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not "
-                     "read: the differences above may be theirs; write them into the file")
-    return found
+    return _body_masses(robot, mj, root) + _parser_gaps(root)
+
+
+def _include_hint(robot: Robot) -> list[str]:
+    """The hint for an MJCF file with an <include>, given with any difference (a gap or a named one): an included
+    <compiler angle="radian"> was blamed on "masses MuJoCo infers from geoms" in a file of none, and an included
+    <default> damping's passive forces named no cause."""
+    if robot.format is not RobotFormat.MJCF or not included_files(robot.path):
+        return []
+    return ["the file has an <include>, whose <compiler> and <default> Pinocchio's MJCF parser does not read: the "
+            "differences above may be theirs; write them into the file"]
 
 
 def _positive(text: str | None) -> bool:
@@ -662,11 +667,14 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     gaps = _mujoco_gaps(mj, states, mass, bias, position, robot)
     names = [mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_SITE, s) for s in range(mj.nsite)]
     missing = tuple(name for name in names if name and name not in robot.points and name not in robot.world_sites)
+    differences, hints = _named_differences(robot, mj) + robot.passive, _hints(robot, gaps, mj)
+    gapped = any(not gaps[key] <= TOLERANCE for key in ("mass", "bias", "passive", "actuation")) or any(
+        not err <= TOLERANCE for err in gaps["sites"].values())
     return MujocoCheck(max_err_mass=gaps["mass"], max_err_bias=gaps["bias"], max_err_passive=gaps["passive"],
                        max_err_actuation=gaps["actuation"],
                        max_err_sites=float(np.max(list(gaps["sites"].values()), initial=0.0)), missing_sites=missing,
-                       differences=_named_differences(robot, mj) + robot.passive,
-                       hints=tuple(_hints(robot, gaps, mj))), None
+                       differences=differences,
+                       hints=tuple(hints + (_include_hint(robot) if differences or hints or gapped else []))), None
 
 
 def _mean_us(call) -> float:

@@ -258,7 +258,8 @@ class SolveOptions:
     its start is feasible to ~1e-6, and from mu = 1e-4 the adaptive rule raised mu to 1e-2, left the
     point and took 904-1322 iterations back (default Capler task; now 10-19; docs/formulation.md,
     round 7). With variable_scaling the distance is measured in xs = x / D. It gives up after
-    PROJECTION_MAX_RESTO_ITER successive restoration iterations (a projection there had left its start for good).
+    PROJECTION_MAX_RESTO_ITER successive restoration iterations (a projection there had left its start for good),
+    which IPOPT reports as Maximum_Iterations_Exceeded below max_iter.
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").

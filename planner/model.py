@@ -809,14 +809,24 @@ def _mjcf_info(path: Path, model: pin.Model) -> tuple[tuple[Actuator, ...], tupl
     unread = tuple(name for s, name in enumerate(site_names) if name and mj.site_bodyid[s] != 0 and name not in frames)
     ground = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_GEOM, "ground")
     planes = [g for g in range(mj.ngeom) if mj.geom_bodyid[g] == 0 and mj.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
-    if ground < 0 and len(planes) == 1:  # a Menagerie-style "floor": the file's one plane is its ground
+    _, x, y, _ = mj.geom_quat[planes[0]] if planes else (1.0, 0.0, 0.0, 0.0)
+    # a Menagerie-style "floor": the file's one plane is its ground if level (a tilted one is scenery: a slope read as
+    # flat ground had the validation's own plane replace it)
+    if ground < 0 and len(planes) == 1 and 1.0 - 2.0 * (x * x + y * y) >= 1.0 - 1e-9:
         ground = planes[0]
     ground_z = (float(mj.geom_pos[ground][2]) if ground >= 0 and mj.geom_type[ground] == mujoco.mjtGeom.mjGEOM_PLANE
                 and mj.geom_bodyid[ground] == 0 else None)
     ground_geom = (mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_GEOM, ground) or f"geom {ground}") if ground >= 0 else ""
-    # (a box in a jointless body is as fixed as one in <worldbody>: a step written either way was passed through)
+    # (a box in a jointless body is as fixed as one in <worldbody>: a step written either way was passed through; a
+    # jointless body that carries the robot, a pedestal or an arm's base link, is the robot's own)
+    carries = set()
+    for body in range(mj.nbody):
+        b = body if mj.body_jntnum[body] else 0
+        while b:  # (the jointed body and its ancestors up to the world)
+            carries.add(b)
+            b = mj.body_parentid[b]
     scenery = tuple(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}" for g in range(mj.ngeom)
-                    if mj.body_weldid[mj.geom_bodyid[g]] == 0 and g != ground
+                    if mj.body_weldid[mj.geom_bodyid[g]] == 0 and mj.geom_bodyid[g] not in carries and g != ground
                     and (mj.geom_contype[g] or mj.geom_conaffinity[g]))
     unnamed = tuple(f.name for f in model.frames if f.type == pin.FrameType.OP_FRAME and f.name not in site_names)
     colliding = _colliding_bodies(mj)

@@ -323,7 +323,8 @@ def build_scene(robot: Robot, task: Task, settings: ContactSettings | None = Non
     - a sphere of radius `settings.sphere_radius`, mass 0 (the body's inertia is unchanged), centred
       at each task contact site, and the plane geom "ground" lowered by that radius to the task's
       ground_height: MuJoCo's contact distance is then exactly the site's height above the ground,
-      the plan's gap. A missing "ground" geom is added.
+      the plan's gap. A missing "ground" geom is added (beside a file's ground plane of another name, e.g. a
+      Menagerie "floor", which is kept, drawn, with its collisions cleared as below).
     - only explicit pairs (ground, sphere) collide: every geom's contype/conaffinity is cleared and
       the file's pairs and excludes are dropped, since the plan models contact at those points only.
     - each pair: friction mu of its task contact (condim 3; condim 1 when mu = 0), solref from

@@ -596,7 +596,7 @@ class Task:
         if robot.scenery:  # the replay clears their collisions too (replay.build_scene): a step was passed through
             warnings.warn(f"{robot.path}: the world's geom(s) {', '.join(map(repr, robot.scenery))} can collide in "
                           "MuJoCo (contype or conaffinity nonzero), but the planner and its validation model the "
-                          "ground plane only (the plane named 'ground', else the file's only plane): a plan or "
+                          "ground plane only (the plane named 'ground', else the file's only plane if level): a plan or "
                           "simulation may pass through them; set their contype and conaffinity to 0 if they are "
                           "decoration")
         _length("initial.q", self.initial.q, robot.nq, robot)

@@ -636,6 +636,25 @@ def test_check_model_names_an_included_compiler_as_a_possible_cause(tmp_path):
     assert any("the file has an <include>" in f for f in result.failures), result.failures
 
 
+def test_an_included_default_is_named_with_the_passive_forces_it_gives(tmp_path):
+    """A file whose <include> holds only a <default> joint damping differs from Pinocchio's reading in its passive
+    forces alone (no mass, bias or point gap): the include is named as their possible cause too, by check-model and by
+    the reading check plan and simulate run (it was named only beside a mass, bias or point gap)."""
+    from planner.check import reading_differences
+
+    (tmp_path / "damped.xml").write_text('<mujocoinclude><default><joint damping="3"/></default></mujocoinclude>')
+    path = tmp_path / "robot.xml"
+    path.write_text('<mujoco><include file="damped.xml"/><worldbody><geom name="ground" type="plane" size="5 1 0.1"/>'
+                    '<body name="b" pos="0 0 0.4"><joint name="x" type="slide" axis="1 0 0"/><joint name="z" '
+                    'type="slide" axis="0 0 1"/><inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>'
+                    '<site name="foot"/></body></worldbody></mujoco>')
+    robot = load_robot(path)
+    differences = reading_differences(robot)
+    assert any(d.startswith("passive forces") for d in differences), differences
+    assert differences[-1].startswith("the file has an <include>"), differences
+    assert any("the file has an <include>" in f for f in check_model(robot, samples=2).failures)
+
+
 def test_mujoco_prints_no_warning_of_its_own_when_a_robot_is_read(tmp_path, capfd, monkeypatch):
     """Reading a robot file MuJoCo warns about (a deprecated settotalmass) prints nothing raw on stderr and writes no
     MUJOCO_LOG.TXT into the working directory (both went through -q); the check says it as a Python warning."""

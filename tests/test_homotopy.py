@@ -461,9 +461,12 @@ def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
     solvers = H._Solvers(problem, H.SolveOptions())
     solvers.get(False)
     solvers.get(True)
+    solvers.get(True, schedule=True)
     solvers.projection()
     assert seen["tf_ocp_projection"]["max_resto_iter"] == H.PROJECTION_MAX_RESTO_ITER
     assert [n for n, opts in seen.items() if "max_resto_iter" in opts] == ["tf_ocp_projection"]
+    H._Solvers(problem, H.SolveOptions(ipopt={"max_resto_iter": 7})).projection()  # (the user's own value wins)
+    assert seen["tf_ocp_projection"]["max_resto_iter"] == 7
 
 
 def test_gating_and_ungate_keep_the_trajectory():

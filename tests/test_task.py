@@ -210,7 +210,7 @@ def test_an_error_in_a_task_edited_in_code_says_it_is_not_the_files(tmp_path):
     """A task edited in code (dataclasses.replace keeps its file's source) is named "FILE (edited)" in a
     check_against error, not as the file: a target edited to hip = 1.5 rad was reported as capler.toml's, which holds
     hip = 0. The unedited task still names its file plainly, and so does one whose source load_task cannot read back
-    (read_task's trajectory.npz)."""
+    (read_task's trajectory.npz); a task file of another suffix is compared as a .toml is."""
     from planner.task import EDITED, task_source
 
     on_file = load_task(ROBOTS / "capler.toml")
@@ -220,6 +220,9 @@ def test_an_error_in_a_task_edited_in_code_says_it_is_not_the_files(tmp_path):
     assert task_source(on_file) == on_file.source
     npz = replace(edited, source=str(tmp_path / "trajectory.npz"))
     assert task_source(npz) == npz.source
+    other = tmp_path / "capler.task"
+    other.write_text((ROBOTS / "capler.toml").read_text())
+    assert task_source(replace(edited, source=str(other))) == str(other.absolute()) + EDITED
 
 
 def test_the_tables_a_task_lacks_are_task_errors():
@@ -339,8 +342,13 @@ def test_a_files_only_plane_is_its_ground_whatever_its_name(tmp_path):
     robot = load_robot(floors)
     assert robot.ground_z is None and robot.scenery == ("floor", "floor2")
     with pytest.warns(UserWarning, match=r"'floor', 'floor2' can collide .*\(the plane named 'ground', else the "
-                                         r"file's only plane\)"):
+                                         r"file's only plane if level\)"):
         parse_task(MINIMAL).check_against(robot)
+    slope = tmp_path / "slope.xml"  # (a tilted plane read as flat ground had the validation's level plane replace it)
+    slope.write_text(floor.read_text().replace('<geom name="floor" type="plane"', '<geom name="floor" type="plane" '
+                                                                                  'euler="0 0.3 0"'))
+    robot = load_robot(slope)
+    assert (robot.ground_geom, robot.ground_z, robot.scenery) == ("", None, ("floor",))
 
 
 def test_colliding_geoms_fixed_to_the_world_warn(tmp_path):
@@ -365,6 +373,11 @@ def test_colliding_geoms_fixed_to_the_world_warn(tmp_path):
         parse_task(MINIMAL).check_against(load_robot(decoration))
     shipped = sorted(ROBOTS.glob("*.xml")) + sorted((ROBOTS.parent / "docs" / "examples").glob("*.xml"))
     assert shipped and {path.name: load_robot(path).scenery for path in shipped} == {p.name: () for p in shipped}
+    pedestal = tmp_path / "pedestal.xml"  # (a jointless body that carries the robot is the robot's, not scenery)
+    pedestal.write_text(text.replace('<body name="base" pos="0 0 0">', '<body name="pedestal"><geom name="plinth" '
+                                     'type="box" size="0.1 0.1 0.01" contype="1" conaffinity="1"/><body name="base" '
+                                     'pos="0 0 0">').replace("</worldbody>", "</body></worldbody>"))
+    assert load_robot(pedestal).scenery == ()
 
 def test_a_tasks_source_is_not_part_of_its_equality(tmp_path):
     """The same task read from its file by a relative and an absolute path, parsed from its data, or read back
