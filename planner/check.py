@@ -305,11 +305,9 @@ def _compile(robot: Robot):
     another joint order than the planner plans for."""
     import mujoco
 
-    if robot.floating:  # (_mujoco_errors adds it to MuJoCo's root body; this is why when that fails)
-        return None, SKIPPED, ("Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads, and "
-                               "with a free joint added to its root body MuJoCo cannot compile it or reads other "
-                               "coordinates (e.g. that body has joints of its own, or the root link is named world, "
-                               "which MuJoCo reads as its world body, so the free joint would move the link after it)")
+    if robot.floating:  # (_mujoco_errors adds it to MuJoCo's root body, and appends why when that fails)
+        return None, SKIPPED, ("Pinocchio's free-flyer root joint (--floating) is not in the file MuJoCo reads, and a "
+                               "free joint added to MuJoCo's root body does not give Pinocchio's coordinates")
     try:
         spec = mujoco_spec(robot, robot.points, check_order=False)
     except RobotFileError as exc:
@@ -522,8 +520,8 @@ def _positive(text: str | None) -> bool:
 
 def _body_masses(robot: Robot, mj, root: ET.Element) -> list[str]:
     """The bodies (by the joint that moves them, jointless ones welded to it) whose mass MuJoCo and Pinocchio read
-    differently: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser only by those that collide
-    (contype or conaffinity nonzero) and without a <default>'s geom mass (the check named a mass gap, and no body)."""
+    differently: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser otherwise, for the causes
+    _weighing_causes tells (the check named a mass gap, and no body)."""
     import mujoco
 
     model, mass, names = robot.model, np.zeros(robot.model.njoints), [[] for _ in range(robot.model.njoints)]
@@ -538,18 +536,48 @@ def _body_masses(robot: Robot, mj, root: ET.Element) -> list[str]:
         return []  # (named: MuJoCo rescales every mass; "give those bodies an <inertial>" was wrong advice, review)
     weighed = {b.get("name") for b in root.iter("body") if b.find("inertial") is None}
     geometric = any(c.get("inertiafromgeom") == "true" for c in root.iter("compiler"))
-    apart = [f"{'+'.join(names[j])} {_apart(mass[j], model.inertias[j].mass)}"
-             for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE
-             and (geometric or weighed.intersection(names[j]))]
+    joints = [j for j in range(1, model.njoints) if abs(mass[j] - model.inertias[j].mass) > TOLERANCE
+              and (geometric or weighed.intersection(names[j]))]
+    apart = [f"{'+'.join(names[j])} {_apart(mass[j], model.inertias[j].mass)}" for j in joints]
     if not apart:
         return []
+    causes = "; ".join(_weighing_causes(mj, root, [name for j in joints for name in names[j]]))
     if geometric:
         return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> both weigh every body by "
-                "its geoms instead of its <inertial>, Pinocchio's parser only by the geoms that collide (contype or "
-                "conaffinity nonzero); remove it and give each body an <inertial>"]
-    return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms, Pinocchio's parser "
-            "only by the geoms that collide (contype or conaffinity nonzero) and without a <default>'s geom mass; give "
+                f"its geoms instead of its <inertial>; {causes}; remove it and give each body an <inertial>"]
+    return [f"body masses {'; '.join(apart)}: MuJoCo weighs a body without <inertial> by its geoms; {causes}; give "
             "those bodies an <inertial>"]
+
+
+def _weighing_causes(mj, root: ET.Element, bodies: list[str]) -> list[str]:
+    """Why MuJoCo and Pinocchio's parser weigh these bodies (names) apart, as far as the compiled model and the file's
+    <compiler> and <default> tell it cheaply; a neutral one when they tell none (the message blamed geoms that collide
+    with nothing in files whose cause was a mesh, inertiagrouprange or discardvisual: session 69's tester)."""
+    import mujoco
+
+    ids = [mj.body(name).id for name in bodies]
+    geoms = [g for g in range(mj.ngeom) if mj.geom_bodyid[g] in ids]
+    colliding = [g for g in geoms if mj.geom_contype[g] or mj.geom_conaffinity[g]]
+    compiler = {key: c.get(key) for c in root.iter("compiler") for key in ("discardvisual", "inertiagrouprange")
+                if c.get(key) is not None}
+    causes = []
+    # (discardvisual drops them from the compiled model after MuJoCo weighed them: the file still counts them)
+    written = sum(len(b.findall("geom")) for b in root.iter("body") if b.get("name") in bodies)
+    discarded = compiler.get("discardvisual") == "true" and written > len(geoms)
+    if discarded or len(colliding) < len(geoms):
+        causes.append("Pinocchio's parser weighs only the geoms that collide (contype or conaffinity nonzero)"
+                      + (", MuJoCo also those <compiler discardvisual=\"true\"> discards" if discarded else ""))
+    if any(mj.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH for g in colliding):
+        causes.append("Pinocchio's parser weighs a colliding mesh geom 1 kg whatever its size, MuJoCo by its volume")
+    if "inertiagrouprange" in compiler:
+        with contextlib.suppress(ValueError):
+            low, high = (int(x) for x in compiler["inertiagrouprange"].split())
+            if any(not low <= mj.geom_group[g] <= high for g in colliding):
+                causes.append(f"MuJoCo weighs only the geoms of groups {low} to {high} (<compiler inertiagrouprange="
+                              f"\"{compiler['inertiagrouprange']}\">), Pinocchio's parser those of every group")
+    if any(g.get("mass") is not None for d in root.iter("default") for g in d.findall("geom")):
+        causes.append("Pinocchio's parser does not read a <default>'s geom mass")
+    return causes or ["Pinocchio's parser weighs them otherwise"]
 
 
 def _rescaling(root: ET.Element) -> list[ET.Element]:
@@ -652,7 +680,9 @@ def _mujoco_errors(robot: Robot, dyn: Dynamics, states) -> tuple[MujocoCheck | N
     mass, bias, position = dyn.mass, dyn.bias, lambda name, q: dyn.point_position(name)(q)
     if mj is None and kind == SKIPPED:
         mapped = _free_joint_map(robot)
-        if mapped is not None:  # free joints: compare in MuJoCo's coordinates
+        if isinstance(mapped, str):
+            why = f"{why}: {mapped}" if robot.floating else why  # (otherwise _compile's names each joint's type)
+        else:  # free joints: compare in MuJoCo's coordinates
             mj, to_mujoco, to_pinocchio = mapped
             mass, bias, position = _in_mujoco_coordinates(dyn, to_pinocchio)
             states = [to_mujoco(q, v) for q, v in states]
@@ -688,29 +718,40 @@ def _mean_us(call) -> float:
 def _free_joint_map(robot: Robot):
     """(MuJoCo's compiled model, to_mujoco(q, v) -> (qpos, qvel), to_pinocchio(qpos, qvel) -> (q, v, T, Tdot_v)) when
     the robot's only joints other than hinges and slides are MJCF free joints at the same coordinate addresses in
-    both readings, else None. A free joint: MuJoCo's qpos is the body's world pose (position, wxyz quaternion),
-    Pinocchio's q is relative to the joint's placement (position, xyzw); MuJoCo's linear velocity is in the world
-    frame, Pinocchio's in the body frame (qvel = T v, T = blockdiag(R, I) on the joint's block)."""
+    both readings, else why not (a str, the skip's cause under --floating: it listed every possible one). A free
+    joint: MuJoCo's qpos is the body's world pose (position, wxyz quaternion), Pinocchio's q is relative to the
+    joint's placement (position, xyzw); MuJoCo's linear velocity is in the world frame, Pinocchio's in the body frame
+    (qvel = T v, T = blockdiag(R, I) on the joint's block)."""
     import mujoco
 
     model = robot.model
     try:
         spec = mujoco_spec(robot, robot.points, check_order=False)
-        if robot.floating:  # Pinocchio's free-flyer root (--floating): the same joint on MuJoCo's root link
-            spec.worldbody.first_body().add_freejoint()
+    except RobotFileError as exc:
+        return str(exc)
+    if robot.floating:  # Pinocchio's free-flyer root (--floating): the same joint on MuJoCo's root link
+        root = spec.worldbody.first_body()
+        if root.joints:  # (MuJoCo refuses a free joint beside other joints in one body)
+            return f"that body, {root.name!r}, has joints of its own ({', '.join(j.name for j in root.joints)})"
+        if not _is_free_flyer_body(model, root.name):
+            return ("the root link is named world, which MuJoCo reads as its world body, so the free joint would move "
+                    f"the link after it ({root.name!r})")
+        root.add_freejoint()
+    try:
         mj = spec.compile()
-    except (RobotFileError, ValueError):
-        return None
-    if robot.floating and not _is_free_flyer_body(model, mj.body(1).name):
-        return None
+    except ValueError as exc:
+        return mujoco_failure(robot.path, exc)
     free = [j for j in range(1, model.njoints) if model.joints[j].shortname() == "JointModelFreeFlyer"]
-    if any(model.joints[j].nq != model.joints[j].nv for j in range(1, model.njoints) if j not in free):
-        return None
+    unequal = [model.names[j] for j in range(1, model.njoints) if j not in free
+               and model.joints[j].nq != model.joints[j].nv]
+    if unequal:
+        return f"joint {', '.join(map(repr, unequal))} has more coordinates than velocities in Pinocchio's reading"
     mj_free = [k for k in range(mj.njnt) if mj.jnt_type[k] == mujoco.mjtJoint.mjJNT_FREE]
     if (mj.nq, mj.nv) != (model.nq, model.nv) or len(mj_free) != len(free) or any(
             (model.joints[j].idx_q, model.joints[j].idx_v) != (mj.jnt_qposadr[k], mj.jnt_dofadr[k])
             for j, k in zip(free, mj_free)):
-        return None
+        return (f"MuJoCo reads nq, nv = {mj.nq}, {mj.nv} with {len(mj_free)} free joint(s), Pinocchio {model.nq}, "
+                f"{model.nv} with {len(free)}, or their free joints at other coordinates")
     blocks = [(model.joints[j].idx_q, model.joints[j].idx_v, model.jointPlacements[j]) for j in free]
 
     def to_mujoco(q, v):

@@ -681,7 +681,18 @@ def _refuse_negative_inertia(path: Path, model: pin.Model) -> None:
         if a + b < c * (1.0 - 1e-9) - 1e-12:  # no body has them (MuJoCo refuses the file; a URDF was simulated first)
             raise RobotFileError(f"{path}: the body of joint {model.names[jid]!r} has principal moments of inertia "
                                  f"{np.round([a, b, c], 9).tolist()} kg m^2, and no rigid body's smaller two sum to "
-                                 "less than the largest (A + B >= C)")
+                                 f"less than the largest (A + B >= C){_balanced(path)}")
+
+
+def _balanced(path: Path) -> str:
+    """Why MuJoCo accepts the file's impossible inertia when a <compiler balanceinertia="true"> is what makes it (a
+    user saw MuJoCo load it and the refusal name the triangle inequality alone, session 69's tester), else ""."""
+    with contextlib.suppress(ET.ParseError, OSError):
+        if any(c.get("balanceinertia") == "true" for c in ET.parse(path).getroot().iter("compiler")):
+            return ("; MuJoCo accepts the file because its <compiler balanceinertia=\"true\"> replaces such moments "
+                    "by their mean, which Pinocchio does not, so the two would simulate different bodies: write "
+                    "moments that satisfy A + B >= C")
+    return ""
 
 
 def _urdf_info(model: pin.Model) -> tuple[tuple[Actuator, ...], tuple[str, ...], tuple[str, ...]]:

@@ -538,6 +538,44 @@ def test_what_pinocchios_mjcf_parser_reads_otherwise_is_named(tmp_path, edits, n
         assert any(f.startswith("Pinocchio's parser reads otherwise: ") for f in result.failures)
 
 
+SHANK_GEOM = '<geom name="shank_geom" type="capsule" fromto="0 0 0 0 0 -0.2" size="0.012"/>'
+COLLIDING_SHANK_GEOM = SHANK_GEOM.replace("/>", ' contype="1"/>')
+TETRAHEDRON = "v 0 0 0\nv 0.03 0 0\nv 0 0.03 0\nv 0 0 0.03\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+COLLIDE = "Pinocchio's parser weighs only the geoms that collide"
+
+
+@pytest.mark.parametrize("edits, cause", [
+    ([], COLLIDE),  # the shank's geom collides with nothing (capler's <default>)
+    ([('autolimits="true"', 'autolimits="true" discardvisual="true"')],
+     COLLIDE + ' (contype or conaffinity nonzero), MuJoCo also those <compiler discardvisual="true"> discards'),
+    ([(SHANK_GEOM, '<geom type="mesh" mesh="tip" contype="1"/>'),
+      ("<worldbody>", '<asset><mesh name="tip" file="tip.obj"/></asset><worldbody>')],
+     "Pinocchio's parser weighs a colliding mesh geom 1 kg whatever its size"),
+    ([('autolimits="true"', 'autolimits="true" inertiagrouprange="0 1"'),
+      (SHANK_GEOM, COLLIDING_SHANK_GEOM + '<geom type="box" size="0.02 0.02 0.02" group="3" contype="1"/>')],
+     'MuJoCo weighs only the geoms of groups 0 to 1 (<compiler inertiagrouprange="0 1">)'),
+])
+def test_a_body_mass_gap_names_the_cause_that_applies(tmp_path, edits, cause):
+    """Capler's shank without <inertial>, weighed by MuJoCo and Pinocchio's parser apart for one cause each (a geom
+    that collides with nothing, also under discardvisual; a colliding mesh, which Pinocchio weighs 1 kg; a geom
+    outside inertiagrouprange): the body-mass hint names that cause and no other, and keeps the advice. It blamed the
+    geoms that collide with nothing for all four, which sent a user looking for contype in a file of colliding
+    geoms (session 69's tester)."""
+    from planner.check import reading_differences
+
+    text = CAPLER.replace(SHANK_INERTIAL, "")
+    for old, new in edits:
+        assert text.count(old) == 1
+        text = text.replace(old, new)
+    (tmp_path / "tip.obj").write_text(TETRAHEDRON)
+    path = tmp_path / "variant.xml"
+    path.write_text(text)
+    hint = next(d for d in reading_differences(load_robot(path)) if d.startswith("body masses shank"))
+    assert cause in hint and hint.endswith("give those bodies an <inertial>"), hint
+    others = [COLLIDE, "discardvisual", "mesh", "inertiagrouprange", "<default>"]
+    assert not [other for other in others if other not in cause and other in hint], hint
+
+
 def test_parser_hints_come_with_the_gaps_they_explain(tmp_path):
     """The hints on Pinocchio's MJCF parser are given only beside a mass, bias or point gap, and for constructs that
     place what Pinocchio reads: an upper-case eulerseq with an euler on a geom only, beside a named gravcomp, gave the
@@ -974,7 +1012,7 @@ def test_the_skip_reason_names_each_joints_type(tmp_path):
     _, kind, why = _compile(load_robot(path))  # (the symbolic dynamics refuses the ball joint; pinocchio.casadi not)
     assert kind == SKIPPED and why.startswith("free joint root, ball joint hip: MuJoCo's coordinates differ"), why
     skipped = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
-    assert "with a free joint added to its root body MuJoCo cannot compile it or reads other coordinates" in skipped
+    assert "a free joint added to MuJoCo's root body does not give Pinocchio's coordinates: that body" in skipped
 
 
 # A base with two identical legs whose joints the file lists out of their names' order (z_hip before a_hip), no motors
@@ -1016,3 +1054,19 @@ def test_a_floating_urdf_rooted_at_world_is_skipped_with_why(tmp_path):
         assert (result.mujoco is not None) is compared
         if not compared:
             assert "the root link is named world, which MuJoCo reads as its world body" in result.mujoco_skipped
+
+
+def test_a_floating_skip_names_only_the_cause_that_applies(tmp_path):
+    """Each --floating URDF MuJoCo cannot be compared with names its own cause, not every possible one (the skip
+    listed "e.g. joints of its own, or the root link is named world" for both, a reviewer's note): capler.urdf's root
+    body in MuJoCo, carriage, has a slide joint beside which no free joint compiles; a robot whose root link `world`
+    is fixed to its base gets the free joint on the link after it."""
+    joints = "that body, 'carriage', has joints of its own (base_x)"
+    world = "the root link is named world, which MuJoCo reads as its world body"
+    capler = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
+    assert joints in capler and world not in capler, capler
+    path = tmp_path / "world.urdf"
+    path.write_text('<robot name="legs"><link name="world"/><joint name="fix" type="fixed"><parent link="world"/>'
+                    f'<child link="base"/><origin xyz="0.05 0.02 0.3"/></joint>{TWO_LEGS}</robot>')
+    rooted = check_model(load_robot(path, floating=True), samples=1).mujoco_skipped
+    assert world in rooted and "joints of its own" not in rooted, rooted

@@ -520,6 +520,24 @@ def test_couplings_and_negative_inertias_are_refused(tmp_path):
         load_robot(impossible)
 
 
+def test_an_inertia_only_balanceinertia_makes_valid_is_refused_saying_so(robot_variant):
+    """Capler's thigh with principal moments 1, 1, 5 (g m^2) under <compiler balanceinertia="true">: MuJoCo loads the
+    file (it replaces the moments by their mean), so the refusal says that Pinocchio does not, beside the triangle
+    inequality: it named the inequality alone, and a user who saw MuJoCo accept the file had no cause (session 69's
+    tester). Without balanceinertia the refusal does not mention it."""
+    text = (ROBOTS_DIR / "capler.xml").read_text()
+    thigh = '<inertial pos="0 0 -0.016" mass="1.782" diaginertia="0.001 0.001 0.001"/>'
+    assert text.count(thigh) == 1
+    text = text.replace(thigh, thigh.replace("0.001 0.001 0.001", "0.005 0.001 0.001"))
+    with pytest.raises(RobotFileError, match=r"A \+ B >= C\)$") as plain:
+        robot_variant(text, "<compiler", "<compiler", name="plain.xml")
+    assert "balanceinertia" not in str(plain.value)
+    with pytest.raises(RobotFileError, match=r"A \+ B >= C\); MuJoCo accepts the file because its <compiler "
+                                             r'balanceinertia="true"> replaces such moments by their mean, which '
+                                             "Pinocchio does not"):
+        robot_variant(text, 'autolimits="true"', 'autolimits="true" balanceinertia="true"')
+
+
 @pytest.mark.parametrize("robot, old, new, message", [
     ("capler.urdf", '<mass value="1.782"/>', '<mass value="1,782"/>',
      r"could not read part of .*Could not parse inertial element for Link \[thigh\]"),
