@@ -541,7 +541,9 @@ def _body_masses(robot: Robot, mj, root: ET.Element) -> list[str]:
     apart = [f"{'+'.join(names[j])} {_apart(mass[j], model.inertias[j].mass)}" for j in joints]
     if not apart:
         return []
-    causes = "; ".join(_weighing_causes(mj, root, [name for j in joints for name in names[j]]))
+    # (a body with its own <inertial> weighs that in both readings, unless inertiafromgeom: its geoms tell no cause)
+    causes = "; ".join(_weighing_causes(mj, root, [name for j in joints for name in names[j]
+                                                   if geometric or name in weighed]))
     if geometric:
         return [f"body masses {'; '.join(apart)}: with <compiler inertiafromgeom=\"true\"> both weigh every body by "
                 f"its geoms instead of its <inertial>; {causes}; remove it and give each body an <inertial>"]
@@ -558,8 +560,9 @@ def _weighing_causes(mj, root: ET.Element, bodies: list[str]) -> list[str]:
     ids = [mj.body(name).id for name in bodies]
     geoms = [g for g in range(mj.ngeom) if mj.geom_bodyid[g] in ids]
     colliding = [g for g in geoms if mj.geom_contype[g] or mj.geom_conaffinity[g]]
-    compiler = {key: c.get(key) for c in root.iter("compiler") for key in ("discardvisual", "inertiagrouprange")
-                if c.get(key) is not None}
+    compiler = {"inertiagrouprange": "0 5"}  # (MuJoCo's default range)
+    compiler.update({key: c.get(key) for c in root.iter("compiler") for key in ("discardvisual", "inertiagrouprange")
+                     if c.get(key) is not None})
     causes = []
     # (discardvisual drops them from the compiled model after MuJoCo weighed them: the file still counts them)
     written = sum(len(b.findall("geom")) for b in root.iter("body") if b.get("name") in bodies)
@@ -569,15 +572,43 @@ def _weighing_causes(mj, root: ET.Element, bodies: list[str]) -> list[str]:
                       + (", MuJoCo also those <compiler discardvisual=\"true\"> discards" if discarded else ""))
     if any(mj.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH for g in colliding):
         causes.append("Pinocchio's parser weighs a colliding mesh geom 1 kg whatever its size, MuJoCo by its volume")
-    if "inertiagrouprange" in compiler:
-        with contextlib.suppress(ValueError):
-            low, high = (int(x) for x in compiler["inertiagrouprange"].split())
-            if any(not low <= mj.geom_group[g] <= high for g in colliding):
-                causes.append(f"MuJoCo weighs only the geoms of groups {low} to {high} (<compiler inertiagrouprange="
-                              f"\"{compiler['inertiagrouprange']}\">), Pinocchio's parser those of every group")
-    if any(g.get("mass") is not None for d in root.iter("default") for g in d.findall("geom")):
+    with contextlib.suppress(ValueError):
+        low, high = (int(x) for x in compiler["inertiagrouprange"].split())
+        if any(not low <= mj.geom_group[g] <= high for g in colliding):
+            causes.append(f"MuJoCo weighs only the geoms of groups {low} to {high} (<compiler inertiagrouprange="
+                          f"\"{compiler['inertiagrouprange']}\">), Pinocchio's parser those of every group")
+    if _default_mass_geoms(root, bodies):
         causes.append("Pinocchio's parser does not read a <default>'s geom mass")
     return causes or ["Pinocchio's parser weighs them otherwise"]
+
+
+def _default_mass_geoms(root: ET.Element, bodies: list[str]) -> bool:
+    """Whether a geom of these bodies (names) without a mass of its own takes one from its <default> class (its class,
+    else its nearest body's childclass, else the top-level default; a class inherits its parent's): an unused class's
+    mass was named as the cause of a mesh's gap."""
+    massive = set()
+
+    def walk(default: ET.Element, inherited: bool) -> None:
+        has = inherited or any(g.get("mass") is not None for g in default.findall("geom"))
+        if has:
+            massive.add(default.get("class", "main"))
+        for child in default.findall("default"):
+            walk(child, has)
+
+    for default in root.findall("default"):
+        walk(default, False)
+
+    parents = {child: parent for parent in root.iter() for child in parent}
+
+    def childclass(node: ET.Element | None) -> str:  # (a body's own childclass applies to its own geoms too)
+        while node is not None:
+            if node.tag == "body" and node.get("childclass"):
+                return node.get("childclass")
+            node = parents.get(node)
+        return "main"
+
+    return any(geom.get("mass") is None and geom.get("class", childclass(body)) in massive
+               for body in root.iter("body") if body.get("name") in bodies for geom in body.findall("geom"))
 
 
 def _rescaling(root: ET.Element) -> list[ET.Element]:
@@ -731,11 +762,11 @@ def _free_joint_map(robot: Robot):
         return str(exc)
     if robot.floating:  # Pinocchio's free-flyer root (--floating): the same joint on MuJoCo's root link
         root = spec.worldbody.first_body()
-        if root.joints:  # (MuJoCo refuses a free joint beside other joints in one body)
-            return f"that body, {root.name!r}, has joints of its own ({', '.join(j.name for j in root.joints)})"
-        if not _is_free_flyer_body(model, root.name):
+        if not _is_free_flyer_body(model, root.name):  # (first: capler.urdf's 'carriage' has base_x for that reason)
             return ("the root link is named world, which MuJoCo reads as its world body, so the free joint would move "
                     f"the link after it ({root.name!r})")
+        if root.joints:  # (MuJoCo refuses a free joint beside other joints in one body)
+            return f"that body, {root.name!r}, has joints of its own ({', '.join(j.name for j in root.joints)})"
         root.add_freejoint()
     try:
         mj = spec.compile()

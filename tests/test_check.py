@@ -554,11 +554,27 @@ COLLIDE = "Pinocchio's parser weighs only the geoms that collide"
     ([('autolimits="true"', 'autolimits="true" inertiagrouprange="0 1"'),
       (SHANK_GEOM, COLLIDING_SHANK_GEOM + '<geom type="box" size="0.02 0.02 0.02" group="3" contype="1"/>')],
      'MuJoCo weighs only the geoms of groups 0 to 1 (<compiler inertiagrouprange="0 1">)'),
+    ([(SHANK_GEOM, COLLIDING_SHANK_GEOM + '<geom type="box" size="0.02 0.02 0.02" group="6" contype="1"/>')],
+     'MuJoCo weighs only the geoms of groups 0 to 5 (<compiler inertiagrouprange="0 5">)'),  # (MuJoCo's default)
+    ([(SHANK_GEOM, COLLIDING_SHANK_GEOM.replace("<geom", '<geom class="heavy"')),
+      ("</default>", '<default class="heavy"><geom mass="5"/></default></default>')],
+     "Pinocchio's parser does not read a <default>'s geom mass"),
+    # an unused class's mass beside a colliding mesh, and a jointless child with its own <inertial> whose colliding
+    # mesh weighs that in both readings: neither is named
+    ([(SHANK_GEOM, '<geom type="mesh" mesh="tip" contype="1"/>'),
+      ("</default>", '<default class="heavy"><geom mass="5"/></default></default>'),
+      ("<worldbody>", '<asset><mesh name="tip" file="tip.obj"/></asset><worldbody>')],
+     "Pinocchio's parser weighs a colliding mesh geom 1 kg whatever its size"),
+    ([(SHANK_GEOM, SHANK_GEOM + '<body name="pad"><inertial pos="0 0 0" mass="0.1" diaginertia="1e-5 1e-5 1e-5"/>'
+                                '<geom type="mesh" mesh="tip" contype="1"/></body>'),
+      ("<worldbody>", '<asset><mesh name="tip" file="tip.obj"/></asset><worldbody>')], COLLIDE),
 ])
 def test_a_body_mass_gap_names_the_cause_that_applies(tmp_path, edits, cause):
     """Capler's shank without <inertial>, weighed by MuJoCo and Pinocchio's parser apart for one cause each (a geom
     that collides with nothing, also under discardvisual; a colliding mesh, which Pinocchio weighs 1 kg; a geom
-    outside inertiagrouprange): the body-mass hint names that cause and no other, and keeps the advice. It blamed the
+    outside inertiagrouprange, written or MuJoCo's default 0 to 5; a <default> class's geom mass): the body-mass hint
+    names that cause and no other (not an unused class's mass, nor the mesh of a child weighed by its own
+    <inertial>), and keeps the advice. It blamed the
     geoms that collide with nothing for all four, which sent a user looking for contype in a file of colliding
     geoms (session 69's tester)."""
     from planner.check import reading_differences
@@ -1002,8 +1018,7 @@ def test_the_skip_reason_names_each_joints_type(tmp_path):
     """When MuJoCo's reading is skipped, the reason names each joint that is no hinge or slide with its type ("free
     joint root, ball joint hip", where "free/ball joints root, hip" left the user to guess which is which, and a ball
     joint reaches it with the pinocchio.casadi backend only), and a --floating URDF's says that the free joint
-    check-model adds to MuJoCo's root body did not give Pinocchio's coordinates (Capler's carriage has joints of its
-    own): "is not in the file MuJoCo reads" alone no longer said why, as files with one added are compared."""
+    check-model adds to MuJoCo's root body did not give Pinocchio's coordinates (Capler's root link is world): "is not in the file MuJoCo reads" alone no longer said why, as files with one added are compared."""
     from planner.check import SKIPPED, _compile
 
     path = tmp_path / "ball.xml"
@@ -1012,7 +1027,7 @@ def test_the_skip_reason_names_each_joints_type(tmp_path):
     _, kind, why = _compile(load_robot(path))  # (the symbolic dynamics refuses the ball joint; pinocchio.casadi not)
     assert kind == SKIPPED and why.startswith("free joint root, ball joint hip: MuJoCo's coordinates differ"), why
     skipped = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
-    assert "a free joint added to MuJoCo's root body does not give Pinocchio's coordinates: that body" in skipped
+    assert "a free joint added to MuJoCo's root body does not give Pinocchio's coordinates: the root link" in skipped
 
 
 # A base with two identical legs whose joints the file lists out of their names' order (z_hip before a_hip), no motors
@@ -1059,12 +1074,12 @@ def test_a_floating_urdf_rooted_at_world_is_skipped_with_why(tmp_path):
 def test_a_floating_skip_names_only_the_cause_that_applies(tmp_path):
     """Each --floating URDF MuJoCo cannot be compared with names its own cause, not every possible one (the skip
     listed "e.g. joints of its own, or the root link is named world" for both, a reviewer's note): capler.urdf's root
-    body in MuJoCo, carriage, has a slide joint beside which no free joint compiles; a robot whose root link `world`
-    is fixed to its base gets the free joint on the link after it."""
-    joints = "that body, 'carriage', has joints of its own (base_x)"
+    link is world, so MuJoCo's root body is carriage (which also has the slide base_x: named for the world, its
+    cause, not for the joint, a second reviewer); a robot whose root link `world` is fixed to its base gets the free
+    joint on the link after it."""
     world = "the root link is named world, which MuJoCo reads as its world body"
     capler = check_model(load_robot(ROBOTS_DIR / "capler.urdf", floating=True), samples=1).mujoco_skipped
-    assert joints in capler and world not in capler, capler
+    assert world in capler and "'carriage'" in capler and "joints of its own" not in capler, capler
     path = tmp_path / "world.urdf"
     path.write_text('<robot name="legs"><link name="world"/><joint name="fix" type="fixed"><parent link="world"/>'
                     f'<child link="base"/><origin xyz="0.05 0.02 0.3"/></joint>{TWO_LEGS}</robot>')

@@ -223,6 +223,7 @@ def test_an_error_in_a_task_edited_in_code_says_it_is_not_the_files(tmp_path):
     other = tmp_path / "capler.task"
     other.write_text((ROBOTS / "capler.toml").read_text())
     assert task_source(replace(edited, source=str(other))) == str(other.absolute()) + EDITED
+    assert task_source(replace(on_file, source=str(other))) == str(other)  # (read and compared, not refused)
 
 
 def test_the_tables_a_task_lacks_are_task_errors():
