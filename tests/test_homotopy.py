@@ -425,11 +425,8 @@ def test_ipopt_pass_through_reaches_the_cold_and_the_warm_nlps():
     assert H.ipopt_options(opts, warm=False)["ipopt"]["alpha_for_y"] == "min"
 
 
-def test_the_users_ipopt_options_reach_the_schedule_and_projection_nlps(monkeypatch):
-    """SolveOptions.ipopt (and warm_ipopt for a warm NLP) win over the held-schedule and projection NLPs' own IPOPT
-    settings: `--ipopt acceptable_iter=10 accept_every_trial_step=no mumps_permuting_scaling=7` was recorded and
-    replaced there (IPOPT's list of user options showed 2, yes and 0)."""
-    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+def _ipopt_options_seen(monkeypatch) -> dict:
+    """name -> the IPOPT options of each nlpsol CasADi builds from now on in the test."""
     seen, real = {}, H.ca.nlpsol
 
     def spy(name, solver, nlp, opts):
@@ -437,6 +434,15 @@ def test_the_users_ipopt_options_reach_the_schedule_and_projection_nlps(monkeypa
         return real(name, solver, nlp, opts)
 
     monkeypatch.setattr(H.ca, "nlpsol", spy)
+    return seen
+
+
+def test_the_users_ipopt_options_reach_the_schedule_and_projection_nlps(monkeypatch):
+    """SolveOptions.ipopt (and warm_ipopt for a warm NLP) win over the held-schedule and projection NLPs' own IPOPT
+    settings: `--ipopt acceptable_iter=10 accept_every_trial_step=no mumps_permuting_scaling=7` was recorded and
+    replaced there (IPOPT's list of user options showed 2, yes and 0)."""
+    problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
+    seen = _ipopt_options_seen(monkeypatch)
     given = {"acceptable_iter": 10, "accept_every_trial_step": "no", "mumps_permuting_scaling": 7}
     solvers = H._Solvers(problem, H.SolveOptions(ipopt=given, warm_ipopt={"acceptable_iter": 11}))
     solvers.get(True, schedule=True)
@@ -451,13 +457,7 @@ def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
     N = 40) stayed there to the 3000 cap from both starts, 130 s for a failed solve. The homotopy's NLPs keep IPOPT's
     default: their restoration is how a warm start far from feasible comes back."""
     problem = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=3))
-    seen, real = {}, H.ca.nlpsol
-
-    def spy(name, solver, nlp, opts):
-        seen[name] = dict(opts["ipopt"])
-        return real(name, solver, nlp, opts)
-
-    monkeypatch.setattr(H.ca, "nlpsol", spy)
+    seen = _ipopt_options_seen(monkeypatch)
     solvers = H._Solvers(problem, H.SolveOptions())
     solvers.get(False)
     solvers.get(True)
