@@ -404,8 +404,9 @@ def _named_differences(robot: Robot, mj) -> tuple[str, ...]:
             out.append(f"joint {joint!r}: margin {mj.jnt_margin[j]:g}: MuJoCo's limit pushes that far inside the "
                        "range, where the planner's bounds allow motion; remove margin")
         mujoco_range = tuple(float(x) for x in mj.jnt_range[j]) if mj.jnt_limited[j] else (-np.inf, np.inf)
+        # (a free joint's range: Pinocchio's placeholders)
         if mj.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE and not np.allclose(
-                mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):  # (a free joint: Pinocchio's placeholders)
+                mujoco_range, (lower[i], upper[i]), rtol=0.0, atol=TOLERANCE):
             out.append(f"joint {joint!r}: range [{mujoco_range[0]:g}, {mujoco_range[1]:g}] in MuJoCo, [{lower[i]:g}, {upper[i]:g}] in Pinocchio")
     return tuple(out)
 

@@ -676,31 +676,31 @@ def _on_plane_runs(gap, a: int, k: int):
 # step settling a foot onto its plane (the biped's default plan: 0.03 and 0.07 m/s; a bounder's 3.5-11 mm/s), no landing
 # a user needs to hear of (a 1 kg foot at 0.1 m/s carries 5 mJ)
 LANDING_MIN_MPS = 0.1
-# [m] a point on its plane whose node velocity does not point into it landed from the air only when the node before
-# was at least this high, or it fell this far over the two steps before: a point hovering a few micrometres above ON_PLANE_M that drifts onto it is no fall, whatever
-# the step's clock (2 um -> 0.5 um read 0.30 m/s over a step whose clock leaked 1e-4 h); 100 ON_PLANE_M, far below a
-# flight step's fall (the saved plans' landings and impacts came down from 2.3 mm to 23 cm)
+# [m] a point on its plane whose node velocity does not point into it landed from the air only when the node before was
+# at least this high, or it fell this far over the two steps before: a point hovering a few micrometres above ON_PLANE_M
+# that drifts onto it is no fall, whatever the step's clock (2 um -> 0.5 um read 0.30 m/s over a step whose clock leaked
+# 1e-4 h); 100 ON_PLANE_M, far below a flight step's fall (the saved plans' landings and impacts came down from 2.3 mm
+# to 23 cm)
 FALL_MIN_M = 1e-4
 
 
 def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tuple[str, ...]) -> list[dict]:
     """Each contact point's landings that no Impact record holds: runs of nodes at which the point lies on its plane
     (gap (K, n_c) [m], ON_PLANE_M) and moves into it (approach (K, n_c), its normal velocity [m/s], below
-    -APPROACH_MPS), its first node also whatever its approach when the point fell FALL_MIN_M or more onto it over
-    the step before or the two steps before (a step that runs the clock can brake the point to rest before the node), outside every Impact of that
-    point (its tau_start..tau_end, dated at the node, or over a step that brought the point down), that come from the
-    air: the node before is off the plane, or the run starts at the start (a point on its plane before, standing or
-    skimming, has a node velocity J v that the implicit step's rotation can leave pointing into the plane at up to
-    ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes a step only when its
-    clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md, "Partly frozen
-    stance"). Each as {"point", "time" [s] (the run's first node's clock), "approach_mps" (the fastest approach of the
-    run, the mean speed at which the point came down over its last step, and the approach of the node before it when
-    the step before that moved the point down to it: a step that runs the clock can brake part of the landing before
-    the node; a node velocity that moved the point up did not
-    approach; runs slower than LANDING_MIN_MPS are left out), "clock_share" (how much of the step that braked it,
-    length dt_steps (K-1,) [s] of numerical time, its clock ran: the step from the run's first node, which a recovered
-    impact freezes, or the step before it for a point braked before its node)}, in time order. contacts (n_c,): their
-    names."""
+    -APPROACH_MPS), its first node also whatever its approach when the point fell FALL_MIN_M or more onto it over the
+    step before or the two steps before (a step that runs the clock can brake the point to rest before the node),
+    outside every Impact of that point (its tau_start..tau_end, dated at the node, or over a step that brought the point
+    down), that come from the air: the node before is off the plane, or the run starts at the start (a point on its
+    plane before, standing or skimming, has a node velocity J v that the implicit step's rotation can leave pointing
+    into the plane at up to ~4 m/s while the point stays on it: no landing). With several contacts the recovery freezes
+    a step only when its clock stood still, so a landing in steps that ran the clock is no impact (docs/formulation.md,
+    "Partly frozen stance"). Each as {"point", "time" [s] (the run's first node's clock), "approach_mps" (the fastest
+    approach of the run, the mean speed at which the point came down over its last step, and the approach of the node
+    before it when the step before that moved the point down to it: a step that runs the clock can brake part of the
+    landing before the node; a node velocity that moved the point up did not approach; runs slower than LANDING_MIN_MPS
+    are left out), "clock_share" (how much of the step that braked it, length dt_steps (K-1,) [s] of numerical time, its
+    clock ran: the step from the run's first node, which a recovered impact freezes, or the step before it for a point
+    braked before its node)}, in time order. contacts (n_c,): their names."""
     clock, tau = traj.y[:, -1], traj.tau
     approach, gap = (np.asarray(arr, float).reshape(len(clock), -1) for arr in (approach, gap))
     from_air = np.zeros_like(gap, dtype=bool)
@@ -776,17 +776,17 @@ def _braked_lines(extra: dict) -> list[str]:
 class PlanResult(ArraysReadOnly):
     """What `planner.homotopy.solve` returns: the plan, how the homotopy went, and its hops.
 
-    robot: robot file path; task: the task's source (its file path, "" for one built in code; "ABSOLUTE_PATH (edited)", planner.task.EDITED, when
-    the task solved differs from that file: extra["_task"] and trajectory.npz's task_json hold it); trajectory; stats;
-    h: step length tau_f / N [s of numerical time]; rho_f: the task's weight of ||sigma - sigma*||^2;
-    terminal_error: the terminal rows' largest distance outside their bounds [m, rad (, m/s, rad/s)]; nlps: one
-    NlpRecord per NLP solved, in order; hops: the robot's flight phases (Hop); polished: the returned point is a
-    polishing NLP's; constraint_violation: block name of Problem.g_blocks (but the penalty's) -> largest violation
-    at the returned point in the constraint's units, and "bounds" of the variable bounds; timings: where the wall
-    time went [s] (build_s, solver_setup_s, ipopt_s, ...; docs/results.md); options: "problem" and "solve", the
-    ProblemOptions and SolveOptions field by field; extra: what the report and summary.json add (e.g. skims,
-    slides, race; keys starting with "_" are private); robot_sha256: the robot file's contents as planned (validate
-    and --init refuse the file changed since). docs/results.md describes each as summary.json holds it.
+    robot: robot file path; task: the task's source (its file path, "" for one built in code; "ABSOLUTE_PATH (edited)",
+    planner.task.EDITED, when the task solved differs from that file: extra["_task"] and trajectory.npz's task_json hold
+    it); trajectory; stats; h: step length tau_f / N [s of numerical time]; rho_f: the task's weight of ||sigma -
+    sigma*||^2; terminal_error: the terminal rows' largest distance outside their bounds [m, rad (, m/s, rad/s)]; nlps:
+    one NlpRecord per NLP solved, in order; hops: the robot's flight phases (Hop); polished: the returned point is a
+    polishing NLP's; constraint_violation: block name of Problem.g_blocks (but the penalty's) -> largest violation at
+    the returned point in the constraint's units, and "bounds" of the variable bounds; timings: where the wall time went
+    [s] (build_s, solver_setup_s, ipopt_s, ...; docs/results.md); options: "problem" and "solve", the ProblemOptions and
+    SolveOptions field by field; extra: what the report and summary.json add (e.g. skims, slides, race; keys starting
+    with "_" are private); robot_sha256: the robot file's contents as planned (validate and --init refuse the file
+    changed since). docs/results.md describes each as summary.json holds it.
     """
 
     robot: str

@@ -572,8 +572,8 @@ class Task:
             rates = robot.out_of_plane_rates(c.point)
             if rates:
                 largest = ", ".join(f"{j} {r:.3g}" for j, r in sorted(rates.items(), key=lambda item: -item[1]))
-                tiny = (" (so small a rate is a joint axis a little off y in the robot file, e.g. a rounded rpy or axis: "
-                        "write it to full precision)" if max(rates.values()) < 1e-4 else "")
+                tiny = (" (so small a rate is a joint axis a little off y in the robot file, e.g. a rounded rpy or "
+                        "axis: write it to full precision)" if max(rates.values()) < 1e-4 else "")
                 raise TaskError(f"contact point {c.point!r} can move along y: the planner's contacts are planar (normal and "
                                 "friction in the x-z plane), so it would slide along y without friction; dy/dq up to "
                                 f"{largest} (m per m or rad) at seeded postures{tiny}")
@@ -596,8 +596,8 @@ class Task:
         if robot.scenery:  # the replay clears their collisions too (replay.build_scene): a step was passed through
             warnings.warn(f"{robot.path}: the world's geom(s) {', '.join(map(repr, robot.scenery))} can collide in "
                           "MuJoCo (contype or conaffinity nonzero), but the planner and its validation model the "
-                          "ground plane only (the plane named 'ground', else the file's only plane if level): a plan or "
-                          "simulation may pass through them; set their contype and conaffinity to 0 if they are "
+                          "ground plane only (the plane named 'ground', else the file's only plane if level): a plan "
+                          "or simulation may pass through them; set their contype and conaffinity to 0 if they are "
                           "decoration")
         _length("initial.q", self.initial.q, robot.nq, robot)
         if self.initial.v is not None:
@@ -868,8 +868,8 @@ EDITED = " (edited)"
 def task_source(task: Task) -> str:
     """task.source for a result and a message: its file's path, or that path (absolute) + EDITED when the task is no
     longer what the file holds. dataclasses.replace keeps the source: a plan of a target edited to 0.3 m named, as its
-    task, a file whose target is 0.5 m, and an error blamed that file for a value it does not contain. A source that is no
-    file is kept, and so is a trajectory.npz's (read_task's; load_task cannot read it)."""
+    task, a file whose target is 0.5 m, and an error blamed that file for a value it does not contain. A source that is
+    no file is kept, and so is a trajectory.npz's (read_task's; load_task cannot read it)."""
     path = Path(task.source)
     if not task.source or path.suffix == ".npz" or not path.is_file():  # (read_task's trajectory.npz)
         return task.source
