@@ -763,11 +763,11 @@ def _free_joint_map(robot: Robot):
         return str(exc)
     if robot.floating:  # Pinocchio's free-flyer root (--floating): the same joint on MuJoCo's root link
         root = spec.worldbody.first_body()
-        if not _is_free_flyer_body(model, root.name):  # (first: capler.urdf's 'carriage' has base_x for that reason)
+        # (a URDF's root link has no joint of its own: MuJoCo's root body has joints, as capler.urdf's 'carriage'
+        # has base_x, only when the root link is world)
+        if not _is_free_flyer_body(model, root.name):
             return ("the root link is named world, which MuJoCo reads as its world body, so the free joint would move "
                     f"the link after it ({root.name!r})")
-        if root.joints:  # (MuJoCo refuses a free joint beside other joints in one body)
-            return f"that body, {root.name!r}, has joints of its own ({', '.join(j.name for j in root.joints)})"
         root.add_freejoint()
     try:
         mj = spec.compile()
