@@ -788,11 +788,38 @@ class _StopWhenInterrupted(ca.Callback):
         return [1.0 if interrupted() else 0.0]  # (nonzero: IPOPT stops)
 
 
-def _nlpsol(name: str, nlp: dict, opts: dict, keep: list) -> ca.Function:
-    """ca.nlpsol(name, "ipopt", nlp, opts), with _StopWhenInterrupted where IPOPT prints its log (kept alive in
-    `keep`: CasADi holds no reference to a Python callback)."""
-    if opts["ipopt"].get("print_level", 5) > 0:  # (IPOPT's default level is 5)
-        keep.append(_StopWhenInterrupted(nlp))
+class _NearestFeasible(_StopWhenInterrupted):
+    """The projection polish's iteration callback: besides stopping on a Ctrl-C, it keeps the iterate whose rows lie
+    nearest their bounds (the latest of equals; IPOPT's iterates keep the bounds of x), so that a projection IPOPT
+    does not finish still hands over its feasible point (_kept_projection). Capler without holes at N = 40: the
+    projection's rows reached 1.8e-8 in 5 iterations and stayed there, above IPOPT's tol 1e-8, while the dual
+    infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4."""
+
+    def __init__(self, nlp: dict):
+        super().__init__(nlp)
+        self.reset(np.zeros(0), np.zeros(0), np.ones(0))
+
+    def reset(self, lbg: np.ndarray, ubg: np.ndarray, D: np.ndarray) -> None:
+        """Before each solve: its row bounds (ng,) and the variables' scale D (nx,) (x = D xs)."""
+        self.lbg, self.ubg, self.D = lbg, ubg, D
+        self.iteration, self.best = 0, None  # best: (largest row violation, iteration, x, f, lam_x, lam_g), unscaled
+
+    def eval(self, arg):
+        it = {ca.nlpsol_out(i): np.asarray(a, float).ravel() for i, a in enumerate(arg)}
+        g = it["g"]
+        viol = float(max(np.max(self.lbg - g, initial=0.0), np.max(g - self.ubg, initial=0.0)))
+        if self.best is None or viol <= self.best[0]:
+            self.best = (viol, self.iteration, it["x"] * self.D, float(it["f"][0]), it["lam_x"] / self.D, it["lam_g"])
+        self.iteration += 1
+        return super().eval(arg)
+
+
+def _nlpsol(name: str, nlp: dict, opts: dict, keep: list, nearest_feasible: bool = False) -> ca.Function:
+    """ca.nlpsol(name, "ipopt", nlp, opts), with _StopWhenInterrupted where IPOPT prints its log, or
+    _NearestFeasible (nearest_feasible) always (kept alive in `keep`: CasADi holds no reference to a Python
+    callback)."""
+    if nearest_feasible or opts["ipopt"].get("print_level", 5) > 0:  # (IPOPT's default level is 5)
+        keep.append((_NearestFeasible if nearest_feasible else _StopWhenInterrupted)(nlp))
         opts = dict(opts, iteration_callback=keep[-1])
     return ca.nlpsol(name, "ipopt", nlp, opts)
 
@@ -813,6 +840,7 @@ class _Solvers:
         self.scale_cold = False  # VariableScaling.START: the cold solver (NLP 1) sees xs too
         self.options, self.cache, self.setup_time_s = options, {}, 0.0
         self.callbacks: list[_StopWhenInterrupted] = []  # those of the solvers made (_nlpsol)
+        self.nearest_feasible: _NearestFeasible | None = None  # the projection's (made with it)
         self.eval_s: dict[str, dict[str, float]] = {}  # IPOPT's name -> callback -> wall s, summed over all its calls
         self.problem = problem
         self._derivs, self._derivs_stepwise = None, False
@@ -910,7 +938,8 @@ class _Solvers:
                 opts["ipopt"]["bound_relax_factor"] = self._bound_relax()
             _users_last(opts, self.options, False)
             opts.update(self.derivatives(scaled, projection=True))
-            self.cache["projection"] = _nlpsol("tf_ocp_projection", nlp, opts, self.callbacks)
+            self.cache["projection"] = _nlpsol("tf_ocp_projection", nlp, opts, self.callbacks, nearest_feasible=True)
+            self.nearest_feasible = self.callbacks[-1]
             self.setup_time_s += time.perf_counter() - t0
         return self.cache["projection"]
 
@@ -1294,8 +1323,22 @@ def _frozen_tol(problem: Problem, options) -> float:
 
 
 def _accepted(problem, options, x, rec) -> bool:
-    """A polishing NLP's point stands in for the homotopy's: IPOPT converged, constraints and terminal kept."""
-    return rec.success and _feasible(problem, x, options) and rec.terminal_error <= options.terminal_tol
+    """A polishing NLP's point stands in for the homotopy's: IPOPT converged (or its kept iterate is the point),
+    constraints and terminal kept."""
+    return ((rec.success or rec.kept_iteration is not None) and _feasible(problem, x, options)
+            and rec.terminal_error <= options.terminal_tol)
+
+
+def _kept_projection(problem, solvers, rec):
+    """A projection polish IPOPT did not finish: (x, lam_x, lam_g, record) of its iterate nearest feasibility
+    (_NearestFeasible), the record's numbers that point's and kept_iteration its iteration, or None."""
+    if rec.success or solvers.nearest_feasible is None or solvers.nearest_feasible.best is None:
+        return None
+    viol, k, x, f, lam_x, lam_g = solvers.nearest_feasible.best
+    note = (f"its iterate {k} kept: IPOPT stopped short of its tolerances with the rows within {viol:.1e} of their "
+            "bounds there")
+    return x, lam_x, lam_g, replace(rec, objective=f, complementarity_residual=gated_complementarity(problem, x),
+                                    terminal_error=terminal_error(problem, x), kept_iteration=k, note=note)
 
 
 def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label):
@@ -1316,6 +1359,9 @@ def _polish(problem, solvers, options, x, lam_x, lam_g, records, progress, label
     lbx, ubx, x_fixed = active_set_bounds(problem, x)
     xp, lxp, lgp, rec = _run(problem, solvers, x_fixed, lam_x, lam_g, problem.params(0.0, 1.0), lbx, ubx, label,
                              projection=options.polish_projection)
+    kept = _kept_projection(problem, solvers, rec) if options.polish_projection else None
+    if kept is not None and _accepted(problem, options, kept[0], kept[3]):
+        xp, lxp, lgp, rec = kept
     records.append(rec)
     if progress:
         progress(rec)
@@ -1378,6 +1424,7 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     if projection:
         lam_x, lam_g, warm = None, None, False
         p = np.concatenate([np.asarray(x0, float) / D, p])
+        solvers.nearest_feasible.reset(problem.lbg if lbg is None else lbg, problem.ubg if ubg is None else ubg, D)
     k = len(p) - problem.p.numel()  # the projection's p starts with its reference point
     rho, hole_scale = float(p[k]), float(p[k + 1])
     lbg = problem.lbg if lbg is None else lbg
@@ -1587,7 +1634,7 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     reasons = []
     if not (polished or homotopy):  # SolveOptions.schedule_only: x is the start, not a plan of this task
         reasons.append("the held-schedule NLP was not accepted")
-    if not last.success:
+    if not (last.success or last.kept_iteration is not None):
         reasons.append(f"IPOPT did not converge in {last.label} ({last.status})")
     if comp > options.comp_tol:
         reasons.append(f"complementarity residual {comp:.3g} > {options.comp_tol:g}")

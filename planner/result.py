@@ -500,7 +500,9 @@ class NlpRecord:
     pairs of a * b (unscaled; with gating the largest gated product); iterations: IPOPT iterations; time_s: wall time
     of the IPOPT call [s]; status: IPOPT return status; success: IPOPT's success flag; terminal_error: the terminal
     rows' largest distance outside [lbg, ubg] [m, rad (, m/s, rad/s)]; note: why the planner set aside the NLP's
-    point though IPOPT succeeded (a held schedule that adds an impact), or "".
+    point though IPOPT succeeded (a held schedule that adds an impact), or kept one though IPOPT did not, or "";
+    kept_iteration: a projection polish IPOPT did not finish, whose iterate of that number (0: the start) the planner
+    kept because the plan's checks accept it (the record's numbers are that point's), or None.
     """
 
     label: str
@@ -514,6 +516,7 @@ class NlpRecord:
     success: bool
     terminal_error: float
     note: str = ""
+    kept_iteration: int | None = None
 
     def __post_init__(self):
         _no_negative_zero(self, "complementarity_residual")

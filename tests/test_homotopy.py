@@ -469,6 +469,63 @@ def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
     assert seen["tf_ocp_projection"]["max_resto_iter"] == 7
 
 
+KEPT_ITERATE_TOL = 1e-12  # the callback's copy of an iterate against IPOPT's returned point: the same numbers
+
+
+def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds():
+    """_NearestFeasible keeps, of the iterates IPOPT visits, the one whose rows lie nearest their bounds (the latest
+    of equals), with its iteration number: checked against IPOPT's own iterates, each got by capping max_iter at j
+    (IPOPT then returns iterate j), on a circle-constrained least squares."""
+    x = ca.SX.sym("x", 2)
+    nlp = {"x": x, "f": (x[0] - 3) ** 2 + x[1] ** 2, "g": ca.sumsqr(x)}
+    cap = 6
+
+    def solver(max_iter, keep):
+        opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iter}}
+        return H._nlpsol("circle", nlp, opts, keep, nearest_feasible=True)
+
+    def run(max_iter):
+        keep = []
+        f = solver(max_iter, keep)
+        keep[-1].reset(np.ones(1), np.ones(1), np.ones(2))
+        sol = f(x0=[0.2, 0.9], lbg=1, ubg=1)
+        return np.asarray(sol["x"], float).ravel(), keep[-1], f.stats()
+
+    iterates = [run(j)[0] for j in range(cap + 1)]
+    viol = [abs(float(np.sum(xj ** 2)) - 1) for xj in iterates]
+    _, kept, stats = run(cap)
+    assert stats["return_status"] == "Maximum_Iterations_Exceeded"  # (else the test would not cap anything)
+    best = max(range(cap + 1), key=lambda j: (-viol[j], j))
+    assert kept.best[1] == best
+    assert abs(kept.best[0] - viol[best]) <= KEPT_ITERATE_TOL
+    assert np.max(np.abs(kept.best[2] - iterates[best])) <= KEPT_ITERATE_TOL
+
+
+def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(monkeypatch):
+    """A projection polish that IPOPT does not finish (here: tolerances it cannot reach, as Capler without holes at
+    N = 40 reached rows within 1.8e-8 but a dual infeasibility stuck at 4e-4) still polishes the plan: its iterate
+    nearest feasibility is kept when the plan's checks accept it, and the record says which iterate it was. Without
+    it the polish was refused and the plan fell back to the homotopy's point (or failed)."""
+    real = H.ca.nlpsol
+
+    def unfinishable(name, solver, nlp, opts):
+        if name == "tf_ocp_projection":
+            opts = dict(opts, ipopt=dict(opts["ipopt"], tol=1e-30, dual_inf_tol=1e-30, acceptable_iter=0, max_iter=20))
+        return real(name, solver, nlp, opts)
+
+    monkeypatch.setattr(H.ca, "nlpsol", unfinishable)
+    problem = build_problem(load_robot(POINT_MASS_XML), hop_task())
+    options = H.SolveOptions(reoptimize=False)
+    result = H.solve(problem, options)
+    polish = next(r for r in result.nlps if r.label == "polish")
+    assert polish.status == "Maximum_Iterations_Exceeded" and not polish.success
+    assert polish.kept_iteration is not None and "kept" in polish.note
+    assert result.polished and result.stats.converged
+    x = result.extra["_x"]
+    assert max(H.constraint_violation(problem, x).values()) <= options.constraint_tol
+    assert polish.terminal_error == H.terminal_error(problem, x)
+
+
 def test_gating_and_ungate_keep_the_trajectory():
     """ProblemOptions.gating: the penalty's products of alpha/zeta are weighted by 1 - beta and of
     gamma by (1 - beta) alpha; ungate resets the selectors a gate switches off to theta(h) without
@@ -1377,7 +1434,9 @@ def test_a_failed_hybrid_stage_leaves_the_polish_to_start_from_the_homotopys_poi
 
     monkeypatch.setattr(H, "_run", failing)
     records = []
-    assert H._polish(prob, None, H.SolveOptions(polish=H.Polish.HYBRID), x, None, None, records, None, "polish") is None
+    no_solvers = H._Solvers(prob, H.SolveOptions())  # (none made: _run is stubbed)
+    assert H._polish(prob, no_solvers, H.SolveOptions(polish=H.Polish.HYBRID), x, None, None, records, None,
+                     "polish") is None
     assert [r.label for r in records] == ["hybrid", "polish"]
     homotopys = H.ungate(prob, x) if "gates" in prob.notes else x  # (the polish reads the ungated point)
     np.testing.assert_array_equal(starts["polish"], H.active_set_bounds(prob, homotopys)[2])
