@@ -12,13 +12,15 @@ selectors that the gates switch off are reset afterwards (ungate). Then, optiona
   fixed to zero by bounds (for a selector: sigma = 0 with lambda1 = 0, sigma = 1 with lambda0 = 0,
   or, for 0 < sigma < 1, lambda0 = lambda1 = 0) and the penalty dropped (rho = 0, s_c = 0). If that
   NLP converges, its point satisfies every complementarity condition exactly and every other
-  constraint to IPOPT's tolerance; it is accepted only then (and only if it keeps the terminal and
-  hole constraints), otherwise the homotopy's point stands.
+  constraint to IPOPT's tolerance; it is accepted only then, or (the projection polish) when IPOPT
+  stopped short of its tolerances at an iterate the verdict's checks accept (NlpRecord.kept_iteration),
+  and only if it keeps the terminal and hole constraints; otherwise the homotopy's point stands.
 * HoleSchedule.RELAXED_FIRST: the first NLP drops the holes (hole scale 0) and the later ones
   enforce them: a continuation in the scene the solver runs itself; the user gives no hint.
 
 The result's convergence verdict is about the plan it returns: the NLP that produced it converged
-(IPOPT success: the polish, or the last homotopy NLP when the polish was not accepted),
+(IPOPT success: the polish, or the last homotopy NLP when the polish was not accepted; or the
+projection polish's kept iterate),
 complementarity residual <= options.comp_tol, terminal error <= options.terminal_tol, holes and
 path constraints kept to options.constraint_tol. An earlier homotopy NLP that stopped at its
 iteration cap is only a stepping stone; the message names it (SolveStats.message) and its record
@@ -193,7 +195,8 @@ class Polish(Enum):
     """The NLP after the homotopy that makes complementarity exact (SolveOptions.polish; the module docstring)."""
 
     NONE = "none"  # no polish: the last homotopy NLP's point is returned
-    ACTIVE_SET = "active_set"  # fix every pair's smaller side to zero, no penalty; accepted only if it converges
+    ACTIVE_SET = "active_set"  # fix every pair's smaller side to zero, no penalty; accepted only if it converges (or
+    # its projection's kept iterate passes the verdict's checks)
     HYBRID = "hybrid"  # fix only the clearly separated pairs, penalize the rest (rho = hybrid_rho), then ACTIVE_SET
 
 
@@ -259,7 +262,10 @@ class SolveOptions:
     point and took 904-1322 iterations back (default Capler task; now 10-19; docs/formulation.md,
     round 7). With variable_scaling the distance is measured in xs = x / D. It gives up after
     PROJECTION_MAX_RESTO_ITER successive restoration iterations (a projection there had left its start for good),
-    which IPOPT reports as Maximum_Iterations_Exceeded below max_iter.
+    which IPOPT reports as Maximum_Iterations_Exceeded below max_iter, and it stops (User_Requested_Stop)
+    PROJECTION_STALL_ITER iterations after its rows first came within constraint_tol; a projection IPOPT
+    does not finish hands over its iterate nearest feasibility when the verdict's checks accept it
+    (NlpRecord.kept_iteration).
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
     mumps_ordering: MumpsOrdering, MUMPS's fill-reducing ordering (only with linear_solver "mumps").
@@ -671,6 +677,12 @@ SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
 # in it to the 3000 cap from both starts (8448 iterations, 130 s). With this cap each fails in ~300 iterations
 # (docs/formulation.md, the session-69 note after the FESD table); IPOPT's default is 3000000.
 PROJECTION_MAX_RESTO_ITER = 100
+# A projection stops this many iterations after its rows first came within the verdict's constraint_tol
+# (_NearestFeasible), and its iterate nearest feasibility is kept: the penalty replan of Capler's raced N = 40 no-holes
+# plan to its own task ran its projection to the 3000 cap (24 s) with the rows within 8e-9, the dual infeasibility
+# never below IPOPT's tol. Projections that converge take 10-20 iterations on the shipped tasks. (A rule on the rows
+# no longer halving read rounding noise: a hop's rows went 2e-15 -> 9e-16 after 35 iterations.)
+PROJECTION_STALL_ITER = 100
 
 
 def _users_last(opts: dict, options: SolveOptions, warm: bool) -> None:
@@ -793,16 +805,19 @@ class _NearestFeasible(_StopWhenInterrupted):
     nearest their bounds (the latest of equals; IPOPT's iterates keep the bounds of x), so that a projection IPOPT
     does not finish still hands over its feasible point (_kept_projection). Capler without holes at N = 40: the
     projection's rows reached 1.8e-8 in 5 iterations and stayed there, above IPOPT's tol 1e-8, while the dual
-    infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4."""
+    infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4. It stops
+    IPOPT PROJECTION_STALL_ITER iterations after the rows first came within stall_tol."""
 
     def __init__(self, nlp: dict):
         super().__init__(nlp)
-        self.reset(np.zeros(0), np.zeros(0), np.ones(0))
+        self.reset(np.zeros(0), np.zeros(0), np.ones(0), 0.0)
 
-    def reset(self, lbg: np.ndarray, ubg: np.ndarray, D: np.ndarray) -> None:
-        """Before each solve: its row bounds (ng,) and the variables' scale D (nx,) (x = D xs)."""
-        self.lbg, self.ubg, self.D = lbg, ubg, D
+    def reset(self, lbg: np.ndarray, ubg: np.ndarray, D: np.ndarray, stall_tol: float) -> None:
+        """Before each solve: its row bounds (ng,), the variables' scale D (nx,) (x = D xs) and the row violation
+        [constraint units] from which on IPOPT gets PROJECTION_STALL_ITER more iterations (0: only rows met exactly)."""
+        self.lbg, self.ubg, self.D, self.stall_tol = lbg, ubg, D, stall_tol
         self.iteration, self.best = 0, None  # best: (largest row violation, iteration, x, f, lam_x, lam_g), unscaled
+        self.feasible_since = None  # the first iteration whose rows were within stall_tol
 
     def eval(self, arg):
         it = {ca.nlpsol_out(i): np.asarray(a, float).ravel() for i, a in enumerate(arg)}
@@ -810,8 +825,11 @@ class _NearestFeasible(_StopWhenInterrupted):
         viol = float(max(np.max(self.lbg - g, initial=0.0), np.max(g - self.ubg, initial=0.0)))
         if self.best is None or viol <= self.best[0]:
             self.best = (viol, self.iteration, it["x"] * self.D, float(it["f"][0]), it["lam_x"] / self.D, it["lam_g"])
+        if self.feasible_since is None and viol <= self.stall_tol:
+            self.feasible_since = self.iteration
+        stalled = self.feasible_since is not None and self.iteration - self.feasible_since >= PROJECTION_STALL_ITER
         self.iteration += 1
-        return super().eval(arg)
+        return [1.0] if stalled else super().eval(arg)
 
 
 def _nlpsol(name: str, nlp: dict, opts: dict, keep: list, nearest_feasible: bool = False) -> ca.Function:
@@ -1323,10 +1341,11 @@ def _frozen_tol(problem: Problem, options) -> float:
 
 
 def _accepted(problem, options, x, rec) -> bool:
-    """A polishing NLP's point stands in for the homotopy's: IPOPT converged (or its kept iterate is the point),
-    constraints and terminal kept."""
-    return ((rec.success or rec.kept_iteration is not None) and _feasible(problem, x, options)
-            and rec.terminal_error <= options.terminal_tol)
+    """A polishing NLP's point stands in for the homotopy's: IPOPT converged, or its kept iterate is the point and
+    complementary (an accepted polish ends the search over polish_starts, so a kept point the verdict would refuse
+    must not), constraints and terminal kept."""
+    kept = rec.kept_iteration is not None and problem.complementarity_residual(x) <= options.comp_tol
+    return (rec.success or kept) and _feasible(problem, x, options) and rec.terminal_error <= options.terminal_tol
 
 
 def _kept_projection(problem, solvers, rec):
@@ -1424,7 +1443,8 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     if projection:
         lam_x, lam_g, warm = None, None, False
         p = np.concatenate([np.asarray(x0, float) / D, p])
-        solvers.nearest_feasible.reset(problem.lbg if lbg is None else lbg, problem.ubg if ubg is None else ubg, D)
+        solvers.nearest_feasible.reset(problem.lbg if lbg is None else lbg, problem.ubg if ubg is None else ubg, D,
+                                       solvers.options.constraint_tol)
     k = len(p) - problem.p.numel()  # the projection's p starts with its reference point
     rho, hole_scale = float(p[k]), float(p[k + 1])
     lbg = problem.lbg if lbg is None else lbg
@@ -1629,7 +1649,8 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     comp = problem.complementarity_residual(x)
     term = terminal_error(problem, x)
     viol = constraint_violation(problem, x)
-    homotopy = [r for r in records if r.label.startswith("homotopy")]  # polishing stages are accepted only on success
+    # polishing stages are accepted only on success (or a projection's kept iterate)
+    homotopy = [r for r in records if r.label.startswith("homotopy")]
     last = next(r for r in reversed(records) if r.label == source) if polished else (homotopy or records)[-1]
     reasons = []
     if not (polished or homotopy):  # SolveOptions.schedule_only: x is the start, not a plan of this task

@@ -472,33 +472,66 @@ def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
 KEPT_ITERATE_TOL = 1e-12  # the callback's copy of an iterate against IPOPT's returned point: the same numbers
 
 
-def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds():
+@pytest.mark.parametrize("cap, rows", [
+    (3, "circle"),  # the nearest is iterate 0 (violations 0.15, 17.2, 4.08, 0.82): not the last
+    (6, "circle"),  # the nearest is the last (..., 0.094, 2.4e-3, 6.7e-6): not the first
+    (4, "slack"),  # an inactive row, every violation 0: the latest of equals, the cap
+])
+def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds(cap, rows):
     """_NearestFeasible keeps, of the iterates IPOPT visits, the one whose rows lie nearest their bounds (the latest
-    of equals), with its iteration number: checked against IPOPT's own iterates, each got by capping max_iter at j
-    (IPOPT then returns iterate j), on a circle-constrained least squares."""
+    of equals), with its iteration number, unscaled by D: checked against IPOPT's own iterates, each got by capping
+    max_iter at j (IPOPT then returns iterate j), on a circle-constrained least squares (or its row inactive)."""
     x = ca.SX.sym("x", 2)
-    nlp = {"x": x, "f": (x[0] - 3) ** 2 + x[1] ** 2, "g": ca.sumsqr(x)}
-    cap = 6
-
-    def solver(max_iter, keep):
-        opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iter}}
-        return H._nlpsol("circle", nlp, opts, keep, nearest_feasible=True)
+    g, lbg, ubg = (ca.sumsqr(x), 1.0, 1.0) if rows == "circle" else (x[0], -10.0, 10.0)
+    nlp = {"x": x, "f": (x[0] - 3) ** 2 + x[1] ** 2, "g": g}
+    D = np.array([2.0, 0.5])  # (the callback sees the solver's variables; the kept point is x = D xs)
 
     def run(max_iter):
         keep = []
-        f = solver(max_iter, keep)
-        keep[-1].reset(np.ones(1), np.ones(1), np.ones(2))
-        sol = f(x0=[0.2, 0.9], lbg=1, ubg=1)
+        opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iter}}
+        f = H._nlpsol("circle", nlp, opts, keep, nearest_feasible=True)
+        keep[-1].reset(np.array([lbg]), np.array([ubg]), D, 0.0)
+        sol = f(x0=[0.2, 0.9], lbg=lbg, ubg=ubg)
         return np.asarray(sol["x"], float).ravel(), keep[-1], f.stats()
 
     iterates = [run(j)[0] for j in range(cap + 1)]
-    viol = [abs(float(np.sum(xj ** 2)) - 1) for xj in iterates]
+    gfun = ca.Function("g", [x], [g])
+    viol = [max(lbg - float(gfun(xj)), float(gfun(xj)) - ubg, 0.0) for xj in iterates]
     _, kept, stats = run(cap)
     assert stats["return_status"] == "Maximum_Iterations_Exceeded"  # (else the test would not cap anything)
     best = max(range(cap + 1), key=lambda j: (-viol[j], j))
     assert kept.best[1] == best
     assert abs(kept.best[0] - viol[best]) <= KEPT_ITERATE_TOL
-    assert np.max(np.abs(kept.best[2] - iterates[best])) <= KEPT_ITERATE_TOL
+    assert np.max(np.abs(kept.best[2] - D * iterates[best])) <= KEPT_ITERATE_TOL
+
+
+def _unfinishable_projection(monkeypatch, max_iter: int):
+    """From now on the projection polish's IPOPT has tolerances it cannot reach and max_iter; (problem, options, result
+    of the point-mass hop solved so, its variables scaled by VariableScaling.FIRST_NLP)."""
+    real = H.ca.nlpsol
+
+    def unfinishable(name, solver, nlp, opts):
+        if name == "tf_ocp_projection":
+            # (tiny_step_tol 0: IPOPT's own stop on tiny steps, at rows ~1e-15, would end the hop's projection first)
+            opts = dict(opts, ipopt=dict(opts["ipopt"], tol=1e-30, dual_inf_tol=1e-30, acceptable_tol=1e-30,
+                                         acceptable_iter=0, tiny_step_tol=0.0, max_iter=max_iter))
+        return real(name, solver, nlp, opts)
+
+    monkeypatch.setattr(H.ca, "nlpsol", unfinishable)
+    scales = []
+    real_reset = H._NearestFeasible.reset
+
+    def reset(self, lbg, ubg, D, stall_tol):
+        scales.append(np.array(D))
+        real_reset(self, lbg, ubg, D, stall_tol)
+
+    monkeypatch.setattr(H._NearestFeasible, "reset", reset)
+    problem = build_problem(load_robot(POINT_MASS_XML), hop_task())
+    # scaled, so that the kept point must be unscaled (the hop task itself does not scale its variables)
+    options = H.SolveOptions(reoptimize=False, variable_scaling=H.VariableScaling.FIRST_NLP)
+    result = H.solve(problem, options)
+    assert scales and all(np.ptp(D) > 0 for D in scales[1:])  # ([0]: the callback's own construction)
+    return problem, options, result
 
 
 def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(monkeypatch):
@@ -506,17 +539,7 @@ def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(mo
     N = 40 reached rows within 1.8e-8 but a dual infeasibility stuck at 4e-4) still polishes the plan: its iterate
     nearest feasibility is kept when the plan's checks accept it, and the record says which iterate it was. Without
     it the polish was refused and the plan fell back to the homotopy's point (or failed)."""
-    real = H.ca.nlpsol
-
-    def unfinishable(name, solver, nlp, opts):
-        if name == "tf_ocp_projection":
-            opts = dict(opts, ipopt=dict(opts["ipopt"], tol=1e-30, dual_inf_tol=1e-30, acceptable_iter=0, max_iter=20))
-        return real(name, solver, nlp, opts)
-
-    monkeypatch.setattr(H.ca, "nlpsol", unfinishable)
-    problem = build_problem(load_robot(POINT_MASS_XML), hop_task())
-    options = H.SolveOptions(reoptimize=False)
-    result = H.solve(problem, options)
+    problem, options, result = _unfinishable_projection(monkeypatch, max_iter=20)
     polish = next(r for r in result.nlps if r.label == "polish")
     assert polish.status == "Maximum_Iterations_Exceeded" and not polish.success
     assert polish.kept_iteration is not None and "kept" in polish.note
@@ -524,6 +547,19 @@ def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(mo
     x = result.extra["_x"]
     assert max(H.constraint_violation(problem, x).values()) <= options.constraint_tol
     assert polish.terminal_error == H.terminal_error(problem, x)
+
+
+def test_a_stalled_projection_polish_stops_early_and_keeps_its_iterate(monkeypatch):
+    """A projection IPOPT does not finish ends PROJECTION_STALL_ITER iterations after its rows came within
+    constraint_tol (User_Requested_Stop) with its nearest iterate kept, instead of running to its cap: the penalty
+    replan of Capler's N = 40 no-holes plan spent 3000 iterations (24 s) with the rows within 8e-9."""
+    max_iter = 10 * H.PROJECTION_STALL_ITER
+    problem, options, result = _unfinishable_projection(monkeypatch, max_iter=max_iter)
+    polish = next(r for r in result.nlps if r.label == "polish")
+    assert polish.status == "User_Requested_Stop" and polish.iterations < max_iter
+    assert polish.iterations - polish.kept_iteration <= H.PROJECTION_STALL_ITER
+    assert polish.kept_iteration is not None and result.polished and result.stats.converged
+    assert max(H.constraint_violation(problem, result.extra["_x"]).values()) <= options.constraint_tol
 
 
 def test_gating_and_ungate_keep_the_trajectory():
