@@ -50,9 +50,11 @@ by the clock rate R (the ODE field's coefficient), through which those forces ac
 
 Bounds: |u| <= u_bound (or the actuators' range), joint bounds on every q_{k+1} (task.q_bounds), the robot file's
 joint speed limits on every v_{k+1} (a URDF's <limit velocity>, Robot.v_limit),
-selectors and lifted products in [0, 1], multipliers >= 0, s_k >= 1, s_c >= 0.
+selectors and lifted products in [0, 1], multipliers >= 0, 1 <= s_k <= horizon.max_time_speed (none: unbounded),
+s_c >= 0.
 
-Objective pieces (`Problem.objective_parts`): control = sum_k h u_k^T u_k (int u^2 dtau),
+Objective pieces (`Problem.objective_parts`): control = sum_k h s_k u_k^T u_k (int u^2 dtau, each step h s_k long;
+s_k = 1 without physical_time),
 selectors = rho_f sum_k ||sigma_k - sigma*||^2 (eq. 24a), penalty = rho s_c (LINF) or
 rho sum of all products (L1).
 
@@ -530,6 +532,8 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     lbx[var_blocks["w"]], ubx[var_blocks["w"]] = builder.lbw, builder.ubw
     if timed:
         lbx[var_blocks["s"]] = 1.0
+        if hz.max_time_speed is not None:
+            ubx[var_blocks["s"]] = hz.max_time_speed
     if linf:
         lbx[nx - 1] = 0.0
     if periodic:
@@ -564,7 +568,9 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
         for name in step_blocks:
             g_parts[name].append(gk[step.g_blocks[name]])
         selector_cost += cost_k
-        control_cost += h * ca.dot(uk, uk)
+        # step k lasts h s_k of the time-freezing system's time: charged at h alone, a push was cheaper in a
+        # sped-up step and plans put theirs there (nosnoc scales the stage cost by its speed of time too)
+        control_cost += h * sk * ca.dot(uk, uk)
         if path_fn["above_ground"] is not None:
             g_parts["above_ground"].append(path_fn["above_ground"](yk))
         if path_fn["holes"] is not None:
@@ -944,7 +950,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     step's products (block penalty (N, pairs per step)) and s_c bounds them (block penalty_max (N, 1)):
     the same l_inf penalty as one slack over every pair, without a KKT column coupled to all 144 N
     rows of Capler's pairs (measured 1.0 s against 0.08 s per IPOPT iteration at N = 50, n_fe = 3).
-    Objective: control h sum_k u_k^T u_k, selectors (each stage's rho_f term weighted b_j h_n / h),
+    Objective: control h sum_k s_k u_k^T u_k, selectors (each stage's rho_f term weighted b_j h_n / h),
     equilibration (rho_h sum_n ((h_n - h/n_fe) / (h/n_fe))^2), penalty."""
     plan, hz = task.plan, task.horizon
     fesd = FESDInterval(builder, options.fesd)
@@ -1000,7 +1006,7 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
         lbx[iv0[k] : iv0[k] + fesd.nx], ubx[iv0[k] : iv0[k] + fesd.nx] = iv.lbx, iv.ubx
         for name in step_blocks:
             g_parts[name].append(iv.g[iv.g_blocks[name].tolist()])
-        control_cost += h * ca.dot(uk, uk)
+        control_cost += h * sk * ca.dot(uk, uk)  # (s_k: as the implicit-Euler build)
         selector_cost += iv.objective - iv.equilibration
         equilibration += iv.equilibration
         stage = lambda e, j: iv.x[fesd.stage_slice(e, j)]  # noqa: E731  (Y_ej, w_ej)
@@ -1043,6 +1049,8 @@ def _build_fesd(robot: Robot, task: Task, options: ProblemOptions, dyn: Dynamics
     lbx[Yi[..., nq:nq + nv]], ubx[Yi[..., nq:nq + nv]] = -robot.v_limit, robot.v_limit  # and speed limits
     if timed:
         lbx[var_blocks["s"]] = 1.0
+        if hz.max_time_speed is not None:
+            ubx[var_blocks["s"]] = hz.max_time_speed
     if linf:
         lbx[nx - 1 - N :] = 0.0
         x_parts += [ca.SX.sym("s_c_step", N), ca.SX.sym("s_c")]

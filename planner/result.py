@@ -858,7 +858,10 @@ class PlanResult(ArraysReadOnly):
                          "where no friction acts: " + ", ".join(f"{s['point']} t = {s['start_time']:.4g} s "
                                                                f"{s['distance']:+.3g} m" for s in self.extra["slides"]))
         if "control_cost" in self.extra:
-            lines.append(f"cost: integral of u^T u over numerical time {self.extra['control_cost']:.4g}")
+            # (with physical_time the sum is h s_k u_k^T u_k: "over numerical time" alone read as h u_k^T u_k)
+            timed = task is not None and task.horizon.physical_time is not None
+            scaled = " scaled by the speed of time s" if timed else ""
+            lines.append(f"cost: integral of u^T u over numerical time{scaled} {self.extra['control_cost']:.4g}")
         if "race" in self.extra:  # planner.race: which variant this plan is, and what became of the others
             lines.append("race: " + race_arms_text(self.extra["race"]))
         if self.extra.get("no_walk"):  # planner.replan

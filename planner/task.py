@@ -115,6 +115,8 @@ class Horizon:
     tau_f: float
     N: int
     physical_time: float | None = None  # T [s]: adds speed of time s >= 1 with t(tau_f) = T
+    # upper bound of every s_k [unitless]; none: unbounded (the clock's catch-up went into a few steps 6-9 h long)
+    max_time_speed: float | None = None
 
     def __post_init__(self):
         _typed(self, "horizon")
@@ -123,6 +125,11 @@ class Horizon:
         _require(1 <= self.N <= MAX_STEPS, "horizon.N", self.N, f"in [1, {MAX_STEPS}]")
         if self.physical_time is not None:
             _require(0 < self.physical_time <= self.tau_f, "horizon.physical_time", self.physical_time, "in (0, tau_f]")
+        if self.max_time_speed is not None:
+            _require(self.physical_time is not None, "horizon.max_time_speed", self.max_time_speed,
+                     "left out without horizon.physical_time (it bounds the speed of time physical_time adds)")
+            _require(self.max_time_speed >= 1, "horizon.max_time_speed", self.max_time_speed,
+                     ">= 1 (the speed of time s is at least 1)")
 
     @property
     def h(self) -> float:

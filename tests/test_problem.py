@@ -310,6 +310,24 @@ def test_physical_time_adds_speed_and_constraint():
     assert prob.var_blocks["s_c"].shape == (1,) and prob.g_blocks["penalty"].shape == (5, 2 * prob.system.n_sigma)
 
 
+@pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
+def test_max_time_speed_is_every_speeds_upper_bound(discretization):
+    """horizon.max_time_speed is the upper bound (ubx) of every s_k, and without it s_k is unbounded above as before
+    (point-mass hop, N = 5, T = 0.8; the implicit Euler and the FESD builds). Unbounded, the clock's catch-up went
+    into a few steps 6-9 h long (a drop failed MuJoCo's validation for it; session 70's tester)."""
+    from planner.discretization import Discretization, FESDOptions
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    options = (ProblemOptions() if discretization == "implicit_euler"
+               else ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
+    for cap, upper in ((None, np.inf), (1.5, 1.5)):
+        horizon = Horizon(tau_f=1.0, N=5, physical_time=0.8, max_time_speed=cap)
+        task = dataclasses.replace(hop_task(N=5), horizon=horizon)
+        prob = build_problem(robot, task, options)
+        s = prob.var_blocks["s"].ravel()
+        assert s.shape == (5,) and np.all(prob.lbx[s] == 1.0) and np.all(prob.ubx[s] == upper), cap
+
+
 def test_physical_time_rows_scale_the_step_by_the_speed_and_pin_the_clock():
     """With horizon.physical_time (point-mass hop, N = 5, T = 0.8, EXPLICIT steps) step k's dynamics rows are
     y_{k+1} - y_k - h s_k F(y_{k+1}, sigma_k, u_k), the speed of time s_k times the unlifted field F (the system's
@@ -341,6 +359,28 @@ def test_physical_time_rows_scale_the_step_by_the_speed_and_pin_the_clock():
                                    rtol=FORM_TOL, atol=FORM_TOL, err_msg=f"step {k}")
     assert system.state_names[-1] == "t"
     np.testing.assert_array_equal(g[prob.g_blocks["physical_time"].ravel()], [Y[-1, -1]])
+
+
+@pytest.mark.parametrize("discretization", ["implicit_euler", "fesd"])
+def test_physical_time_charges_each_control_for_its_steps_length(discretization):
+    """With horizon.physical_time step k lasts h s_k, so its control costs h s_k u_k^T u_k: the objective's control
+    part at a seeded random point with s_k in [1, 3] equals that sum in NumPy (point-mass hop, N = 5, T = 0.8; the
+    implicit Euler and the FESD builds). Charged h u_k^T u_k, a push was cheaper in a sped-up step, plans put theirs
+    there and the reported control_cost understated the effort 1.2-2.8 times (session 70's tester)."""
+    from planner.discretization import Discretization, FESDOptions
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    task = dataclasses.replace(hop_task(N=5), horizon=Horizon(tau_f=1.0, N=5, physical_time=0.8))
+    options = (ProblemOptions() if discretization == "implicit_euler"
+               else ProblemOptions(discretization=Discretization.FESD, fesd=FESDOptions(n_s=1, n_fe=2)))
+    prob = build_problem(robot, task, options)
+    rng = np.random.default_rng(4)
+    x = rng.uniform(np.maximum(prob.lbx, -2.0), np.minimum(prob.ubx, 2.0))
+    S = rng.uniform(1.0, 3.0, size=prob.N)
+    x[prob.var_blocks["s"].ravel()] = S
+    U = x[prob.var_blocks["u"]]
+    control = float(prob.objective_parts["control"](x, prob.params(0.0, 1.0)))
+    assert control == pytest.approx(prob.h * np.sum(S * np.sum(U ** 2, axis=1)), rel=SUM_ROUNDING_REL)
 
 
 def test_physical_time_plan_ends_its_clock_at_T():

@@ -596,6 +596,20 @@ def test_the_report_and_summary_name_each_slide():
     assert sliding.summary()["slides"] == slides
 
 
+def test_the_reports_cost_line_says_when_the_speed_of_time_scales_it():
+    """The report's cost line reads "integral of u^T u over numerical time" for a plan without physical_time, and adds
+    "scaled by the speed of time s" for one with it, whose control_cost is h sum s_k u_k^T u_k: read as the integral
+    over numerical time alone it was h sum u_k^T u_k, which understated a physical_time plan's effort (session 70)."""
+    plan = _hop_plan()
+    cost = f"{plan.extra['control_cost']:.4g}"
+    assert f"cost: integral of u^T u over numerical time {cost}" in plan.report().splitlines()
+    task = plan.extra["_task"]
+    timed_task = replace(task, horizon=replace(task.horizon, physical_time=1.0))
+    timed = replace(plan, extra={**plan.extra, "_task": timed_task})
+    line = f"cost: integral of u^T u over numerical time scaled by the speed of time s {cost}"
+    assert line in timed.report().splitlines()
+
+
 def test_the_report_and_summary_name_each_skims_point_and_each_landing_without_an_impact():
     """A plan's extra["skims"] names each skim's contact point in its report line, and extra["unrecorded_landings"]
     gives one line that counts them and names each point, time, approach speed and the share of the step the clock

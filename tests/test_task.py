@@ -102,6 +102,11 @@ def _with(path: str, value):
         # kappa = 1.0001 scheduled 92109 NLPs through SolveOptions.rho_max; n_nlp itself is capped too
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.01, "n_nlp": 101}}, r"n_nlp = 101 .* \[1, 100\]"),
         ("horizon", {"tau_f": 2.5, "N": 10**9}, r"horizon.N = 1000000000 .* in \[1, 10000000\]"),  # built for ever
+        # only physical_time adds the speeds of time it bounds: without it the key was a silent no-op
+        ("horizon", {"tau_f": 1.0, "N": 10, "max_time_speed": 1.5},
+         r"^horizon.max_time_speed = 1.5 is not allowed; it must be left out without horizon.physical_time"),
+        ("horizon", {"tau_f": 1.0, "N": 10, "physical_time": 1.0, "max_time_speed": math.nan},
+         r"^horizon.max_time_speed must be a number, got nan$"),
         # a finite but absurd horizon overflowed h g: a plan's report gave a physical time of 300 digits
         ("horizon", {"tau_f": 1e300, "N": 10},
          r"^horizon.tau_f = 1e\+300 is not allowed; it must be at most 1e\+06 s$"),
@@ -132,6 +137,10 @@ def test_bad_values_are_named(path, value, message):
         # T > tau_f needs a speed of time s > 1 somewhere, but s >= 1 and t(tau_f) = T is solvable only for T <= tau_f
         ("horizon", {"tau_f": 1.0, "N": 10, "physical_time": 1.5}, {"tau_f": 1.0, "N": 10, "physical_time": 1.0},
          r"horizon.physical_time = 1.5 is not allowed; it must be in \(0, tau_f\]"),
+        # s >= 1 is every speed's lower bound: a cap below it leaves no speed of time at all
+        ("horizon", {"tau_f": 1.0, "N": 10, "physical_time": 1.0, "max_time_speed": 0.99},
+         {"tau_f": 1.0, "N": 10, "physical_time": 1.0, "max_time_speed": 1.0},
+         r"^horizon.max_time_speed = 0.99 is not allowed; it must be >= 1"),
         # kappa = 1 repeats the first penalty n_nlp times: the homotopy never tightens the complementarity
         ("plan", {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.0}},
          {"target_q": [3.0, 0.4, 0.0, 0.0], "homotopy": {"kappa": 1.5}},
@@ -139,9 +148,10 @@ def test_bad_values_are_named(path, value, message):
     ],
 )
 def test_range_edges_are_refused_and_their_neighbours_kept(path, bad, good, message):
-    """The open ends of three ranges: contacts.a_n in (0, MAX], horizon.physical_time in (0, tau_f] and
-    plan.homotopy.kappa > 1. The edge value raises TaskError naming the key and its range; a value just inside parses
-    (physical_time = tau_f is the closed end: s = 1 throughout)."""
+    """The ends of four ranges: contacts.a_n in (0, MAX], horizon.physical_time in (0, tau_f],
+    horizon.max_time_speed >= 1 and plan.homotopy.kappa > 1. A value past the end (an open end itself) raises
+    TaskError naming the key and its range; a value inside parses (physical_time = tau_f and max_time_speed = 1 are
+    closed ends: s = 1 throughout)."""
     with pytest.raises(TaskError, match=message):
         parse_task(_with(path, bad))
     parse_task(_with(path, good))
