@@ -1043,11 +1043,18 @@ def _cmd_plan(args) -> int:
         args.advice = _replan_failed(args.init, result)
         text += "\n" + args.advice
     if validating:
-        from .replay import validate, write_validation
+        from .replay import ReplayTooLongError, validate, write_validation
 
         try:
             validation = validate(target)
             write_validation(target, validation, args.result_id)  # (refused when another run wrote target meanwhile)
+        # (tau_f = 1e6 s) the converged plan's report is still the user's to read, and why it was not validated:
+        except (ReplayTooLongError, MemoryError) as exc:
+            why = str(exc) if isinstance(exc, ReplayTooLongError) else (
+                f"its replay of {result.trajectory.physical_duration:.6g} s ran out of memory")
+            args.advice = f"MuJoCo validation not run: {why}"  # (the -q failure line's reason)
+            _emit_then_plots(args, summary, f"{text}\n{args.advice}", plots_drawn)
+            return EXIT_FAILED
         # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
         except BaseException:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)

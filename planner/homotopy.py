@@ -47,6 +47,7 @@ import numpy as np
 from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
                      interrupted, options_record, plain, real_array, representable)
+from .model import robot_weight
 from .problem import Penalty, Problem, plane_gap, static_controls
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of, slides_of, unrecorded_landings)
@@ -1693,9 +1694,15 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
     gaps = np.array([np.asarray(problem.system.gap_fn(y, np.zeros(problem.system.nu)), float).ravel() for y in nodes])
     floating = _levitating(problem, traj, gaps) if not converged else []
     if floating:  # (Capler with its knee a contact too failed "out of reach" with the knee holding it up 0.17 m high)
+        # the field's support is also how the relaxed NLPs meet a target the robot cannot reach (Capler 30 m in 2.5 s
+        # ended so, its terminal errors no larger than a converged Capler plan's): both causes are said
         message += (f"; {', '.join(floating)}: levitating on the contact field, the penalty homotopy's local minimum"
+                    + ("" if infeasible else ", or the target may be out of reach in the horizon with these control "
+                       "bounds, holes and joint limits, and the field's support alone meets it")
                     + ("; a point that need not touch the ground is better declared touches = false (docs/tasks.md)"
                        if len(problem.system.contacts) > 1 else ""))
+    if not converged:
+        message += _far_sized(problem)
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]
@@ -1752,6 +1759,25 @@ def _outside_range(problem: Problem, traj: Trajectory) -> list[dict]:
 PLAN_RANGE_TOL = 1e-6  # [m or rad] IPOPT's relaxed bounds leave a plan resting on its limit ~1e-8 past it
 LEVITATION_GAP_M = 1e-3  # [m] a contact point this far off its plane holds no force in a plan
 LEVITATION_N = 1e-2  # [N] a persistent contact force below this is not named
+
+
+# [N] the robot's weight m g and plan.u_bound for which the homotopy's absolute weights were tuned: the shipped robots
+# weigh 9.8-343 N with controls of tens of N (m); a 1000 kg point mass with its task's forces scaled failed "out of
+# reach" until rho_schedule and soft_terminal_weight were scaled by 1e6 (session 70's tester)
+FORCE_SCALE_RANGE_N = (0.1, 1e3)
+
+
+def _far_sized(problem: Problem) -> str:
+    """"; ..." pointing at docs/tasks.md's "Robots of other sizes" when the robot's weight or plan.u_bound is
+    outside FORCE_SCALE_RANGE_N (a failed plan's message ends with it), else ""."""
+    lo, hi = FORCE_SCALE_RANGE_N
+    forces = {"the robot's weight m g": robot_weight(problem.robot), "plan.u_bound": problem.task.plan.u_bound}
+    far = [f"{name} = {value:.3g} N" for name, value in forces.items() if value is not None and not lo <= value <= hi]
+    if not far:
+        return ""
+    return (f"; {' and '.join(far)} outside [{lo:g}, {hi:g}] N, the sizes the homotopy's absolute weights suit: "
+            "scale rho_schedule, soft_terminal_weight and rho_f with the control cost (docs/tasks.md, \"Robots of "
+            "other sizes\")")
 
 
 def _levitating(problem: Problem, traj: Trajectory, gaps: np.ndarray) -> list[str]:

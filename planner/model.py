@@ -258,6 +258,11 @@ class Robot:
         return self.dof_names.index(joint)
 
 
+def robot_weight(robot: Robot) -> float:
+    """The robot's weight m g [N]: its total mass [kg] times the magnitude of its model's gravity [m/s^2]."""
+    return float(pin.computeTotalMass(robot.model) * np.linalg.norm(robot.model.gravity.linear))
+
+
 def resolve_robot_path(spec: str | os.PathLike) -> Path:
     """The absolute path of a robot file given by its path, or by the bare name of one in `robots/` (e.g. `capler`):
     a result's summary.json names it, and `validate` or `view` run from another directory must find it. Where no such

@@ -85,7 +85,7 @@ from .discretization import Discretization, FESDInterval, FESDOptions, ImplicitE
 from .dynamics import Dynamics, dynamics_for
 from .errors import InputError, check_field_types, enum_field, expect, plain, real_array, shown, shown_up
 from .contact import plane_axes
-from .model import Robot
+from .model import Robot, robot_weight
 from .scene import Skips, analyze_scene
 from .task import Task, task_source
 from .timefreezing import ContactModel, TimeFreezingSystem
@@ -456,6 +456,7 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
     if elastic:
         raise InputError(f"contact(s) {', '.join(elastic)}: planning with elastic contacts (restitution > 0) is not supported "
                          "yet; set restitution = 0 (`planner simulate` models frictionless elastic impacts)")
+    _warn_far_sized(robot, contacts)
     system = TimeFreezingSystem(dyn, contacts, task.ground_height, frictionless_tangential=not skips.enabled)
     known = {s.function for s in system.switches}
     scale_of = dict(options.switch_scale)
@@ -497,6 +498,13 @@ def build_problem(robot: Robot, task: Task, options: ProblemOptions = ProblemOpt
 
     if options.discretization is Discretization.FESD:
         return _build_fesd(robot, task, options, dyn, skips, contacts, system, builder, switch_scale, y0, start)
+    # one step ends at rest, and its q row q_1 - q_0 = h s v_1 then keeps q_1 = q_0: 16 NLPs failed "out of reach"
+    # with CasADi's "overconstrained" warnings (FESD's stages, a nonzero target_v or a periodic step may reach it)
+    if (N == 1 and plan.target_q is not None and options.terminal_velocity and not np.any(plan.target_v or 0.0)
+            and not np.array_equal(plan.target_q, task.initial.q)):
+        raise InputError("horizon.N = 1 (or --steps 1) cannot reach plan.target_q away from initial.q: the one "
+                         "implicit Euler step ends at rest (plan.target_v zero), so it ends where it starts; "
+                         "use N >= 2")
 
     # --- variables, stage by stage ---------------------------------------------------------------
     sizes = [("u", nu)] + ([("s", 1)] if timed else []) + [("y", ny), ("w", nw)]
@@ -704,6 +712,24 @@ def _bound_periodic_start(lbx, ubx, robot: Robot, task: Task, y0: np.ndarray, q_
     speed = robot.v_limit if v_bound is None else np.minimum(robot.v_limit, v_bound)
     lbx[nq : nq + nv], ubx[nq : nq + nv] = -speed, speed
     lbx[len(y0) - 1] = ubx[len(y0) - 1] = y0[-1]
+
+
+# a_n / (m g) beyond which build_problem warns (the shipped robots' tasks: 0.58 (biped) to 20 (point-mass hop)): above
+# 1e3, an impact below 0.01 h a_n is read as drift and not recorded (docs/tasks.md, a_n), which at h = 0.02 s is a
+# landing of up to 2 m/s (a 1 g point mass at the default a_n = 200, 2e4: its landing at 1.6 m/s went unrecorded);
+# below 0.05, a 1 m/s landing stays frozen for m v / a_n = 2 s of numerical time, the length of a whole horizon
+AN_PER_WEIGHT_RANGE = (0.05, 1e3)
+
+
+def _warn_far_sized(robot: Robot, contacts) -> None:
+    """Warn of each contact whose a_n [N] is far from the robot's weight m g (AN_PER_WEIGHT_RANGE)."""
+    weight = robot_weight(robot)
+    for ct in contacts:
+        if weight > 0 and not AN_PER_WEIGHT_RANGE[0] <= ct.a_n / weight <= AN_PER_WEIGHT_RANGE[1]:
+            warnings.warn(f"contact {ct.point}: a_n = {ct.a_n:g} N is {ct.a_n / weight:.3g} times the robot's weight "
+                          f"m g = {weight:.3g} N, outside [{AN_PER_WEIGHT_RANGE[0]:g}, {AN_PER_WEIGHT_RANGE[1]:g}]: "
+                          "scale a_n and a_t (and u_bound, rho_f, rho_schedule, soft_terminal_weight) with the mass "
+                          "(docs/tasks.md, \"Robots of other sizes\")", stacklevel=3)
 
 
 # [N, N m] the static balance B u + J^T lambda = g(q0) that the cone-constrained forces must meet: else they are not

@@ -98,6 +98,11 @@ MIN_TIMESTEP_S, MAX_TIMESTEP_S = 1e-5, 1e-2
 MAX_SPHERE_M = 0.01  # [m] a contact site's collision sphere: a larger one is a body of its own (1e300 failed)
 
 
+class ReplayTooLongError(InputError):
+    """A replay of more than MAX_STEPS MuJoCo steps, refused before its arrays are allocated: `planner plan` then
+    prints the converged plan's report with the reason instead of failing."""
+
+
 @dataclass(frozen=True)
 class ContactSettings:
     """MuJoCo settings that approximate rigid, inelastic impacts with Coulomb friction.
@@ -837,7 +842,12 @@ def validate_trajectory(robot: Robot, task: Task, traj: Mapping[str, np.ndarray]
         if point is not None and point not in scene.points:  # it stood for the lowest point, silently
             raise UnknownNameError("contact point", point, scene.points)
 
-    reference = _Reference(arrays, scene.settings.timestep)
+    duration, dt = float(t[-1] - t[0]), scene.settings.timestep
+    if duration > MAX_STEPS * dt:  # tau_f = 1e6 s: 4e9 steps asked numpy for 30 GiB ("out of memory" after the solve)
+        raise ReplayTooLongError(f"a replay of the trajectory's {duration:.6g} s of physical time would take "
+                                 f"{duration / dt:.3g} MuJoCo steps of {dt} s, more than {MAX_STEPS}: MuJoCo "
+                                 f"validates at most {MAX_STEPS * dt:.6g} s")
+    reference = _Reference(arrays, dt)
     samples = _window_samples(reference, options)  # (a window too short was refused after the first two replays)
     kinematic = _kinematic(scene, robot, t, q, options.contact_gap_tol_m, task if holes else None,
                            arrays if dynamics else None)

@@ -1461,20 +1461,43 @@ BAD_ALLOC = RuntimeError("Error in Function::factory for 'nlp_hess_l' [MXFunctio
 
 @pytest.mark.parametrize("error", [MemoryError(), BAD_ALLOC])
 def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path, capsys, monkeypatch, error):
-    """A MemoryError (a huge horizon.N, or a plan of tau_f = 1e6 s that MuJoCo replays at its 0.25 ms step) or CasADi's
-    C++ std::bad_alloc (N = 5000 under a 2.5 GB limit: it was a 35-line traceback, session 57's tester) is one line,
+    """A MemoryError (a huge horizon.N, or the physical time MuJoCo replays at its 0.25 ms step) or CasADi's C++
+    std::bad_alloc (N = 5000 under a 2.5 GB limit: it was a 35-line traceback, session 57's tester) is one line,
     exit 1, naming both causes (it named N only, which was 20) and the memory a step takes."""
-    import planner.replay as replay
+    import planner.cli as cli
 
-    def exhausted(target, options=None):
+    def exhausted(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(replay, "validate", exhausted)
+    monkeypatch.setattr(cli, "_write", exhausted)
     assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
                  "--no-plots", "-q", "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == ("planner plan: failed: out of memory (is horizon.N or --steps far too large, ~1 MB per step for "
                        "a robot of Capler's size, or the physical time MuJoCo replays, e.g. tau_f = 1e6 s?)")
+
+
+@pytest.mark.parametrize("limit, error", [(10, None), (None, MemoryError())])
+def test_a_converged_plan_mujoco_cannot_replay_is_reported_with_the_reason(tmp_path, capsys, monkeypatch, limit, error):
+    """A converged plan whose MuJoCo replay would take more than MAX_STEPS steps (tau_f = 1e6 s: 4e9), or runs out of
+    memory, prints its report and one line that the validation did not run and why, exit 1 as a failed validation:
+    it printed only "failed: out of memory", hiding the converged plan (session 70's tester)."""
+    import planner.replay as replay
+
+    def exhausted(target, options=None):
+        raise error
+
+    if limit is not None:  # the hop's 1 s at MuJoCo's 0.25 ms step is 4000 steps
+        monkeypatch.setattr(replay, "MAX_STEPS", limit)
+    else:
+        monkeypatch.setattr(replay, "validate", exhausted)
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "--no-plots", "--out", str(out)]) == 1
+    printed = capsys.readouterr().out.splitlines()
+    assert f"converged: results in {out}" in printed
+    assert printed[-1].startswith("MuJoCo validation not run: ")
+    assert ("MuJoCo steps of 0.00025 s, more than 10:" if limit else "ran out of memory") in printed[-1]
 
 
 def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):

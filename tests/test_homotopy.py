@@ -1251,6 +1251,38 @@ def test_a_failed_plan_says_which_contact_levitates(monkeypatch):
     assert "levitating" not in H.solve(pb).stats.message
 
 
+def test_a_levitating_failure_says_the_target_may_be_out_of_reach(monkeypatch):
+    """A failed plan held up by the contact field names an unreachable target as a cause beside the local minimum
+    (the field's support also meets a target the robot cannot reach: Capler 30 m in 2.5 s blamed only the homotopy,
+    session 70's tester)."""
+    pb = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=10))
+    monkeypatch.setattr(H, "_levitating", lambda problem, traj, gaps: ["point carried up to 2.4 N while 0.17 m off"])
+    failed = H.solve(pb, H.SolveOptions(max_iter=2, polish_after_failure=False))
+    assert not failed.stats.converged and "Infeasible_Problem_Detected" not in failed.stats.message
+    assert "levitating on the contact field, the penalty homotopy's local minimum, or the target may be out of reach" \
+        in failed.stats.message
+
+
+def test_a_failed_plan_of_a_robot_far_from_the_shipped_sizes_points_to_the_docs(robot_variant):
+    """A failed plan of a robot whose weight (or plan.u_bound) is far from the shipped robots' says that the
+    homotopy's weights are absolute and where docs/tasks.md says how to scale them: a 1000 kg point mass with its
+    forces scaled failed "out of reach", and converged once rho_schedule and soft_terminal_weight were scaled along
+    (session 70's tester); a failed plan of the 1 kg point mass does not say it."""
+    text = POINT_MASS_XML.read_text()
+    heavy = robot_variant(text, 'mass="1"', 'mass="1e3"')
+    task = dataclasses.replace(hop_task(N=10), plan=dataclasses.replace(hop_task().plan, u_bound=3e4))
+    options = H.SolveOptions(max_iter=2, polish_after_failure=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (a_n = 100 is 0.01 of its weight: build_problem's warning)
+        failed = H.solve(build_problem(heavy, task), options)
+    assert not failed.stats.converged
+    assert ("; the robot's weight m g = 9.81e+03 N and plan.u_bound = 3e+04 N outside [0.1, 1000] N, the sizes the "
+            "homotopy's absolute weights suit") in failed.stats.message
+    assert "Robots of other sizes" in failed.stats.message
+    assert "Robots of other sizes" not in H.solve(build_problem(load_robot(POINT_MASS_XML), hop_task(N=10)),
+                                                  options).stats.message
+
+
 def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
     """A plan whose NLP bounds on a joint (the task's joint_bounds, or lbx/ubx edited through the API) are wider
     than the robot file's range, and which uses that room, lists the joint in extra["joints_outside_range"] (with its

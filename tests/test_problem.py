@@ -550,6 +550,42 @@ def test_a_t_below_mu_a_n_warns_of_sliding_below_coulomb():
             build_problem(robot, parse_task(task))
 
 
+def test_an_a_n_far_from_the_robots_weight_warns(robot_variant):
+    """An a_n far from the robot's weight m g warns, naming the keys and docs/tasks.md's "Robots of other sizes": a 1 g
+    point mass at the default a_n = 200 (2e4 m g) planned its landings with none recorded, a 1000 kg one (0.02 m g)
+    failed; the shipped point mass (1 kg, 20 m g) and a 1000 kg one with a_n scaled along build without a word."""
+    text = (ROBOTS / "point_mass.xml").read_text()
+    task = {"contacts": [{"point": "point", "mu": 0.5, "a_n": 200.0, "a_t": 600.0}], "initial": {"q": [0.0, 0.0]},
+            "horizon": {"tau_f": 1.0, "N": 3}, "plan": {"target_q": [0.5, 0.0], "u_bound": 30.0}}
+    far = "contact point: a_n = 200 N is {} times the robot's weight m g = {} N, outside [0.05, 1000]: scale a_n"
+    for mass, ratio, weight in (("1e-3", "2.04e+04", "0.00981"), ("1e3", "0.0204", "9.81e+03")):
+        robot = robot_variant(text, 'mass="1"', f'mass="{mass}"', name=f"m{mass}.xml")
+        with pytest.warns(UserWarning, match=re.escape(far.format(ratio, weight)) + r".*Robots of other sizes"):
+            build_problem(robot, parse_task(task))
+    heavy = robot_variant(text, 'mass="1"', 'mass="1e3"', name="heavy.xml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        build_problem(load_robot(f"{ROBOTS}/point_mass.xml"), parse_task(task))
+        task["contacts"][0].update(a_n=2e5, a_t=6e5)
+        build_problem(heavy, parse_task(task))
+
+
+def test_one_step_to_a_target_away_from_the_start_is_refused():
+    """horizon.N = 1 with a target away from the start and the end at rest has no plan (the one implicit Euler
+    step's q_1 - q_0 = h s v_1 is zero at v_1 = 0): an InputError says so before the solve, which ran 16 NLPs into
+    "out of reach" with CasADi's "overconstrained" warnings; one step that can have a plan (to the start itself, or
+    with a target_v along the way, or FESD's stages) builds."""
+    from planner.discretization import Discretization
+
+    robot = load_robot(f"{ROBOTS}/point_mass.xml")
+    with pytest.raises(InputError, match=r"^horizon.N = 1 \(or --steps 1\) cannot reach plan.target_q away from "):
+        build_problem(robot, hop_task(N=1))
+    plan = hop_task(N=1).plan
+    for changed in (dict(target_q=(0.0, 0.0)), dict(target_v=(0.5, 0.0))):
+        build_problem(robot, dataclasses.replace(hop_task(N=1), plan=dataclasses.replace(plan, **changed)))
+    build_problem(robot, hop_task(N=1), ProblemOptions(discretization=Discretization.FESD))
+
+
 def test_velocity_bounds_rows_are_the_joint_rate_sums():
     """plan.velocity_bounds: one row per bound at y_1 .. y_N (block velocity_bounds (N, m)) and, for a
     periodic plan whose y_0 is free, at y_0 (velocity_bounds_y0 (1, m)); each row is the sum of the
