@@ -1247,11 +1247,11 @@ def _cmd_gait(args) -> int:
     if held[target]:
         _remove_plots(target)  # an earlier plan's plots in DIR read as the gait's (a gait draws none)
     walked = result.walking is None or result.walking.steps_walked >= result.walking.steps_asked
-    # a gait that asks the ground to pull (or to hold beyond friction), or its motors beyond their range, is no motion
-    # of the robot: it fails as a fall
+    # a gait that asks the ground to pull (or to hold beyond friction), or its motors or joints beyond their ranges, is
+    # no motion of the robot: it fails as a fall
     valid = walked and not gait_violations(result.summary)
-    verdict = ("converged" if valid else "converged, but the MuJoCo walk fell" if not walked
-               else "converged, but the gait violates its contacts or motor ranges") if converged else "FAILED"
+    broken = "the MuJoCo walk fell" if not walked else "the gait violates its contacts, motor ranges or joint ranges"
+    verdict = ("converged" if valid else f"converged, but {broken}") if converged else "FAILED"
     _emit(args, result.summary, f"{result.report()}\n{verdict}: results in {_escaped(target)}", written=True)
     return EXIT_OK if converged and valid else EXIT_FAILED  # the walk is the gait's validation, as MuJoCo's for a plan
 

@@ -39,7 +39,8 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
                      interruptible, is_integer, plain, real_array, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, task_path, write_files
+from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, _outside_range_lines, task_path, write_files
+from .simulate import joints_outside_range
 from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_source, task_to_json
 
 # The leg swap of the relabelling: the swing leg becomes the stance leg (paper eq. 11).
@@ -321,8 +322,10 @@ class OuterLoop:
     def line(self) -> str:
         emb = f" max|u_emb| {self.emb_max:.2e} N m," if self.emb_max is not None else ""
         rho = f"rho_emb {self.rho_emb:.4g}, " if self.rho_emb is not None else ""
+        # a converged solve ends with a full Newton step that is not counted (pronto.py): "0 PRONTO it." moved x(T)
+        polish = " + its final full step, not counted" if self.pronto_converged and not self.pronto_iterations else ""
         return (f"[{self.index:2d}] {self.stage:11s} {rho}rho_f {self.rho_f:.4g}: cost {self.cost:.6g},{emb} "
-                f"||x(T) - x_f|| {self.final_error:.2e}, {self.pronto_iterations} PRONTO it. -> {self.action}")
+                f"||x(T) - x_f|| {self.final_error:.2e}, {self.pronto_iterations} PRONTO it.{polish} -> {self.action}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -775,8 +778,9 @@ class WalkReport(ArraysReadOnly):
     """How the floating robot in MuJoCo walked the gait.
 
     steps_walked: impacts of the swing foot in front of the stance foot before any fall (of
-    `steps_asked`); fell: the hip dropped below 0.6 m or the torso passed +-90 deg; impact_times
-    [s] (MuJoCo, the first steps_asked landings; the replay runs 20 % longer) against the plan's (j+1) T;
+    `steps_asked`); fell: the hip dropped below FALL_HIP_SHARE of the plan's lowest hip height or the torso
+    passed +-90 deg; impact_times [s] (MuJoCo, the first steps_asked landings; the replay runs 20 % longer)
+    against the plan's (j+1) T;
     max_hinge_error [rad], max_torso_error [rad], max_hip_height_error [m]: over the steps walked, against the plan
     at the same stance-leg angle (WalkControl.PHASE) or at the same time since the last landing (time-indexed
     modes); max_torque [N m]: up to the last landing asked for (or the fall).
@@ -811,6 +815,10 @@ class WalkReport(ArraysReadOnly):
 
 # A MuJoCo landing counts as a step when the new stance foot is at least this share of the plan's step length ahead.
 MIN_STEP_SHARE = 0.5
+# The walk fell when the hip drops below this share of the plan's lowest hip height: relative to the plan, as an
+# absolute 0.6 m read a walking biped with 0.5 m legs (hip at 0.46 m) as fallen at t = 0. (The shipped biped's gaits
+# keep the hip >= 0.92 m and `planner plan biped` >= 0.99 m: falls below 0.55 and 0.60 m, where the test had 0.6 m.)
+FALL_HIP_SHARE = 0.6
 
 
 def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, steps: int,
@@ -862,6 +870,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
     tiled = periodic_walk(model, sol, steps)  # the plan's walk: its step length, and its base against MuJoCo's
     planned_step = tiled.step_length
     foot_pos = {f: model.dyn.point_position(f) for f in (lay.stance_foot, lay.swing_foot)}
+    fall_z = FALL_HIP_SHARE * float(np.min(np.array(model.q_of.map(N + 1)(sol.x[:, :3].T))[lay.z]))  # [m]
     state = {"j": 0, "t0": 0.0, "impacts": [], "err": [0.0, 0.0, 0.0], "down": False, "steps": [], "lean": 0.0, "speed_sum": 0.0,
              "last_t": 0.0}
     height = np.array(model.swing_height.map(N + 1)(sol.x[:, :3].T)).ravel()
@@ -928,7 +937,7 @@ def replay_gait(model: PinnedBiped, sol: GaitSolution | PinnedGait, task: Task, 
             # so the feedback acts on the rigid impact map's post-impact state (else ~1200 N m for one sample)
             x = model.delta(x)
             s, armed = (x[0], False) if phase else (0.0, False)
-        if (q[lay.z] < 0.6 or abs(q[lay.torso]) > np.pi / 2) and j < steps and not state["down"]:
+        if (q[lay.z] < fall_z or abs(q[lay.torso]) > np.pi / 2) and j < steps and not state["down"]:
             state["down"], state["fall_t"] = True, t
         # the swing foot's contact: off until the plan keeps that foot above ground (no knees, no clearance)
         margins[pair_of[swing]] = gains.stance_margin if armed and not from_below else -1.0
@@ -1034,8 +1043,10 @@ CONTACT_FORCE_TOL_N, CONTACT_IMPULSE_TOL_N_S, LIFT_OFF_TOL_M_S = 1e-6, 1e-9, 1e-
 
 
 def gait_violations(summary: dict) -> list[str]:
-    """A gait summary's contact and motor violations, the lines that make a converged gait no motion of the robot."""
-    return [*summary.get("contact_violations", ()), *summary.get("motor_violations", ())]
+    """A gait summary's contact, motor and joint-range violations, the lines that make a converged gait no motion of
+    the robot."""
+    return [*summary.get("contact_violations", ()), *summary.get("motor_violations", ()),
+            *summary.get("joint_violations", ())]
 
 
 def contact_violations(summary: dict) -> list[str]:
@@ -1080,6 +1091,16 @@ def motor_violations(robot: Robot, layout: BipedLayout, u: np.ndarray) -> list[s
     return [f"the motors need commands from {low:.4g} to {high:.4g} N m, beyond the robot file's control range "
             f"[{lo:g}, {hi:g}] of {', '.join(repr(m.name) for m in motors)} (each drives both legs' roles as they "
             "swap): MuJoCo clamps them"]
+
+
+def joint_violations(robot: Robot, q: np.ndarray) -> list[str]:
+    """The walk's joints beyond the robot file's ranges (simulate.joints_outside_range over q (P, nq), the floating
+    walk: legs swapped every step, so each hinge in both roles), one line each. The gait's OCP has no joint limits,
+    MuJoCo's replay enforces them: a gait with its hinges at -0.80 rad against a range of +-0.5 rad converged silently
+    and its walk fell at once, with no reason given."""
+    outside = joints_outside_range(robot, q)
+    return [line.strip() for line in _outside_range_lines({"joints_outside_range": outside}, len(q),
+                                                          "the gait's OCP has no joint limits")]
 
 
 MIRROR_TOL = 1e-9  # relative: the two stance models of mirror-image legs agree to rounding (measured 8e-15)
@@ -1220,6 +1241,7 @@ def run_gait(robot: Robot | str | os.PathLike, task: Task | str | os.PathLike, o
     }
     summary["contact_violations"] = contact_violations(summary)
     summary["motor_violations"] = motor_violations(robot, model.layout, sol.u)
+    summary["joint_violations"] = joint_violations(robot, walk.q)
     if out_dir is not None:
         arrays = {"tau": walk.t, "y": np.hstack([walk.q, walk.v, walk.t[:, None]]), "t": walk.t, "q": walk.q, "v": walk.v,
                   "u": walk.u, "impact_times": np.array([i[0] for i in walk.impacts]),

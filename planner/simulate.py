@@ -257,10 +257,11 @@ def joints_outside_range(robot: Robot, trajectory, tol: float = RANGE_TOL) -> li
     """Each joint whose position left the robot file's range at the nodes: joint, nodes (how many), the farthest value
     and the range, in `unit` (m or rad). A simulation has no joint limits (the planner's dynamics have none), a plan
     the task's joint_bounds, which may be wider; MuJoCo's replay enforces the file's: a pogo leg driven to -0.176 m
-    past its -0.05 m limit failed validation as a tracking error. tol [m or rad]: how far past counts."""
+    past its -0.05 m limit failed validation as a tracking error. trajectory: one with y (K, ny), or the positions
+    (K, nq) themselves (a gait's walk). tol [m or rad]: how far past counts."""
     if robot.nq != robot.nv:  # a free flyer's quaternion: its coordinates are not the named degrees of freedom
         return []
-    q = trajectory.y[:, : robot.nq]
+    q = (trajectory if isinstance(trajectory, np.ndarray) else trajectory.y)[:, : robot.nq]
     units = coordinate_units(robot.model)[0]
     out = []
     for i, (lo, hi) in enumerate(zip(robot.q_lower, robot.q_upper)):

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError, TaskError
-from planner.gait import (STOPPED, GaitOCP, GaitSpec, PhaseReference, PinnedBiped, WalkGains, _impact_contact,
-                          _output_control, desired_curve, final_low, find_layout, periodic_walk, plan_step, replay_gait,
-                          run_gait, solve_gait, solve_gait_ipopt)
+from planner.gait import (STOPPED, GaitOCP, GaitSpec, PhaseReference, PinnedBiped, PinnedGait, WalkGains,
+                          _impact_contact, _output_control, desired_curve, final_low, find_layout, periodic_walk,
+                          plan_step, replay_gait, run_gait, solve_gait, solve_gait_ipopt)
 from planner.model import ROBOTS_DIR, load_robot
 from planner.task import GaitPronto, Simulate, load_task, parse_task
 
@@ -201,6 +201,38 @@ def test_motor_commands_beyond_the_files_range_are_a_violation(tmp_path):
     assert "[-30, 30] of 'hip_1', 'hip_2'" in line, line
 
 
+def test_a_gait_beyond_the_files_joint_ranges_is_a_violation(tmp_path, capsys):
+    """The gait's OCP has no joint limits and MuJoCo's replay enforces the robot file's: hinges of range +-0.5 rad,
+    which gait 1 leaves (x0 has hinge_1 at -0.74 rad), are one violation line per joint naming its range and how far
+    the walk goes, listed in summary.json, and `planner gait --no-validate` exits 1 (it said "converged", exit 0, and
+    its walk fell with no reason given). Within the ranges: none."""
+    from planner.cli import main
+    from planner.gait import gait_violations, joint_violations
+
+    xml = (ROBOTS_DIR / "biped.xml").read_text()
+    for hinge in ("hinge_1", "hinge_2"):
+        old = f'<joint name="{hinge}" type="hinge" axis="0 1 0"/>'
+        assert xml.count(old) == 1
+        xml = xml.replace(old, old[:-2] + ' range="-0.5 0.5"/>')
+    path = tmp_path / "limited.xml"
+    path.write_text(xml)
+    robot = load_robot(path)
+    q = np.zeros((3, robot.nq))
+    q[1, robot.dof_names.index("hinge_1")] = -0.8
+    (line,) = joint_violations(robot, q)
+    assert line == ("hinge_1 left the robot file's range [-0.5, 0.5] rad at 1 of 3 nodes (to -0.8): the gait's OCP "
+                    "has no joint limits, MuJoCo's replay enforces the range"), line
+    assert joint_violations(robot, np.clip(q, -0.5, 0.5)) == []
+    assert gait_violations({"motor_violations": ["m"], "joint_violations": [line]}) == ["m", line]
+    coarse = tmp_path / "n15.toml"
+    coarse.write_text((ROBOTS_DIR / "biped_gait1.toml").read_text().replace("\nN = 153\n", "\nN = 15\n"))
+    assert main(["gait", str(path), "--task", str(coarse), "--out", str(tmp_path / "out"), "--no-validate", "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "failed: hinge_1 left the robot file's range [-0.5, 0.5] rad" in err and "hinge_2 left" in err, err
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [v.split()[0] for v in summary["joint_violations"]] == ["hinge_1", "hinge_2"]
+
+
 @pytest.mark.parametrize("old, new, differs", [('mass="5"', 'mass="5.5"', "mass matrix"),
                                                 ('gear="1"', 'gear="2"', "actuation")])
 def test_a_biped_whose_legs_differ_is_refused(tmp_path, old, new, differs):
@@ -382,6 +414,29 @@ def test_a_walk_that_makes_mujoco_unstable_is_a_fall_not_a_crash(tmp_path, robot
     result = run_gait(robot, task, tmp_path)
     assert result.solution.converged and result.walking.fell and result.walking.steps_walked < result.walking.steps_asked
     assert (tmp_path / "summary.json").is_file() and json.loads((tmp_path / "summary.json").read_text())["walking"]["fell"]
+
+
+def test_a_short_legged_biped_that_walks_is_not_a_fall(tmp_path):
+    """The walk's fall is the hip below a share of the plan's own lowest hip height, not below a fixed 0.6 m: gait 1's
+    x0 on a biped with 0.5 m legs (its hip at 0.46-0.5 m all along the plan) walks its step in MuJoCo, where the fixed
+    height read "walked 0 of 10 steps then fell" at t = 0 (and recorded no tracking error after it)."""
+    xml = (ROBOTS_DIR / "biped.xml").read_text()
+    short = {'pos="0 0 -0.5" mass="5"': 'pos="0 0 -0.25" mass="5"', '0 0 0 0 0 -1"': '0 0 0 0 0 -0.5"',
+             'pos="0 0 -1" size': 'pos="0 0 -0.5" size'}  # legs of r = 0.5 m, their masses at r / 2 as the paper's
+    for old, new in short.items():
+        assert xml.count(old) == 2
+        xml = xml.replace(old, new)
+    path = tmp_path / "short.xml"
+    path.write_text(xml)
+    model = PinnedBiped(load_robot(path))
+    task = load_task(ROBOTS_DIR / "biped_gait1.toml")
+    spec = GaitSpec.from_task(task, COARSE_N)
+    ip = solve_gait_ipopt(model, spec)  # (the same gait as PRONTO's, in a third of its time)
+    assert ip.success
+    hip = np.array(model.q_of.map(COARSE_N + 1)(ip.x[:, :3].T))[model.layout.z]
+    assert hip.max() < 0.6  # the whole plan below the fixed height
+    walking = replay_gait(model, PinnedGait(t=np.linspace(0.0, spec.T, COARSE_N + 1), x=ip.x, u=ip.u), task, 1)
+    assert walking.steps_walked == 1 and not walking.fell and walking.max_hinge_error < WALK_ANGLE_TOL, walking
 
 
 def test_an_x0_whose_landing_is_off_the_ground_is_refused(biped):
@@ -748,6 +803,20 @@ def test_the_gait_pronto_settings_reach_both_pronto_solvers(biped):
     ocp = GaitOCP(biped, spec)
     for solver in (ocp.pronto_e, ocp.pronto_u):
         assert (solver.options.max_iterations, solver.options.tolerance) == (7, 1e-6)
+
+
+def test_a_loop_of_no_counted_iteration_says_its_final_step_moved_it():
+    """A converged PRONTO solve ends with one full Newton step that is not counted (pronto.py), so the last Newton
+    loop of gait 1 moves x(T) from 8.0e-8 to 7.9e-15 in "0 PRONTO it.": its progress line says so, the lines of
+    counted iterations and of a solve that did not converge stay as they were."""
+    from planner.gait import OuterLoop
+
+    loop = OuterLoop(index=13, stage="final_state", rho_emb=None, rho_f=10.0, cost=6191.74, pronto_iterations=0,
+                     pronto_converged=True, emb_max=None, final_error=7.9e-15, action="done", time_s=5.7)
+    assert loop.line() == ("[13] final_state rho_f 10: cost 6191.74, ||x(T) - x_f|| 7.90e-15, 0 PRONTO it. + its "
+                           "final full step, not counted -> done")
+    assert dataclasses.replace(loop, pronto_iterations=2).line().endswith(", 2 PRONTO it. -> done")
+    assert dataclasses.replace(loop, pronto_converged=False).line().endswith(", 0 PRONTO it. -> done")
 
 
 def test_the_newton_loop_on_the_target_converges_quadratically(gaits):
