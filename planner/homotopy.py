@@ -803,11 +803,14 @@ class _StopWhenInterrupted(ca.Callback):
 
 class _NearestFeasible(_StopWhenInterrupted):
     """The projection polish's iteration callback: besides stopping on a Ctrl-C, it keeps the iterate whose rows lie
-    nearest their bounds (the latest of equals; IPOPT's iterates keep the bounds of x), so that a projection IPOPT
-    does not finish still hands over its feasible point (_kept_projection). Capler without holes at N = 40: the
+    nearest their bounds, and of those within stall_tol the one nearest the projection's start (its objective; then
+    the latest) (IPOPT's iterates keep the bounds of x), so that a projection IPOPT does not finish still hands over
+    its feasible point (_kept_projection): at the rows' rounding floor every iterate ties, and the latest had drifted
+    from the start (a hop's iterate 68: distance 4.8e-6, where iterate 28 had 5.6e-13). Capler without holes at N = 40: the
     projection's rows reached 1.8e-8 in 5 iterations and stayed there, above IPOPT's tol 1e-8, while the dual
     infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4. It stops
-    IPOPT PROJECTION_STALL_ITER iterations after the rows first came within stall_tol."""
+    IPOPT PROJECTION_STALL_ITER iterations after the rows first came within stall_tol. (CasADi calls it once more
+    with IPOPT's final point after a restoration phase, so kept_iteration may be one past IPOPT's log.)"""
 
     def __init__(self, nlp: dict):
         super().__init__(nlp)
@@ -818,14 +821,17 @@ class _NearestFeasible(_StopWhenInterrupted):
         [constraint units] from which on IPOPT gets PROJECTION_STALL_ITER more iterations (0: only rows met exactly)."""
         self.lbg, self.ubg, self.D, self.stall_tol = lbg, ubg, D, stall_tol
         self.iteration, self.best = 0, None  # best: (largest row violation, iteration, x, f, lam_x, lam_g), unscaled
+        self._rank = None  # best's (max(violation, stall_tol), f, -iteration): the smallest wins
         self.feasible_since = None  # the first iteration whose rows were within stall_tol
 
     def eval(self, arg):
         it = {ca.nlpsol_out(i): np.asarray(a, float).ravel() for i, a in enumerate(arg)}
         g = it["g"]
         viol = float(max(np.max(self.lbg - g, initial=0.0), np.max(g - self.ubg, initial=0.0)))
-        if self.best is None or viol <= self.best[0]:
-            self.best = (viol, self.iteration, it["x"] * self.D, float(it["f"][0]), it["lam_x"] / self.D, it["lam_g"])
+        f = float(it["f"][0])
+        rank = (max(viol, self.stall_tol), f, -self.iteration)
+        if self._rank is None or rank <= self._rank:
+            self.best, self._rank = (viol, self.iteration, it["x"] * self.D, f, it["lam_x"] / self.D, it["lam_g"]), rank
         if self.feasible_since is None and viol <= self.stall_tol:
             self.feasible_since = self.iteration
         stalled = self.feasible_since is not None and self.iteration - self.feasible_since >= PROJECTION_STALL_ITER
@@ -1445,7 +1451,7 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
         lam_x, lam_g, warm = None, None, False
         p = np.concatenate([np.asarray(x0, float) / D, p])
         solvers.nearest_feasible.reset(problem.lbg if lbg is None else lbg, problem.ubg if ubg is None else ubg, D,
-                                       solvers.options.constraint_tol)
+                                       min(solvers.options.constraint_tol, solvers.options.terminal_tol))
     k = len(p) - problem.p.numel()  # the projection's p starts with its reference point
     rho, hole_scale = float(p[k]), float(p[k + 1])
     lbg = problem.lbg if lbg is None else lbg

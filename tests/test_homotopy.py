@@ -469,18 +469,33 @@ def test_the_projection_polish_leaves_a_restoration_phase_early(monkeypatch):
     assert seen["tf_ocp_projection"]["max_resto_iter"] == 7
 
 
+def test_a_kept_projection_iterate_is_accepted_only_when_complementary(hop, monkeypatch):
+    """_accepted takes a projection's kept iterate (IPOPT did not converge) only if its complementarity is within
+    comp_tol, as a converged polish's is by its fixed active set: an accepted polish ends the search over
+    polish_starts, so a kept point the verdict then refuses would cost the next start's try."""
+    prob, res, _ = hop
+    x, options = res.extra["_x"], H.SolveOptions()
+    kept = dataclasses.replace(res.nlps[-1], success=False, kept_iteration=3, terminal_error=0.0)
+    assert H._accepted(prob, options, x, kept)
+    monkeypatch.setattr(prob, "complementarity_residual", lambda x: 10 * options.comp_tol)
+    assert not H._accepted(prob, options, x, kept)
+    assert H._accepted(prob, options, x, dataclasses.replace(kept, success=True, kept_iteration=None))
+
+
 KEPT_ITERATE_TOL = 1e-12  # the callback's copy of an iterate against IPOPT's returned point: the same numbers
 
 
-@pytest.mark.parametrize("cap, rows", [
-    (3, "circle"),  # the nearest is iterate 0 (violations 0.15, 17.2, 4.08, 0.82): not the last
-    (6, "circle"),  # the nearest is the last (..., 0.094, 2.4e-3, 6.7e-6): not the first
-    (4, "slack"),  # an inactive row, every violation 0: the latest of equals, the cap
+@pytest.mark.parametrize("cap, rows, stall_tol", [
+    (3, "circle", 0.0),  # the nearest is iterate 0 (violations 0.15, 17.2, 4.08, 0.82): not the last
+    (6, "circle", 0.0),  # the nearest is the last (..., 0.094, 2.4e-3, 6.7e-6): not the first
+    (6, "circle", 0.01),  # iterates 5 and 6 within the tolerance: the smaller objective, 5's
+    (4, "slack", 0.0),  # an inactive row, every violation 0: the smallest objective (here the last)
 ])
-def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds(cap, rows):
-    """_NearestFeasible keeps, of the iterates IPOPT visits, the one whose rows lie nearest their bounds (the latest
-    of equals), with its iteration number, unscaled by D: checked against IPOPT's own iterates, each got by capping
-    max_iter at j (IPOPT then returns iterate j), on a circle-constrained least squares (or its row inactive)."""
+def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds(cap, rows, stall_tol):
+    """_NearestFeasible keeps, of the iterates IPOPT visits, the one whose rows lie nearest their bounds, of those
+    within stall_tol the one of smallest objective (the projection's distance to its start; then the latest), with
+    its iteration number, unscaled by D: checked against IPOPT's own iterates, each got by capping max_iter at j
+    (IPOPT then returns iterate j), on a circle-constrained least squares (or its row inactive)."""
     x = ca.SX.sym("x", 2)
     g, lbg, ubg = (ca.sumsqr(x), 1.0, 1.0) if rows == "circle" else (x[0], -10.0, 10.0)
     nlp = {"x": x, "f": (x[0] - 3) ** 2 + x[1] ** 2, "g": g}
@@ -490,16 +505,17 @@ def test_nearest_feasible_keeps_the_iterate_nearest_its_rows_bounds(cap, rows):
         keep = []
         opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iter}}
         f = H._nlpsol("circle", nlp, opts, keep, nearest_feasible=True)
-        keep[-1].reset(np.array([lbg]), np.array([ubg]), D, 0.0)
+        keep[-1].reset(np.array([lbg]), np.array([ubg]), D, stall_tol)
         sol = f(x0=[0.2, 0.9], lbg=lbg, ubg=ubg)
         return np.asarray(sol["x"], float).ravel(), keep[-1], f.stats()
 
     iterates = [run(j)[0] for j in range(cap + 1)]
     gfun = ca.Function("g", [x], [g])
     viol = [max(lbg - float(gfun(xj)), float(gfun(xj)) - ubg, 0.0) for xj in iterates]
+    objective = [float(ca.Function("f", [x], [nlp["f"]])(xj)) for xj in iterates]
     _, kept, stats = run(cap)
     assert stats["return_status"] == "Maximum_Iterations_Exceeded"  # (else the test would not cap anything)
-    best = max(range(cap + 1), key=lambda j: (-viol[j], j))
+    best = min(range(cap + 1), key=lambda j: (max(viol[j], stall_tol), objective[j], -j))
     assert kept.best[1] == best
     assert abs(kept.best[0] - viol[best]) <= KEPT_ITERATE_TOL
     assert np.max(np.abs(kept.best[2] - D * iterates[best])) <= KEPT_ITERATE_TOL
@@ -518,11 +534,12 @@ def _unfinishable_projection(monkeypatch, max_iter: int):
         return real(name, solver, nlp, opts)
 
     monkeypatch.setattr(H.ca, "nlpsol", unfinishable)
-    scales = []
+    scales, made = [], []
     real_reset = H._NearestFeasible.reset
 
     def reset(self, lbg, ubg, D, stall_tol):
         scales.append(np.array(D))
+        made.append(self)
         real_reset(self, lbg, ubg, D, stall_tol)
 
     monkeypatch.setattr(H._NearestFeasible, "reset", reset)
@@ -531,7 +548,7 @@ def _unfinishable_projection(monkeypatch, max_iter: int):
     options = H.SolveOptions(reoptimize=False, variable_scaling=H.VariableScaling.FIRST_NLP)
     result = H.solve(problem, options)
     assert scales and all(np.ptp(D) > 0 for D in scales[1:])  # ([0]: the callback's own construction)
-    return problem, options, result
+    return problem, options, result, made[-1]
 
 
 def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(monkeypatch):
@@ -539,7 +556,7 @@ def test_a_projection_polish_ipopt_does_not_finish_keeps_its_feasible_iterate(mo
     N = 40 reached rows within 1.8e-8 but a dual infeasibility stuck at 4e-4) still polishes the plan: its iterate
     nearest feasibility is kept when the plan's checks accept it, and the record says which iterate it was. Without
     it the polish was refused and the plan fell back to the homotopy's point (or failed)."""
-    problem, options, result = _unfinishable_projection(monkeypatch, max_iter=20)
+    problem, options, result, _ = _unfinishable_projection(monkeypatch, max_iter=20)
     polish = next(r for r in result.nlps if r.label == "polish")
     assert polish.status == "Maximum_Iterations_Exceeded" and not polish.success
     assert polish.kept_iteration is not None and "kept" in polish.note
@@ -554,10 +571,11 @@ def test_a_stalled_projection_polish_stops_early_and_keeps_its_iterate(monkeypat
     constraint_tol (User_Requested_Stop) with its nearest iterate kept, instead of running to its cap: the penalty
     replan of Capler's N = 40 no-holes plan spent 3000 iterations (24 s) with the rows within 8e-9."""
     max_iter = 10 * H.PROJECTION_STALL_ITER
-    problem, options, result = _unfinishable_projection(monkeypatch, max_iter=max_iter)
+    problem, options, result, callback = _unfinishable_projection(monkeypatch, max_iter=max_iter)
     polish = next(r for r in result.nlps if r.label == "polish")
-    assert polish.status == "User_Requested_Stop" and polish.iterations < max_iter
-    assert polish.iterations - polish.kept_iteration <= H.PROJECTION_STALL_ITER
+    assert polish.status == "User_Requested_Stop"
+    assert polish.iterations == callback.feasible_since + H.PROJECTION_STALL_ITER
+    assert max(callback.best[0], 0.0) <= options.constraint_tol and callback.best[1] == polish.kept_iteration
     assert polish.kept_iteration is not None and result.polished and result.stats.converged
     assert max(H.constraint_violation(problem, result.extra["_x"]).values()) <= options.constraint_tol
 
