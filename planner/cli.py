@@ -37,7 +37,7 @@ EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 EXIT_1_COMMANDS = frozenset({"check-model", "simulate", "plan", "gait", "validate"})
 EXIT_INTERRUPTED = 130  # Ctrl-C: 128 + SIGINT, as shells report it
 OUT_OF_MEMORY = ("failed: out of memory (is horizon.N or --steps far too large, ~1 MB per step for a robot of Capler's "
-                 "size, or the physical time MuJoCo replays, e.g. tau_f = 1e6 s?)")
+                 "size, or the physical time MuJoCo replays too long for this machine?)")
 # `planner plan --discretization fesd` ends its homotopy at rho = 1e5 and polishes from there: on the
 # point-mass hop (N = 10, n_fe = 3) the polish from the rho = 1e6 point stopped at its 3000-iteration cap,
 # the one from the 1e5 point converged in 48 iterations (docs/formulation.md, "FESD in the OCP")

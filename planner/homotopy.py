@@ -1777,11 +1777,14 @@ def _far_sized(problem: Problem) -> str:
     """"; ..." pointing at docs/tasks.md's "Robots of other sizes" when the robot's weight or plan.u_bound is
     outside FORCE_SCALE_RANGE_N (a failed plan's message ends with it), else ""."""
     lo, hi = FORCE_SCALE_RANGE_N
-    forces = {"the robot's weight m g": robot_weight(problem.robot), "plan.u_bound": problem.task.plan.u_bound}
-    far = [f"{name} = {value:.3g} N" for name, value in forces.items() if value is not None and not lo <= value <= hi]
+    # (a robot without gravity weighs 0 N: no size to read; u_bound is N or N m as its joints are)
+    forces = {"the robot's weight m g": (robot_weight(problem.robot) or None, "N"),
+              "plan.u_bound": (problem.task.plan.u_bound, "N or N m")}
+    far = [f"{name} = {value:.3g} {unit}" for name, (value, unit) in forces.items()
+           if value is not None and not lo <= value <= hi]
     if not far:
         return ""
-    return (f"; {' and '.join(far)} outside [{lo:g}, {hi:g}] N, the sizes the homotopy's absolute weights suit: "
+    return (f"; {' and '.join(far)} outside [{lo:g}, {hi:g}], the sizes the homotopy's absolute weights suit: "
             "scale rho_schedule, soft_terminal_weight and rho_f with the control cost (docs/tasks.md, \"Robots of "
             "other sizes\")")
 

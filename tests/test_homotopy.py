@@ -1294,11 +1294,15 @@ def test_a_failed_plan_of_a_robot_far_from_the_shipped_sizes_points_to_the_docs(
         warnings.simplefilter("ignore")  # (a_n = 100 is 0.01 of its weight: build_problem's warning)
         failed = H.solve(build_problem(heavy, task), options)
     assert not failed.stats.converged
-    assert ("; the robot's weight m g = 9.81e+03 N and plan.u_bound = 3e+04 N outside [0.1, 1000] N, the sizes the "
-            "homotopy's absolute weights suit") in failed.stats.message
+    assert ("; the robot's weight m g = 9.81e+03 N and plan.u_bound = 3e+04 N or N m outside [0.1, 1000], the sizes "
+            "the homotopy's absolute weights suit") in failed.stats.message
     assert "Robots of other sizes" in failed.stats.message
     assert "Robots of other sizes" not in H.solve(build_problem(load_robot(POINT_MASS_XML), hop_task(N=10)),
                                                   options).stats.message
+    # without gravity the robot weighs 0 N: no size to read from it (its failures read "weight m g = 0 N" before)
+    weightless = robot_variant(text, 'gravity="0 0 -9.81"', 'gravity="0 0 0"')
+    floating = H.solve(build_problem(weightless, hop_task(N=10)), options)
+    assert not floating.stats.converged and "Robots of other sizes" not in floating.stats.message
 
 
 def test_a_plan_that_leaves_the_files_joint_range_says_so(tmp_path):
