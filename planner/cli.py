@@ -622,6 +622,8 @@ def _failure(summary: dict) -> str:
         if isinstance(walking, dict) and walking.get("fell"):
             return (f": the MuJoCo walk fell after {walking.get('steps_walked')} of {walking.get('steps_asked')} steps "
                     f"({walking.get('control')} control)")
+    if summary.get("validation_not_run"):
+        return f": MuJoCo validation not run: {summary['validation_not_run']}"
     validation = summary.get("validation", summary)
     if isinstance(validation, dict) and validation.get("passed") is False:
         return ": " + "; ".join(validation.get("failures") or ["the validation failed"])
@@ -1043,23 +1045,31 @@ def _cmd_plan(args) -> int:
         args.advice = _replan_failed(args.init, result)
         text += "\n" + args.advice
     if validating:
-        from .replay import ReplayTooLongError, validate, write_validation
+        from .replay import ReplayTooLongError, validate, write_validation, write_validation_not_run
 
+        # (tau_f = 1e6 s) the converged plan's report is still the user's to read, and why it was not validated: also
+        # in summary.json, which read as a --no-validate plan's, and in --json's object, which gave no reason
+        why = None
         try:
-            validation = validate(target)
-            write_validation(target, validation, args.result_id)  # (refused when another run wrote target meanwhile)
-        # (tau_f = 1e6 s) the converged plan's report is still the user's to read, and why it was not validated:
-        except (ReplayTooLongError, MemoryError) as exc:
-            why = str(exc) if isinstance(exc, ReplayTooLongError) else (
-                f"its replay of {result.trajectory.physical_duration:.6g} s ran out of memory")
-            args.advice = f"MuJoCo validation not run: {why}"  # (the -q failure line's reason)
-            _emit_then_plots(args, summary, f"{text}\n{args.advice}", plots_drawn)
-            return EXIT_FAILED
+            try:
+                validation = validate(target)
+            except (ReplayTooLongError, MemoryError) as exc:
+                why = str(exc) if isinstance(exc, ReplayTooLongError) else (
+                    f"its replay of {result.trajectory.physical_duration:.6g} s ran out of memory")
+            # (each refused when another run wrote target meanwhile)
+            if why is None:
+                write_validation(target, validation, args.result_id)
+            else:
+                write_validation_not_run(target, why, args.result_id)
         # the validation's error (or Ctrl-C) is the one to report, once the plots are done:
         except BaseException:
             with contextlib.suppress(PlannerError):  # exiting kills the plotting child mid-file (a temp file stayed)
                 plots_drawn()
             raise
+        if why is not None:  # (_failure gives the -q failure line its reason)
+            summary["validation_not_run"] = why
+            _emit_then_plots(args, summary, f"{text}\nMuJoCo validation not run: {why}", plots_drawn)
+            return EXIT_FAILED
         summary["validation"] = validation.to_json()
         ok = ok and validation.passed
         text += f"\n{validation.report()}"
@@ -1257,7 +1267,7 @@ def _cmd_gait(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .replay import ValidationOptions, validate, write_validation
+    from .replay import ReplayTooLongError, ValidationOptions, validate, write_validation
     from .result import read_summary, result_dir
 
     result_dir(args.dir)
@@ -1276,7 +1286,10 @@ def _cmd_validate(args) -> int:
                         "read from the task file as it is now, and an edit since or the plan's --steps is not seen")
     with _said_of("/".join(f for f, k in (("--controller", "controller"), ("--window", "window_s")) if k in given)):
         options = ValidationOptions(**given) if given else None
-    result = validate(args.dir, options)
+    try:
+        result = validate(args.dir, options)
+    except ReplayTooLongError as exc:  # a valid result the machine cannot replay: exit 1 as `plan` does, not 2
+        raise PlannerError(f"MuJoCo validation not run: {exc}") from None
     write_validation(args.dir, result, result_id)
     # (the verdict alone did not say whose: the result it judged is named as summary.json names it)
     _emit(args, {"command": "validate", "result_id": result_id, **result.to_json()}, result.report())

@@ -39,7 +39,7 @@ from .errors import (InputError, SolveError, TaskError, UnknownNameError, check_
                      interruptible, is_integer, plain, real_array, shown)
 from .model import Robot
 from .pronto import DiscreteOCP, Pronto, ProntoOptions
-from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, _outside_range_lines, task_path, write_files
+from .result import CONE_SLACK, ON_PLANE_M, ArraysReadOnly, outside_range_lines, task_path, write_files
 from .simulate import joints_outside_range
 from .task import MAX_STEPS, Contact, GaitContinuation, GaitPronto, Simulate, Task, task_source, task_to_json
 
@@ -314,6 +314,7 @@ class OuterLoop:
     cost: float
     pronto_iterations: int
     pronto_converged: bool
+    pronto_polished: bool  # its converged solve took and kept the final full Newton step (ProntoResult.polished)
     emb_max: float | None
     final_error: float
     action: str
@@ -322,8 +323,8 @@ class OuterLoop:
     def line(self) -> str:
         emb = f" max|u_emb| {self.emb_max:.2e} N m," if self.emb_max is not None else ""
         rho = f"rho_emb {self.rho_emb:.4g}, " if self.rho_emb is not None else ""
-        # a converged solve ends with a full Newton step that is not counted (pronto.py): "0 PRONTO it." moved x(T)
-        polish = " + its final full step, not counted" if self.pronto_converged and not self.pronto_iterations else ""
+        # a converged solve may end with a full Newton step that is not counted (pronto.py): "0 PRONTO it." moved x(T)
+        polish = " + its final full step, not counted" if self.pronto_polished and not self.pronto_iterations else ""
         return (f"[{self.index:2d}] {self.stage:11s} {rho}rho_f {self.rho_f:.4g}: cost {self.cost:.6g},{emb} "
                 f"||x(T) - x_f|| {self.final_error:.2e}, {self.pronto_iterations} PRONTO it.{polish} -> {self.action}")
 
@@ -498,7 +499,8 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         done = emb < cont.emb_tolerance
         out_of_loops = len(loops) + 1 >= cont.max_outer
         record(stage="embedding", rho_emb=rho_emb, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
-               pronto_converged=res.converged, emb_max=emb, final_error=float(np.linalg.norm(x[-1] - xf)),
+               pronto_converged=res.converged, pronto_polished=res.polished, emb_max=emb,
+               final_error=float(np.linalg.norm(x[-1] - xf)),
                action=STOPPED if out_of_loops else "drop u_emb" if done else f"rho_emb x{cont.factor:g}")
         if done or out_of_loops:
             break
@@ -527,7 +529,8 @@ def solve_gait(model: PinnedBiped, spec: GaitSpec, progress: Callable[[OuterLoop
         if action != "done" and len(loops) + 1 >= cont.max_outer:  # (the action it named never ran)
             action = STOPPED
         record(stage="final_state", rho_emb=None, rho_f=rho_f, cost=res.cost, pronto_iterations=res.iterations,
-               pronto_converged=res.converged, emb_max=None, final_error=err, action=action)
+               pronto_converged=res.converged, pronto_polished=res.polished, emb_max=None, final_error=err,
+               action=action)
         if action == "done":
             converged, message = True, "final-state constraint met"
             break
@@ -1099,8 +1102,8 @@ def joint_violations(robot: Robot, q: np.ndarray) -> list[str]:
     MuJoCo's replay enforces them: a gait with its hinges at -0.80 rad against a range of +-0.5 rad converged silently
     and its walk fell at once, with no reason given."""
     outside = joints_outside_range(robot, q)
-    return [line.strip() for line in _outside_range_lines({"joints_outside_range": outside}, len(q),
-                                                          "the gait's OCP has no joint limits")]
+    return [line.strip() for line in outside_range_lines({"joints_outside_range": outside}, len(q),
+                                                         "the gait's OCP has no joint limits")]
 
 
 MIRROR_TOL = 1e-9  # relative: the two stance models of mirror-image legs agree to rounding (measured 8e-15)

@@ -122,7 +122,9 @@ class ProntoIteration:
 
 @dataclass(frozen=True, eq=False)
 class ProntoResult:
-    """x (N+1, n), u (N, m): the final trajectory; K (N, m, n): its projection feedback."""
+    """x (N+1, n), u (N, m): the final trajectory; K (N, m, n): its projection feedback; polished: a converged
+    solve's final full Newton step (not counted in `iterations`) was taken and kept: it is tried only when its slope
+    is negative and kept only when it does not raise g beyond round-off."""
 
     x: np.ndarray
     u: np.ndarray
@@ -133,6 +135,7 @@ class ProntoResult:
     solve_time_s: float
     history: tuple[ProntoIteration, ...] = field(default=())
     message: str = ""
+    polished: bool = False
 
 
 class Pronto:
@@ -177,7 +180,7 @@ class Pronto:
             K = self.feedback(x, u)
         x, u, g = self.project(x0, x, u, K)
         history: list[ProntoIteration] = []
-        converged, message = False, "iteration limit"
+        converged, message, polished = False, "iteration limit", False
         for _ in range(opts.max_iterations):
             if not np.isfinite(g):
                 raise SolveError("PRONTO: the projected trajectory is not finite (the projection feedback could not "
@@ -195,7 +198,7 @@ class Pronto:
                     # Newton update of the target x_T after a converged solve would not move the trajectory
                     xn, un, gn = self.project(x0, x + Z, u + V, K)
                     if np.isfinite(gn) and gn <= g + ROUNDOFF * max(abs(g), 1.0):
-                        x, u, g = xn, un, gn
+                        x, u, g, polished = xn, un, gn, True
                 converged, message = True, "converged"
                 break
             gamma = 1.0
@@ -214,7 +217,8 @@ class Pronto:
         if not converged:  # else K is the last direction's, about x (the polish moves x by a round-off-level step)
             K = self.feedback(x, u)
         return ProntoResult(x=x, u=u, K=K, cost=g, converged=converged, iterations=len(history),
-                            solve_time_s=time.perf_counter() - start, history=tuple(history), message=message)
+                            solve_time_s=time.perf_counter() - start, history=tuple(history), message=message,
+                            polished=polished)
 
     def terminal_response(self, x, u, K, dr) -> np.ndarray:
         """Sensitivity of the optimal final state to the terminal cost's gradient.

@@ -100,7 +100,7 @@ MAX_SPHERE_M = 0.01  # [m] a contact site's collision sphere: a larger one is a 
 
 class ReplayTooLongError(InputError):
     """A replay of more than MAX_STEPS MuJoCo steps, refused before its arrays are allocated: `planner plan` then
-    prints the converged plan's report with the reason instead of failing."""
+    prints the converged plan's report with the reason (exit 1, as `planner validate` does: no input to fix)."""
 
 
 @dataclass(frozen=True)
@@ -889,7 +889,7 @@ _UNCHECKED = object()
 
 def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> Path:
     """Store `validation.to_json()` (a Validation, or a periodic plan's planner.gait.WalkValidation) as the
-    `validation` object of out_dir/summary.json.
+    `validation` object of out_dir/summary.json (dropping a `validation_not_run` reason stored earlier).
 
     Written to a temporary file and renamed, so a reader never sees half a summary. result_id: the summary's
     `result_id` (None for a result written without one) when the validation started; if another run has written
@@ -898,15 +898,31 @@ def write_validation(out_dir: str | Path, validation, result_id=_UNCHECKED) -> P
     from .gait import WalkValidation  # (gait imports this module)
 
     expect(validation, (Validation, WalkValidation), "write_validation's validation")
-    path = Path(out_dir) / "summary.json"
-    with directory_lock(Path(out_dir)):  # no other result may land between the read and the write
-        summary = read_summary(Path(out_dir), require=())
+    return _store_in_summary(Path(out_dir), "validation", validation.to_json(), result_id)
+
+
+def write_validation_not_run(out_dir: str | Path, why: str, result_id=_UNCHECKED) -> Path:
+    """Store `why` MuJoCo could not validate out_dir's converged plan (its replay too long, or out of memory) as the
+    `validation_not_run` string of out_dir/summary.json, as write_validation stores a verdict (atomically, and not
+    when another run has written out_dir since result_id): without it the summary read as a --no-validate plan's."""
+    expect(why, str, "write_validation_not_run's why")
+    return _store_in_summary(Path(out_dir), "validation_not_run", why, result_id)
+
+
+def _store_in_summary(out_dir: Path, key: str, value, result_id) -> Path:
+    """out_dir/summary.json with `key` ("validation" or "validation_not_run", which replaces the other) set to
+    `value`, renamed into place under the directory's lock; its path."""
+    path = out_dir / "summary.json"
+    with directory_lock(out_dir):  # no other result may land between the read and the write
+        summary = read_summary(out_dir, require=())
         if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
             # (the machine's race, not the user's input: exit 1; a plan's own result is no longer anywhere)
             raise PlannerError(f"{out_dir} was written by another run while it was validated: the verdict, of the "
                                "result that run replaced, is not stored; `planner validate DIR` judges the one there "
                                "now")
-        summary["validation"] = validation.to_json()
+        for stale in ("validation", "validation_not_run"):
+            summary.pop(stale, None)
+        summary[key] = value
         write_atomically(path, json.dumps(summary, indent=2) + "\n", follow_links=False)
     return path
 

@@ -324,7 +324,7 @@ class SimulationResult(ArraysReadOnly):
         if deepest.get("max_m", 0.0) > PENETRATION_NOTE_M:
             lines.append(f"  {deepest['point']} went {deepest['max_m'] * 1e3:.1f} mm into its plane (t = {deepest['t']:.4g} s): the "
                          "steps keep a contact's velocity on the plane, not its position; a smaller h (more steps) drifts less")
-        lines += _outside_range_lines(self.extra, len(self.trajectory.tau), "the simulation has no joint limits")
+        lines += outside_range_lines(self.extra, len(self.trajectory.tau), "the simulation has no joint limits")
         lines += _braked_lines(self.extra)
         for force in self.extra.get("forces_outside_friction_cone", ()):
             where = _cone_where(force)
@@ -758,9 +758,11 @@ def unrecorded_landings(traj: Trajectory, approach, gap, dt_steps, contacts: tup
     return sorted(found, key=lambda f: f["time"])
 
 
-def _outside_range_lines(extra: dict, nodes: int, why: str) -> list[str]:
-    """Report lines of extra["joints_outside_range"] (simulate.joints_outside_range): why the motion may leave the
-    robot file's joint ranges, which MuJoCo's replay enforces."""
+def outside_range_lines(extra: dict, nodes: int, why: str) -> list[str]:
+    """The report lines of extra["joints_outside_range"] (simulate.joints_outside_range's entries, as summary.json
+    stores them), one per joint, indented by two spaces: the joint, the robot file's range [m or rad] it left, at how
+    many of `nodes` nodes and how far, and `why` the motion could leave it (MuJoCo's replay enforces the range);
+    [] when there is none. A plan's and a simulation's report list them, `planner gait` its joint violations."""
     return [f"  {j['joint']} left the robot file's range [{j['lower']:.4g}, {j['upper']:.4g}]"
             + (f" {j['unit']}" if j.get("unit") else "")  # (older summaries have none)
             + f" at {j['nodes']} of {nodes} nodes (to {j['farthest']:.4g}): {why}, MuJoCo's replay enforces the range"
@@ -846,8 +848,8 @@ class PlanResult(ArraysReadOnly):
         # (summary.json's scene listed them, the run said nothing of holes it left out of the NLP)
         lines += [f"  left out: {reason}" for reason in self.extra.get("scene", {}).get("reasons", ())
                   if " is out of reach " in reason]
-        lines += _outside_range_lines(self.extra, len(tr.tau), "its NLP's bounds (plan.joint_bounds, or lbx and ubx "
-                                      "edited through the Python API) allow it")
+        lines += outside_range_lines(self.extra, len(tr.tau), "its NLP's bounds (plan.joint_bounds, or lbx and ubx "
+                                     "edited through the Python API) allow it")
         lines += _braked_lines(self.extra)
         if self.extra.get("skims"):  # (they were counted as hops: frictionless slides of the foot along the ground)
             lines.append(f"  {len(self.extra['skims'])} skim(s) along the ground in one flight-mode step, where no "

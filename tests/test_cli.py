@@ -1481,7 +1481,9 @@ def test_running_out_of_memory_is_one_line_that_names_the_likely_causes(tmp_path
 def test_a_converged_plan_mujoco_cannot_replay_is_reported_with_the_reason(tmp_path, capsys, monkeypatch, limit, error):
     """A converged plan whose MuJoCo replay would take more than MAX_STEPS steps (tau_f = 1e6 s: 4e9), or runs out of
     memory, prints its report and one line that the validation did not run and why, exit 1 as a failed validation:
-    it printed only "failed: out of memory", hiding the converged plan (session 70's tester)."""
+    it printed only "failed: out of memory", hiding the converged plan (session 70's tester). The reason is also
+    summary.json's `validation_not_run`, --json's and -q's failure line's: they gave none, and summary.json read as
+    a --no-validate plan's (review r3)."""
     import planner.replay as replay
 
     def exhausted(target, options=None):
@@ -1498,6 +1500,29 @@ def test_a_converged_plan_mujoco_cannot_replay_is_reported_with_the_reason(tmp_p
     assert f"converged: results in {out}" in printed
     assert printed[-1].startswith("MuJoCo validation not run: ")
     assert ("MuJoCo steps of 0.00025 s, more than 10:" if limit else "ran out of memory") in printed[-1]
+    why = printed[-1].removeprefix("MuJoCo validation not run: ")
+    assert json.loads((out / "summary.json").read_text())["validation_not_run"] == why
+    assert main(["plan", "point_mass", "--task", str(ROBOTS_DIR / "point_mass_hop.toml"), "--steps", "10", "--no-race",
+                 "--no-plots", "--out", str(out), "--json", "-q"]) == 1
+    printed = capsys.readouterr()
+    assert json.loads(printed.out)["validation_not_run"] == why
+    assert printed.err.strip().splitlines()[-1] == (f"planner plan: failed: MuJoCo validation not run: {why} "
+                                                    f"(results in {out})")
+
+
+def test_validate_of_a_result_mujoco_cannot_replay_exits_1(tmp_path, capsys, monkeypatch):
+    """`planner validate DIR` of a valid result whose replay would take more than MAX_STEPS MuJoCo steps exits 1 with
+    one "failed:" line saying the validation did not run and why, as `planner plan` does for the same result: it
+    exited 2 with "error:", which tells the user to fix an input that is not at fault (review r3)."""
+    import planner.replay as replay
+
+    drop = tmp_path / "drop"
+    assert main(["simulate", "point_mass", "--task", _task(tmp_path), "--out", str(drop), "-q", "--no-plots"]) == 0
+    monkeypatch.setattr(replay, "MAX_STEPS", 10)  # the drop's 0.1 s at MuJoCo's 0.25 ms step is 400 steps
+    capsys.readouterr()
+    assert main(["validate", str(drop), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("planner validate: failed: MuJoCo validation not run: a replay of "), err
 
 
 def test_a_plot_that_fails_unexpectedly_is_one_line(tmp_path, capsys, monkeypatch):

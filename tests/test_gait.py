@@ -806,17 +806,22 @@ def test_the_gait_pronto_settings_reach_both_pronto_solvers(biped):
 
 
 def test_a_loop_of_no_counted_iteration_says_its_final_step_moved_it():
-    """A converged PRONTO solve ends with one full Newton step that is not counted (pronto.py), so the last Newton
-    loop of gait 1 moves x(T) from 8.0e-8 to 7.9e-15 in "0 PRONTO it.": its progress line says so, the lines of
-    counted iterations and of a solve that did not converge stay as they were."""
+    """A converged PRONTO solve may end with one full Newton step that is not counted (pronto.py), so the last Newton
+    loop of gait 1 moves x(T) from 8.0e-8 to 7.9e-15 in "0 PRONTO it.": its progress line says so. PRONTO takes that
+    step only when its slope is negative and keeps it only when the cost does not rise, so a converged loop whose
+    step was not taken (ProntoResult.polished false) claims none (review r3: every converged 0-iteration loop did);
+    the lines of counted iterations and of a solve that did not converge stay as they were."""
     from planner.gait import OuterLoop
 
     loop = OuterLoop(index=13, stage="final_state", rho_emb=None, rho_f=10.0, cost=6191.74, pronto_iterations=0,
-                     pronto_converged=True, emb_max=None, final_error=7.9e-15, action="done", time_s=5.7)
+                     pronto_converged=True, pronto_polished=True, emb_max=None, final_error=7.9e-15, action="done",
+                     time_s=5.7)
     assert loop.line() == ("[13] final_state rho_f 10: cost 6191.74, ||x(T) - x_f|| 7.90e-15, 0 PRONTO it. + its "
                            "final full step, not counted -> done")
+    assert dataclasses.replace(loop, pronto_polished=False).line().endswith(", 0 PRONTO it. -> done")
     assert dataclasses.replace(loop, pronto_iterations=2).line().endswith(", 2 PRONTO it. -> done")
-    assert dataclasses.replace(loop, pronto_converged=False).line().endswith(", 0 PRONTO it. -> done")
+    assert dataclasses.replace(loop, pronto_converged=False, pronto_polished=False).line().endswith(
+        ", 0 PRONTO it. -> done")
 
 
 def test_the_newton_loop_on_the_target_converges_quadratically(gaits):

@@ -142,6 +142,19 @@ def test_a_converged_solve_is_stationary_to_round_off(pendulum_solution):
     assert res.converged and np.max(np.abs(np.array(gradient(res.u.T)))) < STATIONARY_TOL
 
 
+@pytest.mark.parametrize("start, polished", [(0.0, False), (1e-8, True)])
+def test_a_converged_solve_says_whether_it_took_its_final_newton_step(start, polished):
+    """ProntoResult.polished is true only when the converged solve took (and kept) its final full Newton step: at the
+    exact optimum (x0 = 0 of a tracking cost of 0: slope 0) no step is taken, near it (x0 = 1e-8: slope -3e-17, below
+    the tolerance) it is. Both converge in 0 counted iterations, and a gait's progress line said of each that its
+    final step moved it (review r3)."""
+    ocp, _, _ = _lq_ocp(np.random.default_rng(0))
+    pr = Pronto(ocp, ProntoOptions(feedback_q=(1.0,) * 3, feedback_r=(1.0,) * 2))
+    pr.set_parameters(np.zeros((N, 3)), np.zeros(0))
+    res = pr.solve(np.full(3, start), np.zeros((N + 1, 3)), np.zeros((N, 2)))
+    assert (res.converged, res.iterations, res.polished) == (True, 0, polished)
+
+
 def test_a_constant_in_the_cost_changes_no_iterate(pendulum_solution):
     """A constant added to the cost (a penalty that makes g large) moves no minimizer and no iterate: the stopping
     rule reads the predicted decrease absolutely, not relative to g, so the solve takes the same iterations to the

@@ -1126,6 +1126,26 @@ def test_a_verdict_is_not_stored_into_a_result_written_since(ground_truth, tmp_p
     assert json.loads((tmp_path / "summary.json").read_text())["validation"]["passed"] == result.passed
 
 
+
+def test_a_validation_not_run_is_stored_and_a_later_verdict_replaces_it(ground_truth, tmp_path):
+    """write_validation_not_run stores why MuJoCo could not validate a converged plan as summary.json's
+    `validation_not_run` (else the summary read as a --no-validate plan's, review r3), refused as write_validation is
+    once another run has written the directory; a verdict stored later (`planner validate DIR` where the replay fits)
+    replaces the reason, so the summary never carries both."""
+    _, good = ground_truth
+    for name in ("trajectory.npz", "summary.json"):
+        shutil.copy(good / name, tmp_path / name)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary.pop("validation", None)  # another test may have stored one in the fixture's directory
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(PlannerError, match="written by another run while it was validated"):
+        replay.write_validation_not_run(tmp_path, "too long", result_id="another")
+    replay.write_validation_not_run(tmp_path, "too long", result_id=summary.get("result_id"))
+    assert json.loads((tmp_path / "summary.json").read_text()) == {**summary, "validation_not_run": "too long"}
+    replay.write_validation(tmp_path, replay.validate(tmp_path))
+    stored = json.loads((tmp_path / "summary.json").read_text())
+    assert "validation_not_run" not in stored and "validation" in stored
+
 # ------------------------------------------------------------------------------------------------
 # cross-check: the time-freezing simulation (planner.simulate) against MuJoCo rollouts
 # ------------------------------------------------------------------------------------------------

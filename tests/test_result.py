@@ -1650,9 +1650,9 @@ def test_a_joint_outside_its_range_of_an_older_summary_without_units_is_reported
     """An older summary's joints_outside_range entries have no "unit" (results written before it was kept): the report
     line is written without one, the rest as for a new entry (session 66's mutation testing: the unit read as always
     present, a KeyError for an older result, with every test green)."""
-    from planner.result import _outside_range_lines
+    from planner.result import outside_range_lines
 
     entry = {"joint": "x", "nodes": 3, "farthest": 1.5, "lower": -1.0, "upper": 1.0}
-    (old,) = _outside_range_lines({"joints_outside_range": [entry]}, 10, "why")
-    (new,) = _outside_range_lines({"joints_outside_range": [entry | {"unit": "m"}]}, 10, "why")
+    (old,) = outside_range_lines({"joints_outside_range": [entry]}, 10, "why")
+    (new,) = outside_range_lines({"joints_outside_range": [entry | {"unit": "m"}]}, 10, "why")
     assert old == new.replace("[-1, 1] m", "[-1, 1]") and "[-1, 1] at 3 of 10 nodes (to 1.5)" in old
