@@ -48,7 +48,7 @@ from .derivatives import nlp_derivatives
 from .errors import (C_INT_MAX, InputError, captured_stdout, check_field_types, enum_field, expect, interruptible,
                      interrupted, options_record, plain, real_array, representable)
 from .model import robot_weight
-from .problem import Penalty, Problem, plane_gap, static_controls
+from .problem import PARAMETERS, Penalty, Problem, plane_gap, static_controls
 from .result import (COLLAPSED, FROZEN_TOL, ON_PLANE_M, TAP_SHARE, ArraysReadOnly, NlpRecord, PlanResult, SolveStats,
                      Trajectory, hops_of, slides_of, unrecorded_landings)
 from .simulate import braked_outside_cone, element_trajectory, joints_outside_range, step_elements
@@ -1147,8 +1147,13 @@ def _solve(problem: Problem, options: SolveOptions, progress: Progress | None) -
     held = _keep_schedule(problem, solvers, options, x, records, progress) if options.keep_schedule else None
     for i in range(len(rhos) if held is None and not options.schedule_only else 0):
         nlp = homotopy_nlp(problem, options, i, rhos)
+        x_start = x
         x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, nlp.p, problem.lbx, problem.ubx, nlp.label, nlp.lbg, nlp.ubg,
                                     loose=nlp.loose)
+        if rec.status == "Invalid_Number_Detected":
+            # IPOPT cannot leave a start where the NLP is not finite, nor can the NLPs after it: rho_f_schedule [1e308]
+            # ran 15 more NLPs and the retry on inf and NaN (100 s, 14084 iterations) before failing "out of reach"
+            _refuse_not_finite(problem, x_start, nlp)
         records.append(rec)
         if progress:
             progress(rec)
@@ -1611,6 +1616,49 @@ def _terminal_rows(problem: Problem) -> np.ndarray:
     return (problem.g_blocks["terminal"] if "terminal" in problem.g_blocks else problem.g_blocks["periodic"]).ravel()
 
 
+def _first_not_finite(m: ca.DM) -> tuple[int, int] | None:
+    """(row, column) of the first NaN or inf among the stored entries of m (a sparse matrix), or None."""
+    bad = np.flatnonzero(~np.isfinite(np.asarray(m.nonzeros(), float)))
+    if not bad.size:
+        return None
+    rows, cols = m.sparsity().get_triplet()
+    return int(rows[bad[0]]), int(cols[bad[0]])
+
+
+def _refuse_not_finite(problem: Problem, x, nlp: HomotopyNlp) -> None:
+    """InputError when homotopy NLP `nlp` is not finite at its start x (nx,): its objective's value, gradient or
+    Hessian, or a constraint block's value or Jacobian, holds NaN or inf there (the derivatives IPOPT evaluates
+    first; the rows' Hessians, which IPOPT weighs by the multipliers, are not read). Nothing when all are finite."""
+    f, g = problem.f, problem.g
+    fn = ca.Function("finite_at_start", [problem.x, problem.p],
+                     [f, ca.gradient(f, problem.x), ca.hessian(f, problem.x)[0], g, ca.jacobian(g, problem.x)])
+    block = {int(r): name for name, rows in problem.g_blocks.items() for r in np.ravel(rows)}
+    names = problem.var_names
+    what = ""
+    kinds = ("objective", "objective's gradient", "objective's Hessian", "constraint", "constraint Jacobian")
+    for kind, m in zip(kinds, fn(problem.point(x), nlp.p)):
+        at = _first_not_finite(m)
+        if at is None:
+            continue
+        row, col = at
+        if kind.startswith("constraint"):
+            what = f"the {kind} of the {block.get(row, 'unnamed')} rows (row {row}" + (
+                f", by {names[col]})" if kind.endswith("Jacobian") else ")")
+        else:
+            what = f"the {kind}" + ("" if kind == "objective" else f" (at {names[row]}" + (
+                f", {names[col]})" if kind.endswith("Hessian") else ")"))
+        break
+    if not what:
+        return
+    p = dict(zip(PARAMETERS, np.asarray(nlp.p, float).ravel()))
+    raise InputError(
+        f"{nlp.label}'s NLP is not finite at its start: {what} is NaN or inf there, so IPOPT stopped "
+        "(Invalid_Number_Detected) and so would every NLP after it. A weight too large for double precision "
+        f"overflows with what it multiplies; this NLP's are rho {p['rho']:g}, plan.rho_f {problem.task.plan.rho_f:g} "
+        f"times rho_f_schedule {p['rho_f_scale']:g}, soft_terminal_weight {p['terminal_weight']:g}, l1_schedule "
+        f"{p['rho_l1']:g}: lower the one that is too large")
+
+
 def _nlp_fn(problem: Problem, name: str):
     """The NLP's objective ("f") or constraints ("g") as a Function of (x, p), built once per expression (an edited
     problem's f or g, or a dataclasses.replace variant's, which shares the notes, gets its own)."""
@@ -1709,6 +1757,13 @@ def _result(problem: Problem, options: SolveOptions, x, records, source: str | N
                        if len(problem.system.contacts) > 1 else ""))
     if not converged:
         message += _far_sized(problem)
+    T = problem.task.horizon.physical_time
+    # (physical_time = 1e-6 s failed in 35 s blaming control bounds and holes only; T = tau_f, the paper's use, is no
+    # such cause)
+    if not converged and T is not None and T < problem.task.horizon.tau_f:
+        message += (f"; horizon.physical_time T = {T:g} s may be below the time the motion needs, which makes the "
+                    "target unreachable: the speed of time s >= 1 only speeds the clock up, so a T below tau_f = "
+                    f"{problem.task.horizon.tau_f:g} s is met only by frozen time (docs/tasks.md, physical_time)")
     stats = SolveStats(converged=converged, solve_time_s=wall, n_nlp=len(records), ipopt_iterations=sum(r.iterations for r in records),
                        complementarity_residual=comp, message=message)
     sig_names = [s.name for s in problem.system.switches]

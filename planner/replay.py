@@ -40,11 +40,11 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .errors import (InputError, PlannerError, RobotFileError, UnknownNameError, check_field_types, check_interrupted,
-                     as_float, enum_field, expect, is_integer, plain, real_array, shown)
+from .errors import (InputError, PlannerError, RobotFileError, SolveError, UnknownNameError, check_field_types,
+                     check_interrupted, as_float, enum_field, expect, is_integer, plain, real_array, shown)
 from .model import MASSLESS_LINK_KG, Robot, motor_names, mujoco_failure, mujoco_spec, mujoco_warnings
-from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, directory_lock, read_robot,
-                     read_summary, read_task, read_trajectory, result_dir, write_atomically)
+from .result import (ArraysReadOnly, Trajectory, check_impacts_agree, check_same_result, clock_goes_back,
+                     directory_lock, read_robot, read_summary, read_task, read_trajectory, result_dir, write_atomically)
 from .task import MAX_STEPS, Task
 
 if TYPE_CHECKING:  # (gait imports this module)
@@ -742,6 +742,12 @@ def validate(out_dir: str | Path, options: ValidationOptions | None = None) -> V
     if summary.get("command") not in ("plan", "simulate"):  # (the hole and own-dynamics checks were skipped unsaid)
         raise InputError(f"{out_dir}/summary.json: command {shown(summary.get('command'))} is none of 'plan', "
                          "'simulate' (was the file edited?)")
+    t = traj["t"]
+    back = (clock_goes_back(t) if summary.get("converged") is False and t.ndim == 1 and t.dtype.kind in "fiu"
+            and np.all(np.isfinite(t)) else "")
+    if back:  # (refused as the input's "t must be non-decreasing", exit 2, though README offers to replay it)
+        raise SolveError(f"{out_dir} holds a failed solve's last iterate whose clock runs backwards ({back}): no "
+                         "motion MuJoCo can replay; its failure is in summary.json's message")
     if task.is_periodic and summary.get("command") == "plan":
         validation = _walk(robot, task, traj, options, _stepped_by_implicit_euler(summary, out_dir))
     else:

@@ -1244,6 +1244,18 @@ def check_impacts_agree(out_dir: str | os.PathLike, impacts, impact_times) -> No
                              f"impacts[{i}] time {said:.9g} s: the two files disagree (was one edited?)")
 
 
+def clock_goes_back(t: np.ndarray) -> str:
+    """Where the physical time t (P,) [s] of a result falls, or "" when it never does: its largest fall (by how much,
+    from and to which time, at which sample) and how many samples fall. A failed solve's last iterate may: the
+    far-hole hop's went back from 0.541 s to -0.110 s."""
+    falls = np.flatnonzero(np.diff(t) < 0)
+    if not falls.size:
+        return ""
+    k = int(falls[np.argmax(t[falls] - t[falls + 1])])
+    return (f"t falls by {t[k] - t[k + 1]:.3g} s, from {t[k]:.6g} s to {t[k + 1]:.6g} s at sample {k + 1}"
+            + (f", and falls at {falls.size - 1} more sample(s)" if falls.size > 1 else ""))
+
+
 def _json_default(obj):
     if isinstance(obj, np.generic):
         return obj.item()

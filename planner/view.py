@@ -32,8 +32,8 @@ import pinocchio as pin
 
 from .errors import InputError, PlannerError, captured_stdout, expect, real_array, signals_held
 from .model import Robot, RobotFormat, _quiet
-from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, read_robot, read_summary, read_task,
-                     read_trajectory, result_dir, write_atomically)
+from .result import (ArraysReadOnly, check_impacts_agree, check_same_result, clock_goes_back, read_robot, read_summary,
+                     read_task, read_trajectory, result_dir, write_atomically)
 
 FPS = 60  # animation keyframes per second of replay [1/s]
 ROOT = "/planner"  # every object the replay draws lives under this meshcat path
@@ -206,7 +206,11 @@ def load_result(out_dir) -> Result:
                        f"lambda_t must have lambda_n's shape {a['lambda_n'].shape}, got {a['lambda_t'].shape}"))
     for ok, message in checks:
         if not ok:
-            raise InputError(f"{npz_path}: {message}")
+            back = clock_goes_back(a["t"]) if message.startswith("t must") else ""
+            if back and summary.get("converged") is False:  # (its "t must be non-decreasing" said not why or where)
+                raise InputError(f"{directory} holds a failed solve's last iterate whose clock runs backwards "
+                                 f"({back}): no motion to show; its failure is in summary.json's message")
+            raise InputError(f"{npz_path}: {message}" + (f" ({back})" if back else ""))
     # a repeated numerical time is an instantaneous jump (`planner gait` relabels the legs at each impact): its two
     # samples become two frames 1 ns apart, so the time grid increases as the animation needs
     a["tau"] = a["tau"] + 1e-9 * np.concatenate([[0], np.cumsum(np.diff(a["tau"]) == 0)])

@@ -1109,6 +1109,34 @@ def test_validate_fails_a_plan_whose_controls_were_zeroed(tmp_path, capsys):
         validation["failures"]
 
 
+def test_a_failed_iterate_whose_clock_runs_backwards_is_said_so_by_validate_and_view(tmp_path, capsys):
+    """`planner validate DIR/failed` (which README offers for a failed solve's last iterate) and `view --html` of a
+    failed iterate whose physical time falls say in one line that its clock runs backwards, where and by how much,
+    so it is no motion to replay: validate exits 1 (a failed verdict, as for any failed iterate), view 2 (it has no
+    verdict, a result it cannot draw is refused). Both said only "t must be non-decreasing" (exit 2), the far-hole
+    hop's iterate going back from 0.541 s to -0.110 s (session 70's tester)."""
+    far = tmp_path / "far.toml"
+    far.write_text('[[contacts]]\npoint = "point"\nmu = 0.5\n[initial]\nq = [0.0, 0.0]\n'
+                   '[horizon]\ntau_f = 0.2\nN = 5\n[plan]\ntarget_q = [50.0, 0.0]\nu_bound = 1.0\n')
+    out = tmp_path / "out"
+    assert main(["plan", "point_mass", "--task", str(far), "--out", str(out), "--no-validate", "--no-race",
+                 "--no-plots", "-q", "--solve", '{"max_iter": 3}']) == 1
+    failed = out / "failed"
+    arrays = dict(np.load(failed / "trajectory.npz"))
+    t = arrays["t"].copy()
+    t[3:] -= t[3] - t[2] + 0.25  # the clock falls by 0.25 s at sample 3
+    np.savez(failed / "trajectory.npz", **{**arrays, "t": t})
+    capsys.readouterr()
+    fall = f"clock runs backwards (t falls by 0.25 s, from {t[2]:.6g} s to {t[3]:.6g} s at sample 3)"
+    assert main(["validate", str(failed)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"planner validate: failed: {failed} holds a failed solve's last iterate whose {fall}: no motion " \
+        "MuJoCo can replay; its failure is in summary.json's message"
+    assert main(["view", str(failed), "--html", str(tmp_path / "view.html")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("planner view: error: ") and fall in err and len(err.splitlines()) == 1
+
+
 @pytest.mark.parametrize("command", ["plan", "validate"])
 def test_quiet_still_says_that_a_command_failed(tmp_path, capsys, command):
     """With -q, a command that fails (exit 1: a plan that does not converge; `validate` of a result that did not

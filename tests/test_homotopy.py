@@ -1006,6 +1006,48 @@ def test_rho_f_schedule_weighs_the_regularizer_in_the_homotopy_only():
     assert all(p[-1] == 1.0 for label, p, _, _ in seen if not label.startswith("homotopy"))
 
 
+def test_a_homotopy_nlp_not_finite_at_its_start_stops_the_solve_naming_what(monkeypatch):
+    """An NLP IPOPT stops at with Invalid_Number_Detected because its functions are not finite at its start stops the
+    solve there with an InputError that names what is not finite and the NLP's weights: rho_f_schedule [1e308]
+    (finite and > 0, so accepted) overflows the objective's Hessian, and the solve ran 15 more NLPs and a retry on
+    inf and NaN (100 s, session 70's tester) before failing "out of reach". No later NLP is started."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=5))
+    labels, real_run = [], H._run
+
+    def spy(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, *args, **kwargs):
+        labels.append(label)
+        return real_run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, *args, **kwargs)
+
+    monkeypatch.setattr(H, "_run", spy)
+    with pytest.raises(InputError) as raised:
+        H.solve(prob, H.SolveOptions(rho_f_schedule=(1e308,)))
+    message = str(raised.value)
+    assert message.startswith("homotopy 1's NLP is not finite at its start: the objective's Hessian (at ")
+    assert "Invalid_Number_Detected" in message and "rho_f_schedule 1e+308" in message
+    assert labels == ["homotopy 1"]
+
+
+def test_a_failed_plan_with_physical_time_names_it_as_a_cause():
+    """A failed plan of a task with horizon.physical_time says that a T below what the motion needs makes the target
+    unreachable (physical_time = 1e-6 s failed after 35 s blaming only control bounds, holes and joint limits, session
+    70's tester); a failed plan without the key, or with T = tau_f, does not mention it."""
+    task = hop_task(N=10)
+    short = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=1e-6))
+    options = H.SolveOptions(max_iter=2, polish_after_failure=False, retry_terminal_weight=None)
+    robot = load_robot(POINT_MASS_XML)
+    failed = H.solve(build_problem(robot, short), options)
+    assert not failed.stats.converged
+    assert ("; horizon.physical_time T = 1e-06 s may be below the time the motion needs, which makes the target "
+            "unreachable: the speed of time s >= 1 only speeds the clock up, so a T below tau_f = 1 s is met only by "
+            "frozen time (docs/tasks.md, physical_time)") in failed.stats.message
+    plain = H.solve(build_problem(robot, task), options)
+    assert not plain.stats.converged and "physical_time" not in plain.stats.message
+    # T = tau_f, the paper's use, is no such cause
+    paper = dataclasses.replace(task, horizon=dataclasses.replace(task.horizon, physical_time=task.horizon.tau_f))
+    timed = H.solve(build_problem(robot, paper), options)
+    assert not timed.stats.converged and "physical_time" not in timed.stats.message
+
+
 def test_a_bound_broken_within_ipopts_relaxation_is_said_so(hop):
     """IPOPT relaxes each bound by 1e-8 of its (scaled) variable: a multiplier scaled by D = 1e5 may end at -1e-3 in
     x. _within_relaxation tells that from a real violation (the failed solve's message then says so): the same
