@@ -1150,9 +1150,10 @@ def _solve(problem: Problem, options: SolveOptions, progress: Progress | None) -
         x_start = x
         x, lam_x, lam_g, rec = _run(problem, solvers, x, lam_x, lam_g, nlp.p, problem.lbx, problem.ubx, nlp.label, nlp.lbg, nlp.ubg,
                                     loose=nlp.loose)
-        if rec.status == "Invalid_Number_Detected":
-            # IPOPT cannot leave a start where the NLP is not finite, nor can the NLPs after it: rho_f_schedule [1e308]
-            # ran 15 more NLPs and the retry on inf and NaN (100 s, 14084 iterations) before failing "out of reach"
+        if rec.status == "Invalid_Number_Detected" and rec.iterations == 0 and i == 0:
+            # IPOPT cannot leave the task's start where the NLP is not finite, nor can the NLPs after it:
+            # rho_f_schedule [1e308] ran 15 more NLPs and the retry on inf and NaN (100 s, 14084 iterations) before
+            # failing "out of reach". (A later NLP starts at an earlier one's iterate, which may go on from elsewhere.)
             _refuse_not_finite(problem, x_start, nlp)
         records.append(rec)
         if progress:
@@ -1626,9 +1627,10 @@ def _first_not_finite(m: ca.DM) -> tuple[int, int] | None:
 
 
 def _refuse_not_finite(problem: Problem, x, nlp: HomotopyNlp) -> None:
-    """InputError when homotopy NLP `nlp` is not finite at its start x (nx,): its objective's value, gradient or
-    Hessian, or a constraint block's value or Jacobian, holds NaN or inf there (the derivatives IPOPT evaluates
-    first; the rows' Hessians, which IPOPT weighs by the multipliers, are not read). Nothing when all are finite."""
+    """InputError for homotopy NLP `nlp`, which IPOPT could not evaluate at its start x (nx,), naming what: its
+    objective's value, gradient or Hessian, or a constraint block's value or Jacobian, that holds NaN or inf there;
+    else IPOPT's own derivatives, evaluated at the start pushed inside the bounds and scaled (rho_f_schedule [3e307]:
+    IPOPT's Hessian of the Lagrangian was NaN where this one's is finite, 6e307)."""
     f, g = problem.f, problem.g
     fn = ca.Function("finite_at_start", [problem.x, problem.p],
                      [f, ca.gradient(f, problem.x), ca.hessian(f, problem.x)[0], g, ca.jacobian(g, problem.x)])
@@ -1649,7 +1651,7 @@ def _refuse_not_finite(problem: Problem, x, nlp: HomotopyNlp) -> None:
                 f", {names[col]})" if kind.endswith("Hessian") else ")"))
         break
     if not what:
-        return
+        what = "IPOPT's own derivatives (its Hessian of the Lagrangian, at the start pushed inside the bounds)"
     p = dict(zip(PARAMETERS, np.asarray(nlp.p, float).ravel()))
     raise InputError(
         f"{nlp.label}'s NLP is not finite at its start: {what} is NaN or inf there, so IPOPT stopped "

@@ -923,7 +923,8 @@ def _store_in_summary(out_dir: Path, key: str, value, result_id) -> Path:
         summary = read_summary(out_dir, require=())
         if result_id is not _UNCHECKED and summary.get("result_id") != result_id:
             # (the machine's race, not the user's input: exit 1; a plan's own result is no longer anywhere)
-            raise PlannerError(f"{out_dir} was written by another run while it was validated: the verdict, of the "
+            what = "the verdict" if key == "validation" else "why it was not validated"
+            raise PlannerError(f"{out_dir} was written by another run while it was validated: {what}, of the "
                                "result that run replaced, is not stored; `planner validate DIR` judges the one there "
                                "now")
         for stale in ("validation", "validation_not_run"):

@@ -1006,11 +1006,15 @@ def test_rho_f_schedule_weighs_the_regularizer_in_the_homotopy_only():
     assert all(p[-1] == 1.0 for label, p, _, _ in seen if not label.startswith("homotopy"))
 
 
-def test_a_homotopy_nlp_not_finite_at_its_start_stops_the_solve_naming_what(monkeypatch):
-    """An NLP IPOPT stops at with Invalid_Number_Detected because its functions are not finite at its start stops the
-    solve there with an InputError that names what is not finite and the NLP's weights: rho_f_schedule [1e308]
-    (finite and > 0, so accepted) overflows the objective's Hessian, and the solve ran 15 more NLPs and a retry on
-    inf and NaN (100 s, session 70's tester) before failing "out of reach". No later NLP is started."""
+@pytest.mark.parametrize("weight, what", [
+    (1e308, "the objective's Hessian (at "),  # overflows the Hessian built here too
+    (3e307, "IPOPT's own derivatives"),  # only IPOPT's Hessian of the Lagrangian, at its pushed start, is NaN
+])
+def test_a_homotopy_nlp_not_finite_at_its_start_stops_the_solve_naming_what(monkeypatch, weight, what):
+    """The first NLP, which IPOPT stops at its start with Invalid_Number_Detected because its functions are not finite
+    there, stops the solve with an InputError that names what is not finite and the NLP's weights: rho_f_schedule
+    [1e308] (finite and > 0, so accepted) overflows the objective's Hessian, and the solve ran 15 more NLPs and a retry
+    on inf and NaN (100 s, session 70's tester) before failing "out of reach". No later NLP is started."""
     prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=5))
     labels, real_run = [], H._run
 
@@ -1020,11 +1024,32 @@ def test_a_homotopy_nlp_not_finite_at_its_start_stops_the_solve_naming_what(monk
 
     monkeypatch.setattr(H, "_run", spy)
     with pytest.raises(InputError) as raised:
-        H.solve(prob, H.SolveOptions(rho_f_schedule=(1e308,)))
+        H.solve(prob, H.SolveOptions(rho_f_schedule=(weight,)))
     message = str(raised.value)
-    assert message.startswith("homotopy 1's NLP is not finite at its start: the objective's Hessian (at ")
-    assert "Invalid_Number_Detected" in message and "rho_f_schedule 1e+308" in message
+    assert message.startswith("homotopy 1's NLP is not finite at its start: " + what)
+    assert "Invalid_Number_Detected" in message and f"rho_f_schedule {weight:g}" in message
     assert labels == ["homotopy 1"]
+
+
+def test_an_nlp_that_meets_an_invalid_number_after_its_start_goes_on(monkeypatch):
+    """Only IPOPT's stop at the task's start refuses the solve: an NLP that met an invalid number after some
+    iterations, or a later NLP (it starts at an earlier one's iterate), is a failed NLP like any other, and the
+    homotopy goes on to its next NLP and returns a PlanResult."""
+    prob = build_problem(load_robot("robots/point_mass.xml"), hop_task(N=5))
+    labels, real_run = [], H._run
+
+    def invalid(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, *args, **kwargs):
+        labels.append(label)
+        out = real_run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, *args, **kwargs)
+        if label in ("homotopy 1", "homotopy 2"):  # (1 after 3 iterations, 2 at its start)
+            out = (*out[:3], dataclasses.replace(out[3], status="Invalid_Number_Detected", success=False,
+                                                 iterations=3 if label == "homotopy 1" else 0))
+        return out
+
+    monkeypatch.setattr(H, "_run", invalid)
+    result = H.solve(prob, H.SolveOptions(retry_terminal_weight=None))
+    assert labels[:3] == ["homotopy 1", "homotopy 2", "homotopy 3"]
+    assert [r.status for r in result.nlps[:2]] == ["Invalid_Number_Detected"] * 2
 
 
 def test_a_failed_plan_with_physical_time_names_it_as_a_cause():

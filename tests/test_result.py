@@ -1656,3 +1656,12 @@ def test_a_joint_outside_its_range_of_an_older_summary_without_units_is_reported
     (old,) = outside_range_lines({"joints_outside_range": [entry]}, 10, "why")
     (new,) = outside_range_lines({"joints_outside_range": [entry | {"unit": "m"}]}, 10, "why")
     assert old == new.replace("[-1, 1] m", "[-1, 1]") and "[-1, 1] at 3 of 10 nodes (to 1.5)" in old
+
+
+def test_clock_goes_back_names_the_largest_fall_and_counts_the_others():
+    """clock_goes_back says where a result's physical time falls most (by how much, from and to which time, at which
+    sample) and how many other samples fall, and "" for a clock that never falls (repeats are no fall)."""
+    from planner.result import clock_goes_back
+    assert clock_goes_back(np.array([0.0, 0.1, 0.1, 0.2])) == ""
+    t = np.array([0.0, 0.5, 0.4, 0.6, 0.1, 0.2, 0.15])
+    assert clock_goes_back(t) == "t falls by 0.5 s, from 0.6 s to 0.1 s at sample 4, and falls at 2 more sample(s)"
