@@ -264,8 +264,8 @@ class SolveOptions:
     round 7). With variable_scaling the distance is measured in xs = x / D. It gives up after
     PROJECTION_MAX_RESTO_ITER successive restoration iterations (a projection there had left its start for good),
     which IPOPT reports as Maximum_Iterations_Exceeded below max_iter, and it stops (User_Requested_Stop)
-    PROJECTION_STALL_ITER iterations after its rows first came within constraint_tol; a projection IPOPT
-    does not finish hands over its iterate nearest feasibility when the verdict's checks accept it
+    PROJECTION_STALL_ITER iterations after its rows first came within min(constraint_tol, terminal_tol); a
+    projection IPOPT does not finish hands over its iterate nearest feasibility when the verdict's checks accept it
     (NlpRecord.kept_iteration).
     l1_schedule: with Penalty.LINF, per-NLP weight of an extra l1 sum of the products (None: 0;
     the last value repeats).
@@ -678,11 +678,12 @@ SMALL_MU_MUMPS = {"mumps_permuting_scaling": 0}
 # in it to the 3000 cap from both starts (8448 iterations, 130 s). With this cap each fails in ~300 iterations
 # (docs/formulation.md, the session-69 note after the FESD table); IPOPT's default is 3000000.
 PROJECTION_MAX_RESTO_ITER = 100
-# A projection stops this many iterations after its rows first came within the verdict's constraint_tol
-# (_NearestFeasible), and its iterate nearest feasibility is kept: the penalty replan of Capler's raced N = 40 no-holes
-# plan to its own task ran its projection to the 3000 cap (24 s) with the rows within 8e-9, the dual infeasibility
-# never below IPOPT's tol. Projections that converge take 10-20 iterations on the shipped tasks. (A rule on the rows
-# no longer halving read rounding noise: a hop's rows went 2e-15 -> 9e-16 after 35 iterations.)
+# A projection stops this many iterations after its rows first came within the verdict's constraint_tol (and
+# terminal_tol, if smaller; _NearestFeasible), and its iterate nearest feasibility is kept: the penalty replan of
+# Capler's raced N = 40 no-holes plan to its own task ran its projection to the 3000 cap (24 s) with the rows within
+# 8e-9, the dual infeasibility never below IPOPT's tol. Projections that converge take 10-20 iterations on the
+# shipped tasks. (A rule on the rows no longer halving read rounding noise: a hop's rows went 2e-15 -> 9e-16 after 35
+# iterations.)
 PROJECTION_STALL_ITER = 100
 
 
@@ -806,10 +807,10 @@ class _NearestFeasible(_StopWhenInterrupted):
     nearest their bounds, and of those within stall_tol the one nearest the projection's start (its objective; then
     the latest) (IPOPT's iterates keep the bounds of x), so that a projection IPOPT does not finish still hands over
     its feasible point (_kept_projection): at the rows' rounding floor every iterate ties, and the latest had drifted
-    from the start (a hop's iterate 68: distance 4.8e-6, where iterate 28 had 5.6e-13). Capler without holes at N = 40: the
-    projection's rows reached 1.8e-8 in 5 iterations and stayed there, above IPOPT's tol 1e-8, while the dual
-    infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4. It stops
-    IPOPT PROJECTION_STALL_ITER iterations after the rows first came within stall_tol. (CasADi calls it once more
+    from the start (a hop's iterate 68: distance 4.8e-6, where iterate 28 had 5.6e-13). Capler without holes at
+    N = 40: the projection's rows reached 1.8e-8 in 5 iterations and stayed there, above IPOPT's tol 1e-8, while the
+    dual infeasibility stayed at 4e-4; IPOPT's end point, after a restoration phase, broke the rows by 3.7e-4. It
+    stops IPOPT PROJECTION_STALL_ITER iterations after the rows first came within stall_tol. (CasADi calls it once more
     with IPOPT's final point after a restoration phase, so kept_iteration may be one past IPOPT's log.)"""
 
     def __init__(self, nlp: dict):
