@@ -1457,12 +1457,12 @@ def _run(problem, solvers, x0, lam_x, lam_g, p, lbx, ubx, label, lbg=None, ubg=N
     if projection:
         lam_x, lam_g, warm = None, None, False
         p = np.concatenate([np.asarray(x0, float) / D, p])
-        solvers.nearest_feasible.reset(problem.lbg if lbg is None else lbg, problem.ubg if ubg is None else ubg, D,
-                                       min(solvers.options.constraint_tol, solvers.options.terminal_tol))
     k = len(p) - problem.p.numel()  # the projection's p starts with its reference point
     rho, hole_scale = float(p[k]), float(p[k + 1])
     lbg = problem.lbg if lbg is None else lbg
     ubg = problem.ubg if ubg is None else ubg
+    if projection:
+        solvers.nearest_feasible.reset(lbg, ubg, D, min(solvers.options.constraint_tol, solvers.options.terminal_tol))
     args = {"x0": np.asarray(x0, float) / D, "p": p, "lbx": lbx / D, "ubx": ubx / D, "lbg": lbg, "ubg": ubg}
     if warm:
         args.update(lam_x0=np.asarray(lam_x, float) * D, lam_g0=lam_g)
